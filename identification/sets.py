@@ -1,0 +1,106 @@
+"""Read and write coefficient-set files (``udrobot-coefficients/1``, TOML).
+
+A set file holds, per translational axis (``[surge]``, ``[sway]``, ``[heave]``), tagged values
+``{ value = ..., provenance = "measured: ..." }`` for ``added_mass`` (kg), ``KL`` (N s/m),
+``KQ`` (N s^2/m^2), ``CD`` (-), and optionally ``added_mass_<form>`` for a form-specific
+added mass. The identification CLI writes this format with ``--out``.
+"""
+from __future__ import annotations
+
+import tomllib
+from pathlib import Path
+
+import numpy as np
+
+from identification.fossen import AXES, FORMS, CoefficientSet
+
+FORMAT = "udrobot-coefficients/1"
+QUANTITIES = ("added_mass", "KL", "KQ", "CD")
+
+
+def _value(entry, where):
+    if isinstance(entry, dict):
+        if "value" not in entry:
+            raise ValueError(f"{where}: expected a number or {{value = ..., provenance = ...}}")
+        return float(entry["value"]), str(entry.get("provenance", ""))
+    if isinstance(entry, (int, float)):
+        return float(entry), ""
+    raise ValueError(f"{where}: expected a number, got {entry!r}")
+
+
+def coefficient_set_from_dict(doc: dict, source: str = "<dict>") -> CoefficientSet:
+    """Build a :class:`CoefficientSet` from a parsed set document; errors name ``source``."""
+    if doc.get("format", FORMAT) != FORMAT:
+        raise ValueError(f"{source}: format {doc.get('format')!r}, expected {FORMAT!r}")
+    name = str(doc.get("name") or Path(source).stem)
+    values: dict[str, list] = {}
+    prov = {}
+    for i, axis in enumerate(AXES):
+        table = doc.get(axis)
+        if not isinstance(table, dict):
+            raise ValueError(f"{source}: missing table [{axis}]")
+        for key, entry in table.items():
+            v, p = _value(entry, f"{source}: [{axis}] {key}")
+            if not np.isfinite(v) or v < 0:
+                raise ValueError(f"{source}: [{axis}] {key} = {v}: expected a finite value >= 0")
+            values.setdefault(key, [None, None, None])[i] = v
+            prov[f"{axis}.{key}"] = p
+    for key, vals in values.items():
+        missing = [AXES[i] for i, v in enumerate(vals) if v is None]
+        if missing:
+            raise ValueError(f"{source}: {key} missing for {', '.join(missing)}")
+    if "added_mass" not in values:
+        raise ValueError(f"{source}: every set needs added_mass (kg) per axis")
+    added = {"default": np.array(values["added_mass"])}
+    for form in FORMS:
+        if f"added_mass_{form}" in values:
+            added[form] = np.array(values[f"added_mass_{form}"])
+    arr = {k: (np.array(values[k]) if k in values else None) for k in ("KL", "KQ", "CD")}
+    forms = tuple(doc.get("forms") or [f for f in FORMS if (f == "chin" and arr["KL"] is not None
+                                                          and arr["KQ"] is not None)
+                                        or (f == "morison" and arr["CD"] is not None)])
+    return CoefficientSet(name=name, added_mass=added, forms=forms, description=str(doc.get("description", "")),
+                          provenance=prov, **arr)
+
+
+def load_coefficient_set(path) -> CoefficientSet:
+    """Load a coefficient-set TOML file."""
+    path = Path(path)
+    try:
+        with open(path, "rb") as fh:
+            doc = tomllib.load(fh)
+    except tomllib.TOMLDecodeError as exc:
+        raise ValueError(f"{path}: not valid TOML ({exc})") from exc
+    return coefficient_set_from_dict(doc, str(path))
+
+
+def _toml_str(s: str) -> str:
+    return '"' + s.replace("\\", "\\\\").replace('"', '\\"') + '"'
+
+
+def dump_coefficient_set(name: str, per_axis: dict, provenance: dict | None = None,
+                         description: str = "") -> str:
+    """TOML text of a set. ``per_axis = {"added_mass": (3,), "KL": (3,), ...}``; None entries skipped."""
+    provenance = provenance or {}
+    lines = [f"format = {_toml_str(FORMAT)}", f"name = {_toml_str(name)}",
+             f"description = {_toml_str(description)}", ""]
+    for i, axis in enumerate(AXES):
+        lines.append(f"[{axis}]")
+        for key, vals in per_axis.items():
+            if vals is None:
+                continue
+            v = float(np.asarray(vals, float)[i])
+            p = provenance.get(key, "measured")
+            lines.append(f"{key} = {{ value = {v!r}, provenance = {_toml_str(p)} }}")
+        lines.append("")
+    return "\n".join(lines)
+
+
+def write_coefficient_set(path, name, per_axis, provenance=None, description="") -> None:
+    """Write a set file atomically (never leaves a half-written file)."""
+    path = Path(path)
+    text = dump_coefficient_set(name, per_axis, provenance, description)
+    coefficient_set_from_dict(tomllib.loads(text), str(path))  # validate before writing
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(text)
+    tmp.replace(path)

@@ -1,0 +1,1 @@
+"""udrobot_ctrl.io"""

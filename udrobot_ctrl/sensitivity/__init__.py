@@ -1,0 +1,1 @@
+"""Coefficient sensitivity studies (local, Sobol, Morris) on executors."""

@@ -1,0 +1,270 @@
+"""The vehicle: rigid body, restoring, hydrodynamic matrices and thrusters as plain data.
+
+A :class:`Vehicle` is exactly the content of a ``udrobot-model/1`` file
+(../shared/spec/model_export.md): it is built from a model name ``SET:FORM``
+(``pendulum:chin`` ...) or read from such a file, and written back by :func:`to_model_dict`.
+"""
+from __future__ import annotations
+
+import json
+import tomllib
+from dataclasses import dataclass, field, replace
+from importlib import resources
+from pathlib import Path
+
+import numpy as np
+
+from identification import fossen
+from identification.sets import coefficient_set_from_dict
+
+MODEL_FORMAT = "udrobot-model/1"
+MODEL_NAMES = ("cfd:chin", "cfd:morison", "free_decay:morison", "pendulum:chin", "pendulum:morison")
+DOF_NAMES = ("X", "Y", "Z", "K", "M", "N")
+STATE_NAMES = ("x", "y", "z", "phi", "theta", "psi", "u", "v", "w", "p", "q", "r")
+
+
+@dataclass(frozen=True)
+class Thruster:
+    """One thruster: position (m, body frame), unit direction of positive thrust, limits (N)."""
+
+    name: str
+    position: tuple
+    direction: tuple
+    max_forward_N: float
+    max_reverse_N: float
+
+
+@dataclass(frozen=True)
+class Vehicle:
+    """Nominal 6-DOF plant parameters (SI units, body frame at CO, SNAME axes).
+
+    Attributes
+    ----------
+    mass : float
+        Rigid-body mass, kg.
+    inertia_cg : (3, 3) ndarray
+        Inertia about the CG in body axes, kg m^2.
+    r_g, r_b : (3,) ndarray
+        Centres of gravity and buoyancy relative to CO, m.
+    weight, buoyancy : float
+        W = m g and B = rho g V, N.
+    added_mass, linear_damping, quadratic_damping : (6, 6) ndarray
+        M_A (kg, kg m^2), D_L (N s/m, N m s) and Q with D_n(nu)_ij = Q_ij |nu_j|.
+    thrusters : tuple of Thruster
+    provenance : dict
+        ``{"field[i][j]": "measured: ..."}`` for every non-default number.
+    """
+
+    name: str
+    mass: float
+    inertia_cg: np.ndarray
+    r_g: np.ndarray
+    r_b: np.ndarray
+    weight: float
+    buoyancy: float
+    added_mass: np.ndarray
+    linear_damping: np.ndarray
+    quadratic_damping: np.ndarray
+    thrusters: tuple
+    rho: float = 1000.0
+    g: float = 9.81
+    provenance: dict = field(default_factory=dict)
+    extras: dict = field(default_factory=dict)
+
+    @property
+    def n_thrusters(self) -> int:
+        return len(self.thrusters)
+
+    def with_changes(self, **changes) -> "Vehicle":
+        """A copy with some fields replaced (e.g. a scaled damping for a sensitivity study)."""
+        return replace(self, **changes)
+
+
+# ----------------------------------------------------------------------------- loading
+def _models_dir():
+    return resources.files("udrobot_ctrl.models")
+
+
+def _read_toml(name: str) -> dict:
+    res = _models_dir().joinpath(name)
+    if not res.is_file():
+        raise FileNotFoundError(f"model data file {name!r} is not shipped in udrobot_ctrl.models")
+    return tomllib.loads(res.read_text())
+
+
+def _tagged(entry, where, prov, key):
+    if isinstance(entry, dict):
+        prov[key] = entry.get("provenance", "")
+        return entry["value"]
+    return entry
+
+
+def vehicle_description(name: str = "udrobot") -> dict:
+    """Raw vehicle description (geometry, inertia, thrusters) from ``models/NAME.toml``."""
+    return _read_toml(f"{name}.toml")
+
+
+def coefficient_set(name: str) -> fossen.CoefficientSet:
+    """Shipped coefficient set ``cfd``, ``free_decay`` or ``pendulum``, or a path to a set file."""
+    path = Path(name)
+    if path.suffix == ".toml" and path.exists():
+        from identification.sets import load_coefficient_set
+
+        return load_coefficient_set(path)
+    if name not in ("cfd", "free_decay", "pendulum"):
+        raise ValueError(f"unknown coefficient set {name!r}: expected cfd, free_decay, pendulum or a .toml path")
+    return coefficient_set_from_dict(_read_toml(f"{name}.toml"), f"models/{name}.toml")
+
+
+def build_vehicle(set_name: str, form: str, description: dict | None = None) -> Vehicle:
+    """Assemble the nominal plant from the vehicle description and a coefficient set.
+
+    Parameters
+    ----------
+    set_name : str
+        ``cfd``, ``free_decay``, ``pendulum`` or a path to a coefficient-set TOML.
+    form : {'chin', 'morison'}
+        Damping form.
+    description : dict, optional
+        Parsed vehicle description; the shipped UDrobot by default.
+    """
+    d = description or vehicle_description()
+    prov: dict = {}
+    rho = float(_tagged(d["rho"], "rho", prov, "rho"))
+    g = float(_tagged(d["g"], "g", prov, "g"))
+    mass = float(_tagged(d["mass"], "mass", prov, "mass"))
+    volume = float(_tagged(d["displaced_volume"], "displaced_volume", prov, "buoyancy"))
+    prov["weight"] = "derived: mass * g"
+    prov["buoyancy"] = "derived: rho * g * displaced_volume; " + prov["buoyancy"]
+    inertia = np.array(_tagged(d["inertia_cg"], "inertia_cg", prov, "inertia_cg"), dtype=float)
+    r_g = np.array(_tagged(d["r_g"], "r_g", prov, "r_g"), dtype=float)
+    r_b = np.array(_tagged(d["r_b"], "r_b", prov, "r_b"), dtype=float)
+    dims = np.array([_tagged(d["geometry"][k], k, prov, f"geometry.{k}") for k in ("length", "width", "height")])
+    area = np.array([_tagged(d["projected_area"][k], k, prov, f"projected_area.{k}")
+                     for k in fossen.AXES])
+    tm = d["thruster_model"]
+    fwd = float(_tagged(tm["max_forward_N"], "", prov, "thrusters.max_forward_N"))
+    rev = float(_tagged(tm["max_reverse_N"], "", prov, "thrusters.max_reverse_N"))
+    thrusters = []
+    for i, t in enumerate(d["thrusters"]):
+        thrusters.append(Thruster(t["name"], tuple(float(v) for v in t["position"]),
+                                  tuple(float(v) for v in t["direction"]), fwd, rev))
+        prov[f"thrusters[{i}]"] = t.get("provenance", "")
+    coeffs = coefficient_set(set_name)
+    M_A = fossen.added_mass_matrix(coeffs, form, dims)
+    D_L, Q = fossen.damping_matrices(coeffs, form, dims, area, rho)
+    prov.update(fossen.provenance_entries(coeffs, form))
+    return Vehicle(
+        name=f"{coeffs.name}:{form}", mass=mass, inertia_cg=inertia, r_g=r_g, r_b=r_b,
+        weight=mass * g, buoyancy=rho * g * volume, added_mass=M_A, linear_damping=D_L,
+        quadratic_damping=Q, thrusters=tuple(thrusters), rho=rho, g=g, provenance=prov,
+        extras={"dims": dims, "projected_area": area, "thruster_model": tm.get("name", "t200"),
+                "voltage": float(_tagged(tm.get("voltage", 12.0), "", prov, "thrusters.voltage"))},
+    )
+
+
+def load_model(model) -> Vehicle:
+    """A :class:`Vehicle` from a model name ``SET:FORM``, a ``udrobot-model/1`` JSON path, or a Vehicle."""
+    if isinstance(model, Vehicle):
+        return model
+    text = str(model)
+    path = Path(text)
+    if path.suffix.lower() == ".json" or (path.exists() and path.is_file()):
+        return read_model_file(path)
+    if ":" not in text:
+        raise ValueError(f"model {text!r}: expected SET:FORM (one of {', '.join(MODEL_NAMES)}) or a model file")
+    set_name, form = text.rsplit(":", 1)
+    return build_vehicle(set_name, form)
+
+
+# ----------------------------------------------------------------------------- udrobot-model/1
+def to_model_dict(v: Vehicle) -> dict:
+    """The ``udrobot-model/1`` document of a vehicle."""
+    return {
+        "format": MODEL_FORMAT,
+        "name": v.name,
+        "rho": v.rho,
+        "g": v.g,
+        "mass": v.mass,
+        "inertia_cg": np.asarray(v.inertia_cg).tolist(),
+        "r_g": np.asarray(v.r_g).tolist(),
+        "r_b": np.asarray(v.r_b).tolist(),
+        "weight": v.weight,
+        "buoyancy": v.buoyancy,
+        "added_mass": np.asarray(v.added_mass).tolist(),
+        "linear_damping": np.asarray(v.linear_damping).tolist(),
+        "quadratic_damping": np.asarray(v.quadratic_damping).tolist(),
+        "thrusters": [
+            {"name": t.name, "position": list(t.position), "direction": list(t.direction),
+             "max_forward_N": t.max_forward_N, "max_reverse_N": t.max_reverse_N}
+            for t in v.thrusters
+        ],
+        "provenance": dict(v.provenance),
+    }
+
+
+def _matrix(doc, key, shape, src):
+    if key not in doc:
+        raise ValueError(f"{src}: missing field {key!r}")
+    try:
+        a = np.array(doc[key], dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{src}: field {key!r} is not numeric ({exc})") from exc
+    if a.shape != shape:
+        raise ValueError(f"{src}: field {key!r} has shape {a.shape}, expected {shape}")
+    if not np.all(np.isfinite(a)):
+        raise ValueError(f"{src}: field {key!r} has non-finite entries")
+    return a
+
+
+def model_from_dict(doc: dict, source: str = "<dict>") -> Vehicle:
+    """Parse a ``udrobot-model/1`` document; errors name the source and field."""
+    if doc.get("format") != MODEL_FORMAT:
+        raise ValueError(f"{source}: field 'format' is {doc.get('format')!r}, expected {MODEL_FORMAT!r}")
+    scal = {}
+    for key in ("rho", "g", "mass", "weight", "buoyancy"):
+        if key not in doc:
+            raise ValueError(f"{source}: missing field {key!r}")
+        try:
+            scal[key] = float(doc[key])
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"{source}: field {key!r} must be a number") from exc
+        if not np.isfinite(scal[key]) or scal[key] <= 0 and key != "buoyancy":
+            raise ValueError(f"{source}: field {key!r} = {doc[key]!r} must be finite and > 0")
+    thrusters = []
+    for i, t in enumerate(doc.get("thrusters", [])):
+        try:
+            thrusters.append(Thruster(str(t["name"]), tuple(float(x) for x in t["position"]),
+                                      tuple(float(x) for x in t["direction"]),
+                                      float(t["max_forward_N"]), float(t["max_reverse_N"])))
+        except (KeyError, TypeError, ValueError) as exc:
+            raise ValueError(f"{source}: thrusters[{i}] is malformed ({exc})") from exc
+    return Vehicle(
+        name=str(doc.get("name", Path(source).stem)), mass=scal["mass"],
+        inertia_cg=_matrix(doc, "inertia_cg", (3, 3), source), r_g=_matrix(doc, "r_g", (3,), source),
+        r_b=_matrix(doc, "r_b", (3,), source), weight=scal["weight"], buoyancy=scal["buoyancy"],
+        added_mass=_matrix(doc, "added_mass", (6, 6), source),
+        linear_damping=_matrix(doc, "linear_damping", (6, 6), source),
+        quadratic_damping=_matrix(doc, "quadratic_damping", (6, 6), source),
+        thrusters=tuple(thrusters), rho=scal["rho"], g=scal["g"], provenance=dict(doc.get("provenance", {})),
+    )
+
+
+def read_model_file(path) -> Vehicle:
+    """Read a ``udrobot-model/1`` JSON file."""
+    path = Path(path)
+    try:
+        doc = json.loads(path.read_text())
+    except FileNotFoundError:
+        raise FileNotFoundError(f"model file {path} does not exist") from None
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"{path}: not valid JSON (line {exc.lineno}, column {exc.colno}: {exc.msg})") from exc
+    return model_from_dict(doc, str(path))
+
+
+def write_model_file(v: Vehicle, path) -> None:
+    """Write ``udrobot-model/1`` JSON atomically."""
+    path = Path(path)
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(json.dumps(to_model_dict(v), indent=2))
+    tmp.replace(path)
