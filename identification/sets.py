@@ -7,10 +7,10 @@ added mass. The identification CLI writes this format with ``--out``.
 """
 from __future__ import annotations
 
-import tomllib
 from pathlib import Path
 
 import numpy as np
+import tomllib
 
 from identification.fossen import AXES, FORMS, CoefficientSet
 

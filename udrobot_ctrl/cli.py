@@ -31,7 +31,7 @@ def build_parser(only: str | None = None) -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True)
     for name, module in COMMANDS.items():
         if only is not None and name != only:
-            sub.add_parser(name, help="(see udrobot-ctrl %s --help)" % name, add_help=False)
+            sub.add_parser(name, help=f"(see udrobot-ctrl {name} --help)", add_help=False)
             continue
         try:
             mod = importlib.import_module(module)

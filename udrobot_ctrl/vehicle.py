@@ -7,12 +7,12 @@ A :class:`Vehicle` is exactly the content of a ``udrobot-model/1`` file
 from __future__ import annotations
 
 import json
-import tomllib
 from dataclasses import dataclass, field, replace
 from importlib import resources
 from pathlib import Path
 
 import numpy as np
+import tomllib
 
 from identification import fossen
 from identification.sets import coefficient_set_from_dict
@@ -75,7 +75,7 @@ class Vehicle:
     def n_thrusters(self) -> int:
         return len(self.thrusters)
 
-    def with_changes(self, **changes) -> "Vehicle":
+    def with_changes(self, **changes) -> Vehicle:
         """A copy with some fields replaced (e.g. a scaled damping for a sensitivity study)."""
         return replace(self, **changes)
 
