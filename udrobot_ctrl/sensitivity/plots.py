@@ -1,0 +1,86 @@
+"""Plots of sensitivity results: tornado (local / one-at-a-time) and Sobol / Morris index bars with CIs.
+
+matplotlib is imported lazily; every function returns the Figure and saves it when ``path`` is given.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+
+def _plt():
+    import matplotlib
+
+    if matplotlib.get_backend().lower() not in ("agg", "pdf", "svg") and not _has_display():
+        matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def _has_display() -> bool:
+    import os
+
+    return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
+
+
+def tornado(local_result, metric: str, top: int | None = 12, path=None, unit: str = "", title: str | None = None):
+    """Tornado plot: metric with each coefficient at the low / high end of its range, others nominal.
+
+    Bars are sorted by the size of the swing; the vertical line is the nominal metric. Parameters whose
+    finite-difference derivative is flagged unreliable (non-smooth metric) are marked with ``*``.
+    """
+    plt = _plt()
+    r = local_result
+    base = r.base[metric]
+    lo, hi = np.asarray(r.low[metric]), np.asarray(r.high[metric])
+    order = np.argsort(-np.nan_to_num(np.abs(hi - lo), nan=-1.0))
+    if top:
+        order = order[:top]
+    order = order[::-1]
+    rel = r.reliable(metric)
+    labels = [r.names[j] + ("" if rel[j] else " *") for j in order]
+    fig, ax = plt.subplots(figsize=(7, 0.35 * len(order) + 1.5))
+    y = np.arange(len(order))
+    ax.barh(y, lo[order] - base, left=base, color="tab:blue", label="coefficient at range low")
+    ax.barh(y, hi[order] - base, left=base, color="tab:orange", alpha=0.8, label="coefficient at range high")
+    ax.axvline(base, color="k", lw=1)
+    ax.set_yticks(y, labels)
+    ax.set_xlabel(f"{metric}{f' ({unit})' if unit else ''}")
+    ax.set_title(title or f"Tornado: {metric} (nominal {base:.4g}); * = non-smooth")
+    ax.legend(loc="lower right", fontsize="small")
+    fig.tight_layout()
+    if path:
+        fig.savefig(path, dpi=120)
+    return fig
+
+
+def sobol_bars(global_result, metric: str, top: int | None = 12, path=None, title: str | None = None):
+    """Bar plot of first-order (S1) and total (ST) Sobol indices with their confidence intervals."""
+    plt = _plt()
+    r = global_result
+    idx = r.indices[metric]
+    if r.method == "morris":
+        keys = (("mu_star", "mu_star_conf", "mu*"), ("sigma", None, "sigma"))
+    else:
+        keys = (("S1", "S1_conf", "S1 (first order)"), ("ST", "ST_conf", "ST (total)"))
+    main = np.nan_to_num(np.asarray(idx[keys[1][0] if r.method == "sobol" else keys[0][0]]), nan=-1.0)
+    order = np.argsort(-main)
+    if top:
+        order = order[:top]
+    x = np.arange(len(order))
+    fig, ax = plt.subplots(figsize=(max(6, 0.6 * len(order) + 2), 4))
+    w = 0.38
+    for k, (key, conf, label) in enumerate(keys):
+        vals = np.asarray(idx[key])[order]
+        err = np.asarray(idx[conf])[order] if conf else None
+        ax.bar(x + (k - 0.5) * w, vals, w, yerr=err, capsize=3, label=label)
+    ax.set_xticks(x, [r.names[j] for j in order], rotation=40, ha="right")
+    ax.axhline(0, color="k", lw=0.8)
+    ax.set_ylabel("index" if r.method == "sobol" else f"{metric} units")
+    ax.set_title(title or f"{r.method.capitalize()} indices of {metric} ({int(r.conf_level * 100)} % CI, "
+                 f"{r.n_runs} runs)")
+    ax.legend(fontsize="small")
+    fig.tight_layout()
+    if path:
+        fig.savefig(path, dpi=120)
+    return fig
