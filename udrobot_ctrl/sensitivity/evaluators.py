@@ -35,7 +35,8 @@ class TerminalSurgeSpeed:
         self.space, self.thrust_N, self.t_final, self.dt = space, float(thrust_N), float(t_final), float(dt)
 
     def describe(self) -> str:
-        return f"terminal surge speed, {self.thrust_N} N for {self.t_final} s, dt {self.dt} s, model {self.space.vehicle.name}"
+        return (f"terminal surge speed, {self.thrust_N} N for {self.t_final} s, dt {self.dt} s, "
+                f"model {self.space.vehicle.name}")
 
     def __call__(self, X):
         vehicles, errors = _vehicles(self.space, X)

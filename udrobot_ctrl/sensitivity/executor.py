@@ -197,18 +197,13 @@ def run_sweep(evaluator, X, executor=None, store=None, chunk_size: int | None = 
         size = chunk_size or default_chunk_size(len(todo), ex.workers, max_chunk)
         chunks = [todo[i:i + size] for i in range(0, len(todo), size)]
         bar = progress_bar(len(todo), desc, progress)
-        futures = [ex.submit(_run_chunk, evaluator, ids, X[ids]) for ids in chunks]
         try:
-            for fut in ex.as_completed(futures):
-                ids, metrics, errors, _ = fut.result()
+            for ids, metrics, errors, _ in _completed(ex, evaluator, chunks, X):
                 if store is not None:
                     store.write_chunk(ids, metrics, errors)
                 else:
                     mem.append((ids, metrics, errors))
                 bar.update(len(ids))
-        except BaseException:
-            ex.cancel(futures)
-            raise
         finally:
             bar.close()
     finally:
@@ -217,6 +212,21 @@ def run_sweep(evaluator, X, executor=None, store=None, chunk_size: int | None = 
     if store is not None:
         return store.table()
     return _assemble(mem)
+
+
+def _completed(ex: SweepExecutor, evaluator, chunks, X):
+    """Yield chunk results as they finish (in order for the serial executor, so each is saved at once)."""
+    if ex.kind == "serial":
+        for ids in chunks:
+            yield _run_chunk(evaluator, ids, X[ids])
+        return
+    futures = [ex.submit(_run_chunk, evaluator, ids, X[ids]) for ids in chunks]
+    try:
+        for fut in ex.as_completed(futures):
+            yield fut.result()
+    except BaseException:
+        ex.cancel(futures)
+        raise
 
 
 def _assemble(parts) -> dict:

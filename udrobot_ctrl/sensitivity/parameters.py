@@ -290,6 +290,8 @@ def apply_sample(space: ParameterSpace, values, vehicle: Vehicle | None = None) 
     for p, v in zip(space.parameters, values):
         if not np.isfinite(v) or v < 0:
             raise ValueError(f"parameter {p.name} = {v}: expected a finite value >= 0")
+        if v == p.nominal and vehicle is space.vehicle:
+            continue  # keep the nominal entry bit-for-bit (C_D -> K_D round trip would change the last digit)
         j = p.dof
         q = p.quantity
         if q == "CD":
