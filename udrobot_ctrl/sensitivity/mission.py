@@ -1,0 +1,202 @@
+"""A short depth-and-heading mission (at a cruise speed) with a batch-capable LQR, and its metrics.
+
+This is the sensitivity package's *fast path*: the controller is a constant gain, so one chunk of
+perturbed vehicles is simulated at once (:mod:`udrobot_ctrl.sensitivity.batch`). Metrics are
+computed for all vehicles of the batch with the same definitions as :mod:`udrobot_ctrl.metrics` where
+that module exists (IAE, overshoot, settling time, thrust energy, saturation) plus the maximum speed.
+
+LQR design: the plant (casadi twin) is linearised at the cruise point (surge speed ``surge_mps``, level,
+at rest otherwise) with the trim thrust that balances the design model's drag and net buoyancy there
+(feed-forward); the design uses the controllable states z, phi, psi, u, w, p, r (sway and pitch are
+passive on UDrobot: no thruster acts on them). Control law
+``f = f_trim - K (x_r - x_ref_r)`` with the heading error wrapped to [-pi, pi], clipped by the thrusters.
+There is no integral action, so a plant whose surge drag differs from the design model's settles at a
+different speed: that is how a wrong C_D / K_Q shows in closed loop. At hover (``surge_mps = 0``)
+the quadratic damping has zero slope and the design sees only K_L and the added mass.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from udrobot_ctrl.plant import plant_parameters
+
+CONTROLLED = (2, 3, 5, 6, 8, 9, 11)  # z phi psi u w p r
+
+
+@dataclass(frozen=True)
+class DepthHeadingMission:
+    """Steps to ``depth_m`` (m, NED z positive down) and ``heading_rad`` while cruising at ``surge_mps``.
+
+    Attributes
+    ----------
+    depth_m, heading_rad, surge_mps : float
+        References (m, rad, m/s); the vehicle starts at the surface origin at the cruise speed.
+    t_final, dt : float
+        Duration and integration / control step (s). dt 0.02-0.05 keeps sweeps cheap; RK4 is stable
+        for the LQR closed loop up to ~0.1 s (fastest pole ~ -20 rad/s).
+    settle_band : float
+        Settling band as a fraction of the step (2 %).
+    """
+
+    depth_m: float = 1.0
+    heading_rad: float = np.pi / 2
+    surge_mps: float = 0.5
+    t_final: float = 20.0
+    dt: float = 0.04
+    settle_band: float = 0.02
+
+    def x0(self) -> np.ndarray:
+        """Initial state: at the surface origin, level, cruising at ``surge_mps``."""
+        x = np.zeros(12)
+        x[6] = self.surge_mps
+        return x
+
+    def operating_point(self) -> np.ndarray:
+        """Linearisation point: level, heading 0, surge speed ``surge_mps``."""
+        return self.x0()
+
+    def reference(self) -> np.ndarray:
+        ref = np.zeros(12)
+        ref[2], ref[5], ref[6] = self.depth_m, self.heading_rad, self.surge_mps
+        return ref
+
+
+@dataclass(frozen=True)
+class LQRWeights:
+    """Bryson weights: maximum acceptable deviation per controlled state and thrust (assumed values)."""
+
+    z: float = 0.1
+    phi: float = 0.1
+    psi: float = 0.1
+    u: float = 0.2
+    w: float = 0.2
+    p: float = 0.5
+    r: float = 0.5
+    thrust_N: float = 10.0
+
+
+def trim_thrust(p, x_op) -> np.ndarray:
+    """Thrusts (N) whose wrench balances damping, Coriolis and restoring forces at ``x_op`` (least squares)."""
+    from udrobot_ctrl.plant import generalized_forces
+
+    return np.linalg.lstsq(p.T, generalized_forces(np.asarray(x_op, float), p), rcond=None)[0]
+
+
+def linearise(p, x_op):
+    """(A, B, f_trim): continuous linearisation of the thrust-input plant at ``x_op`` (casadi, exact)."""
+    import casadi as ca
+
+    from udrobot_ctrl.plant_casadi import dynamics_function
+
+    f = dynamics_function(p, "thrust")
+    x = ca.SX.sym("x", 12)
+    u = ca.SX.sym("u", p.T.shape[1])
+    jac = ca.Function("op_jacobians", [x, u], [ca.jacobian(f(x, u), x), ca.jacobian(f(x, u), u)])
+    trim = trim_thrust(p, x_op)
+    A, B = jac(np.asarray(x_op, float), trim)
+    return np.array(A), np.array(B), trim
+
+
+def lqr_gain(vehicle, weights: LQRWeights = LQRWeights(), mission: DepthHeadingMission | None = None):
+    """LQR gain K (n_thr x 7) on the controlled states and the trim thrust at the mission's cruise point."""
+    import control
+
+    p = plant_parameters(vehicle)
+    x_op = (mission or DepthHeadingMission()).operating_point()
+    A, B, trim = linearise(p, x_op)
+    idx = list(CONTROLLED)
+    Ar, Br = A[np.ix_(idx, idx)], B[idx]
+    w = weights
+    Q = np.diag(1.0 / np.array([w.z, w.phi, w.psi, w.u, w.w, w.p, w.r]) ** 2)
+    R = np.eye(Br.shape[1]) / w.thrust_N**2
+    K, _, _ = control.lqr(Ar, Br, Q, R)
+    return np.asarray(K), trim
+
+
+class BatchLQR:
+    """``controller(t, x (N, 12)) -> thrusts (N, n)``; ``K`` (n, 7) shared or (N, n, 7) per vehicle."""
+
+    def __init__(self, K, trim, mission: DepthHeadingMission):
+        self.K, self.trim = np.asarray(K, float), np.asarray(trim, float)
+        self.ref = mission.reference()[list(CONTROLLED)]
+
+    def __call__(self, t, x):
+        x = np.atleast_2d(x)
+        e = x[:, list(CONTROLLED)] - self.ref
+        e[:, 2] = (e[:, 2] + np.pi) % (2 * np.pi) - np.pi  # heading error wrapped
+        if self.K.ndim == 3:
+            return self.trim - np.einsum("nij,nj->ni", self.K, e)
+        return self.trim - e @ self.K.T
+
+
+def _settling_time(t, err, band):
+    """Last time |err| leaves the band, interpolated between samples (continuous in the parameters).
+
+    Returns (time, settled): an unsettled response returns t[-1] and False (censored).
+    """
+    out = np.zeros(err.shape[1])
+    settled = np.ones(err.shape[1], bool)
+    a = np.abs(err) - band  # > 0 outside the band
+    for j in range(err.shape[1]):
+        col = a[:, j]
+        if not np.all(np.isfinite(col)):
+            out[j], settled[j] = np.nan, False
+            continue
+        outside = np.nonzero(col > 0)[0]
+        if outside.size == 0:
+            out[j] = t[0]
+        elif outside[-1] == len(t) - 1:
+            out[j], settled[j] = t[-1], False
+        else:
+            k = outside[-1]
+            frac = col[k] / (col[k] - col[k + 1])
+            out[j] = t[k] + frac * (t[k + 1] - t[k])
+    return out, settled
+
+
+T200_DISK_AREA = np.pi * 0.038**2  # m^2; assumed: 76 mm T200 propeller diameter (Blue Robotics datasheet)
+
+
+def mission_metrics(res, mission: DepthHeadingMission, f_min, f_max, rho: float = 1000.0) -> dict:
+    """Closed-loop metrics of a batch simulation (every entry is an (N,) array).
+
+    * ``iae_depth`` (m s), ``iae_heading`` (rad s): integral of |error| (rectangle rule on the RK4 grid);
+    * ``overshoot_depth``, ``overshoot_heading`` (%): peak beyond the reference, % of the step;
+    * ``settling_depth``, ``settling_heading`` (s): last exit from the +-2 % band, interpolated between
+      steps (``t_final`` when not settled; ``unsettled`` counts such responses, 0-2 per vehicle);
+    * ``iae_speed`` (m): integral of |u - surge_mps|; ``speed_error`` (m/s): final u - surge_mps;
+    * ``energy`` (J): ideal actuator-disk (momentum theory) energy of the applied thrusts,
+      integral of sum_i |f_i|^1.5 / sqrt(2 rho A_disk); *estimated*, a lower bound of the electrical
+      energy (zero advance speed, 100 % efficiency);
+    * ``thrust_effort`` (N^2 s): integral of sum_i f_i^2;
+    * ``saturation`` (-): fraction of control steps with a thruster saturated;
+    * ``max_speed`` (m/s): maximum body-frame translational speed.
+    """
+    t = res.t
+    x = res.x
+    dt = np.diff(t)[:, None]
+    e_z = x[:, :, 2] - mission.depth_m
+    e_psi = (x[:, :, 5] - mission.heading_rad + np.pi) % (2 * np.pi) - np.pi
+    iae_z = np.sum(np.abs(e_z[1:]) * dt, axis=0)
+    iae_psi = np.sum(np.abs(e_psi[1:]) * dt, axis=0)
+    e_u = x[:, :, 6] - mission.surge_mps
+    over_z = np.max(e_z * np.sign(mission.depth_m), axis=0) / abs(mission.depth_m) * 100.0
+    over_psi = np.max(e_psi * np.sign(mission.heading_rad), axis=0) / abs(mission.heading_rad) * 100.0
+    ts_z, ok_z = _settling_time(t, e_z, mission.settle_band * abs(mission.depth_m))
+    ts_psi, ok_psi = _settling_time(t, e_psi, mission.settle_band * abs(mission.heading_rad))
+    f = np.clip(res.u, f_min, f_max)
+    power = np.sum(np.abs(f) ** 1.5, axis=-1) / np.sqrt(2 * rho * T200_DISK_AREA)
+    speed = np.linalg.norm(x[:, :, 6:9], axis=-1)
+    return {
+        "iae_depth": iae_z, "iae_heading": iae_psi, "iae_speed": np.sum(np.abs(e_u[1:]) * dt, axis=0),
+        "speed_error": e_u[-1],
+        "overshoot_depth": np.maximum(over_z, 0.0), "overshoot_heading": np.maximum(over_psi, 0.0),
+        "settling_depth": ts_z, "settling_heading": ts_psi,
+        "energy": np.sum(power * dt, axis=0),
+        "thrust_effort": np.sum(np.sum(f**2, axis=-1) * dt, axis=0),
+        "saturation": np.mean(res.saturated, axis=0),
+        "max_speed": np.max(speed, axis=0),
+        "unsettled": (~ok_z).astype(float) + (~ok_psi).astype(float),
+    }
