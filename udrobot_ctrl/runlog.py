@@ -1,0 +1,573 @@
+"""Run logs in the ``udrobot-run/1`` format (../shared/spec/runlog.md): read, validate, write, resample.
+
+A run is one logged manoeuvre: a CSV ``NAME.csv`` (one header row, one row per sample, SI units,
+radians) and an optional sidecar ``NAME.json`` with the set-up metadata.
+
+Reading is strict. Every rejection raises :class:`RunLogError` naming the file, the row and the
+column. Rows are counted two ways and both are given: the *data row* (1-based, the header is not
+counted) and the *file line* (1-based physical line of the file, the header is line 1).
+A reader never drops a row: the returned run has exactly one sample per data line of the file.
+
+Choices the spec leaves open (stated here so callers can rely on them):
+
+- Header names are stripped of surrounding white space; a UTF-8 byte-order mark is accepted.
+- A file must hold at least one data row. Blank lines are accepted only at the end of the file.
+- Numeric cells are ASCII decimal numbers (``1``, ``-2.5``, ``3e-4``). Empty cells and ``nan``
+  (any case, optional sign) mean "not measured". ``inf``, ``1_000``, hex or non-ASCII digits are rejected.
+- ``t`` must be finite in every row (a sample without a time cannot be placed).
+- Input cells may be empty/``nan`` (command not logged at that sample); they are never invented here.
+- If more than one complete input set is present (e.g. ``thrust_i`` *and* ``pwm_i``), the first in the
+  order thrust, pwm, tau is the run's input and the others are kept in :attr:`Run.extra`.
+  A partial set (``tau_X`` without ``tau_Y``..., or ``thrust_1, thrust_3`` without ``thrust_2``) is an error.
+- Unknown columns are kept in :attr:`Run.extra`: as a float array when every cell is numeric or
+  empty (infinities allowed there, since the column is ignored), else as an array of the raw strings.
+"""
+from __future__ import annotations
+
+import csv
+import io
+import json
+import math
+import os
+import re
+import tempfile
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+
+FORMAT = "udrobot-run/1"
+STATE_CHANNELS = ("x", "y", "z", "phi", "theta", "psi", "u", "v", "w", "p", "q", "r")
+OTHER_CHANNELS = ("altitude", "voltage")
+CHANNELS = STATE_CHANNELS + OTHER_CHANNELS
+ANGLE_CHANNELS = ("phi", "theta", "psi")
+TAU_COLUMNS = ("tau_X", "tau_Y", "tau_Z", "tau_K", "tau_M", "tau_N")
+INPUT_KINDS = ("thrust", "pwm", "tau")
+METADATA_KEYS = ("format", "vehicle", "water_density", "seabed_depth", "walls", "notes")
+
+_INDEXED_INPUT = re.compile(r"^(thrust|pwm)_(\d+)$")
+_NUMBER = re.compile(r"^[+-]?(\d+(\.\d*)?|\.\d+)([eE][+-]?\d+)?$")
+_NAN = re.compile(r"^[+-]?nan$", re.IGNORECASE)
+_INF = re.compile(r"^[+-]?(inf|infinity)$", re.IGNORECASE)
+
+
+class RunLogError(ValueError):
+    """A run log (CSV or sidecar) that does not follow ``udrobot-run/1``; the message names file, row, column."""
+
+
+@dataclass
+class Run:
+    """One run: sample times, measured channels, commanded inputs, unknown columns and metadata.
+
+    Attributes
+    ----------
+    path : str
+        File the run was read from ('' if built in memory).
+    t : (n,) ndarray
+        Sample times, s, strictly increasing.
+    channels : dict of str -> (n,) ndarray
+        Measured channels present in the file among :data:`CHANNELS` (SI units, rad); nan where not measured.
+    input_kind : str
+        'thrust' (N), 'pwm' (µs) or 'tau' (N, N m).
+    inputs : (n, k) ndarray
+        Commanded inputs, columns :attr:`input_names`; held constant on [t_k, t_k+1).
+    extra : dict of str -> ndarray
+        Unknown columns, kept and ignored.
+    metadata : dict
+        Validated sidecar content ({} if there is no sidecar).
+    """
+
+    path: str
+    t: np.ndarray
+    channels: dict
+    input_kind: str
+    inputs: np.ndarray
+    extra: dict = field(default_factory=dict)
+    metadata: dict = field(default_factory=dict)
+
+    @property
+    def n(self) -> int:
+        """Number of samples."""
+        return int(self.t.shape[0])
+
+    @property
+    def input_names(self) -> tuple:
+        """Column names of :attr:`inputs` (``thrust_1``.. / ``pwm_1``.. / ``tau_X``..)."""
+        return input_column_names(self.input_kind, self.inputs.shape[1])
+
+    @property
+    def duration(self) -> float:
+        """Time span t[-1] - t[0], s (0 for a single sample)."""
+        return float(self.t[-1] - self.t[0]) if self.n else 0.0
+
+    @property
+    def dt_median(self) -> float:
+        """Median sample interval, s (nan with fewer than two samples)."""
+        return float(np.median(np.diff(self.t))) if self.n >= 2 else float("nan")
+
+    def channel(self, name: str) -> np.ndarray:
+        """Samples of one column by name: a measured channel (all-nan if the file lacks it), an input or an extra.
+
+        Raises
+        ------
+        KeyError
+            If ``name`` is neither a ``udrobot-run/1`` channel nor an input/extra column of this run.
+        """
+        if name in self.channels:
+            return self.channels[name]
+        if name in CHANNELS:
+            return np.full(self.n, np.nan)
+        names = self.input_names
+        if name in names:
+            return self.inputs[:, names.index(name)]
+        if name in self.extra:
+            return self.extra[name]
+        raise KeyError(f"{self.path or 'run'}: no column '{name}' (known channels: {', '.join(CHANNELS)}; "
+                       f"inputs: {', '.join(names)}; extra: {', '.join(self.extra) or 'none'})")
+
+    def state_matrix(self) -> np.ndarray:
+        """(n, 12) state [x y z phi theta psi u v w p q r] (m, rad, m/s, rad/s); nan where not measured."""
+        return np.column_stack([self.channel(name) for name in STATE_CHANNELS]) if self.n else np.zeros((0, 12))
+
+
+def input_column_names(input_kind: str, k: int) -> tuple:
+    """Column names for ``k`` inputs of kind 'thrust' | 'pwm' | 'tau'."""
+    if input_kind == "tau":
+        if k != 6:
+            raise RunLogError(f"tau inputs need exactly 6 columns ({', '.join(TAU_COLUMNS)}), got {k}")
+        return TAU_COLUMNS
+    if input_kind not in INPUT_KINDS:
+        raise RunLogError(f"input_kind must be one of {INPUT_KINDS}, got {input_kind!r}")
+    return tuple(f"{input_kind}_{i}" for i in range(1, k + 1))
+
+
+# ----------------------------------------------------------------------------------------------- reading
+
+
+def _where(path, row=None, line=None, column=None) -> str:
+    parts = [str(path)]
+    if row is not None:
+        parts.append(f"data row {row}" + (f" (file line {line})" if line is not None else ""))
+    elif line is not None:
+        parts.append(f"file line {line}")
+    if column is not None:
+        parts.append(f"column '{column}'")
+    return ": ".join(parts)
+
+
+def _parse_cell(text: str):
+    """Return a float (nan for empty/nan), or None if the cell is not a finite number / empty / nan.
+
+    Infinite values come back as +-inf so the caller can name them.
+    """
+    s = text.strip()
+    if s == "" or _NAN.match(s):
+        return math.nan
+    if _NUMBER.match(s):
+        value = float(s)
+        return value  # may overflow to inf (1e999): the caller rejects it as an infinity
+    if _INF.match(s):
+        return float(s)
+    return None
+
+
+def _read_text(path: Path) -> str:
+    try:
+        data = path.read_bytes()
+    except IsADirectoryError as exc:
+        raise RunLogError(f"{path}: is a directory, expected a udrobot-run/1 CSV file") from exc
+    try:
+        return data.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        line = data[: exc.start].count(b"\n") + 1
+        raise RunLogError(f"{path}: file line {line} (byte offset {exc.start}): not UTF-8 text "
+                          f"({exc.reason}); expected a udrobot-run/1 CSV") from exc
+
+
+def _map_header(path, header: list) -> tuple:
+    """Validate the header; return (names, input_kind, input_columns, channel_columns, extra_columns)."""
+    names = [h.strip() for h in header]
+    seen = {}
+    for j, name in enumerate(names, start=1):
+        if name == "":
+            raise RunLogError(f"{_where(path, line=1)}: header column {j} has an empty name")
+        if "\x00" in name:
+            raise RunLogError(f"{_where(path, line=1)}: header column {j} contains a NUL byte")
+        if name in seen:
+            raise RunLogError(f"{_where(path, line=1, column=name)}: duplicate column (header columns {seen[name]} "
+                              f"and {j})")
+        seen[name] = j
+    if "t" not in seen:
+        raise RunLogError(f"{_where(path, line=1)}: no 't' column in the header {names[:12]!r}"
+                          f"{' ...' if len(names) > 12 else ''}; expected 't' (s) plus inputs and channels")
+    sets = {}
+    for kind in ("thrust", "pwm"):
+        indices = sorted(int(m.group(2)) for m in map(_INDEXED_INPUT.match, names) if m and m.group(1) == kind)
+        if not indices:
+            continue
+        expected = list(range(1, len(indices) + 1))
+        if indices != expected:
+            missing = sorted(set(range(1, max(indices) + 1)) - set(indices))
+            if missing:
+                raise RunLogError(f"{_where(path, line=1, column=f'{kind}_{missing[0]}')}: missing input column; "
+                                  f"{kind}_1..{kind}_N must be contiguous (found {kind}_{indices})")
+            raise RunLogError(f"{_where(path, line=1)}: {kind} columns must be numbered 1..N without leading "
+                              f"zeros or gaps (found {kind}_{indices})")
+        cols = [f"{kind}_{i}" for i in expected]
+        absent = [c for c in cols if c not in seen]  # e.g. 'thrust_01' maps to 1 but is not 'thrust_1'
+        if absent:
+            raise RunLogError(f"{_where(path, line=1, column=absent[0])}: missing input column (input columns must "
+                              f"be named {kind}_1..{kind}_N without leading zeros)")
+        sets[kind] = cols
+    taus = [c for c in TAU_COLUMNS if c in seen]
+    if taus:
+        if len(taus) != 6:
+            missing = [c for c in TAU_COLUMNS if c not in seen]
+            raise RunLogError(f"{_where(path, line=1, column=missing[0])}: missing input column; all six "
+                              f"{', '.join(TAU_COLUMNS)} are needed (found {', '.join(taus)})")
+        sets["tau"] = list(TAU_COLUMNS)
+    if not sets:
+        raise RunLogError(f"{_where(path, line=1)}: missing input columns; expected all thrust_1..thrust_N, "
+                          f"or all pwm_1..pwm_N, or all six {', '.join(TAU_COLUMNS)}")
+    input_kind = next(k for k in INPUT_KINDS if k in sets)
+    input_cols = sets[input_kind]
+    channel_cols = [c for c in CHANNELS if c in seen]
+    used = {"t", *input_cols, *channel_cols}
+    extra_cols = [c for c in names if c not in used]
+    return names, input_kind, input_cols, channel_cols, extra_cols
+
+
+def _read_rows(path, text: str):
+    """Return (header, rows) with rows = [(data_row, file_line, fields)]; reject ragged rows and inner blank lines."""
+    reader = csv.reader(io.StringIO(text, newline=""), strict=True)
+    rows = []
+    try:
+        header = next(reader, None)
+        if not header or (len(header) == 1 and header[0].strip() == ""):
+            raise RunLogError(f"{path}: file line 1: empty file or empty header; expected a udrobot-run/1 header "
+                              f"row starting with 't'")
+        width = len(header)
+        blank_at = None
+        for fields in reader:
+            line = reader.line_num
+            if not fields or (width > 1 and len(fields) == 1 and fields[0].strip() == ""):
+                blank_at = blank_at or line
+                continue
+            if blank_at is not None:
+                raise RunLogError(f"{_where(path, line=blank_at)}: blank line inside the data (data resumes at file "
+                                  f"line {line}); rows are never dropped, remove or fill the blank line")
+            row = len(rows) + 1
+            if len(fields) != width:
+                raise RunLogError(f"{_where(path, row=row, line=line)}: {len(fields)} cells, the header has {width}")
+            rows.append((row, line, fields))
+    except csv.Error as exc:
+        raise RunLogError(f"{_where(path, row=len(rows) + 1, line=reader.line_num + 1)}: malformed CSV ({exc})") \
+            from exc
+    return header, rows
+
+
+def _column_values(path, rows, j: int, name: str, strict: bool) -> np.ndarray:
+    out = np.empty(len(rows))
+    for i, (row, line, fields) in enumerate(rows):
+        value = _parse_cell(fields[j])
+        if value is None:
+            if not strict:
+                return np.array([f[j] for _, _, f in rows], dtype=object)
+            raise RunLogError(f"{_where(path, row=row, line=line, column=name)}: non-numeric cell {fields[j][:40]!r}; "
+                              f"expected a decimal number, or empty/nan when not measured")
+        if strict and math.isinf(value):
+            raise RunLogError(f"{_where(path, row=row, line=line, column=name)}: infinite value {fields[j][:40]!r}; "
+                              f"expected a finite number, or empty/nan when not measured")
+        out[i] = value
+    return out
+
+
+def read_run(path) -> Run:
+    """Read and validate a ``udrobot-run/1`` CSV and its optional sidecar ``NAME.json``.
+
+    Parameters
+    ----------
+    path : str or Path
+        The CSV file. The file is only read, never modified.
+
+    Returns
+    -------
+    Run
+
+    Raises
+    ------
+    RunLogError
+        On any violation of the spec; the message names file, data row / file line and column.
+    FileNotFoundError
+        If the file does not exist.
+    """
+    path = Path(path)
+    text = _read_text(path)
+    header, rows = _read_rows(path, text)
+    names, input_kind, input_cols, channel_cols, extra_cols = _map_header(path, header)
+    if not rows:
+        raise RunLogError(f"{path}: no data rows after the header; a run needs at least one sample")
+    index = {name: j for j, name in enumerate(names)}
+
+    t = _column_values(path, rows, index["t"], "t", strict=True)
+    for i, (row, line, _fields) in enumerate(rows):
+        if math.isnan(t[i]):
+            raise RunLogError(f"{_where(path, row=row, line=line, column='t')}: empty/nan time; every sample needs "
+                              f"a finite time in s")
+        if i and not t[i] > t[i - 1]:
+            raise RunLogError(f"{_where(path, row=row, line=line, column='t')}: t = {t[i]!r} s is not greater than "
+                              f"the previous row's {t[i - 1]!r} s; t must be strictly increasing")
+    channels = {c: _column_values(path, rows, index[c], c, strict=True) for c in channel_cols}
+    inputs = np.column_stack([_column_values(path, rows, index[c], c, strict=True) for c in input_cols])
+    extra = {c: _column_values(path, rows, index[c], c, strict=False) for c in extra_cols}
+    metadata = read_metadata(path.with_suffix(".json")) if path.with_suffix(".json").exists() else {}
+    return Run(path=str(path), t=t, channels=channels, input_kind=input_kind, inputs=inputs, extra=extra,
+               metadata=metadata)
+
+
+# ----------------------------------------------------------------------------------------------- metadata
+
+
+def _finite_number(value) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+
+
+def validate_metadata(meta, source="metadata") -> dict:
+    """Check a sidecar dict against ``udrobot-run/1``; return a copy (unknown keys kept).
+
+    Raises
+    ------
+    RunLogError
+        Naming ``source`` and the offending field (e.g. ``walls[1].normal``) and what was expected.
+    """
+    if not isinstance(meta, dict):
+        raise RunLogError(f"{source}: expected a JSON object with keys {', '.join(METADATA_KEYS)}, "
+                          f"got {type(meta).__name__}")
+    out = dict(meta)
+    if "format" in meta and meta["format"] != FORMAT:
+        raise RunLogError(f"{source}: field 'format' is {meta['format']!r}; expected {FORMAT!r}")
+    for key in ("vehicle", "notes"):
+        if key in meta and not isinstance(meta[key], str):
+            raise RunLogError(f"{source}: field '{key}' must be a string, got {meta[key]!r}")
+    if "water_density" in meta:
+        rho = meta["water_density"]
+        if not _finite_number(rho) or not 900.0 <= rho <= 1100.0:
+            raise RunLogError(f"{source}: field 'water_density' = {rho!r}; expected a number in kg/m^3 "
+                              f"between 900 and 1100 (fresh water 1000, sea water 1025)")
+    if "seabed_depth" in meta and meta["seabed_depth"] is not None:
+        depth = meta["seabed_depth"]
+        if not _finite_number(depth) or depth <= 0:
+            raise RunLogError(f"{source}: field 'seabed_depth' = {depth!r}; expected a positive number, m "
+                              f"(NED z of the floor, positive down)")
+    if "walls" in meta:
+        walls = meta["walls"]
+        if not isinstance(walls, list):
+            raise RunLogError(f"{source}: field 'walls' must be a list of {{point, normal}} objects, got {walls!r}")
+        for i, wall in enumerate(walls):
+            where = f"{source}: field 'walls[{i}]'"
+            if not isinstance(wall, dict) or set(wall) - {"point", "normal"} or not {"point", "normal"} <= set(wall):
+                raise RunLogError(f"{where}: expected an object with exactly 'point' and 'normal', got {wall!r}")
+            for key in ("point", "normal"):
+                vec = wall[key]
+                if not (isinstance(vec, list) and len(vec) == 3 and all(_finite_number(v) for v in vec)):
+                    raise RunLogError(f"{where}.{key}: expected 3 finite numbers [x, y, z] (m, NED), got {vec!r}")
+            norm = math.sqrt(sum(v * v for v in wall["normal"]))
+            if abs(norm - 1.0) > 1e-3:
+                raise RunLogError(f"{where}.normal: must be a unit vector (|n| = {norm:.6g})")
+            if abs(wall["normal"][2]) > 1e-3:
+                raise RunLogError(f"{where}.normal: walls are vertical planes, the normal's z component must be 0 "
+                                  f"(got {wall['normal'][2]!r})")
+    return out
+
+
+def read_metadata(path) -> dict:
+    """Read and validate a sidecar ``NAME.json``."""
+    path = Path(path)
+    try:
+        meta = json.loads(path.read_text(encoding="utf-8"))
+    except UnicodeDecodeError as exc:
+        raise RunLogError(f"{path}: byte offset {exc.start}: not UTF-8 text; expected JSON metadata") from exc
+    except json.JSONDecodeError as exc:
+        raise RunLogError(f"{path}: line {exc.lineno} column {exc.colno}: invalid JSON ({exc.msg})") from exc
+    return validate_metadata(meta, str(path))
+
+
+# ----------------------------------------------------------------------------------------------- writing
+
+
+def _format(value: float) -> str:
+    return "" if math.isnan(value) else repr(float(value))
+
+
+def _atomic_write_text(path: Path, text: str) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8", newline="") as fh:
+            fh.write(text)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def write_run(path, t, channels, input_kind, inputs, metadata=None, extra=None, *, overwrite=True) -> Path:
+    """Write a ``udrobot-run/1`` CSV (and the sidecar ``NAME.json`` if ``metadata`` is given), atomically.
+
+    Parameters
+    ----------
+    path : str or Path
+        Output CSV.
+    t : (n,) array_like
+        Strictly increasing finite sample times, s.
+    channels : dict of str -> (n,) array_like
+        Measured channels among :data:`CHANNELS` (m, rad, m/s, rad/s, V); nan for not measured.
+    input_kind : {'thrust', 'pwm', 'tau'}
+    inputs : (n, k) array_like
+        Commanded inputs (N, µs or N/N m); k = 6 for 'tau'.
+    metadata : dict, optional
+        Sidecar content; validated; ``format`` is added.
+    extra : dict of str -> (n,) array_like, optional
+        Additional columns (numeric or strings), written after the standard ones.
+    overwrite : bool
+        If False, refuse to replace an existing file.
+
+    Returns
+    -------
+    Path
+        The CSV path. The data are validated before anything is written; a failure leaves existing files intact.
+    """
+    path = Path(path)
+    where = str(path)
+    t = np.asarray(t, dtype=float).reshape(-1)
+    n = t.shape[0]
+    if n == 0:
+        raise RunLogError(f"{where}: no samples to write")
+    if not np.all(np.isfinite(t)):
+        raise RunLogError(f"{_where(where, row=int(np.flatnonzero(~np.isfinite(t))[0]) + 1, column='t')}: "
+                          f"t must be finite")
+    bad = np.flatnonzero(~(np.diff(t) > 0))
+    if bad.size:
+        raise RunLogError(f"{_where(where, row=int(bad[0]) + 2, column='t')}: t must be strictly increasing")
+    inputs = np.asarray(inputs, dtype=float)
+    if inputs.ndim == 1:
+        inputs = inputs[:, None]
+    if inputs.ndim != 2 or inputs.shape[0] != n or inputs.shape[1] == 0:
+        raise RunLogError(f"{where}: inputs must be (n, k) with n = {n}, got shape {inputs.shape}")
+    cols = {"t": t}
+    for c, values in zip(input_column_names(input_kind, inputs.shape[1]), inputs.T):
+        cols[c] = values
+    for c, values in (channels or {}).items():
+        if c not in CHANNELS:
+            raise RunLogError(f"{where}: column '{c}': unknown channel; expected one of {', '.join(CHANNELS)} "
+                              f"(put other data in extra=)")
+        cols[c] = np.asarray(values, dtype=float).reshape(-1)
+    for c, values in (extra or {}).items():
+        if c in cols or c.strip() != c or not c or any(ch in c for ch in ',"\n\r'):
+            raise RunLogError(f"{where}: extra column {c!r} clashes with a standard column or is not a plain name")
+        arr = np.asarray(values)
+        cols[c] = arr.astype(float) if arr.dtype.kind in "biuf" else arr.astype(str)
+    for c, values in cols.items():
+        if values.shape != (n,):
+            raise RunLogError(f"{where}: column '{c}' has shape {values.shape}, expected ({n},)")
+        if values.dtype.kind == "f" and c not in (extra or {}) and np.any(np.isinf(values)):
+            row = int(np.flatnonzero(np.isinf(values))[0]) + 1
+            raise RunLogError(f"{_where(where, row=row, column=c)}: infinite value; expected finite or nan")
+    meta = None
+    if metadata is not None:
+        meta = validate_metadata({"format": FORMAT, **metadata}, f"{path.with_suffix('.json')} (metadata)")
+    if not overwrite and path.exists():
+        raise RunLogError(f"{where}: exists; refusing to overwrite (pass overwrite=True / --force)")
+
+    buf = io.StringIO(newline="")
+    writer = csv.writer(buf, lineterminator="\n")
+    writer.writerow(list(cols))
+    columns = [(v.dtype.kind == "f", v) for v in cols.values()]
+    for i in range(n):
+        writer.writerow([_format(v[i]) if is_float else str(v[i]) for is_float, v in columns])
+    _atomic_write_text(path, buf.getvalue())
+    if meta is not None:
+        _atomic_write_text(path.with_suffix(".json"), json.dumps(meta, indent=2) + "\n")
+    return path
+
+
+def write(run: Run, path, *, overwrite=True) -> Path:
+    """Write a :class:`Run` (channels, inputs, extra and metadata) to ``path``."""
+    return write_run(path, run.t, run.channels, run.input_kind, run.inputs, metadata=run.metadata or None,
+                     extra=run.extra, overwrite=overwrite)
+
+
+# ----------------------------------------------------------------------------------------------- resampling
+
+
+def _wrap_like(values: np.ndarray, original: np.ndarray) -> np.ndarray:
+    finite = original[np.isfinite(original)]
+    if finite.size == 0:
+        return values
+    if finite.min() >= 0.0 and finite.max() < 2 * np.pi:
+        return np.mod(values, 2 * np.pi)
+    if finite.min() >= -np.pi and finite.max() <= np.pi:
+        return (values + np.pi) % (2 * np.pi) - np.pi
+    return values  # the log already stores a continuous (unwrapped) angle
+
+
+def interpolate_linear(t: np.ndarray, y: np.ndarray, t_new: np.ndarray, angle: bool = False) -> np.ndarray:
+    """Linear interpolation that never bridges a gap: nan if either neighbouring sample is nan or t_new is outside.
+
+    Angles (rad) are unwrapped over their finite samples first and wrapped back to the log's own range.
+    """
+    y = np.asarray(y, dtype=float)
+    work = y.copy()
+    if angle:
+        ok = np.isfinite(work)
+        if ok.any():
+            work[ok] = np.unwrap(work[ok])
+    out = np.full(t_new.shape, np.nan)
+    inside = (t_new >= t[0]) & (t_new <= t[-1])
+    if t.size == 1:
+        out[inside] = work[0]
+    else:
+        i0 = np.clip(np.searchsorted(t, t_new, side="right") - 1, 0, t.size - 2)
+        w = (t_new - t[i0]) / (t[i0 + 1] - t[i0])
+        a, b = work[i0], work[i0 + 1]
+        with np.errstate(invalid="ignore"):
+            val = np.where(w == 0.0, a, np.where(w == 1.0, b, a + w * (b - a)))
+        valid = ((w == 0.0) & np.isfinite(a)) | ((w == 1.0) & np.isfinite(b)) | (np.isfinite(a) & np.isfinite(b))
+        val = np.where(valid, val, np.nan)
+        out[inside] = val[inside]
+    return _wrap_like(out, y) if angle else out
+
+
+def hold_previous(t: np.ndarray, y: np.ndarray, t_new: np.ndarray) -> np.ndarray:
+    """Zero-order hold: the last sample at or before each t_new (nan before the first sample). Works on (n, ...)."""
+    y = np.asarray(y)
+    idx = np.searchsorted(t, t_new, side="right") - 1
+    out = y[np.clip(idx, 0, None)]
+    if out.dtype.kind == "f":
+        out = out.copy()
+        out[idx < 0] = np.nan
+    return out
+
+
+def resample(run: Run, t_new) -> Run:
+    """The run on a new time base: linear for measured channels (angles unwrapped), zero-order hold for inputs.
+
+    Extra columns use zero-order hold (they are of unknown meaning; holding never invents values).
+    Samples of t_new outside [t[0], t[-1]] get nan channels; inputs before t[0] are nan.
+
+    Parameters
+    ----------
+    run : Run
+    t_new : (m,) array_like
+        Strictly increasing finite times, s.
+    """
+    t_new = np.asarray(t_new, dtype=float).reshape(-1)
+    if t_new.size == 0 or not np.all(np.isfinite(t_new)) or np.any(np.diff(t_new) <= 0):
+        raise RunLogError(f"{run.path or 'run'}: resample times must be finite and strictly increasing")
+    channels = {c: interpolate_linear(run.t, y, t_new, angle=c in ANGLE_CHANNELS) for c, y in run.channels.items()}
+    inputs = hold_previous(run.t, run.inputs, t_new)
+    extra = {c: hold_previous(run.t, y, t_new) for c, y in run.extra.items()}
+    return replace(run, t=t_new, channels=channels, inputs=inputs, extra=extra)
