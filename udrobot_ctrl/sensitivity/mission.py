@@ -156,6 +156,7 @@ def _settling_time(t, err, band):
     return out, settled
 
 
+LOST_PITCH_DEG = 45.0  # assumed threshold: beyond it the mission is considered failed
 T200_DISK_AREA = np.pi * 0.038**2  # m^2; assumed: 76 mm T200 propeller diameter (Blue Robotics datasheet)
 
 
@@ -172,7 +173,10 @@ def mission_metrics(res, mission: DepthHeadingMission, f_min, f_max, rho: float 
       energy (zero advance speed, 100 % efficiency);
     * ``thrust_effort`` (N^2 s): integral of sum_i f_i^2;
     * ``saturation`` (-): fraction of control steps with a thruster saturated;
-    * ``max_speed`` (m/s): maximum body-frame translational speed.
+    * ``max_speed`` (m/s): maximum body-frame translational speed;
+    * ``max_pitch`` (deg): maximum |theta| (pitch is passive: the Munk moment can destabilise it);
+    * ``lost_control`` (0/1): 1 when |theta| exceeded ``LOST_PITCH_DEG`` or the state diverged, a
+      failure indicator whose Sobol indices say which coefficients drive the failure.
     """
     t = res.t
     x = res.x
@@ -189,6 +193,8 @@ def mission_metrics(res, mission: DepthHeadingMission, f_min, f_max, rho: float 
     f = np.clip(res.u, f_min, f_max)
     power = np.sum(np.abs(f) ** 1.5, axis=-1) / np.sqrt(2 * rho * T200_DISK_AREA)
     speed = np.linalg.norm(x[:, :, 6:9], axis=-1)
+    max_pitch = np.degrees(np.max(np.abs(x[:, :, 4]), axis=0))
+    diverged = ~np.all(np.isfinite(x[-1]), axis=-1)
     return {
         "iae_depth": iae_z, "iae_heading": iae_psi, "iae_speed": np.sum(np.abs(e_u[1:]) * dt, axis=0),
         "speed_error": e_u[-1],
@@ -198,5 +204,7 @@ def mission_metrics(res, mission: DepthHeadingMission, f_min, f_max, rho: float 
         "thrust_effort": np.sum(np.sum(f**2, axis=-1) * dt, axis=0),
         "saturation": np.mean(res.saturated, axis=0),
         "max_speed": np.max(speed, axis=0),
+        "max_pitch": max_pitch,
+        "lost_control": ((max_pitch > LOST_PITCH_DEG) | diverged).astype(float),
         "unsettled": (~ok_z).astype(float) + (~ok_psi).astype(float),
     }

@@ -46,7 +46,7 @@ def tornado(local_result, metric: str, top: int | None = 12, path=None, unit: st
     ax.axvline(base, color="k", lw=1)
     ax.set_yticks(y, labels)
     ax.set_xlabel(f"{metric}{f' ({unit})' if unit else ''}")
-    ax.set_title(title or f"Tornado: {metric} (nominal {base:.4g}); * = non-smooth")
+    ax.set_title(title or f"{metric}: nominal {base:.4g} (* = non-smooth)")
     ax.legend(loc="lower right", fontsize="small")
     fig.tight_layout()
     if path:

@@ -1,0 +1,96 @@
+"""Bench: a 1,024-sample Sobol study of the LQR depth-and-heading mission, local processes vs dask.
+
+"1,024-sample" = SALib base sample N = 1024 (Saltelli/Sobol' design, first-order and total indices),
+i.e. N (d + 2) closed-loop simulations: with the default 12 coefficients of the cfd:morison space
+(3 added masses, 3 C_D, 6 rotational scale factors) that is 14,336 runs of a 20 s mission at dt 0.04 s
+(500 RK4 steps each), batched 64 vehicles per task.
+
+Wall times are measured for (a) 2 local worker processes (ProcessPoolExecutor) and (b) a
+2-worker dask LocalCluster (processes, 1 thread each); the cluster start-up is reported separately and
+not included in ``sobol_1024_dask_s``. Both runs use the same design and must give identical tables.
+
+    python bench/sensitivity.py [--N 1024] [--workers 2] [--json]
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+
+import numpy as np
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--N", type=int, default=1024, help="Sobol base sample (power of 2)")
+    ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--model", default="cfd:morison")
+    ap.add_argument("--json", action="store_true", help="end with one JSON line of the figures")
+    ap.add_argument("--skip-dask", action="store_true")
+    args = ap.parse_args(argv)
+
+    from udrobot_ctrl.sensitivity.evaluators import MissionEvaluator
+    from udrobot_ctrl.sensitivity.executor import SweepExecutor
+    from udrobot_ctrl.sensitivity.global_ import run_sobol
+    from udrobot_ctrl.sensitivity.parameters import default_space
+
+    space = default_space(args.model)
+    ev = MissionEvaluator(space, "lqr")
+    d = len(space)
+    n_runs = args.N * (d + 2)
+    print(f"Sobol base N = {args.N}, d = {d} coefficients -> {n_runs} closed-loop runs "
+          f"({ev.mission.t_final:g} s mission, dt {ev.mission.dt:g} s); machine: {os.cpu_count()} CPUs")
+
+    # single-batch cost, for the per-run figure
+    X1 = np.tile(space.nominal, (64, 1))
+    ev(X1[:2])  # warm the design cache
+    t0 = time.perf_counter()
+    ev(X1)
+    per_run_ms = (time.perf_counter() - t0) / 64 * 1e3
+    print(f"one 64-vehicle batch: {per_run_ms:.2f} ms per closed-loop run (in-process)")
+
+    t0 = time.perf_counter()
+    with SweepExecutor(workers=args.workers) as ex:
+        res_local = run_sobol(ev, space, args.N, executor=ex, seed=1, progress=False)
+    local_s = time.perf_counter() - t0
+    print(f"local ProcessPool, {args.workers} workers: {local_s:.1f} s ({res_local.n_runs / local_s:.0f} runs/s)")
+
+    dask_s = startup_s = None
+    same = None
+    if not args.skip_dask:
+        from distributed import Client, LocalCluster
+
+        t0 = time.perf_counter()
+        with LocalCluster(n_workers=args.workers, threads_per_worker=1, processes=True, dashboard_address=None) as lc, \
+                Client(lc) as client:
+            startup_s = time.perf_counter() - t0
+            t0 = time.perf_counter()
+            res_dask = run_sobol(ev, space, args.N, executor=client, seed=1, progress=False)
+            dask_s = time.perf_counter() - t0
+        same = all(np.array_equal(res_local.table[m], res_dask.table[m], equal_nan=True) for m in res_local.metrics)
+        print(f"dask LocalCluster, {args.workers} workers: {dask_s:.1f} s ({res_dask.n_runs / dask_s:.0f} runs/s; "
+              f"cluster start-up {startup_s:.1f} s not included); identical table: {same}")
+
+    for m in ("speed_error", "energy", "iae_depth", "settling_depth", "lost_control"):
+        idx = res_local.indices[m]
+        top = res_local.ranking(m)[:3]
+        items = ", ".join(f"{n} ST {idx['ST'][res_local.names.index(n)]:.2f}"
+                          f"+-{idx['ST_conf'][res_local.names.index(n)]:.2f}" for n in top)
+        print(f"  {m:<15} {items}")
+    lost = int(np.nansum(res_local.table["lost_control"]))
+    print(f"  runs that lost pitch control (|theta| > 45 deg): {lost} of {res_local.n_runs}")
+    figures = {"sobol_1024_local_s": round(local_s, 2),
+               "sobol_1024_dask_s": None if dask_s is None else round(dask_s, 2),
+               "dask_cluster_startup_s": None if startup_s is None else round(startup_s, 2),
+               "base_N": args.N, "d": d, "model_runs": n_runs, "workers": args.workers,
+               "per_run_ms_in_process": round(per_run_ms, 3), "identical_tables": same,
+               "definition": "SALib base N (Saltelli/Sobol', first+total order): N*(d+2) model runs"}
+    if args.json:
+        print(json.dumps(figures))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
