@@ -121,15 +121,17 @@ class MissionEvaluator:
         if ok:
             bp = batch_plant([vehicles[i] for i in ok])
             K, trim = self._nominal_lqr()
-            if self.redesign:
-                gains = []
+            if self.redesign:  # gain and feed-forward trim from each perturbed model
+                gains, trims = [], []
                 for i in ok:
                     try:
-                        gains.append(lqr_gain(vehicles[i], LQRWeights(**self.controller_opts), self.mission)[0])
+                        k_i, trim_i = lqr_gain(vehicles[i], LQRWeights(**self.controller_opts), self.mission)
                     except Exception as exc:  # noqa: BLE001 - a failed design is that sample's error
-                        gains.append(np.full_like(K, np.nan))
+                        k_i, trim_i = np.full_like(K, np.nan), np.full_like(trim, np.nan)
                         errors[i] = f"LQR redesign failed: {exc}"
-                K = np.stack(gains)
+                    gains.append(k_i)
+                    trims.append(trim_i)
+                K, trim = np.stack(gains), np.stack(trims)
             m = self.mission
             res = simulate_batch(bp, m.x0(), m.t_final, BatchLQR(K, trim, m), dt=m.dt)
             met = mission_metrics(res, m, bp.f_min, bp.f_max)

@@ -39,7 +39,8 @@ class LocalResult:
     derivative, fd_error : dict
         ``{metric: (d,)}`` d metric / d p_j (metric unit per parameter unit) and its error estimate.
     elasticity : dict
-        ``{metric: (d,)}`` (d metric / d p_j) p_j / metric: % change of the metric per % of the coefficient.
+        ``{metric: (d,)}`` (d metric / d p_j) p_j / metric: % change of the metric per % of the coefficient
+        (NaN for a metric that is ~0 at the nominal point, below 5 % of its largest value over the ranges).
     low, high : dict
         ``{metric: (d,)}`` metric with parameter j at its range end, others nominal (OAT).
     bounds : (d, 2) ndarray
@@ -148,8 +149,10 @@ def local_sensitivity(evaluator, space, rel_step: float = 1e-2, executor=None, o
         base[m] = float(y0)
         der[m] = (4 * D2 - D1) / 3
         err[m] = np.abs(D2 - D1)
+        # elasticity is meaningless for a metric that is ~0 at the nominal point (e.g. a speed error)
+        meaningful = abs(y0) > 5e-2 * np.nanmax(np.abs(np.concatenate([Yr[:, 4], Yr[:, 5], [y0]])))
         with np.errstate(divide="ignore", invalid="ignore"):
-            ela[m] = np.where(y0 != 0, der[m] * p / y0, np.nan)
+            ela[m] = der[m] * p / y0 if meaningful else np.full(d, np.nan)
         lo[m], hi[m] = Yr[:, 4], Yr[:, 5]
     result = LocalResult(names, p, h, base, der, err, ela, lo, hi, bounds, X.shape[0], wall)
     if out is not None:

@@ -116,7 +116,8 @@ def lqr_gain(vehicle, weights: LQRWeights = LQRWeights(), mission: DepthHeadingM
 
 
 class BatchLQR:
-    """``controller(t, x (N, 12)) -> thrusts (N, n)``; ``K`` (n, 7) shared or (N, n, 7) per vehicle."""
+    """``controller(t, x (N, 12)) -> thrusts (N, n)``; ``K`` (n, 7) shared or (N, n, 7) per vehicle,
+    ``trim`` (n,) shared or (N, n) per vehicle."""
 
     def __init__(self, K, trim, mission: DepthHeadingMission):
         self.K, self.trim = np.asarray(K, float), np.asarray(trim, float)
