@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-METHODS = ("local", "sobol", "morris")
+METHODS = ("local", "sobol", "morris", "montecarlo")
 
 
 def register(subparsers):
@@ -27,7 +27,7 @@ def register(subparsers):
     p.add_argument("--method", default="local", choices=METHODS)
     p.add_argument("--samples", type=int, default=None,
                    help="sobol: base sample N (power of 2; N(d+2) runs, default 256); morris: trajectories "
-                        "(r(d+1) runs, default 20); local: ignored (1 + 6d runs)")
+                        "(r(d+1) runs, default 20); montecarlo: runs (default 500); local: ignored (1 + 6d runs)")
     p.add_argument("--workers", type=int, default=None, help="local worker processes (default: all CPUs; 1 = serial)")
     p.add_argument("--scheduler", default=None, help="dask scheduler address (tcp://HOST:PORT) instead of local "
                    "processes")
@@ -85,7 +85,7 @@ def build_evaluator(args, space):
 
 def run(args) -> int:
     from udrobot_ctrl.sensitivity.executor import SweepExecutor
-    from udrobot_ctrl.sensitivity.global_ import run_morris, run_sobol
+    from udrobot_ctrl.sensitivity.global_ import run_monte_carlo, run_morris, run_sobol
     from udrobot_ctrl.sensitivity.local import local_sensitivity
 
     if args.resume and not args.out:
@@ -107,6 +107,9 @@ def run(args) -> int:
         elif args.method == "sobol":
             res = run_sobol(evaluator, space, args.samples or 256, executor=ex, out=args.out, resume=args.resume,
                             seed=args.seed, progress=progress)
+        elif args.method == "montecarlo":
+            res = run_monte_carlo(evaluator, space, args.samples or 500, executor=ex, out=args.out,
+                                  resume=args.resume, seed=args.seed, progress=progress)
         else:
             res = run_morris(evaluator, space, args.samples or 20, executor=ex, out=args.out, resume=args.resume,
                              seed=args.seed, progress=progress)
@@ -116,7 +119,7 @@ def run(args) -> int:
     if args.out:
         out = Path(args.out)
         (out / "space.json").write_text(json.dumps(space.to_records(), indent=2))
-        if args.plot:
+        if args.plot and args.method != "montecarlo":
             write_plots(res, args.method, out)
         print(f"tables in {out.resolve()}")
     return 0
@@ -129,6 +132,11 @@ KEY_METRICS = ("iae_depth", "iae_heading", "iae_speed", "speed_error", "overshoo
 def summary_text(res, method: str, top: int = 5) -> str:
     """Most influential parameters per metric, as text."""
     lines = []
+    if method == "montecarlo":
+        for m, s in res.summary.items():
+            lines.append(f"  {m:<18} mean {s['mean']:.4g}  p5 {s['p5']:.4g}  p50 {s['p50']:.4g}  p95 {s['p95']:.4g}"
+                         + (f"  [{s['failed']} failed]" if s["failed"] else ""))
+        return "\n".join(lines)
     metrics = [m for m in KEY_METRICS if m in res.metrics] + [m for m in res.metrics if m not in KEY_METRICS]
     for m in metrics:
         names = res.ranking(m)[:top]

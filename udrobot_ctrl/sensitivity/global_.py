@@ -218,3 +218,44 @@ class Ishigami:
         v13 = b**2 * pi**8 * (1 / 18 - 1 / 50)
         v = v1 + v2 + v13
         return np.array([v1, v2, 0.0]) / v, np.array([v1 + v13, v2, v13]) / v
+
+
+# ----------------------------------------------------------------------------- Monte Carlo
+@dataclass
+class MonteCarloResult:
+    """Uniform Monte Carlo over the ranges: the tidy table and per-metric percentiles."""
+
+    names: list
+    table: dict
+    summary: dict
+    n_runs: int
+    wall_s: float
+
+
+def run_monte_carlo(evaluator, space, n: int, executor=None, out=None, resume=False, seed: int = 0,
+                    progress: bool = True, chunk_size: int | None = None) -> MonteCarloResult:
+    """``n`` independent uniform samples over the ranges of ``space`` through the executor.
+
+    ``summary[metric]`` holds mean, std, p5, p50, p95 (NaN runs excluded; ``failed`` counts them).
+    """
+    problem = _problem(space)
+    if n < 1:
+        raise ValueError(f"Monte Carlo needs n >= 1 samples, got {n}")
+    b = np.asarray(problem["bounds"], float)
+    X = b[:, 0] + np.random.default_rng(seed).random((n, len(b))) * (b[:, 1] - b[:, 0])
+    study = _study("montecarlo", problem, evaluator, n=n, seed=seed)
+    table, wall = _sweep(evaluator, X, executor, out, resume, study, problem["names"], progress, chunk_size,
+                         "monte carlo")
+    summary = {}
+    for metric in _metric_columns(table, problem["names"]):
+        y = np.asarray(table[metric], float)
+        ok = y[np.isfinite(y)]
+        stats = (np.mean(ok), np.std(ok), *np.percentile(ok, [5, 50, 95])) if ok.size else (np.nan,) * 5
+        summary[metric] = dict(zip(("mean", "std", "p5", "p50", "p95"), map(float, stats)),
+                               failed=int(y.size - ok.size))
+    if out is not None:
+        rows = {"metric": list(summary)}
+        for k in ("mean", "std", "p5", "p50", "p95", "failed"):
+            rows[k] = [summary[m][k] for m in summary]
+        write_table(f"{out}/summary", rows)
+    return MonteCarloResult(problem["names"], table, summary, X.shape[0], wall)

@@ -126,3 +126,14 @@ def test_failed_chunk_becomes_per_sample_errors_not_a_crash():
     out = run_sweep(boom, np.zeros((5, 2)), executor=SweepExecutor(workers=1), progress=False)
     assert list(out["sample_id"]) == [0, 1, 2, 3, 4]
     assert all("diverged" in e for e in out["error"])
+
+
+def test_monte_carlo_mean_of_ishigami(tmp_path):
+    from udrobot_ctrl.sensitivity.global_ import run_monte_carlo
+
+    f = Ishigami()
+    res = run_monte_carlo(f, f.problem(), 20000, executor=SweepExecutor(workers=1), out=tmp_path / "mc",
+                          progress=False, chunk_size=5000)
+    # E[f] = a/2 (E[sin^2 x2] = 1/2, the other terms have zero mean); std of the mean ~ 3.7/sqrt(20000)
+    assert res.summary["y"]["mean"] == pytest.approx(3.5, abs=0.1)
+    assert (tmp_path / "mc" / "summary.csv").exists()
