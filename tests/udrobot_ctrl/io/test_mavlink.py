@@ -1,0 +1,165 @@
+"""MAVLink .tlog built with pymavlink's encoder and a dataflash .bin (cross-checked with pymavlink's DFReader)."""
+from __future__ import annotations
+
+import struct
+
+import numpy as np
+import pytest
+
+from udrobot_ctrl.io import LogImportError, convert_log, load_any
+from udrobot_ctrl.io.mavlink import iter_dataflash, iter_tlog
+
+T0 = 1_700_000_000.0
+
+
+def roll(t):
+    return 0.4 * np.exp(-0.3 * t) * np.cos(2 * np.pi * 0.8 * t)
+
+
+def write_tlog(path, duration=3.0, servo_dt=0.1, pressure=False):
+    """ATTITUDE 50 Hz, SERVO_OUTPUT_RAW 10 Hz, VFR_HUD (alt = -depth) or SCALED_PRESSURE2, tlog framing."""
+    from pymavlink.dialects.v20 import ardupilotmega as mav2
+
+    mav = mav2.MAVLink(None, srcSystem=1, srcComponent=1)
+    events = []
+    for t in np.arange(0.0, duration, 0.02):
+        events.append((t, mav.attitude_encode(int(t * 1000), roll(t), 0.05, 1.0 + 0.1 * t, -0.1, 0.0, 0.1)))
+        depth = 1.0 + 0.2 * t
+        if pressure:
+            p_hpa = (101325.0 + 1000.0 * 9.81 * depth) / 100.0  # surface pressure + rho g depth
+            events.append((t + 0.001, mav.scaled_pressure2_encode(int(t * 1000), p_hpa, 0.0, 2000)))
+        else:
+            events.append((t + 0.001, mav.vfr_hud_encode(0.0, 0.0, 0, 0, -depth, 0.0)))
+    for k, t in enumerate(np.arange(0.005, duration, servo_dt)):
+        t = t + (0.003 if k else 0.0)  # keep later commands off the 50 Hz output grid (no ties at 1 us resolution)
+        events.append((t, mav.servo_output_raw_encode(int(t * 1e6), 0, 1500 + k, 1400, 1600, 1500 - k,
+                                                                 1500, 1500, 1500, 1500)))
+    events.sort(key=lambda e: e[0])
+    with open(path, "wb") as fh:
+        for t, msg in events:
+            fh.write(struct.pack(">Q", int(round((T0 + t) * 1e6))) + msg.pack(mav))
+    return path
+
+
+def test_tlog_round_trip_with_vfr_hud_depth(tmp_path):
+    path = write_tlog(tmp_path / "dive.tlog")
+    run = convert_log(path, "ardusub")
+    t_abs = T0 + 0.005 + run.t  # overlap starts at the first SERVO_OUTPUT_RAW (+5 ms)
+    t = t_abs - T0
+    np.testing.assert_allclose(run.channels["phi"], roll(t), atol=0.4 * (2 * np.pi * 0.8) ** 2 * 0.02**2 / 8 + 1e-6)
+    np.testing.assert_allclose(run.channels["psi"], 1.0 + 0.1 * t, atol=1e-6)
+    np.testing.assert_allclose(run.channels["z"], 1.0 + 0.2 * (t - 0.001), atol=1e-5)  # float32 alt
+    np.testing.assert_allclose(run.channels["r"], 0.1, atol=1e-7)
+    k = np.maximum(np.floor((t - 0.008) / 0.1), 0).astype(int)  # command k issued at 0.008 + 0.1 k (k >= 1)
+    np.testing.assert_array_equal(run.inputs[:, 0], 1500 + k)
+    np.testing.assert_array_equal(run.inputs[:, 3], 1500 - k)
+    notes = run.metadata["notes"]
+    assert "z <- VFR_HUD[alt]" in notes and "tlog receive time" in notes
+    assert "ATTITUDE: autopilot time (aligned by median offset) - tlog receive time delay median 0.0 ms" in notes
+    assert load_any(path).n == run.n
+
+
+def test_tlog_external_pressure_sensor_gives_depth(tmp_path):
+    path = write_tlog(tmp_path / "p.tlog", pressure=True)
+    run = convert_log(path, "ardusub")
+    t = run.t + 0.005
+    # surface pressure assumed = first sample (taken at depth 1.0 m here): depth relative to it
+    np.testing.assert_allclose(run.channels["z"], 0.2 * (t - 0.001), atol=2e-4)
+    assert "SCALED_PRESSURE2[press_abs] (pressure_to_depth" in run.metadata["notes"]
+
+
+def test_tlog_corruption_and_truncation_named_by_offset(tmp_path):
+    path = write_tlog(tmp_path / "a.tlog", duration=0.5)
+    data = path.read_bytes()
+    frames = list(iter_tlog(path))
+    assert len(frames) == 25 * 2 + 5
+    # truncated in the middle of the last frame
+    cut = tmp_path / "cut.tlog"
+    cut.write_bytes(data[:-5])
+    last_offset = frames[-1][1]
+    with pytest.raises(LogImportError, match=rf"message {len(frames) - 1} at byte offset {last_offset}.*truncated"):
+        convert_log(cut, "ardusub")
+    # a flipped payload byte: CRC failure at that frame
+    index, offset = frames[10][0], frames[10][1]
+    bad = bytearray(data)
+    bad[offset + 8 + 12] ^= 0xFF
+    (tmp_path / "crc.tlog").write_bytes(bytes(bad))
+    with pytest.raises(LogImportError, match=rf"message {index} at byte offset {offset}: cannot decode"):
+        convert_log(tmp_path / "crc.tlog", "ardusub")
+    # garbage where a start byte should be
+    bad = bytearray(data)
+    bad[frames[3][1] + 8] = 0x00
+    (tmp_path / "start.tlog").write_bytes(bytes(bad))
+    with pytest.raises(LogImportError, match=rf"message 3 at byte offset {frames[3][1]}.*not a MAVLink start"):
+        convert_log(tmp_path / "start.tlog", "ardusub")
+
+
+# ------------------------------------------------------------------------------------------- dataflash
+
+FMT_STRUCT = struct.Struct("<BBB4s16s64s")
+
+
+def _fmt(mtype, name, fmt, columns):
+    from pymavlink.DFReader import FORMAT_TO_STRUCT
+
+    length = 3 + struct.calcsize("<" + "".join(FORMAT_TO_STRUCT[c][0] for c in fmt))
+    record = b"\xa3\x95" + FMT_STRUCT.pack(128, mtype, length, name.encode(), fmt.encode(), columns.encode())
+    return record, length
+
+
+def write_bin(path, duration=3.0):
+    """A minimal ArduSub-style dataflash log: FMT, ATT (cdeg as float deg here), RCOU, BARO instances 0/1."""
+    out = [_fmt(128, "FMT", "BBnNZ", "Type,Length,Name,Format,Columns")[0]]
+    att, _ = _fmt(129, "ATT", "Qfff", "TimeUS,Roll,Pitch,Yaw")
+    rcou, _ = _fmt(130, "RCOU", "QHHHH", "TimeUS,C1,C2,C3,C4")
+    baro, _ = _fmt(131, "BARO", "QBf", "TimeUS,I,Alt")
+    out += [att, rcou, baro]
+    events = []
+    for t in np.arange(0.0, duration, 0.01):
+        us = int(round((10.0 + t) * 1e6))
+        events.append((us, b"\xa3\x95\x81" + struct.pack("<Qfff", us, np.degrees(roll(t)), 2.0, 90.0)))
+        events.append((us + 1, b"\xa3\x95\x83" + struct.pack("<QBf", us + 1, 0, 5.0)))  # enclosure baro
+        events.append((us + 2, b"\xa3\x95\x83" + struct.pack("<QBf", us + 2, 1, -(0.5 + 0.1 * t))))
+    for k, t in enumerate(np.arange(0.0, duration, 0.05)):
+        us = int(round((10.0 + t) * 1e6)) + 3
+        events.append((us, b"\xa3\x95\x82" + struct.pack("<QHHHH", us, 1500 + k, 1500, 1500, 1500)))
+    events.sort(key=lambda e: e[0])
+    path.write_bytes(b"".join(out) + b"".join(e[1] for e in events))
+    return path
+
+
+def test_dataflash_round_trip_and_agrees_with_pymavlink(tmp_path):
+    from pymavlink.DFReader import DFReader_binary
+
+    path = write_bin(tmp_path / "00000001.BIN".lower())
+    ours = [(name, values) for _, _, name, values in iter_dataflash(path)]
+    ref = DFReader_binary(str(path))
+    theirs = []
+    while (m := ref.recv_msg()) is not None:
+        if m.get_type() != "FMT":
+            theirs.append((m.get_type(), {c: getattr(m, c) for c in m.get_fieldnames()}))
+    assert [n for n, _ in ours] == [n for n, _ in theirs]
+    assert all(a == pytest.approx(b) for (_, a), (_, b) in zip(ours, theirs))
+
+    run = convert_log(path, "ardusub", require_inputs=True)
+    t = run.t  # first ATT at boot 10.0 s is the earliest; BARO[1] starts 2 µs later
+    np.testing.assert_allclose(run.channels["phi"], roll(t), atol=1e-3)
+    np.testing.assert_allclose(run.channels["psi"], np.pi / 2, atol=1e-6)
+    np.testing.assert_allclose(run.channels["z"], 0.5 + 0.1 * t, atol=1e-5)  # BARO instance 1, Alt = -depth
+    assert "z <- BARO[1][Alt]" in run.metadata["notes"]
+    assert run.inputs[0, 0] == 1500 and run.inputs[-1, 0] == 1500 + int((t[-1] + 1e-9) // 0.05)
+
+
+def test_dataflash_truncated_or_corrupt(tmp_path):
+    path = write_bin(tmp_path / "a.bin", duration=0.2)
+    data = path.read_bytes()
+    (tmp_path / "cut.bin").write_bytes(data[:-7])
+    with pytest.raises(LogImportError, match=r"byte offset \d+: .* runs past the end.*truncated"):
+        convert_log(tmp_path / "cut.bin", "ardusub")
+    records = [(i, o) for i, o, _, _ in iter_dataflash(path)]
+    index, offset = records[7]
+    bad = bytearray(data)
+    bad[offset] ^= 0xFF  # broken record header
+    (tmp_path / "bad.bin").write_bytes(bytes(bad))
+    with pytest.raises(LogImportError, match=rf"message {index} at byte offset {offset}: .*not the dataflash header"):
+        convert_log(tmp_path / "bad.bin", "ardusub")
