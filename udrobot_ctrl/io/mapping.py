@@ -353,9 +353,9 @@ def _input_layout(mapping: Mapping, found, where, require_inputs: bool):
         raise LogImportError(f"{where}: the mapping must give one kind of input columns (all thrust_i, all pwm_i "
                              f"or all six tau_*), got {sorted(set(mapped)) or 'none'}")
     kind = kinds.pop()
-    n = len(TAU_COLUMNS) if kind == "tau" else len(dict.fromkeys(mapped))
+    n = len(TAU_COLUMNS) if kind == "tau" else max(len(dict.fromkeys(mapped)), 1)  # >= 1 column (nan if unmapped)
     cols = list(TAU_COLUMNS) if kind == "tau" else [f"{kind}_{i}" for i in range(1, n + 1)]
-    if kind != "tau" and set(cols) != set(mapped):
+    if kind != "tau" and mapped and set(cols) != set(mapped):
         raise LogImportError(f"{where}: mapped input columns {sorted(set(mapped))} are not {kind}_1..{kind}_{n}")
     absent = [c for c in cols if c not in found]
     if absent and require_inputs:
