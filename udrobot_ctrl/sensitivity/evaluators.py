@@ -82,6 +82,12 @@ class MissionEvaluator:
 
         if controller not in ("lqr", "pid", "lmpc", "nmpc", "mpc"):
             raise ValueError(f"controller must be lqr, pid, lmpc, nmpc or mpc, got {controller!r}")
+        if controller != "lqr":
+            import importlib.util
+
+            if importlib.util.find_spec("udrobot_ctrl.missions") is None:
+                raise ValueError(f"controller {controller!r} needs udrobot_ctrl.missions, not available in this build "
+                                 "(lqr works: it uses the batched fast path)")
         self.space = space
         self.controller = controller
         self.mission = mission if mission is not None else DepthHeadingMission()
