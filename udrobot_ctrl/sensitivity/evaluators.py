@@ -64,90 +64,116 @@ class MissionEvaluator:
     space : ParameterSpace
         Coefficients varied; its vehicle is the nominal plant *and* the design model.
     controller : {'lqr', 'pid', 'lmpc', 'nmpc', 'mpc'}
-        ``lqr`` uses the batched fast path (:mod:`udrobot_ctrl.sensitivity.mission`); the others run
-        one simulation per sample through :mod:`udrobot_ctrl.missions`.
     mission : DepthHeadingMission, optional
-        Mission of the fast path (default: 1 m depth and 90 deg heading steps in 20 s, dt 0.04 s).
+        Mission of the fast path (default: 1 m depth and 90 deg heading steps at 0.5 m/s, 20 s, dt 0.04 s).
     redesign : bool
         False (default): design once on the nominal model, evaluate on each perturbed plant (what a
         user who trusts one coefficient set gets). True: redesign on each perturbed model (the
         sensitivity of the *best achievable* performance to the coefficient).
     controller_opts : dict, optional
-        Passed to the controller design.
+        Passed to the design (LQRWeights / PIDTuning fields on the batch backend).
+    backend : {'auto', 'batch', 'missions'}
+        ``batch``: this package's vectorised mission (lqr and pid: one chunk of vehicles simulated at
+        once). ``missions``: one simulation per sample through :mod:`udrobot_ctrl.missions` (any
+        controller, the toolbox's standard mission). ``auto``: batch for lqr/pid, missions otherwise.
     """
 
     def __init__(self, space, controller: str = "lqr", mission=None, redesign: bool = False,
-                 controller_opts: dict | None = None):
+                 controller_opts: dict | None = None, backend: str = "auto"):
         from udrobot_ctrl.sensitivity.mission import DepthHeadingMission
 
         if controller not in ("lqr", "pid", "lmpc", "nmpc", "mpc"):
             raise ValueError(f"controller must be lqr, pid, lmpc, nmpc or mpc, got {controller!r}")
-        if controller != "lqr":
+        if backend == "auto":
+            backend = "batch" if controller in ("lqr", "pid") else "missions"
+        if backend not in ("batch", "missions"):
+            raise ValueError(f"backend must be auto, batch or missions, got {backend!r}")
+        if backend == "batch" and controller not in ("lqr", "pid"):
+            raise ValueError(f"the batch backend supports lqr and pid, not {controller!r}; use backend='missions'")
+        if backend == "missions":
             import importlib.util
 
             if importlib.util.find_spec("udrobot_ctrl.missions") is None:
-                raise ValueError(f"controller {controller!r} needs udrobot_ctrl.missions, not available in this build "
-                                 "(lqr works: it uses the batched fast path)")
+                raise ValueError(f"controller {controller!r} needs udrobot_ctrl.missions, not available in this "
+                                 "build (lqr and pid work on the batched fast path)")
         self.space = space
         self.controller = controller
-        self.mission = mission if mission is not None else DepthHeadingMission()
+        self.backend = backend
+        self.mission = mission if mission is not None else (
+            DepthHeadingMission() if backend == "batch" else None)
         self.redesign = bool(redesign)
         self.controller_opts = dict(controller_opts or {})
 
     def describe(self) -> str:
         how = "redesigned per sample" if self.redesign else "designed on nominal"
-        return (f"{self.controller} on {self.space.vehicle.name} ({how}), mission {self.mission}, "
-                f"opts {sorted(self.controller_opts.items())}")
+        return (f"{self.controller} on {self.space.vehicle.name} ({how}), {self.backend} backend, "
+                f"mission {self.mission}, opts {sorted(self.controller_opts.items())}")
 
     def _key(self):
         return (self.describe(), tuple(self.space.names), tuple(self.space.nominal))
 
     def __call__(self, X):
         vehicles, errors = _vehicles(self.space, X)
-        if self.controller == "lqr":
-            metrics = self._lqr_batch(vehicles, errors)
+        if self.backend == "batch":
+            metrics = self._batch(vehicles, errors)
         else:
             metrics = self._per_sample(vehicles, errors)
         return {**metrics, "error": errors}
 
-    # ------------------------------------------------------------------ LQR fast path
-    def _nominal_lqr(self):
-        from udrobot_ctrl.sensitivity.mission import LQRWeights, lqr_gain
+    # ------------------------------------------------------------------ batched fast path
+    def _design(self, vehicle):
+        """(controller factory args) for one design model: LQR (K, trim) or PID (gains, trim)."""
+        from udrobot_ctrl.plant import plant_parameters
+        from udrobot_ctrl.sensitivity.mission import LQRWeights, PIDTuning, lqr_gain, pid_gains, trim_thrust
 
-        key = ("lqr",) + self._key()
+        if self.controller == "lqr":
+            return lqr_gain(vehicle, LQRWeights(**self.controller_opts), self.mission)
+        tuning = PIDTuning(**self.controller_opts)
+        return pid_gains(vehicle, tuning), trim_thrust(plant_parameters(vehicle), self.mission.operating_point())
+
+    def _nominal_design(self):
+        key = self._key()
         if key not in _DESIGN_CACHE:
-            _DESIGN_CACHE[key] = lqr_gain(self.space.vehicle, LQRWeights(**self.controller_opts), self.mission)
+            _DESIGN_CACHE[key] = self._design(self.space.vehicle)
         return _DESIGN_CACHE[key]
 
-    def _lqr_batch(self, vehicles, errors):
-        from udrobot_ctrl.sensitivity.mission import BatchLQR, LQRWeights, lqr_gain, mission_metrics
+    def _batch(self, vehicles, errors):
+        from udrobot_ctrl.sensitivity.mission import BatchLQR, BatchPID, PIDTuning, mission_metrics
 
         ok = [i for i, v in enumerate(vehicles) if v is not None]
-        out = None
-        if ok:
-            bp = batch_plant([vehicles[i] for i in ok])
-            K, trim = self._nominal_lqr()
-            if self.redesign:  # gain and feed-forward trim from each perturbed model
-                gains, trims = [], []
-                for i in ok:
-                    try:
-                        k_i, trim_i = lqr_gain(vehicles[i], LQRWeights(**self.controller_opts), self.mission)
-                    except Exception as exc:  # noqa: BLE001 - a failed design is that sample's error
-                        k_i, trim_i = np.full_like(K, np.nan), np.full_like(trim, np.nan)
-                        errors[i] = f"LQR redesign failed: {exc}"
-                    gains.append(k_i)
-                    trims.append(trim_i)
-                K, trim = np.stack(gains), np.stack(trims)
-            m = self.mission
-            res = simulate_batch(bp, m.x0(), m.t_final, BatchLQR(K, trim, m), dt=m.dt)
-            met = mission_metrics(res, m, bp.f_min, bp.f_max)
-            out = {k: np.full(len(vehicles), np.nan) for k in met}
-            for k, v in met.items():
-                out[k][ok] = v
-            for j, i in enumerate(ok):
-                if not np.all(np.isfinite(res.x[-1, j])) and not errors[i]:
-                    errors[i] = "simulation diverged"
-        return out or {}
+        if not ok:
+            return {}
+        bp = batch_plant([vehicles[i] for i in ok])
+        gain, trim = self._nominal_design()
+        if self.redesign:  # gains and feed-forward trim from each perturbed model
+            designs = []
+            for i in ok:
+                try:
+                    designs.append(self._design(vehicles[i]))
+                except Exception as exc:  # noqa: BLE001 - a failed design is that sample's error
+                    designs.append(None)
+                    errors[i] = f"{self.controller} redesign failed: {exc}"
+            fill = self._nominal_design()
+            designs = [d if d is not None else fill for d in designs]
+            trim = np.stack([d[1] for d in designs])
+            if self.controller == "lqr":
+                gain = np.stack([d[0] for d in designs])
+            else:
+                gain = {k: tuple(np.array([d[0][k][j] for d in designs]) for j in range(3)) for k in gain}
+        m = self.mission
+        if self.controller == "lqr":
+            ctrl = BatchLQR(gain, trim, m)
+        else:
+            ctrl = BatchPID(gain, trim, bp.T, m, PIDTuning(**self.controller_opts).integral_limit_N)
+        res = simulate_batch(bp, m.x0(), m.t_final, ctrl, dt=m.dt)
+        met = mission_metrics(res, m, bp.f_min, bp.f_max)
+        out = {k: np.full(len(vehicles), np.nan) for k in met}
+        for k, v in met.items():
+            out[k][ok] = v
+        for j, i in enumerate(ok):
+            if not np.all(np.isfinite(res.x[-1, j])) and not errors[i]:
+                errors[i] = "simulation diverged"
+        return out
 
     # ------------------------------------------------------------------ generic path
     def _per_sample(self, vehicles, errors):

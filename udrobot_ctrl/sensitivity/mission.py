@@ -1,4 +1,4 @@
-"""A short depth-and-heading mission (at a cruise speed) with a batch-capable LQR, and its metrics.
+"""A short depth-and-heading mission (at a cruise speed) with batch-capable LQR and PID, and its metrics.
 
 This is the sensitivity package's *fast path*: the controller is a constant gain, so one chunk of
 perturbed vehicles is simulated at once (:mod:`udrobot_ctrl.sensitivity.batch`). Metrics are
@@ -209,3 +209,80 @@ def mission_metrics(res, mission: DepthHeadingMission, f_min, f_max, rho: float 
         "lost_control": ((max_pitch > LOST_PITCH_DEG) | diverged).astype(float),
         "unsettled": (~ok_z).astype(float) + (~ok_psi).astype(float),
     }
+
+
+# ----------------------------------------------------------------------------- batched PID (fast path)
+@dataclass(frozen=True)
+class PIDTuning:
+    """Closed-loop natural frequencies (rad/s) of the PID loops, critically damped (assumed values).
+
+    Gains follow from the design model's inertia m (rigid + added) and linear damping d on each axis:
+    ``Kp = m wn^2``, ``Kd = 2 m wn - d``, ``Ki = Kp wn / ki_ratio``; the surge loop is a PI with
+    ``Kp = 2 m wn - d``, ``Ki = m wn^2``.
+    """
+
+    depth: float = 1.5
+    heading: float = 5.0
+    roll: float = 3.0
+    surge: float = 1.0
+    ki_ratio: float = 8.0
+    integral_limit_N: float = 20.0
+
+
+def pid_gains(vehicle, tuning: PIDTuning = PIDTuning()) -> dict:
+    """PID gains per loop (depth on Z, heading on N, roll on K, surge on X) from the design model."""
+    p = plant_parameters(vehicle)
+    m = np.diag(p.M)
+    d = np.diag(p.D_L)
+    out = {}
+    for name, dof, wn in (("depth", 2, tuning.depth), ("heading", 5, tuning.heading), ("roll", 3, tuning.roll)):
+        kp = m[dof] * wn**2
+        out[name] = (kp, max(2 * m[dof] * wn - d[dof], 0.0), kp * wn / tuning.ki_ratio)
+    out["surge"] = (max(2 * m[0] * tuning.surge - d[0], 0.0), 0.0, m[0] * tuning.surge**2)
+    return out
+
+
+class BatchPID:
+    """Decoupled PID loops + exact thrust allocation, vectorised over vehicles (stateful integrators).
+
+    ``gains`` values are (kp, kd, ki) scalars or (N,) arrays (per-vehicle redesign); ``trim`` (n,) or
+    (N, n) is the feed-forward thrust of the design model at the cruise point, as for the LQR.
+    """
+
+    LOOPS = ("surge", "depth", "roll", "heading")  # wrench rows X, Z, K, N
+    ROWS = (0, 2, 3, 5)
+    INTEGRATE_BAND = np.array([np.inf, 0.25, np.inf, 0.35])  # m/s, m, rad, rad (assumed)
+
+    def __init__(self, gains: dict, trim, T, mission: DepthHeadingMission, integral_limit_N: float = 20.0):
+        self.g = {k: tuple(np.asarray(v, float) for v in gains[k]) for k in self.LOOPS}
+        self.trim = np.asarray(trim, float)
+        self.alloc = np.linalg.inv(np.asarray(T, float)[list(self.ROWS)])  # (n, 4) for UDrobot's 4 thrusters
+        self.mission = mission
+        self.limit = integral_limit_N
+        self.integ = None
+        self.t_last = None
+
+    def __call__(self, t, x):
+        x = np.atleast_2d(x)
+        m = self.mission
+        err = np.stack([
+            x[:, 6] - m.surge_mps,
+            x[:, 2] - m.depth_m,
+            x[:, 3],
+            (x[:, 5] - m.heading_rad + np.pi) % (2 * np.pi) - np.pi,
+        ], axis=-1)
+        rate = np.stack([np.zeros(len(x)), x[:, 8], x[:, 9], x[:, 11]], axis=-1)  # derivative on measurement
+        if self.integ is None or self.integ.shape != err.shape:
+            self.integ = np.zeros_like(err)
+        dt = 0.0 if self.t_last is None else t - self.t_last
+        self.t_last = t
+        kp = np.stack([self.g[k][0] * np.ones(len(x)) for k in self.LOOPS], -1)
+        kd = np.stack([self.g[k][1] * np.ones(len(x)) for k in self.LOOPS], -1)
+        ki = np.stack([self.g[k][2] * np.ones(len(x)) for k in self.LOOPS], -1)
+        near = np.abs(err) < self.INTEGRATE_BAND  # conditional integration: no wind-up during large steps
+        self.integ = self.integ + np.where(near, err, 0.0) * dt
+        with np.errstate(divide="ignore", invalid="ignore"):
+            cap = np.where(ki > 0, self.limit / ki, 0.0)
+        self.integ = np.clip(self.integ, -cap, cap)  # anti-windup: integral force <= limit
+        wrench = -(kp * err + kd * rate + ki * self.integ)
+        return self.trim + wrench @ self.alloc.T

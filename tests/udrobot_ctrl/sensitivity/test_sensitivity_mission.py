@@ -43,6 +43,18 @@ def test_wrong_surge_drag_slows_the_cruise_unless_redesigned():
     assert np.all(np.diff(redesigned["energy"]) > 0)
 
 
+def test_pid_integral_action_removes_the_speed_error_a_wrong_drag_causes():
+    space = default_space("cfd:morison").subset(["surge.CD"])
+    X = np.array([[1.4015], [2.3432]])
+    lqr = MissionEvaluator(space, "lqr", mission=SHORT)(X)
+    pid = MissionEvaluator(space, "pid", mission=SHORT)(X)
+    assert pid["error"] == ["", ""]
+    assert np.all(np.abs(pid["speed_error"]) < 0.3 * np.abs(lqr["speed_error"]))
+    assert pid["energy"][1] > pid["energy"][0]  # same speed against more drag costs more energy
+    with pytest.raises(ValueError, match="batch backend supports lqr and pid"):
+        MissionEvaluator(space, "nmpc", backend="batch")
+
+
 def test_local_sensitivity_of_the_mission_is_physical():
     space = default_space("cfd:morison", rotational=False).subset(["surge.CD", "sway.CD", "heave.added_mass"])
     res = local_sensitivity(MissionEvaluator(space, "lqr", mission=SHORT), space,
