@@ -4,11 +4,11 @@ The paper's three identification methods disagree on surge C_D (free decay 1.40,
 2.34). This script answers whether that disagreement changes closed-loop results, and ranks every
 coefficient:
 
-1. the mission (1 m depth and 90 deg heading steps while cruising at 0.5 m/s, 20 s) with the LQR
-   designed on the CFD Morison model, flown by plants that differ only in surge C_D (the three values),
-   then with the LQR redesigned on each;
+1. the mission (1 m depth and 90 deg heading steps while cruising at 0.5 m/s, 20 s) with an LQR and a
+   PID designed on the CFD Morison model, flown by plants that differ only in surge C_D (the three
+   values), then with the controllers redesigned on each;
 2. local sensitivity (finite differences + one-at-a-time range swings, tornado plots);
-3. global Sobol indices over the ranges spanned by the three sets (+10 %), with 95 % CIs.
+3. global Sobol indices (LQR) over the ranges spanned by the three sets (+10 %), with 95 % CIs.
 
 Everything runs through the sweep executor: ``--workers N`` local processes (default 2) or
 ``--scheduler tcp://HOST:8786`` for a dask cluster; ``--out`` keeps resumable tables and the plots.
@@ -37,29 +37,34 @@ SHOW = (("speed_error", "m/s", 1), ("iae_speed", "m", 1), ("energy", "J", 1), ("
         ("max_speed", "m/s", 1), ("max_pitch", "deg", 1))
 
 
-def three_surge_cd(space, executor, out):
-    """Metrics for the three published surge C_D, with the LQR designed on the nominal or redesigned."""
+def three_surge_cd(space, executor, out, controllers=("lqr", "pid")):
+    """Metrics for the three published surge C_D, each controller designed on the nominal or redesigned."""
     sub = space.subset(["surge.CD"])
     X = np.array([[v] for v in SURGE_CD.values()])
     rows = {}
-    for redesign in (False, True):
-        ev = MissionEvaluator(sub, "lqr", redesign=redesign)
-        rows[redesign] = run_sweep(ev, X, executor=executor, progress=False)
-    print(f"\n1) surge C_D of the three methods, LQR designed on {space.vehicle.name} (C_D {space.nominal[3]:.2f})")
-    head = f"{'metric':<17}" + "".join(f"{k + ' ' + format(v, '.2f'):>18}" for k, v in SURGE_CD.items())
-    print(head + f"{'spread':>10}{'redesigned spread':>19}")
-    table = {"metric": [], "unit": [], **{k: [] for k in SURGE_CD}, "spread": [], "spread_redesigned": []}
-    for m, unit, _ in SHOW:
-        y, yr = rows[False][m], rows[True][m]
-        spread, spread_r = np.ptp(y), np.ptp(yr)
-        print(f"{m + ' (' + unit + ')':<17}" + "".join(f"{v:18.4g}" for v in y) + f"{spread:10.3g}{spread_r:19.3g}")
-        table["metric"].append(m)
-        table["unit"].append(unit)
-        for k, v in zip(SURGE_CD, y):
-            table[k].append(float(v))
-        table["spread"].append(float(spread))
-        table["spread_redesigned"].append(float(spread_r))
+    table = {"controller": [], "design": [], "metric": [], "unit": [], **{k: [] for k in SURGE_CD}, "spread": []}
+    for ctrl in controllers:
+        for redesign in (False, True):
+            ev = MissionEvaluator(sub, ctrl, redesign=redesign)
+            rows[ctrl, redesign] = r = run_sweep(ev, X, executor=executor, progress=False)
+            for m, unit, _ in SHOW:
+                table["controller"].append(ctrl)
+                table["design"].append("redesigned" if redesign else "nominal")
+                table["metric"].append(m)
+                table["unit"].append(unit)
+                for k, v in zip(SURGE_CD, r[m]):
+                    table[k].append(float(v))
+                table["spread"].append(float(np.ptp(r[m])))
     write_table(out / "three_surge_cd", table)
+    print(f"\n1) surge C_D of the three methods; controllers designed on {space.vehicle.name} "
+          f"(C_D {space.nominal[space.index('surge.CD')]:.2f}) or redesigned on each")
+    print(f"{'metric':<20}{'ctrl':>5}" + "".join(f"{k + ' ' + format(v, '.2f'):>17}" for k, v in SURGE_CD.items())
+          + f"{'spread':>9}{'redesigned':>11}")
+    for m, unit, _ in SHOW:
+        for ctrl in controllers:
+            y, yr = rows[ctrl, False][m], rows[ctrl, True][m]
+            print(f"{m + ' (' + unit + ')':<20}{ctrl:>5}" + "".join(f"{v:17.4g}" for v in y)
+                  + f"{np.ptp(y):9.3g}{np.ptp(yr):11.3g}")
     return rows
 
 
@@ -113,7 +118,7 @@ def main(argv=None) -> int:
     import matplotlib.pyplot as plt
 
     plt.close("all")
-    y = three[False]
+    y = three["lqr", False]
     de = (y["energy"][2] - y["energy"][0]) / y["energy"][1] * 100
     ds = y["speed_error"][2] - y["speed_error"][0]
     dz = (y["iae_depth"][2] - y["iae_depth"][0]) / y["iae_depth"][1] * 100
@@ -121,6 +126,10 @@ def main(argv=None) -> int:
     print("\nAnswer: surge C_D 1.40 -> 2.34 (design on the CFD value) changes the cruise speed by "
           f"{ds:+.3f} m/s ({ds / 0.5 * 100:+.1f} % of 0.5 m/s, no integral action), the thrust energy by {de:+.1f} %, "
           f"depth IAE by {dz:+.1f} % and heading IAE by {dpsi:+.1f} %.")
+    yp = three["pid", False]
+    print(f"With the PID (integral action on speed) the cruise speed changes by "
+          f"{yp['speed_error'][2] - yp['speed_error'][0]:+.3f} m/s and the energy by "
+          f"{(yp['energy'][2] - yp['energy'][0]) / yp['energy'][1] * 100:+.1f} %.")
     print(f"{lost} of {sob.n_runs} Sobol runs lost pitch control (Munk moment at cruise, passive pitch); see "
           "lost_control's indices for the coefficients behind it.")
     print(f"tables and plots in {out.resolve()}")
