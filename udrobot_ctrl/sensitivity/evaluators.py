@@ -176,5 +176,71 @@ class MissionEvaluator:
         return out
 
     # ------------------------------------------------------------------ generic path
+    def _missions(self):
+        from udrobot_ctrl import missions
+
+        mission = self.mission
+        if mission is None:
+            mission = getattr(missions, "standard_mission", None) or getattr(missions, "STANDARD_MISSION", None)
+            mission = mission() if callable(mission) else mission
+        return missions, mission
+
     def _per_sample(self, vehicles, errors):
-        raise NotImplementedError("per-sample missions need udrobot_ctrl.missions")
+        """One closed-loop run per sample through udrobot_ctrl.missions (any controller kind)."""
+        missions, mission = self._missions()
+        kind = "lmpc" if self.controller == "mpc" else self.controller
+        key = ("missions",) + self._key()
+        rows = []
+        for i, v in enumerate(vehicles):
+            if v is None:
+                rows.append({})
+                continue
+            try:
+                if self.redesign:
+                    ctrl = missions.make_controller(kind, v, mission, **self.controller_opts)
+                else:
+                    if key not in _DESIGN_CACHE:
+                        _DESIGN_CACHE[key] = missions.make_controller(kind, self.space.vehicle, mission,
+                                                                      **self.controller_opts)
+                    ctrl = _fresh(_DESIGN_CACHE[key])
+                    if ctrl is None:  # stateful and not copyable: design again on the nominal model
+                        ctrl = missions.make_controller(kind, self.space.vehicle, mission, **self.controller_opts)
+                rows.append(_metrics_of(missions.run_mission(ctrl, v, mission)))
+            except Exception as exc:  # noqa: BLE001 - the sweep goes on, the sample carries the error
+                rows.append({})
+                errors[i] = f"{type(exc).__name__}: {exc}"
+        names = sorted({k for r in rows for k in r})
+        return {k: np.array([float(r.get(k, np.nan)) for r in rows]) for k in names}
+
+
+def _fresh(ctrl):
+    """A controller in its initial state: ``reset()`` if it has one, else a deep copy (None if impossible)."""
+    import copy
+
+    if hasattr(ctrl, "reset"):
+        ctrl.reset()
+        return ctrl
+    try:
+        return copy.deepcopy(ctrl)
+    except Exception:  # noqa: BLE001 - e.g. solver handles that cannot be copied
+        return None
+
+
+def _metrics_of(result) -> dict:
+    """Scalar metrics from whatever run_mission returns (a dict, an object with ``metrics``, a dataclass)."""
+    import dataclasses
+
+    m = getattr(result, "metrics", result)
+    if callable(m):
+        m = m()
+    if dataclasses.is_dataclass(m) and not isinstance(m, type):
+        m = dataclasses.asdict(m)
+    if not isinstance(m, dict):
+        raise TypeError(f"run_mission returned {type(result).__name__}; expected metrics (dict or .metrics)")
+    out = {}
+    for k, v in m.items():
+        if isinstance(v, (bool, int, float, np.floating, np.integer)) or (np.ndim(v) == 0 and
+                                                                          np.issubdtype(np.asarray(v).dtype,
+                                                                                        np.number)):
+            out[k] = float(v)
+    return out
