@@ -79,6 +79,15 @@ def main(argv=None) -> int:
         items = ", ".join(f"{n} ST {idx['ST'][res_local.names.index(n)]:.2f}"
                           f"+-{idx['ST_conf'][res_local.names.index(n)]:.2f}" for n in top)
         print(f"  {m:<15} {items}")
+    from SALib.analyze import sobol as sobol_analyze
+    from scipy.stats import rankdata
+
+    for m in ("energy", "iae_depth"):  # the same runs, indices of the ranks (robust to lost-control outliers)
+        r = sobol_analyze.analyze(space.salib_problem(), rankdata(res_local.table[m]), calc_second_order=False,
+                                  num_resamples=200, seed=1)
+        top = np.argsort(-r["ST"])[:3]
+        print(f"  {m + ' (ranks)':<15} " + ", ".join(f"{space.names[j]} ST {r['ST'][j]:.2f}+-{r['ST_conf'][j]:.2f}"
+                                                     for j in top))
     lost = int(np.nansum(res_local.table["lost_control"]))
     print(f"  runs that lost pitch control (|theta| > 45 deg): {lost} of {res_local.n_runs}")
     figures = {"sobol_1024_local_s": round(local_s, 2),

@@ -49,6 +49,8 @@ def register(subparsers):
     p.add_argument("--duration", type=float, default=20.0, help="mission duration, s (20)")
     p.add_argument("--dt", type=float, default=0.04, help="integration / control step, s (0.04)")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--rank", action="store_true", help="sobol: indices of the metrics' ranks (robust to the few "
+                   "runs that lose control)")
     p.add_argument("--plot", action="store_true", help="write tornado / index plots into --out")
     p.add_argument("--top", type=int, default=5, help="parameters listed per metric (5)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -112,7 +114,7 @@ def run(args) -> int:
                                     progress=progress)
         elif args.method == "sobol":
             res = run_sobol(evaluator, space, args.samples or 256, executor=ex, out=args.out, resume=args.resume,
-                            seed=args.seed, progress=progress)
+                            seed=args.seed, progress=progress, transform="rank" if args.rank else None)
         elif args.method == "montecarlo":
             res = run_monte_carlo(evaluator, space, args.samples or 500, executor=ex, out=args.out,
                                   resume=args.resume, seed=args.seed, progress=progress)

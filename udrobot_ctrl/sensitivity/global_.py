@@ -117,7 +117,7 @@ def sobol_samples(problem: dict, N: int, seed: int = 0, second_order: bool = Fal
 
 def run_sobol(evaluator, space, N: int, executor=None, out=None, resume=False, seed: int = 0,
               second_order: bool = False, conf_level: float = 0.95, num_resamples: int = 200,
-              progress: bool = True, chunk_size: int | None = None) -> GlobalResult:
+              progress: bool = True, chunk_size: int | None = None, transform: str | None = None) -> GlobalResult:
     """Sobol first-order and total indices with bootstrap confidence intervals for every metric.
 
     Parameters
@@ -130,8 +130,16 @@ def run_sobol(evaluator, space, N: int, executor=None, out=None, resume=False, s
         ``second_order``).
     out : path, optional
         Study directory for the incremental, resumable table (plus ``indices.csv``).
+    transform : {None, 'rank'}, optional
+        ``rank``: indices of the ranks of each metric instead of its values. Variance-based indices of
+        a heavy-tailed metric (a few runs that lose control dominate the variance) have huge CIs; the
+        ranks keep the ordering information and give stable indices (of the rank-transformed output).
     """
     from SALib.analyze import sobol as sobol_analyze
+    from scipy.stats import rankdata
+
+    if transform not in (None, "rank"):
+        raise ValueError(f"transform must be None or 'rank', got {transform!r}")
 
     problem = _problem(space)
     X = sobol_samples(problem, N, seed, second_order)
@@ -141,6 +149,8 @@ def run_sobol(evaluator, space, N: int, executor=None, out=None, resume=False, s
     for metric in _metric_columns(table, problem["names"]):
         Y = np.asarray(table[metric], float)
         failed[metric] = int(np.count_nonzero(~np.isfinite(Y)))
+        if transform == "rank" and not failed[metric]:
+            Y = rankdata(Y)
         d = problem["num_vars"]
         if failed[metric] or np.ptp(Y) == 0:
             nan = np.full(d, np.nan) if failed[metric] else np.zeros(d)
@@ -153,7 +163,7 @@ def run_sobol(evaluator, space, N: int, executor=None, out=None, resume=False, s
             indices[metric]["S2"] = np.asarray(res["S2"])
     result = GlobalResult("sobol", problem["names"], indices, table, X.shape[0], wall, failed, conf_level)
     if out is not None:
-        write_table(f"{out}/indices", result.indices_table())
+        write_table(f"{out}/indices" + ("_rank" if transform else ""), result.indices_table())
     return result
 
 

@@ -137,3 +137,12 @@ def test_monte_carlo_mean_of_ishigami(tmp_path):
     # E[f] = a/2 (E[sin^2 x2] = 1/2, the other terms have zero mean); std of the mean ~ 3.7/sqrt(20000)
     assert res.summary["y"]["mean"] == pytest.approx(3.5, abs=0.1)
     assert (tmp_path / "mc" / "summary.csv").exists()
+
+
+def test_rank_transform_keeps_the_ishigami_ordering():
+    f = Ishigami()
+    res = run_sobol(f, f.problem(), 512, executor=SweepExecutor(workers=1), seed=2, progress=False, transform="rank")
+    st = res.indices["y"]["ST"]
+    assert np.all(np.isfinite(st)) and st[0] > st[2] > 0.05 and st[1] > 0.2
+    with pytest.raises(ValueError, match="transform"):
+        run_sobol(f, f.problem(), 8, executor=SweepExecutor(workers=1), transform="log")
