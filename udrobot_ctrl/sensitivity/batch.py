@@ -120,7 +120,7 @@ def simulate_batch(bp: BatchPlant, x0, t_final: float, controller, dt: float = 0
         if k % hold == 0:
             u = np.asarray(controller(t[k], x), float).reshape(N, nthr)
         f = np.clip(u, bp.f_min, bp.f_max)
-        sats[k] = np.any(f != u, axis=-1)
+        sats[k] = np.any((u < bp.f_min - 1e-9) | (u > bp.f_max + 1e-9), axis=-1)  # as sim.simulate
         tau = f @ bp.T.T
         x = rk4_step(bp, x, tau, dt)
         bad = ~np.all(np.isfinite(x), axis=-1)

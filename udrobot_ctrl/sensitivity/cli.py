@@ -41,8 +41,8 @@ def register(subparsers):
     p.add_argument("--no-rotational", action="store_true", help="leave the rotational scale factors out")
     p.add_argument("--redesign", action="store_true", help="redesign the controller on every perturbed model")
     p.add_argument("--backend", default="auto", choices=("auto", "batch", "missions"),
-                   help="batch: vectorised depth-and-heading mission (lqr, pid); missions: one run per sample via "
-                        "udrobot_ctrl.missions (any controller); auto: batch for lqr/pid")
+                   help="batch: vectorised depth-and-heading mission (lqr, pid, mpc); missions: one run per sample "
+                        "via udrobot_ctrl.missions (any controller); auto: batch unless nmpc")
     p.add_argument("--surge", type=float, default=0.5, help="mission cruise speed, m/s (0.5)")
     p.add_argument("--depth", type=float, default=1.0, help="mission depth step, m (1.0)")
     p.add_argument("--heading", type=float, default=90.0, help="mission heading step, deg (90)")
@@ -85,7 +85,7 @@ def build_evaluator(args, space):
 
     mission = DepthHeadingMission(depth_m=args.depth, heading_rad=np.radians(args.heading), surge_mps=args.surge,
                                   t_final=args.duration, dt=args.dt)
-    if args.backend == "missions" or (args.backend == "auto" and args.controller not in ("lqr", "pid")):
+    if args.backend == "missions" or (args.backend == "auto" and args.controller == "nmpc"):
         mission = None  # the toolbox's standard mission
     return MissionEvaluator(space, controller=args.controller, mission=mission, redesign=args.redesign,
                             backend=args.backend)

@@ -63,7 +63,8 @@ class MissionEvaluator:
     ----------
     space : ParameterSpace
         Coefficients varied; its vehicle is the nominal plant *and* the design model.
-    controller : {'lqr', 'pid', 'lmpc', 'nmpc', 'mpc'}
+    controller : {'lqr', 'pid', 'mpc', 'lmpc', 'nmpc'}
+        ``mpc`` = ``lmpc`` (linear MPC with hard thrust limits); ``nmpc`` needs the missions backend.
     mission : DepthHeadingMission, optional
         Mission of the fast path (default: 1 m depth and 90 deg heading steps at 0.5 m/s, 20 s, dt 0.04 s).
     redesign : bool
@@ -71,11 +72,11 @@ class MissionEvaluator:
         user who trusts one coefficient set gets). True: redesign on each perturbed model (the
         sensitivity of the *best achievable* performance to the coefficient).
     controller_opts : dict, optional
-        Passed to the design (LQRWeights / PIDTuning fields on the batch backend).
+        Passed to the design (LQRWeights / PIDTuning / MPCSettings fields on the batch backend).
     backend : {'auto', 'batch', 'missions'}
-        ``batch``: this package's vectorised mission (lqr and pid: one chunk of vehicles simulated at
+        ``batch``: this package's vectorised mission (lqr, pid, mpc: one chunk of vehicles simulated at
         once). ``missions``: one simulation per sample through :mod:`udrobot_ctrl.missions` (any
-        controller, the toolbox's standard mission). ``auto``: batch for lqr/pid, missions otherwise.
+        controller, the toolbox's standard mission). ``auto``: batch unless the controller is nmpc.
     """
 
     def __init__(self, space, controller: str = "lqr", mission=None, redesign: bool = False,
@@ -85,17 +86,17 @@ class MissionEvaluator:
         if controller not in ("lqr", "pid", "lmpc", "nmpc", "mpc"):
             raise ValueError(f"controller must be lqr, pid, lmpc, nmpc or mpc, got {controller!r}")
         if backend == "auto":
-            backend = "batch" if controller in ("lqr", "pid") else "missions"
+            backend = "batch" if controller != "nmpc" else "missions"
         if backend not in ("batch", "missions"):
             raise ValueError(f"backend must be auto, batch or missions, got {backend!r}")
-        if backend == "batch" and controller not in ("lqr", "pid"):
-            raise ValueError(f"the batch backend supports lqr and pid, not {controller!r}; use backend='missions'")
+        if backend == "batch" and controller == "nmpc":
+            raise ValueError("the batch backend supports lqr, pid and (linear) mpc, not 'nmpc'; use backend='missions'")
         if backend == "missions":
             import importlib.util
 
             if importlib.util.find_spec("udrobot_ctrl.missions") is None:
                 raise ValueError(f"controller {controller!r} needs udrobot_ctrl.missions, not available in this "
-                                 "build (lqr and pid work on the batched fast path)")
+                                 "build (lqr, pid and mpc work on the batched fast path)")
         self.space = space
         self.controller = controller
         self.backend = backend
@@ -122,12 +123,23 @@ class MissionEvaluator:
 
     # ------------------------------------------------------------------ batched fast path
     def _design(self, vehicle):
-        """(controller factory args) for one design model: LQR (K, trim) or PID (gains, trim)."""
+        """Design on one model: LQR (K, trim), PID (gains, trim) or MPC (qp, trim)."""
         from udrobot_ctrl.plant import plant_parameters
-        from udrobot_ctrl.sensitivity.mission import LQRWeights, PIDTuning, lqr_gain, pid_gains, trim_thrust
+        from udrobot_ctrl.sensitivity.mission import (
+            LQRWeights,
+            MPCSettings,
+            PIDTuning,
+            lqr_gain,
+            mpc_matrices,
+            pid_gains,
+            trim_thrust,
+        )
 
         if self.controller == "lqr":
             return lqr_gain(vehicle, LQRWeights(**self.controller_opts), self.mission)
+        if self.controller in ("mpc", "lmpc"):
+            qp = mpc_matrices(vehicle, self.mission, MPCSettings(**self.controller_opts))
+            return qp, qp["trim"]
         tuning = PIDTuning(**self.controller_opts)
         return pid_gains(vehicle, tuning), trim_thrust(plant_parameters(vehicle), self.mission.operating_point())
 
@@ -138,7 +150,14 @@ class MissionEvaluator:
         return _DESIGN_CACHE[key]
 
     def _batch(self, vehicles, errors):
-        from udrobot_ctrl.sensitivity.mission import BatchLQR, BatchPID, PIDTuning, mission_metrics
+        from udrobot_ctrl.sensitivity.mission import (
+            BatchLQR,
+            BatchMPC,
+            BatchPID,
+            MPCSettings,
+            PIDTuning,
+            mission_metrics,
+        )
 
         ok = [i for i, v in enumerate(vehicles) if v is not None]
         if not ok:
@@ -158,14 +177,21 @@ class MissionEvaluator:
             trim = np.stack([d[1] for d in designs])
             if self.controller == "lqr":
                 gain = np.stack([d[0] for d in designs])
+            elif self.controller in ("mpc", "lmpc"):
+                gain = [d[0] for d in designs]
             else:
                 gain = {k: tuple(np.array([d[0][k][j] for d in designs]) for j in range(3)) for k in gain}
         m = self.mission
+        control_dt = None
         if self.controller == "lqr":
             ctrl = BatchLQR(gain, trim, m)
+        elif self.controller in ("mpc", "lmpc"):
+            settings = MPCSettings(**self.controller_opts)
+            ctrl = BatchMPC(gain, m, bp.f_min, bp.f_max, settings)
+            control_dt = settings.Ts
         else:
             ctrl = BatchPID(gain, trim, bp.T, m, PIDTuning(**self.controller_opts).integral_limit_N)
-        res = simulate_batch(bp, m.x0(), m.t_final, ctrl, dt=m.dt)
+        res = simulate_batch(bp, m.x0(), m.t_final, ctrl, dt=m.dt, control_dt=control_dt)
         met = mission_metrics(res, m, bp.f_min, bp.f_max)
         out = {k: np.full(len(vehicles), np.nan) for k in met}
         for k, v in met.items():

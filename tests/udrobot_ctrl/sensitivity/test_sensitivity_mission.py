@@ -51,7 +51,7 @@ def test_pid_integral_action_removes_the_speed_error_a_wrong_drag_causes():
     assert pid["error"] == ["", ""]
     assert np.all(np.abs(pid["speed_error"]) < 0.3 * np.abs(lqr["speed_error"]))
     assert pid["energy"][1] > pid["energy"][0]  # same speed against more drag costs more energy
-    with pytest.raises(ValueError, match="batch backend supports lqr and pid"):
+    with pytest.raises(ValueError, match="batch backend supports lqr, pid"):
         MissionEvaluator(space, "nmpc", backend="batch")
 
 
@@ -117,3 +117,29 @@ def test_per_sample_backend_drives_a_missions_module(monkeypatch):
     assert len(designs) == 1  # designed once on the nominal model, reused for every sample
     MissionEvaluator(space, "nmpc", mission=SHORT, redesign=True)(X)
     assert len(designs) == 3  # redesigned on each perturbed model
+
+
+def test_batched_mpc_solves_its_qp_and_respects_thrust_limits():
+    from scipy.optimize import lsq_linear
+
+    from udrobot_ctrl.sensitivity.batch import batch_plant
+    from udrobot_ctrl.sensitivity.mission import CONTROLLED, BatchMPC, MPCSettings, mpc_matrices
+
+    space = default_space("cfd:morison")
+    s = MPCSettings()
+    qp = mpc_matrices(space.vehicle, SHORT, s)
+    bp = batch_plant([space.vehicle])
+    ctrl = BatchMPC(qp, SHORT, bp.f_min, bp.f_max, s)
+    x0 = SHORT.x0()[None]
+    f = ctrl(0.0, x0)[0]  # the 1 m / 90 deg step saturates the vertical thrusters
+    e = x0[:, list(CONTROLLED)] - ctrl.ref
+    g = (e @ qp["F"])[0]
+    L = np.linalg.cholesky(qp["H"])
+    lo = np.tile(bp.f_min - qp["trim"], s.horizon)
+    hi = np.tile(bp.f_max - qp["trim"], s.horizon)
+    exact = lsq_linear(L.T, -np.linalg.solve(L, g), bounds=(lo, hi), tol=1e-12).x[:4] + qp["trim"]
+    assert np.any(np.isclose(exact, bp.f_max))  # a limit is active
+    np.testing.assert_allclose(f, exact, atol=0.2)  # N; FISTA on an ill-conditioned QP: near-optimal
+    out = MissionEvaluator(space.subset(["surge.CD"]), "mpc", mission=SHORT)(np.array([[1.4015], [2.3432]]))
+    assert np.all(out["saturation"] == 0)  # MPC plans within the limits
+    assert out["speed_error"][0] > 0.01 and out["speed_error"][1] < -0.02  # no integral action, like the LQR
