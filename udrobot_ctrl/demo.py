@@ -110,76 +110,15 @@ def step_open_loop(out: Path) -> dict:
 
 
 def step_controllers(out: Path, full: bool = False) -> dict:
-    """Design LQR and PID on each model A, fly the depth-and-heading mission on every plant B (5 x 5).
+    """LQR, PID and linear MPC designed on each model A and flown on every plant B (5 x 5, ``compare``)."""
+    from udrobot_ctrl.compare import compare, text_table, write_outputs
 
-    Uses the batched fast path of :mod:`udrobot_ctrl.sensitivity.mission` (one vectorised simulation of
-    the five plants per design). Writes ``controllers.csv``, a text table and one plot per controller.
-    """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from udrobot_ctrl.plant import plant_parameters
-    from udrobot_ctrl.sensitivity.batch import batch_plant, simulate_batch
-    from udrobot_ctrl.sensitivity.mission import (
-        BatchLQR,
-        BatchPID,
-        DepthHeadingMission,
-        lqr_gain,
-        mission_metrics,
-        pid_gains,
-        trim_thrust,
-    )
-
-    mission = DepthHeadingMission(t_final=40.0 if full else 20.0)
-    plants = [load_model(n) for n in MODEL_NAMES]
-    bp = batch_plant(plants)
-    rows = []
-    for kind in ("lqr", "pid"):
-        fig, axes = plt.subplots(1, 2, figsize=(11, 4))
-        for design in MODEL_NAMES:
-            dv = load_model(design)
-            if kind == "lqr":
-                K, trim = lqr_gain(dv, mission=mission)
-                ctrl = BatchLQR(K, trim, mission)
-            else:
-                trim = trim_thrust(plant_parameters(dv), mission.operating_point())
-                ctrl = BatchPID(pid_gains(dv), trim, bp.T, mission)
-            res = simulate_batch(bp, mission.x0(), mission.t_final, ctrl, dt=mission.dt)
-            m = mission_metrics(res, mission, bp.f_min, bp.f_max)
-            for j, plant in enumerate(MODEL_NAMES):
-                rows.append({"controller": kind, "design": design, "plant": plant,
-                             **{k: float(v[j]) for k, v in m.items()}})
-            j_same = MODEL_NAMES.index(design)
-            axes[0].plot(res.t, res.x[:, j_same, 2], label=f"{design}")
-            axes[1].plot(res.t, np.degrees(res.x[:, j_same, 5]), label=f"{design}")
-        axes[0].set_ylabel("depth z (m)")
-        axes[1].set_ylabel("heading psi (deg)")
-        for ax in axes:
-            ax.set_xlabel("t (s)")
-            ax.grid(True)
-        axes[0].legend(fontsize=8, title="design = plant")
-        fig.suptitle(f"{kind.upper()}: 1 m depth and 90 deg heading steps at 0.5 m/s")
-        fig.tight_layout()
-        fig.savefig(out / f"mission_{kind}.png", dpi=120)
-        plt.close(fig)
-    keys = ["iae_depth", "iae_heading", "overshoot_depth", "settling_depth", "speed_error", "energy",
-            "saturation", "max_pitch", "lost_control"]
-    lines = [",".join(["controller", "design", "plant"] + keys)]
-    lines += [",".join([r["controller"], r["design"], r["plant"]] + [f"{r[k]:.6g}" for k in keys]) for r in rows]
-    (out / "controllers.csv").write_text("\n".join(lines) + "\n")
-    hdr = f"{'ctrl':<4} {'design':<19} {'plant':<19} {'IAE z':>7} {'IAE psi':>7} {'OS z %':>7} {'Ts z':>6} " \
-          f"{'u err':>7} {'E (J)':>7} {'lost':>4}"
-    table = [hdr]
-    for r in rows:
-        table.append(f"{r['controller']:<4} {r['design']:<19} {r['plant']:<19} {r['iae_depth']:7.3f} "
-                     f"{r['iae_heading']:7.3f} {r['overshoot_depth']:7.1f} {r['settling_depth']:6.1f} "
-                     f"{r['speed_error']:7.3f} {r['energy']:7.1f} {int(r['lost_control']):4d}")
-    text = "\n".join(table)
-    (out / "controllers.txt").write_text(text + "\n")
-    print(text)
-    return {"rows": len(rows), "lost_control": int(sum(r["lost_control"] for r in rows))}
+    result = compare(t_final=40.0 if full else 20.0, keep_trajectories=True)
+    write_outputs(result, out / "compare")
+    print(text_table(result["results"]))
+    for name, why in result["skipped"].items():
+        print(f"skipped {name}: {why}")
+    return {"rows": len(result["results"]), "lost_control": sum(r["lost_control"] for r in result["results"])}
 
 
 STEPS = [("models", step_models), ("open_loop", step_open_loop), ("controllers", step_controllers)]
