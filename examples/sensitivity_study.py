@@ -4,8 +4,8 @@ The paper's three identification methods disagree on surge C_D (free decay 1.40,
 2.34). This script answers whether that disagreement changes closed-loop results, and ranks every
 coefficient:
 
-1. the mission (1 m depth and 90 deg heading steps while cruising at 0.5 m/s, 20 s) with an LQR and a
-   PID designed on the CFD Morison model, flown by plants that differ only in surge C_D (the three
+1. the mission (1 m depth and 90 deg heading steps while cruising at 0.5 m/s, 20 s) with an LQR, a
+   PID and a linear MPC designed on the CFD Morison model, flown by plants that differ only in surge C_D (the three
    values), then with the controllers redesigned on each;
 2. local sensitivity (finite differences + one-at-a-time range swings, tornado plots);
 3. global Sobol indices (LQR) over the ranges spanned by the three sets (+10 %), with 95 % CIs.
@@ -37,7 +37,7 @@ SHOW = (("speed_error", "m/s", 1), ("iae_speed", "m", 1), ("energy", "J", 1), ("
         ("max_speed", "m/s", 1), ("max_pitch", "deg", 1))
 
 
-def three_surge_cd(space, executor, out, controllers=("lqr", "pid")):
+def three_surge_cd(space, executor, out, controllers=("lqr", "pid", "mpc")):
     """Metrics for the three published surge C_D, each controller designed on the nominal or redesigned."""
     sub = space.subset(["surge.CD"])
     X = np.array([[v] for v in SURGE_CD.values()])
@@ -130,6 +130,10 @@ def main(argv=None) -> int:
     print(f"With the PID (integral action on speed) the cruise speed changes by "
           f"{yp['speed_error'][2] - yp['speed_error'][0]:+.3f} m/s and the energy by "
           f"{(yp['energy'][2] - yp['energy'][0]) / yp['energy'][1] * 100:+.1f} %.")
+    ym = three["mpc", False]
+    print(f"With the linear MPC (no integral action) the cruise speed changes by "
+          f"{ym['speed_error'][2] - ym['speed_error'][0]:+.3f} m/s and the energy by "
+          f"{(ym['energy'][2] - ym['energy'][0]) / ym['energy'][1] * 100:+.1f} %.")
     print(f"{lost} of {sob.n_runs} Sobol runs lost pitch control (Munk moment at cruise, passive pitch); see "
           "lost_control's indices for the coefficients behind it.")
     print(f"tables and plots in {out.resolve()}")
