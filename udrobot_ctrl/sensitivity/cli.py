@@ -139,7 +139,8 @@ KEY_METRICS = ("iae_depth", "iae_heading", "iae_speed", "speed_error", "overshoo
 
 def summary_text(res, method: str, top: int = 5) -> str:
     """Most influential parameters per metric, as text."""
-    lines = []
+    lines = ["  (indices say what drives the variance; the sd says whether that variance matters)"] \
+        if method == "sobol" else []
     if method == "montecarlo":
         for m, s in res.summary.items():
             lines.append(f"  {m:<18} mean {s['mean']:.4g}  p5 {s['p5']:.4g}  p50 {s['p50']:.4g}  p95 {s['p95']:.4g}"
@@ -156,7 +157,10 @@ def summary_text(res, method: str, top: int = 5) -> str:
             st = dict(zip(res.names, res.indices[m]["ST"]))
             ci = dict(zip(res.names, res.indices[m]["ST_conf"]))
             items = ", ".join(f"{n} ST {st[n]:.2f}+-{ci[n]:.2f}" for n in names)
-            lines.append(f"  {m:<18} {items}" + (f"  [{res.failed[m]} failed runs]" if res.failed.get(m) else ""))
+            y = np.asarray(res.table[m], float)
+            spread = f"sd {np.nanstd(y):.3g} (p5..p95 {np.nanpercentile(y, 5):.3g}..{np.nanpercentile(y, 95):.3g})"
+            lines.append(f"  {m:<18} {spread}: {items}"
+                         + (f"  [{res.failed[m]} failed runs]" if res.failed.get(m) else ""))
         else:
             mu = dict(zip(res.names, res.indices[m]["mu_star"]))
             ci = dict(zip(res.names, res.indices[m]["mu_star_conf"]))
