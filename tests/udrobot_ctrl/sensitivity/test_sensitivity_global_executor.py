@@ -42,6 +42,10 @@ def test_dask_local_cluster_gives_the_same_table_as_serial():
             ex = SweepExecutor(client=client)
             assert ex.kind == "dask" and ex.workers == 2
             res_dask = run_morris(f, f.problem(), 10, executor=ex, seed=3, progress=False)
+        with SweepExecutor(scheduler=lc.scheduler_address) as ex2:  # the CLI's --scheduler ADDRESS path
+            assert ex2.kind == "dask"
+            res_addr = run_morris(f, f.problem(), 10, executor=ex2, seed=3, progress=False)
+    np.testing.assert_array_equal(res_addr.table["y"], res_dask.table["y"])
     res_serial = run_morris(f, f.problem(), 10, executor=SweepExecutor(workers=1), seed=3, progress=False)
     np.testing.assert_array_equal(res_dask.table["y"], res_serial.table["y"])
     np.testing.assert_allclose(res_dask.indices["y"]["mu_star"], res_serial.indices["y"]["mu_star"])
