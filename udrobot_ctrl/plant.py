@@ -154,6 +154,7 @@ class PlantParameters:
     f_min: np.ndarray
     f_max: np.ndarray
     name: str = ""
+    M_A: np.ndarray | None = None
 
 
 def plant_parameters(vehicle: Vehicle) -> PlantParameters:
@@ -178,6 +179,7 @@ def plant_parameters(vehicle: Vehicle) -> PlantParameters:
         Q=np.asarray(vehicle.quadratic_damping, float), weight=vehicle.weight, buoyancy=vehicle.buoyancy,
         r_g=np.asarray(vehicle.r_g, float), r_b=np.asarray(vehicle.r_b, float),
         T=thruster_matrix(vehicle.thrusters), f_min=lo, f_max=hi, name=vehicle.name,
+        M_A=np.asarray(vehicle.added_mass, float),
     )
 
 
