@@ -1,0 +1,86 @@
+"""Simulation: RK4 vs solve_ivp, batch vs single, and the ``simulate`` replay command."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from udrobot_ctrl import runlog
+from udrobot_ctrl.cli import main
+from udrobot_ctrl.commands.simulate import replay
+from udrobot_ctrl.plant import plant_parameters
+from udrobot_ctrl.sim import simulate
+from udrobot_ctrl.vehicle import load_model
+
+F = np.array([[20.0, 12.0, 5.0, -3.0]])
+
+
+def test_rk4_agrees_with_solve_ivp():
+    x0 = np.zeros(12)
+    x0[3] = 0.1
+    a = simulate("cfd:morison", x0, 3.0, inputs=F, dt=0.01)
+    b = simulate("cfd:morison", x0, 3.0, inputs=F, dt=0.01, method="solve_ivp")
+    np.testing.assert_allclose(a.x, b.x, atol=1e-6)  # RK4 global error O(dt^4)
+
+
+def test_batch_equals_single_runs():
+    rng = np.random.default_rng(0)
+    x0 = np.zeros((3, 12))
+    x0[:, 6:] = rng.normal(scale=0.2, size=(3, 6))
+    batch = simulate("pendulum:chin", x0, 1.0, inputs=np.repeat(F[None], 3, axis=1), dt=0.02)
+    for i in range(3):
+        single = simulate("pendulum:chin", x0[i], 1.0, inputs=F, dt=0.02)
+        np.testing.assert_allclose(batch.x[:, i], single.x, atol=1e-12)
+
+
+def test_closed_loop_controller_and_saturation():
+    def ctrl(t, x):  # proportional surge speed control, asks for more than the thrusters give
+        return np.array([400.0 * (0.5 - x[6])] * 2 + [0.0, 0.0])
+
+    res = simulate("pendulum:chin", np.zeros(12), 20.0, controller=ctrl, dt=0.02)
+    p = plant_parameters(load_model("pendulum:chin"))
+    # steady state: 800 (0.5 - u) = K_L u + K_Q u^2
+    k_l, k_q = p.D_L[0, 0] + 800.0, p.Q[0, 0]
+    u_ss = (-k_l + np.sqrt(k_l ** 2 + 4 * k_q * 400.0)) / (2 * k_q)
+    assert res.saturated[0] and not res.saturated[-1]
+    assert res.x[-1, 6] == pytest.approx(u_ss, rel=2e-3)
+
+
+def test_replay_nonuniform_matches_uniform_sim():
+    p = plant_parameters(load_model("pendulum:chin"))
+    tau = F @ p.T.T
+    t = np.arange(0, 2.0001, 0.01)
+    xs = replay(p, t, np.zeros(12), np.repeat(tau, len(t), axis=0))
+    ref = simulate(p, np.zeros(12), 2.0, inputs=F, dt=0.01)
+    np.testing.assert_allclose(xs, ref.x, atol=1e-12)
+    tn = np.sort(np.r_[0.0, np.random.default_rng(2).uniform(0, 2, 60), 2.0])
+    xn = replay(p, tn, np.zeros(12), np.repeat(tau, len(tn), axis=0))
+    np.testing.assert_allclose(xn[-1], ref.x[-1], atol=1e-6)
+
+
+def _write_run(path, kind, u, t, channels=None):
+    n = len(t)
+    runlog.write_run(path, t, channels or {"x": np.zeros(n), "u": np.full(n, 0.1)}, kind, np.repeat(u, n, 0))
+
+
+@pytest.mark.parametrize("kind,u", [("thrust", F), ("tau", np.array([[30.0, 0, 10.0, 0, 0, 0.5]])),
+                                    ("pwm", np.array([[1700.0, 1650.0, 1500.0, 1400.0]]))])
+def test_simulate_command_replays_inputs(tmp_path, kind, u, capsys):
+    t = np.sort(np.r_[0.0, np.random.default_rng(3).uniform(0, 3, 40), 3.0])
+    src, out = tmp_path / "in.csv", tmp_path / "sim.csv"
+    _write_run(src, kind, u, t)
+    assert main(["simulate", "--model", "pendulum:chin", "--input", str(src), "--out", str(out)]) == 0
+    assert "starting them at 0" in capsys.readouterr().err
+    sim = runlog.read_run(out)
+    np.testing.assert_array_equal(sim.t, t)
+    assert sim.input_kind == kind
+    np.testing.assert_allclose(sim.inputs, np.repeat(u, len(t), 0))
+    assert sim.channels["u"][0] == pytest.approx(0.1) and sim.channels["u"][-1] > 0.2  # accelerated forward
+
+
+def test_simulate_refuses_to_overwrite_input(tmp_path, capsys):
+    src = tmp_path / "in.csv"
+    _write_run(src, "thrust", F, np.linspace(0, 1, 11))
+    before = src.read_bytes()
+    assert main(["simulate", "--model", "cfd:chin", "--input", str(src), "--out", str(src)]) == 2
+    assert src.read_bytes() == before
+    assert "input file" in capsys.readouterr().err
