@@ -95,8 +95,8 @@ def simulate(model, x0, t_final, controller=None, inputs=None, dt=0.01, input_ki
         elif method == "solve_ivp":
             from scipy.integrate import solve_ivp
 
-            def rhs(tt, xx, tau=tau):
-                xx = xx.reshape(x.shape)
+            def rhs(tt, xx, tau=tau, shape=x.shape):
+                xx = xx.reshape(shape)
                 tot = tau if disturbance is None else tau + disturbance(tt, xx)
                 return state_derivative(xx, tot, p).ravel()
 
