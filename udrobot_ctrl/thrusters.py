@@ -169,13 +169,21 @@ def pwm_to_thrust(pwm, voltage=DEFAULT_VOLTAGE, curve: ThrusterCurve | None = No
     return out if out.ndim else float(out)
 
 
+def _band_half_width(v, volts, d0s):
+    """Zero-band half-width (us) of the voltage-interpolated curve: the smaller bracketing d0 between nodes."""
+    vc = min(max(v, volts[0]), volts[-1])
+    j = int(np.searchsorted(volts, vc, side="right") - 1)
+    if j >= volts.size - 1 or vc == volts[j]:
+        return float(d0s[min(j, volts.size - 1)])
+    return float(min(d0s[j], d0s[j + 1]))
+
+
 def zero_band(voltage=DEFAULT_VOLTAGE, curve: ThrusterCurve | None = None):
     """(low, high) PWM (us) of the zero band at ``voltage`` (V): commands in it give no thrust."""
     c = curve or load_curve()
     v = float(_check_voltage(voltage))
-    d_f = float(np.interp(v, c.voltages, c.fwd_d0))
-    d_r = float(np.interp(v, c.voltages, c.rev_d0))
-    return PWM_NEUTRAL - d_r, PWM_NEUTRAL + d_f
+    return (PWM_NEUTRAL - _band_half_width(v, c.voltages, c.rev_d0),
+            PWM_NEUTRAL + _band_half_width(v, c.voltages, c.fwd_d0))
 
 
 def thrust_limits(voltage=DEFAULT_VOLTAGE, curve: ThrusterCurve | None = None):
@@ -431,10 +439,13 @@ class ThrustAllocator:
         P = 2.0 * (self._TW @ self.T + self.eps * np.eye(n))
         self._solver = None
         if not self._bad_limits:
+            new_api = int(str(getattr(osqp, "__version__", "0")).split(".")[0]) >= 1
+            opts = {"warm_starting": True, "polishing": True} if new_api else {"warm_start": True, "polish": True}
+            self._solve_kw = {"raise_error": False} if new_api else {}
             self._solver = osqp.OSQP()
             self._solver.setup(P=sp.triu(sp.csc_matrix(P)).tocsc(), q=np.zeros(n),
                                A=sp.identity(n, format="csc"), l=self.f_min, u=self.f_max, verbose=False,
-                               warm_start=True, polish=True, eps_abs=1e-9, eps_rel=1e-9, max_iter=4000)
+                               eps_abs=1e-9, eps_rel=1e-9, max_iter=4000, **opts)
 
     @classmethod
     def from_parameters(cls, p, **kw) -> ThrustAllocator:
@@ -460,7 +471,7 @@ class ThrustAllocator:
             return self._fallback(tau, "inconsistent thrust limits (f_min > f_max or non-finite): clipped pinv")
         try:
             self._solver.update(q=-2.0 * self._TW @ tau)
-            res = self._solver.solve()
+            res = self._solver.solve(**self._solve_kw)
             status = str(res.info.status)
             f = np.asarray(res.x, float)
             if not np.all(np.isfinite(f)) or "solved" not in status.lower() or "inaccurate" in status.lower():
