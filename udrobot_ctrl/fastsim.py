@@ -195,8 +195,8 @@ def batch_step_function(T: np.ndarray, dt: float, inputs: str = "thrust", patter
 class BatchRollout:
     """N vehicles x ``n_records * record_every`` RK4 steps, one shared input sequence.
 
-    The parametric RK4 step is ``map``-ped over vehicles, chained ``record_every`` times and accumulated
-    over records with ``mapaccum``, so memory is 12 x N x n_records doubles, not per step. ``patterns``
+    The parametric RK4 step is ``map``-ped over vehicles and chained ``record_every`` times into one
+    (optionally compiled) function called once per record, so memory is 12 x N x n_records doubles. ``patterns``
     (from :func:`sparsity_patterns`) restricts the matrices to their nonzero entries (fewer operations).
     """
 
@@ -221,9 +221,10 @@ class BatchRollout:
         x = xs
         for j in range(self.record_every):
             x = mapped(x, us[:, j], thetas)
-        chunk = ca.Function("chunk", [xs, us, thetas], [x])
+        # records are looped in Python (n_records calls): casadi's mapaccum of this large MX graph costs
+        # seconds and gigabytes to build for 1000 vehicles, the loop costs microseconds per call
         self.k = k
-        self.function = chunk.mapaccum("batch_rollout", self.n_records, [0], [0])
+        self.function = ca.Function("batch_chunk", [xs, us, thetas], [x])
         self.compiled = False
         if self.compile:
             pat = None if self.patterns is None else [np.asarray(m).tolist() for m in self.patterns]
@@ -245,10 +246,14 @@ class BatchRollout:
         if self.inputs == "thrust":
             u = np.clip(u, self.f_min, self.f_max)
         x0 = np.broadcast_to(np.asarray(x0, float), (self.n_vehicles, 12))
-        th = np.asarray(thetas, float)
-        xs = np.asarray(self.function(x0.T, u.T, th.T))  # 12 x (n_records * N), record-major blocks
-        xs = xs.reshape(12, self.n_vehicles, self.n_records, order="F").transpose(2, 1, 0)
-        out = np.concatenate([x0[None], xs], axis=0)
+        th = ca.DM(np.asarray(thetas, float).T)
+        out = np.empty((self.n_records + 1, self.n_vehicles, 12))
+        out[0] = x0
+        x = ca.DM(np.ascontiguousarray(x0.T))
+        r = self.record_every
+        for j in range(self.n_records):
+            x = self.function(x, u[j * r:(j + 1) * r].T, th)
+            out[j + 1] = np.asarray(x).T
         if not np.all(np.isfinite(out)):
             raise FloatingPointError(f"batch rollout diverged for vehicles "
                                      f"{np.nonzero(~np.all(np.isfinite(out), axis=(0, 2)))[0][:10].tolist()}")
