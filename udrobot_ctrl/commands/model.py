@@ -44,7 +44,7 @@ def run_export(args) -> int:
 def summary(vehicle) -> str:
     """Human-readable summary: masses, restoring, diagonal hydrodynamics, thrusters, actuated DOFs, provenance."""
     from udrobot_ctrl.plant import plant_parameters
-    from udrobot_ctrl.thrusters_alt import actuated_dofs
+    from udrobot_ctrl.thrusters import actuated_dofs
 
     p = plant_parameters(vehicle)
     lines = [f"model {vehicle.name}", f"  mass {vehicle.mass:.3f} kg, weight {vehicle.weight:.2f} N, "
@@ -59,8 +59,10 @@ def summary(vehicle) -> str:
         lines.append(f"  thruster {t.name}: position {list(t.position)} m, direction {list(t.direction)}, "
                      f"+{t.max_forward_N:g} / -{t.max_reverse_N:g} N")
     rep = actuated_dofs(p.T)
+    coupled = getattr(rep, "coupled", ())
     lines.append(f"  actuated DOFs: {', '.join(rep.actuated) or 'none'} (thruster matrix rank {rep.rank}); "
-                 f"passive: {', '.join(rep.passive) or 'none'}")
+                 + (f"coupled only: {', '.join(coupled)}; " if coupled else "")
+                 + f"passive: {', '.join(rep.passive) or 'none'}")
     lines.append("  provenance:")
     for key, val in sorted(vehicle.provenance.items()):
         lines.append(f"    {key}: {val}")

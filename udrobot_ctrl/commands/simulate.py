@@ -74,7 +74,7 @@ def input_wrenches(run, p) -> tuple:
     if u.shape[1] != n_thr:
         raise ValueError(f"{run.path or 'run'}: {u.shape[1]} {kind} columns but the model has {n_thr} thrusters")
     if kind == "pwm":
-        from udrobot_ctrl.thrusters_alt import pwm_to_thrust
+        from udrobot_ctrl.thrusters import pwm_to_thrust
 
         volts = run.channels.get("voltage")
         volts = np.full(run.n, DEFAULT_VOLTAGE) if volts is None else np.where(np.isfinite(volts), volts,
