@@ -104,6 +104,9 @@ class MissionEvaluator:
             DepthHeadingMission() if backend == "batch" else None)
         self.redesign = bool(redesign)
         self.controller_opts = dict(controller_opts or {})
+        # samples per task: vectorised batches amortise numpy overhead (1.8 ms/run at 256 vs 4.2 at 64);
+        # one-by-one runs keep tasks small so progress and interruptions stay fine-grained
+        self.max_chunk = 256 if backend == "batch" else 4
 
     def describe(self) -> str:
         how = "redesigned per sample" if self.redesign else "designed on nominal"

@@ -176,7 +176,8 @@ def run_sweep(evaluator, X, executor=None, store=None, chunk_size: int | None = 
         Finished chunks are written to it as they complete, and samples already on disk are skipped
         (resume). Without a store results are only kept in memory.
     chunk_size : int, optional
-        Samples per task (default :func:`default_chunk_size`).
+        Samples per task (default :func:`default_chunk_size`, capped by ``evaluator.max_chunk`` when the
+        evaluator has one, else by ``max_chunk``).
 
     Returns
     -------
@@ -194,6 +195,7 @@ def run_sweep(evaluator, X, executor=None, store=None, chunk_size: int | None = 
     own = ex is not executor
     mem = []
     try:
+        max_chunk = getattr(evaluator, "max_chunk", None) or max_chunk  # batched evaluators like big chunks
         size = chunk_size or default_chunk_size(len(todo), ex.workers, max_chunk)
         chunks = [todo[i:i + size] for i in range(0, len(todo), size)]
         bar = progress_bar(len(todo), desc, progress)
