@@ -1,0 +1,268 @@
+"""Runs prepared for the gap diagnosis: uniform time base, smoothed velocities and accelerations, actuators.
+
+Everything the diagnoser computes starts from a :class:`Prepared` run:
+
+* the run is resampled to a uniform grid at its own median sample interval (runs may differ in rate);
+* the body velocities ``nu`` are smoothed with a Savitzky-Golay filter on each contiguous stretch of data
+  (DVL gaps are never bridged) and differentiated in the same pass (``nu_dot``); body rates that are not
+  logged are recovered from the Euler-angle rates when the attitude is logged;
+* the commanded inputs become *actuator commands* ``f`` (n, k) with an actuator matrix ``B`` (6 x k) so
+  that the nominal wrench is ``B f``: per-thruster thrusts (``thrust_i``; ``pwm_i`` converted with a T200
+  curve) with the model's thruster matrix, or six virtual actuators (``tau_*``, ``B = I``);
+* the distances to the seabed and to the walls come from the sidecar metadata (``seabed_depth``,
+  ``walls``) and the logged position, or from the logged ``altitude``.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.signal import savgol_filter
+
+from udrobot_ctrl.plant import PlantParameters, restoring_forces
+from udrobot_ctrl.runlog import Run, resample
+
+VEL = ("u", "v", "w", "p", "q", "r")
+POSE = ("x", "y", "z", "phi", "theta", "psi")
+
+# estimated: Blue Robotics T200 bollard thrust at 12 V (N) at PWM offsets from 1500 us, read off the public
+# performance table (../shared/data/t200); used only to convert pwm_i columns (symmetric deadband +-24 us).
+_PWM_US = np.array([-400, -300, -200, -100, -24, 24, 100, 200, 300, 400], float)
+_PWM_N = np.array([-28.61, -18.6, -8.9, -2.1, 0.0, 0.0, 2.6, 11.3, 23.6, 36.42])
+
+
+def pwm_to_thrust(pwm):
+    """Thrust (N) of a T200 at 12 V for ESC pulse widths (us); estimated curve, 0 inside +-24 us of 1500."""
+    return np.interp(np.asarray(pwm, float) - 1500.0, _PWM_US, _PWM_N)
+
+
+@dataclass
+class Prepared:
+    """One run ready for the diagnosis (all arrays on the uniform grid ``t``, n samples).
+
+    Attributes
+    ----------
+    name : str
+        Run label (file name).
+    t : (n,) ndarray
+        Uniform time, s.
+    dt : float
+        Sample interval, s.
+    meas : dict of str -> (n,) ndarray
+        Measured channels after resampling (nan where missing).
+    eta : (n, 6) ndarray
+        Pose with nan filled (x, y: 0; attitude: interpolated, 0 when never logged), m and rad.
+    nu, nu_dot : (n, 6) ndarray
+        Smoothed body velocities (m/s, rad/s) and their derivatives; nan where not available.
+    f : (n, k) ndarray
+        Actuator commands (N for thrusters; N, N m for virtual wrench actuators), clipped to limits.
+    B : (6, k) ndarray
+        Actuator matrix: nominal wrench = B f.
+    inflow : (6, k) ndarray
+        Axial inflow speed of actuator j is ``inflow[:, j] . nu`` (m/s); zero columns for torques.
+    f_ref : (k,) ndarray
+        Reference magnitude of each actuator (max thrust, or the 99th percentile of |tau_i|).
+    surfaces : list of (distance (n,), normal_ned (3,), label)
+        Seabed / walls with the distance (m) from the body origin and the unit normal into the water.
+    dof_ok : (6,) bool
+        DOFs whose velocity is measured (their equation of motion can be scored).
+    notes : list of str
+        What was assumed while preparing.
+    """
+
+    name: str
+    t: np.ndarray
+    dt: float
+    meas: dict
+    eta: np.ndarray
+    nu: np.ndarray
+    nu_dot: np.ndarray
+    f: np.ndarray
+    B: np.ndarray
+    inflow: np.ndarray
+    f_ref: np.ndarray
+    input_kind: str
+    surfaces: list = field(default_factory=list)
+    dof_ok: np.ndarray = field(default_factory=lambda: np.zeros(6, bool))
+    notes: list = field(default_factory=list)
+    window_s: float = 0.8
+
+    @property
+    def n(self) -> int:
+        return int(self.t.size)
+
+    def raw_state(self) -> np.ndarray:
+        """(n, 12) state for the equation error: filled pose, logged velocities (rates derived from the attitude
+        where not logged, zero for unmeasured DOFs), nan inside velocity gaps."""
+        nu = np.full((self.n, 6), 0.0)
+        for i, c in enumerate(VEL):
+            if c in self.meas and np.isfinite(self.meas[c]).any():
+                nu[:, i] = self.meas[c]
+            elif self.dof_ok[i]:
+                nu[:, i] = self.nu[:, i]
+        return np.concatenate([self.eta, nu], axis=1)
+
+    def state(self) -> np.ndarray:
+        """(n, 12) state [eta, nu] with nu smoothed (nan where velocities are missing)."""
+        return np.concatenate([self.eta, self.nu], axis=1)
+
+
+def _segments(ok):
+    """Start/stop index pairs of the runs of True in a boolean array."""
+    d = np.diff(np.concatenate([[0], ok.astype(np.int8), [0]]))
+    return list(zip(np.flatnonzero(d == 1), np.flatnonzero(d == -1)))
+
+
+def smooth_derivative(y, dt, window_s=0.8, order=2):
+    """Savitzky-Golay smoothing and first derivative of y on each finite stretch (nan elsewhere).
+
+    Parameters
+    ----------
+    y : (n,) ndarray
+    dt : float
+        Sample interval, s.
+    window_s : float
+        Filter window, s (at least 5 samples).
+
+    Returns
+    -------
+    ys, yd : (n,) ndarray
+        Smoothed values and derivative (units of y per second).
+    """
+    ys = np.full_like(y, np.nan, dtype=float)
+    yd = np.full_like(y, np.nan, dtype=float)
+    win = max(5, int(round(window_s / dt)) | 1)
+    for a, b in _segments(np.isfinite(y)):
+        m = b - a
+        if m < 5:
+            continue
+        w = min(win, m if m % 2 else m - 1)
+        o = min(order, w - 1)
+        ys[a:b] = savgol_filter(y[a:b], w, o, mode="interp")
+        yd[a:b] = savgol_filter(y[a:b], w, o, deriv=1, delta=dt, mode="interp")
+    return ys, yd
+
+
+def _fill(y, default=0.0):
+    """Linear interpolation over nan gaps, constant extrapolation; default when never measured."""
+    ok = np.isfinite(y)
+    if not ok.any():
+        return np.full_like(y, default, dtype=float)
+    idx = np.arange(y.size)
+    return np.interp(idx, idx[ok], y[ok])
+
+
+def actuators(run: Run, p: PlantParameters, f_raw=None):
+    """Actuator commands f (n, k), matrix B (6, k), inflow matrix (6, k) and reference magnitudes (k,).
+
+    Raises
+    ------
+    ValueError
+        If per-thruster inputs do not match the model's thruster count.
+    """
+    f = np.asarray(run.inputs if f_raw is None else f_raw, float)
+    if run.input_kind in ("thrust", "pwm"):
+        k = p.T.shape[1]
+        if f.shape[1] != k:
+            raise ValueError(f"{run.path or 'run'}: {f.shape[1]} {run.input_kind}_i columns but the model has {k} "
+                             f"thrusters (columns must follow the model's thruster order)")
+        if run.input_kind == "pwm":
+            f = pwm_to_thrust(f)
+        f = np.clip(f, p.f_min, p.f_max)
+        return f, p.T.copy(), p.T.copy(), np.maximum(p.f_max, -p.f_min)
+    inflow = np.eye(6)
+    inflow[3:, 3:] = 0.0
+    ref = np.nanpercentile(np.abs(f), 99, axis=0) if np.isfinite(f).any() else np.ones(6)
+    ref = np.where(np.isfinite(ref) & (ref > 1e-9), ref, 1.0)
+    return f, np.eye(6), inflow, ref
+
+
+def _surfaces(run: Run, meas, n):
+    out = []
+    meta = run.metadata or {}
+    z = meas.get("z")
+    if "altitude" in meas and np.isfinite(meas["altitude"]).sum() > 0.5 * n:
+        out.append((_fill(meas["altitude"], np.nan), np.array([0.0, 0.0, -1.0]), "seabed (altitude)"))
+    elif meta.get("seabed_depth") is not None and z is not None and np.isfinite(z).any():
+        out.append((float(meta["seabed_depth"]) - _fill(z), np.array([0.0, 0.0, -1.0]), "seabed"))
+    x, y = meas.get("x"), meas.get("y")
+    if x is not None and y is not None and np.isfinite(x).any() and np.isfinite(y).any():
+        pos = np.column_stack([_fill(x), _fill(y), _fill(z) if z is not None else np.zeros(n)])
+        for i, wall in enumerate(meta.get("walls", []) or []):
+            nrm = np.asarray(wall["normal"], float)
+            nrm = nrm / np.linalg.norm(nrm)
+            d = (pos - np.asarray(wall["point"], float)) @ nrm
+            out.append((d, nrm, f"wall {i}"))
+    return out
+
+
+def prepare(run: Run, p: PlantParameters, name=None, window_s=0.8, dt=None) -> Prepared:
+    """Resample, smooth and differentiate one run (see the module docstring).
+
+    Parameters
+    ----------
+    run : Run
+    p : PlantParameters
+        Nominal plant (thruster matrix and limits).
+    window_s : float
+        Savitzky-Golay window for velocities, s.
+    dt : float, optional
+        Grid interval, s; the run's median interval by default.
+    """
+    label = name or (run.path.split("/")[-1] if run.path else "run")
+    notes = []
+    if run.n < 20:
+        raise ValueError(f"{label}: only {run.n} samples; a run needs at least 20")
+    dt = float(dt or run.dt_median)
+    t = run.t[0] + dt * np.arange(int(np.floor((run.t[-1] - run.t[0]) / dt + 1e-9)) + 1)
+    r = resample(run, t) if (t.size != run.n or np.max(np.abs(t - run.t)) > 1e-9) else run
+    meas = {c: np.asarray(v, float) for c, v in r.channels.items()}
+    n = t.size
+    eta = np.zeros((n, 6))
+    for i, c in enumerate(POSE):
+        if c in meas and np.isfinite(meas[c]).any():
+            y = meas[c].copy()
+            if c in ("phi", "theta", "psi"):
+                ok = np.isfinite(y)
+                y[ok] = np.unwrap(y[ok])
+            eta[:, i] = _fill(y)
+        elif c in ("phi", "theta"):
+            notes.append(f"{label}: {c} not logged; assumed 0 in the restoring forces")
+    nu = np.full((n, 6), np.nan)
+    nu_dot = np.full((n, 6), np.nan)
+    for i, c in enumerate(VEL):
+        if c in meas and np.isfinite(meas[c]).sum() >= 5:
+            nu[:, i], nu_dot[:, i] = smooth_derivative(meas[c], dt, window_s)
+    missing_rates = [i for i in (3, 4, 5) if not np.isfinite(nu[:, i]).any()]
+    if missing_rates and all(c in meas and np.isfinite(meas[c]).any() for c in ("phi", "theta", "psi")):
+        ang = np.column_stack([smooth_derivative(eta[:, 3 + j], dt, window_s)[1] for j in range(3)])
+        phi, th = eta[:, 3], eta[:, 4]
+        sf, cf, st, ct = np.sin(phi), np.cos(phi), np.sin(th), np.cos(th)
+        rates = np.column_stack([ang[:, 0] - st * ang[:, 2], cf * ang[:, 1] + sf * ct * ang[:, 2],
+                                 -sf * ang[:, 1] + cf * ct * ang[:, 2]])
+        for i in missing_rates:
+            nu[:, i], nu_dot[:, i] = smooth_derivative(rates[:, i - 3], dt, window_s)
+        notes.append(f"{label}: body rates {', '.join(VEL[i] for i in missing_rates)} not logged; derived from "
+                     f"the Euler-angle rates")
+    dof_ok = np.isfinite(nu).any(axis=0)
+    f_raw = np.asarray(r.inputs, float)
+    if np.isnan(f_raw).any():
+        f_raw = np.column_stack([_fill(c) for c in f_raw.T])
+    f, B, inflow, ref = actuators(run, p, f_raw)
+    return Prepared(name=label, t=t, dt=dt, meas=meas, eta=eta, nu=nu, nu_dot=nu_dot, f=f, B=B, inflow=inflow,
+                    f_ref=ref, input_kind=run.input_kind, surfaces=_surfaces(run, meas, n), dof_ok=dof_ok,
+                    notes=notes, window_s=window_s)
+
+
+def restoring_gradient(eta, p: PlantParameters, which: str):
+    """d g(eta) / d theta for a restoring parameter: 'B' (net buoyancy, per N) or 'BG_x'/'BG_y'/'BG_z'.
+
+    ``BG_*`` are the moments (x_g W - x_b B) etc. in N m. Returns (n, 6).
+    """
+    if which == "B":
+        return restoring_forces(eta, 0.0, 1.0, p.r_g, p.r_b)
+    axis = {"BG_x": 0, "BG_y": 1, "BG_z": 2}[which]
+    r = np.zeros(3)
+    r[axis] = 1.0
+    return restoring_forces(eta, 1.0, 1.0, r, np.zeros(3)) - restoring_forces(eta, 1.0, 1.0, np.zeros(3),
+                                                                              np.zeros(3))

@@ -1,0 +1,453 @@
+"""The effect catalogue: each unmodelled effect as a physically parameterised addition to the plant.
+
+Every effect contributes an extra generalised force ``p`` (N, N m) to the nominal equation of motion
+
+    M nu_dot + C(nu) nu + D(nu) nu + g(eta) = B f + p(x, nu_dot, f; theta)
+
+so that, with the *equation-error residual* ``r = M nu_dot + C nu + D nu + g - B f`` computed from the
+measured (smoothed) velocities, each effect predicts ``r``. The parameters split into a few *shape*
+parameters (searched on a grid and refined, e.g. a lag time constant or a decay length) and *amplitude*
+parameters entering linearly (fitted by bounded least squares): ``p = b0(shape) + A(shape) a``.
+
+The same physics is used to simulate: :meth:`Effect.hooks` returns an input filter (effects acting on the
+command sequence only: deadband, asymmetry, lag), a state-dependent force and an added-mass increment.
+
+Templates (the diagnoser's lumped forms; a truth generator should use different forms):
+
+``thrust_inflow_loss``  f_act = f - (k1 |f| + k2 sqrt(|f| f_ref)) u_a, u_a the axial advance speed of the
+                        actuator (linear K_T(J) gives the sqrt term, fixed-rpm curves the |f| term).
+``thruster_deadband``   f_act = 0 for |f| < d, f - c d sign(f) beyond (hard, c=0, or shifted, c=1).
+``thruster_asymmetry``  reverse thrust (1 - a) f for f < 0.
+``thruster_lag``        first-order lag of time constant T_lag on every actuator.
+``tether_drag``         lumped horizontal drag at the body origin, F_ned = -(k_q |V_h| + k_l) V_h.
+``wall_effect``         per surface at distance h with normal n: added mass a_m exp(-h/lam) n n^T and a
+                        suction force -a_s exp(-h/lam) |V_t|^2 n (V_t the speed along the surface).
+``water_current``       steady NED current (c_N, c_E, c_D): damping acts on nu - R^T c.
+``linear_damping``      extra diagonal linear damping d_i (N s/m, N m s).
+``quadratic_damping_error``  Q_ii scaled by (1 + s_i).
+``added_mass_error``    M_A,ii scaled by (1 + s_i) (with its Coriolis-centripetal part).
+``cross_coupled_damping``    off-diagonal linear and quadratic damping D_ij nu_j, Q_ij |nu_j| nu_j.
+``buoyancy_offset``     net buoyancy B - W changed by dB (N).
+``cg_cb_offset``        restoring moments (x_g W - x_b B, y_g W - y_b B, z_g W - z_b B) changed by dBG (N m).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.signal import lfilter
+
+from udrobot_ctrl.gap.data import restoring_gradient
+from udrobot_ctrl.plant import PlantParameters, coriolis_centripetal, rotation_zyx
+
+EFFECT_NAMES = ("thrust_inflow_loss", "thruster_deadband", "thruster_asymmetry", "thruster_lag", "tether_drag",
+                "wall_effect", "water_current", "linear_damping", "quadratic_damping_error", "added_mass_error",
+                "cross_coupled_damping", "buoyancy_offset", "cg_cb_offset")
+DOF = ("X", "Y", "Z", "K", "M", "N")
+VEL = ("u", "v", "w", "p", "q", "r")
+
+
+@dataclass
+class Stack:
+    """Samples of one or more prepared runs stacked for equation-error fitting (n valid samples).
+
+    ``runs`` keeps, per run, the full command sequence and the indices of its valid samples, so that
+    input filters (lag) run over the whole sequence before sampling.
+    """
+
+    nu: np.ndarray
+    nu_dot: np.ndarray
+    eta: np.ndarray
+    f: np.ndarray
+    B: np.ndarray
+    inflow: np.ndarray
+    f_ref: np.ndarray
+    surfaces: dict
+    runs: list
+    p: PlantParameters
+    M_A: np.ndarray
+
+    @property
+    def n(self) -> int:
+        return int(self.nu.shape[0])
+
+    def full(self, func, held=False, filt=True):
+        """Evaluate func(run) -> (n_full, ...) on each run at its full rate (raw logged state, held commands),
+        filter it like the velocity derivative (``held``: a command held over each interval; ``filt=False``
+        for terms already built from the filtered nu_dot) and sample it at the stacked rows."""
+        parts = []
+        for r in self.runs:
+            y = func(r)
+            parts.append((r["smooth"](y, held=held) if filt else y)[r["idx"]])
+        return np.nan_to_num(np.concatenate(parts, axis=0))
+
+
+def first_order_lag(f, dt, T, f0=None):
+    """Exact zero-order-hold discretisation of T y' + y = f over a uniform sequence f (n, k); dt, T in s."""
+    a = np.exp(-dt / max(T, 1e-9))
+    f = np.asarray(f, float)
+    zi = ((f[0] if f0 is None else f0) * a)[None, :]
+    y, _ = lfilter([1 - a], [1, -a], f, axis=0, zi=zi)
+    return y
+
+
+def _body_horizontal(eta, nu):
+    """Horizontal NED velocity V_h (n, 3) (third entry 0) and the rotation R (n, 3, 3)."""
+    R = rotation_zyx(eta[..., 3], eta[..., 4], eta[..., 5])
+    v = np.einsum("...ij,...j->...i", R, nu[..., :3])
+    v[..., 2] = 0.0
+    return v, R
+
+
+def _to_body(R, vec):
+    return np.einsum("...ji,...j->...i", R, vec)
+
+
+@dataclass
+class Hooks:
+    """How an effect enters a simulation: input filter, extra force, added-mass increment (any may be None)."""
+
+    input_filter: object = None  # (f (n,k), dt) -> f_act (n,k); applied to the whole command sequence
+    force: object = None  # (x (N,12), f (N,k), ctx dict) -> (N,6)
+    mass: object = None  # (x (N,12), ctx dict) -> (N,6,6)
+    order: int = 0  # input filters run in increasing order (static nonlinearities 0, lag 1)
+
+
+@dataclass
+class Effect:
+    """One catalogue entry (see the module docstring)."""
+
+    name: str
+    meaning: str
+    shape_names: tuple = ()
+    shape_grid: tuple = ((),)
+    shape_bounds: tuple = ()
+    refine: bool = False
+    mimics: tuple = field(default_factory=tuple)
+
+    # -- to be provided per effect
+    def design(self, s: Stack, shape):
+        """(b0 (n,6), A (n,6,k), names (k,), lower (k,), upper (k,)) for a shape."""
+        raise NotImplementedError
+
+    def hooks(self, params: dict, p: PlantParameters, B, inflow, f_ref, M_A) -> Hooks:
+        raise NotImplementedError
+
+
+# ------------------------------------------------------------------------------------------- thrusters
+class InflowLoss(Effect):
+    def design(self, s, shape):
+        def cols(r):
+            ua = r["nu"] @ s.inflow  # (n, k) axial advance speed
+            af = np.abs(r["f"])
+            return np.stack([(-(af * ua)) @ s.B.T, (-(np.sqrt(af * s.f_ref) * ua)) @ s.B.T], -1)
+        A = s.full(cols)
+        return np.zeros((s.n, 6)), A, ("k1_per_mps", "k2_per_mps"), np.zeros(2), np.array([2.0, 2.0])
+
+    def hooks(self, params, p, B, inflow, f_ref, M_A):
+        k1, k2 = params["k1_per_mps"], params["k2_per_mps"]
+
+        def force(x, f, ctx):
+            ua = x[..., 6:] @ inflow
+            fa = f - (k1 * np.abs(f) + k2 * np.sqrt(np.abs(f) * f_ref)) * ua
+            fa = np.where(fa * f < 0, 0.0, fa)  # a loss never reverses the thrust
+            return (fa - f) @ B.T
+        return Hooks(force=force)
+
+
+def _deadband(f, d, c):
+    out = np.where(np.abs(f) < d, 0.0, f - c * d * np.sign(f))
+    return out
+
+
+class Deadband(Effect):
+    def design(self, s, shape):
+        (frac,) = shape
+        d = frac * s.f_ref
+        b0 = s.full(lambda r: np.where(np.abs(r["f"]) < d, -r["f"], 0.0) @ s.B.T, held=True)
+        col = s.full(lambda r: np.where(np.abs(r["f"]) < d, 0.0, -d * np.sign(r["f"])) @ s.B.T, held=True)
+        return b0, col[..., None], ("shift",), np.zeros(1), np.ones(1)
+
+    def hooks(self, params, p, B, inflow, f_ref, M_A):
+        d = params["width_fraction"] * f_ref
+        c = params["shift"]
+        return Hooks(input_filter=lambda f, dt: _deadband(f, d, c))
+
+
+class Asymmetry(Effect):
+    def design(self, s, shape):
+        col = s.full(lambda r: (-np.minimum(r["f"], 0.0)) @ s.B.T, held=True)
+        return np.zeros((s.n, 6)), col[..., None], ("reverse_loss",), np.array([-1.0]), np.array([0.95])
+
+    def hooks(self, params, p, B, inflow, f_ref, M_A):
+        a = params["reverse_loss"]
+        return Hooks(input_filter=lambda f, dt: np.where(f < 0, (1 - a) * f, f))
+
+
+class Lag(Effect):
+    def design(self, s, shape):
+        (T,) = shape
+        b0 = s.full(lambda r: (first_order_lag(r["f"], r["dt"], T) - r["f"]) @ s.B.T, held=True)
+        return b0, np.zeros((s.n, 6, 0)), (), np.zeros(0), np.zeros(0)
+
+    def hooks(self, params, p, B, inflow, f_ref, M_A):
+        T = params["T_lag_s"]
+        return Hooks(input_filter=lambda f, dt: first_order_lag(f, dt, T), order=1)
+
+
+# ------------------------------------------------------------------------------------------- environment
+class TetherDrag(Effect):
+    def design(self, s, shape):
+        def cols(r):
+            vh, R = _body_horizontal(r["eta"], r["nu"])
+            sp = np.linalg.norm(vh, axis=-1, keepdims=True)
+            A = np.zeros(vh.shape[:1] + (6, 2))
+            A[:, :3, 0] = _to_body(R, -sp * vh)
+            A[:, :3, 1] = _to_body(R, -vh)
+            return A
+        A = s.full(cols)
+        return np.zeros((s.n, 6)), A, ("k_quadratic_N_s2_per_m2", "k_linear_N_s_per_m"), np.zeros(2), \
+            np.array([1e4, 1e4])
+
+    def hooks(self, params, p, B, inflow, f_ref, M_A):
+        kq, kl = params["k_quadratic_N_s2_per_m2"], params["k_linear_N_s_per_m"]
+
+        def force(x, f, ctx):
+            vh, R = _body_horizontal(x[..., :6], x[..., 6:])
+            sp = np.linalg.norm(vh, axis=-1, keepdims=True)
+            out = np.zeros(x.shape[:-1] + (6,))
+            out[..., :3] = _to_body(R, -(kq * sp + kl) * vh)
+            return out
+        return Hooks(force=force)
+
+
+def _surface_terms(eta, nu, nu_dot, dist, normal, lam):
+    """exp(-h/lam), body normal (n,3), tangential speed^2 (n,) for one surface."""
+    R = rotation_zyx(eta[..., 3], eta[..., 4], eta[..., 5])
+    nb = _to_body(R, np.broadcast_to(normal, eta.shape[:-1] + (3,)))
+    vn = np.sum(nu[..., :3] * nb, -1)
+    vt2 = np.maximum(np.sum(nu[..., :3] ** 2, -1) - vn ** 2, 0.0)
+    h = np.where(np.isfinite(dist), np.maximum(dist, 0.0), np.inf)
+    return np.exp(-h / lam), nb, vt2, vn
+
+
+class WallEffect(Effect):
+    def design(self, s, shape):
+        (lam,) = shape
+
+        def col(r, which):
+            out = np.zeros(r["nu"].shape[:1] + (6,))
+            for dist, normal in r["surfaces"]:
+                e, nb, vt2, _ = _surface_terms(r["eta"], r["nu"], None, dist, normal, lam)
+                if which == 0:
+                    out[:, :3] += -(e * np.sum(r["nu_dot"][:, :3] * nb, -1))[:, None] * nb
+                else:
+                    out[:, :3] += -(e * vt2)[:, None] * nb
+            return out
+        A = np.stack([s.full(lambda r: col(r, 0), filt=False), s.full(lambda r: col(r, 1))], -1)
+        return np.zeros((s.n, 6)), A, ("added_mass_at_contact_kg", "suction_N_s2_per_m2"), np.zeros(2), \
+            np.array([1e4, 1e5])
+
+    def hooks(self, params, p, B, inflow, f_ref, M_A):
+        lam, am, as_ = params["decay_length_m"], params["added_mass_at_contact_kg"], params["suction_N_s2_per_m2"]
+
+        def force(x, f, ctx):
+            out = np.zeros(x.shape[:-1] + (6,))
+            for dist, normal in ctx["surfaces"]:
+                e, nb, vt2, _ = _surface_terms(x[..., :6], x[..., 6:], None, dist, normal, lam)
+                out[..., :3] += -(as_ * e * vt2)[..., None] * nb
+            return out
+
+        def mass(x, ctx):
+            out = np.zeros(x.shape[:-1] + (6, 6))
+            for dist, normal in ctx["surfaces"]:
+                e, nb, _, _ = _surface_terms(x[..., :6], x[..., 6:], None, dist, normal, lam)
+                out[..., :3, :3] += (am * e)[..., None, None] * nb[..., :, None] * nb[..., None, :]
+            return out
+        return Hooks(force=force, mass=mass)
+
+
+def _damping_force(nu, p):
+    return nu @ p.D_L.T + (np.abs(nu) * nu) @ p.Q.T
+
+
+def _current_force(eta, nu, c, p, M_A):
+    R = rotation_zyx(eta[..., 3], eta[..., 4], eta[..., 5])
+    nu_r = nu.copy()
+    nu_r[..., :3] = nu[..., :3] - _to_body(R, np.broadcast_to(c, nu.shape[:-1] + (3,)))
+    return (_damping_force(nu, p) - _damping_force(nu_r, p)
+            + coriolis_centripetal(M_A, nu) - coriolis_centripetal(M_A, nu_r))
+
+
+class Current(Effect):
+    def design(self, s, shape):
+        c = np.array(shape, float)
+        b0 = s.full(lambda r: _current_force(r["eta"], r["nu"], c, s.p, s.M_A))
+        return b0, np.zeros((s.n, 6, 0)), (), np.zeros(0), np.zeros(0)
+
+    def hooks(self, params, p, B, inflow, f_ref, M_A):
+        c = np.array([params["current_north_mps"], params["current_east_mps"], params["current_down_mps"]])
+        return Hooks(force=lambda x, f, ctx: _current_force(x[..., :6], x[..., 6:], c, p, M_A))
+
+
+# ------------------------------------------------------------------------------------------- hydrodynamics
+class LinearDamping(Effect):
+    def design(self, s, shape):
+        A = s.full(lambda r: -r["nu"][:, :, None] * np.eye(6)[None])
+        lo = -np.diag(s.p.D_L).copy()
+        return np.zeros((s.n, 6)), A, tuple(f"d_{d}{v}" for d, v in zip(DOF, VEL)), lo, np.full(6, 1e4)
+
+    def hooks(self, params, p, B, inflow, f_ref, M_A):
+        d = np.array([params[f"d_{a}{v}"] for a, v in zip(DOF, VEL)])
+        return Hooks(force=lambda x, f, ctx: -d * x[..., 6:])
+
+
+class QuadDampingError(Effect):
+    def design(self, s, shape):
+        q = np.diag(s.p.Q)
+        A = s.full(lambda r: -(q * np.abs(r["nu"]) * r["nu"])[:, :, None] * np.eye(6)[None])
+        return np.zeros((s.n, 6)), A, tuple(f"scale_{d}{v}|{v}|" for d, v in zip(DOF, VEL)), np.full(6, -0.95), \
+            np.full(6, 10.0)
+
+    def hooks(self, params, p, B, inflow, f_ref, M_A):
+        sc = np.array([params[f"scale_{d}{v}|{v}|"] for d, v in zip(DOF, VEL)]) * np.diag(p.Q)
+        return Hooks(force=lambda x, f, ctx: -sc * np.abs(x[..., 6:]) * x[..., 6:])
+
+
+class AddedMassError(Effect):
+    def design(self, s, shape):
+        ma = np.diag(s.M_A)
+        A = -s.full(lambda r: r["nu_dot"][:, :, None] * np.diag(ma)[None], filt=False)
+
+        def cor(r):
+            out = np.zeros(r["nu"].shape[:1] + (6, 6))
+            for i in range(6):
+                Mi = np.zeros((6, 6))
+                Mi[i, i] = ma[i]
+                out[:, :, i] = coriolis_centripetal(Mi, r["nu"])
+            return out
+        A = A - s.full(cor)
+        return np.zeros((s.n, 6)), A, tuple(f"scale_{d}d{v}" for d, v in zip(DOF, VEL)), np.full(6, -0.9), \
+            np.full(6, 10.0)
+
+    def hooks(self, params, p, B, inflow, f_ref, M_A):
+        sc = np.array([params[f"scale_{d}d{v}"] for d, v in zip(DOF, VEL)])
+        dM = np.diag(sc * np.diag(M_A))
+        return Hooks(force=lambda x, f, ctx: -coriolis_centripetal(dM, x[..., 6:]),
+                     mass=lambda x, ctx: np.broadcast_to(dM, x.shape[:-1] + (6, 6)))
+
+
+CROSS_PAIRS = tuple((i, j) for i in range(6) for j in range(6) if i != j)
+
+
+class CrossDamping(Effect):
+    def design(self, s, shape):
+        names = []
+        for i, j in CROSS_PAIRS:
+            names += [f"D_{DOF[i]}{VEL[j]}", f"Q_{DOF[i]}{VEL[j]}|{VEL[j]}|"]
+
+        def cols(r):
+            A = np.zeros(r["nu"].shape[:1] + (6, 2 * len(CROSS_PAIRS)))
+            for k, (i, j) in enumerate(CROSS_PAIRS):
+                A[:, i, 2 * k] = -r["nu"][:, j]
+                A[:, i, 2 * k + 1] = -np.abs(r["nu"][:, j]) * r["nu"][:, j]
+            return A
+        A = s.full(cols)
+        k = A.shape[-1]
+        return np.zeros((s.n, 6)), A, tuple(names), np.full(k, -1e4), np.full(k, 1e4)
+
+    def hooks(self, params, p, B, inflow, f_ref, M_A):
+        DL = np.zeros((6, 6))
+        Q = np.zeros((6, 6))
+        for i, j in CROSS_PAIRS:
+            DL[i, j] = params.get(f"D_{DOF[i]}{VEL[j]}", 0.0)
+            Q[i, j] = params.get(f"Q_{DOF[i]}{VEL[j]}|{VEL[j]}|", 0.0)
+        return Hooks(force=lambda x, f, ctx: -(x[..., 6:] @ DL.T + (np.abs(x[..., 6:]) * x[..., 6:]) @ Q.T))
+
+
+class BuoyancyOffset(Effect):
+    def design(self, s, shape):
+        A = -s.full(lambda r: restoring_gradient(r["eta"], s.p, "B"))[..., None]
+        return np.zeros((s.n, 6)), A, ("dB_N",), np.array([-1e4]), np.array([1e4])
+
+    def hooks(self, params, p, B, inflow, f_ref, M_A):
+        dB = params["dB_N"]
+        return Hooks(force=lambda x, f, ctx: -dB * restoring_gradient(x[..., :6], p, "B"))
+
+
+class CgCbOffset(Effect):
+    def design(self, s, shape):
+        A = -s.full(lambda r: np.stack([restoring_gradient(r["eta"], s.p, k) for k in ("BG_x", "BG_y", "BG_z")], -1))
+        return np.zeros((s.n, 6)), A, ("dBG_x_Nm", "dBG_y_Nm", "dBG_z_Nm"), np.full(3, -1e3), np.full(3, 1e3)
+
+    def hooks(self, params, p, B, inflow, f_ref, M_A):
+        keys = ("BG_x", "BG_y", "BG_z")
+        vals = [params[f"d{k}_Nm"] for k in keys]
+        return Hooks(force=lambda x, f, ctx: -sum(v * restoring_gradient(x[..., :6], p, k)
+                                                   for v, k in zip(vals, keys)))
+
+
+def catalogue() -> dict:
+    """Name -> :class:`Effect`, in the spec's order."""
+    lag_grid = tuple((T,) for T in (0.03, 0.06, 0.1, 0.15, 0.2, 0.3, 0.45, 0.7, 1.0, 1.5))
+    db_grid = tuple((d,) for d in (0.02, 0.04, 0.07, 0.1, 0.15, 0.2, 0.3))
+    wall_grid = tuple((lam,) for lam in (0.03, 0.06, 0.1, 0.15, 0.22, 0.33, 0.5, 0.8))
+    cur = tuple((cn, ce, 0.0) for cn in (-0.1, 0.0, 0.1) for ce in (-0.1, 0.0, 0.1))
+    effects = [
+        InflowLoss("thrust_inflow_loss", "thrust falls with the axial inflow speed through the thruster",
+                   mimics=("quadratic_damping_error", "linear_damping", "tether_drag")),
+        Deadband("thruster_deadband", "small commands produce no thrust", ("width_fraction",), db_grid,
+                 ((0.005, 0.5),), refine=True),
+        Asymmetry("thruster_asymmetry", "reverse thrust weaker than modelled, relative to forward"),
+        Lag("thruster_lag", "thrust follows the command with a first-order lag", ("T_lag_s",), lag_grid,
+            ((0.005, 3.0),), refine=True, mimics=("added_mass_error",)),
+        TetherDrag("tether_drag", "umbilical drag opposing horizontal motion",
+                   mimics=("quadratic_damping_error", "linear_damping", "thrust_inflow_loss")),
+        WallEffect("wall_effect", "extra added mass and suction near the seabed or a wall", ("decay_length_m",),
+                   wall_grid, ((0.01, 2.0),), refine=True),
+        Current("water_current", "steady current; damping on the velocity relative to the water",
+                ("current_north_mps", "current_east_mps", "current_down_mps"), cur,
+                ((-1.0, 1.0), (-1.0, 1.0), (-0.3, 0.3)), refine=True, mimics=("buoyancy_offset",)),
+        LinearDamping("linear_damping", "linear damping missing or wrong",
+                      mimics=("quadratic_damping_error", "tether_drag")),
+        QuadDampingError("quadratic_damping_error", "quadratic damping wrong in scale",
+                         mimics=("thrust_inflow_loss", "tether_drag", "linear_damping")),
+        AddedMassError("added_mass_error", "added mass wrong in scale", mimics=("thruster_lag",)),
+        CrossDamping("cross_coupled_damping", "off-diagonal damping couples DOFs"),
+        BuoyancyOffset("buoyancy_offset", "net buoyancy differs from the model"),
+        CgCbOffset("cg_cb_offset", "restoring moment (CG-CB separation) differs from the model"),
+    ]
+    return {e.name: e for e in effects}
+
+
+# which manoeuvre separates two look-alike effects
+DISCRIMINATING_MANOEUVRE = {
+    frozenset({"quadratic_damping_error", "thrust_inflow_loss"}):
+        "coast-downs: cut the thrust at speed (inflow loss vanishes with zero thrust, damping does not), or hold "
+        "one speed with two different thrusts",
+    frozenset({"quadratic_damping_error", "tether_drag"}):
+        "repeat the speed runs with a different paid-out tether length, and add sway/heave/yaw motion "
+        "(tether drag is horizontal and the same in every heading; damping error is per axis)",
+    frozenset({"linear_damping", "tether_drag"}):
+        "repeat the speed runs with a different paid-out tether length",
+    frozenset({"thrust_inflow_loss", "tether_drag"}):
+        "coast-downs at speed (tether drag remains with zero thrust, inflow loss does not)",
+    frozenset({"linear_damping", "quadratic_damping_error"}):
+        "steady runs at three or more well separated speeds (linear vs quadratic growth)",
+    frozenset({"linear_damping", "thrust_inflow_loss"}):
+        "coast-downs at speed, and steady runs at several speeds",
+    frozenset({"added_mass_error", "thruster_lag"}):
+        "open-loop thrust steps and reversals, or sine sweeps at two or more frequencies (a lag delays the "
+        "response onset and adds phase; an added-mass error scales the acceleration without delay)",
+    frozenset({"water_current", "buoyancy_offset"}):
+        "hold station and reverse the heading (a current turns with the vehicle's heading, buoyancy does not)",
+    frozenset({"thruster_deadband", "thruster_asymmetry"}):
+        "slow ramps of the command through zero in both directions",
+}
+
+
+def discriminating_manoeuvre(a: str, b: str) -> str:
+    """Manoeuvre that tells effects a and b apart."""
+    return DISCRIMINATING_MANOEUVRE.get(frozenset({a, b}),
+                                        f"a manoeuvre in which the regressors of {a} and {b} differ (excite the "
+                                        f"channels where one acts and the other does not)")

@@ -1,0 +1,249 @@
+"""The diagnosis end to end and its ``udrobot-diagnosis/1`` report (../shared/spec/diagnosis.md).
+
+:func:`diagnose` prepares the runs, locates the gap with the nominal model, fits and selects effects on the
+fit runs (:mod:`udrobot_ctrl.gap.attribute`) and scores every effect, and the combination of the significant
+ones, on the holdout runs only (:mod:`udrobot_ctrl.gap.shrink`).
+"""
+from __future__ import annotations
+
+import json
+import math
+import time
+from pathlib import Path
+
+import numpy as np
+
+from udrobot_ctrl.gap import effects as fx
+from udrobot_ctrl.gap.attribute import BIC_STRONG, HOLDOUT_CHI2, Attributor, build_stack, residual, select
+from udrobot_ctrl.gap.data import prepare
+from udrobot_ctrl.gap.locate import locate
+from udrobot_ctrl.gap.shrink import gap, simulate_windows
+from udrobot_ctrl.plant import plant_parameters
+from udrobot_ctrl.vehicle import load_model
+
+FORMAT = "udrobot-diagnosis/1"
+
+
+def split_runs(runs, holdout):
+    """Fit and holdout runs; without holdout runs, the last run is held out (one run: its last third).
+
+    Returns (fit, holdout, note).
+    """
+    from udrobot_ctrl.runlog import Run
+
+    if holdout:
+        return list(runs), list(holdout), "holdout runs given on the command line"
+    if len(runs) >= 2:
+        return list(runs[:-1]), [runs[-1]], f"no --holdout: the last run ({_name(runs[-1])}) is held out"
+    r = runs[0]
+    cut = r.t[0] + 2.0 / 3.0 * (r.t[-1] - r.t[0])
+    a, b = r.t < cut, r.t >= cut
+
+    def part(mask, tag):
+        return Run(path=f"{_name(r)}[{tag}]", t=r.t[mask], channels={c: v[mask] for c, v in r.channels.items()},
+                   input_kind=r.input_kind, inputs=r.inputs[mask], extra={}, metadata=r.metadata)
+    return [part(a, "first 2/3")], [part(b, "last 1/3")], \
+        f"no --holdout and one run: the first two thirds fit, the last third ({cut - r.t[0]:.1f} s on) is held out"
+
+
+def _name(run):
+    return Path(run.path).name if run.path else "run"
+
+
+def _clean(v):
+    if isinstance(v, dict):
+        return {str(k): _clean(x) for k, x in v.items()}
+    if isinstance(v, (list, tuple)):
+        return [_clean(x) for x in v]
+    if isinstance(v, (np.floating, float)):
+        return None if not math.isfinite(float(v)) else round(float(v), 6)
+    if isinstance(v, (np.integer,)):
+        return int(v)
+    if isinstance(v, np.bool_):
+        return bool(v)
+    if isinstance(v, np.ndarray):
+        return _clean(v.tolist())
+    return v
+
+
+def _wall_distance(params, M, sigma, speed95):
+    """Distance (m) below which the fitted wall effect exceeds 5% of the mass or the force noise floor."""
+    lam = params.get("decay_length_m", 0.0)
+    am, as_ = params.get("added_mass_at_contact_kg", 0.0), params.get("suction_N_s2_per_m2", 0.0)
+    d = 0.0
+    m_ref = float(np.min(np.diag(M)[:3]))
+    if am > 0.05 * m_ref:
+        d = max(d, lam * math.log(am / (0.05 * m_ref)))
+    s = float(np.nanmin(sigma[:3])) if np.isfinite(sigma[:3]).any() else np.inf
+    if as_ * speed95 ** 2 > s > 0:
+        d = max(d, lam * math.log(as_ * speed95 ** 2 / s))
+    return d
+
+
+def diagnose(model, runs, holdout=None, window_s=8.0, effects=None, log=None, model_label=None):
+    """Run the whole diagnosis; returns (report dict, context dict for plots).
+
+    Parameters
+    ----------
+    model : str, Path or Vehicle
+        Nominal model.
+    runs : list of Run
+        Fit runs (positional runs of the CLI).
+    holdout : list of Run, optional
+        Runs used only to score.
+    window_s : float
+        Multiple-shooting window, s.
+    effects : list of str, optional
+        Catalogue subset to test (default: all).
+    """
+    t0 = time.perf_counter()
+    say = log or (lambda s: None)
+    vehicle = load_model(model)
+    p = plant_parameters(vehicle)
+    M_A = np.asarray(vehicle.added_mass, float)
+    fit_runs, ho_runs, split_note = split_runs(runs, holdout)
+    cat = fx.catalogue()
+    names = list(effects or fx.EFFECT_NAMES)
+    for n in names:
+        if n not in cat:
+            raise ValueError(f"unknown effect {n!r}; the catalogue is {', '.join(fx.EFFECT_NAMES)}")
+    fit_p = [prepare(r, p, _name(r)) for r in fit_runs]
+    ho_p = [prepare(r, p, _name(r)) for r in ho_runs]
+    notes = [split_note] + [n for pr in fit_p + ho_p for n in pr.notes]
+    say(f"prepared {len(fit_p)} fit and {len(ho_p)} holdout runs ({time.perf_counter() - t0:.1f} s)")
+
+    # -- where: nominal multiple-shooting errors on every run (the nominal model is fitted to nothing)
+    all_p = fit_p + ho_p
+    nominal_sims = [simulate_windows(pr, p, (), window_s) for pr in all_p]
+    g_all = gap(all_p, nominal_sims)
+    location, detail = locate(all_p, nominal_sims, g_all["scale"], [residual(pr, p) for pr in all_p])
+
+    # -- which: equation-error fits on the fit runs, holdout confirmation
+    st, r, dofs = build_stack(fit_p, p, M_A)
+    att = Attributor(st, r, dofs, cat)
+    st_h, r_h, dofs_h = build_stack(ho_p, p, M_A)
+    att_h = Attributor(st_h, r_h, dofs & dofs_h, cat)
+    att.dofs = dofs & dofs_h
+    sel = select(att, att_h, names, log=say) if True else None
+    att_h.n_eff = max(10.0, att_h.N / max(sel["tau_int"], 1.0))
+    say(f"fitted {len(names)} effects; selected {sel['selected'] or 'none'} ({time.perf_counter() - t0:.1f} s)")
+
+    # -- how far: simulate the holdout runs with each effect alone and with the selected ones together
+    ho_sims0 = nominal_sims[len(fit_p):]
+    g_before = gap(ho_p, ho_sims0)
+    scored = g_before["scored"]
+
+    def hooks_for(fit, only=None):
+        out = []
+        for n in (only or fit.names):
+            out.append(cat[n].hooks(fit.params[n], p, ho_p[0].B, ho_p[0].inflow, st.f_ref, M_A))
+        return out
+
+    shrink = {}
+    for n in names:
+        g = gap(ho_p, [simulate_windows(pr, p, hooks_for(sel["singles"][n]), window_s) for pr in ho_p], scored)
+        shrink[n] = (1 - g["value"] / g_before["value"]) if g_before["value"] > 0 else 0.0
+    if sel["selected"]:
+        g_after = gap(ho_p, [simulate_windows(pr, p, hooks_for(sel["final"]), window_s) for pr in ho_p], scored)
+        after_sims = [simulate_windows(pr, p, hooks_for(sel["final"]), window_s) for pr in ho_p]
+    else:
+        g_after, after_sims = g_before, ho_sims0
+    say(f"scored on holdout ({time.perf_counter() - t0:.1f} s)")
+
+    sigma = sel["noise_sigma"]
+    speed95 = float(np.nanpercentile(np.hypot(st.nu[:, 0], st.nu[:, 1]), 95))
+    entries = []
+    order = sel["selected"] + sorted([n for n in names if n not in sel["selected"]],
+                                     key=lambda n: (sel["delta_bic"][n], -shrink[n]))
+    steps = {s["effect"]: s for s in sel["steps"]}
+    for n in order:
+        significant = n in sel["selected"]
+        fit = sel["final"] if significant else sel["singles"][n]
+        ev = {"delta_bic": sel["delta_bic"][n]}
+        if n in steps:
+            ev["selection_delta_bic"] = steps[n]["delta_bic"]
+            ev["holdout_likelihood_ratio"] = steps[n]["holdout_lr"]
+        entry = {"name": n, "significant": significant, "params": fit.params[n] if significant else {},
+                 "shrink": shrink[n], "evidence": ev, "meaning": cat[n].meaning}
+        if not significant:
+            entry["fitted_params_if_added"] = sel["singles"][n].params[n]
+        if significant:
+            alts = sel["indistinguishable"].get(n, [])
+            if alts:
+                entry["indistinguishable_from"] = [{"name": a, "manoeuvre": fx.discriminating_manoeuvre(n, a)}
+                                                   for a in alts]
+            if n == "wall_effect":
+                entry["matters_below_m"] = _wall_distance(fit.params[n], p.M, sigma, speed95)
+        entries.append(entry)
+    unexplained = (g_after["value"] / g_before["value"]) if g_before["value"] > 0 else float("nan")
+    verdict = (f"significant: {', '.join(sel['selected'])}" if sel["selected"] else
+               "no catalogue effect explains the gap significantly")
+    if sel["selected"] and unexplained > 0.5:
+        verdict += f"; {100 * unexplained:.0f}% of the gap remains unexplained"
+    elif not sel["selected"] and g_before["value"] > 0:
+        verdict += f" (gap {g_before['value']:.3f} stays unexplained)"
+    report = {
+        "format": FORMAT,
+        "model": model_label or (str(model) if not hasattr(model, "name") else model.name),
+        "fit_runs": [pr.name for pr in fit_p],
+        "holdout_runs": [pr.name for pr in ho_p],
+        "gap_before": {k: g_before[k] for k in ("metric", "value", "per_channel")} | {"scored": scored},
+        "location": location,
+        "effects": entries,
+        "gap_after": {k: g_after[k] for k in ("metric", "value", "per_channel")} | {"scored": scored},
+        "unexplained": unexplained,
+        "verdict": verdict,
+        "location_detail": detail,
+        "noise": {"tau_int_samples": sel["tau_int"], "n_eff": sel["n_eff"], "n_samples": att.N,
+                  "sigma_residual_per_dof": dict(zip(fx.DOF, sigma))},
+        "method": {
+            "gap": f"NRMSE of multiple-shooting replays ({window_s:g} s windows from the measured state, logged "
+                   f"commands held), RMS over the scored channels; channel scale = std of the measurement",
+            "fit": "equation error on residual generalised forces from Savitzky-Golay velocities, "
+                   "per-DOF noise variances estimated from the data",
+            "significance": f"forward selection: BIC (N_eff = N / tau_int) drop > {BIC_STRONG:g} on the fit runs "
+                            f"and a holdout equation-error likelihood ratio > {HOLDOUT_CHI2:g}",
+            "split": split_note,
+        },
+        "selection_steps": sel["steps"],
+        "notes": notes,
+        "elapsed_s": time.perf_counter() - t0,
+    }
+    ctx = {"preps": all_p, "n_fit": len(fit_p), "nominal_sims": nominal_sims, "after_sims": after_sims,
+           "residuals": [residual(pr, p) for pr in all_p], "location": location}
+    return _clean(report), ctx
+
+
+def summary(report) -> str:
+    """Human-readable summary of a report."""
+    gb, ga = report["gap_before"], report["gap_after"]
+    lines = [f"model {report['model']}: fit {', '.join(report['fit_runs'])}; "
+             f"holdout {', '.join(report['holdout_runs'])}",
+             f"gap before {gb['value']:.3f} (NRMSE; " + ", ".join(f"{c} {v:.2f}" for c, v in gb["per_channel"].items()
+                                                             if c in gb["scored"]) + ")"]
+    for loc in report["location"]:
+        lines.append(f"  where: {loc['channel']} holds {100 * loc['share']:.0f}% -- {loc['condition']}; windows "
+                     f"{loc['windows'][:3]} in {loc['run']}")
+    lines.append("effects (ranked):")
+    for e in report["effects"]:
+        tag = "SIGNIFICANT" if e["significant"] else "-"
+        extra = ""
+        if e.get("indistinguishable_from"):
+            extra = "; indistinguishable from " + ", ".join(a["name"] for a in e["indistinguishable_from"])
+        if e.get("matters_below_m") is not None:
+            extra += f"; matters below {e['matters_below_m']:.2f} m"
+        lines.append(f"  {e['name']:<26s} {tag:<11s} shrink {e['shrink']:+.2f}  dBIC {e['evidence']['delta_bic']:.0f}"
+                     f"{extra}")
+        if e["significant"]:
+            lines.append("      params " + ", ".join(f"{k}={v:.4g}" for k, v in e["params"].items()))
+    lines.append(f"gap after {ga['value']:.3f}; unexplained {report['unexplained']:.2f}")
+    lines.append(report["verdict"])
+    return "\n".join(lines)
+
+
+def write_report(report, path) -> None:
+    """Write the JSON report atomically."""
+    path = Path(path)
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(json.dumps(report, indent=2) + "\n")
+    tmp.replace(path)
