@@ -46,7 +46,7 @@ def random_magnitudes(name, rng):
         "thruster_asymmetry": {"ratio": u(0.45, 0.65), "gamma": u(1.05, 1.2)},
         "thruster_lag": {"T_m": u(0.35, 0.6)},
         "tether_drag": {"d": u(0.010, 0.016), "back": u(3.0, 5.0), "cd": u(1.0, 1.2)},
-        "wall_effect": {"a": u(0.17, 0.22), "kappa": u(4.0, 6.0)},
+        "wall_effect": {"a": u(0.17, 0.22), "kappa": u(2.0, 3.0)},
         "water_current": {"V0": u(0.08, 0.14), "dir": u(0, 2 * np.pi)},
         "linear_damping": {"dX": u(8, 14), "dZ": u(8, 14), "dN": u(0.15, 0.3), "dK": u(0.05, 0.1)},
         "quadratic_damping_error": {"s_t": u(0.5, 0.9) * rng.choice([-0.7, 1.0]), "s_r": u(0.5, 1.0)},
@@ -145,7 +145,7 @@ class Truth:
             a = c["a"]
             m_ref = RHO * 2 / 3 * np.pi * a ** 3
             for h, nrm in ((SEABED - x[:, 2], np.array([0, 0, -1.0])), (WALL_Y - x[:, 1], np.array([0, -1.0, 0]))):
-                hh = np.maximum(h, 0.6 * a)
+                hh = np.maximum(h, 1.2 * a)  # gap ratio >= 1.2: the body never touches
                 nb = np.einsum("nji,j->ni", Rm, nrm)
                 ratio = (a / hh) ** 3
                 P = nb[:, :, None] * nb[:, None, :]
@@ -252,8 +252,11 @@ def generate(effects=None, n_runs=3, duration=90.0, rate=20.0, seed=0, model="pe
     a3 = rng.uniform(0.25, 0.4, R_)
     dpsi = rng.uniform(0.8, 1.5, R_) * rng.choice([-1, 1], R_)
     z0 = rng.uniform(0.8, 1.4, R_)
-    zdeep = SEABED - rng.uniform(0.12, 0.3, R_)
-    ywall = -(wall_distance if wall_distance is not None else rng.uniform(0.2, 0.35, R_))
+    zdeep = SEABED - rng.uniform(0.25, 0.4, R_)
+    if wall_distance is None:  # runs alternate near (0.2-0.35 m) and far (1.2-2 m) from the wall
+        near = np.arange(R_) % 2 == 0
+        wall_distance = np.where(near, rng.uniform(0.2, 0.35, R_), rng.uniform(1.2, 2.0, R_))
+    ywall = -np.asarray(wall_distance, float) * np.ones(R_)
     prm = (a1, a2, a3, dpsi, z0, zdeep)
     x = np.zeros((R_, 12))
     x[:, 2] = z0

@@ -1,0 +1,56 @@
+"""Figures of a diagnosis: residuals per channel with located windows shaded; simulated vs measured."""
+from __future__ import annotations
+
+from pathlib import Path
+
+from udrobot_ctrl.gap.shrink import STATE_INDEX, errors
+
+
+def write_plots(ctx, report, outdir):
+    """Write residuals_<run>.png (all runs) and overlay_<run>.png (holdout runs, before/after); returns paths."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    out = Path(outdir)
+    out.mkdir(parents=True, exist_ok=True)
+    paths = []
+    windows = {}
+    for loc in report["location"]:
+        windows.setdefault(loc["run"], []).extend(loc["windows"])
+    for prep, sim in zip(ctx["preps"], ctx["nominal_sims"]):
+        err = errors(prep, sim)
+        chans = list(err)
+        fig, axes = plt.subplots(len(chans), 1, figsize=(10, 1.6 * len(chans) + 1), sharex=True, squeeze=False)
+        for ax, c in zip(axes[:, 0], chans):
+            ax.plot(prep.t, err[c], lw=0.7)
+            ax.set_ylabel(f"{c} sim-meas")
+            for a, b in windows.get(prep.name, []):
+                ax.axvspan(a, b, color="orange", alpha=0.25)
+        axes[-1, 0].set_xlabel("t (s)")
+        fig.suptitle(f"nominal model residuals, {prep.name} (located windows shaded)")
+        p = out / f"residuals_{Path(prep.name).stem}.png"
+        fig.savefig(p, dpi=90)
+        plt.close(fig)
+        paths.append(p)
+    n_fit = ctx["n_fit"]
+    for prep, s0, s1 in zip(ctx["preps"][n_fit:], ctx["nominal_sims"][n_fit:], ctx["after_sims"]):
+        chans = [c for c in report["gap_before"]["scored"] if c in prep.meas]
+        if not chans:
+            continue
+        fig, axes = plt.subplots(len(chans), 1, figsize=(10, 1.6 * len(chans) + 1), sharex=True, squeeze=False)
+        for ax, c in zip(axes[:, 0], chans):
+            ax.plot(prep.t, prep.meas[c], "k.", ms=1.5, label="measured")
+            ax.plot(prep.t, s0[:, STATE_INDEX[c]], lw=0.8, label="nominal")
+            if s1 is not s0:
+                ax.plot(prep.t, s1[:, STATE_INDEX[c]], lw=0.8, label="with significant effects")
+            ax.set_ylabel(c)
+        axes[0, 0].legend(loc="upper right", fontsize=7)
+        axes[-1, 0].set_xlabel("t (s)")
+        fig.suptitle(f"holdout {prep.name}: multiple-shooting replay before/after")
+        p = out / f"overlay_{Path(prep.name).stem}.png"
+        fig.savefig(p, dpi=90)
+        plt.close(fig)
+        paths.append(p)
+    return paths
