@@ -44,20 +44,22 @@ class ProcessNoise:
     Attributes
     ----------
     force_sigma : float
-        N, unmodelled force per axis (tether drag, waves, drag-model error); assumed 2 N (~5 % of a T200).
+        N, unmodelled force per axis held over one filter step (tether drag, waves, drag-model error);
+        assumed 1 N (~3 % of a T200's thrust).
     moment_sigma : float
-        N m, unmodelled moment per axis; assumed 0.3 N m (2 N at ~0.15 m lever arm).
+        N m, unmodelled moment per axis held over one step; assumed 0.05 N m (0.3 N at ~0.15 m lever arm).
     pose_sigma : float
         m or rad per step, random walk on the pose (kinematic model error); assumed 1e-3.
     """
 
-    force_sigma: float = 2.0
-    moment_sigma: float = 0.3
+    force_sigma: float = 1.0
+    moment_sigma: float = 0.05
     pose_sigma: float = 1e-3
 
 
-def process_noise_covariance(p: PlantParameters, dt: float, noise: ProcessNoise = ProcessNoise()) -> np.ndarray:
+def process_noise_covariance(p: PlantParameters, dt: float, noise: ProcessNoise | None = None) -> np.ndarray:
     """Discrete process noise Q (12, 12) for one step of ``dt`` s (see the module docstring)."""
+    noise = noise or ProcessNoise()
     S = np.diag([noise.force_sigma ** 2] * 3 + [noise.moment_sigma ** 2] * 3)
     Q = np.zeros((12, 12))
     Q[6:, 6:] = dt ** 2 * p.M_inv @ S @ p.M_inv.T

@@ -343,7 +343,7 @@ class SparseMPCQP:
         """Solve; returns (status string, primal z or None, OSQP info)."""
         if warm is not None:
             self.solver.warm_start(x=warm / self.D)
-        res = self.solver.solve()
+        res = self.solver.solve(raise_error=False)
         status = res.info.status
         z = res.x * self.D if status in _OK_STATUSES and np.all(np.isfinite(res.x)) else None
         return status, z, res.info
