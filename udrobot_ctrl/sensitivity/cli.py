@@ -47,7 +47,11 @@ def register(subparsers):
     p.add_argument("--depth", type=float, default=1.0, help="mission depth step, m (1.0)")
     p.add_argument("--heading", type=float, default=90.0, help="mission heading step, deg (90)")
     p.add_argument("--duration", type=float, default=20.0, help="mission duration, s (20)")
-    p.add_argument("--dt", type=float, default=0.04, help="integration / control step, s (0.04)")
+    p.add_argument("--dt", type=float, default=None,
+                   help="integration step, s (batch: 0.04, also the LQR/PID control step; missions: 0.02)")
+    p.add_argument("--control-dt", type=float, default=0.05, help="missions backend: controller step, s (0.05)")
+    p.add_argument("--full-mission", action="store_true",
+                   help="missions backend: the full 46 s standard mission instead of the quick 23 s one")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--rank", action="store_true", help="sobol: indices of the metrics' ranks (robust to the few "
                    "runs that lose control)")
@@ -83,10 +87,14 @@ def build_evaluator(args, space):
     from udrobot_ctrl.sensitivity.evaluators import MissionEvaluator
     from udrobot_ctrl.sensitivity.mission import DepthHeadingMission
 
-    mission = DepthHeadingMission(depth_m=args.depth, heading_rad=np.radians(args.heading), surge_mps=args.surge,
-                                  t_final=args.duration, dt=args.dt)
     if args.backend == "missions" or (args.backend == "auto" and args.controller == "nmpc"):
-        mission = None  # the toolbox's standard mission
+        from udrobot_ctrl.missions import standard_mission
+
+        mission = standard_mission(quick=not args.full_mission)
+        return MissionEvaluator(space, controller=args.controller, mission=mission, redesign=args.redesign,
+                                backend="missions", sim_dt=args.dt or 0.02, control_dt=args.control_dt)
+    mission = DepthHeadingMission(depth_m=args.depth, heading_rad=np.radians(args.heading), surge_mps=args.surge,
+                                  t_final=args.duration, dt=args.dt or 0.04)
     return MissionEvaluator(space, controller=args.controller, mission=mission, redesign=args.redesign,
                             backend=args.backend)
 
@@ -134,7 +142,10 @@ def run(args) -> int:
 
 
 KEY_METRICS = ("iae_depth", "iae_heading", "iae_speed", "speed_error", "overshoot_depth", "settling_depth",
-               "settling_heading", "energy", "saturation", "max_speed", "max_pitch", "lost_control")
+               "settling_heading", "energy", "saturation", "max_speed", "max_pitch", "lost_control",
+               # names of udrobot_ctrl.metrics (missions backend)
+               "iae", "iae_z", "iae_psi", "iae_u", "overshoot_z", "settling_z_s", "settling_psi_s", "energy_J",
+               "saturation_s", "max_pitch_deg", "final_error_u")
 
 
 def summary_text(res, method: str, top: int = 5) -> str:

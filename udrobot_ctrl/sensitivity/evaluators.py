@@ -76,11 +76,16 @@ class MissionEvaluator:
     backend : {'auto', 'batch', 'missions'}
         ``batch``: this package's vectorised mission (lqr, pid, mpc: one chunk of vehicles simulated at
         once). ``missions``: one simulation per sample through :mod:`udrobot_ctrl.missions` (any
-        controller, the toolbox's standard mission). ``auto``: batch unless the controller is nmpc.
+        controller, the toolbox's standard mission, quick variant by default). ``auto``: batch unless the
+        controller is nmpc.
+    sim_dt, control_dt : float
+        Integration and controller steps of the missions backend, s (the batch backend uses the
+        mission's ``dt`` and, for MPC, ``MPCSettings.Ts``).
     """
 
     def __init__(self, space, controller: str = "lqr", mission=None, redesign: bool = False,
-                 controller_opts: dict | None = None, backend: str = "auto"):
+                 controller_opts: dict | None = None, backend: str = "auto", sim_dt: float = 0.02,
+                 control_dt: float = 0.05):
         from udrobot_ctrl.sensitivity.mission import DepthHeadingMission
 
         if controller not in ("lqr", "pid", "lmpc", "nmpc", "mpc"):
@@ -94,9 +99,11 @@ class MissionEvaluator:
         if backend == "missions":
             import importlib.util
 
-            if importlib.util.find_spec("udrobot_ctrl.missions") is None:
-                raise ValueError(f"controller {controller!r} needs udrobot_ctrl.missions, not available in this "
-                                 "build (lqr, pid and mpc work on the batched fast path)")
+            needed = {"lqr": "udrobot_ctrl.lqr", "pid": "udrobot_ctrl.pid"}.get(controller, "udrobot_ctrl.mpc")
+            for mod in ("udrobot_ctrl.missions", needed):
+                if importlib.util.find_spec(mod) is None:
+                    raise ValueError(f"controller {controller!r} on the missions backend needs {mod}, not available "
+                                     "in this build (lqr, pid and mpc work on the batched fast path)")
         self.space = space
         self.controller = controller
         self.backend = backend
@@ -107,10 +114,12 @@ class MissionEvaluator:
         # samples per task: vectorised batches amortise numpy overhead (1.8 ms/run at 256 vs 4.2 at 64);
         # one-by-one runs keep tasks small so progress and interruptions stay fine-grained
         self.max_chunk = 256 if backend == "batch" else 4
+        self.sim_dt, self.control_dt = float(sim_dt), float(control_dt)
 
     def describe(self) -> str:
         how = "redesigned per sample" if self.redesign else "designed on nominal"
-        return (f"{self.controller} on {self.space.vehicle.name} ({how}), {self.backend} backend, "
+        extra = "" if self.backend == "batch" else f", dt {self.sim_dt} s, control_dt {self.control_dt} s"
+        return (f"{self.controller} on {self.space.vehicle.name} ({how}), {self.backend} backend{extra}, "
                 f"mission {self.mission}, opts {sorted(self.controller_opts.items())}")
 
     def _key(self):
@@ -208,33 +217,29 @@ class MissionEvaluator:
     def _missions(self):
         from udrobot_ctrl import missions
 
-        mission = self.mission
-        if mission is None:
-            mission = getattr(missions, "standard_mission", None) or getattr(missions, "STANDARD_MISSION", None)
-            mission = mission() if callable(mission) else mission
+        mission = self.mission if self.mission is not None else missions.standard_mission(quick=True)
         return missions, mission
 
     def _per_sample(self, vehicles, errors):
-        """One closed-loop run per sample through udrobot_ctrl.missions (any controller kind)."""
+        """One closed-loop run per sample through :func:`udrobot_ctrl.missions.run_mission` (any controller)."""
+        from udrobot_ctrl.plant import plant_parameters
+
         missions, mission = self._missions()
         kind = "lmpc" if self.controller == "mpc" else self.controller
-        key = ("missions",) + self._key()
         rows = []
         for i, v in enumerate(vehicles):
             if v is None:
                 rows.append({})
                 continue
             try:
-                if self.redesign:
-                    ctrl = missions.make_controller(kind, v, mission, **self.controller_opts)
-                else:
-                    if key not in _DESIGN_CACHE:
-                        _DESIGN_CACHE[key] = missions.make_controller(kind, self.space.vehicle, mission,
-                                                                      **self.controller_opts)
-                    ctrl = _fresh(_DESIGN_CACHE[key])
-                    if ctrl is None:  # stateful and not copyable: design again on the nominal model
-                        ctrl = missions.make_controller(kind, self.space.vehicle, mission, **self.controller_opts)
-                rows.append(_metrics_of(missions.run_mission(ctrl, v, mission)))
+                # a fresh design for every sample (on the nominal model unless redesign): a reset solver
+                # would keep its warm start, and results must not depend on which samples ran before
+                design = v if self.redesign else self.space.vehicle
+                ctrl = missions.make_controller(kind, design, mission, control_dt=self.control_dt,
+                                                **self.controller_opts)
+                res = missions.run_mission(ctrl, v, mission, dt=self.sim_dt, control_dt=self.control_dt)
+                p = plant_parameters(v)
+                rows.append(_flat_metrics(res, mission, p.f_min, p.f_max))
             except Exception as exc:  # noqa: BLE001 - the sweep goes on, the sample carries the error
                 rows.append({})
                 errors[i] = f"{type(exc).__name__}: {exc}"
@@ -242,34 +247,25 @@ class MissionEvaluator:
         return {k: np.array([float(r.get(k, np.nan)) for r in rows]) for k in names}
 
 
-def _fresh(ctrl):
-    """A controller in its initial state: ``reset()`` if it has one, else a deep copy (None if impossible)."""
-    import copy
+def _flat_metrics(res, mission, f_min, f_max) -> dict:
+    """Scalar metrics of a run: :func:`udrobot_ctrl.metrics.mission_metrics` flattened, plus ``max_speed``
+    (m/s), ``fallbacks`` (SafeController substitutions) and ``unsettled`` (events not settled; their
+    settling time is censored at the mission duration so that global indices stay defined)."""
+    from udrobot_ctrl import metrics
 
-    if hasattr(ctrl, "reset"):
-        ctrl.reset()
-        return ctrl
-    try:
-        return copy.deepcopy(ctrl)
-    except Exception:  # noqa: BLE001 - e.g. solver handles that cannot be copied
-        return None
-
-
-def _metrics_of(result) -> dict:
-    """Scalar metrics from whatever run_mission returns (a dict, an object with ``metrics``, a dataclass)."""
-    import dataclasses
-
-    m = getattr(result, "metrics", result)
-    if callable(m):
-        m = m()
-    if dataclasses.is_dataclass(m) and not isinstance(m, type):
-        m = dataclasses.asdict(m)
-    if not isinstance(m, dict):
-        raise TypeError(f"run_mission returned {type(result).__name__}; expected metrics (dict or .metrics)")
+    met = metrics.mission_metrics(res, mission, f_min, f_max)
     out = {}
-    for k, v in m.items():
-        if isinstance(v, (bool, int, float, np.floating, np.integer)) or (np.ndim(v) == 0 and
-                                                                          np.issubdtype(np.asarray(v).dtype,
-                                                                                        np.number)):
+    unsettled = 0
+    for k, v in met.items():
+        if isinstance(v, dict):
+            for kk, vv in v.items():
+                out[f"{k}_{kk}"] = float(vv)
+        elif v is None:
+            out[k] = float(mission.t_final)
+            unsettled += k != "settling_s"  # settling_s repeats settling_z_s
+        else:
             out[k] = float(v)
+    out["unsettled"] = float(unsettled)
+    out["max_speed"] = float(np.max(np.linalg.norm(np.asarray(res.x)[:, 6:9], axis=-1)))
+    out["fallbacks"] = float(getattr(getattr(res, "controller", None), "fallbacks", 0))
     return out

@@ -84,39 +84,21 @@ def test_cli_morris_writes_tables_and_resume_runs_nothing_new(tmp_path, capsys):
     assert main(["sensitivity", "--range", "surge.CD=2:1", "--workers", "1"]) == 2
 
 
-def test_per_sample_backend_drives_a_missions_module(monkeypatch):
-    """The per-sample path (used for MPC) with a stand-in missions module built on the real simulator."""
-    import importlib.machinery
-    import types
-
-    from udrobot_ctrl.sensitivity.mission import BatchLQR, lqr_gain
-    from udrobot_ctrl.sim import simulate
-
-    designs = []
-
-    def make_controller(kind, design_model, mission, **opts):
-        designs.append(design_model.quadratic_damping[0, 0])
-        K, trim = lqr_gain(design_model, mission=mission)
-        return BatchLQR(K, trim, mission)
-
-    def run_mission(controller, plant_model, mission):
-        r = simulate(plant_model, mission.x0(), mission.t_final, controller=lambda t, x: controller(t, x)[0],
-                     dt=mission.dt)
-        return {"speed_error": r.x[-1, 6] - mission.surge_mps, "label": "not a number"}
-
-    fake = types.ModuleType("udrobot_ctrl.missions")
-    fake.__spec__ = importlib.machinery.ModuleSpec("udrobot_ctrl.missions", None)
-    fake.make_controller, fake.run_mission = make_controller, run_mission
-    monkeypatch.setitem(__import__("sys").modules, "udrobot_ctrl.missions", fake)
+def test_missions_backend_runs_the_toolbox_linear_mpc_per_sample():
+    missions = pytest.importorskip("udrobot_ctrl.missions")
+    pytest.importorskip("udrobot_ctrl.mpc")
+    short = missions.Mission("sens-test", 6.0, initial={"z": 0.5, "psi": 0.0, "u": 0.0},
+                             steps=(missions.ReferenceStep("u", 0.5, 0.5), missions.ReferenceStep("z", 3.0, 1.0)))
     space = default_space("cfd:morison").subset(["surge.CD"])
     X = np.array([[1.4015], [2.3432]])
-    per_sample = MissionEvaluator(space, "lqr", mission=SHORT, backend="missions")(X)
-    batch = MissionEvaluator(space, "lqr", mission=SHORT, backend="batch")(X)
-    assert per_sample["error"] == ["", ""] and set(per_sample) == {"speed_error", "error"}
-    np.testing.assert_allclose(per_sample["speed_error"], batch["speed_error"], rtol=1e-9, atol=1e-12)
-    assert len(designs) == 1  # designed once on the nominal model, reused for every sample
-    MissionEvaluator(space, "nmpc", mission=SHORT, redesign=True)(X)
-    assert len(designs) == 3  # redesigned on each perturbed model
+    ev = MissionEvaluator(space, "lmpc", mission=short, backend="missions", sim_dt=0.05, control_dt=0.1)
+    out = ev(X)
+    assert out["error"] == ["", ""], out["error"]
+    assert {"iae", "iae_u", "energy_J", "max_speed", "settling_z_s", "fallbacks"} <= set(out)
+    assert np.all(out["fallbacks"] == 0)
+    assert out["energy_J"][1] > out["energy_J"][0]  # more drag, more thrust for the same transit
+    assert out["max_speed"][1] < out["max_speed"][0]
+    np.testing.assert_allclose(ev(X[:1])["iae"], out["iae"][:1], rtol=1e-9)  # reset between samples
 
 
 def test_batched_mpc_solves_its_qp_and_respects_thrust_limits():
