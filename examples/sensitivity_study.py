@@ -68,6 +68,36 @@ def three_surge_cd(space, executor, out, controllers=("lqr", "pid", "mpc")):
     return rows
 
 
+def toolbox_controllers(space, executor, out):
+    """The same question on the toolbox's standard mission (quick variant) and its own controllers."""
+    import importlib.util
+
+    kinds = [k for k, mod in (("lqr", "udrobot_ctrl.lqr"), ("pid", "udrobot_ctrl.pid"), ("lmpc", "udrobot_ctrl.mpc"))
+             if importlib.util.find_spec(mod) is not None]
+    if importlib.util.find_spec("udrobot_ctrl.missions") is None or not kinds:
+        print("\n1b) toolbox controllers: udrobot_ctrl.missions not available, skipped")
+        return
+    from udrobot_ctrl.missions import standard_mission
+
+    sub = space.subset(["surge.CD"])
+    X = np.array([[v] for v in SURGE_CD.values()])
+    print(f"\n1b) toolbox controllers ({', '.join(kinds)}) on the standard quick mission, designed on the nominal")
+    table = {"controller": [], "metric": [], **{k: [] for k in SURGE_CD}}
+    for kind in kinds:
+        ev = MissionEvaluator(sub, kind, mission=standard_mission(quick=True), backend="missions")
+        r = run_sweep(ev, X, executor=executor, progress=False)
+        if any(r["error"]):
+            print(f"   {kind}: {[e for e in r['error'] if e][0]}")
+            continue
+        for m in ("iae_u", "final_error_u", "energy_J", "iae_z", "iae_psi", "settling_z_s", "max_pitch_deg"):
+            print(f"   {kind:<5}{m:<15}" + "".join(f"{v:14.4g}" for v in r[m]) + f"   spread {np.ptp(r[m]):.3g}")
+            table["controller"].append(kind)
+            table["metric"].append(m)
+            for k, v in zip(SURGE_CD, r[m]):
+                table[k].append(float(v))
+    write_table(out / "three_surge_cd_toolbox", table)
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--model", default="cfd:morison")
@@ -93,6 +123,7 @@ def main(argv=None) -> int:
     with SweepExecutor(workers=args.workers, scheduler=args.scheduler) as ex:
         print(f"executor: {ex.describe()}")
         three = three_surge_cd(space, ex, out)
+        toolbox_controllers(space, ex, out)
 
         ev = MissionEvaluator(space, "lqr")
         loc = local_sensitivity(ev, space, executor=ex, out=out / "local", resume=True)
