@@ -25,17 +25,6 @@ from udrobot_ctrl.runlog import Run, resample
 VEL = ("u", "v", "w", "p", "q", "r")
 POSE = ("x", "y", "z", "phi", "theta", "psi")
 
-# estimated: Blue Robotics T200 bollard thrust at 12 V (N) at PWM offsets from 1500 us, read off the public
-# performance table (../shared/data/t200); used only to convert pwm_i columns (symmetric deadband +-24 us).
-_PWM_US = np.array([-400, -300, -200, -100, -24, 24, 100, 200, 300, 400], float)
-_PWM_N = np.array([-28.61, -18.6, -8.9, -2.1, 0.0, 0.0, 2.6, 11.3, 23.6, 36.42])
-
-
-def pwm_to_thrust(pwm):
-    """Thrust (N) of a T200 at 12 V for ESC pulse widths (us); estimated curve, 0 inside +-24 us of 1500."""
-    return np.interp(np.asarray(pwm, float) - 1500.0, _PWM_US, _PWM_N)
-
-
 @dataclass
 class Prepared:
     """One run ready for the diagnosis (all arrays on the uniform grid ``t``, n samples).
@@ -166,8 +155,14 @@ def actuators(run: Run, p: PlantParameters, f_raw=None):
         if f.shape[1] != k:
             raise ValueError(f"{run.path or 'run'}: {f.shape[1]} {run.input_kind}_i columns but the model has {k} "
                              f"thrusters (columns must follow the model's thruster order)")
-        if run.input_kind == "pwm":
-            f = pwm_to_thrust(f)
+        if run.input_kind == "pwm":  # the fitted T-200 curve at the logged battery voltage (12 V if absent)
+            from udrobot_ctrl.thrusters import pwm_to_thrust
+
+            volts = run.channels.get("voltage")
+            v = 12.0 if volts is None or not np.isfinite(volts).any() else np.nan_to_num(volts, nan=12.0)[:, None]
+            if f_raw is not None and np.ndim(v):
+                v = 12.0
+            f = pwm_to_thrust(f, v)
         f = np.clip(f, p.f_min, p.f_max)
         return f, p.T.copy(), p.T.copy(), np.maximum(p.f_max, -p.f_min)
     inflow = np.eye(6)
