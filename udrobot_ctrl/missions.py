@@ -216,6 +216,7 @@ def make_controller(kind: str, design_model, mission: Mission, control_dt: float
     if kind == "lqr":
         from udrobot_ctrl.lqr import ScheduledLQR
 
+        opts.setdefault("dt", control_dt)  # discrete design at the sampling period (ZOH, dlqr)
         return ScheduledLQR.design(p, mission.reference, **opts)
     if kind == "pid":
         from udrobot_ctrl.pid import PIDController
