@@ -21,6 +21,11 @@ import time
 
 import numpy as np
 
+# ``python bench/sensitivity.py`` puts bench/ first on sys.path, where a sibling script may shadow a
+# library (bench/control.py hides python-control): drop it, this script imports only installed packages
+_HERE = os.path.dirname(os.path.abspath(__file__))
+sys.path[:] = [p for p in sys.path if os.path.abspath(p or os.curdir) != _HERE]
+
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
