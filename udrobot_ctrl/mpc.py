@@ -160,6 +160,22 @@ def linearization_function(p: PlantParameters, dt: float, name: str = "lin") -> 
     return ca.Function(name, [x, u], [xn, A, B], ["x", "f"], ["x_next", "A", "B"])
 
 
+def affine_model_function(p: PlantParameters, dt: float, idx, name: str = "affine") -> ca.Function:
+    """casadi Function ``(x[12], f[n]) -> [A_r | B_r | c_r]`` (nx, nx + n + 1) on the states ``idx``.
+
+    ``x_next[idx] ~ A_r x[idx] + B_r f + c_r``, exact at (x, f): one output so Python converts one array.
+    Valid only when the dropped states do not enter the dynamics (x, y).
+    """
+    lin = linearization_function(p, dt)
+    x = ca.SX.sym("x", 12)
+    u = ca.SX.sym("f", p.T.shape[1])
+    xn, A, B = lin(x, u)
+    idx = [int(i) for i in idx]
+    A_r, B_r = A[idx, idx], B[idx, :]
+    c = xn[idx] - A_r @ x[idx] - B_r @ u
+    return ca.Function(name, [x, u], [ca.horzcat(A_r, B_r, c)], ["x", "f"], ["ABc"])
+
+
 #: gcc budget for compiling the generated Jacobian functions (s); on timeout casadi's VM is used (2x slower).
 COMPILE_TIMEOUT_S = 30.0
 
@@ -181,12 +197,15 @@ def maybe_compiled(fun: ca.Function, p: PlantParameters, *key, compile: bool = T
 class OSQPSettings:
     """OSQP options for the MPC QPs (tuned in bench/control.py: first move within 0.1 N of the exact optimum).
 
-    ``eps_abs`` / ``eps_rel`` are OSQP's residual tolerances, ``polishing`` runs the active-set refinement
-    that makes the solution exact when the active set is right.
+    ``eps_abs`` / ``eps_rel`` are OSQP's residual tolerances (on the scaled QP, see :class:`SparseMPCQP`),
+    ``polishing`` runs the active-set refinement that makes the solution exact when the active set is right
+    (+0.15 ms: one more factorisation), ``rho`` the initial ADMM step (0.01 took ~20 iterations warm-started
+    against ~30 for OSQP's 0.1 on the standard mission).
     """
 
     eps_abs: float = 1e-4
     eps_rel: float = 1e-4
+    rho: float = 0.01
     polishing: bool = False
     max_iter: int = 4000
     check_termination: int = 10
@@ -195,7 +214,7 @@ class OSQPSettings:
     time_limit: float = 0.0
 
     def as_dict(self) -> dict:
-        d = {"eps_abs": self.eps_abs, "eps_rel": self.eps_rel, "polishing": self.polishing,
+        d = {"eps_abs": self.eps_abs, "eps_rel": self.eps_rel, "rho": self.rho, "polishing": self.polishing,
              "max_iter": self.max_iter, "check_termination": self.check_termination,
              "warm_starting": self.warm_starting, "adaptive_rho": self.adaptive_rho, "verbose": False}
         if self.time_limit > 0:
@@ -361,6 +380,8 @@ class _MPCBase:
             raise ValueError("thrust limits of the model are empty (f_min >= f_max)")
         self.dt, self.N, self.nu = float(dt), int(horizon), p.T.shape[1]
         self.reference = reference_function(reference)
+        # vectorised references (e.g. missions.Mission.reference_array: channel -> (n,) arrays) save ~0.1 ms/call
+        self._reference_array = getattr(reference, "reference_array", None)
         Qf = _weights(Q, 12, DEFAULT_STATE_WEIGHTS, list(STATE_NAMES))
         self.R = _weights(DEFAULT_THRUST_WEIGHT if R is None else R, self.nu, None)
         bounds = {}
@@ -385,13 +406,23 @@ class _MPCBase:
         self.last_status = "not run"
         self.stats = {"solves": 0, "fallbacks": 0, "status": "not run", "solve_time_s": np.nan,
                       "call_time_s": np.nan, "iterations": 0}
-        self.call_times: list[float] = []
+        self.call_times: list[float] = []  # wall time of every call (linearisation + QP update + solve), s
+        self.solve_times: list[float] = []  # solver-reported time of every call (OSQP solve / ipopt total), s
 
     # -- references ---------------------------------------------------------------------------------
     def references(self, t, x):
         """State references (N+1, nx) over the horizon (heading unwrapped near x) and trim thrusts (N, nu)."""
         ts = t + self.dt * np.arange(self.N + 1)
-        r = np.array([self.reference(tk) for tk in ts])
+        r = None
+        if self._reference_array is not None:
+            try:
+                r = np.zeros((self.N + 1, 12))
+                for k, v in self._reference_array(ts).items():
+                    r[:, STATE_INDEX[_ALIASES.get(k, k)]] = v
+            except (KeyError, TypeError, ValueError):
+                self._reference_array, r = None, None
+        if r is None:
+            r = np.array([self.reference(tk) for tk in ts])
         psi = x[PSI] if np.isfinite(x[PSI]) else 0.0
         r[:, PSI] = psi + wrap_angle(r[:, PSI] - psi)
         ftrim = np.array([self.trim(rk[6]) for rk in r[:-1]]) if np.any(r[:-1, 6] != r[0, 6]) \
@@ -432,6 +463,7 @@ class _MPCBase:
         self.stats["status"] = self.last_status = status
         self.stats["solve_time_s"] = info_time
         self.stats["iterations"] = iters
+        self.solve_times.append(info_time)
         dtc = time.perf_counter() - t0
         self.stats["call_time_s"] = dtc
         self.call_times.append(dtc)
@@ -475,6 +507,8 @@ class LinearMPC(_MPCBase):
                  state_bounds=None, settings=None, relinearize=True, compile=True):
         super().__init__(vehicle, reference, dt, horizon, Q, R, terminal_weight, state_bounds, settings, compile)
         self.relinearize = relinearize
+        self.affine = maybe_compiled(affine_model_function(self.params, self.dt, self.idx), self.params, self.dt,
+                                     tuple(int(i) for i in self.idx), compile=compile)
         self.qp = SparseMPCQP(len(self.idx), self.nu, self.N, self.Q, self.QN, self.R, self.f_min, self.f_max,
                               self.state_bounds, self.settings)
         self._z = None
@@ -482,12 +516,9 @@ class LinearMPC(_MPCBase):
 
     def linear_model(self, x, f):
         """Reduced (A, B, c) with x_next ~ A x + B f + c, exact at (x, f)."""
-        xn, A, B = self.lin(x, f)
-        xn, A, B = xn.full().ravel(), A.full(), B.full()
-        idx = self.idx
-        A_r, B_r = A[np.ix_(idx, idx)], B[idx]
-        c = xn[idx] - A_r @ x[idx] - B_r @ f
-        return A_r, B_r, c
+        M = self.affine(x, f).full()
+        nx = len(self.idx)
+        return M[:, :nx], M[:, nx:nx + self.nu], M[:, -1]
 
     def build_qp(self, t, x):
         """Update the QP for state x at time t (used by the controller and by the bench's exact reference)."""

@@ -157,3 +157,32 @@ def measure(t, x, config: SensorConfig | None = None, seed=0) -> SensorStream:
     vals[:, ANGLE_CHANNELS] = (vals[:, ANGLE_CHANNELS] + np.pi) % (2 * np.pi) - np.pi
     vals[~sample_mask(t, x, config)] = np.nan
     return SensorStream(t=t, values=vals, sigmas=sig)
+
+
+class SensorSampler:
+    """Online version of :func:`measure` for closed loops: ``sampler(t, x) -> (13,)`` row, NaN where absent.
+
+    Keeps each channel's sample clock (a channel samples at the first call at or after each multiple of its
+    period) and its own random generator.
+    """
+
+    def __init__(self, config: SensorConfig | None = None, seed=0):
+        self.config = config or SensorConfig()
+        self.sigmas = self.config.sigmas()
+        self.rates = self.config.rates()
+        self.rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
+        self._tick = None
+
+    def __call__(self, t, x) -> np.ndarray:
+        x = np.asarray(x, float).reshape(12)
+        tick = np.floor(float(t) * self.rates + 1e-9)
+        mask = np.ones(len(CHANNELS), bool) if self._tick is None else tick > self._tick
+        self._tick = tick
+        if not dvl_valid(x, self.config):
+            mask[DVL] = False
+        if not self.config.usbl:
+            mask[USBL] = False
+        vals = x[CHANNEL_STATE] + self.rng.standard_normal(len(CHANNELS)) * self.sigmas
+        vals[ANGLE_CHANNELS] = (vals[ANGLE_CHANNELS] + np.pi) % (2 * np.pi) - np.pi
+        vals[~mask] = np.nan
+        return vals
