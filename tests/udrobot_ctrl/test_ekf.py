@@ -115,3 +115,21 @@ def test_heading_residual_wraps_and_bad_input_never_throws():
     assert np.all(np.isfinite(ekf.x)) and ekf.last_status.startswith("diverged")
     ekf.step(np.zeros(4), np.full(len(CHANNELS), np.nan))  # no measurement at all: prediction only
     assert np.isnan(ekf.nis) and np.all(np.isfinite(ekf.x))
+
+
+def test_filter_model_mismatch_shows_in_rmse_and_nis():
+    """EKF of model A on data of plant B (the compare matrix): the matched model tracks surge best."""
+    from udrobot_ctrl.ekf import ekf_on_trajectory
+    from udrobot_ctrl.sim import simulate
+
+    n = 300
+    plant = "pendulum:chin"
+    f = _thrusts(n)
+    res = simulate(plant, np.r_[0, 0, 1.0, np.zeros(9)], (n - 1) * DT, inputs=f[:-1], dt=DT)
+    matched = ekf_on_trajectory(plant, res.t, res.x, res.u, dt=DT)
+    other = ekf_on_trajectory("free_decay:morison", res.t, res.x, res.u, dt=DT)
+    assert matched["rmse"]["u"] < other["rmse"]["u"]
+    assert matched["nis_per_dof"] < other["nis_per_dof"]
+    assert matched["resets"] == 0
+    with pytest.raises(ValueError, match="multiple"):
+        ekf_on_trajectory(plant, res.t, res.x, res.u, dt=0.07)
