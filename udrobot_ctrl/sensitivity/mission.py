@@ -169,9 +169,9 @@ def mission_metrics(res, mission: DepthHeadingMission, f_min, f_max, rho: float 
     * ``settling_depth``, ``settling_heading`` (s): last exit from the +-2 % band, interpolated between
       steps (``t_final`` when not settled; ``unsettled`` counts such responses, 0-2 per vehicle);
     * ``iae_speed`` (m): integral of |u - surge_mps|; ``speed_error`` (m/s): final u - surge_mps;
-    * ``energy`` (J): ideal actuator-disk (momentum theory) energy of the applied thrusts,
-      integral of sum_i |f_i|^1.5 / sqrt(2 rho A_disk); *estimated*, a lower bound of the electrical
-      energy (zero advance speed, 100 % efficiency);
+    * ``energy`` (J): *estimated* electrical energy of the applied thrusts with the T-200 power fit of
+      :func:`udrobot_ctrl.metrics.thrust_power` (same definition as the missions' ``energy_J``); when that
+      module is absent, the ideal actuator-disk energy sum_i |f_i|^1.5 / sqrt(2 rho A_disk) (a lower bound);
     * ``thrust_effort`` (N^2 s): integral of sum_i f_i^2;
     * ``saturation`` (-): fraction of control steps with a thruster saturated;
     * ``max_speed`` (m/s): maximum body-frame translational speed;
@@ -192,7 +192,12 @@ def mission_metrics(res, mission: DepthHeadingMission, f_min, f_max, rho: float 
     ts_z, ok_z = _settling_time(t, e_z, mission.settle_band * abs(mission.depth_m))
     ts_psi, ok_psi = _settling_time(t, e_psi, mission.settle_band * abs(mission.heading_rad))
     f = np.clip(res.u, f_min, f_max)
-    power = np.sum(np.abs(f) ** 1.5, axis=-1) / np.sqrt(2 * rho * T200_DISK_AREA)
+    try:
+        from udrobot_ctrl.metrics import thrust_power
+
+        power = np.sum(thrust_power(f), axis=-1)
+    except ImportError:
+        power = np.sum(np.abs(f) ** 1.5, axis=-1) / np.sqrt(2 * rho * T200_DISK_AREA)
     speed = np.linalg.norm(x[:, :, 6:9], axis=-1)
     max_pitch = np.degrees(np.max(np.abs(x[:, :, 4]), axis=0))
     diverged = ~np.all(np.isfinite(x[-1]), axis=-1)
