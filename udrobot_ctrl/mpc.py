@@ -642,6 +642,7 @@ class NonlinearMPC(_MPCBase):
         else:
             X0 = np.vstack([self._X[1:], self._X[-1:]])
             U0 = np.vstack([self._U[1:], self._U[-1:]])
+            X0[:, PSI] += 2 * np.pi * np.round((x[PSI] - X0[0, PSI]) / (2 * np.pi))
             X0[0] = x
         w0 = np.concatenate([X0.reshape(-1), U0.reshape(-1)])
         par = np.concatenate([x, Xr.reshape(-1), ftrim.reshape(-1)])
@@ -668,6 +669,7 @@ class NonlinearMPC(_MPCBase):
         else:
             X = np.vstack([self._X[1:], self._X[-1:]])
             U = np.vstack([self._U[1:], self._U[-1:]])
+            X[:, PSI] += 2 * np.pi * np.round((x[PSI] - X[0, PSI]) / (2 * np.pi))  # heading crossed +-pi
         X[0] = x
         status, info_t, iters = "not solved", 0.0, 0
         for _ in range(self.sqp_iterations):

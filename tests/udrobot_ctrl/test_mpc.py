@@ -60,9 +60,10 @@ def test_asymmetric_limits_are_the_constraints():
         assert f[2] == pytest.approx(bound, abs=1e-3) and f[3] == pytest.approx(bound, abs=1e-3)
 
 
-def test_heading_wraps_the_short_way():
+@pytest.mark.parametrize("cls", [LinearMPC, NonlinearMPC])
+def test_heading_wraps_the_short_way(cls):
     v = load_model(DESIGN)
-    ctrl = LinearMPC(v, {"z": 0.0, "psi": -3.0}, horizon=20)
+    ctrl = cls(v, {"z": 0.0, "psi": -3.0}, horizon=20)
     x0 = np.zeros(12)
     x0[5] = 3.0  # 3.0 rad -> -3.0 rad is a 0.28 rad turn through +pi
     res = _fly(ctrl, t_final=5.0, x0=x0, plant=DESIGN)
