@@ -212,7 +212,8 @@ def linearize(p: PlantParameters, point: OperatingPoint, outputs=STATE_NAMES) ->
         C[i, STATE_INDEX[o]] = 1.0
     n = B.shape[1]
     sys = control.ss(A, B, C, np.zeros((len(outputs), n)), states=list(STATE_NAMES),
-                     inputs=[f"T{i + 1}" for i in range(n)], outputs=list(outputs), name=f"{p.name} {point.name}".replace(".", "_"))
+                     inputs=[f"T{i + 1}" for i in range(n)], outputs=list(outputs),
+                     name=f"{p.name} {point.name}".replace(".", "_"))
     return LinearModel(point, sys, A, B, f0)
 
 
