@@ -238,10 +238,11 @@ class PIDController:
 
     @classmethod
     def design(cls, params: PlantParameters, reference, dt: float = 0.05, tuning: PIDTuning | None = None,
-               anti_windup: str = "back-calculation", surge_speed: float = 0.5, depth: float = 1.0) -> PIDController:
+               anti_windup: str = "back-calculation", surge_speed: float = 0.5, depth: float = 1.0,
+               setpoint_filter: float = 0.3) -> PIDController:
         """Tune from the design model (:func:`design_loops`) and build the controller."""
         loops = design_loops(params, tuning, control_dt=dt, surge_speed=surge_speed, depth=depth)
-        return cls(params, loops, reference, dt, anti_windup, depth)
+        return cls(params, loops, reference, dt, anti_windup, depth, setpoint_filter)
 
     def reset(self):
         self.integral = {n: 0.0 for n in self.loops}
