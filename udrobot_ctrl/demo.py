@@ -110,15 +110,18 @@ def step_open_loop(out: Path) -> dict:
 
 
 def step_controllers(out: Path, full: bool = False) -> dict:
-    """LQR, PID and linear MPC designed on each model A and flown on every plant B (5 x 5, ``compare``)."""
-    from udrobot_ctrl.compare import compare, text_table, write_outputs
+    """LQR, PID, linear and nonlinear MPC designed on each model A and flown on every plant B (5 x 5), and the EKF
+    with model A on data from plant B (``udrobot-ctrl compare``)."""
+    from udrobot_ctrl.compare import compare, contract_json, text_table, write_outputs
 
-    result = compare(t_final=40.0 if full else 20.0, keep_trajectories=True)
+    result = compare(quick=not full, keep_trajectories=True)
     write_outputs(result, out / "compare")
-    print(text_table(result["results"]))
-    for name, why in result["skipped"].items():
+    (out / "compare" / "compare.json").write_text(json.dumps(contract_json(result), indent=2))
+    print(text_table(result["results"], result.get("ekf", ())))
+    for name, why in (result.get("skipped") or {}).items():
         print(f"skipped {name}: {why}")
-    return {"rows": len(result["results"]), "lost_control": sum(r["lost_control"] for r in result["results"])}
+    return {"rows": len(result["results"]), "ekf_rows": len(result.get("ekf", [])),
+            "wall_s": result.get("wall_s")}
 
 
 STEPS = [("models", step_models), ("open_loop", step_open_loop), ("controllers", step_controllers)]
