@@ -1,0 +1,527 @@
+"""Shared machinery of the free-decay tests: launch files, validation, extrema, 1-DOF output-error fit.
+
+Both rigs of Cely 2019 (spring, eqs. 6-9; pendulum, eqs. 10-16) are one-degree-of-freedom decays
+
+    x'' = -a0 g(x) - aL x' - aQ |x'| x',     g(x) = x (spring) or sin(x) (pendulum),
+
+written per unit of the oscillating inertia. This module reads and validates launch logs, finds the
+release and the turning points, and fits (a0, aL, aQ, x0, v0, offset) to a whole trace by simulating
+the ODE (output error, scipy ``least_squares``). The physical coefficients are derived from the
+``a`` coefficients by the rig modules (:mod:`identification.free_decay`, :mod:`identification.pendulum`).
+
+Confidence intervals
+--------------------
+Residuals of a decay fit are not white: sensor quantisation on a slow signal, IMU filtering and
+small model mismatch all make them autocorrelated, and the textbook ``s^2 (J^T J)^-1`` is then too
+narrow. We use the Newey-West (HAC, Bartlett kernel) sandwich covariance
+``(J^T J)^-1 S (J^T J)^-1`` with the lag window chosen from the residual autocorrelation
+(the first lag where it falls below 2/sqrt(n), at least the Newey-West rule 4 (n/100)^(2/9)).
+"""
+from __future__ import annotations
+
+import csv
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from numba import njit
+from scipy import optimize, signal, stats
+
+MIN_ROWS = 20
+MIN_EXTREMA = 3
+
+
+class LaunchError(ValueError):
+    """A launch that cannot be analysed; the message names the file and, where known, row and field."""
+
+    def __init__(self, path, message, row=None, field=None):
+        where = str(path)
+        if row is not None:
+            where += f", row {row}"
+        if field is not None:
+            where += f", field {field!r}"
+        super().__init__(f"{where}: {message}")
+        self.path, self.row, self.field, self.reason = str(path), row, field, message
+
+
+@dataclass
+class Launch:
+    """One free-decay launch.
+
+    Attributes
+    ----------
+    path : str
+        Source file.
+    t : ndarray
+        Time, s (strictly increasing).
+    x : ndarray
+        Position (m, spring) or angle (rad, pendulum).
+    resolution : float
+        Sensor quantisation step in the units of ``x`` (0 when unknown / continuous).
+    meta : dict
+        Optional information (e.g. axis from the file name).
+    """
+
+    path: str
+    t: np.ndarray
+    x: np.ndarray
+    resolution: float = 0.0
+    meta: dict = field(default_factory=dict)
+
+
+def read_columns(path, wanted: dict) -> tuple[dict, str]:
+    """Read a numeric CSV with a header; return the first matching column set.
+
+    Parameters
+    ----------
+    path : path-like
+        CSV file.
+    wanted : dict
+        ``{label: (col1, col2, ...)}`` alternative column sets; the first complete one is used.
+
+    Returns
+    -------
+    columns : dict
+        ``{name: ndarray}`` for the chosen set.
+    label : str
+        Key of ``wanted`` that matched.
+    """
+    path = Path(path)
+    try:
+        with open(path, newline="") as fh:
+            rows = list(csv.reader(fh))
+    except FileNotFoundError as exc:
+        raise LaunchError(path, "file not found") from exc
+    except (OSError, UnicodeDecodeError) as exc:
+        raise LaunchError(path, f"cannot read ({exc})") from exc
+    rows = [r for r in rows if r and any(c.strip() for c in r) and not r[0].lstrip().startswith("#")]
+    if not rows:
+        raise LaunchError(path, "empty file (expected a header line and data rows)")
+    header = [h.strip().lower() for h in rows[0]]
+    for label, cols in wanted.items():  # noqa: B007 (label is returned)
+        if all(c in header for c in cols):
+            break
+    else:
+        expected = " or ".join(",".join(c) for c in wanted.values())
+        raise LaunchError(path, f"header {','.join(header)!r} lacks the expected columns ({expected})", row=1)
+    idx = [header.index(c) for c in cols]
+    data = np.empty((len(rows) - 1, len(cols)))
+    for i, r in enumerate(rows[1:]):
+        for j, (k, c) in enumerate(zip(idx, cols)):
+            row_no = i + 2  # 1-based file line of the data row (header is line 1)
+            if k >= len(r):
+                raise LaunchError(path, "missing value", row=row_no, field=c)
+            s = r[k].strip()
+            try:
+                v = float(s)
+            except ValueError:
+                raise LaunchError(path, f"{s!r} is not a number", row=row_no, field=c) from None
+            if not math.isfinite(v):
+                raise LaunchError(path, f"non-finite value {s!r} (NaN/inf)", row=row_no, field=c)
+            data[i, j] = v
+    if len(data) < MIN_ROWS:
+        raise LaunchError(path, f"only {len(data)} data rows, need at least {MIN_ROWS}")
+    t = data[:, 0]
+    bad = np.flatnonzero(np.diff(t) <= 0)
+    if bad.size:
+        i = int(bad[0]) + 1
+        raise LaunchError(path, f"time not increasing ({t[i - 1]!r} then {t[i]!r})", row=i + 2, field=cols[0])
+    return {c: data[:, j] for j, c in enumerate(cols)}, label
+
+
+def estimate_resolution(x) -> float:
+    """Quantisation step of a sampled signal (0 if it looks continuous)."""
+    d = np.abs(np.diff(x))
+    d = d[d > 1e-12 * max(1.0, float(np.max(np.abs(x))))]
+    if d.size < 5:
+        return 0.0
+    q = float(np.min(d))
+    # quantised: the nonzero steps are (near) integer multiples of the smallest one
+    ratios = d / q
+    if np.mean(np.abs(ratios - np.round(ratios)) < 0.02) > 0.95:
+        return q
+    return 0.0
+
+
+def noise_level(x) -> float:
+    """Robust white-noise standard deviation from second differences (units of ``x``)."""
+    d2 = np.diff(x, 2)
+    return float(1.4826 * np.median(np.abs(d2 - np.median(d2))) / math.sqrt(6.0))
+
+
+def find_release(x, band) -> int:
+    """Index of the last sample of the pre-release hold (0 when the log starts moving at once).
+
+    The hold is the leading run of samples within ``band`` of the first sample.
+    """
+    x0 = np.median(x[: min(5, x.size)])
+    moving = np.flatnonzero(np.abs(x - x0) > band)
+    if moving.size == 0:
+        return 0
+    return max(int(moving[0]) - 1, 0)
+
+
+def check_clipping(path, t, x, resolution, period, start):
+    """Raise :class:`LaunchError` when the trace has flat tops at its extreme values (a saturated sensor).
+
+    A run of identical samples at the global maximum or minimum after the release is accepted only
+    as long as a quantised smooth peak can stay on one level: ``2 sqrt(2 q / (A w^2))`` s for a peak of
+    amplitude A, step q and frequency w, tripled, plus three samples.
+    """
+    y = x[start + 1:]
+    if y.size < 3:
+        return
+    dt = float(np.median(np.diff(t)))
+    amp = 0.5 * float(np.ptp(x))
+    w = 2 * math.pi / period if period and period > 0 else 0.0
+    if resolution > 0 and w > 0 and amp > 0:
+        plateau = 2 * math.sqrt(2 * resolution / (amp * w * w))
+        limit = int(3 * plateau / dt) + 3
+    else:
+        limit = 4
+    for extreme, name in ((np.max(y), "maximum"), (np.min(y), "minimum")):
+        at = np.abs(y - extreme) <= 1e-12 * max(1.0, abs(extreme))
+        # longest run of consecutive samples at the extreme
+        run, best, best_end = 0, 0, 0
+        for i, flag in enumerate(at):
+            run = run + 1 if flag else 0
+            if run > best:
+                best, best_end = run, i
+        if best > limit:
+            row = start + 1 + best_end - best + 1 + 2
+            raise LaunchError(path, f"sensor clipped: {best} consecutive samples flat at the {name} {extreme:.6g} "
+                              f"(at most {limit} expected for a smooth peak)", row=row)
+
+
+@dataclass
+class Extrema:
+    """Turning points of a decay (relative to the final offset)."""
+
+    t: np.ndarray
+    x: np.ndarray
+    offset: float
+
+    @property
+    def count(self) -> int:
+        return int(self.t.size)
+
+
+def find_extrema(t, x, start, offset, threshold) -> Extrema:
+    """Turning points after the release, the release itself included as the first one.
+
+    Peak times and values are refined by a parabola through the samples around each detected
+    extremum (important for quantised signals whose peaks are flat for several samples).
+    """
+    y = x[start:] - offset
+    tt = t[start:]
+    ext_i = [0]
+    hi, _ = signal.find_peaks(y, prominence=threshold)
+    lo, _ = signal.find_peaks(-y, prominence=threshold)
+    cand = sorted([(i, 1) for i in hi] + [(i, -1) for i in lo])
+    sign0 = 1 if y[0] >= 0 else -1
+    last_sign = sign0
+    for i, s in cand:
+        if i == 0:
+            continue
+        if s == last_sign:  # keep the larger of two same-sign candidates
+            if abs(y[i]) > abs(y[ext_i[-1]]) and len(ext_i) > 1:
+                ext_i[-1] = i
+            continue
+        ext_i.append(i)
+        last_sign = s
+    ts, xs = [tt[0]], [y[0]]
+    for k in range(1, len(ext_i)):
+        i = ext_i[k]
+        half = max(2, (ext_i[k] - ext_i[k - 1]) // 5)
+        lo_i, hi_i = max(i - half, 0), min(i + half + 1, y.size)
+        tc = tt[lo_i:hi_i] - tt[i]
+        if tc.size >= 3:
+            c = np.polyfit(tc, y[lo_i:hi_i], 2)
+            if c[0] != 0 and abs(-c[1] / (2 * c[0])) <= (tc[-1] - tc[0]) / 2:
+                tv = -c[1] / (2 * c[0])
+                ts.append(tt[i] + tv)
+                xs.append(np.polyval(c, tv))
+                continue
+        ts.append(tt[i])
+        xs.append(y[i])
+    return Extrema(np.array(ts), np.array(xs), offset)
+
+
+def refine_offset(ext: Extrema) -> Extrema:
+    """Rest position from successive turning points (Shanks' estimate, exact for a geometric decay).
+
+    For extrema e_k = c + A (-r)^k, c = (e_0 e_2 - e_1^2) / (e_0 + e_2 - 2 e_1); the median over all
+    triples after the release is used. Needed because a lightly damped launch is not at rest at the
+    end of the log.
+    """
+    e = ext.x + ext.offset
+    est = []
+    for k in range(1, e.size - 2):
+        den = e[k] + e[k + 2] - 2 * e[k + 1]
+        if abs(den) > 0:
+            est.append((e[k] * e[k + 2] - e[k + 1] ** 2) / den)
+    if not est:
+        return ext
+    off = float(np.median(est))
+    return Extrema(ext.t, e - off, off)
+
+
+def tail_offset(x, fraction=0.2) -> float:
+    """Rest position: median of the last ``fraction`` of the log."""
+    n = max(int(fraction * x.size), 3)
+    return float(np.median(x[-n:]))
+
+
+def prepare(launch: Launch, min_extrema=MIN_EXTREMA):
+    """Validate a launch and locate its release and turning points.
+
+    Returns
+    -------
+    start : int
+        Release index.
+    ext : Extrema
+        Turning points (release first).
+    noise : float
+        Estimated white-noise level.
+    """
+    t, x, path = launch.t, launch.x, launch.path
+    noise = noise_level(x)
+    q = launch.resolution
+    offset = tail_offset(x)
+    span = float(np.max(np.abs(x - offset)))
+    floor = max(6 * noise, 3 * q)
+    if span <= floor:
+        raise LaunchError(path, f"the log does not oscillate: largest excursion {span:.3g} from rest is within the "
+                          f"noise/resolution floor {floor:.3g}")
+    band = max(4 * noise, 1.5 * q, 0.02 * span)
+    start = find_release(x, band)
+    threshold = max(6 * noise, 2.5 * q, 0.01 * span)
+    ext = find_extrema(t, x, start, offset, threshold)
+    if ext.count >= 4:
+        ext = refine_offset(ext)
+    if ext.count < 2:
+        raise LaunchError(path, "the log does not oscillate: no turning point after the release "
+                          "(overdamped or not a free-decay launch)")
+    if ext.count < min_extrema:
+        raise LaunchError(path, f"fewer than {min_extrema} peaks: found {ext.count} turning points above the noise "
+                          f"floor {threshold:.3g} (release included)")
+    period = 2 * float(np.mean(np.diff(ext.t)))
+    check_clipping(path, t, x, q, period, start)
+    return start, ext, noise
+
+
+# ----------------------------------------------------------------------------- simulation
+@njit(cache=True)
+def _accel(x, v, a0, aL, aQ, sine):
+    g = math.sin(x) if sine else x
+    return -a0 * g - aL * v - aQ * abs(v) * v
+
+
+@njit(cache=True)
+def simulate_decay(t, x0, v0, a0, aL, aQ, sine, max_step):
+    """RK4 solution of x'' = -a0 g(x) - aL x' - aQ |x'| x' sampled at ``t`` (x(t[0]) = x0).
+
+    Each sample interval is split into steps no longer than ``max_step`` (s). Returns NaNs after a
+    non-finite state.
+    """
+    n = t.size
+    out = np.empty(n)
+    x = x0
+    v = v0
+    out[0] = x
+    for i in range(n - 1):
+        dt = t[i + 1] - t[i]
+        k = int(math.ceil(dt / max_step - 1e-9))
+        if k < 1:
+            k = 1
+        h = dt / k
+        for _ in range(k):
+            k1x = v
+            k1v = _accel(x, v, a0, aL, aQ, sine)
+            k2x = v + 0.5 * h * k1v
+            k2v = _accel(x + 0.5 * h * k1x, k2x, a0, aL, aQ, sine)
+            k3x = v + 0.5 * h * k2v
+            k3v = _accel(x + 0.5 * h * k2x, k3x, a0, aL, aQ, sine)
+            k4x = v + h * k3v
+            k4v = _accel(x + h * k3x, k4x, a0, aL, aQ, sine)
+            x = x + h / 6.0 * (k1x + 2 * k2x + 2 * k3x + k4x)
+            v = v + h / 6.0 * (k1v + 2 * k2v + 2 * k3v + k4v)
+        if not (math.isfinite(x) and math.isfinite(v)):
+            for j in range(i + 1, n):
+                out[j] = np.nan
+            return out
+        out[i + 1] = x
+    return out
+
+
+# ----------------------------------------------------------------------------- covariance
+def hac_covariance(J, r, n_params=None):
+    """Newey-West (Bartlett) sandwich covariance of least-squares parameters.
+
+    Parameters
+    ----------
+    J : (n, p) ndarray
+        Jacobian of the residuals at the solution.
+    r : (n,) ndarray
+        Residuals.
+
+    Returns
+    -------
+    cov : (p, p) ndarray
+    lag : int
+        Bartlett window used.
+    """
+    n, p = J.shape
+    n_params = p if n_params is None else n_params
+    r = r - np.mean(r)
+    var = float(r @ r) / n
+    lag = int(4 * (n / 100.0) ** (2.0 / 9.0))
+    if var > 0:
+        # first lag where the residual autocorrelation falls below 2/sqrt(n)
+        f = np.fft.rfft(r, 2 * n)
+        acf = np.fft.irfft(f * np.conj(f))[:n] / (n * var)
+        below = np.flatnonzero(np.abs(acf[1:]) < 2 / math.sqrt(n))
+        lag = max(lag, int(below[0]) + 1 if below.size else n // 4)
+    lag = min(lag, n // 4)
+    g = J * r[:, None]
+    S = g.T @ g
+    for k in range(1, lag + 1):
+        w = 1.0 - k / (lag + 1.0)
+        G = g[k:].T @ g[:-k]
+        S += w * (G + G.T)
+    JtJ_inv = np.linalg.pinv(J.T @ J)
+    cov = JtJ_inv @ S @ JtJ_inv * n / max(n - n_params, 1)
+    return cov, lag
+
+
+def central_jacobian(fun, p, rel=1e-5, scale=None):
+    """Central-difference Jacobian of the residual function ``fun`` at ``p``."""
+    p = np.asarray(p, float)
+    scale = np.maximum(np.abs(p), 1e-8) if scale is None else np.asarray(scale, float)
+    cols = []
+    for j in range(p.size):
+        h = rel * scale[j]
+        pp, pm = p.copy(), p.copy()
+        pp[j] += h
+        pm[j] -= h
+        cols.append((fun(pp) - fun(pm)) / (2 * h))
+    return np.column_stack(cols)
+
+
+# ----------------------------------------------------------------------------- output-error fit
+@dataclass
+class DecayFit:
+    """Output-error fit of one decay.
+
+    Attributes
+    ----------
+    params : dict
+        ``a0`` (1/s^2), ``aL`` (1/s), ``aQ`` (1/unit of x), ``x0``, ``v0``, ``offset``.
+    names : tuple
+        Order of ``cov`` rows.
+    cov : ndarray
+        HAC covariance of the fitted parameters.
+    t, x, model : ndarray
+        Fitted samples, measurement and model response (absolute, offset included).
+    rms : float
+        Residual RMS.
+    lag : int
+        HAC window.
+    """
+
+    params: dict
+    names: tuple
+    cov: np.ndarray
+    t: np.ndarray
+    x: np.ndarray
+    model: np.ndarray
+    rms: float
+    lag: int
+    nfev: int = 0
+
+
+def fit_decay(t, x, start, ext: Extrema, sine: bool, linear=True, quadratic=True) -> DecayFit:
+    """Fit x'' = -a0 g(x) - aL x' - aQ |x'| x' to ``x[start:]`` by output error.
+
+    Parameters
+    ----------
+    t, x : ndarray
+        Whole launch (s; m or rad).
+    start : int
+        Release index.
+    ext : Extrema
+        Turning points (initial guess).
+    sine : bool
+        Pendulum restoring term sin(x) instead of x.
+    linear, quadratic : bool
+        Which damping terms to estimate (Morison form: ``linear=False``).
+    """
+    tt = np.ascontiguousarray(t[start:] - t[start])
+    y = np.ascontiguousarray(x[start:])
+    dt = float(np.median(np.diff(tt)))
+    period = 2 * float(np.mean(np.diff(ext.t)))
+    wd = 2 * math.pi / period
+    # initial guess from the first log decrement
+    xs = np.abs(ext.x)
+    delta = math.log(max(xs[0], 1e-12) / max(xs[2], 1e-12)) if ext.count >= 3 else 0.3
+    delta = min(max(delta, 1e-3), 6.0)
+    zeta = delta / math.sqrt(4 * math.pi ** 2 + delta ** 2)
+    wn = wd / math.sqrt(1 - zeta ** 2)
+    amp = float(np.sqrt(xs[0] * xs[min(2, xs.size - 1)]))
+    a0 = wn ** 2
+    share = (0.5 if linear else 0.0, 0.5 if quadratic else 0.0)
+    if not quadratic:
+        share = (1.0, 0.0)
+    if not linear:
+        share = (0.0, 1.0)
+    aL = 2 * zeta * wn * share[0]
+    aQ = zeta * 3 * math.pi / (8 * max(amp, 1e-9)) * 2 * share[1]
+    names = ["a0"] + (["aL"] if linear else []) + (["aQ"] if quadratic else []) + ["x0", "v0", "offset"]
+    p0 = [a0] + ([aL] if linear else []) + ([aQ] if quadratic else []) + [float(y[0] - ext.offset), 0.0, ext.offset]
+    lb = [1e-9] + ([0.0] if linear else []) + ([0.0] if quadratic else []) + [-np.inf, -np.inf, -np.inf]
+    max_step = min(dt, 0.05 / wn) if wn > 0 else dt
+
+    def unpack(p):
+        d = dict(zip(names, p))
+        return d["a0"], d.get("aL", 0.0), d.get("aQ", 0.0), d["x0"], d["v0"], d["offset"]
+
+    def resid(p):
+        a0_, aL_, aQ_, x0_, v0_, off_ = unpack(p)
+        m = simulate_decay(tt, x0_, v0_, a0_, aL_, aQ_, sine, max_step)
+        r = m + off_ - y
+        return np.where(np.isfinite(r), r, 1e3 * (np.abs(y).max() + 1.0))
+
+    xscale = np.array([a0] + ([max(aL, 0.1 * zeta * wn)] if linear else [])
+                      + ([max(aQ, 0.1 / max(amp, 1e-9))] if quadratic else [])
+                      + [max(amp, 1e-6), max(amp * wn, 1e-6), max(amp, 1e-6)])
+    p0 = np.maximum(np.array(p0, float), np.array(lb) + 1e-12 * xscale)
+    sol = optimize.least_squares(resid, p0, jac="2-point", bounds=(lb, np.inf), x_scale=xscale,
+                                 method="trf", xtol=1e-10, ftol=1e-10, gtol=1e-10, max_nfev=400)
+    p = sol.x
+    r = resid(p)
+    J = central_jacobian(resid, p, rel=1e-5, scale=xscale)
+    cov, lag = hac_covariance(J, r)
+    model = y + r
+    return DecayFit(dict(zip(names, p)), tuple(names), cov, tt + t[start], y, model,
+                    float(np.sqrt(np.mean(r ** 2))), lag, int(sol.nfev))
+
+
+def propagate(fun, p, cov):
+    """Delta-method covariance of ``fun(p)`` (vector) given the covariance of ``p``."""
+    p = np.asarray(p, float)
+    f0 = np.atleast_1d(fun(p))
+    G = np.zeros((f0.size, p.size))
+    for j in range(p.size):
+        h = 1e-6 * max(abs(p[j]), 1e-9)
+        pp, pm = p.copy(), p.copy()
+        pp[j] += h
+        pm[j] -= h
+        G[:, j] = (np.atleast_1d(fun(pp)) - np.atleast_1d(fun(pm))) / (2 * h)
+    return f0, G @ cov @ G.T
+
+
+def ci95(value, se, dof):
+    """Two-sided 95 % interval ``value +- t_{0.975,dof} se``."""
+    q = float(stats.t.ppf(0.975, max(dof, 1)))
+    return [float(value - q * se), float(value + q * se)]
