@@ -11,7 +11,7 @@ Steps (spring and pendulum):
    reason and never stops the others;
 2. launches are labelled with their axis (``--axis`` or a ``surge|sway|heave|x|y|z`` token in the
    file name) and amplitude group (an ``L1``..``L4`` token, else the nearest protocol amplitude);
-3. outliers: Tukey's fences within each (axis, group) on the key coefficients; rejected launches
+3. outliers: Tukey's far-out fences per axis on group-centred key coefficients; rejected launches
    keep their results and carry the reason (``used: false``, ``rejected``);
 4. Wilcoxon rank-sum tests between groups (Tables 6, 8, 9);
 5. aggregate per axis over the used launches (:func:`identification.statistics.aggregate`);
@@ -70,8 +70,10 @@ class RigOptions:
         m/s^2 and kg/m^3.
     scale : float
         Model/full-size length ratio.
-    mechanical_damping : float
-        Spring rig's own linear damping, N s/m (subtracted before C_D and K_L).
+    mechanical_damping : float or None
+        Spring rig's own linear damping, N s/m, subtracted from the fitted linear damping to give the
+        fluid K_L (and, for the graphical method, from zeta before C_D). None: unknown, taken as 0 for
+        the fits, and the spring's K_L (rig + fluid) is then not written into a coefficient set.
     pivot_inertia : float
         Pendulum arm + pivot inertia about the pivot, kg m^2.
     reference_mass : str or float
@@ -90,7 +92,7 @@ class RigOptions:
     gravity: float = 9.81
     rho: float = 1000.0
     scale: float | None = None
-    mechanical_damping: float = 0.0
+    mechanical_damping: float | None = None
     pivot_inertia: float = 0.0
     reference_mass: str | float = "vehicle"
     KL_law: str = "reynolds"
@@ -164,7 +166,7 @@ def _one(kind, path, opts: RigOptions, fit: str, keep_fit: bool) -> dict:
         if kind == "spring":
             launch = free_decay.read_spring_launch(path)
             rig = free_decay.SpringRig(opts.mass, opts.volume, opts.stiffness, area_for(opts, axis), opts.rho,
-                                       opts.mechanical_damping)
+                                       opts.mechanical_damping or 0.0)
             res = free_decay.identify_launch(launch, rig, method=fit, keep_fit=keep_fit)
         elif kind == "pendulum":
             launch = pendulum.read_pendulum_launch(path)
@@ -231,11 +233,11 @@ def identify_files(kind: str, paths, opts: RigOptions | None = None, fit: str = 
     for axis in axes:
         rows = [e for e in ok if (e["axis"] or "unspecified") == axis]
         if kind != "cfd":
-            for g in sorted({e["group"] for e in rows}, key=str):
-                members = {e["file"]: e for e in rows if e["group"] == g}
-                for f, reason in statistics.outlier_reasons(members, KEYS[kind]).items():
-                    members[f]["used"] = False
-                    members[f]["rejected"] = reason
+            members = {e["file"]: e for e in rows}
+            groups = {e["file"]: e["group"] for e in rows}
+            for f, reason in statistics.outlier_reasons(members, KEYS[kind], groups=groups).items():
+                members[f]["used"] = False
+                members[f]["rejected"] = reason
         used = [e for e in rows if e["used"]]
         by_axis[axis] = _axis_summary(kind, axis, rows, used, opts)
     report = {
@@ -352,13 +354,28 @@ def coefficient_set_values(report: dict, name: str, base: str | None = None) -> 
     values = {"added_mass": [None] * 3, "KL": [None] * 3, "KQ": [None] * 3, "CD": [None] * 3}
     prov: dict = {}
     method = report["method"].split(",")[0]
+    quantities = [("added_mass", "added_mass_kg"), ("KL", "KL"), ("KQ", "KQ"), ("CD", "CD")]
+    if report["method"].startswith("spring") and report["rig"].get("mechanical_damping") is None:
+        quantities.remove(("KL", "KL"))  # rig and fluid linear damping not separated
     for i, axis in enumerate(AXES):
         fs = by_axis.get(axis, {}).get("full_scale", {})
-        for key, src in (("added_mass", "added_mass_kg"), ("KL", "KL"), ("KQ", "KQ"), ("CD", "CD")):
+        for key, src in quantities:
             if src in fs and fs[src].get("value") is not None:
-                values[key][i] = float(fs[src]["value"])
+                value = float(fs[src]["value"])
+                note = ""
+                if value < 0:
+                    ci = fs[src].get("ci95") or [value, value]
+                    if ci[1] < 0:
+                        raise ValueError(f"{axis} {key} = {value:.4g} (95 % CI {ci[0]:.4g}..{ci[1]:.4g}) is negative "
+                                         "beyond its uncertainty: check the rig options (e.g. --mechanical-damping)")
+                    note = f" (estimate {value:.3g}, 95 % CI up to {ci[1]:.3g}: zero within uncertainty, written as 0)"
+                    value = 0.0
+                values[key][i] = value
                 tag = "cfd" if report["method"].startswith("CFD") else "measured"
-                prov[f"{axis}.{key}"] = f"{tag}: {method}; scaled: {fs[src]['law']}"
+                law = fs[src]["law"]
+                if key == "added_mass" and "reference_mass" in fs:
+                    law += f"; reference displaced mass {fs['reference_mass']['law'].split(' (')[0]}"
+                prov[f"{axis}.{key}"] = f"{tag}: {method}; scaled: {law}{note}"
     missing = []
     for key, vals in values.items():
         for i, v in enumerate(vals):
@@ -374,9 +391,6 @@ def coefficient_set_values(report: dict, name: str, base: str | None = None) -> 
         raise ValueError(f"cannot write a complete coefficient set: {', '.join(missing)} not identified "
                          f"(add the launches for that axis, or --base cfd|free_decay|pendulum to borrow them)")
     per_axis = {k: (np.array(v) if all(x is not None for x in v) else None) for k, v in values.items()}
-    prov_by_key = {}
-    for key in per_axis:
-        prov_by_key[key] = "; ".join(sorted({prov.get(f"{a}.{key}", "") for a in AXES}))
     return per_axis, prov, f"identified by udrobot-ctrl identify: {report['method']}"
 
 
@@ -418,7 +432,9 @@ def format_table(report: dict) -> str:
             if k != "reference_mass" and v.get("value") is not None:
                 lines.append(f"  full size {k:9s} {_fmt(v['value']):>11s}   ({v['law']})")
         if "reference_mass" in s["full_scale"]:
-            lines.append(f"  reference displaced mass: {s['full_scale']['reference_mass']['law']}")
+            ref = s["full_scale"]["reference_mass"]
+            lines.append(f"  full-size added mass uses a reference displaced mass of {ref['value']:.4g} kg "
+                         f"({ref['law'].split(' (')[0]})")
     return "\n".join(lines)
 
 

@@ -80,7 +80,10 @@ def _toml_str(s: str) -> str:
 
 def dump_coefficient_set(name: str, per_axis: dict, provenance: dict | None = None,
                          description: str = "") -> str:
-    """TOML text of a set. ``per_axis = {"added_mass": (3,), "KL": (3,), ...}``; None entries skipped."""
+    """TOML text of a set. ``per_axis = {"added_mass": (3,), "KL": (3,), ...}``; None entries skipped.
+
+    ``provenance`` maps ``"axis.key"`` (or ``"key"`` for every axis) to the provenance text.
+    """
     provenance = provenance or {}
     lines = [f"format = {_toml_str(FORMAT)}", f"name = {_toml_str(name)}",
              f"description = {_toml_str(description)}", ""]
@@ -90,7 +93,7 @@ def dump_coefficient_set(name: str, per_axis: dict, provenance: dict | None = No
             if vals is None:
                 continue
             v = float(np.asarray(vals, float)[i])
-            p = provenance.get(key, "measured")
+            p = provenance.get(f"{axis}.{key}", provenance.get(key, "measured"))
             lines.append(f"{key} = {{ value = {v!r}, provenance = {_toml_str(p)} }}")
         lines.append("")
     return "\n".join(lines)

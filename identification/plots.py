@@ -1,0 +1,124 @@
+"""Plots of an identification run: fits against measurements (paper Fig. 7), coefficients vs Reynolds
+number (Figs. 17-19), CFD force-speed regressions (Fig. 16)."""
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+
+
+def _plt():
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def plot_fits(launches, axis, path, kind) -> Path | None:
+    """Grid of every launch of ``axis``: measurement and fitted model (or turning points)."""
+    rows = [e for e in launches if e["ok"] and (e["axis"] or "unspecified") == axis]
+    if not rows:
+        return None
+    plt = _plt()
+    n = len(rows)
+    ncol = min(6, n)
+    nrow = math.ceil(n / ncol)
+    fig, axes = plt.subplots(nrow, ncol, figsize=(2.6 * ncol, 1.9 * nrow), squeeze=False, sharey=False)
+    scale, unit = (1e3, "mm") if kind == "spring" else (180 / math.pi, "deg")
+    for ax, e in zip(axes.flat, rows):
+        fit = e.get("_fit")
+        graph = e.get("_graph")
+        if fit is not None:
+            ax.plot(fit.t, fit.x * scale, ".", ms=1.5, color="0.5", label="measured")
+            ax.plot(fit.t, fit.model * scale, "-", lw=0.9, color="C0", label="fit")
+        elif graph is not None:
+            launch, start, ext, _ = graph
+            ax.plot(launch.t, launch.x * scale, "-", lw=0.8, color="0.4")
+            ax.plot(ext.t, (ext.x + ext.offset) * scale, "o", ms=3, color="C3")
+        title = Path(e["file"]).stem[-22:]
+        if not e["used"]:
+            title += " (rejected)"
+        ax.set_title(title, fontsize=7)
+        ax.tick_params(labelsize=6)
+    for ax in list(axes.flat)[n:]:
+        ax.axis("off")
+    axes[0, 0].set_ylabel(unit, fontsize=7)
+    fig.suptitle(f"{kind} launches, {axis}: measurement (grey) and fit", fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return Path(path)
+
+
+def plot_vs_reynolds(launches, axis, path, kind) -> Path | None:
+    """Per-launch coefficients with 95 % intervals against the Reynolds number."""
+    rows = [e for e in launches if e["ok"] and (e["axis"] or "unspecified") == axis and "Re" in e]
+    if not rows:
+        return None
+    keys = {"spring": ("Cm", "CD", "KL"), "pendulum": ("Cm", "KL", "KQ", "CD")}[kind]
+    plt = _plt()
+    fig, axes = plt.subplots(1, len(keys), figsize=(3.2 * len(keys), 2.8), squeeze=False)
+    for ax, k in zip(axes[0], keys):
+        for used, marker, color in ((True, "o", "C0"), (False, "x", "C3")):
+            sel = [e for e in rows if e["used"] == used and e.get(k) is not None]
+            if not sel:
+                continue
+            re_ = np.array([e["Re"] for e in sel])
+            v = np.array([e[k] for e in sel])
+            ci = np.array([e.get(k + "_ci95") or [x, x] for e, x in zip(sel, v)])
+            ax.errorbar(re_, v, yerr=[v - ci[:, 0], ci[:, 1] - v], fmt=marker, ms=3, color=color, lw=0.6,
+                        label="used" if used else "rejected")
+        ax.set_xlabel("Re", fontsize=8)
+        ax.set_title(k, fontsize=9)
+        ax.tick_params(labelsize=7)
+    axes[0, 0].legend(fontsize=7)
+    fig.suptitle(f"{kind}, {axis}: coefficients vs Reynolds number (95 % intervals)", fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return Path(path)
+
+
+def plot_cfd(launches, path) -> Path | None:
+    """Force-speed points and both regressions, one panel per table."""
+    rows = [e for e in launches if e["ok"] and "_table" in e]
+    if not rows:
+        return None
+    plt = _plt()
+    fig, axes = plt.subplots(1, len(rows), figsize=(3.4 * len(rows), 3.0), squeeze=False)
+    for ax, e in zip(axes[0], rows):
+        t = e["_table"]
+        u = np.linspace(min(0.0, t.speed.min()), t.speed.max(), 200)
+        ax.plot(t.speed, t.force, "o", ms=4, color="0.3", label="CFD")
+        ax.plot(u, e["KL"] * u + e["KQ"] * np.abs(u) * u, "-", color="C0",
+                label=f"Chin K_L={e['KL']:.3g}, K_Q={e['KQ']:.3g} (R2 {e['r2']:.4f})")
+        ax.plot(u, e["KD"] * np.abs(u) * u, "--", color="C1", label=f"Morison K_D={e['KD']:.3g}")
+        ax.set_xlabel("speed (m/s)", fontsize=8)
+        ax.set_ylabel("force (N)", fontsize=8)
+        ax.set_title(f"{e['axis'] or Path(e['file']).stem}", fontsize=9)
+        ax.legend(fontsize=6)
+        ax.tick_params(labelsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return Path(path)
+
+
+def plot_report(report: dict, launches, directory, kind) -> list[Path]:
+    """Every plot of an identification run into ``directory``; returns the written paths."""
+    directory = Path(directory)
+    directory.mkdir(parents=True, exist_ok=True)
+    launches = launches or report["launches"]
+    out = []
+    if kind == "cfd":
+        p = plot_cfd(launches, directory / "cfd_regressions.png")
+        return [p] if p else []
+    for axis in report["axes"]:
+        for fn, name in ((plot_fits, "fits"), (plot_vs_reynolds, "vs_reynolds")):
+            p = fn(launches, axis, directory / f"{kind}_{axis}_{name}.png", kind)
+            if p:
+                out.append(p)
+    return out
