@@ -126,25 +126,49 @@ def read_spring_launch(path, counts_per_mm=COUNTS_PER_MM) -> Launch:
     return Launch(str(path), cols["t"], x, res)
 
 
-def _graphical(launch: Launch, rig: SpringRig, start, ext):
+def _graphical(launch: Launch, rig: SpringRig, start, ext, noise=0.0):
+    """The paper's peak method; standard errors from the amplitude noise and the peak-timing resolution.
+
+    Uncertainty model (first order): each turning-point amplitude carries the sensor noise and
+    quantisation, sigma_x = sqrt(noise^2 + q^2 / 12); each turning-point time is known to one sample
+    interval (uniform, dt / sqrt(12)), so the mean period over n half cycles has
+    sigma_T = 2 sqrt(2) (dt / sqrt(12)) / n. Both are propagated by the delta method.
+    """
     xs = np.abs(ext.x)
     # the release instant is known only to a few samples: period and decrement from the turning
     # points after it when there are enough of them (two consecutive same-sign peaks, Fig. 7)
     i0 = 1 if ext.count >= 4 else 0
-    td = 2 * float(ext.t[-1] - ext.t[i0]) / (ext.count - 1 - i0)
-    delta = math.log(xs[i0] / xs[i0 + 2])
-    if not delta > 0:
+    n_half = ext.count - 1 - i0
+    td = 2 * float(ext.t[-1] - ext.t[i0]) / n_half
+    if not xs[i0 + 2] < xs[i0]:
         raise LaunchError(launch.path, f"amplitude does not decay between the first peaks ({xs[0]:.4g} -> {xs[2]:.4g})")
-    zeta = float(damping_ratio_from_decrement(delta))
-    wn = 2 * math.pi / td / math.sqrt(1 - zeta ** 2)
-    ma = float(added_mass_from_frequency(wn, rig.stiffness, rig.mass))
-    M = rig.mass + ma
-    zeta_s = rig.mechanical_damping / (2 * M * wn)
-    X = math.sqrt(xs[i0] * xs[i0 + 2])
-    cd = float(drag_coefficient_from_fluid_damping(zeta - zeta_s, M, rig.rho, rig.area, X))
-    return {"omega_n": wn, "zeta": zeta, "zeta_f": zeta - zeta_s, "added_mass_kg": ma,
-            "Cm": float(mass_coefficient(ma, rig.rho, rig.volume)), "CD": cd,
-            "KQ": 0.5 * rig.rho * cd * rig.area, "log_decrement": delta, "damped_period": td}
+
+    def physical(q):
+        td_, x0, x2 = q
+        delta_ = math.log(x0 / x2)
+        zeta_ = float(damping_ratio_from_decrement(delta_))
+        wn_ = 2 * math.pi / td_ / math.sqrt(1 - zeta_ ** 2)
+        ma_ = float(added_mass_from_frequency(wn_, rig.stiffness, rig.mass))
+        M_ = rig.mass + ma_
+        zeta_f_ = zeta_ - rig.mechanical_damping / (2 * M_ * wn_)
+        cd_ = float(drag_coefficient_from_fluid_damping(zeta_f_, M_, rig.rho, rig.area, math.sqrt(x0 * x2)))
+        return np.array([wn_, zeta_, zeta_f_, ma_, float(mass_coefficient(ma_, rig.rho, rig.volume)), cd_,
+                         0.5 * rig.rho * cd_ * rig.area, delta_])
+
+    dt = float(np.median(np.diff(launch.t)))
+    sx = math.sqrt(noise ** 2 + launch.resolution ** 2 / 12)
+    st = 2 * math.sqrt(2) * (dt / math.sqrt(12)) / n_half
+    q = np.array([td, xs[i0], xs[i0 + 2]])
+    val, cov = decay.propagate(physical, q, np.diag([st ** 2, sx ** 2, sx ** 2]))
+    se = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    keys = ("omega_n", "zeta", "zeta_f", "added_mass_kg", "Cm", "CD", "KQ", "log_decrement")
+    out = {"damped_period": td}
+    for k, v, e in zip(keys, val, se):
+        out[k] = float(v)
+        if k in ("omega_n", "added_mass_kg", "Cm", "CD", "KQ", "zeta"):
+            out[k + "_se"] = float(e)
+            out[k + "_ci95"] = [float(v - 1.96 * e), float(v + 1.96 * e)]
+    return out
 
 
 def _output_error(launch: Launch, rig: SpringRig, start, ext, linear=True):
@@ -190,7 +214,7 @@ def identify_launch(launch: Launch, rig: SpringRig, method="output-error", keep_
     """
     start, ext, noise = decay.prepare(launch)
     res = {"amplitude": float(abs(ext.x[0])), "n_peaks": ext.count, "noise": noise}
-    g = _graphical(launch, rig, start, ext)
+    g = _graphical(launch, rig, start, ext, noise)
     fit = None
     if method == "graphical":
         res.update(g)
