@@ -440,7 +440,9 @@ class ThrustAllocator:
         self._solver = None
         if not self._bad_limits:
             new_api = int(str(getattr(osqp, "__version__", "0")).split(".")[0]) >= 1
-            opts = {"warm_starting": True, "polishing": True} if new_api else {"warm_start": True, "polish": True}
+            # no polishing: at eps 1e-9 it changes nothing measurable here, and OSQP 1.x prints
+            # "Polishing not needed ..." to stdout on every unconstrained solve even with verbose=False
+            opts = {"warm_starting": True, "polishing": False} if new_api else {"warm_start": True, "polish": False}
             self._solve_kw = {"raise_error": False} if new_api else {}
             self._solver = osqp.OSQP()
             self._solver.setup(P=sp.triu(sp.csc_matrix(P)).tocsc(), q=np.zeros(n),
