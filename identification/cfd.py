@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 from scipy import stats
 
-from identification.decay import LaunchError
+from identification.decay import LaunchError, read_csv_rows
 
 MIN_POINTS = 3
 
@@ -44,19 +44,10 @@ def read_force_table(path) -> ForceTable:
 
 def _read(path):
     """Like :func:`identification.decay.read_columns` but without the time-ordering rule."""
-    import csv
     import math
 
     path = Path(path)
-    try:
-        with open(path, newline="") as fh:
-            rows = list(csv.reader(fh))
-    except FileNotFoundError as exc:
-        raise LaunchError(path, "file not found") from exc
-    except (OSError, UnicodeDecodeError) as exc:
-        raise LaunchError(path, f"cannot read ({exc})") from exc
-    numbered = [(i + 1, r) for i, r in enumerate(rows)
-                if r and any(c.strip() for c in r) and not r[0].lstrip().startswith("#")]
+    numbered = read_csv_rows(path)
     if not numbered:
         raise LaunchError(path, "empty file (expected a header speed,force and data rows)")
     line, head = numbered[0]

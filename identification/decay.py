@@ -88,28 +88,25 @@ def read_columns(path, wanted: dict) -> tuple[dict, str]:
         Key of ``wanted`` that matched.
     """
     path = Path(path)
-    try:
-        with open(path, newline="") as fh:
-            rows = list(csv.reader(fh))
-    except FileNotFoundError as exc:
-        raise LaunchError(path, "file not found") from exc
-    except (OSError, UnicodeDecodeError) as exc:
-        raise LaunchError(path, f"cannot read ({exc})") from exc
-    rows = [r for r in rows if r and any(c.strip() for c in r) and not r[0].lstrip().startswith("#")]
-    if not rows:
+    numbered = read_csv_rows(path)
+    if not numbered:
         raise LaunchError(path, "empty file (expected a header line and data rows)")
-    header = [h.strip().lower() for h in rows[0]]
+    header_line, head = numbered[0]
+    lines = [n for n, _ in numbered[1:]]
+    rows = [r for _, r in numbered]
+    header = [h.strip().lower() for h in head]
     for label, cols in wanted.items():  # noqa: B007 (label is returned)
         if all(c in header for c in cols):
             break
     else:
         expected = " or ".join(",".join(c) for c in wanted.values())
-        raise LaunchError(path, f"header {','.join(header)!r} lacks the expected columns ({expected})", row=1)
+        raise LaunchError(path, f"header {','.join(header)!r} lacks the expected columns ({expected})",
+                          row=header_line)
     idx = [header.index(c) for c in cols]
     data = np.empty((len(rows) - 1, len(cols)))
     for i, r in enumerate(rows[1:]):
         for j, (k, c) in enumerate(zip(idx, cols)):
-            row_no = i + 2  # 1-based file line of the data row (header is line 1)
+            row_no = lines[i]  # 1-based line of the file (blank and comment lines counted)
             if k >= len(r):
                 raise LaunchError(path, "missing value", row=row_no, field=c)
             s = r[k].strip()
@@ -126,8 +123,32 @@ def read_columns(path, wanted: dict) -> tuple[dict, str]:
     bad = np.flatnonzero(np.diff(t) <= 0)
     if bad.size:
         i = int(bad[0]) + 1
-        raise LaunchError(path, f"time not increasing ({t[i - 1]!r} then {t[i]!r})", row=i + 2, field=cols[0])
+        raise LaunchError(path, f"time not increasing ({t[i - 1]:.9g} then {t[i]:.9g})", row=lines[i],
+                          field=cols[0])
     return {c: data[:, j] for j, c in enumerate(cols)}, label
+
+
+def read_csv_rows(path) -> list:
+    """Non-blank, non-comment (``#``) rows of a CSV file with their 1-based line numbers.
+
+    Raises :class:`LaunchError` for a missing/unreadable file, a non-UTF-8 file or a malformed CSV
+    (e.g. an unterminated quote swallowing the rest of the file).
+    """
+    path = Path(path)
+    try:
+        with open(path, newline="") as fh:
+            reader = csv.reader(fh)
+            out = []
+            for r in reader:
+                if r and any(c.strip() for c in r) and not r[0].lstrip().startswith("#"):
+                    out.append((reader.line_num, r))
+    except FileNotFoundError as exc:
+        raise LaunchError(path, "file not found") from exc
+    except (OSError, UnicodeDecodeError) as exc:
+        raise LaunchError(path, f"cannot read ({exc})") from exc
+    except csv.Error as exc:
+        raise LaunchError(path, f"malformed CSV ({exc})") from exc
+    return out
 
 
 def estimate_resolution(x) -> float:

@@ -141,12 +141,18 @@ def regression_fit(launch: Launch, rig: PendulumRig, start, ext, form="chin") ->
     period = 2 * float(np.mean(np.diff(ext.t)))
     t = launch.t[start:]
     th_raw = launch.x[start:] - ext.offset
-    th, d1, d2, w = savgol_derivatives(t, th_raw, period / 10.0)
+    try:
+        th, d1, d2, w = savgol_derivatives(t, th_raw, period / 10.0)
+    except ValueError as exc:
+        raise LaunchError(launch.path, f"regression method: {exc}", field="t") from None
     sl = slice(w // 2 + 1, th.size - w // 2)
     cols = [np.sin(th[sl])] + ([d1[sl]] if form == "chin" else []) + [np.abs(d1[sl]) * d1[sl]]
     X = -np.column_stack(cols)
     y = d2[sl]
     coef, *_ = np.linalg.lstsq(X, y, rcond=None)
+    if not coef[0] > 0:
+        raise LaunchError(launch.path, f"regression method: restoring rate a1 = {coef[0]:.3g} 1/s^2 is not positive "
+                          "(the trace is not a pendulum decay)")
     r = y - X @ coef
     cov, lag = decay.hac_covariance(X, r)
     names = ["a1"] + (["aL"] if form == "chin" else []) + ["a2"]
