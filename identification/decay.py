@@ -288,6 +288,19 @@ def refine_offset(ext: Extrema) -> Extrema:
     return Extrema(ext.t, e - off, off)
 
 
+def launch_amplitude(x, start, ext: Extrema) -> float:
+    """Launch amplitude from rest: the held release position minus the rest offset.
+
+    The release is detected when the trace has left the hold by a few per cent of the swing, a few
+    samples after the true release (the position changes as A (1 - cos w t) ~ A w^2 t^2 / 2 at first),
+    so the sample at the detected release understates the amplitude (by ~2 % for a slow pendulum).
+    The hold's own level (median of its first samples, the reference of :func:`find_release`) does not.
+    """
+    if start >= 1:
+        return float(abs(np.median(x[: min(5, start + 1)]) - ext.offset))
+    return float(abs(ext.x[0]))
+
+
 def tail_offset(x, fraction=0.2) -> float:
     """Rest position: median of the last ``fraction`` of the log."""
     n = max(int(fraction * x.size), 3)

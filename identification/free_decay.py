@@ -213,7 +213,7 @@ def identify_launch(launch: Launch, rig: SpringRig, method="output-error", keep_
         only) and, for the output-error fit, ``*_se`` / ``*_ci95``.
     """
     start, ext, noise = decay.prepare(launch)
-    res = {"amplitude": float(abs(ext.x[0])), "n_peaks": ext.count, "noise": noise}
+    res = {"amplitude": decay.launch_amplitude(launch.x, start, ext), "n_peaks": ext.count, "noise": noise}
     g = _graphical(launch, rig, start, ext, noise)
     fit = None
     if method == "graphical":
