@@ -31,7 +31,7 @@ def tartan_model() -> dict:
     I = [m / 12 * (W**2 + H**2), m / 12 * (L**2 + H**2), m / 12 * (L**2 + W**2)]
     ma = [0.3 * m, 0.8 * m, 1.0 * m, 0.3 * I[0], 0.5 * I[1], 0.5 * I[2]]
     kl = [10.0, 15.0, 15.0, 2.0, 3.0, 3.0]
-    kq = [30.0, 60.0, 70.0, 3.0, 5.0, 5.0]
+    kq = [87.0, 173.0, 270.0, 3.0, 5.0, 5.0]
     diag = lambda v: np.diag(v).tolist()  # noqa: E731
     return {
         "format": "udrobot-model/1", "name": "tartan-auv-guess", "rho": 1000.0, "g": 9.81, "mass": m,

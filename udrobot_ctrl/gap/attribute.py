@@ -123,7 +123,8 @@ def build_stack(preps, p: PlantParameters, M_A, rate_hz=FIT_RATE_HZ):
     cat = [np.concatenate([q[i] for q in parts]) for i in range(5)]
     dofs = np.logical_and.reduce([pr.dof_ok for pr in preps])
     st = fx.Stack(nu=cat[0], nu_dot=cat[1], eta=cat[2], f=cat[3], B=preps[0].B, inflow=preps[0].inflow,
-                  f_ref=np.max([pr.f_ref for pr in preps], axis=0), surfaces=surfaces, runs=runs, p=p, M_A=M_A)
+                  f_ref=np.max([pr.f_ref for pr in preps], axis=0), surfaces=surfaces, runs=runs, p=p, M_A=M_A,
+                  virtual=kinds == {"tau"})
     r = np.where(np.isfinite(cat[4]), cat[4], 0.0)
     dofs &= r.std(axis=0) > 0
     return st, r, dofs
@@ -332,9 +333,39 @@ def select(att: Attributor, att_h: Attributor, names=None, max_effects=4, log=No
             break
         selected.append(best)
         current, cur_bic, cur_ho = fbest, att.bic(fbest), ho
+    out = {"nominal": nominal, "singles": singles, "delta_bic": delta, "steps": steps, "tau_int": tau,
+           "n_eff": att.n_eff}
+    out.update(finalize(att, selected, names, current))
+    return out
+
+
+def refit(att: Attributor, members, shapes=None):
+    """Joint fit of ``members`` with each one's shape re-optimised given the others (one coordinate pass).
+
+    Used after members are dropped: the remaining parameters were fitted alongside the dropped ones and
+    would otherwise keep the share of the residual the dropped effects had taken.
+    """
+    shapes = dict(shapes or {})
+    for n in members:
+        if n not in shapes:
+            shapes[n] = att.best_shape(n, [(m, shapes[m]) for m in members if m in shapes]).shapes[n]
+    for n in members:
+        fixed = [(m, shapes[m]) for m in members if m != n]
+        shapes[n] = att.best_shape(n, fixed).shapes[n]
+    return att.fit([(n, shapes[n]) for n in members])
+
+
+def finalize(att: Attributor, selected, names, final=None):
+    """Final joint fit of the selected effects, their look-alikes and the noise level per DOF.
+
+    Returns dict with ``selected``, ``final`` (Fit), ``indistinguishable`` (name -> list), ``noise_sigma``.
+    """
+    selected = list(selected)
+    final = final if final is not None else refit(att, selected)
+    cur_bic = att.bic(final)
     indist = {}
     for s_name in selected:
-        others = [(n, current.shapes[n]) for n in selected if n != s_name]
+        others = [(n, final.shapes[n]) for n in selected if n != s_name]
         alts = []
         for n in names:
             if n in selected:
@@ -344,6 +375,5 @@ def select(att: Attributor, att_h: Attributor, names=None, max_effects=4, log=No
                 alts.append(n)
         indist[s_name] = alts
     sigma = np.full(6, np.nan)
-    sigma[att.dofs] = np.sqrt(current.rss / att.N)
-    return {"nominal": nominal, "singles": singles, "delta_bic": delta, "selected": selected, "final": current,
-            "steps": steps, "indistinguishable": indist, "tau_int": tau, "n_eff": att.n_eff, "noise_sigma": sigma}
+    sigma[att.dofs] = np.sqrt(final.rss / att.N)
+    return {"selected": selected, "final": final, "indistinguishable": indist, "noise_sigma": sigma}

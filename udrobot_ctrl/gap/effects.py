@@ -66,6 +66,7 @@ class Stack:
     runs: list
     p: PlantParameters
     M_A: np.ndarray
+    virtual: bool = False  # tau_* inputs: six virtual wrench actuators (B = I)
 
     @property
     def n(self) -> int:
@@ -160,27 +161,75 @@ def _deadband(f, d, c):
     return out
 
 
+WRENCH_DOF_NOTE = ("a commanded wrench (tau_* inputs) hides the thrusters behind each generalised force, so the "
+                   "static thruster maps get one parameter per DOF instead of one shared by identical thrusters")
+
+
+def _per_dof(s) -> bool:
+    """True for virtual wrench actuators (tau_* inputs): thruster maps are parameterised per DOF."""
+    return bool(getattr(s, "virtual", False))
+
+
+PINNED_FRACTION = 0.05
+
+
+def crossing(s) -> np.ndarray:
+    """(k,) float: 1 for actuators whose command takes both signs in at least ``PINNED_FRACTION`` of the samples.
+
+    A static thruster map (the shift of a deadband, a reverse-thrust loss) is a function of the command; on an
+    actuator whose command keeps one sign (a thruster holding depth, a trim moment pinned at its limit) it adds
+    a constant force, exactly what a buoyancy or CG-CB offset adds, and the data cannot tell them apart. Those
+    actuators are left out of the static maps (their parameter has no effect), so that a steady trim command
+    is attributed to the restoring terms, which act whatever the command.
+    """
+    f = np.asarray(s.f, float)
+    pos, neg = np.mean(f > 1e-9, axis=0), np.mean(f < -1e-9, axis=0)
+    return (np.minimum(pos, neg) >= PINNED_FRACTION).astype(float)
+
+
 class Deadband(Effect):
+    """Deadband of width ``width_fraction * f_ref`` (f_ref: the thruster's capacity, or for a commanded wrench the
+    99th percentile of the command); beyond it the thrust is shifted down by ``shift * d`` (0: hard, 1: continuous).
+
+    The width is bounded by 0.25 f_ref: an ESC deadband (T200: +-25 us of +-400 us PWM, i.e. 6 % of the command
+    range, thrust ~ command^2) stays well below that; a wider "deadband" would be a thrust gain error or a
+    constant offset in disguise. For a commanded wrench the shift is per DOF (see ``WRENCH_DOF_NOTE``).
+    """
+
     def design(self, s, shape):
         (frac,) = shape
         d = frac * s.f_ref
         b0 = s.full(lambda r: np.where(np.abs(r["f"]) < d, -r["f"], 0.0) @ s.B.T, held=True)
-        col = s.full(lambda r: np.where(np.abs(r["f"]) < d, 0.0, -d * np.sign(r["f"])) @ s.B.T, held=True)
+        x = crossing(s)
+        if _per_dof(s):
+            col = s.full(lambda r: (np.where(np.abs(r["f"]) < d, 0.0, -d * np.sign(r["f"])) * x)[:, :, None]
+                         * np.eye(6)[None], held=True)
+            return b0, col, tuple(f"shift_{k}" for k in DOF), np.zeros(6), np.ones(6)
+        col = s.full(lambda r: (np.where(np.abs(r["f"]) < d, 0.0, -d * np.sign(r["f"])) * x) @ s.B.T, held=True)
         return b0, col[..., None], ("shift",), np.zeros(1), np.ones(1)
 
     def hooks(self, params, p, B, inflow, f_ref, M_A):
         d = params["width_fraction"] * f_ref
-        c = params["shift"]
+        c = np.array([params[f"shift_{k}"] for k in DOF]) if "shift_X" in params else params["shift"]
         return Hooks(input_filter=lambda f, dt: _deadband(f, d, c))
 
 
 class Asymmetry(Effect):
+    """Reverse thrust ``(1 - reverse_loss) f`` for f < 0, reverse_loss in [-0.5, 0.7] (a reversed propeller
+    gives 30 % to 150 % of its forward thrust; the T200's is about 80 %). Per DOF for a commanded wrench."""
+
     def design(self, s, shape):
-        col = s.full(lambda r: (-np.minimum(r["f"], 0.0)) @ s.B.T, held=True)
-        return np.zeros((s.n, 6)), col[..., None], ("reverse_loss",), np.array([-1.0]), np.array([0.95])
+        x = crossing(s)
+        if _per_dof(s):
+            col = s.full(lambda r: (-np.minimum(r["f"], 0.0) * x)[:, :, None] * np.eye(6)[None], held=True)
+            return np.zeros((s.n, 6)), col, tuple(f"reverse_loss_{k}" for k in DOF), np.full(6, -0.5), \
+                np.full(6, 0.7)
+        col = s.full(lambda r: (-np.minimum(r["f"], 0.0) * x) @ s.B.T, held=True)
+        return np.zeros((s.n, 6)), col[..., None], ("reverse_loss",), np.array([-0.5]), np.array([0.7])
 
     def hooks(self, params, p, B, inflow, f_ref, M_A):
-        a = params["reverse_loss"]
+        a = np.array([params[f"reverse_loss_{k}"] for k in DOF]) if "reverse_loss_X" in params \
+            else params["reverse_loss"]
         return Hooks(input_filter=lambda f, dt: np.where(f < 0, (1 - a) * f, f))
 
 
@@ -368,7 +417,7 @@ class CrossDamping(Effect):
 class BuoyancyOffset(Effect):
     def design(self, s, shape):
         A = -s.full(lambda r: restoring_gradient(r["eta"], s.p, "B"))[..., None]
-        return np.zeros((s.n, 6)), A, ("dB_N",), np.array([-1e4]), np.array([1e4])
+        return np.zeros((s.n, 6)), A, ("dB_N",), np.array([-0.5 * s.p.weight]), np.array([0.5 * s.p.weight])
 
     def hooks(self, params, p, B, inflow, f_ref, M_A):
         dB = params["dB_N"]
@@ -376,9 +425,16 @@ class BuoyancyOffset(Effect):
 
 
 class CgCbOffset(Effect):
+    """Restoring moments (x_g W - x_b B, ...) changed by dBG (N m), each within +-0.1 W (a CG shift of 10 cm);
+    the righting moment z_g W - z_b B keeps at least 10 % of its modelled value (the vehicle floats upright)."""
+
     def design(self, s, shape):
         A = -s.full(lambda r: np.stack([restoring_gradient(r["eta"], s.p, k) for k in ("BG_x", "BG_y", "BG_z")], -1))
-        return np.zeros((s.n, 6)), A, ("dBG_x_Nm", "dBG_y_Nm", "dBG_z_Nm"), np.full(3, -1e3), np.full(3, 1e3)
+        lo, hi = np.full(3, -0.1 * s.p.weight), np.full(3, 0.1 * s.p.weight)
+        bgz = float(s.p.r_g[2] * s.p.weight - s.p.r_b[2] * s.p.buoyancy)
+        if bgz > 0:  # a vehicle that floats upright keeps a righting moment: at least 10 % of the modelled one
+            lo[2] = -0.9 * bgz
+        return np.zeros((s.n, 6)), A, ("dBG_x_Nm", "dBG_y_Nm", "dBG_z_Nm"), lo, hi
 
     def hooks(self, params, p, B, inflow, f_ref, M_A):
         keys = ("BG_x", "BG_y", "BG_z")
@@ -389,18 +445,18 @@ class CgCbOffset(Effect):
 
 def catalogue() -> dict:
     """Name -> :class:`Effect`, in the spec's order."""
-    lag_grid = tuple((T,) for T in (0.03, 0.06, 0.1, 0.15, 0.2, 0.3, 0.45, 0.7, 1.0, 1.5))
-    db_grid = tuple((d,) for d in (0.02, 0.04, 0.07, 0.1, 0.15, 0.2, 0.3))
+    lag_grid = tuple((T,) for T in (0.03, 0.06, 0.1, 0.15, 0.2, 0.3, 0.45, 0.7, 1.0))
+    db_grid = tuple((d,) for d in (0.02, 0.04, 0.07, 0.1, 0.15, 0.2, 0.25))
     wall_grid = tuple((lam,) for lam in (0.03, 0.06, 0.1, 0.15, 0.22, 0.33, 0.5, 0.8))
     cur = tuple((cn, ce, 0.0) for cn in (-0.1, 0.0, 0.1) for ce in (-0.1, 0.0, 0.1))
     effects = [
         InflowLoss("thrust_inflow_loss", "thrust falls with the axial inflow speed through the thruster",
                    mimics=("quadratic_damping_error", "linear_damping", "tether_drag")),
         Deadband("thruster_deadband", "small commands produce no thrust", ("width_fraction",), db_grid,
-                 ((0.005, 0.5),), refine=True),
+                 ((0.005, 0.25),), refine=True),
         Asymmetry("thruster_asymmetry", "reverse thrust weaker than modelled, relative to forward"),
         Lag("thruster_lag", "thrust follows the command with a first-order lag", ("T_lag_s",), lag_grid,
-            ((0.005, 3.0),), refine=True, mimics=("added_mass_error",)),
+            ((0.005, 1.0),), refine=True, mimics=("added_mass_error",)),
         TetherDrag("tether_drag", "umbilical drag opposing horizontal motion",
                    mimics=("quadratic_damping_error", "linear_damping", "thrust_inflow_loss")),
         WallEffect("wall_effect", "extra added mass and suction near the seabed or a wall", ("decay_length_m",),

@@ -14,7 +14,15 @@ from pathlib import Path
 import numpy as np
 
 from udrobot_ctrl.gap import effects as fx
-from udrobot_ctrl.gap.attribute import BIC_STRONG, HOLDOUT_CHI2, Attributor, build_stack, residual, select
+from udrobot_ctrl.gap.attribute import (
+    BIC_STRONG,
+    HOLDOUT_CHI2,
+    Attributor,
+    build_stack,
+    finalize,
+    residual,
+    select,
+)
 from udrobot_ctrl.gap.data import prepare
 from udrobot_ctrl.gap.locate import locate
 from udrobot_ctrl.gap.shrink import gap, simulate_windows
@@ -153,17 +161,20 @@ def diagnose(model, runs, holdout=None, window_s=8.0, effects=None, log=None, mo
     # 2% of the gap before does not explain the gap (a fit to structure the template does not describe)
     members = list(sel["selected"])
     g_after, after_sims = combo_gap(members)
-    pruned = {}
+    pruned, contribution = {}, {}
     for n in list(reversed(members)):
         if len(members) == 1 and shrink[n] > 0.02:
             break
         rest = [m for m in members if m != n]
         g_rest, sims_rest = combo_gap(rest)
         contrib = (g_rest["value"] - g_after["value"]) / g_before["value"] if g_before["value"] > 0 else 0.0
+        contribution[n] = contrib
         if contrib < 0.02:
             pruned[n] = contrib
             members, g_after, after_sims = rest, g_rest, sims_rest
-    sel["selected"] = [m for m in sel["selected"] if m in members]
+    if pruned:  # refit what remains (its parameters were shared with the dropped effects) and re-score
+        sel.update(finalize(att, [m for m in sel["selected"] if m in members], names))
+        g_after, after_sims = combo_gap(members)
     say(f"scored on holdout ({time.perf_counter() - t0:.1f} s)")
 
     sigma = sel["noise_sigma"]
@@ -176,8 +187,9 @@ def diagnose(model, runs, holdout=None, window_s=8.0, effects=None, log=None, mo
         significant = n in sel["selected"]
         fit = sel["final"] if n in sel["final"].names else sel["singles"][n]
         ev = {"delta_bic": sel["delta_bic"][n]}
+        if n in contribution:  # rise of the holdout gap (fraction of gap_before) when removed from the combination
+            ev["holdout_gap_contribution"] = contribution[n]
         if n in pruned:
-            ev["holdout_gap_contribution"] = pruned[n]
             ev["note"] = "passed the fit-run tests but does not reduce the holdout gap (< 2% of it); not significant"
         if n in steps:
             ev["selection_delta_bic"] = steps[n]["delta_bic"]
