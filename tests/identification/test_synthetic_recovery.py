@@ -103,6 +103,7 @@ def test_spring_interval_coverage_over_seeds():
             _check_accuracy(agg, truths, f"seed {seed} {axis}")
             for key, value in truths.items():
                 hits.setdefault(key, []).append(_covers(agg[key], value))
+    print("coverage of the aggregate 95 % intervals:", {k: float(np.mean(h)) for k, h in hits.items()})
     for key, h in hits.items():
         assert len(h) == 60
         assert np.mean(h) >= 0.90, (key, np.mean(h))
@@ -176,6 +177,7 @@ def test_pendulum_interval_coverage_over_seeds():
             for key, value in truths_c.items():
                 hits.setdefault(key, []).append(_covers(agg_c[key], value))
             hits.setdefault("CD (Morison)", []).append(_covers(agg_m["CD"], tm.CD))
+    print("coverage of the aggregate 95 % intervals:", {k: float(np.mean(h)) for k, h in hits.items()})
     for key, h in hits.items():
         assert len(h) == 60
         assert np.mean(h) >= 0.90, (key, np.mean(h))
