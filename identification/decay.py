@@ -301,6 +301,23 @@ def launch_amplitude(x, start, ext: Extrema) -> float:
     return float(abs(ext.x[0]))
 
 
+def peak_speed(t, x, start, period) -> float:
+    """Largest |dx/dt| after the release from a Savitzky-Golay derivative (cubic over a sixth of the period).
+
+    Raw sample differences of a quantised, noisy log overstate the peak speed badly (one encoder step
+    over one sample is 0.04 m/s at 100 Hz for the LX-EP-40: a 20-80 % excess on the protocol's launches,
+    about 2 % left with this window); the smoothed derivative's own error on a sinusoid is 0.4 %. Falls back to
+    ``numpy.gradient`` for non-uniform sampling or records shorter than the window.
+    """
+    tt, y = t[start:], x[start:]
+    dt = np.diff(tt)
+    h = float(np.median(dt))
+    w = int(round(period / 6.0 / h)) | 1 if period > 0 else 0
+    if w >= 5 and w < y.size and np.max(np.abs(dt - h)) <= 0.05 * h:
+        return float(np.max(np.abs(signal.savgol_filter(y, w, 3, deriv=1, delta=h))))
+    return float(np.max(np.abs(np.gradient(y, tt))))
+
+
 def tail_offset(x, fraction=0.2) -> float:
     """Rest position: median of the last ``fraction`` of the log."""
     n = max(int(fraction * x.size), 3)

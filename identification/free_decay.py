@@ -225,7 +225,7 @@ def identify_launch(launch: Launch, rig: SpringRig, method="output-error", keep_
     else:
         raise ValueError(f"unknown fit method {method!r} (expected output-error or graphical)")
     wn = res["omega_n"]
-    res["v_max"] = float(np.max(np.abs(np.diff(launch.x[start:]) / np.diff(launch.t[start:])))) if fit is None \
+    res["v_max"] = decay.peak_speed(launch.t, launch.x, start, g["damped_period"]) if fit is None \
         else float(np.max(np.abs(np.gradient(fit.model, fit.t))))
     res["v_max_linear"] = res["amplitude"] * wn
     res["Re"] = res["v_max"] * rig.length_scale / NU_WATER
