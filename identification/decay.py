@@ -171,11 +171,34 @@ def noise_level(x) -> float:
     return float(1.4826 * np.median(np.abs(d2 - np.median(d2))) / math.sqrt(6.0))
 
 
-def find_release(x, band) -> int:
+def find_hold(x, band, offset) -> tuple[int, int, float]:
+    """Pre-release hold of a launch: (first hold sample, release index, hold level).
+
+    The model is released from rest at its largest excursion from the rest position ``offset``, so
+    the hold is reached at the first sample within ``band`` of that excursion. A log that starts at
+    the hold (the protocol's) gives a hold starting at 0; one that also records the model at rest and
+    being pulled out by hand before the release gives the hold after the pull. The release is the last
+    sample of the hold (within ``band`` of the hold's first samples); the hold level is the median of
+    the first half of the hold, before the release starts to move the trace inside ``band``. When
+    the log starts moving at once, the hold is the first sample.
+    """
+    a = np.abs(x - offset)
+    i0 = int(np.flatnonzero(a >= a.max() - band)[0])
+    ref = float(np.median(x[i0: i0 + 5]))
+    moving = np.flatnonzero(np.abs(x[i0:] - ref) > band)
+    start = i0 + max(int(moving[0]) - 1, 0) if moving.size else i0
+    level = float(np.median(x[i0: i0 + max((start - i0 + 1) // 2, 1)]))
+    return i0, start, level
+
+
+def find_release(x, band, offset=None) -> int:
     """Index of the last sample of the pre-release hold (0 when the log starts moving at once).
 
-    The hold is the leading run of samples within ``band`` of the first sample.
+    With the rest ``offset`` the hold is found by :func:`find_hold` (it may follow a rest and pull
+    phase); without it, it is the leading run of samples within ``band`` of the first sample.
     """
+    if offset is not None:
+        return find_hold(x, band, offset)[1]
     x0 = np.median(x[: min(5, x.size)])
     moving = np.flatnonzero(np.abs(x - x0) > band)
     if moving.size == 0:
@@ -222,6 +245,7 @@ class Extrema:
     t: np.ndarray
     x: np.ndarray
     offset: float
+    hold_level: float | None = None  # held launch position (absolute), see find_hold
 
     @property
     def count(self) -> int:
@@ -285,7 +309,7 @@ def refine_offset(ext: Extrema) -> Extrema:
     if not est:
         return ext
     off = float(np.median(est))
-    return Extrema(ext.t, e - off, off)
+    return Extrema(ext.t, e - off, off, ext.hold_level)
 
 
 def launch_amplitude(x, start, ext: Extrema) -> float:
@@ -294,10 +318,10 @@ def launch_amplitude(x, start, ext: Extrema) -> float:
     The release is detected when the trace has left the hold by a few per cent of the swing, a few
     samples after the true release (the position changes as A (1 - cos w t) ~ A w^2 t^2 / 2 at first),
     so the sample at the detected release understates the amplitude (by ~2 % for a slow pendulum).
-    The hold's own level (median of its first samples, the reference of :func:`find_release`) does not.
+    The hold's own level (:func:`find_hold`) does not.
     """
-    if start >= 1:
-        return float(abs(np.median(x[: min(5, start + 1)]) - ext.offset))
+    if ext.hold_level is not None and start >= 1:
+        return float(abs(ext.hold_level - ext.offset))
     return float(abs(ext.x[0]))
 
 
@@ -346,9 +370,10 @@ def prepare(launch: Launch, min_extrema=MIN_EXTREMA):
         raise LaunchError(path, f"the log does not oscillate: largest excursion {span:.3g} from rest is within the "
                           f"noise/resolution floor {floor:.3g}")
     band = max(4 * noise, 1.5 * q, 0.02 * span)
-    start = find_release(x, band)
+    _, start, hold = find_hold(x, band, offset)
     threshold = max(6 * noise, 2.5 * q, 0.01 * span)
     ext = find_extrema(t, x, start, offset, threshold)
+    ext.hold_level = hold
     if ext.count >= 4:
         ext = refine_offset(ext)
     if ext.count < 2:

@@ -197,3 +197,20 @@ def test_peak_speed_and_reynolds_number_of_both_methods():
             res = free_decay.identify_launch(launch, rig, method=method)
             assert res["v_max"] == pytest.approx(v_true, rel=0.06), (amp, method)
             assert res["Re"] == pytest.approx(res["v_max"] * math.sqrt(area) / free_decay.NU_WATER)
+
+
+def test_log_that_records_rest_and_the_pull_before_the_release():
+    """A real log may start with the model at rest, pulled out by hand, held, then released."""
+    area, ma, c, cd = 0.0044, 0.28, 0.5, 1.4
+    t, y = spring_trace(ma, c, cd, area, -0.03, offset=0.1, noise=2e-4, seed=1, hold=1.0)
+    pre_t = np.arange(0.0, 1.5, 0.01)
+    pull = np.where(pre_t < 1.0, 0.0, -0.03 * (pre_t - 1.0) / 0.5)  # 1 s at rest, 0.5 s pull
+    pre = pull + 0.1 + 2e-4 * np.random.default_rng(2).standard_normal(pre_t.size)
+    log = decay.Launch("pulled.csv", np.concatenate([pre_t, t + 1.5]), np.concatenate([pre, y]))
+    plain = free_decay.identify_launch(decay.Launch("plain.csv", t, y), SpringRig(MASS, VOLUME, K, area))
+    res = free_decay.identify_launch(log, SpringRig(MASS, VOLUME, K, area))
+    assert res["amplitude"] == pytest.approx(0.03, rel=0.02)
+    assert res["Cm"] == pytest.approx(ma / (RHO * VOLUME), rel=0.02)
+    assert res["CD"] == pytest.approx(cd, rel=0.05)
+    for k in ("Cm", "CD", "KL"):
+        assert res[k] == pytest.approx(plain[k], rel=1e-6)

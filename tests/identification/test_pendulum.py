@@ -163,3 +163,15 @@ def test_degrees_instead_of_radians_is_an_error(tmp_path):
     with pytest.raises(LaunchError, match="radians") as exc:
         pendulum.read_pendulum_launch(p)
     assert str(p) in str(exc.value)
+
+
+def test_log_with_rest_and_pull_before_the_release():
+    r, ma, KL, KQ = 0.30, 0.10, 0.04, 2.2
+    t, th = pendulum_trace(MASS, VOLUME, r, ma, KL, KQ, math.radians(10), seed=6)
+    pre_t = np.arange(0.0, 2.0, 0.01)
+    pre = np.where(pre_t < 1.0, 0.0, math.radians(10) * np.minimum((pre_t - 1.0) / 0.7, 1.0))
+    pre = pre + IMU_NOISE * np.random.default_rng(1).standard_normal(pre_t.size)
+    res = identify(np.concatenate([pre_t, t + 2.0]), np.concatenate([pre, th]), PendulumRig(MASS, VOLUME, r, AREA))
+    assert res["amplitude_deg"] == pytest.approx(10.0, rel=0.02)
+    assert res["added_mass_kg"] == pytest.approx(ma, rel=0.02)
+    assert res["KQ"] == pytest.approx(KQ, rel=0.05)
