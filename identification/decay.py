@@ -14,8 +14,9 @@ Confidence intervals
 Residuals of a decay fit are not white: sensor quantisation on a slow signal, IMU filtering and
 small model mismatch all make them autocorrelated, and the textbook ``s^2 (J^T J)^-1`` is then too
 narrow. We use the Newey-West (HAC, Bartlett kernel) sandwich covariance
-``(J^T J)^-1 S (J^T J)^-1`` with the lag window chosen from the residual autocorrelation
-(the first lag where it falls below 2/sqrt(n), at least the Newey-West rule 4 (n/100)^(2/9)).
+``(J^T J)^-1 S (J^T J)^-1`` on VAR(1)-prewhitened scores (Andrews-Monahan), with the lag window
+chosen from the autocorrelation of the prewhitened residual (the first lag where it falls below
+2/sqrt(n), at least the Newey-West rule 4 (n/100)^(2/9)); see :func:`hac_covariance`.
 """
 from __future__ import annotations
 
@@ -436,8 +437,16 @@ def simulate_decay(t, x0, v0, a0, aL, aQ, sine, max_step):
 
 
 # ----------------------------------------------------------------------------- covariance
-def hac_covariance(J, r, n_params=None):
-    """Newey-West (Bartlett) sandwich covariance of least-squares parameters.
+def hac_covariance(J, r, n_params=None, max_ar=0.97):
+    """Prewhitened Newey-West (Bartlett) sandwich covariance of least-squares parameters.
+
+    The scores g_t = J_t r_t are prewhitened with a VAR(1) fit g_t = A g_{t-1} + e_t (Andrews and
+    Monahan 1992; singular values of A capped at ``max_ar``), the long-run covariance of e is taken
+    with Bartlett weights, and recoloured: S = (I - A)^-1 S_e (I - A)^-T; then
+    cov = (J^T J)^-1 S (J^T J)^-1 n / (n - p). Without prewhitening a Bartlett window cannot
+    follow strongly persistent errors: with AR(1) noise of coefficient 0.9 (an IMU attitude from a
+    Kalman filter) single-launch 95 % intervals covered the truth only 65-75 % of the time,
+    92-99 % with it; for white noise both give the nominal coverage.
 
     Parameters
     ----------
@@ -445,31 +454,50 @@ def hac_covariance(J, r, n_params=None):
         Jacobian of the residuals at the solution.
     r : (n,) ndarray
         Residuals.
+    n_params : int, optional
+        Parameters for the small-sample factor (default p).
+    max_ar : float
+        Cap on the singular values of the VAR(1) matrix (keeps (I - A)^-1 bounded).
 
     Returns
     -------
     cov : (p, p) ndarray
     lag : int
-        Bartlett window used.
+        Bartlett window used on the prewhitened scores.
     """
     n, p = J.shape
     n_params = p if n_params is None else n_params
     r = r - np.mean(r)
-    var = float(r @ r) / n
-    lag = int(4 * (n / 100.0) ** (2.0 / 9.0))
-    if var > 0:
-        # first lag where the residual autocorrelation falls below 2/sqrt(n)
-        f = np.fft.rfft(r, 2 * n)
-        acf = np.fft.irfft(f * np.conj(f))[:n] / (n * var)
-        below = np.flatnonzero(np.abs(acf[1:]) < 2 / math.sqrt(n))
-        lag = max(lag, int(below[0]) + 1 if below.size else n // 4)
-    lag = min(lag, n // 4)
     g = J * r[:, None]
-    S = g.T @ g
+    A = np.zeros((p, p))
+    if n > 4 * p:
+        A = np.linalg.lstsq(g[:-1], g[1:], rcond=None)[0].T
+        if not np.all(np.isfinite(A)):
+            A = np.zeros((p, p))
+        u, sv, vt = np.linalg.svd(A)
+        if sv.size and sv.max() > max_ar:
+            A = u @ np.diag(np.minimum(sv, max_ar)) @ vt
+    e = g[1:] - g[:-1] @ A.T
+    # Bartlett window: Newey-West rule, or longer if the prewhitened residual stays correlated
+    lag = int(4 * (n / 100.0) ** (2.0 / 9.0))
+    rho1 = float(r[1:] @ r[:-1]) / float(r @ r) if float(r @ r) > 0 else 0.0
+    w_r = r[1:] - min(max(rho1, -max_ar), max_ar) * r[:-1]
+    var = float(w_r @ w_r) / w_r.size
+    m = w_r.size
+    if var > 0 and m > 8:
+        w_r = w_r - w_r.mean()
+        f = np.fft.rfft(w_r, 2 * m)
+        acf = np.fft.irfft(f * np.conj(f))[:m] / (m * var)
+        below = np.flatnonzero(np.abs(acf[1:]) < 2 / math.sqrt(m))
+        lag = max(lag, int(below[0]) + 1 if below.size else m // 4)
+    lag = max(min(lag, e.shape[0] // 4), 0)
+    S = e.T @ e
     for k in range(1, lag + 1):
         w = 1.0 - k / (lag + 1.0)
-        G = g[k:].T @ g[:-k]
+        G = e[k:].T @ e[:-k]
         S += w * (G + G.T)
+    B = np.linalg.inv(np.eye(p) - A)
+    S = B @ S @ B.T
     JtJ_inv = np.linalg.pinv(J.T @ J)
     cov = JtJ_inv @ S @ JtJ_inv * n / max(n - n_params, 1)
     return cov, lag
