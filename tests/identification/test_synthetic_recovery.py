@@ -4,7 +4,7 @@ pendulum: 100 Hz IMU angle with noise and a level bias), are identified back.
 
 Tolerances are the issue's: C_m within 2 %, C_D and K_Q within 5 %, K_L within 20 % of the truth, and the
 reported aggregate 95 % intervals cover the truth in at least 90 % of seeds (pooled over the three axes:
-20 seeds x 3 axes = 60 intervals per coefficient).
+40 spring seeds x 3 axes = 120 intervals per coefficient, 20 pendulum seeds x 3 axes = 60).
 
 The spring's linear term is the rig's mechanical damping (the synthetic truth has no linear fluid damping),
 so with ``mechanical_damping`` left unset the identified K_L must be that damping (0.5 N s/m); the pendulum is
@@ -20,6 +20,7 @@ from identification import decay, free_decay, pendulum, statistics, synthetic
 from identification.identify import KEYS, RigOptions, identify_files
 
 SEEDS = range(20)
+SPRING_SEEDS = range(40)  # spring fits are cheap: 120 intervals per coefficient make the 90 % check meaningful
 REL_TOL = {"Cm": 0.02, "CD": 0.05, "KQ": 0.05, "KL": 0.20}
 
 
@@ -88,11 +89,14 @@ def test_spring_mechanical_damping_removed_gives_fluid_KL(tmp_path):
 
 
 def test_spring_interval_coverage_over_seeds():
-    """Aggregate 95 % intervals cover the truth in >= 90 % of 60 (seed, axis) cases for every coefficient."""
+    """Aggregate 95 % intervals cover the truth in >= 90 % of 120 (seed, axis) cases for every coefficient.
+
+    (Measured over 300 cases: C_m 95.0 %, C_D 94.7 %, K_L 94.3 %.)
+    """
     truth = synthetic.paper_spring_truth()
     res = 1e-3 / free_decay.COUNTS_PER_MM
     hits: dict = {}
-    for seed in SEEDS:
+    for seed in SPRING_SEEDS:
         launches = synthetic.protocol("spring", truth, seed=100 + seed)
         for axis, tr in truth.items():
             rig = free_decay.SpringRig(tr.mass, tr.volume, tr.stiffness, tr.area)
@@ -105,7 +109,7 @@ def test_spring_interval_coverage_over_seeds():
                 hits.setdefault(key, []).append(_covers(agg[key], value))
     print("coverage of the aggregate 95 % intervals:", {k: float(np.mean(h)) for k, h in hits.items()})
     for key, h in hits.items():
-        assert len(h) == 60
+        assert len(h) == 3 * len(SPRING_SEEDS)
         assert np.mean(h) >= 0.90, (key, np.mean(h))
 
 
