@@ -31,7 +31,8 @@ def tartan_model() -> dict:
     I = [m / 12 * (W**2 + H**2), m / 12 * (L**2 + H**2), m / 12 * (L**2 + W**2)]
     ma = [0.3 * m, 0.8 * m, 1.0 * m, 0.3 * I[0], 0.5 * I[1], 0.5 * I[2]]
     kl = [10.0, 15.0, 15.0, 2.0, 3.0, 3.0]
-    kq = [87.0, 173.0, 270.0, 3.0, 5.0, 5.0]
+    # quadratic drag 1/2 rho C_D A with box frontal areas and C_D 1.0 / 1.1 / 1.2 (bluff open frame)
+    kq = [0.5 * 1000 * 1.0 * W * H, 0.5 * 1000 * 1.1 * L * H, 0.5 * 1000 * 1.2 * L * W, 3.0, 5.0, 5.0]
     diag = lambda v: np.diag(v).tolist()  # noqa: E731
     return {
         "format": "udrobot-model/1", "name": "tartan-auv-guess", "rho": 1000.0, "g": 9.81, "mass": m,
@@ -45,7 +46,10 @@ def tartan_model() -> dict:
             "buoyancy": A + "neutrally buoyant (B = W); the diagnoser is asked whether it is",
             "weight": "derived: mass * g",
             "added_mass": A + "0.3/0.8/1.0 x mass in surge/sway/heave, box-like fractions of inertia in rotation",
-            "linear_damping": A + "order of magnitude of RoboSub vehicles", "quadratic_damping": A + "idem",
+            "linear_damping": A + "order of magnitude of RoboSub vehicles",
+            "quadratic_damping": A + "translation: 1/2 rho C_D A with the box's frontal areas (0.5 x 0.35, 0.9 x 0.35, "
+                                     "0.9 x 0.5 m2) and C_D 1.0 / 1.1 / 1.2 of a bluff open frame; rotation: order "
+                                     "of magnitude of RoboSub vehicles",
         },
     }
 

@@ -74,18 +74,49 @@ def _clean(v):
     return v
 
 
-def _wall_distance(params, M, sigma, speed95):
-    """Distance (m) below which the fitted wall effect exceeds 5% of the mass or the force noise floor."""
+WALL_FRACTION = 0.05
+
+
+def wall_distances(params, surfaces, eta, p, speed):
+    """Distance (m, body origin to surface) below which the fitted wall effect matters, per surface.
+
+    It matters where the extra added mass along the surface normal exceeds ``WALL_FRACTION`` (5 %) of the
+    vehicle's mass along that normal (n^T M n, rigid body plus added mass), or where the suction force at
+    ``speed`` exceeds 5 % of the nominal surge drag at that speed (D_L u + Q u|u|). With the template's
+    exp(-h / lambda) decay, the first gives h = lambda ln(a_m / (0.05 n^T M n)), the second
+    h = lambda ln(a_s U^2 / (0.05 drag(U))); 0 when the effect never reaches the fraction.
+
+    Parameters
+    ----------
+    params : dict
+        Fitted ``decay_length_m``, ``added_mass_at_contact_kg``, ``suction_N_s2_per_m2``.
+    surfaces : dict
+        label -> (distances (n,), unit normal (3,) NED) of the fit stack.
+    eta : (n, 6) ndarray
+        Poses of the fit stack (to express the normals in the body frame).
+    p : PlantParameters
+    speed : float
+        Reference speed along the surface, m/s (the runs' 95th percentile horizontal speed).
+
+    Returns
+    -------
+    dict label -> {"added_mass_m", "suction_m", "matters_below_m"}
+    """
+    from udrobot_ctrl.plant import rotation_zyx
+
     lam = params.get("decay_length_m", 0.0)
     am, as_ = params.get("added_mass_at_contact_kg", 0.0), params.get("suction_N_s2_per_m2", 0.0)
-    d = 0.0
-    m_ref = float(np.min(np.diag(M)[:3]))
-    if am > 0.05 * m_ref:
-        d = max(d, lam * math.log(am / (0.05 * m_ref)))
-    s = float(np.nanmin(sigma[:3])) if np.isfinite(sigma[:3]).any() else np.inf
-    if as_ * speed95 ** 2 > s > 0:
-        d = max(d, lam * math.log(as_ * speed95 ** 2 / s))
-    return d
+    drag = float(p.D_L[0, 0] * speed + p.Q[0, 0] * speed ** 2)
+    R = rotation_zyx(eta[:, 3], eta[:, 4], eta[:, 5])
+    out = {}
+    for label, (_dist, normal) in surfaces.items():
+        nb = np.einsum("nji,j->ni", R, np.asarray(normal, float))
+        m_n = float(np.mean(np.einsum("ni,ij,nj->n", nb, p.M[:3, :3], nb)))
+        d_am = lam * math.log(am / (WALL_FRACTION * m_n)) if am > WALL_FRACTION * m_n > 0 else 0.0
+        fs = as_ * speed ** 2
+        d_s = lam * math.log(fs / (WALL_FRACTION * drag)) if fs > WALL_FRACTION * drag > 0 else 0.0
+        out[label] = {"added_mass_m": d_am, "suction_m": d_s, "matters_below_m": max(d_am, d_s)}
+    return out
 
 
 def diagnose(model, runs, holdout=None, window_s=8.0, effects=None, log=None, model_label=None):
@@ -204,7 +235,14 @@ def diagnose(model, runs, holdout=None, window_s=8.0, effects=None, log=None, mo
                 entry["indistinguishable_from"] = [{"name": a, "manoeuvre": fx.discriminating_manoeuvre(n, a)}
                                                    for a in alts]
             if n == "wall_effect":
-                entry["matters_below_m"] = _wall_distance(fit.params[n], p.M, sigma, speed95)
+                per = wall_distances(fit.params[n], st.surfaces, st.eta, p, speed95)
+                entry["matters_below_m"] = max([v["matters_below_m"] for v in per.values()], default=0.0)
+                entry["matters_below"] = {
+                    "criterion": f"extra added mass along the normal > {100 * WALL_FRACTION:g}% of the vehicle's "
+                                 f"mass along it, or suction at {speed95:.2f} m/s (95th percentile horizontal "
+                                 f"speed) > {100 * WALL_FRACTION:g}% of the nominal surge drag at that speed",
+                    "distance": "from the body origin to the surface, m",
+                    "per_surface": per}
         entries.append(entry)
     unexplained = (g_after["value"] / g_before["value"]) if g_before["value"] > 0 else float("nan")
     verdict = (f"significant: {', '.join(sel['selected'])}" if sel["selected"] else
