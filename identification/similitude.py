@@ -19,9 +19,11 @@ K_L                 K_L,model / lambda          viscous (skin-friction) linear d
 
 Reference displaced mass for the added mass. Three choices, reported in the output:
 
-* ``"geometric"`` (default): rho V_model / lambda^3, the strict similitude law.
-* ``"vehicle"``: rho V of the full-size description ``models/udrobot.toml`` (9.38 kg, itself
-  assumed, see that file).
+* ``"geometric"`` (default of :func:`reference_displaced_mass` when ``choice`` is None): rho V_model /
+  lambda^3, the strict similitude law.
+* ``"vehicle"`` (default of ``udrobot-ctrl identify`` and :class:`identification.identify.RigOptions`):
+  rho V of the full-size description ``models/udrobot.toml`` (9.38 kg, itself assumed, see that file),
+  so that the identified added mass is consistent with the buoyancy of the plant it is used in.
 * a number in kg: e.g. 9.20 reproduces the paper, whose full-size added masses are C_m x 9.20 kg
   (7.5187 = 0.8172 x 9.20; 8.3027 = 0.9024 x 9.20), i.e. referred to the robot's mass, not to a
   scaled volume (Table 2's model would give 12.8 kg, Table 3's 10.1 kg).
