@@ -166,9 +166,10 @@ def identify_table(table: ForceTable, area=None, rho=1000.0) -> dict:
 def synthetic_table(KL, KQ, speeds=None, noise=0.0, rng=None) -> tuple[np.ndarray, np.ndarray]:
     """Force table F = K_L u + K_Q |u| u (+ relative Gaussian noise) for tests and the demo.
 
-    ``speeds`` default: 0.2 to 2.0 m/s in 0.2 m/s steps (assumed range; the paper does not list its speeds).
+    ``speeds`` default: 0.2, 0.5 and 1 to 10 m/s in 1 m/s steps — the range Cely 2019 sec. 3.4 states
+    (0.2-10 m/s); the individual speeds are assumed (the paper does not list them).
     """
-    u = np.arange(0.2, 2.01, 0.2) if speeds is None else np.asarray(speeds, float)
+    u = np.r_[0.2, 0.5, np.arange(1.0, 10.01, 1.0)] if speeds is None else np.asarray(speeds, float)
     f = KL * u + KQ * np.abs(u) * u
     if noise:
         rng = rng or np.random.default_rng(0)
