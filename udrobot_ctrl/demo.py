@@ -99,6 +99,10 @@ def step_identification(out: Path) -> dict:
             else:
                 tr = f"K_L {table5[axis][0]}, K_Q {table5[axis][1]} (Table 5)"
             print(f"  {axis:6s} " + " ".join(f"{c:>30s}" for c in cells) + f"   {tr}")
+        if kind == "cfd":
+            print("  note: Table 5 lists K_D below K_Q on every axis; a least-squares Morison fit of the same table "
+                  "cannot give that when K_L > 0\n  (K_D = K_Q + K_L sum|u|^3 / sum u^4), so Table 5's C_D is not "
+                  "reproducible from its own K_L, K_Q (tests/identification/test_cfd.py)")
         name = {"spring": "free_decay_identified", "pendulum": "pendulum_identified", "cfd": "cfd_identified"}[kind]
         per_axis, prov, desc = coefficient_set_values(rep, name, base="pendulum" if kind == "cfd" else None)
         write_coefficient_set(base / f"{name}.toml", name, per_axis, prov, desc)
