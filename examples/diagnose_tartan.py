@@ -54,6 +54,46 @@ def tartan_model() -> dict:
     }
 
 
+def reading(report, mean_tau) -> list:
+    """What the report says about the steady commands, in words (computed from the report, not hard-coded)."""
+    eff = {e["name"]: e for e in report["effects"]}
+    b, c = eff["buoyancy_offset"], eff["cg_cb_offset"]
+    dB = (b["params"] or b.get("fitted_params_if_added", {})).get("dB_N", float("nan"))
+    cp = c["params"] or c.get("fitted_params_if_added", {})
+    out = ["## Reading", "",
+           f"* Heave: the vehicle holds depth with a steady downward (+Z) command of {mean_tau[2]:+.1f} N, so it is "
+           f"positively buoyant by about that much. `buoyancy_offset` is "
+           f"{'significant' if b['significant'] else 'not significant'} with dB = B - W = {dB:+.1f} N "
+           f"(positive: buoyant), {dB / mean_tau[2]:.0%} of the mean heave command.",
+           f"* Pitch and roll: the commanded moments sit at the controller's limits (M {mean_tau[4]:+.1f} N m, "
+           f"K {mean_tau[3]:+.1f} N m) while the vehicle stays level, so CG and CB are offset: `cg_cb_offset` "
+           f"{'is significant' if c['significant'] else 'is not significant'} with dBG_x = "
+           f"{cp.get('dBG_x_Nm', float('nan')):+.2f} N m (x_g W - x_b B, balances M), dBG_y = "
+           f"{cp.get('dBG_y_Nm', float('nan')):+.2f} N m (balances K); dBG_z = "
+           f"{cp.get('dBG_z_Nm', float('nan')):+.2f} N m "
+           f"leaves the righting moment near its physical bound (10 % of the guessed 2 cm CG drop): the logged "
+           f"roll/pitch move with little visible restoring moment.",
+           "* Why not a thruster effect: with a commanded wrench (tau_* inputs) the thrusters are unknown, so the "
+           "static thruster maps get one parameter per DOF, bounded to physical values (deadband <= 25 % of the "
+           "command range, reverse loss -0.5..0.7), and DOFs whose command keeps one sign (K and M pinned at their "
+           "limits) are left out of them: there a deadband shift or a reverse-thrust loss adds the same constant "
+           "as a restoring offset. Before these fixes one shared 'deadband' of half the command range (shift 1) "
+           "removed the steady command of every DOF at once and took the place of the buoyancy.",
+           *([f"* Look-alikes: buoyancy_offset is reported indistinguishable (BIC within 10) from "
+              f"{', '.join(a['name'] for a in b['indistinguishable_from'])}: a deadband shift on Z up to 25 % of the "
+              f"Z command range also removes most of a steady downward command; only the episodes with upward "
+              f"commands (5-13 % of the time) tell them apart. Manoeuvre that would: "
+              f"{b['indistinguishable_from'][0]['manoeuvre']}."] if b.get("indistinguishable_from") else []),
+           "* `shrink` of an effect alone is scored in simulation on the holdout chunks: buoyancy alone is "
+           "negative because the nominal model's roll/pitch diverge under the pinned trim moments and dominate "
+           "the gap; `holdout_gap_contribution` (gap rise when the effect is removed from the significant set) is "
+           "the figure that shows each one's share.",
+           "* Remaining gap: the guessed model's horizontal response (X/Y commands realise less motion than "
+           "modelled; the catalogue has no wrench gain error) and roll/pitch driven by motions the model does not "
+           "couple. The reported parameters are conditional on the guessed mass and damping."]
+    return out
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", default=str(Path(__file__).resolve().parent))
@@ -93,6 +133,8 @@ def main(argv=None) -> int:
         f"{report['gap_after']['value']:.3f} (unexplained {report['unexplained']:.2f}).",
         "",
         "Significant effects: " + (", ".join(f"`{e['name']}` {e['params']}" for e in sig) or "none") + ".",
+        "",
+        *reading(report, mean_tau),
         "",
         "```", text, "```",
     ]

@@ -497,6 +497,13 @@ DISCRIMINATING_MANOEUVRE = {
         "response onset and adds phase; an added-mass error scales the acceleration without delay)",
     frozenset({"water_current", "buoyancy_offset"}):
         "hold station and reverse the heading (a current turns with the vehicle's heading, buoyancy does not)",
+    frozenset({"buoyancy_offset", "thruster_deadband"}):
+        "vertical steps of equal size up and down from the hover command, and a hover with a known added weight "
+        "(a buoyancy offset shifts the hover command and acts at zero command; a deadband shift flips with the "
+        "command's sign and vanishes at zero)",
+    frozenset({"cg_cb_offset", "thruster_asymmetry"}):
+        "pitch/roll steps of both signs from the trim command (a restoring offset acts whatever the command; a "
+        "reverse-thrust loss only on one sign)",
     frozenset({"thruster_deadband", "thruster_asymmetry"}):
         "slow ramps of the command through zero in both directions",
 }
