@@ -238,11 +238,12 @@ class Attributor:
     def bic(self, fit: Fit) -> float:
         return self.n_eff * fit.loglik_n + fit.k * np.log(self.n_eff * max(1, self.dofs.sum()))
 
-    def best_shape(self, name, fixed=(), refine=True):
-        """Best fit of ``name`` (grid search over its shape, then local refinement) together with fixed terms."""
+    def best_shape(self, name, fixed=(), refine=True, seeds=()):
+        """Best fit of ``name`` (grid search over its shape and any ``seeds`` shapes, e.g. its refined single-effect
+        shape, then local refinement) together with fixed terms."""
         eff = self.cat[name]
         best = None
-        for shape in eff.shape_grid:
+        for shape in tuple(eff.shape_grid) + tuple(seeds):
             f = self.fit(list(fixed) + [(name, shape)])
             if best is None or f.loglik_n < best.loglik_n:
                 best = f
@@ -317,7 +318,9 @@ def select(att: Attributor, att_h: Attributor, names=None, max_effects=4, log=No
         for n in names:
             if n in selected:
                 continue
-            cands[n] = att.best_shape(n, fixed, refine=False)
+            # the grid plus the effect's refined single-effect shape: a coarse grid must not hand the step to a
+            # many-parameter look-alike (e.g. cross-coupled damping for a current between grid points)
+            cands[n] = att.best_shape(n, fixed, refine=False, seeds=(singles[n].shapes[n],) if n in singles else ())
         if not cands:
             break
         best = min(cands, key=lambda n: att.bic(cands[n]))

@@ -19,7 +19,8 @@ Templates (the diagnoser's lumped forms; a truth generator should use different 
 ``thruster_deadband``   f_act = 0 for |f| < d, f - c d sign(f) beyond (hard, c=0, or shifted, c=1).
 ``thruster_asymmetry``  reverse thrust (1 - a) f for f < 0.
 ``thruster_lag``        first-order lag of time constant T_lag on every actuator.
-``tether_drag``         lumped horizontal drag at the body origin, F_ned = -(k_q |V_h| + k_l) V_h.
+``tether_drag``         cross-flow drag of a taut cable leaving the vehicle along NED unit e (azimuth, elevation):
+                        F_ned = -(k_q |V_n| + k_l) V_n, V_n = V - (V.e) e; a vertical cable gives horizontal drag.
 ``wall_effect``         per surface at distance h with normal n: added mass a_m exp(-h/lam) n n^T and a
                         suction force -a_s exp(-h/lam) |V_t|^2 n (V_t the speed along the surface).
 ``water_current``       steady NED current (c_N, c_E, c_D): damping acts on nu - R^T c.
@@ -245,14 +246,36 @@ class Lag(Effect):
 
 
 # ------------------------------------------------------------------------------------------- environment
+def cable_direction(azimuth, elevation):
+    """Unit NED vector from the vehicle along its tether: azimuth (rad, from north towards east) and elevation
+    (rad, above the horizontal; pi/2 is a cable straight up to the surface)."""
+    ce = np.cos(elevation)
+    return np.array([ce * np.cos(azimuth), ce * np.sin(azimuth), -np.sin(elevation)])
+
+
+def _cable_normal_velocity(eta, nu, e):
+    """NED velocity of the vehicle normal to a cable along unit NED ``e`` (n, 3), and the rotation R (n, 3, 3)."""
+    R = rotation_zyx(eta[..., 3], eta[..., 4], eta[..., 5])
+    v = np.einsum("...ij,...j->...i", R, nu[..., :3])
+    return v - np.sum(v * e, -1, keepdims=True) * e, R
+
+
 class TetherDrag(Effect):
+    """Cross-flow drag of a taut tether: the water resists the velocity component *normal* to the cable,
+    F_ned = -(k_q |V_n| + k_l) V_n, with V_n = V - (V.e) e and e the cable's direction from the vehicle (shape
+    parameters azimuth and elevation). A cable straight up (elevation pi/2) gives the classic horizontal drag
+    opposing horizontal motion; a cable trailing at a shallow angle resists sway and heave more than surge, and
+    turns surge into a heave/sway force -- the signature that separates it from per-axis damping errors."""
+
     def design(self, s, shape):
+        e = cable_direction(*shape)
+
         def cols(r):
-            vh, R = _body_horizontal(r["eta"], r["nu"])
-            sp = np.linalg.norm(vh, axis=-1, keepdims=True)
-            A = np.zeros(vh.shape[:1] + (6, 2))
-            A[:, :3, 0] = _to_body(R, -sp * vh)
-            A[:, :3, 1] = _to_body(R, -vh)
+            vn, R = _cable_normal_velocity(r["eta"], r["nu"], e)
+            sp = np.linalg.norm(vn, axis=-1, keepdims=True)
+            A = np.zeros(vn.shape[:1] + (6, 2))
+            A[:, :3, 0] = _to_body(R, -sp * vn)
+            A[:, :3, 1] = _to_body(R, -vn)
             return A
         A = s.full(cols)
         return np.zeros((s.n, 6)), A, ("k_quadratic_N_s2_per_m2", "k_linear_N_s_per_m"), np.zeros(2), \
@@ -260,12 +283,13 @@ class TetherDrag(Effect):
 
     def hooks(self, params, p, B, inflow, f_ref, M_A):
         kq, kl = params["k_quadratic_N_s2_per_m2"], params["k_linear_N_s_per_m"]
+        e = cable_direction(params["cable_azimuth_rad"], params["cable_elevation_rad"])
 
         def force(x, f, ctx):
-            vh, R = _body_horizontal(x[..., :6], x[..., 6:])
-            sp = np.linalg.norm(vh, axis=-1, keepdims=True)
+            vn, R = _cable_normal_velocity(x[..., :6], x[..., 6:], e)
+            sp = np.linalg.norm(vn, axis=-1, keepdims=True)
             out = np.zeros(x.shape[:-1] + (6,))
-            out[..., :3] = _to_body(R, -(kq * sp + kl) * vh)
+            out[..., :3] = _to_body(R, -(kq * sp + kl) * vn)
             return out
         return Hooks(force=force)
 
@@ -448,6 +472,9 @@ def catalogue() -> dict:
     lag_grid = tuple((T,) for T in (0.03, 0.06, 0.1, 0.15, 0.2, 0.3, 0.45, 0.7, 1.0))
     db_grid = tuple((d,) for d in (0.02, 0.04, 0.07, 0.1, 0.15, 0.2, 0.25))
     wall_grid = tuple((lam,) for lam in (0.03, 0.06, 0.1, 0.15, 0.22, 0.33, 0.5, 0.8))
+    # cable straight up, or leaving at 10/30/60 deg above the horizontal towards one of eight headings
+    tether_grid = ((0.0, np.pi / 2),) + tuple((np.radians(az), np.radians(el)) for el in (10, 30, 60)
+                                               for az in range(0, 360, 45))
     cur = tuple((cn, ce, 0.0) for cn in (-0.1, 0.0, 0.1) for ce in (-0.1, 0.0, 0.1))
     effects = [
         InflowLoss("thrust_inflow_loss", "thrust falls with the axial inflow speed through the thruster",
@@ -457,7 +484,8 @@ def catalogue() -> dict:
         Asymmetry("thruster_asymmetry", "reverse thrust weaker than modelled, relative to forward"),
         Lag("thruster_lag", "thrust follows the command with a first-order lag", ("T_lag_s",), lag_grid,
             ((0.005, 1.0),), refine=True, mimics=("added_mass_error",)),
-        TetherDrag("tether_drag", "umbilical drag opposing horizontal motion",
+        TetherDrag("tether_drag", "umbilical cross-flow drag, normal to the cable", ("cable_azimuth_rad",
+                   "cable_elevation_rad"), tether_grid, ((-2 * np.pi, 2 * np.pi), (0.0, np.pi / 2)), refine=True,
                    mimics=("quadratic_damping_error", "linear_damping", "thrust_inflow_loss")),
         WallEffect("wall_effect", "extra added mass and suction near the seabed or a wall", ("decay_length_m",),
                    wall_grid, ((0.01, 2.0),), refine=True),

@@ -46,8 +46,9 @@ def test_no_effect_no_false_alarm():
     assert report["unexplained"] == pytest.approx(1.0)
 
 
-SINGLE = ["thrust_inflow_loss", "thruster_deadband", "thruster_asymmetry", "thruster_lag", "quadratic_damping_error",
-          "linear_damping", "added_mass_error", "cross_coupled_damping", "buoyancy_offset", "cg_cb_offset"]
+SINGLE = ["thrust_inflow_loss", "thruster_deadband", "thruster_asymmetry", "thruster_lag", "tether_drag",
+          "water_current", "quadratic_damping_error", "linear_damping", "added_mass_error", "cross_coupled_damping",
+          "buoyancy_offset", "cg_cb_offset"]
 
 
 @pytest.mark.parametrize("name", SINGLE)
@@ -58,10 +59,11 @@ def test_single_effect_named_and_shrinks(name):
     assert report["effects"][0]["significant"]
 
 
-@pytest.mark.xfail(reason="known weakness: the lumped tether/wall templates lose to look-alikes (quadratic "
-                          "damping, cross-coupled terms) on these manoeuvres, and a weak depth-profiled current "
-                          "can lose to cross-coupled damping; see the issue note", strict=False)
-@pytest.mark.parametrize("name", ["tether_drag", "wall_effect", "water_current"])
+@pytest.mark.xfail(reason="truth fixture, not diagnoser: with its 2-3x image-law wall suction and no contact, the "
+                          "unactuated sway lets the truth vehicle be pulled through the wall (tens of metres, rolling "
+                          "over), a chaotic run no model replays; wall_effect is still named first. The physical wall "
+                          "case is tests/udrobot_ctrl/gap/test_case_wall_effect.py", strict=False)
+@pytest.mark.parametrize("name", ["wall_effect"])
 def test_single_effect_hard_cases(name):
     report, truth = _run([name])
     assert _verdict_ok(report, name)
