@@ -511,7 +511,8 @@ DISCRIMINATING_MANOEUVRE = {
         "one speed with two different thrusts",
     frozenset({"quadratic_damping_error", "tether_drag"}):
         "repeat the speed runs with a different paid-out tether length, and add sway/heave/yaw motion "
-        "(tether drag is horizontal and the same in every heading; damping error is per axis)",
+        "(tether drag acts on the velocity normal to a cable fixed in the pool frame, the same in every heading; "
+        "a damping error acts per body axis)",
     frozenset({"linear_damping", "tether_drag"}):
         "repeat the speed runs with a different paid-out tether length",
     frozenset({"thrust_inflow_loss", "tether_drag"}):
