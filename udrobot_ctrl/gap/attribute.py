@@ -320,7 +320,7 @@ def select(att: Attributor, att_h: Attributor, names=None, max_effects=4, log=No
                 continue
             # the grid plus the effect's refined single-effect shape: a coarse grid must not hand the step to a
             # many-parameter look-alike (e.g. cross-coupled damping for a current between grid points)
-            cands[n] = att.best_shape(n, fixed, refine=False, seeds=(singles[n].shapes[n],) if n in singles else ())
+            cands[n] = att.best_shape(n, fixed, refine=False, seeds=(singles[n].shapes[n],))
         if not cands:
             break
         best = min(cands, key=lambda n: att.bic(cands[n]))

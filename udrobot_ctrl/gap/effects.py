@@ -93,14 +93,6 @@ def first_order_lag(f, dt, T, f0=None):
     return y
 
 
-def _body_horizontal(eta, nu):
-    """Horizontal NED velocity V_h (n, 3) (third entry 0) and the rotation R (n, 3, 3)."""
-    R = rotation_zyx(eta[..., 3], eta[..., 4], eta[..., 5])
-    v = np.einsum("...ij,...j->...i", R, nu[..., :3])
-    v[..., 2] = 0.0
-    return v, R
-
-
 def _to_body(R, vec):
     return np.einsum("...ji,...j->...i", R, vec)
 
@@ -253,11 +245,16 @@ def cable_direction(azimuth, elevation):
     return np.array([ce * np.cos(azimuth), ce * np.sin(azimuth), -np.sin(elevation)])
 
 
-def _cable_normal_velocity(eta, nu, e):
-    """NED velocity of the vehicle normal to a cable along unit NED ``e`` (n, 3), and the rotation R (n, 3, 3)."""
+def _tether_columns(eta, nu, e):
+    """Body-frame generalised force per unit (k_q, k_l) of the cable cross-flow drag (..., 6, 2) for a cable along
+    unit NED ``e``: columns -|V_n| V_n and -V_n, with V_n the NED velocity normal to the cable."""
     R = rotation_zyx(eta[..., 3], eta[..., 4], eta[..., 5])
     v = np.einsum("...ij,...j->...i", R, nu[..., :3])
-    return v - np.sum(v * e, -1, keepdims=True) * e, R
+    vn = v - np.sum(v * e, -1, keepdims=True) * e
+    A = np.zeros(vn.shape[:-1] + (6, 2))
+    A[..., :3, 0] = _to_body(R, -np.linalg.norm(vn, axis=-1, keepdims=True) * vn)
+    A[..., :3, 1] = _to_body(R, -vn)
+    return A
 
 
 class TetherDrag(Effect):
@@ -269,29 +266,14 @@ class TetherDrag(Effect):
 
     def design(self, s, shape):
         e = cable_direction(*shape)
-
-        def cols(r):
-            vn, R = _cable_normal_velocity(r["eta"], r["nu"], e)
-            sp = np.linalg.norm(vn, axis=-1, keepdims=True)
-            A = np.zeros(vn.shape[:1] + (6, 2))
-            A[:, :3, 0] = _to_body(R, -sp * vn)
-            A[:, :3, 1] = _to_body(R, -vn)
-            return A
-        A = s.full(cols)
+        A = s.full(lambda r: _tether_columns(r["eta"], r["nu"], e))
         return np.zeros((s.n, 6)), A, ("k_quadratic_N_s2_per_m2", "k_linear_N_s_per_m"), np.zeros(2), \
             np.array([1e4, 1e4])
 
     def hooks(self, params, p, B, inflow, f_ref, M_A):
-        kq, kl = params["k_quadratic_N_s2_per_m2"], params["k_linear_N_s_per_m"]
+        k = np.array([params["k_quadratic_N_s2_per_m2"], params["k_linear_N_s_per_m"]])
         e = cable_direction(params["cable_azimuth_rad"], params["cable_elevation_rad"])
-
-        def force(x, f, ctx):
-            vn, R = _cable_normal_velocity(x[..., :6], x[..., 6:], e)
-            sp = np.linalg.norm(vn, axis=-1, keepdims=True)
-            out = np.zeros(x.shape[:-1] + (6,))
-            out[..., :3] = _to_body(R, -(kq * sp + kl) * vn)
-            return out
-        return Hooks(force=force)
+        return Hooks(force=lambda x, f, ctx: _tether_columns(x[..., :6], x[..., 6:], e) @ k)
 
 
 def _surface_terms(eta, nu, nu_dot, dist, normal, lam):
