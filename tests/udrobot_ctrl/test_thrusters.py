@@ -97,10 +97,14 @@ def test_refit_reproduces_the_shipped_coefficients():
     shipped = th.curve_from_dict(_shipped_doc())
     refit = th.curve_from_dict(doc)
     assert doc["provenance"]["data_sha256"] == _shipped_doc()["provenance"]["data_sha256"]
+    # The curve is only known to its fit residual (rms 0.13-0.39 N per voltage and direction); least_squares stops
+    # at ftol/xtol 1e-8, so a refit with another BLAS/scipy lands ~1e-5 N away. Agreement to 1 % of the smallest
+    # residual says "the same fit" without depending on one machine's last digits.
+    rms_min = min(c[k]["rms_N"] for c in doc["curve"] for k in ("forward", "reverse"))
     pwm = np.arange(1100.0, 1901.0, 8.0)
     for volt in (10.0, 13.0, 20.0):
         np.testing.assert_allclose(th.pwm_to_thrust(pwm, volt, refit), th.pwm_to_thrust(pwm, volt, shipped),
-                                   atol=1e-6)
+                                   atol=0.01 * rms_min)
 
 
 def test_shipped_layout_controls_surge_heave_roll_yaw_and_leaves_sway_pitch_passive():
