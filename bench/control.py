@@ -23,8 +23,8 @@ sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != Path(__file__)
 
 import numpy as np  # noqa: E402
 
-from udrobot_ctrl.mpc import LinearMPC, NonlinearMPC, OSQPSettings  # noqa: E402
-from udrobot_ctrl.sim import simulate  # noqa: E402
+from udrobot_ctrl.control.mpc import LinearMPC, NonlinearMPC, OSQPSettings  # noqa: E402
+from udrobot_ctrl.dynamics.sim import simulate  # noqa: E402
 from udrobot_ctrl.vehicle import load_model  # noqa: E402
 
 MODEL = "cfd:morison"
@@ -33,7 +33,7 @@ EXACT = OSQPSettings(eps_abs=1e-10, eps_rel=1e-10, polishing=True, max_iter=2000
 
 def _mission(quick):
     try:
-        from udrobot_ctrl.missions import standard_mission
+        from udrobot_ctrl.control.missions import standard_mission
 
         m = standard_mission(quick=True)
         t_final = 8.0 if quick else m.t_final
@@ -119,8 +119,8 @@ def bench_nmpc(v, mission, x0, t_final, n_ipopt):
 
 
 def bench_ekf(v, n=1200):
-    from udrobot_ctrl.ekf import UDrobotEKF
-    from udrobot_ctrl.sensors import SensorConfig, measure
+    from udrobot_ctrl.control.ekf import UDrobotEKF
+    from udrobot_ctrl.control.sensors import SensorConfig, measure
 
     dt = 0.05
     t = np.arange(n) * dt
@@ -141,8 +141,8 @@ def bench_ekf(v, n=1200):
 def bench_lqr(v, repeats=50):
     import control
 
-    from udrobot_ctrl.mpc import linearization_function
-    from udrobot_ctrl.plant import plant_parameters
+    from udrobot_ctrl.control.mpc import linearization_function
+    from udrobot_ctrl.dynamics.plant import plant_parameters
 
     p = plant_parameters(v)
     x = np.zeros(12)

@@ -14,9 +14,9 @@ import time
 
 import numpy as np
 
-from udrobot_ctrl import fastsim
-from udrobot_ctrl.plant import plant_parameters, state_derivative
-from udrobot_ctrl.sim import simulate
+from udrobot_ctrl.dynamics import fastsim
+from udrobot_ctrl.dynamics.plant import plant_parameters, state_derivative
+from udrobot_ctrl.dynamics.sim import simulate
 from udrobot_ctrl.vehicle import load_model
 
 DT, T_FINAL = 0.01, 60.0

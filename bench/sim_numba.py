@@ -1,4 +1,4 @@
-"""Speed of udrobot_ctrl.sim.simulate (numba RK4): one vehicle 60 s open and closed loop, 1000 vehicles x 60 s.
+"""Speed of udrobot_ctrl.dynamics.sim.simulate (numba RK4): one vehicle 60 s open and closed loop, 1000 vehicles x 60 s.
 
 Usage: ``python bench/sim_numba.py [--json] [--vehicles N]``. Prints figures; with ``--json`` ends with one JSON
 line (sim_60s_single_ms, closed_loop_60s_single_ms, batch_1000x60s_s, batch_1000x60s_full_record_s,
@@ -34,7 +34,7 @@ def main(argv=None) -> int:
     ap.add_argument("--vehicles", type=int, default=1000)
     args = ap.parse_args(argv)
 
-    from udrobot_ctrl.sim import as_parameters, simulate, stack_parameters
+    from udrobot_ctrl.dynamics.sim import as_parameters, simulate, stack_parameters
     from udrobot_ctrl.vehicle import load_model
 
     fig = {"model": args.model, "dt_s": DT, "t_final_s": T_FINAL}

@@ -8,8 +8,8 @@ import json
 import sys
 from pathlib import Path
 
-from udrobot_ctrl.compare import compare, contract_json, text_table, write_outputs
-from udrobot_ctrl.missions import CONTROLLER_KINDS
+from udrobot_ctrl.control.compare import compare, contract_json, text_table, write_outputs
+from udrobot_ctrl.control.missions import CONTROLLER_KINDS
 
 
 def main(argv):

@@ -9,11 +9,11 @@ import sys
 
 import numpy as np
 
-from udrobot_ctrl.linearize import linearize, operating_points, passive_modes
-from udrobot_ctrl.lqr import ScheduledLQR
-from udrobot_ctrl.metrics import mission_metrics
-from udrobot_ctrl.missions import run_mission, standard_mission
-from udrobot_ctrl.sim import as_parameters
+from udrobot_ctrl.control.linearize import linearize, operating_points, passive_modes
+from udrobot_ctrl.control.lqr import ScheduledLQR
+from udrobot_ctrl.control.metrics import mission_metrics
+from udrobot_ctrl.control.missions import run_mission, standard_mission
+from udrobot_ctrl.dynamics.sim import as_parameters
 
 
 def main(argv):

@@ -3,7 +3,7 @@
 For each of the five coefficient sets A, the EKF and the MPC are designed on model A and fly the quick
 standard mission (depth step, heading change, surge transit and stop) on the plant ``--plant`` (default
 ``cfd:morison``), seeing only the simulated sensors (pressure depth, IMU, DVL with dropouts; noise levels
-assumed, see :class:`udrobot_ctrl.sensors.SensorConfig`). Prints tracking IAE, EKF RMSE and NIS, and solver
+assumed, see :class:`udrobot_ctrl.control.sensors.SensorConfig`). Prints tracking IAE, EKF RMSE and NIS, and solver
 statistics per design model.
 
 Usage: ``python examples/mpc_vs_ekf.py [--plant NAME] [--controller lmpc|nmpc] [--t-final S]``
@@ -14,11 +14,11 @@ import argparse
 
 import numpy as np
 
-from udrobot_ctrl.ekf import UDrobotEKF
-from udrobot_ctrl.missions import standard_mission
-from udrobot_ctrl.mpc import LinearMPC, NonlinearMPC, wrap_angle
-from udrobot_ctrl.sensors import SensorConfig, SensorSampler
-from udrobot_ctrl.sim import simulate
+from udrobot_ctrl.control.ekf import UDrobotEKF
+from udrobot_ctrl.control.missions import standard_mission
+from udrobot_ctrl.control.mpc import LinearMPC, NonlinearMPC, wrap_angle
+from udrobot_ctrl.control.sensors import SensorConfig, SensorSampler
+from udrobot_ctrl.dynamics.sim import simulate
 from udrobot_ctrl.vehicle import MODEL_NAMES, load_model
 
 

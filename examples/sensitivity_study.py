@@ -72,12 +72,13 @@ def toolbox_controllers(space, executor, out):
     """The same question on the toolbox's standard mission (quick variant) and its own controllers."""
     import importlib.util
 
-    kinds = [k for k, mod in (("lqr", "udrobot_ctrl.lqr"), ("pid", "udrobot_ctrl.pid"), ("lmpc", "udrobot_ctrl.mpc"))
+    kinds = [k for k, mod in (("lqr", "udrobot_ctrl.control.lqr"), ("pid", "udrobot_ctrl.control.pid"),
+                                   ("lmpc", "udrobot_ctrl.control.mpc"))
              if importlib.util.find_spec(mod) is not None]
-    if importlib.util.find_spec("udrobot_ctrl.missions") is None or not kinds:
-        print("\n1b) toolbox controllers: udrobot_ctrl.missions not available, skipped")
+    if importlib.util.find_spec("udrobot_ctrl.control.missions") is None or not kinds:
+        print("\n1b) toolbox controllers: udrobot_ctrl.control.missions not available, skipped")
         return
-    from udrobot_ctrl.missions import standard_mission
+    from udrobot_ctrl.control.missions import standard_mission
 
     sub = space.subset(["surge.CD"])
     X = np.array([[v] for v in SURGE_CD.values()])

@@ -61,8 +61,8 @@ import time
 
 import numpy as np
 
-from udrobot_ctrl.plant import generalized_forces, kinematics, plant_parameters, rotation_zyx
-from udrobot_ctrl.runlog import Run
+from udrobot_ctrl.dynamics.plant import generalized_forces, kinematics, plant_parameters, rotation_zyx
+from udrobot_ctrl.io.runlog import Run
 from udrobot_ctrl.vehicle import load_model
 
 MODEL = "pendulum:chin"

@@ -4,7 +4,7 @@ import json
 import numpy as np
 import pytest
 
-from udrobot_ctrl.plant import SingularMassMatrixError, plant_parameters
+from udrobot_ctrl.dynamics.plant import SingularMassMatrixError, plant_parameters
 from udrobot_ctrl.vehicle import MODEL_NAMES, load_model, read_model_file, to_model_dict, write_model_file
 
 PAPER = {

@@ -30,9 +30,9 @@ import numpy as np
 from scipy.optimize import lsq_linear, minimize
 from scipy.signal import savgol_coeffs
 
+from udrobot_ctrl.dynamics.plant import PlantParameters, generalized_forces
 from udrobot_ctrl.gap import effects as fx
 from udrobot_ctrl.gap.data import Prepared
-from udrobot_ctrl.plant import PlantParameters, generalized_forces
 
 BIC_STRONG = 10.0
 HOLDOUT_CHI2 = 6.63

@@ -19,8 +19,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.signal import savgol_filter
 
-from udrobot_ctrl.plant import PlantParameters, restoring_forces
-from udrobot_ctrl.runlog import Run, resample
+from udrobot_ctrl.dynamics.plant import PlantParameters, restoring_forces
+from udrobot_ctrl.io.runlog import Run, resample
 
 VEL = ("u", "v", "w", "p", "q", "r")
 POSE = ("x", "y", "z", "phi", "theta", "psi")
@@ -156,7 +156,7 @@ def actuators(run: Run, p: PlantParameters, f_raw=None):
             raise ValueError(f"{run.path or 'run'}: {f.shape[1]} {run.input_kind}_i columns but the model has {k} "
                              f"thrusters (columns must follow the model's thruster order)")
         if run.input_kind == "pwm":  # the fitted T-200 curve at the logged battery voltage (12 V if absent)
-            from udrobot_ctrl.thrusters import pwm_to_thrust
+            from udrobot_ctrl.dynamics.thrusters import pwm_to_thrust
 
             volts = run.channels.get("voltage")
             v = 12.0 if volts is None or not np.isfinite(volts).any() else np.nan_to_num(volts, nan=12.0)[:, None]

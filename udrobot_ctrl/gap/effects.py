@@ -38,8 +38,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.signal import lfilter
 
+from udrobot_ctrl.dynamics.plant import PlantParameters, coriolis_centripetal, rotation_zyx
 from udrobot_ctrl.gap.data import restoring_gradient
-from udrobot_ctrl.plant import PlantParameters, coriolis_centripetal, rotation_zyx
 
 EFFECT_NAMES = ("thrust_inflow_loss", "thruster_deadband", "thruster_asymmetry", "thruster_lag", "tether_drag",
                 "wall_effect", "water_current", "linear_damping", "quadratic_damping_error", "added_mass_error",

@@ -18,8 +18,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from udrobot_ctrl.dynamics.plant import PlantParameters, generalized_forces, kinematics
 from udrobot_ctrl.gap.data import Prepared
-from udrobot_ctrl.plant import PlantParameters, generalized_forces, kinematics
 
 CHANNELS = ("u", "v", "w", "p", "q", "r", "z", "phi", "theta", "psi")
 STATE_INDEX = {"z": 2, "phi": 3, "theta": 4, "psi": 5, "u": 6, "v": 7, "w": 8, "p": 9, "q": 10, "r": 11}

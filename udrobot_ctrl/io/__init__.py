@@ -7,7 +7,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from udrobot_ctrl.runlog import Run, read_run
+from udrobot_ctrl.io.runlog import Run, read_run
 
 from .mapping import Mapping, MappingError, load_mapping
 from .streams import LogImportError

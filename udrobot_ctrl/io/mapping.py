@@ -37,7 +37,7 @@ from pathlib import Path
 import numpy as np
 import tomllib
 
-from udrobot_ctrl.runlog import (
+from udrobot_ctrl.io.runlog import (
     ANGLE_CHANNELS,
     CHANNELS,
     TAU_COLUMNS,

@@ -1,10 +1,10 @@
 """Many perturbed vehicles simulated at once: the fast path of sensitivity sweeps.
 
-:mod:`udrobot_ctrl.plant` is batch-aware over states but holds one set of matrices; a sensitivity chunk
+:mod:`udrobot_ctrl.dynamics.plant` is batch-aware over states but holds one set of matrices; a sensitivity chunk
 needs one vehicle per sample. :class:`BatchPlant` stacks M, M^-1, D_L and Q over vehicles ``(N, 6, 6)``
 (restoring terms and thrusters must be shared: the studies perturb hydrodynamic coefficients only) and
 :func:`simulate_batch` integrates all of them in one vectorised RK4 loop with the same ZOH controller
-convention as :func:`udrobot_ctrl.sim.simulate`. A test holds it equal to the single-vehicle plant.
+convention as :func:`udrobot_ctrl.dynamics.sim.simulate`. A test holds it equal to the single-vehicle plant.
 """
 from __future__ import annotations
 
@@ -12,13 +12,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from udrobot_ctrl.plant import kinematics, plant_parameters, restoring_forces
-from udrobot_ctrl.sim import SimResult
+from udrobot_ctrl.dynamics.plant import kinematics, plant_parameters, restoring_forces
+from udrobot_ctrl.dynamics.sim import SimResult
 
 
 @dataclass(frozen=True)
 class BatchPlant:
-    """Stacked plant arrays of N vehicles (SI units, see :class:`udrobot_ctrl.plant.PlantParameters`)."""
+    """Stacked plant arrays of N vehicles (SI units, see :class:`udrobot_ctrl.dynamics.plant.PlantParameters`)."""
 
     M: np.ndarray
     M_inv: np.ndarray

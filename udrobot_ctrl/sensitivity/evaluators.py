@@ -75,7 +75,7 @@ class MissionEvaluator:
         Passed to the design (LQRWeights / PIDTuning / MPCSettings fields on the batch backend).
     backend : {'auto', 'batch', 'missions'}
         ``batch``: this package's vectorised mission (lqr, pid, mpc: one chunk of vehicles simulated at
-        once). ``missions``: one simulation per sample through :mod:`udrobot_ctrl.missions` (any
+        once). ``missions``: one simulation per sample through :mod:`udrobot_ctrl.control.missions` (any
         controller, the toolbox's standard mission, quick variant by default). ``auto``: batch unless the
         controller is nmpc.
     sim_dt, control_dt : float
@@ -99,8 +99,9 @@ class MissionEvaluator:
         if backend == "missions":
             import importlib.util
 
-            needed = {"lqr": "udrobot_ctrl.lqr", "pid": "udrobot_ctrl.pid"}.get(controller, "udrobot_ctrl.mpc")
-            for mod in ("udrobot_ctrl.missions", needed):
+            needed = {"lqr": "udrobot_ctrl.control.lqr",
+                      "pid": "udrobot_ctrl.control.pid"}.get(controller, "udrobot_ctrl.control.mpc")
+            for mod in ("udrobot_ctrl.control.missions", needed):
                 if importlib.util.find_spec(mod) is None:
                     raise ValueError(f"controller {controller!r} on the missions backend needs {mod}, not available "
                                      "in this build (lqr, pid and mpc work on the batched fast path)")
@@ -136,7 +137,7 @@ class MissionEvaluator:
     # ------------------------------------------------------------------ batched fast path
     def _design(self, vehicle):
         """Design on one model: LQR (K, trim), PID (gains, trim) or MPC (qp, trim)."""
-        from udrobot_ctrl.plant import plant_parameters
+        from udrobot_ctrl.dynamics.plant import plant_parameters
         from udrobot_ctrl.sensitivity.mission import (
             LQRWeights,
             MPCSettings,
@@ -215,14 +216,14 @@ class MissionEvaluator:
 
     # ------------------------------------------------------------------ generic path
     def _missions(self):
-        from udrobot_ctrl import missions
+        from udrobot_ctrl.control import missions
 
         mission = self.mission if self.mission is not None else missions.standard_mission(quick=True)
         return missions, mission
 
     def _per_sample(self, vehicles, errors):
-        """One closed-loop run per sample through :func:`udrobot_ctrl.missions.run_mission` (any controller)."""
-        from udrobot_ctrl.plant import plant_parameters
+        """One closed-loop run per sample through :func:`udrobot_ctrl.control.missions.run_mission` (any controller)."""
+        from udrobot_ctrl.dynamics.plant import plant_parameters
 
         missions, mission = self._missions()
         kind = "lmpc" if self.controller == "mpc" else self.controller
@@ -248,10 +249,10 @@ class MissionEvaluator:
 
 
 def _flat_metrics(res, mission, f_min, f_max) -> dict:
-    """Scalar metrics of a run: :func:`udrobot_ctrl.metrics.mission_metrics` flattened, plus ``max_speed``
+    """Scalar metrics of a run: :func:`udrobot_ctrl.control.metrics.mission_metrics` flattened, plus ``max_speed``
     (m/s), ``fallbacks`` (SafeController substitutions) and ``unsettled`` (events not settled; their
     settling time is censored at the mission duration so that global indices stay defined)."""
-    from udrobot_ctrl import metrics
+    from udrobot_ctrl.control import metrics
 
     met = metrics.mission_metrics(res, mission, f_min, f_max)
     out = {}

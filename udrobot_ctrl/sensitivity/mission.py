@@ -2,7 +2,7 @@
 
 This is the sensitivity package's *fast path*: the controller is a constant gain, so one chunk of
 perturbed vehicles is simulated at once (:mod:`udrobot_ctrl.sensitivity.batch`). Metrics are
-computed for all vehicles of the batch with the same definitions as :mod:`udrobot_ctrl.metrics` where
+computed for all vehicles of the batch with the same definitions as :mod:`udrobot_ctrl.control.metrics` where
 that module exists (IAE, overshoot, settling time, thrust energy, saturation) plus the maximum speed.
 
 LQR design: the plant (casadi twin) is linearised at the cruise point (surge speed ``surge_mps``, level,
@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from udrobot_ctrl.plant import plant_parameters
+from udrobot_ctrl.dynamics.plant import plant_parameters
 
 CONTROLLED = (2, 3, 5, 6, 8, 9, 11)  # z phi psi u w p r
 
@@ -79,7 +79,7 @@ class LQRWeights:
 
 def trim_thrust(p, x_op) -> np.ndarray:
     """Thrusts (N) whose wrench balances damping, Coriolis and restoring forces at ``x_op`` (least squares)."""
-    from udrobot_ctrl.plant import generalized_forces
+    from udrobot_ctrl.dynamics.plant import generalized_forces
 
     return np.linalg.lstsq(p.T, generalized_forces(np.asarray(x_op, float), p), rcond=None)[0]
 
@@ -88,7 +88,7 @@ def linearise(p, x_op):
     """(A, B, f_trim): continuous linearisation of the thrust-input plant at ``x_op`` (casadi, exact)."""
     import casadi as ca
 
-    from udrobot_ctrl.plant_casadi import dynamics_function
+    from udrobot_ctrl.dynamics.plant_casadi import dynamics_function
 
     f = dynamics_function(p, "thrust")
     x = ca.SX.sym("x", 12)
@@ -170,7 +170,7 @@ def mission_metrics(res, mission: DepthHeadingMission, f_min, f_max, rho: float 
       steps (``t_final`` when not settled; ``unsettled`` counts such responses, 0-2 per vehicle);
     * ``iae_speed`` (m): integral of |u - surge_mps|; ``speed_error`` (m/s): final u - surge_mps;
     * ``energy`` (J): *estimated* electrical energy of the applied thrusts with the T-200 power fit of
-      :func:`udrobot_ctrl.metrics.thrust_power` (same definition as the missions' ``energy_J``); when that
+      :func:`udrobot_ctrl.control.metrics.thrust_power` (same definition as the missions' ``energy_J``); when that
       module is absent, the ideal actuator-disk energy sum_i |f_i|^1.5 / sqrt(2 rho A_disk) (a lower bound);
     * ``thrust_effort`` (N^2 s): integral of sum_i f_i^2;
     * ``saturation`` (-): fraction of control steps with a thruster saturated;
@@ -193,7 +193,7 @@ def mission_metrics(res, mission: DepthHeadingMission, f_min, f_max, rho: float 
     ts_psi, ok_psi = _settling_time(t, e_psi, mission.settle_band * abs(mission.heading_rad))
     f = np.clip(res.u, f_min, f_max)
     try:
-        from udrobot_ctrl.metrics import thrust_power
+        from udrobot_ctrl.control.metrics import thrust_power
 
         power = np.sum(thrust_power(f), axis=-1)
     except ImportError:

@@ -11,7 +11,7 @@ import pytest
 
 from udrobot_ctrl.gap.effects import EFFECT_NAMES
 from udrobot_ctrl.gap.report import diagnose
-from udrobot_ctrl.runlog import write
+from udrobot_ctrl.io.runlog import write
 
 from .truth import generate, random_magnitudes
 

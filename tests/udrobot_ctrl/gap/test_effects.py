@@ -2,8 +2,8 @@
 import numpy as np
 import pytest
 
+from udrobot_ctrl.dynamics.plant import plant_parameters, rotation_zyx
 from udrobot_ctrl.gap.effects import cable_direction, catalogue
-from udrobot_ctrl.plant import plant_parameters, rotation_zyx
 from udrobot_ctrl.vehicle import load_model
 
 

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from udrobot_ctrl.plant import (
+from udrobot_ctrl.dynamics.plant import (
     coriolis_centripetal,
     generalized_forces,
     kinematics,
@@ -29,7 +29,7 @@ from udrobot_ctrl.plant import (
     restoring_forces,
     rotation_zyx,
 )
-from udrobot_ctrl.runlog import Run
+from udrobot_ctrl.io.runlog import Run
 from udrobot_ctrl.vehicle import load_model
 
 RHO = 1000.0
@@ -238,7 +238,7 @@ def generate(effects=None, n_runs=3, duration=90.0, rate=20.0, seed=0, model="pe
              wall_distance=None, noise_scale=1.0):
     """Simulate ``n_runs`` closed-loop pool runs with the withheld ``effects`` (name -> params dict).
 
-    Returns a list of :class:`udrobot_ctrl.runlog.Run` (thrust_i inputs, noisy sensors, sidecar metadata
+    Returns a list of :class:`udrobot_ctrl.io.runlog.Run` (thrust_i inputs, noisy sensors, sidecar metadata
     with the seabed depth and the wall) -- the diagnoser sees nothing else.
     """
     rng = np.random.default_rng(seed)

@@ -7,7 +7,7 @@ from scipy.spatial.transform import Rotation
 
 from udrobot_ctrl.io import LogImportError, convert_log, load_any
 from udrobot_ctrl.io.rosbag import MAVROS_MSGS
-from udrobot_ctrl.runlog import read_run, write
+from udrobot_ctrl.io.runlog import read_run, write
 
 A = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])  # ENU <-> NED
 B = np.diag([1.0, -1.0, -1.0])  # FLU <-> FRD

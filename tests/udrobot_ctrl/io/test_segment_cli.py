@@ -9,8 +9,8 @@ import pytest
 
 from udrobot_ctrl.cli import main
 from udrobot_ctrl.io import convert_log
+from udrobot_ctrl.io.runlog import read_run
 from udrobot_ctrl.io.segment import find_launches
-from udrobot_ctrl.runlog import read_run
 
 T0 = 1_700_000_000.0
 SHARED = Path(__file__).resolve().parents[3] / ".." / "shared"

@@ -4,7 +4,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from udrobot_ctrl import plant
+from udrobot_ctrl.dynamics import plant
 from udrobot_ctrl.sensitivity.batch import batch_plant, state_derivative
 from udrobot_ctrl.sensitivity.evaluators import TerminalSurgeSpeed
 from udrobot_ctrl.sensitivity.local import local_sensitivity

@@ -85,8 +85,8 @@ def test_cli_morris_writes_tables_and_resume_runs_nothing_new(tmp_path, capsys):
 
 
 def test_missions_backend_runs_the_toolbox_linear_mpc_per_sample():
-    missions = pytest.importorskip("udrobot_ctrl.missions")
-    pytest.importorskip("udrobot_ctrl.mpc")
+    missions = pytest.importorskip("udrobot_ctrl.control.missions")
+    pytest.importorskip("udrobot_ctrl.control.mpc")
     short = missions.Mission("sens-test", 6.0, initial={"z": 0.5, "psi": 0.0, "u": 0.0},
                              steps=(missions.ReferenceStep("u", 0.5, 0.5), missions.ReferenceStep("z", 3.0, 1.0)))
     space = default_space("cfd:morison").subset(["surge.CD"])

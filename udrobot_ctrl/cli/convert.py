@@ -1,0 +1,51 @@
+"""``udrobot-ctrl convert IN --mapping MAP --out RUN.csv``: a ROS bag, MAVLink/dataflash log or rostopic CSV
+to a ``udrobot-run/1`` run, optionally cut into free-decay launches for identification."""
+from __future__ import annotations
+
+from pathlib import Path
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser("convert", help="convert a bag / .tlog / .bin / rostopic CSV to udrobot-run/1",
+                              description=__doc__)
+    p.add_argument("input", help="log: .bag, .mcap, .db3, ROS 2 bag directory, .tlog, .bin, rostopic echo -p .csv")
+    p.add_argument("--mapping", help="mapping TOML file or shipped name (ardusub, bluerov2-mavros, tartan-auv); "
+                                     "default: bluerov2-mavros for bags, ardusub for .tlog/.bin")
+    p.add_argument("--out", help="output udrobot-run/1 CSV (sidecar JSON written next to it)")
+    p.add_argument("--force", action="store_true", help="replace an existing output file")
+    p.add_argument("--allow-missing-inputs", action="store_true",
+                   help="write nan input columns when the log has no commands (e.g. a launch test)")
+    p.add_argument("--segment", metavar="CHANNEL",
+                   help="also cut free-decay launches from this channel (e.g. theta for a pendulum, y for a spring)")
+    p.add_argument("--segment-column", choices=("theta", "y"), help="column name in the launch CSVs "
+                                                                     "(default: theta for angles, else y)")
+    p.add_argument("--segment-dir", help="directory for STEM_launchK.csv (default: next to --out)")
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    from udrobot_ctrl.io.runlog import write
+
+    from udrobot_ctrl.io import convert_log
+    from udrobot_ctrl.io.segment import find_launches, write_launches
+
+    if not args.out and not args.segment:
+        raise ValueError("nothing to do: give --out RUN.csv and/or --segment CHANNEL")
+    run_ = convert_log(args.input, args.mapping, require_inputs=not args.allow_missing_inputs)
+    print(f"{args.input}: {run_.n} samples, {run_.duration:.3f} s, dt {run_.dt_median * 1e3:.2f} ms, "
+          f"channels {', '.join(run_.channels) or 'none'}, inputs {run_.input_kind} x{run_.inputs.shape[1]}")
+    if args.out:
+        path = write(run_, args.out, overwrite=args.force)
+        print(f"wrote {path} and {Path(path).with_suffix('.json')}")
+    if args.segment:
+        y = run_.channel(args.segment)
+        column = args.segment_column or ("theta" if args.segment in ("phi", "theta", "psi") else "y")
+        launches = find_launches(run_.t, y)
+        if not launches:
+            raise ValueError(f"{args.input}: no launch (hold then release) found in channel '{args.segment}'")
+        out_dir = args.segment_dir or (Path(args.out).parent if args.out else Path("."))
+        stem = Path(args.out).stem if args.out else Path(args.input).stem
+        for launch, path in zip(launches, write_launches(run_.t, y, launches, out_dir, stem, column)):
+            print(f"launch at t = {launch.t_release:.3f} s, amplitude {launch.amplitude:.4g}, "
+                  f"{launch.stop - launch.start} samples -> {path}")
+    return 0

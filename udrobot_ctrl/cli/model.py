@@ -1,0 +1,75 @@
+"""``udrobot-ctrl model export|show``: write a plant as ``udrobot-model/1`` JSON, or summarise it."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from udrobot_ctrl.vehicle import DOF_NAMES, MODEL_NAMES, load_model, write_model_file
+
+
+def register(subparsers):
+    """Add ``model`` with sub-commands ``export`` and ``show``."""
+    parser = subparsers.add_parser("model", help="export or show a plant model (udrobot-model/1)")
+    sub = parser.add_subparsers(dest="model_command", required=True)
+    exp = sub.add_parser("export", help="write the model as udrobot-model/1 JSON (with provenance)")
+    exp.add_argument("--model", required=True, help=f"model name ({', '.join(MODEL_NAMES)}) or model file")
+    exp.add_argument("--out", required=True, help="output JSON file")
+    exp.add_argument("--force", action="store_true", help="replace an existing output file")
+    exp.set_defaults(func=run_export)
+    show = sub.add_parser("show", help="print a summary of the model")
+    show.add_argument("--model", required=True, help=f"model name ({', '.join(MODEL_NAMES)}) or model file")
+    show.set_defaults(func=run_show)
+    parser.set_defaults(func=run)
+
+
+def run(args) -> int:
+    """Dispatch (argparse sets ``func`` of the chosen sub-command, this is only a fallback)."""
+    return run_show(args) if getattr(args, "model_command", None) == "show" else run_export(args)
+
+
+def run_export(args) -> int:
+    """Write ``args.model`` to ``args.out`` atomically; refuses to overwrite without ``--force``."""
+    vehicle = load_model(args.model)
+    out = Path(args.out)
+    if out.exists() and not getattr(args, "force", False):
+        raise ValueError(f"{out} exists; pass --force to replace it")
+    if out.exists() and Path(str(args.model)).exists() and out.resolve() == Path(str(args.model)).resolve():
+        raise ValueError(f"{out} is the input model file; choose another output")
+    write_model_file(vehicle, out)
+    print(f"wrote {out} ({vehicle.name}, udrobot-model/1)")
+    return 0
+
+
+def summary(vehicle) -> str:
+    """Human-readable summary: masses, restoring, diagonal hydrodynamics, thrusters, actuated DOFs, provenance."""
+    from udrobot_ctrl.dynamics.plant import plant_parameters
+    from udrobot_ctrl.dynamics.thrusters import actuated_dofs
+
+    p = plant_parameters(vehicle)
+    lines = [f"model {vehicle.name}", f"  mass {vehicle.mass:.3f} kg, weight {vehicle.weight:.2f} N, "
+             f"buoyancy {vehicle.buoyancy:.2f} N (net {vehicle.buoyancy - vehicle.weight:+.2f} N up)",
+             f"  r_g {np.round(vehicle.r_g, 4).tolist()} m, r_b {np.round(vehicle.r_b, 4).tolist()} m"]
+    fmt = "  {:<3}" + " {:>11}" * 4
+    lines.append(fmt.format("DOF", "M_total", "M_A", "D_L", "Q"))
+    for i, name in enumerate(DOF_NAMES):
+        lines.append(fmt.format(name, f"{p.M[i, i]:.4g}", f"{vehicle.added_mass[i, i]:.4g}",
+                                f"{p.D_L[i, i]:.4g}", f"{p.Q[i, i]:.4g}"))
+    for t in vehicle.thrusters:
+        lines.append(f"  thruster {t.name}: position {list(t.position)} m, direction {list(t.direction)}, "
+                     f"+{t.max_forward_N:g} / -{t.max_reverse_N:g} N")
+    rep = actuated_dofs(p.T)
+    coupled = getattr(rep, "coupled", ())
+    lines.append(f"  actuated DOFs: {', '.join(rep.actuated) or 'none'} (thruster matrix rank {rep.rank}); "
+                 + (f"coupled only: {', '.join(coupled)}; " if coupled else "")
+                 + f"passive: {', '.join(rep.passive) or 'none'}")
+    lines.append("  provenance:")
+    for key, val in sorted(vehicle.provenance.items()):
+        lines.append(f"    {key}: {val}")
+    return "\n".join(lines)
+
+
+def run_show(args) -> int:
+    """Print :func:`summary` of ``args.model``."""
+    print(summary(load_model(args.model)))
+    return 0

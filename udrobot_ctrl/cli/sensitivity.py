@@ -1,0 +1,194 @@
+"""``udrobot-ctrl sensitivity``: which coefficient matters for my controller?
+
+Examples::
+
+    udrobot-ctrl sensitivity --model cfd:morison --controller lqr --method local --out sens_local
+    udrobot-ctrl sensitivity --model pendulum:chin --method sobol --samples 256 --workers 2 --out sens_sobol
+    udrobot-ctrl sensitivity --method sobol --samples 1024 --scheduler tcp://10.0.0.5:8786 --out s --resume
+    udrobot-ctrl sensitivity --method morris --samples 20 --params surge.CD,heave.CD,heave.added_mass \\
+        --range surge.CD=1.2:2.6
+"""
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+
+METHODS = ("local", "sobol", "morris", "montecarlo")
+
+
+def register(subparsers):
+    p = subparsers.add_parser("sensitivity", help="local / Sobol / Morris sensitivity of closed-loop metrics "
+                              "to the hydrodynamic coefficients", description=__doc__.splitlines()[0])
+    p.add_argument("--model", default="cfd:morison", help="nominal (and design) model: SET:FORM or a model file")
+    p.add_argument("--controller", default="lqr", choices=("lqr", "pid", "mpc", "lmpc", "nmpc"))
+    p.add_argument("--method", default="local", choices=METHODS)
+    p.add_argument("--samples", type=int, default=None,
+                   help="sobol: base sample N (power of 2; N(d+2) runs, default 256); morris: trajectories "
+                        "(r(d+1) runs, default 20); montecarlo: runs (default 500); local: ignored (1 + 6d runs)")
+    p.add_argument("--workers", type=int, default=None, help="local worker processes (default: all CPUs; 1 = serial)")
+    p.add_argument("--scheduler", default=None, help="dask scheduler address (tcp://HOST:PORT) instead of local "
+                   "processes")
+    p.add_argument("--out", default=None, help="study directory (tables, plots); resumable")
+    p.add_argument("--resume", action="store_true", help="continue the study in --out, computing missing runs only")
+    p.add_argument("--params", default=None, help="comma-separated parameters to vary (default: all)")
+    p.add_argument("--range", action="append", default=[], metavar="NAME=LOW:HIGH", help="override a range")
+    p.add_argument("--ranges", default=None, metavar="FILE.toml",
+                   help="study file: parameters = [...] and a [ranges] table NAME = [low, high]")
+    p.add_argument("--margin", type=float, default=0.10, help="widening of the min..max spread of the sets (0.10)")
+    p.add_argument("--no-rotational", action="store_true", help="leave the rotational scale factors out")
+    p.add_argument("--redesign", action="store_true", help="redesign the controller on every perturbed model")
+    p.add_argument("--backend", default="auto", choices=("auto", "batch", "missions"),
+                   help="batch: vectorised depth-and-heading mission (lqr, pid, mpc); missions: one run per sample "
+                        "via udrobot_ctrl.control.missions (any controller); auto: batch unless nmpc")
+    p.add_argument("--surge", type=float, default=0.5, help="mission cruise speed, m/s (0.5)")
+    p.add_argument("--depth", type=float, default=1.0, help="mission depth step, m (1.0)")
+    p.add_argument("--heading", type=float, default=90.0, help="mission heading step, deg (90)")
+    p.add_argument("--duration", type=float, default=20.0, help="mission duration, s (20)")
+    p.add_argument("--dt", type=float, default=None,
+                   help="integration step, s (batch: 0.04, also the LQR/PID control step; missions: 0.02)")
+    p.add_argument("--control-dt", type=float, default=0.05, help="missions backend: controller step, s (0.05)")
+    p.add_argument("--full-mission", action="store_true",
+                   help="missions backend: the full 46 s standard mission instead of the quick 23 s one")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--rank", action="store_true", help="sobol: indices of the metrics' ranks (robust to the few "
+                   "runs that lose control)")
+    p.add_argument("--plot", action="store_true", help="write tornado / index plots into --out")
+    p.add_argument("--top", type=int, default=5, help="parameters listed per metric (5)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=run)
+
+
+def build_space(args):
+    """The parameter space of the CLI arguments (model, margin, subset, user ranges)."""
+    from udrobot_ctrl.sensitivity.parameters import default_space, parse_range, read_study_file
+
+    space = default_space(args.model, margin=args.margin, rotational=not args.no_rotational)
+    ranges, names = {}, None
+    if args.ranges:
+        doc = read_study_file(args.ranges)
+        ranges.update(doc["ranges"])
+        names = doc["parameters"]
+    for text in args.range:
+        k, v = parse_range(text)
+        ranges[k] = v
+    if ranges:
+        space = space.with_ranges(ranges)
+    if args.params:
+        names = [n.strip() for n in args.params.split(",") if n.strip()]
+    if names:
+        space = space.subset(names)
+    return space
+
+
+def build_evaluator(args, space):
+    from udrobot_ctrl.sensitivity.evaluators import MissionEvaluator
+    from udrobot_ctrl.sensitivity.mission import DepthHeadingMission
+
+    if args.backend == "missions" or (args.backend == "auto" and args.controller == "nmpc"):
+        from udrobot_ctrl.control.missions import standard_mission
+
+        mission = standard_mission(quick=not args.full_mission)
+        return MissionEvaluator(space, controller=args.controller, mission=mission, redesign=args.redesign,
+                                backend="missions", sim_dt=args.dt or 0.02, control_dt=args.control_dt)
+    mission = DepthHeadingMission(depth_m=args.depth, heading_rad=np.radians(args.heading), surge_mps=args.surge,
+                                  t_final=args.duration, dt=args.dt or 0.04)
+    return MissionEvaluator(space, controller=args.controller, mission=mission, redesign=args.redesign,
+                            backend=args.backend)
+
+
+def run(args) -> int:
+    from udrobot_ctrl.sensitivity.executor import SweepExecutor
+    from udrobot_ctrl.sensitivity.global_ import run_monte_carlo, run_morris, run_sobol
+    from udrobot_ctrl.sensitivity.local import local_sensitivity
+
+    if args.resume and not args.out:
+        raise ValueError("--resume needs --out (the study directory to continue)")
+    if args.out and Path(args.out).exists() and any(Path(args.out).iterdir()) and not args.resume \
+            and (Path(args.out) / "study.json").exists():
+        raise ValueError(f"{args.out} already holds a study; pass --resume or choose another --out")
+    space = build_space(args)
+    evaluator = build_evaluator(args, space)
+    progress = not args.quiet
+    print(f"sensitivity: {args.method} of {args.controller} on {space.vehicle.name} ({space.form} form), "
+          f"{len(space)} parameters")
+    t0 = time.perf_counter()
+    with SweepExecutor(workers=args.workers, scheduler=args.scheduler) as ex:
+        print(f"executor: {ex.describe()}")
+        if args.method == "local":
+            res = local_sensitivity(evaluator, space, executor=ex, out=args.out, resume=args.resume,
+                                    progress=progress)
+        elif args.method == "sobol":
+            res = run_sobol(evaluator, space, args.samples or 256, executor=ex, out=args.out, resume=args.resume,
+                            seed=args.seed, progress=progress, transform="rank" if args.rank else None)
+        elif args.method == "montecarlo":
+            res = run_monte_carlo(evaluator, space, args.samples or 500, executor=ex, out=args.out,
+                                  resume=args.resume, seed=args.seed, progress=progress)
+        else:
+            res = run_morris(evaluator, space, args.samples or 20, executor=ex, out=args.out, resume=args.resume,
+                             seed=args.seed, progress=progress)
+    wall = time.perf_counter() - t0
+    print(f"{res.n_runs} closed-loop runs in {wall:.1f} s")
+    print(summary_text(res, args.method, args.top))
+    if args.out:
+        out = Path(args.out)
+        (out / "space.json").write_text(json.dumps(space.to_records(), indent=2))
+        if args.plot and args.method != "montecarlo":
+            write_plots(res, args.method, out)
+        print(f"tables in {out.resolve()}")
+    return 0
+
+
+KEY_METRICS = ("iae_depth", "iae_heading", "iae_speed", "speed_error", "overshoot_depth", "settling_depth",
+               "settling_heading", "energy", "saturation", "max_speed", "max_pitch", "lost_control",
+               # names of udrobot_ctrl.control.metrics (missions backend)
+               "iae", "iae_z", "iae_psi", "iae_u", "overshoot_z", "settling_z_s", "settling_psi_s", "energy_J",
+               "saturation_s", "max_pitch_deg", "final_error_u")
+
+
+def summary_text(res, method: str, top: int = 5) -> str:
+    """Most influential parameters per metric, as text."""
+    lines = ["  (indices say what drives the variance; the sd says whether that variance matters)"] \
+        if method == "sobol" else []
+    if method == "montecarlo":
+        for m, s in res.summary.items():
+            lines.append(f"  {m:<18} mean {s['mean']:.4g}  p5 {s['p5']:.4g}  p50 {s['p50']:.4g}  p95 {s['p95']:.4g}"
+                         + (f"  [{s['failed']} failed]" if s["failed"] else ""))
+        return "\n".join(lines)
+    metrics = [m for m in KEY_METRICS if m in res.metrics] + [m for m in res.metrics if m not in KEY_METRICS]
+    for m in metrics:
+        names = res.ranking(m)[:top]
+        if method == "local":
+            eff = dict(zip(res.names, res.range_effect(m)))
+            items = ", ".join(f"{n} {eff[n]:+.3g}" for n in names)
+            lines.append(f"  {m:<18} nominal {res.base[m]:.4g}; swing over range: {items}")
+        elif method == "sobol":
+            st = dict(zip(res.names, res.indices[m]["ST"]))
+            ci = dict(zip(res.names, res.indices[m]["ST_conf"]))
+            items = ", ".join(f"{n} ST {st[n]:.2f}+-{ci[n]:.2f}" for n in names)
+            y = np.asarray(res.table[m], float)
+            spread = f"sd {np.nanstd(y):.3g} (p5..p95 {np.nanpercentile(y, 5):.3g}..{np.nanpercentile(y, 95):.3g})"
+            lines.append(f"  {m:<18} {spread}: {items}"
+                         + (f"  [{res.failed[m]} failed runs]" if res.failed.get(m) else ""))
+        else:
+            mu = dict(zip(res.names, res.indices[m]["mu_star"]))
+            ci = dict(zip(res.names, res.indices[m]["mu_star_conf"]))
+            items = ", ".join(f"{n} mu* {mu[n]:.3g}+-{ci[n]:.2g}" for n in names)
+            lines.append(f"  {m:<18} {items}")
+    return "\n".join(lines)
+
+
+def write_plots(res, method: str, out: Path) -> list:
+    import matplotlib.pyplot as plt
+
+    from udrobot_ctrl.sensitivity.plots import sobol_bars, tornado
+
+    paths = []
+    for m in [k for k in KEY_METRICS if k in res.metrics]:
+        path = out / f"{method}_{m}.png"
+        fig = tornado(res, m, path=path) if method == "local" else sobol_bars(res, m, path=path)
+        plt.close(fig)
+        paths.append(path)
+    return paths

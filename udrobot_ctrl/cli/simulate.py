@@ -1,0 +1,155 @@
+"""``udrobot-ctrl simulate``: replay a run's commanded inputs through the plant and write the simulated run.
+
+Inputs are held (zero-order hold) on the run's own timestamps, which may be non-uniform: each interval
+[t_k, t_k+1) is integrated with RK4 sub-steps of at most ``--max-step`` (0.01 s), or with ``solve_ivp``.
+The initial state is the first row's measured state (missing channels -> 0, with a warning).
+"""
+from __future__ import annotations
+
+import sys
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+from udrobot_ctrl.dynamics.plant import plant_parameters, state_derivative
+from udrobot_ctrl.dynamics.sim import rk4_step
+from udrobot_ctrl.vehicle import MODEL_NAMES, STATE_NAMES, load_model
+
+DEFAULT_VOLTAGE = 12.0  # V, Cely 2019 sec. 3.1 nominal supply (used when the run has no voltage column)
+
+
+def register(subparsers):
+    """Add the ``simulate`` sub-command."""
+    parser = subparsers.add_parser("simulate", help="replay a run's commanded inputs through the plant model")
+    parser.add_argument("--model", required=True, help=f"model name ({', '.join(MODEL_NAMES)}) or model file")
+    parser.add_argument("--input", required=True, help="run to replay (udrobot-run/1 CSV or a log io can convert)")
+    parser.add_argument("--out", required=True, help="simulated run to write (udrobot-run/1 CSV)")
+    parser.add_argument("--method", choices=("rk4", "solve_ivp"), default="rk4")
+    parser.add_argument("--max-step", type=float, default=0.01, help="largest RK4 sub-step, s (default 0.01)")
+    parser.add_argument("--mapping", default=None, help="mapping for non-udrobot-run logs (see convert)")
+    parser.set_defaults(func=run)
+
+
+def read_input_run(path, mapping=None):
+    """A Run from a udrobot-run/1 CSV (runlog.read_run) or any log udrobot_ctrl.io.load_any understands."""
+    from udrobot_ctrl.io import runlog
+
+    path = Path(path)
+    if path.suffix.lower() == ".csv":
+        try:
+            return runlog.read_run(path)
+        except runlog.RunLogError:
+            if mapping is None:
+                raise
+    from udrobot_ctrl.io import load_any
+
+    return load_any(path, mapping=mapping)
+
+
+def initial_state(run) -> np.ndarray:
+    """First row's state (12,), missing or nan channels set to 0 with a warning naming them."""
+    x0 = np.array(run.state_matrix()[0], dtype=float)
+    missing = [STATE_NAMES[i] for i in range(12) if not np.isfinite(x0[i])]
+    if missing:
+        warnings.warn(f"{run.path or 'run'}: first row has no {', '.join(missing)}; starting them at 0",
+                      stacklevel=2)
+        x0[~np.isfinite(x0)] = 0.0
+    return x0
+
+
+def input_wrenches(run, p) -> tuple:
+    """Per-row body wrench (n, 6) N, N m, and the thrusts (n, n_thr) N (None for tau inputs).
+
+    ``pwm`` inputs are mapped by the T-200 curve at the row's ``voltage`` channel (12 V when absent or nan);
+    thrusts are clipped to each thruster's forward/reverse limit.
+    """
+    kind, u = run.input_kind, np.asarray(run.inputs, dtype=float)
+    if not np.all(np.isfinite(u)):
+        bad = np.argwhere(~np.isfinite(u))[0]
+        raise ValueError(f"{run.path or 'run'}: row {bad[0] + 1}: input {run.input_names[bad[1]]} is not finite")
+    if kind == "tau":
+        return u, None
+    n_thr = p.T.shape[1]
+    if u.shape[1] != n_thr:
+        raise ValueError(f"{run.path or 'run'}: {u.shape[1]} {kind} columns but the model has {n_thr} thrusters")
+    if kind == "pwm":
+        from udrobot_ctrl.dynamics.thrusters import pwm_to_thrust
+
+        volts = run.channels.get("voltage")
+        volts = np.full(run.n, DEFAULT_VOLTAGE) if volts is None else np.where(np.isfinite(volts), volts,
+                                                                               DEFAULT_VOLTAGE)
+        u = np.array([pwm_to_thrust(u[k], float(volts[k])) for k in range(run.n)])
+    elif kind != "thrust":
+        raise ValueError(f"{run.path or 'run'}: unknown input kind {kind!r}")
+    f = np.clip(u, p.f_min, p.f_max)
+    return f @ p.T.T, f
+
+
+def replay(model, t, x0, tau, method: str = "rk4", max_step: float = 0.01) -> np.ndarray:
+    """States (n, 12) at times ``t`` (n,) from ``x0`` with ``tau[k]`` held on [t_k, t_k+1).
+
+    Raises
+    ------
+    FloatingPointError
+        If the state becomes non-finite (naming the time).
+    """
+    p = model if hasattr(model, "M_inv") else plant_parameters(load_model(model))
+    t = np.asarray(t, float)
+    xs = np.empty((len(t), 12))
+    x = np.asarray(x0, float).copy()
+    xs[0] = x
+    for k in range(len(t) - 1):
+        h = t[k + 1] - t[k]
+        if method == "rk4":
+            m = max(1, int(np.ceil(h / max_step - 1e-9)))
+            for _ in range(m):
+                x = rk4_step(p, x, tau[k], h / m)
+        elif method == "solve_ivp":
+            from scipy.integrate import solve_ivp
+
+            sol = solve_ivp(lambda _t, xx, tk=tau[k]: state_derivative(xx, tk, p), (t[k], t[k + 1]), x,
+                            rtol=1e-8, atol=1e-10)
+            if not sol.success:
+                raise FloatingPointError(f"solve_ivp failed on [{t[k]:.4f}, {t[k + 1]:.4f}] s: {sol.message}")
+            x = sol.y[:, -1]
+        else:
+            raise ValueError(f"method must be 'rk4' or 'solve_ivp', got {method!r}")
+        if not np.all(np.isfinite(x)):
+            raise FloatingPointError(f"simulation diverged at t = {t[k + 1]:.4f} s")
+        xs[k + 1] = x
+    return xs
+
+
+def run(args) -> int:
+    """Replay ``args.input`` through ``args.model`` and write ``args.out``."""
+    from udrobot_ctrl.io import runlog
+
+    src, out = Path(args.input), Path(args.out)
+    if not src.exists():
+        raise FileNotFoundError(f"input run {src} does not exist")
+    if out.exists() and out.resolve() == src.resolve():
+        raise ValueError(f"--out {out} is the input file; refusing to overwrite the measured run")
+    if not args.max_step > 0:
+        raise ValueError(f"--max-step must be > 0, got {args.max_step}")
+    vehicle = load_model(args.model)
+    p = plant_parameters(vehicle)
+    rn = read_input_run(src, getattr(args, "mapping", None))
+    if rn.n < 2:
+        raise ValueError(f"{src}: need at least 2 rows to simulate, got {rn.n}")
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        x0 = initial_state(rn)
+    for w in caught:
+        print(f"udrobot-ctrl simulate: warning: {w.message}", file=sys.stderr)
+    tau, _ = input_wrenches(rn, p)
+    try:
+        xs = replay(p, rn.t, x0, tau, args.method, args.max_step)
+    except FloatingPointError as exc:
+        raise ValueError(f"{src} with model {vehicle.name}: {exc}") from exc
+    channels = {name: xs[:, i] for i, name in enumerate(STATE_NAMES)}
+    if "voltage" in rn.channels:
+        channels["voltage"] = rn.channels["voltage"]
+    runlog.write_run(out, rn.t, channels, rn.input_kind, rn.inputs)
+    print(f"wrote {out}: {rn.n} rows, {rn.duration:.3f} s simulated with {vehicle.name} ({args.method})")
+    return 0

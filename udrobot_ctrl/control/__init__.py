@@ -1,0 +1,1 @@
+"""Control design on the plant: linearisation, LQR, PID, MPC, EKF, missions, metrics, compare."""

@@ -1,0 +1,372 @@
+"""``udrobot-ctrl compare``: design on model A, fly on plant B, for every pair of the five models.
+
+For every pair (design model A, plant B) the standard mission (:func:`udrobot_ctrl.control.missions.standard_mission`:
+depth step 0.5 -> 1.5 m, heading 0 -> 90 deg, surge transit at 0.5 m/s and stop; ``--quick`` compresses it
+to 23 s) is flown on B by each controller designed on A (``lqr``, ``pid``, ``lmpc``, ``nmpc``; see
+:func:`udrobot_ctrl.control.missions.make_controller`), and scored by
+:func:`udrobot_ctrl.control.metrics.mission_metrics`:
+``iae`` (weighted total, s), ``overshoot`` (% of the depth step), ``settling_s`` (depth step, 2 % band; null
+when it does not settle before the next manoeuvre), ``energy_J`` (estimated T-200 electrical energy),
+``saturation_s`` (time with a thruster at a limit). A controller whose module is missing (the MPCs live in
+:mod:`udrobot_ctrl.control.mpc`) or whose run fails keeps its rows with null metrics and a recorded reason.
+
+Estimation: for each plant B one data set is made by flying B with the LQR designed on B; the EKF
+(:func:`udrobot_ctrl.control.ekf.ekf_on_trajectory`) built on model A filters B's simulated sensors (pressure
+depth, IMU, DVL); reported: RMSE of z (m), psi (rad), u (m/s) and the mean NIS.
+
+Pairs run in a ``concurrent.futures`` process pool (``--workers``, default 2). Outputs: the ``--json`` file
+holds exactly ``{"models", "results": [{design, plant, controller, iae, overshoot, settling_s, energy_J,
+saturation_s}], "ekf": [{filter_model, plant, rmse: {z, psi, u}, nis_mean}]}``; ``--out DIR`` gets
+``compare.csv``, ``compare_ekf.csv``, ``compare.txt`` (readable tables, with skip/failure reasons),
+``compare_full.json`` (every metric) and plots (IAE matrices, mission trajectories, EKF RMSE matrix).
+"""
+from __future__ import annotations
+
+import json
+import os
+import time
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+import numpy as np
+
+from udrobot_ctrl.control.missions import CONTROLLER_KINDS, standard_mission
+from udrobot_ctrl.vehicle import MODEL_NAMES
+
+RESULT_KEYS = ("design", "plant", "controller", "iae", "overshoot", "settling_s", "energy_J", "saturation_s")
+DETAIL_KEYS = ("iae_z", "iae_psi", "iae_u", "overshoot_psi", "settling_psi_s", "overshoot_u", "settling_u_s",
+               "max_roll_deg", "max_pitch_deg", "max_sway_mps")
+EKF_STATES = ("z", "psi", "u")
+SIM_DT = 0.01  # s, RK4 step
+CONTROL_DT = 0.05  # s, controller period
+EKF_DT = 0.05  # s, filter period
+
+
+def controller_available(kind: str):
+    """(True, '') if the controller's module imports, else (False, reason)."""
+    if kind in ("lmpc", "nmpc"):
+        try:
+            from udrobot_ctrl.control import mpc
+
+            getattr(mpc, "LinearMPC" if kind == "lmpc" else "NonlinearMPC")
+        except Exception as exc:  # noqa: BLE001 - any import problem means "skip with a reason"
+            return False, f"udrobot_ctrl.control.mpc unavailable ({type(exc).__name__}: {exc})"
+    return True, ""
+
+
+def ekf_available():
+    try:
+        from udrobot_ctrl.control.ekf import ekf_on_trajectory  # noqa: F401
+    except Exception as exc:  # noqa: BLE001
+        return False, f"udrobot_ctrl.control.ekf unavailable ({type(exc).__name__}: {exc})"
+    return True, ""
+
+
+def _null_row(design, plant, kind, status):
+    row = {k: None for k in RESULT_KEYS}
+    row.update(design=design, plant=plant, controller=kind, status=status)
+    return row
+
+
+def _fly(kind, design, plant, mission):
+    """One controller run; returns (row with every metric, SimResult or None)."""
+    from udrobot_ctrl.control.metrics import mission_metrics
+    from udrobot_ctrl.control.missions import make_controller, run_mission
+    from udrobot_ctrl.dynamics.sim import as_parameters
+
+    t0 = time.perf_counter()
+    try:
+        ctrl = make_controller(kind, design, mission, control_dt=CONTROL_DT)
+        res = run_mission(ctrl, plant, mission, dt=SIM_DT, control_dt=CONTROL_DT)
+    except FloatingPointError as exc:
+        return _null_row(design, plant, kind, f"diverged: {exc}"), None
+    except Exception as exc:  # noqa: BLE001 - one failed design must not stop the matrix
+        return _null_row(design, plant, kind, f"failed: {type(exc).__name__}: {exc}"), None
+    p = as_parameters(plant)
+    m = mission_metrics(res, mission, p.f_min, p.f_max)
+    row = {"design": design, "plant": plant, "controller": kind}
+    for k in RESULT_KEYS[3:] + DETAIL_KEYS:
+        row[k] = m[k]
+    fb = getattr(res.controller, "fallbacks", 0)
+    row["status"] = "ok" if not fb else f"ok, {fb} controller fallbacks ({res.controller.last_error})"
+    row["wall_s"] = time.perf_counter() - t0
+    return row, res
+
+
+_EKF_DATA: dict = {}
+
+
+def _ekf_data(plant, mission):
+    """Plant B flown by the LQR designed on B: (t, x, u), cached per process."""
+    key = (plant, mission.name)
+    if key not in _EKF_DATA:
+        from udrobot_ctrl.control.missions import make_controller, run_mission
+
+        res = run_mission(make_controller("lqr", plant, mission, control_dt=CONTROL_DT), plant, mission,
+                          dt=SIM_DT, control_dt=CONTROL_DT)
+        _EKF_DATA[key] = (res.t, res.x, res.u)
+    return _EKF_DATA[key]
+
+
+def _estimate(design, plant, mission):
+    from udrobot_ctrl.control.ekf import ekf_on_trajectory
+
+    try:
+        t, x, u = _ekf_data(plant, mission)
+        out = ekf_on_trajectory(design, t, x, u, dt=EKF_DT, seed=0)
+        rmse = {s: float(out["rmse"][s]) for s in EKF_STATES}
+        return {"filter_model": design, "plant": plant, "rmse": rmse, "nis_mean": float(out["nis_mean"]),
+                "nis_per_dof": float(out.get("nis_per_dof", float("nan"))), "status": "ok"}
+    except Exception as exc:  # noqa: BLE001
+        return {"filter_model": design, "plant": plant, "rmse": {s: None for s in EKF_STATES}, "nis_mean": None,
+                "status": f"failed: {type(exc).__name__}: {exc}"}
+
+
+def _decimate(res, every=5):
+    """Plot-sized copy of a trajectory: (t, z, psi, u) every ``every`` samples."""
+    return {"t": res.t[::every], "z": res.x[::every, 2], "psi": res.x[::every, 5], "u": res.x[::every, 6]}
+
+
+def run_pair(design, plant, controllers, quick, with_ekf, keep_trajectory):
+    """All controllers (and the EKF) for one (design A, plant B) pair; worker function of the pool."""
+    mission = standard_mission(quick)
+    rows, trajs = [], {}
+    for kind in controllers:
+        ok, why = controller_available(kind)
+        if not ok:
+            rows.append(_null_row(design, plant, kind, f"skipped: {why}"))
+            continue
+        row, res = _fly(kind, design, plant, mission)
+        rows.append(row)
+        if keep_trajectory and res is not None:
+            trajs[(kind, design, plant)] = _decimate(res)
+    est = _estimate(design, plant, mission) if with_ekf else None
+    return rows, est, trajs
+
+
+def compare(models=MODEL_NAMES, controllers=CONTROLLER_KINDS, quick: bool = False, workers: int | None = 2,
+            keep_trajectories: bool = False, ekf: bool = True, t_final: float | None = None) -> dict:
+    """Run the (design A, plant B, controller) matrix and the EKF matrix.
+
+    Parameters
+    ----------
+    models : sequence of str
+        Model names (or files) used both as design models and as plants.
+    controllers : sequence of str
+        Subset of ``lqr``, ``pid``, ``lmpc``, ``nmpc``.
+    quick : bool
+        Short (23 s) mission instead of the full 46 s one.
+    workers : int or None
+        Processes of the pool (1 = run in this process).
+    keep_trajectories : bool
+        Keep decimated trajectories of the matched pairs (design == plant) for plots.
+    ekf : bool
+        Also run the EKF matrix (skipped with a reason if :mod:`udrobot_ctrl.control.ekf` is missing).
+    t_final : float, optional
+        Backwards-compatible switch: a value below the full mission's 46 s selects ``quick``.
+
+    Returns
+    -------
+    dict
+        ``models``, ``results`` (rows with the contract keys plus details and ``status``), ``ekf`` (rows),
+        ``skipped`` (name -> reason), ``mission`` (name and duration), ``wall_s``, and ``trajectories``
+        when asked.
+    """
+    models = list(models)
+    controllers = list(controllers)
+    bad = [c for c in controllers if c not in CONTROLLER_KINDS]
+    if bad:
+        raise ValueError(f"unknown controllers {bad}; expected a subset of {', '.join(CONTROLLER_KINDS)}")
+    if not models:
+        raise ValueError("no models given")
+    if t_final is not None:
+        quick = t_final < standard_mission(False).t_final
+    from udrobot_ctrl.dynamics.sim import as_parameters
+
+    for m in models:
+        as_parameters(m)  # fail early, naming the model, before starting the pool
+    skipped = {}
+    for c in controllers:
+        ok, why = controller_available(c)
+        if not ok:
+            skipped[c] = why
+    with_ekf = ekf
+    if ekf:
+        ok, why = ekf_available()
+        if not ok:
+            skipped["ekf"], with_ekf = why, False
+    pairs = [(a, b) for a in models for b in models]
+    t0 = time.perf_counter()
+    jobs = [(a, b, controllers, quick, with_ekf, keep_trajectories and a == b) for a, b in pairs]
+    if workers is None:
+        workers = min(2, os.cpu_count() or 1)
+    if workers <= 1 or len(jobs) == 1:
+        outs = [run_pair(*j) for j in jobs]
+    else:
+        import multiprocessing as mp
+
+        with ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn")) as pool:
+            outs = list(pool.map(run_pair, *zip(*jobs)))
+    rows, ekf_rows, trajs = [], [], {}
+    for r, e, tr in outs:
+        rows.extend(r)
+        if e is not None:
+            ekf_rows.append(e)
+        trajs.update(tr)
+    mission = standard_mission(quick)
+    out = {"models": models, "results": rows, "ekf": ekf_rows, "skipped": skipped,
+           "mission": {"name": mission.name, "t_final": mission.t_final}, "wall_s": time.perf_counter() - t0}
+    if keep_trajectories:
+        out["trajectories"] = trajs
+    return out
+
+
+def _finite(v):
+    """JSON-safe value: non-finite floats become None (null); dicts/lists recursively."""
+    if isinstance(v, dict):
+        return {k: _finite(x) for k, x in v.items()}
+    if isinstance(v, (list, tuple)):
+        return [_finite(x) for x in v]
+    if isinstance(v, (float, np.floating)):
+        return float(v) if np.isfinite(v) else None
+    return v
+
+
+def contract_json(result) -> dict:
+    """The ``--json`` document: exactly models, results and ekf with the contract keys (NaN -> null)."""
+    return _finite({"models": list(result["models"]),
+            "results": [{k: r.get(k) for k in RESULT_KEYS} for r in result["results"]],
+            "ekf": [{"filter_model": e["filter_model"], "plant": e["plant"], "rmse": dict(e["rmse"]),
+                     "nis_mean": e["nis_mean"]} for e in result["ekf"]]})
+
+
+def _f(v, fmt):
+    return "-" if v is None or (isinstance(v, float) and not np.isfinite(v)) else format(v, fmt)
+
+
+def text_table(results, ekf_rows=()) -> str:
+    """Readable fixed-width tables of the controller rows (and the EKF rows)."""
+    hdr = (f"{'ctrl':<5} {'design A':<19} {'plant B':<19} {'IAE s':>7} {'OS %':>6} {'Ts s':>6} {'E kJ':>6} "
+           f"{'sat s':>6} {'pitch':>6}  status")
+    lines = [hdr, "-" * len(hdr)]
+    for r in results:
+        e = r.get("energy_J")
+        lines.append(f"{r['controller']:<5} {r['design']:<19} {r['plant']:<19} {_f(r.get('iae'), '7.3f')} "
+                     f"{_f(r.get('overshoot'), '6.1f')} {_f(r.get('settling_s'), '6.2f')} "
+                     f"{_f(None if e is None else e / 1000, '6.2f')} {_f(r.get('saturation_s'), '6.2f')} "
+                     f"{_f(r.get('max_pitch_deg'), '6.1f')}  {r.get('status', '')[:60]}")
+    if ekf_rows:
+        h2 = f"\n{'EKF model A':<19} {'plant B':<19} {'z m':>8} {'psi rad':>8} {'u m/s':>8} {'NIS':>7}  status"
+        lines += [h2, "-" * len(h2)]
+        for e in ekf_rows:
+            rm = e["rmse"]
+            lines.append(f"{e['filter_model']:<19} {e['plant']:<19} {_f(rm['z'], '8.4f')} {_f(rm['psi'], '8.4f')} "
+                         f"{_f(rm['u'], '8.4f')} {_f(e['nis_mean'], '7.2f')}  {e.get('status', '')[:60]}")
+    return "\n".join(lines)
+
+
+def _write_atomic(path: Path, text: str):
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(text)
+    tmp.replace(path)
+
+
+def _csv_value(v):
+    return "" if v is None else str(v).replace(",", ";")
+
+
+def write_outputs(result, out: Path) -> list:
+    """CSV, text table, full JSON and plots in ``out``; returns the written paths."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    rows, models = result["results"], result["models"]
+    keys = ["controller", "design", "plant", *RESULT_KEYS[3:], *DETAIL_KEYS, "status"]
+    files = [out / "compare.csv", out / "compare_ekf.csv", out / "compare.txt", out / "compare_full.json"]
+    _write_atomic(files[0], "\n".join([",".join(keys)] + [",".join(_csv_value(r.get(k)) for k in keys)
+                                                          for r in rows]) + "\n")
+    ek = ["filter_model", "plant", "rmse_z", "rmse_psi", "rmse_u", "nis_mean", "status"]
+    _write_atomic(files[1], "\n".join([",".join(ek)] + [",".join(_csv_value(v) for v in (
+        e["filter_model"], e["plant"], e["rmse"]["z"], e["rmse"]["psi"], e["rmse"]["u"], e["nis_mean"],
+        e.get("status"))) for e in result["ekf"]]) + "\n")
+    skipped = "".join(f"\nskipped {k}: {v}" for k, v in result.get("skipped", {}).items())
+    _write_atomic(files[2], text_table(rows, result["ekf"]) + skipped + "\n")
+    _write_atomic(files[3], json.dumps(_finite({k: v for k, v in result.items() if k != "trajectories"}),
+                                       indent=1, default=float))
+    n = len(models)
+    short = [m.replace(":", ":\n") for m in models]
+    for kind in sorted({r["controller"] for r in rows}):
+        mat = np.full((n, n), np.nan)
+        for r in rows:
+            if r["controller"] == kind and r.get("iae") is not None:
+                mat[models.index(r["design"]), models.index(r["plant"])] = r["iae"]
+        fig, ax = plt.subplots(figsize=(6.5, 5.2))
+        im = ax.imshow(mat, cmap="viridis")
+        ax.set_xticks(range(n), short, fontsize=7)
+        ax.set_yticks(range(n), short, fontsize=7)
+        ax.set_xlabel("plant B")
+        ax.set_ylabel("design model A")
+        for i in range(n):
+            for j in range(n):
+                ax.text(j, i, "-" if np.isnan(mat[i, j]) else f"{mat[i, j]:.2f}", ha="center", va="center",
+                        color="w", fontsize=8)
+        fig.colorbar(im, label="IAE, weighted total (s)")
+        ax.set_title(f"{kind.upper()}: IAE, designed on A, flown on B")
+        fig.tight_layout()
+        path = out / f"compare_iae_{kind}.png"
+        fig.savefig(path, dpi=110)
+        plt.close(fig)
+        files.append(path)
+    if result["ekf"]:
+        fig, axes = plt.subplots(1, 3, figsize=(15, 4.6))
+        for ax, s in zip(axes, EKF_STATES):
+            mat = np.full((n, n), np.nan)
+            for e in result["ekf"]:
+                if e["rmse"][s] is not None:
+                    mat[models.index(e["filter_model"]), models.index(e["plant"])] = e["rmse"][s]
+            im = ax.imshow(mat, cmap="magma")
+            ax.set_xticks(range(n), short, fontsize=6)
+            ax.set_yticks(range(n), short, fontsize=6)
+            ax.set_title(f"EKF RMSE {s}")
+            ax.set_xlabel("plant B")
+            ax.set_ylabel("filter model A")
+            fig.colorbar(im, ax=ax)
+        fig.tight_layout()
+        path = out / "compare_ekf_rmse.png"
+        fig.savefig(path, dpi=110)
+        plt.close(fig)
+        files.append(path)
+    trajs = result.get("trajectories") or {}
+    if trajs:
+        kinds = sorted({k for k, _, _ in trajs})
+        fig, axes = plt.subplots(3, len(kinds), figsize=(4.5 * len(kinds), 8), squeeze=False, sharex=True)
+        mission = standard_mission(result["mission"]["name"].endswith("quick"))
+        for j, kind in enumerate(kinds):
+            for (k, a, _b), tr in sorted(trajs.items()):
+                if k != kind:
+                    continue
+                axes[0, j].plot(tr["t"], tr["z"], lw=1, label=a)
+                axes[1, j].plot(tr["t"], np.degrees(tr["psi"]), lw=1)
+                axes[2, j].plot(tr["t"], tr["u"], lw=1)
+            tt = np.linspace(0, mission.t_final, 500)
+            ref = mission.reference_array(tt)
+            for i, (c, scale) in enumerate((("z", 1.0), ("psi", 180 / np.pi), ("u", 1.0))):
+                axes[i, j].plot(tt, ref[c] * scale, "k--", lw=0.8)
+                axes[i, j].grid(True, alpha=0.3)
+            axes[0, j].set_title(f"{kind.upper()} (design = plant)")
+            axes[0, j].invert_yaxis()
+            axes[2, j].set_xlabel("t (s)")
+        axes[0, 0].set_ylabel("depth z (m)")
+        axes[1, 0].set_ylabel("heading (deg)")
+        axes[2, 0].set_ylabel("surge u (m/s)")
+        axes[0, 0].legend(fontsize=7)
+        fig.tight_layout()
+        path = out / "compare_missions.png"
+        fig.savefig(path, dpi=110)
+        plt.close(fig)
+        files.append(path)
+    return files

@@ -1,0 +1,309 @@
+"""Decoupled PID loops per actuated DOF (surge speed, depth, heading, roll), tuned from the linear model.
+
+Plant models per loop, read off the linearisation (:mod:`udrobot_ctrl.control.linearize`) at the design point
+(hover for depth, heading and roll; the mission's transit speed for surge). With the wrench-input
+matrix ``B_tau = B T^+`` (12 x 6) and the diagonal entries ``a = A[v, v]`` (velocity state v of the DOF),
+``b = B_tau[v, dof]``:
+
+* surge speed u / X:            G = b / (s - a)                first order (lag tau1 = -1/a)
+* depth z / Z, heading psi / N: G = b / (s (s - a))            integrator + first-order lag
+* roll phi / K:                 G = b / (s^2 - a s - k)        lightly damped pendulum (k = A[p, phi])
+
+Tuning (named methods):
+
+* SIMC (Skogestad 2003) for surge, depth and heading with an effective delay ``theta = control_dt / 2``
+  (zero-order hold; thruster spin-up not modelled, *assumed* negligible) and a closed-loop time constant
+  ``tau_c`` per loop (defaults below, *assumed*, chosen so a full step stays near the thrust limits):
+  first order -> PI ``Kc = tau1 / (k (tau_c + theta))``, ``tau_I = min(tau1, 4 (tau_c + theta))``; when
+  ``tau1 > 8 theta`` the lag is approximated as an integrator (SIMC's rule), and integrator + lag with a
+  long lag becomes a double integrator ``k'' / s^2``: ``Kc = 1 / (4 k'' (tau_c + theta)^2)``,
+  ``tau_I = tau_D = 4 (tau_c + theta)`` (series form, converted to parallel gains).
+* pole placement for roll: PID placing the closed-loop poles of ``G`` at ``(s + 1/tau_c)^3``.
+
+Control law (per loop, derivative on the measurement, no derivative kick)::
+
+    tau_dof = tau_trim + Kp e + I - Kd d(y)/dt,   dI/dt = Ki e + (tau_achieved - tau_commanded) / T_t
+
+``tau_trim`` is the design model's trim wrench at the reference speed; the wrench of the four loops (X, Z, K,
+N) is mapped to thrusts by the constrained OSQP allocator (:class:`udrobot_ctrl.dynamics.thrusters.ThrustAllocator`,
+clipped pseudo-inverse if unavailable). Anti-windup (``anti_windup``): ``back-calculation`` (default,
+tracking time ``T_t = sqrt(tau_I tau_D)`` or ``tau_I`` for PI, Astrom and Hagglund), ``conditional``
+(integration stops while the loop's wrench is not achieved and the error would grow it) or ``none``.
+
+Margins: :func:`loop_margins` returns gain and phase margins (``control.margin``) of each loop's
+``L = C G e^{-theta s}`` (delay as a 2nd-order Pade approximant).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from udrobot_ctrl.control.linearize import STATE_INDEX, linearize, trim_at
+from udrobot_ctrl.dynamics.plant import PlantParameters, kinematics
+
+#: loop -> (output state, rate state, DOF index in tau)
+LOOPS = {"surge": ("u", None, 0), "depth": ("z", "w", 2), "roll": ("phi", "p", 3), "heading": ("psi", "r", 5)}
+
+
+def _default_tau_c():
+    # assumed closed-loop time constants (s): a 1 m depth step, a 90 deg turn and a 0.5 m/s change stay
+    # within the thrust limits most of the time
+    return {"surge": 0.5, "depth": 0.3, "roll": 0.3, "heading": 0.2}
+
+
+@dataclass(frozen=True)
+class PIDTuning:
+    """Tuning targets: closed-loop time constants (s) per loop and the effective delay (s)."""
+
+    tau_c: dict = field(default_factory=_default_tau_c)
+    delay: float | None = None  # None: control_dt / 2
+
+
+@dataclass
+class LoopDesign:
+    """One tuned loop: plant model (a, b, k), method, parallel gains and the tracking time."""
+
+    name: str
+    method: str
+    a: float
+    b: float
+    k: float
+    kp: float
+    ki: float
+    kd: float
+    t_track: float
+    delay: float
+
+    def plant_tf(self):
+        """python-control transfer function of the loop's plant model (from DOF wrench to output)."""
+        import control
+
+        s = control.tf("s")
+        if self.name == "surge":
+            return self.b / (s - self.a)
+        if self.name == "roll":
+            return self.b / (s**2 - self.a * s - self.k)
+        return self.b / (s * (s - self.a))
+
+    def controller_tf(self):
+        """C(s) = Kp + Ki/s + Kd s (derivative filtered at 10/ tau_D... here ideal; used for margins only)."""
+        import control
+
+        s = control.tf("s")
+        c = self.kp + self.ki / s
+        if self.kd:
+            c = c + self.kd * s / (1 + s * 0.01)
+        return c
+
+
+def _simc(name, a, b, tau_c, theta):
+    """SIMC gains (parallel form) for surge (first order) or depth/heading (integrator + lag)."""
+    if name == "surge":
+        if -a > 0 and 1.0 / (-a) <= 8 * theta:
+            tau1, k = 1.0 / (-a), b / (-a)
+            kc = tau1 / (k * (tau_c + theta))
+            ti = min(tau1, 4 * (tau_c + theta))
+            return "SIMC first order (PI)", kc, kc / ti, 0.0, ti
+        # long lag: integrator k' = b
+        kc = 1.0 / (b * (tau_c + theta))
+        ti = 4 * (tau_c + theta)  # the drag slope vanishes at rest: keep the integrator rule (no min with tau1)
+        return "SIMC integrating (PI)", kc, kc / ti, 0.0, ti
+    tau2 = 1.0 / (-a) if a < 0 else np.inf
+    if tau2 > 8 * theta and tau2 > 4 * (tau_c + theta):
+        # double integrator k'' = b
+        kc = 1.0 / (4 * b * (tau_c + theta) ** 2)
+        ti = td = 4 * (tau_c + theta)
+        method = "SIMC double integrator (PID)"
+    else:
+        kprime = b / (-a)
+        kc = 1.0 / (kprime * (tau_c + theta))
+        ti, td = 4 * (tau_c + theta), tau2
+        method = "SIMC integrator + lag (PID)"
+    # series -> parallel
+    f = 1 + td / ti
+    return method, kc * f, kc / ti, kc * td, np.sqrt(ti * td)
+
+
+def _pole_placement(a, b, k, tau_c):
+    w = 1.0 / tau_c
+    return "pole placement (s + 1/tau_c)^3", (3 * w**2 + k) / b, w**3 / b, (3 * w + a) / b
+
+
+def design_loops(p: PlantParameters, tuning: PIDTuning | None = None, control_dt: float = 0.05,
+                 surge_speed: float = 0.5, depth: float = 1.0) -> dict:
+    """Tune the four loops from the design model's linearisation; returns name -> :class:`LoopDesign`."""
+    tuning = tuning or PIDTuning()
+    tau_c = _default_tau_c()
+    tau_c.update(tuning.tau_c)
+    theta = control_dt / 2 if tuning.delay is None else float(tuning.delay)
+    Tp = np.linalg.pinv(p.T)
+    out = {}
+    for name, (_y, _rate, dof) in LOOPS.items():
+        point = trim_at(p, surge_speed if name == "surge" else 0.0, depth)
+        lin = linearize(p, point)
+        Btau = lin.B @ Tp
+        vel = {"surge": "u", "depth": "w", "roll": "p", "heading": "r"}[name]
+        iv = STATE_INDEX[vel]
+        a, b = float(lin.A[iv, iv]), float(Btau[iv, dof])
+        if not b > 0:
+            raise ValueError(f"model {p.name!r}: loop {name} has no control authority (b = {b:.3g})")
+        k = float(lin.A[iv, STATE_INDEX["phi"]]) if name == "roll" else 0.0
+        if name == "roll":
+            method, kp, ki, kd = _pole_placement(a, b, k, tau_c[name])
+            tt = np.sqrt(max(kp / ki, 1e-6) * max(kd / kp, 1e-6))
+        else:
+            method, kp, ki, kd, tt = _simc(name, a, b, tau_c[name], theta)
+            if kd == 0.0:
+                tt = kp / ki
+        out[name] = LoopDesign(name, method, a, b, k, float(kp), float(ki), float(kd), float(tt), theta)
+    return out
+
+
+def loop_margins(loops: dict) -> dict:
+    """Gain and phase margins per loop of ``L = C G P`` (P: 2nd-order Pade approximant of the loop's delay).
+
+    Returns per loop: ``gain_margin`` (upper: factor by which the gain may grow, inf if never unstable),
+    ``gain_margin_lower`` (factor it may shrink to, > 0 for the conditionally stable double-integrator
+    loops whose phase is below -180 deg at low frequency; 0 if none), ``phase_margin_deg`` and the
+    crossover frequencies (rad/s) from ``control.margin``.
+    """
+    import control
+
+    out = {}
+    for name, lp in loops.items():
+        num, den = control.pade(lp.delay, 2) if lp.delay > 0 else ([1.0], [1.0])
+        L = lp.controller_tf() * lp.plant_tf() * control.tf(num, den)
+        gm, pm, wcg, wcp = control.margin(L)
+        gms = np.atleast_1d(control.stability_margins(L, returnall=True)[0])
+        upper = [g for g in gms if g > 1]
+        lower = [g for g in gms if 1e-6 < g < 1]
+        out[name] = {"gain_margin": float(min(upper)) if upper else float("inf"),
+                     "gain_margin_lower": float(max(lower)) if lower else 0.0,
+                     "phase_margin_deg": float(pm), "w_phase_crossover": float(wcg), "w_gain_crossover": float(wcp),
+                     "method": lp.method}
+    return out
+
+
+def _allocator(p, allocation="pinv"):
+    if allocation == "pinv":
+        Tp = np.linalg.pinv(p.T)
+        return (lambda tau: np.clip(Tp @ tau, p.f_min, p.f_max)), "clipped pseudo-inverse"
+    try:
+        from udrobot_ctrl.dynamics.thrusters import ThrustAllocator
+
+        alloc = ThrustAllocator.from_parameters(p)
+
+        def run(tau):
+            return alloc(tau).f
+        return run, "OSQP box-constrained allocation"
+    except Exception:  # noqa: BLE001 - fall back to the clipped pseudo-inverse
+        Tp = np.linalg.pinv(p.T)
+        return (lambda tau: np.clip(Tp @ tau, p.f_min, p.f_max)), "clipped pseudo-inverse"
+
+
+def _wrap(a):
+    return (a + np.pi) % (2 * np.pi) - np.pi
+
+
+class PIDController:
+    """Four PID loops + thrust allocation: ``controller(t, x) -> thrusts`` (N); stateful (integrators).
+
+    Parameters
+    ----------
+    params : PlantParameters
+        Design model (trim feed-forward, allocation).
+    loops : dict
+        name -> :class:`LoopDesign` (from :func:`design_loops`).
+    reference : callable
+        ``reference(t) -> {"z": m, "psi": rad, "u": m/s}`` (roll reference 0).
+    dt : float
+        Sampling period, s (integrator step; the controller assumes it is called every ``dt``).
+    anti_windup : {'back-calculation', 'conditional', 'none'}
+    """
+
+    def __init__(self, params: PlantParameters, loops: dict, reference, dt: float = 0.05,
+                 anti_windup: str = "back-calculation", depth: float = 1.0, setpoint_filter: float = 0.3):
+        if anti_windup not in ("back-calculation", "conditional", "none"):
+            raise ValueError(f"anti_windup must be 'back-calculation', 'conditional' or 'none', got {anti_windup!r}")
+        if not dt > 0:
+            raise ValueError(f"dt must be > 0 s, got {dt}")
+        self.params, self.loops, self.reference, self.dt = params, loops, reference, float(dt)
+        self.anti_windup = anti_windup
+        self.setpoint_filter = float(setpoint_filter)
+        self.allocate, self.allocation = _allocator(params)
+        self.depth = depth
+        self._trims: dict = {}
+        self.reset()
+
+    @classmethod
+    def design(cls, params: PlantParameters, reference, dt: float = 0.05, tuning: PIDTuning | None = None,
+               anti_windup: str = "back-calculation", surge_speed: float = 0.5, depth: float = 1.0,
+               setpoint_filter: float = 0.3) -> PIDController:
+        """Tune from the design model (:func:`design_loops`) and build the controller."""
+        loops = design_loops(params, tuning, control_dt=dt, surge_speed=surge_speed, depth=depth)
+        return cls(params, loops, reference, dt, anti_windup, depth, setpoint_filter)
+
+    def reset(self):
+        self.integral = {n: 0.0 for n in self.loops}
+        self.filtered = {}
+
+    def margins(self) -> dict:
+        return loop_margins(self.loops)
+
+    def _filter(self, target: dict) -> dict:
+        """First-order setpoint prefilter, time constant ``setpoint_filter * tau_I`` per loop (0: none)."""
+        out = {}
+        for name, (y, _rate, _dof) in LOOPS.items():
+            r = target[y]
+            prev = self.filtered.get(y)
+            tf = self.setpoint_filter * (self.loops[name].kp / self.loops[name].ki if self.loops[name].ki else 0.0)
+            if prev is None or tf <= 0:
+                out[y] = r
+            else:
+                if y == "psi":
+                    r = prev + _wrap(r - prev)
+                out[y] = prev + (r - prev) * (1.0 - np.exp(-self.dt / tf))
+            self.filtered[y] = out[y]
+        return out
+
+    def trim_wrench(self, surge: float) -> np.ndarray:
+        key = round(float(surge), 6)
+        w = self._trims.get(key)
+        if w is None:
+            w = self._trims[key] = self.params.T @ trim_at(self.params, key, self.depth).u0
+        return w
+
+    def __call__(self, t, x):
+        x = np.asarray(x, float)
+        p = self.params
+        ref = self.reference(t)
+        if not np.all(np.isfinite(x)):
+            return np.clip(np.linalg.pinv(p.T) @ self.trim_wrench(ref["u"]), p.f_min, p.f_max)
+        eta_dot = kinematics(x[:6], x[6:])
+        target = self._filter({"u": ref["u"], "z": ref["z"], "phi": 0.0, "psi": ref["psi"]})
+        tau = self.trim_wrench(ref["u"]).copy()
+        errs = {}
+        for name, (y, rate, dof) in LOOPS.items():
+            lp = self.loops[name]
+            e = target[y] - x[STATE_INDEX[y]]
+            if y == "psi":
+                e = _wrap(e)
+            errs[name] = e
+            d = eta_dot[STATE_INDEX[y]] if rate else 0.0
+            tau[dof] += lp.kp * e + self.integral[name] - lp.kd * d
+        f = self.allocate(tau)
+        achieved = p.T @ f
+        for name, (_y, _rate, dof) in LOOPS.items():
+            lp = self.loops[name]
+            short = achieved[dof] - tau[dof]  # < 0 when the loop asks more than the thrusters give
+            e = errs[name]
+            if self.anti_windup == "back-calculation":
+                self.integral[name] += self.dt * (lp.ki * e + short / lp.t_track)
+            elif self.anti_windup == "conditional":
+                saturated = abs(short) > 1e-6 * max(1.0, abs(tau[dof]))
+                if not (saturated and np.sign(e) == np.sign(tau[dof] - self.trim_wrench(ref["u"])[dof])):
+                    self.integral[name] += self.dt * lp.ki * e
+            else:
+                self.integral[name] += self.dt * lp.ki * e
+        return np.clip(f, p.f_min, p.f_max)

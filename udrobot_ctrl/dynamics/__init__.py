@@ -1,0 +1,1 @@
+"""The equations of motion, thrusters and integrators (one definition of the dynamics)."""

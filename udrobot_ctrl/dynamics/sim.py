@@ -1,0 +1,389 @@
+"""Simulation: fixed-step RK4 (default) and scipy ``solve_ivp``, open or closed loop, single or batch.
+
+Public API (other modules rely on it):
+
+``simulate(model, x0, t_final, controller=None, inputs=None, dt=0.01, input_kind="thrust",
+method="rk4", control_dt=None, disturbance=None) -> SimResult``
+
+* ``controller(t, x) -> u`` is any callable (an LQR, a PID, an MPC object with ``__call__``);
+  it is sampled every ``control_dt`` (default ``dt``) and held (zero-order hold).
+* ``inputs`` is an alternative open-loop input: an array (n_steps, k) held per step, or a
+  callable ``inputs(t) -> u``.
+* ``input_kind``: ``thrust`` (u = the n thruster forces, N, clipped to each thruster's
+  forward/reverse limit) or ``tau`` (u = body wrench, N and N m, unclipped).
+* ``disturbance(t, x) -> (6,)`` adds an external generalised force (N, N m), e.g. tether drag.
+* ``x0`` of shape (12,) simulates one vehicle; (N, 12) simulates N vehicles at once (the
+  controller then receives and returns batches).
+* ``model`` may also be a list of N models (or :func:`stack_parameters` of them): N vehicles with their
+  own mass, damping and restoring parameters (Monte Carlo over coefficients) sharing one thruster layout.
+* ``record_every`` (default 1) keeps every k-th state only (t, x, u, tau, saturated at those steps),
+  to bound memory for long batches.
+
+Speed: ``method='rk4'`` runs a numba kernel (compiled once, cached on disk in ``__pycache__``; pure
+parameters are runtime arrays, so no per-model compilation). Without a controller or disturbance the
+whole horizon is one kernel call; a controller costs one kernel call plus the controller per control
+step. ``method='rk4_numpy'`` is the plain-numpy RK4 (same numbers; used with ``disturbance`` and when
+numba is unavailable) and ``method='solve_ivp'`` (RK45, rtol 1e-9) the reference.
+"""
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from udrobot_ctrl.dynamics.plant import PlantParameters, plant_parameters, state_derivative, thrust_to_wrench
+from udrobot_ctrl.vehicle import load_model
+
+
+@dataclass
+class SimResult:
+    """Simulated trajectory. ``t`` (n+1,), ``x`` (n+1, [N,] 12), ``u`` (n, [N,] k) commanded input,
+    ``tau`` (n, [N,] 6) applied wrench (after thruster saturation), ``saturated`` (n, [N,]) bool."""
+
+    t: np.ndarray
+    x: np.ndarray
+    u: np.ndarray
+    tau: np.ndarray
+    saturated: np.ndarray
+
+
+def as_parameters(model) -> PlantParameters:
+    """PlantParameters from a model name, file, Vehicle or PlantParameters; a list/tuple gives stacked ones."""
+    if isinstance(model, PlantParameters):
+        return model
+    if isinstance(model, (list, tuple)):
+        return stack_parameters(model)
+    return plant_parameters(load_model(model))
+
+
+_STACKED = ("M", "M_inv", "D_L", "Q", "weight", "buoyancy", "r_g", "r_b")
+
+
+def stack_parameters(models) -> PlantParameters:
+    """PlantParameters of N vehicles with a leading batch axis on M, M_inv, D_L, Q (N,6,6), weight, buoyancy (N,),
+    r_g, r_b (N,3). The thruster matrix and limits must be shared.
+
+    Raises
+    ------
+    ValueError
+        If the list is empty or the vehicles differ in thruster layout or limits.
+    """
+    ps = [as_parameters(m) for m in models]
+    if not ps:
+        raise ValueError("stack_parameters needs at least one model")
+    p0 = ps[0]
+    for i, p in enumerate(ps[1:], start=1):
+        if np.ndim(p.weight) or p.T.shape != p0.T.shape or not (
+                np.allclose(p.T, p0.T) and np.allclose(p.f_min, p0.f_min) and np.allclose(p.f_max, p0.f_max)):
+            raise ValueError(f"model {i} ({p.name!r}) has a different thruster layout or limits from model 0, or is "
+                             "already stacked")
+    fields = {k: np.stack([np.asarray(getattr(p, k), float) for p in ps]) for k in _STACKED}
+    return replace(p0, name=f"{len(ps)} vehicles ({p0.name}, ...)", M_A=None, **fields)
+
+
+def is_stacked(p: PlantParameters) -> bool:
+    """True if ``p`` holds per-vehicle parameters (from :func:`stack_parameters`)."""
+    return np.ndim(p.M) == 3
+
+
+def vehicle_parameters(p: PlantParameters, i: int) -> PlantParameters:
+    """The single-vehicle parameters of vehicle ``i`` of stacked parameters (``p`` itself if not stacked)."""
+    if not is_stacked(p):
+        return p
+    return replace(p, **{k: (float(getattr(p, k)[i]) if k in ("weight", "buoyancy") else getattr(p, k)[i])
+                         for k in _STACKED})
+
+
+def _wrench(u, p, input_kind):
+    if input_kind == "thrust":
+        if u.shape[-1] != p.T.shape[1]:
+            raise ValueError(f"thrust input has {u.shape[-1]} columns, the model has {p.T.shape[1]} thrusters")
+        return thrust_to_wrench(u, p, clip=True), np.any((u < p.f_min - 1e-9) | (u > p.f_max + 1e-9), axis=-1)
+    if input_kind == "tau":
+        return np.asarray(u, float), np.zeros(np.shape(u)[:-1], bool)
+    raise ValueError(f"input_kind must be 'thrust' or 'tau', got {input_kind!r}")
+
+
+def rk4_step(p: PlantParameters, x, tau, dt, disturbance=None, t=0.0):
+    """One classical RK4 step of the plant with the wrench ``tau`` held over ``dt`` seconds."""
+    def f(tt, xx):
+        tot = tau if disturbance is None else tau + disturbance(tt, xx)
+        return state_derivative(xx, tot, p)
+
+    k1 = f(t, x)
+    k2 = f(t + dt / 2, x + dt / 2 * k1)
+    k3 = f(t + dt / 2, x + dt / 2 * k2)
+    k4 = f(t + dt, x + dt * k3)
+    return x + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+
+
+def _state_derivative_any(x, tau, p):
+    """state_derivative for single or stacked parameters (stacked: one vehicle per row of x)."""
+    if not is_stacked(p):
+        return state_derivative(x, tau, p)
+    x = np.asarray(x, float)
+    tau = np.broadcast_to(np.asarray(tau, float), x.shape[:-1] + (6,))
+    return np.stack([state_derivative(x[i], tau[i], vehicle_parameters(p, i)) for i in range(x.shape[0])])
+
+
+def _rk4_step_any(p, x, tau, dt, disturbance, t):
+    if not is_stacked(p):
+        return rk4_step(p, x, tau, dt, disturbance, t)
+
+    def f(tt, xx):
+        return _state_derivative_any(xx, tau if disturbance is None else tau + disturbance(tt, xx), p)
+
+    k1 = f(t, x)
+    k2 = f(t + dt / 2, x + dt / 2 * k1)
+    k3 = f(t + dt / 2, x + dt / 2 * k2)
+    k4 = f(t + dt, x + dt * k3)
+    return x + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+
+
+# ----------------------------------------------------------------------------- numba kernels
+_KERNELS = None
+PARALLEL_MIN_VEHICLES = 16  # below this the thread start-up costs more than it saves
+
+
+def _numba_available() -> bool:
+    try:
+        import numba  # noqa: F401
+    except ImportError:  # pragma: no cover
+        return False
+    return True
+
+
+def _kernels():
+    """(serial, parallel) numba kernels of :mod:`udrobot_ctrl.dynamics.sim_kernels`, imported on first use."""
+    global _KERNELS
+    if _KERNELS is None:
+        from udrobot_ctrl.dynamics import sim_kernels
+
+        _KERNELS = (sim_kernels.run_serial, sim_kernels.run_parallel)
+    return _KERNELS
+
+
+def _kernel_arrays(p: PlantParameters):
+    """Parameter arrays with a leading (1 or N) vehicle axis, C-contiguous float64."""
+    def lead(a, nd):
+        a = np.ascontiguousarray(np.asarray(a, float))
+        return a if a.ndim == nd + 1 else a[None]
+    return (lead(p.M, 2), lead(p.M_inv, 2), lead(p.D_L, 2), lead(p.Q, 2), lead(p.weight, 0),
+            lead(p.buoyancy, 0), lead(p.r_g, 1), lead(p.r_b, 1))
+
+
+def integrate_rk4(p: PlantParameters, x0, taus, dt, nsteps, tau_every=1, record_every=1, out=None):
+    """Fixed-step RK4 of N vehicles in compiled code (numba), the wrench held per row of ``taus``.
+
+    Parameters
+    ----------
+    p : PlantParameters
+        Single (shared) or stacked (one per vehicle) parameters.
+    x0 : (N, 12) array_like
+        Initial states.
+    taus : (m, N or 1, 6) array_like
+        Wrenches, N and N m; step k uses row ``k // tau_every``.
+    dt : float
+        Step, s.
+    nsteps : int
+        Number of RK4 steps.
+    record_every : int
+        Store every k-th state.
+    out : (nsteps // record_every + 1, N, 12) ndarray, optional
+        Output buffer (row 0 is set to x0).
+
+    Returns
+    -------
+    out : ndarray
+        Recorded states.
+    status : (N,) ndarray of int
+        -1 where the vehicle stayed finite, else the step index at which it diverged.
+    """
+    x0 = np.ascontiguousarray(np.asarray(x0, float).reshape(-1, 12))
+    n = x0.shape[0]
+    taus = np.ascontiguousarray(np.asarray(taus, float))
+    if taus.ndim != 3 or taus.shape[2] != 6 or taus.shape[1] not in (1, n):
+        raise ValueError(f"taus must be (m, 1 or {n}, 6), got {taus.shape}")
+    if (nsteps - 1) // tau_every >= taus.shape[0]:
+        raise ValueError(f"{nsteps} steps need {(nsteps - 1) // tau_every + 1} wrench rows, got {taus.shape[0]}")
+    arrays = _kernel_arrays(p)
+    if arrays[0].shape[0] not in (1, n):
+        raise ValueError(f"stacked parameters hold {arrays[0].shape[0]} vehicles but x0 has {n}")
+    if out is None:
+        out = np.empty((nsteps // record_every + 1, n, 12))
+    out[0] = x0
+    status = np.empty(n, dtype=np.int64)
+    serial, parallel = _kernels()
+    run = parallel if n >= PARALLEL_MIN_VEHICLES else serial
+    run(x0, taus, int(tau_every), int(nsteps), float(dt), int(record_every), *arrays, out, status)
+    return out, status
+
+
+def _divergence(p, status, t0, dt):
+    bad = np.flatnonzero(status >= 0)
+    if bad.size:
+        k = int(status[bad].min())
+        which = "" if status.size == 1 else f" (vehicles {bad[:10].tolist()})"
+        raise FloatingPointError(f"simulation of {p.name!r} diverged at t = {t0 + (k + 1) * dt:.3f} s{which}")
+
+
+def _input_width(p, input_kind):
+    if input_kind == "thrust":
+        return p.T.shape[1]
+    if input_kind == "tau":
+        return 6
+    raise ValueError(f"input_kind must be 'thrust' or 'tau', got {input_kind!r}")
+
+
+def simulate(model, x0, t_final, controller=None, inputs=None, dt=0.01, input_kind="thrust",
+             method="rk4", control_dt=None, disturbance=None, record_every=1) -> SimResult:
+    """Simulate the plant; see the module docstring. Times in s, states in SI units.
+
+    Raises
+    ------
+    ValueError
+        Bad arguments (shapes, method, input kind).
+    FloatingPointError
+        If the state becomes non-finite (names the time and the vehicles).
+    """
+    p = as_parameters(model)
+    if not (dt > 0 and t_final > 0):
+        raise ValueError(f"dt and t_final must be > 0 (got dt={dt}, t_final={t_final})")
+    if method not in ("rk4", "rk4_numpy", "solve_ivp"):
+        raise ValueError(f"method must be 'rk4', 'rk4_numpy' or 'solve_ivp', got {method!r}")
+    record_every = int(record_every)
+    if record_every < 1:
+        raise ValueError(f"record_every must be >= 1, got {record_every}")
+    n = int(round(t_final / dt))
+    x = np.array(x0, dtype=float)
+    if x.shape[-1] != 12 or x.ndim > 2:
+        raise ValueError(f"x0 must have 12 states (x y z phi theta psi u v w p q r), got shape {x.shape}")
+    if is_stacked(p):
+        if x.ndim == 1:
+            x = np.broadcast_to(x, (p.M.shape[0], 12)).copy()
+        if x.shape[0] != p.M.shape[0]:
+            raise ValueError(f"{p.M.shape[0]} stacked vehicles but x0 has {x.shape[0]} rows")
+    k_in = _input_width(p, input_kind)
+    hold = max(1, int(round((control_dt or dt) / dt)))
+    batch = x.shape[:-1]
+    use_kernel = method == "rk4" and disturbance is None and _numba_available()
+    if method == "rk4" and disturbance is None and not _numba_available():  # pragma: no cover
+        warnings.warn("numba unavailable: using the plain-numpy RK4", RuntimeWarning, stacklevel=2)
+    if use_kernel and controller is None:
+        return _simulate_open_loop(p, x, n, dt, inputs, input_kind, k_in, record_every)
+    if use_kernel:
+        return _simulate_closed_loop(p, x, n, dt, controller, hold, input_kind, record_every)
+    return _simulate_python(p, x, n, dt, controller, inputs, input_kind, k_in, hold, method, disturbance,
+                            record_every, batch)
+
+
+def _open_loop_inputs(inputs, n, dt, k_in):
+    """(n, k) shared or (n, N, k) per-vehicle input rows from an array, a callable or None (zeros)."""
+    if inputs is None:
+        return np.zeros((n, k_in))
+    if callable(inputs):
+        u = np.asarray([np.asarray(inputs(tk), float) for tk in np.arange(n) * dt], float)
+    else:
+        u = np.asarray(inputs, float)
+        if u.ndim == 1:
+            u = u[None]
+        if len(u) != n:
+            u = u[np.minimum(np.arange(n), len(u) - 1)]
+    if u.ndim not in (2, 3) or u.shape[-1] != k_in:
+        raise ValueError(f"inputs must be (n_steps, {k_in}) or (n_steps, N, {k_in}), got shape {u.shape}")
+    return u
+
+
+def _simulate_open_loop(p, x, n, dt, inputs, input_kind, k_in, record_every):
+    batch = x.shape[:-1]
+    u = _open_loop_inputs(inputs, n, dt, k_in)
+    if u.ndim == 3 and (not batch or u.shape[1] != batch[0]):
+        raise ValueError(f"per-vehicle inputs have {u.shape[1]} vehicles, x0 has shape {x.shape}")
+    tau_rows, sat_rows = _wrench(u, p, input_kind)
+    taus = tau_rows[:, None, :] if tau_rows.ndim == 2 else tau_rows
+    xs, status = integrate_rk4(p, x.reshape(-1, 12), taus, dt, n, 1, record_every)
+    _divergence(p, status, 0.0, dt)
+    m = xs.shape[0] - 1
+    sel = np.arange(m) * record_every
+
+    def expand(a, tail):  # (m, [N,] *tail) -> (m, *batch, *tail), a view for shared inputs
+        a = a[sel]
+        if batch and a.ndim == 1 + len(tail):
+            a = np.broadcast_to(a.reshape((m, 1) + tail), (m,) + batch + tail)
+        return a
+
+    return SimResult(t=np.arange(m + 1) * dt * record_every, x=xs.reshape((m + 1,) + batch + (12,)),
+                     u=expand(u, (k_in,)), tau=expand(tau_rows, (6,)), saturated=expand(sat_rows, ()))
+
+
+def _simulate_closed_loop(p, x, n, dt, controller, hold, input_kind, record_every):
+    batch = x.shape[:-1]
+    flat = x.reshape(-1, 12)
+    xs = np.empty((n // record_every + 1, flat.shape[0], 12))
+    xs[0] = flat
+    t_all = np.arange(n + 1) * dt
+    n_ctrl = -(-n // hold)
+    us, taus, sats = [], [], []
+    buf = np.empty((hold + 1, flat.shape[0], 12))
+    for c in range(n_ctrl):
+        k0 = c * hold
+        steps = min(hold, n - k0)
+        u = np.asarray(controller(t_all[k0], flat.reshape(batch + (12,))), dtype=float)
+        tau, sat = _wrench(u, p, input_kind)
+        tau_b = np.broadcast_to(tau, batch + (6,)).reshape(1, -1, 6)
+        out, status = integrate_rk4(p, flat, tau_b, dt, steps, hold, 1, out=buf[: steps + 1])
+        _divergence(p, status, t_all[k0], dt)
+        for j in range(steps):
+            k = k0 + j
+            if k % record_every == 0:
+                us.append(u)
+                taus.append(tau)
+                sats.append(sat)
+            if (k + 1) % record_every == 0:
+                xs[(k + 1) // record_every] = out[j + 1]
+        flat = out[steps].copy()
+    t = np.arange(xs.shape[0]) * dt * record_every
+    return SimResult(t=t, x=xs.reshape((xs.shape[0],) + batch + (12,)), u=np.array(us)[: xs.shape[0] - 1],
+                     tau=np.array(taus)[: xs.shape[0] - 1], saturated=np.array(sats)[: xs.shape[0] - 1])
+
+
+def _simulate_python(p, x, n, dt, controller, inputs, input_kind, k_in, hold, method, disturbance, record_every,
+                     batch):
+    """Reference loop in numpy (``rk4_numpy``, ``solve_ivp``, or ``rk4`` with a disturbance)."""
+    t = np.arange(n + 1) * dt
+    xs = [x.copy()]
+    us, taus, sats = [], [], []
+    u = None
+    for k in range(n):
+        if controller is not None:
+            if k % hold == 0:
+                u = np.asarray(controller(t[k], x), dtype=float)
+        elif inputs is not None:
+            u = np.asarray(inputs(t[k]) if callable(inputs) else inputs[min(k, len(inputs) - 1)], float)
+        else:
+            u = np.zeros(batch + (k_in,))
+        tau, sat = _wrench(u, p, input_kind)
+        if method in ("rk4", "rk4_numpy"):
+            x = _rk4_step_any(p, x, tau, dt, disturbance, t[k])
+        else:
+            from scipy.integrate import solve_ivp
+
+            def rhs(tt, xx, tau=tau, shape=x.shape):
+                xx = xx.reshape(shape)
+                tot = tau if disturbance is None else tau + disturbance(tt, xx)
+                return _state_derivative_any(xx, tot, p).ravel()
+
+            sol = solve_ivp(rhs, (t[k], t[k + 1]), x.ravel(), rtol=1e-9, atol=1e-11)
+            x = sol.y[:, -1].reshape(x.shape)
+        if not np.all(np.isfinite(x)):
+            raise FloatingPointError(f"simulation of {p.name!r} diverged at t = {t[k + 1]:.3f} s")
+        if k % record_every == 0:
+            us.append(u)
+            taus.append(np.broadcast_to(tau, batch + (6,)))
+            sats.append(sat)
+        if (k + 1) % record_every == 0:
+            xs.append(x.copy())
+    m = len(xs) - 1
+    return SimResult(t=np.arange(m + 1) * dt * record_every, x=np.array(xs), u=np.array(us)[:m],
+                     tau=np.array(taus)[:m], saturated=np.array(sats)[:m])
