@@ -88,6 +88,7 @@ def test_spring_mechanical_damping_removed_gives_fluid_KL(tmp_path):
     _check_accuracy(agg, {"Cm": tr.Cm, "CD": tr.CD, "KQ": tr.KQ}, "surge")
 
 
+@pytest.mark.slow
 def test_spring_interval_coverage_over_seeds():
     """Aggregate 95 % intervals cover the truth in >= 90 % of 120 (seed, axis) cases for every coefficient.
 
@@ -150,6 +151,7 @@ def test_pendulum_protocol_files_chin_and_morison(tmp_path):
     assert fs["Cm"]["value"] == pytest.approx(0.9024, rel=0.02)
 
 
+@pytest.mark.slow
 def test_pendulum_interval_coverage_over_seeds():
     """Chin (C_m, K_L, K_Q) and Morison (C_D) aggregate intervals cover the truth in >= 90 % of 60 cases."""
     chin = synthetic.paper_pendulum_truth()
@@ -187,6 +189,7 @@ def test_pendulum_interval_coverage_over_seeds():
         assert np.mean(h) >= 0.90, (key, np.mean(h))
 
 
+@pytest.mark.slow
 def test_pendulum_with_kalman_filtered_attitude_noise():
     """The paper's angle comes from the autopilot's Kalman filter: persistent (AR(1) 0.9, ~0.1 s) noise of
     0.05 deg. Single-launch intervals must stay honest (white-noise HAC windows alone covered 65-75 %)."""

@@ -25,6 +25,7 @@ def _run(argv, capsys):
     return code, out.out, out.err
 
 
+@pytest.mark.slow
 def test_spring_json_contract_and_set(spring_dir, tmp_path, capsys):
     d, truth = spring_dir
     bad = tmp_path / "spring_surge_L1_bad.csv"

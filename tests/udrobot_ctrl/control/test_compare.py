@@ -23,6 +23,7 @@ def report(tmp_path_factory):
     return json.loads(js.read_text()), d / "o"
 
 
+@pytest.mark.slow
 def test_json_has_every_pair_for_every_controller(report):
     doc, _ = report
     assert set(doc) == {"models", "results", "ekf"}
@@ -36,6 +37,7 @@ def test_json_has_every_pair_for_every_controller(report):
         assert set(e) == {"filter_model", "plant", "rmse", "nis_mean"} and set(e["rmse"]) == {"z", "psi", "u"}
 
 
+@pytest.mark.slow
 def test_matched_lqr_and_pid_track_the_mission(report):
     doc, _ = report
     rows = {(r["design"], r["plant"], r["controller"]): r for r in doc["results"]}
@@ -46,6 +48,7 @@ def test_matched_lqr_and_pid_track_the_mission(report):
         assert rows[(m, m, "pid")]["iae"] < 10.0
 
 
+@pytest.mark.slow
 def test_ekf_matched_model_is_better_than_mismatched(report):
     doc, _ = report
     ekf = {(e["filter_model"], e["plant"]): e for e in doc["ekf"]}
@@ -57,6 +60,7 @@ def test_ekf_matched_model_is_better_than_mismatched(report):
     assert ekf[(b, b)]["rmse"]["u"] < ekf[(b, a)]["rmse"]["u"]
 
 
+@pytest.mark.slow
 def test_outputs_written(report):
     _, out = report
     for f in ("compare.csv", "compare_ekf.csv", "compare.txt", "compare_full.json", "compare_iae_lqr.png",
