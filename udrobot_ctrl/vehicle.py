@@ -21,6 +21,7 @@ MODEL_FORMAT = "udrobot-model/1"
 MODEL_NAMES = ("cfd:chin", "cfd:morison", "free_decay:morison", "pendulum:chin", "pendulum:morison")
 DOF_NAMES = ("X", "Y", "Z", "K", "M", "N")
 STATE_NAMES = ("x", "y", "z", "phi", "theta", "psi", "u", "v", "w", "p", "q", "r")
+STATE_INDEX = {n: i for i, n in enumerate(STATE_NAMES)}
 
 
 @dataclass(frozen=True)

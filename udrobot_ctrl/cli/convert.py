@@ -24,9 +24,8 @@ def register(subparsers) -> None:
 
 
 def run(args) -> int:
-    from udrobot_ctrl.io.runlog import write
-
     from udrobot_ctrl.io import convert_log
+    from udrobot_ctrl.io.runlog import write
     from udrobot_ctrl.io.segment import find_launches, write_launches
 
     if not args.out and not args.segment:

@@ -34,9 +34,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from udrobot_ctrl.dynamics.plant import PlantParameters, generalized_forces
+from udrobot_ctrl.vehicle import STATE_INDEX, STATE_NAMES
 
-STATE_NAMES = ("x", "y", "z", "phi", "theta", "psi", "u", "v", "w", "p", "q", "r")
-STATE_INDEX = {n: i for i, n in enumerate(STATE_NAMES)}
 #: Design state (position x, y dropped: not tracked, pure integrators).
 REDUCED_STATES = ("z", "phi", "theta", "psi", "u", "v", "w", "p", "q", "r")
 REDUCED_INDEX = tuple(STATE_INDEX[n] for n in REDUCED_STATES)

@@ -28,6 +28,7 @@ from __future__ import annotations
 import numpy as np
 
 from udrobot_ctrl.control.missions import CHANNEL_INDEX, CHANNELS, Mission
+from udrobot_ctrl.dynamics.plant import wrap_angle
 
 #: T-200 electrical power vs thrust at 12 V, P = c |f|^a (W, f in N): fitted by :func:`fit_t200_power` to
 #: Blue Robotics' T200 Public Performance Data (September 2019), 12 V sheet (estimated, bollard conditions).
@@ -76,15 +77,11 @@ def fit_t200_power(csv_path, voltage: float = 12.0, min_thrust_N: float = 0.5) -
     return out
 
 
-def _wrap(a):
-    return (np.asarray(a, float) + np.pi) % (2 * np.pi) - np.pi
-
-
 def tracking_errors(t, x, mission: Mission) -> dict:
     """Channel -> (n,) error y - r over the samples ``t`` (heading wrapped)."""
     ref = mission.reference_array(t)
     err = {c: x[:, CHANNEL_INDEX[c]] - ref[c] for c in CHANNELS}
-    err["psi"] = _wrap(err["psi"])
+    err["psi"] = wrap_angle(err["psi"])
     return err
 
 
@@ -154,7 +151,7 @@ def mission_metrics(res, mission: Mission, f_min, f_max) -> dict:
     for step, before, t_end in mission.events():
         y = x[:, CHANNEL_INDEX[step.channel]]
         if step.channel == "psi":
-            y = step.value + _wrap(y - step.value)
+            y = step.value + wrap_angle(y - step.value)
         o, s = step_response(t, y, step.t, t_end, before, step.value, mission.settle_band)
         overs[step.channel].append(o)
         settles[step.channel].append(s)

@@ -54,9 +54,8 @@ import numpy as np
 import scipy.sparse as sp
 
 from udrobot_ctrl.dynamics.plant import PlantParameters, generalized_forces, plant_parameters
+from udrobot_ctrl.vehicle import STATE_INDEX, STATE_NAMES
 
-STATE_NAMES = ("x", "y", "z", "phi", "theta", "psi", "u", "v", "w", "p", "q", "r")
-STATE_INDEX = {n: i for i, n in enumerate(STATE_NAMES)}
 _ALIASES = {"depth": "z", "heading": "psi", "surge": "u", "yaw": "psi", "roll": "phi", "pitch": "theta"}
 PSI = 5
 

@@ -25,7 +25,7 @@ from pathlib import Path
 import casadi as ca
 import numpy as np
 
-from udrobot_ctrl.dynamics import plant_casadi
+from udrobot_ctrl.dynamics import integrators, plant_casadi
 from udrobot_ctrl.dynamics.plant import PlantParameters
 from udrobot_ctrl.dynamics.sim import as_parameters
 
@@ -156,19 +156,11 @@ def _unpack(theta, patterns):
 
 
 def _parametric_derivative(x, tau, theta, patterns):
-    """Symbolic x_dot with parameters theta (see :func:`pack_parameters`); same equations as plant_casadi."""
+    """Symbolic x_dot with parameters theta (see :func:`pack_parameters`): the equations of
+    :mod:`udrobot_ctrl.dynamics.equations` with symbolic matrices (structural zeros outside ``patterns``)."""
     (M, M_inv, D_L, Q), (W, B, xg, yg, zg, xb, yb, zb) = _unpack(theta, patterns)
-    nu = x[6:12]
-    h = M @ nu
-    v, w, a, b = nu[:3], nu[3:], h[:3], h[3:]
-    cor = ca.vertcat(plant_casadi._cross(w, a), plant_casadi._cross(v, a) + plant_casadi._cross(w, b))
-    sf, cf, st, ct = ca.sin(x[3]), ca.cos(x[3]), ca.sin(x[4]), ca.cos(x[4])
-    g = ca.vertcat((W - B) * st, -(W - B) * ct * sf, -(W - B) * ct * cf,
-                   -(yg * W - yb * B) * ct * cf + (zg * W - zb * B) * ct * sf,
-                   (zg * W - zb * B) * st + (xg * W - xb * B) * ct * cf,
-                   -(xg * W - xb * B) * ct * sf - (yg * W - yb * B) * st)
-    nu_dot = M_inv @ (tau - cor - D_L @ nu - Q @ (ca.fabs(nu) * nu) - g)
-    return ca.vertcat(plant_casadi.kinematics(x[:6], nu), nu_dot)
+    return ca.vertcat(*plant_casadi.EQUATIONS.state_derivative(x, tau, M, M_inv, D_L, Q, W, B,
+                                                                ca.vertcat(xg, yg, zg), ca.vertcat(xb, yb, zb)))
 
 
 def batch_step_function(T: np.ndarray, dt: float, inputs: str = "thrust", patterns=None) -> ca.Function:
@@ -184,11 +176,8 @@ def batch_step_function(T: np.ndarray, dt: float, inputs: str = "thrust", patter
         tau = u
     else:
         raise ValueError(f"inputs must be 'thrust' or 'tau', got {inputs!r}")
-    k1 = _parametric_derivative(x, tau, theta, patterns)
-    k2 = _parametric_derivative(x + dt / 2 * k1, tau, theta, patterns)
-    k3 = _parametric_derivative(x + dt / 2 * k2, tau, theta, patterns)
-    k4 = _parametric_derivative(x + dt * k3, tau, theta, patterns)
-    return ca.Function("rk4p", [x, u, theta], [x + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4)])
+    x_next = integrators.rk4_step(lambda _t, xx: _parametric_derivative(xx, tau, theta, patterns), 0.0, x, dt)
+    return ca.Function("rk4p", [x, u, theta], [x_next])
 
 
 @dataclass

@@ -4,7 +4,10 @@
     (M_RB + M_A) nu_dot + C_RB(nu) nu + C_A(nu) nu + D_L nu + D_n(nu) nu + g(eta) = tau
 
 State order ``x y z phi theta psi u v w p q r`` (NED position, ZYX Euler angles, body velocities).
-The casadi twin is :mod:`udrobot_ctrl.dynamics.plant_casadi`; a test holds both equal to 1e-9.
+The equations themselves are written once, in :mod:`udrobot_ctrl.dynamics.equations`; this module
+evaluates them on numpy arrays (any leading batch shape; per-vehicle parameters from
+:func:`udrobot_ctrl.dynamics.sim.stack_parameters` too) and assembles the plant parameters. The casadi
+twin :mod:`udrobot_ctrl.dynamics.plant_casadi` and the numba kernels use the same equations.
 """
 from __future__ import annotations
 
@@ -12,7 +15,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from udrobot_ctrl.dynamics.equations import equations
 from udrobot_ctrl.vehicle import Vehicle
+
+_EQ = equations(np.sin, np.cos, np.tan)
 
 
 class SingularMassMatrixError(ValueError):
@@ -51,17 +57,28 @@ def rigid_body_mass(mass, inertia_cg, r_g):
     return M
 
 
+def wrap_angle(a):
+    """Angle(s) wrapped to [-pi, pi), rad."""
+    return (np.asarray(a, dtype=float) + np.pi) % (2 * np.pi) - np.pi
+
+
+def _components(a) -> np.ndarray:
+    """(..., k) -> (k, ...): the component axis first, as :mod:`~udrobot_ctrl.dynamics.equations` indexes it."""
+    return np.moveaxis(np.asarray(a, dtype=float), -1, 0)
+
+
+def _assemble(parts) -> np.ndarray:
+    """Tuple of components -> (..., k)."""
+    return np.stack(np.broadcast_arrays(*parts), axis=-1)
+
+
 def coriolis_centripetal(M, nu):
     """C(nu) nu for a symmetric 6x6 inertia M, from Kirchhoff's equations (Fossen 2021 eqs. 3.46, 6.43).
 
     With a = M11 v + M12 w and b = M21 v + M22 w: C(nu) nu = [w x a ; v x a + w x b].
     Valid for M_RB, M_A and their sum. ``nu`` has shape (..., 6); returns N, N m.
     """
-    nu = np.asarray(nu, dtype=float)
-    h = nu @ M.T
-    v, w = nu[..., :3], nu[..., 3:]
-    a, b = h[..., :3], h[..., 3:]
-    return np.concatenate([np.cross(w, a), np.cross(v, a) + np.cross(w, b)], axis=-1)
+    return _assemble(_EQ.coriolis(np.asarray(M, dtype=float), _components(nu)))
 
 
 def restoring_forces(eta, weight, buoyancy, r_g, r_b):
@@ -76,32 +93,14 @@ def restoring_forces(eta, weight, buoyancy, r_g, r_b):
     r_g, r_b : (3,) array_like
         CG and CB relative to CO, m.
     """
-    eta = np.asarray(eta, dtype=float)
-    W, B = weight, buoyancy
-    xg, yg, zg = r_g
-    xb, yb, zb = r_b
-    sphi, cphi = np.sin(eta[..., 3]), np.cos(eta[..., 3])
-    sth, cth = np.sin(eta[..., 4]), np.cos(eta[..., 4])
-    return np.stack([
-        (W - B) * sth,
-        -(W - B) * cth * sphi,
-        -(W - B) * cth * cphi,
-        -(yg * W - yb * B) * cth * cphi + (zg * W - zb * B) * cth * sphi,
-        (zg * W - zb * B) * sth + (xg * W - xb * B) * cth * cphi,
-        -(xg * W - xb * B) * cth * sphi - (yg * W - yb * B) * sth,
-    ], axis=-1)
+    e = _components(eta)
+    return _assemble(_EQ.restoring(e[3], e[4], weight, buoyancy, _components(r_g), _components(r_b)))
 
 
 def rotation_zyx(phi, theta, psi):
     """Body-to-NED rotation R(Theta) for ZYX Euler angles (rad); broadcasts, returns (..., 3, 3)."""
-    cf, sf = np.cos(phi), np.sin(phi)
-    ct, st = np.cos(theta), np.sin(theta)
-    cp, sp = np.cos(psi), np.sin(psi)
-    return np.stack([
-        np.stack([cp * ct, -sp * cf + cp * st * sf, sp * sf + cp * cf * st], -1),
-        np.stack([sp * ct, cp * cf + sf * st * sp, -cp * sf + st * sp * cf], -1),
-        np.stack([-st, ct * sf, ct * cf], -1),
-    ], -2)
+    R = _assemble(_EQ.rotation(np.asarray(phi, float), np.asarray(theta, float), np.asarray(psi, float)))
+    return R.reshape(R.shape[:-1] + (3, 3))
 
 
 def kinematics(eta, nu):
@@ -109,16 +108,7 @@ def kinematics(eta, nu):
 
     Returns (..., 6): NED velocity (m/s) and Euler-angle rates (rad/s).
     """
-    eta = np.asarray(eta, dtype=float)
-    nu = np.asarray(nu, dtype=float)
-    phi, theta, psi = eta[..., 3], eta[..., 4], eta[..., 5]
-    R = rotation_zyx(phi, theta, psi)
-    pos_dot = np.einsum("...ij,...j->...i", R, nu[..., :3])
-    p, q, r = nu[..., 3], nu[..., 4], nu[..., 5]
-    sf, cf = np.sin(phi), np.cos(phi)
-    ct, tt = np.cos(theta), np.tan(theta)
-    ang_dot = np.stack([p + sf * tt * q + cf * tt * r, cf * q - sf * r, sf / ct * q + cf / ct * r], -1)
-    return np.concatenate([pos_dot, ang_dot], axis=-1)
+    return _assemble(_EQ.kinematics(_components(eta), _components(nu)))
 
 
 def thruster_matrix(thrusters):
@@ -183,19 +173,47 @@ def plant_parameters(vehicle: Vehicle) -> PlantParameters:
     )
 
 
+def _parameters(p: PlantParameters) -> tuple:
+    """(M, M_inv, D_L, Q, W, B, r_g, r_b) indexed as the equations expect; a leading vehicle axis moves last."""
+    stacked = np.ndim(p.M) == 3
+
+    def per_vehicle(a):
+        a = np.asarray(a, dtype=float)
+        return np.moveaxis(a, 0, -1) if stacked else a
+
+    rg, rb = np.asarray(p.r_g, float), np.asarray(p.r_b, float)
+    return (per_vehicle(p.M), per_vehicle(p.M_inv), per_vehicle(p.D_L), per_vehicle(p.Q),
+            np.asarray(p.weight, float), np.asarray(p.buoyancy, float),
+            np.moveaxis(rg, -1, 0), np.moveaxis(rb, -1, 0))
+
+
+def _check_last_axis(name, a, n):
+    if a.shape[-1:] != (n,):
+        raise ValueError(f"{name} must have {n} components on its last axis (got shape {a.shape})"
+                         + ("; thruster forces become a wrench with thrust_to_wrench(f, p)" if name == "tau" else ""))
+
+
 def generalized_forces(x, p: PlantParameters):
     """Sum of C(nu) nu + D(nu) nu + g(eta) for state x (..., 12); N, N m."""
     x = np.asarray(x, dtype=float)
-    nu = x[..., 6:]
-    return (coriolis_centripetal(p.M, nu) + nu @ p.D_L.T + (np.abs(nu) * nu) @ p.Q.T
-            + restoring_forces(x[..., :6], p.weight, p.buoyancy, p.r_g, p.r_b))
+    _check_last_axis("x", x, 12)
+    M, _, D_L, Q, W, B, r_g, r_b = _parameters(p)
+    return _assemble(_EQ.generalized_forces(_components(x), M, D_L, Q, W, B, r_g, r_b))
 
 
 def state_derivative(x, tau, p: PlantParameters):
-    """x_dot = f(x, tau) for state (..., 12) and body wrench tau (..., 6) in N, N m."""
+    """x_dot = f(x, tau) for state (..., 12) and body wrench tau (..., 6) in N, N m.
+
+    Raises
+    ------
+    ValueError
+        If ``x`` or ``tau`` has the wrong number of components (e.g. thruster forces passed as ``tau``).
+    """
     x = np.asarray(x, dtype=float)
-    nu_dot = (np.asarray(tau, float) - generalized_forces(x, p)) @ p.M_inv.T
-    return np.concatenate([kinematics(x[..., :6], x[..., 6:]), nu_dot], axis=-1)
+    tau = np.asarray(tau, dtype=float)
+    _check_last_axis("x", x, 12)
+    _check_last_axis("tau", tau, 6)
+    return _assemble(_EQ.state_derivative(_components(x), _components(tau), *_parameters(p)))
 
 
 def thrust_to_wrench(f, p: PlantParameters, clip=True):

@@ -1,19 +1,17 @@
-"""6-DOF Fossen plant, casadi symbolic twin of :mod:`udrobot_ctrl.dynamics.plant`.
-
-Written independently from the numpy version (explicit component formulas rather than numpy
-broadcasting) from the same :class:`~udrobot_ctrl.dynamics.plant.PlantParameters`; a test holds the two
-equal to 1e-9. Used for linearisation (exact Jacobians), MPC and EKF Jacobians.
+"""6-DOF Fossen plant as casadi expressions: the equations of :mod:`udrobot_ctrl.dynamics.equations`
+built with casadi's elementary functions, from the same :class:`~udrobot_ctrl.dynamics.plant.PlantParameters`
+as the numpy plant. Used for linearisation (exact Jacobians), MPC, EKF Jacobians and compiled rollouts.
 """
 from __future__ import annotations
 
 import casadi as ca
 import numpy as np
 
+from udrobot_ctrl.dynamics import integrators
+from udrobot_ctrl.dynamics.equations import equations
 from udrobot_ctrl.dynamics.plant import PlantParameters
 
-
-def _cross(a, b):
-    return ca.vertcat(a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
+EQUATIONS = equations(ca.sin, ca.cos, ca.tan)
 
 
 def _dm(a):
@@ -22,47 +20,29 @@ def _dm(a):
 
 def kinematics(eta, nu):
     """Symbolic eta_dot = J(eta) nu (ZYX Euler angles)."""
-    phi, theta, psi = eta[3], eta[4], eta[5]
-    cf, sf, ct, st, cp, sp = ca.cos(phi), ca.sin(phi), ca.cos(theta), ca.sin(theta), ca.cos(psi), ca.sin(psi)
-    R = ca.vertcat(
-        ca.horzcat(cp * ct, -sp * cf + cp * st * sf, sp * sf + cp * cf * st),
-        ca.horzcat(sp * ct, cp * cf + sf * st * sp, -cp * sf + st * sp * cf),
-        ca.horzcat(-st, ct * sf, ct * cf),
-    )
-    p, q, r = nu[3], nu[4], nu[5]
-    ang = ca.vertcat(p + sf * st / ct * q + cf * st / ct * r, cf * q - sf * r, sf / ct * q + cf / ct * r)
-    return ca.vertcat(R @ nu[:3], ang)
+    return ca.vertcat(*EQUATIONS.kinematics(eta, nu))
 
 
 def restoring_forces(eta, p: PlantParameters):
     """Symbolic g(eta) (Fossen 2021 eq. 4.6)."""
-    W, B = p.weight, p.buoyancy
-    xg, yg, zg = (float(v) for v in p.r_g)
-    xb, yb, zb = (float(v) for v in p.r_b)
-    phi, theta = eta[3], eta[4]
-    sf, cf, st, ct = ca.sin(phi), ca.cos(phi), ca.sin(theta), ca.cos(theta)
-    return ca.vertcat(
-        (W - B) * st, -(W - B) * ct * sf, -(W - B) * ct * cf,
-        -(yg * W - yb * B) * ct * cf + (zg * W - zb * B) * ct * sf,
-        (zg * W - zb * B) * st + (xg * W - xb * B) * ct * cf,
-        -(xg * W - xb * B) * ct * sf - (yg * W - yb * B) * st,
-    )
+    return ca.vertcat(*EQUATIONS.restoring(eta[3], eta[4], float(p.weight), float(p.buoyancy), _dm(p.r_g), _dm(p.r_b)))
+
+
+def parameter_arguments(p: PlantParameters) -> tuple:
+    """(M, M_inv, D_L, Q, W, B, r_g, r_b) of ``p`` as casadi constants, in the order of the equations."""
+    return (_dm(p.M), _dm(p.M_inv), _dm(p.D_L), _dm(p.Q), float(p.weight), float(p.buoyancy), _dm(p.r_g),
+            _dm(p.r_b))
 
 
 def generalized_forces(x, p: PlantParameters):
     """Symbolic C(nu) nu + D_L nu + D_n(nu) nu + g(eta)."""
-    nu = x[6:12]
-    h = _dm(p.M) @ nu
-    v, w, a, b = nu[:3], nu[3:], h[:3], h[3:]
-    cor = ca.vertcat(_cross(w, a), _cross(v, a) + _cross(w, b))
-    damp = _dm(p.D_L) @ nu + _dm(p.Q) @ (ca.fabs(nu) * nu)
-    return cor + damp + restoring_forces(x[:6], p)
+    M, _, D_L, Q, W, B, r_g, r_b = parameter_arguments(p)
+    return ca.vertcat(*EQUATIONS.generalized_forces(x, M, D_L, Q, W, B, r_g, r_b))
 
 
 def state_derivative(x, tau, p: PlantParameters):
     """Symbolic x_dot = f(x, tau)."""
-    nu_dot = ca.solve(_dm(p.M), tau - generalized_forces(x, p))
-    return ca.vertcat(kinematics(x[:6], x[6:12]), nu_dot)
+    return ca.vertcat(*EQUATIONS.state_derivative(x, tau, *parameter_arguments(p)))
 
 
 def dynamics_function(p: PlantParameters, inputs: str = "tau", name: str = "f") -> ca.Function:
@@ -91,8 +71,5 @@ def rk4_step_function(p: PlantParameters, dt: float, inputs: str = "tau", name: 
     f = dynamics_function(p, inputs)
     x = ca.SX.sym("x", 12)
     u = ca.SX.sym("u", f.size1_in(1))
-    k1 = f(x, u)
-    k2 = f(x + dt / 2 * k1, u)
-    k3 = f(x + dt / 2 * k2, u)
-    k4 = f(x + dt * k3, u)
-    return ca.Function(name, [x, u], [x + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4)], ["x", "u"], ["x_next"])
+    x_next = integrators.rk4_step(lambda _t, xx: f(xx, u), 0.0, x, dt)
+    return ca.Function(name, [x, u], [x_next], ["x", "u"], ["x_next"])

@@ -31,7 +31,9 @@ import warnings
 from dataclasses import dataclass, replace
 
 import numpy as np
+from scipy.integrate import solve_ivp
 
+from udrobot_ctrl.dynamics import integrators
 from udrobot_ctrl.dynamics.plant import PlantParameters, plant_parameters, state_derivative, thrust_to_wrench
 from udrobot_ctrl.vehicle import load_model
 
@@ -106,39 +108,15 @@ def _wrench(u, p, input_kind):
 
 
 def rk4_step(p: PlantParameters, x, tau, dt, disturbance=None, t=0.0):
-    """One classical RK4 step of the plant with the wrench ``tau`` held over ``dt`` seconds."""
+    """One classical RK4 step of the plant with the wrench ``tau`` held over ``dt`` seconds.
+
+    ``p`` may be stacked parameters (:func:`stack_parameters`), ``x`` then has one vehicle per row.
+    """
     def f(tt, xx):
         tot = tau if disturbance is None else tau + disturbance(tt, xx)
         return state_derivative(xx, tot, p)
 
-    k1 = f(t, x)
-    k2 = f(t + dt / 2, x + dt / 2 * k1)
-    k3 = f(t + dt / 2, x + dt / 2 * k2)
-    k4 = f(t + dt, x + dt * k3)
-    return x + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
-
-
-def _state_derivative_any(x, tau, p):
-    """state_derivative for single or stacked parameters (stacked: one vehicle per row of x)."""
-    if not is_stacked(p):
-        return state_derivative(x, tau, p)
-    x = np.asarray(x, float)
-    tau = np.broadcast_to(np.asarray(tau, float), x.shape[:-1] + (6,))
-    return np.stack([state_derivative(x[i], tau[i], vehicle_parameters(p, i)) for i in range(x.shape[0])])
-
-
-def _rk4_step_any(p, x, tau, dt, disturbance, t):
-    if not is_stacked(p):
-        return rk4_step(p, x, tau, dt, disturbance, t)
-
-    def f(tt, xx):
-        return _state_derivative_any(xx, tau if disturbance is None else tau + disturbance(tt, xx), p)
-
-    k1 = f(t, x)
-    k2 = f(t + dt / 2, x + dt / 2 * k1)
-    k3 = f(t + dt / 2, x + dt / 2 * k2)
-    k4 = f(t + dt, x + dt * k3)
-    return x + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+    return integrators.rk4_step(f, t, x, dt)
 
 
 # ----------------------------------------------------------------------------- numba kernels
@@ -365,14 +343,12 @@ def _simulate_python(p, x, n, dt, controller, inputs, input_kind, k_in, hold, me
             u = np.zeros(batch + (k_in,))
         tau, sat = _wrench(u, p, input_kind)
         if method in ("rk4", "rk4_numpy"):
-            x = _rk4_step_any(p, x, tau, dt, disturbance, t[k])
+            x = rk4_step(p, x, tau, dt, disturbance, t[k])
         else:
-            from scipy.integrate import solve_ivp
-
             def rhs(tt, xx, tau=tau, shape=x.shape):
                 xx = xx.reshape(shape)
                 tot = tau if disturbance is None else tau + disturbance(tt, xx)
-                return _state_derivative_any(xx, tot, p).ravel()
+                return state_derivative(xx, tot, p).ravel()
 
             sol = solve_ivp(rhs, (t[k], t[k + 1]), x.ravel(), rtol=1e-9, atol=1e-11)
             x = sol.y[:, -1].reshape(x.shape)

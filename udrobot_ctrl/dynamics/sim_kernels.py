@@ -1,62 +1,25 @@
 """numba kernels of :mod:`udrobot_ctrl.dynamics.sim`: fixed-step RK4 of the 6-DOF plant for N vehicles.
 
-Same equations as :func:`udrobot_ctrl.dynamics.plant.state_derivative` written out per component (a test holds
-them equal to the numpy plant to ~1e-15). Parameters are runtime arrays with a leading vehicle axis of
-length 1 (shared) or N, so one compilation serves every model; it is cached on disk (``cache=True``,
-in ``__pycache__``), so only the very first use pays the compile.
+The derivative is the one of :mod:`udrobot_ctrl.dynamics.equations`, compiled by numba (a test holds the
+kernels equal to the numpy plant to ~1e-15). Parameters are runtime arrays with a leading vehicle axis of
+length 1 (shared) or N, so one compilation serves every model; it is cached on disk (``cache=True``), so
+only the very first use pays the compile.
 """
 import numba
 import numpy as np
 
+from udrobot_ctrl.dynamics.equations import equations
+
+_state_derivative = equations(np.sin, np.cos, np.tan, jit=numba.njit(cache=True)).state_derivative
+
 
 @numba.njit(cache=True)
-def deriv(x, tau, M, Minv, DL, Q, W, B, rg, rb, out, h, nu_dot_rhs):
-    """out = x_dot (12) for state x and wrench tau; h, nu_dot_rhs are (6,) scratch buffers."""
-    phi, th, psi = x[3], x[4], x[5]
-    sf, cf = np.sin(phi), np.cos(phi)
-    st, ct = np.sin(th), np.cos(th)
-    sp, cp = np.sin(psi), np.cos(psi)
-    u, v, w, p, q, r = x[6], x[7], x[8], x[9], x[10], x[11]
-    out[0] = cp * ct * u + (-sp * cf + cp * st * sf) * v + (sp * sf + cp * cf * st) * w
-    out[1] = sp * ct * u + (cp * cf + sf * st * sp) * v + (-cp * sf + st * sp * cf) * w
-    out[2] = -st * u + ct * sf * v + ct * cf * w
-    tt = st / ct
-    out[3] = p + sf * tt * q + cf * tt * r
-    out[4] = cf * q - sf * r
-    out[5] = sf / ct * q + cf / ct * r
-    for i in range(6):
-        acc = 0.0
-        for j in range(6):
-            acc += M[i, j] * x[6 + j]
-        h[i] = acc
-    # C(nu) nu = [w x a ; v x a + w x b], a = h[:3], b = h[3:]
-    nu_dot_rhs[0] = q * h[2] - r * h[1]
-    nu_dot_rhs[1] = r * h[0] - p * h[2]
-    nu_dot_rhs[2] = p * h[1] - q * h[0]
-    nu_dot_rhs[3] = v * h[2] - w * h[1] + q * h[5] - r * h[4]
-    nu_dot_rhs[4] = w * h[0] - u * h[2] + r * h[3] - p * h[5]
-    nu_dot_rhs[5] = u * h[1] - v * h[0] + p * h[4] - q * h[3]
-    dw = W - B
-    mx = rg[0] * W - rb[0] * B
-    my = rg[1] * W - rb[1] * B
-    mz = rg[2] * W - rb[2] * B
-    nu_dot_rhs[0] += dw * st
-    nu_dot_rhs[1] += -dw * ct * sf
-    nu_dot_rhs[2] += -dw * ct * cf
-    nu_dot_rhs[3] += -my * ct * cf + mz * ct * sf
-    nu_dot_rhs[4] += mz * st + mx * ct * cf
-    nu_dot_rhs[5] += -mx * ct * sf - my * st
-    for i in range(6):
-        acc = nu_dot_rhs[i]
-        for j in range(6):
-            vj = x[6 + j]
-            acc += DL[i, j] * vj + Q[i, j] * abs(vj) * vj
-        h[i] = tau[i] - acc
-    for i in range(6):
-        acc = 0.0
-        for j in range(6):
-            acc += Minv[i, j] * h[j]
-        out[6 + i] = acc
+def deriv(x, tau, M, Minv, DL, Q, W, B, rg, rb, out):
+    """out = x_dot (12) for state x and wrench tau (:mod:`udrobot_ctrl.dynamics.equations`)."""
+    d = _state_derivative(x, tau, M, Minv, DL, Q, W, B, rg, rb)
+    for i in range(12):
+        out[i] = d[i]
+
 
 @numba.njit(cache=True)
 def vehicle(i, x0, taus, tau_every, nsteps, dt, rec_every, M, Minv, DL, Q, W, B, rg, rb, out):
@@ -71,20 +34,18 @@ def vehicle(i, x0, taus, tau_every, nsteps, dt, rec_every, M, Minv, DL, Q, W, B,
     k2 = np.empty(12)
     k3 = np.empty(12)
     k4 = np.empty(12)
-    h = np.empty(6)
-    rhs = np.empty(6)
     for k in range(nsteps):
         tau = taus[k // tau_every, ti]
-        deriv(x, tau, Mi, Minvi, DLi, Qi, Wi, Bi, rgi, rbi, k1, h, rhs)
+        deriv(x, tau, Mi, Minvi, DLi, Qi, Wi, Bi, rgi, rbi, k1)
         for j in range(12):
             xt[j] = x[j] + 0.5 * dt * k1[j]
-        deriv(xt, tau, Mi, Minvi, DLi, Qi, Wi, Bi, rgi, rbi, k2, h, rhs)
+        deriv(xt, tau, Mi, Minvi, DLi, Qi, Wi, Bi, rgi, rbi, k2)
         for j in range(12):
             xt[j] = x[j] + 0.5 * dt * k2[j]
-        deriv(xt, tau, Mi, Minvi, DLi, Qi, Wi, Bi, rgi, rbi, k3, h, rhs)
+        deriv(xt, tau, Mi, Minvi, DLi, Qi, Wi, Bi, rgi, rbi, k3)
         for j in range(12):
             xt[j] = x[j] + dt * k3[j]
-        deriv(xt, tau, Mi, Minvi, DLi, Qi, Wi, Bi, rgi, rbi, k4, h, rhs)
+        deriv(xt, tau, Mi, Minvi, DLi, Qi, Wi, Bi, rgi, rbi, k4)
         finite = True
         for j in range(12):
             x[j] = x[j] + dt / 6.0 * (k1[j] + 2.0 * k2[j] + 2.0 * k3[j] + k4[j])

@@ -3,7 +3,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from udrobot_ctrl.gap.shrink import STATE_INDEX, errors
+from udrobot_ctrl.gap.shrink import errors
+from udrobot_ctrl.vehicle import STATE_INDEX
 
 
 def write_plots(ctx, report, outdir):

@@ -18,11 +18,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from udrobot_ctrl.dynamics.plant import PlantParameters, generalized_forces, kinematics
+from udrobot_ctrl.dynamics.integrators import rk4_step
+from udrobot_ctrl.dynamics.plant import PlantParameters, generalized_forces, kinematics, wrap_angle
 from udrobot_ctrl.gap.data import Prepared
+from udrobot_ctrl.vehicle import STATE_INDEX
 
 CHANNELS = ("u", "v", "w", "p", "q", "r", "z", "phi", "theta", "psi")
-STATE_INDEX = {"z": 2, "phi": 3, "theta": 4, "psi": 5, "u": 6, "v": 7, "w": 8, "p": 9, "q": 10, "r": 11}
 ANGLES = ("phi", "theta", "psi")
 
 
@@ -87,11 +88,7 @@ def simulate_windows(prep: Prepared, p: PlantParameters, hooks=(), window_s=8.0,
         k = np.minimum(starts + j - 1, prep.n - 1)
         fk, tk = f[k], tau_seq[k]
         for _ in range(nsub):
-            k1 = deriv(x, k, fk, tk)
-            k2 = deriv(x + h_dt / 2 * k1, k, fk, tk)
-            k3 = deriv(x + h_dt / 2 * k2, k, fk, tk)
-            k4 = deriv(x + h_dt * k3, k, fk, tk)
-            x = x + h_dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+            x = rk4_step(lambda _t, xx: deriv(xx, k, fk, tk), 0.0, x, h_dt)  # noqa: B023 - used at once
         bad = ~np.all(np.isfinite(x), axis=1) | (np.abs(x[:, 6:]).max(axis=1) > 1e3)
         alive &= ~bad
         x[bad] = 0.0
@@ -118,7 +115,7 @@ def errors(prep: Prepared, sim):
             continue
         e = sim[:, STATE_INDEX[c]] - prep.meas[c]
         if c in ANGLES:
-            e = (e + np.pi) % (2 * np.pi) - np.pi
+            e = wrap_angle(e)
         out[c] = e
     return out
 
