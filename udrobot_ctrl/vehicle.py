@@ -16,6 +16,7 @@ import tomllib
 
 from identification import fossen
 from identification.sets import coefficient_set_from_dict
+from udrobot_ctrl.dynamics.effects import parse_effects
 
 MODEL_FORMAT = "udrobot-model/1"
 MODEL_NAMES = ("cfd:chin", "cfd:morison", "free_decay:morison", "pendulum:chin", "pendulum:morison")
@@ -71,6 +72,7 @@ class Vehicle:
     g: float = 9.81
     provenance: dict = field(default_factory=dict)
     extras: dict = field(default_factory=dict)
+    effects: tuple = ()  # PlantEffect entries (udrobot_ctrl.dynamics.effects): the plant beyond the nominal model
 
     @property
     def n_thrusters(self) -> int:
@@ -201,6 +203,7 @@ def to_model_dict(v: Vehicle) -> dict:
             for t in v.thrusters
         ],
         "provenance": dict(v.provenance),
+        **({"effects": [e.to_dict() for e in v.effects]} if v.effects else {}),
     }
 
 
@@ -248,6 +251,7 @@ def model_from_dict(doc: dict, source: str = "<dict>") -> Vehicle:
         linear_damping=_matrix(doc, "linear_damping", (6, 6), source),
         quadratic_damping=_matrix(doc, "quadratic_damping", (6, 6), source),
         thrusters=tuple(thrusters), rho=scal["rho"], g=scal["g"], provenance=dict(doc.get("provenance", {})),
+        effects=parse_effects(doc.get("effects"), source),
     )
 
 

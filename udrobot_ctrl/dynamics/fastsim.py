@@ -26,7 +26,7 @@ import casadi as ca
 import numpy as np
 
 from udrobot_ctrl.dynamics import integrators, plant_casadi
-from udrobot_ctrl.dynamics.plant import PlantParameters
+from udrobot_ctrl.dynamics.plant import PlantParameters, require_nominal
 from udrobot_ctrl.dynamics.sim import as_parameters
 
 COMPILE_TIMEOUT_S = 2.0
@@ -139,6 +139,7 @@ def sparsity_patterns(params, tol: float = 0.0) -> tuple:
 def pack_parameters(p: PlantParameters, patterns=None) -> np.ndarray:
     """Per-vehicle numbers of the batch step: entries of M, M^-1, D_L, Q inside ``patterns`` (row-major;
     all 36 when None), then W, B (N), r_g, r_b (m)."""
+    require_nominal(p, "the batch rollout (per-vehicle parameters)")
     patterns = patterns or tuple(np.ones((6, 6), bool) for _ in MATRICES)
     mats = [getattr(p, name)[mask] for name, mask in zip(MATRICES, patterns)]
     return np.concatenate(mats + [[p.weight, p.buoyancy], p.r_g, p.r_b])

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from udrobot_ctrl.dynamics import effects as fx
 from udrobot_ctrl.dynamics.equations import equations
 from udrobot_ctrl.vehicle import Vehicle
 
@@ -145,6 +146,12 @@ class PlantParameters:
     f_max: np.ndarray
     name: str = ""
     M_A: np.ndarray | None = None
+    effects: tuple = ()  # the model's effects that act at run time (thrust, lag, force); see dynamics.effects
+
+    @property
+    def f_ref(self) -> np.ndarray:
+        """Each thruster's capacity max(max_forward_N, max_reverse_N), N (reference of the thrust maps)."""
+        return np.maximum(np.asarray(self.f_max, float), -np.asarray(self.f_min, float))
 
 
 def plant_parameters(vehicle: Vehicle) -> PlantParameters:
@@ -164,13 +171,14 @@ def plant_parameters(vehicle: Vehicle) -> PlantParameters:
             f"model {vehicle.name!r}: M_RB + M_A is not positive definite (smallest eigenvalue {eig.min():.3g})"
         )
     lo, hi = thrust_limits(vehicle.thrusters)
-    return PlantParameters(
+    nominal = PlantParameters(
         M=M, M_inv=np.linalg.inv(M), D_L=np.asarray(vehicle.linear_damping, float),
         Q=np.asarray(vehicle.quadratic_damping, float), weight=vehicle.weight, buoyancy=vehicle.buoyancy,
         r_g=np.asarray(vehicle.r_g, float), r_b=np.asarray(vehicle.r_b, float),
         T=thruster_matrix(vehicle.thrusters), f_min=lo, f_max=hi, name=vehicle.name,
         M_A=np.asarray(vehicle.added_mass, float),
     )
+    return fx.fold_parameters(nominal, vehicle.effects) if vehicle.effects else nominal
 
 
 def _parameters(p: PlantParameters) -> tuple:
@@ -187,6 +195,14 @@ def _parameters(p: PlantParameters) -> tuple:
             np.moveaxis(rg, -1, 0), np.moveaxis(rb, -1, 0))
 
 
+def require_nominal(p: PlantParameters, tool: str) -> None:
+    """Refuse a model with run-time effects in ``tool``, which holds only the nominal equations (its parameter
+    effects are already folded into the matrices and need no refusal)."""
+    if p.effects:
+        raise ValueError(f"model {p.name!r} has effects ({', '.join(e.name for e in p.effects)}) that {tool} does "
+                         f"not simulate; use udrobot_ctrl.dynamics.sim.simulate, which does")
+
+
 def _check_last_axis(name, a, n):
     if a.shape[-1:] != (n,):
         raise ValueError(f"{name} must have {n} components on its last axis (got shape {a.shape})"
@@ -194,11 +210,15 @@ def _check_last_axis(name, a, n):
 
 
 def generalized_forces(x, p: PlantParameters):
-    """Sum of C(nu) nu + D(nu) nu + g(eta) for state x (..., 12); N, N m."""
+    """Sum of C(nu) nu + D(nu) nu + g(eta) for state x (..., 12), minus the force effects of the model; N, N m."""
     x = np.asarray(x, dtype=float)
     _check_last_axis("x", x, 12)
     M, _, D_L, Q, W, B, r_g, r_b = _parameters(p)
-    return _assemble(_EQ.generalized_forces(_components(x), M, D_L, Q, W, B, r_g, r_b))
+    X = _components(x)
+    F = _EQ.generalized_forces(X, M, D_L, Q, W, B, r_g, r_b)
+    if p.effects:
+        F = tuple(a - b for a, b in zip(F, effect_forces(X, p)))
+    return _assemble(F)
 
 
 def state_derivative(x, tau, p: PlantParameters):
@@ -213,7 +233,51 @@ def state_derivative(x, tau, p: PlantParameters):
     tau = np.asarray(tau, dtype=float)
     _check_last_axis("x", x, 12)
     _check_last_axis("tau", tau, 6)
-    return _assemble(_EQ.state_derivative(_components(x), _components(tau), *_parameters(p)))
+    if not p.effects:
+        return _assemble(_EQ.state_derivative(_components(x), _components(tau), *_parameters(p)))
+    X = _components(x)
+    eta, nu = X[:6], X[6:]
+    rhs = tau - generalized_forces(x, p)
+    dM = fx.added_mass_increment(fx.NUMPY, eta, nu, p.effects)
+    if dM is None:
+        nu_dot = rhs @ np.asarray(p.M_inv).T
+    else:
+        Mt = np.asarray(p.M) + np.stack(np.broadcast_arrays(*[_assemble(row) for row in dM]), axis=-2)
+        nu_dot = np.linalg.solve(Mt, rhs[..., None])[..., 0]
+    return np.concatenate([_assemble(_EQ.kinematics(eta, nu)), nu_dot], axis=-1)
+
+
+def effect_forces(X, p: PlantParameters) -> tuple:
+    """Generalised force (6 components, N and N m) of the model's force effects at state components ``X``.
+
+    The water current enters as the change of the damping and added-mass Coriolis terms when they act on the
+    velocity relative to the water; tether and wall suction as external forces.
+    """
+    eta, nu = X[:6], X[6:]
+    total = [0.0] * 6
+    nu_r = fx.relative_velocity(fx.NUMPY, eta, nu, p.effects)
+    if nu_r is not nu:
+        M_A = np.asarray(p.M_A, float)
+        D_L, Q = np.asarray(p.D_L, float), np.asarray(p.Q, float)
+        for terms in (_EQ.damping(D_L, Q, nu), _EQ.coriolis(M_A, nu)):
+            total = [a + b for a, b in zip(total, terms)]
+        for terms in (_EQ.damping(D_L, Q, nu_r), _EQ.coriolis(M_A, nu_r)):
+            total = [a - b for a, b in zip(total, terms)]
+    ext = fx.external_force(fx.NUMPY, eta, nu, p.effects)
+    if ext is not None:
+        total = [a + b for a, b in zip(total, ext)]
+    return tuple(total)
+
+
+def delivered_wrench(x, f, p: PlantParameters):
+    """Body wrench (..., 6) of thrusts ``f`` (..., n) that are already clipped, mapped and lagged, after the
+    state-dependent inflow loss of the model's effects (:func:`udrobot_ctrl.dynamics.effects.inflow_loss`)."""
+    f = np.asarray(f, dtype=float)
+    fe = fx.thrust_effects(p.effects)
+    if any(e.name == "thrust_inflow_loss" for e in fe):
+        X = _components(np.asarray(x, float))
+        f = _assemble(fx.inflow_loss(fx.NUMPY, list(_components(f)), X[6:], fe, p.T, p.f_ref))
+    return f @ np.asarray(p.T).T
 
 
 def thrust_to_wrench(f, p: PlantParameters, clip=True):

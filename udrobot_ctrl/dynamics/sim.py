@@ -33,8 +33,16 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy.integrate import solve_ivp
 
-from udrobot_ctrl.dynamics import integrators
-from udrobot_ctrl.dynamics.plant import PlantParameters, plant_parameters, state_derivative, thrust_to_wrench
+from udrobot_ctrl.dynamics import effects as fx
+from udrobot_ctrl.dynamics import integrators, plant_casadi
+from udrobot_ctrl.dynamics.plant import (
+    PlantParameters,
+    delivered_wrench,
+    plant_parameters,
+    require_nominal,
+    state_derivative,
+    thrust_to_wrench,
+)
 from udrobot_ctrl.vehicle import load_model
 
 
@@ -75,6 +83,8 @@ def stack_parameters(models) -> PlantParameters:
     if not ps:
         raise ValueError("stack_parameters needs at least one model")
     p0 = ps[0]
+    for p in ps:
+        require_nominal(p, "stacked (per-vehicle) parameters")
     for i, p in enumerate(ps[1:], start=1):
         if np.ndim(p.weight) or p.T.shape != p0.T.shape or not (
                 np.allclose(p.T, p0.T) and np.allclose(p.f_min, p0.f_min) and np.allclose(p.f_max, p0.f_max)):
@@ -105,6 +115,42 @@ def _wrench(u, p, input_kind):
     if input_kind == "tau":
         return np.asarray(u, float), np.zeros(np.shape(u)[:-1], bool)
     raise ValueError(f"input_kind must be 'thrust' or 'tau', got {input_kind!r}")
+
+
+class _Actuators:
+    """The thrust effects of a model between the command and the plant: clip, static maps, lag (held per step of
+    ``dt`` s, exact zero-order-hold discretisation), and the state-dependent inflow loss inside each RK4 stage."""
+
+    def __init__(self, p: PlantParameters, dt: float):
+        self.p, self.dt = p, float(dt)
+        self.maps = fx.thrust_effects(p.effects)
+        self.T_lag = fx.lag_time_constant(p.effects)
+        self.inflow = any(e.name == "thrust_inflow_loss" for e in self.maps)
+        self.f = None
+
+    def delivered(self, u):
+        """Thrust after clipping, the static maps and the lag (advanced by one step), N."""
+        p = self.p
+        f = np.clip(np.asarray(u, float), p.f_min, p.f_max)
+        f = np.stack(np.broadcast_arrays(*fx.static_thrust(fx.NUMPY, list(np.moveaxis(f, -1, 0)), self.maps,
+                                                           p.f_ref)), axis=-1)
+        if self.T_lag is not None:
+            self.f = f if self.f is None else fx.first_order_lag_step(self.f, f, self.dt, self.T_lag)
+            f = self.f
+        return f
+
+    def step(self, u, disturbance):
+        """(wrench of the delivered thrust without inflow loss, stage disturbance adding the inflow loss)."""
+        p = self.p
+        f = self.delivered(u)
+        tau = f @ p.T.T
+        if not self.inflow:
+            return tau, disturbance
+
+        def stage(tt, xx, f=f, tau=tau):
+            extra = delivered_wrench(xx, f, p) - tau
+            return extra if disturbance is None else extra + disturbance(tt, xx)
+        return tau, stage
 
 
 def rk4_step(p: PlantParameters, x, tau, dt, disturbance=None, t=0.0):
@@ -178,6 +224,7 @@ def integrate_rk4(p: PlantParameters, x0, taus, dt, nsteps, tau_every=1, record_
     status : (N,) ndarray of int
         -1 where the vehicle stayed finite, else the step index at which it diverged.
     """
+    require_nominal(p, "the compiled RK4 kernel")
     x0 = np.ascontiguousarray(np.asarray(x0, float).reshape(-1, 12))
     n = x0.shape[0]
     taus = np.ascontiguousarray(np.asarray(taus, float))
@@ -245,7 +292,11 @@ def simulate(model, x0, t_final, controller=None, inputs=None, dt=0.01, input_ki
     k_in = _input_width(p, input_kind)
     hold = max(1, int(round((control_dt or dt) / dt)))
     batch = x.shape[:-1]
-    use_kernel = method == "rk4" and disturbance is None and _numba_available()
+    if p.effects and input_kind == "tau" and fx.thrust_effects(p.effects):
+        raise ValueError(f"model {p.name!r} has thrust effects ({', '.join(e.name for e in p.effects)}): they act "
+                         f"on each thruster's force, so simulate it with thrust inputs, not a commanded wrench")
+    # the compiled kernels hold the nominal equations; a model's run-time effects go through the numpy loop
+    use_kernel = method == "rk4" and disturbance is None and not p.effects and _numba_available()
     if method == "rk4" and disturbance is None and not _numba_available():  # pragma: no cover
         warnings.warn("numba unavailable: using the plain-numpy RK4", RuntimeWarning, stacklevel=2)
     if use_kernel and controller is None:
@@ -333,6 +384,14 @@ def _simulate_python(p, x, n, dt, controller, inputs, input_kind, k_in, hold, me
     xs = [x.copy()]
     us, taus, sats = [], [], []
     u = None
+    actuators = _Actuators(p, dt) if p.effects and input_kind == "thrust" else None
+    # a model with effects: one casadi RK4 step (the same equations, compiled by casadi) per step, unless the
+    # numpy reference is asked for or a numpy disturbance must enter the stages
+    stepper = None
+    if p.effects and method == "rk4" and disturbance is None:
+        stepper = plant_casadi.rk4_step_function(p, dt, input_kind, actuators="delivered")
+        if batch:
+            stepper = stepper.map(int(np.prod(batch)))
     for k in range(n):
         if controller is not None:
             if k % hold == 0:
@@ -342,12 +401,23 @@ def _simulate_python(p, x, n, dt, controller, inputs, input_kind, k_in, hold, me
         else:
             u = np.zeros(batch + (k_in,))
         tau, sat = _wrench(u, p, input_kind)
-        if method in ("rk4", "rk4_numpy"):
-            x = rk4_step(p, x, tau, dt, disturbance, t[k])
+        if stepper is not None:
+            v = actuators.delivered(u) if actuators is not None else np.asarray(u, float)
+            tau = v @ p.T.T if actuators is not None else tau
+            v = np.broadcast_to(v, batch + (v.shape[-1],)).reshape(-1, v.shape[-1])
+            x = np.asarray(stepper(x.reshape(-1, 12).T, v.T)).T.reshape(x.shape)
+        elif method in ("rk4", "rk4_numpy"):
+            step_disturbance = disturbance
+            if actuators is not None:
+                tau, step_disturbance = actuators.step(u, disturbance)
+            x = rk4_step(p, x, tau, dt, step_disturbance, t[k])
         else:
-            def rhs(tt, xx, tau=tau, shape=x.shape):
+            step_disturbance = disturbance
+            if actuators is not None:
+                tau, step_disturbance = actuators.step(u, disturbance)
+            def rhs(tt, xx, tau=tau, shape=x.shape, dist=step_disturbance):
                 xx = xx.reshape(shape)
-                tot = tau if disturbance is None else tau + disturbance(tt, xx)
+                tot = tau if dist is None else tau + dist(tt, xx)
                 return state_derivative(xx, tot, p).ravel()
 
             sol = solve_ivp(rhs, (t[k], t[k + 1]), x.ravel(), rtol=1e-9, atol=1e-11)

@@ -1,0 +1,181 @@
+"""Catalogue effects as parts of the plant: twins agree, each effect has its physics, model files carry them."""
+import json
+
+import numpy as np
+import pytest
+
+from udrobot_ctrl.dynamics import effects as fx
+from udrobot_ctrl.dynamics import plant_casadi
+from udrobot_ctrl.dynamics.plant import delivered_wrench, kinematics, plant_parameters, state_derivative
+from udrobot_ctrl.dynamics.sim import simulate
+from udrobot_ctrl.vehicle import load_model, read_model_file, to_model_dict
+
+NOMINAL = load_model("pendulum:chin")
+
+EXAMPLES = {
+    "thrust_inflow_loss": {"k1_per_mps": 0.3, "k2_per_mps": 0.1},
+    "thruster_lag": {"T_lag_s": 0.3},
+    "thruster_deadband": {"width_fraction": 0.1, "shift": 1.0},
+    "thruster_asymmetry": {"reverse_loss": 0.3},
+    "tether_drag": {"k_quadratic_N_s2_per_m2": 20.0, "k_linear_N_s_per_m": 2.0, "cable_azimuth_rad": 2.5,
+                    "cable_elevation_rad": 0.4},
+    "wall_effect": {"decay_length_m": 0.2, "added_mass_at_contact_kg": 8.0, "suction_N_s2_per_m2": 30.0,
+                    "seabed_depth_m": 2.0},
+    "water_current": {"current_north_mps": 0.2, "current_east_mps": -0.1, "current_down_mps": 0.02},
+    "linear_damping": {f"d_{d}{v}": 3.0 for d, v in zip(fx.DOF, fx.VEL)},
+    "quadratic_damping_error": {f"scale_{d}{v}|{v}|": 0.5 for d, v in zip(fx.DOF, fx.VEL)},
+    "added_mass_error": {f"scale_{d}d{v}": 0.4 for d, v in zip(fx.DOF, fx.VEL)},
+    "cross_coupled_damping": {"D_Xv": 2.0, "Q_Zu|u|": 5.0, "D_Nv": 0.5},
+    "buoyancy_offset": {"dB_N": 3.0},
+    "cg_cb_offset": {"dBG_x_Nm": 0.2, "dBG_y_Nm": -0.1, "dBG_z_Nm": 0.3},
+}
+
+
+def _with(*names):
+    return NOMINAL.with_changes(effects=tuple(fx.PlantEffect(n, EXAMPLES[n]) for n in names))
+
+
+def _states(n=7, seed=0):
+    rng = np.random.default_rng(seed)
+    x = rng.normal(scale=0.4, size=(n, 12))
+    x[:, 2] = rng.uniform(1.2, 1.95, n)  # depth near the seabed of the wall example
+    x[:, 3:5] *= 0.5
+    f = rng.uniform(-25, 30, size=(n, 4))
+    f[0] = [0.5, -0.5, 1.0, -1.0]  # inside the deadband
+    return x, f
+
+
+def test_every_catalogue_effect_has_a_plant_form():
+    assert set(EXAMPLES) == set(fx.EFFECT_NAMES)
+
+
+@pytest.mark.parametrize("name", [n for n in fx.EFFECT_NAMES if n != "thruster_lag"])
+def test_numpy_and_casadi_plants_agree_with_the_effect(name):
+    p = plant_parameters(_with(name))
+    f_cas = plant_casadi.dynamics_function(p, "thrust")
+    x, f = _states()
+    maps = fx.thrust_effects(p.effects)
+    for xi, fi in zip(x, f):
+        fd = np.array(fx.static_thrust(fx.NUMPY, list(fi), maps, p.f_ref), float)
+        ref = state_derivative(xi, delivered_wrench(xi, fd, p), p)
+        np.testing.assert_allclose(np.asarray(f_cas(xi, fi)).ravel(), ref, rtol=1e-9, atol=1e-9)
+
+
+def test_tools_without_actuator_states_refuse_a_lag():
+    p = plant_parameters(_with("thruster_lag"))
+    with pytest.raises(ValueError, match="thruster_lag"):
+        plant_casadi.dynamics_function(p, "thrust")
+
+
+def test_parameter_effects_change_the_matrices_they_name():
+    p0 = plant_parameters(NOMINAL)
+    p = plant_parameters(_with("linear_damping", "added_mass_error", "buoyancy_offset", "cg_cb_offset"))
+    np.testing.assert_allclose(np.diag(p.D_L), np.diag(p0.D_L) + 3.0)
+    np.testing.assert_allclose(np.diag(p.M_A), 1.4 * np.diag(p0.M_A))
+    assert p.buoyancy == pytest.approx(p0.buoyancy + 3.0)
+    bg0 = p0.r_g * p0.weight - p0.r_b * p0.buoyancy
+    bg = p.r_g * p.weight - p.r_b * p.buoyancy
+    np.testing.assert_allclose(bg - bg0, [0.2, -0.1, 0.3], atol=1e-12)
+    assert p.effects == ()  # nothing left for run time
+
+
+def test_buoyancy_offset_lifts_the_vehicle_by_dB_over_the_heave_mass():
+    p0, p = plant_parameters(NOMINAL), plant_parameters(_with("buoyancy_offset"))
+    x = np.zeros(12)
+    dw = state_derivative(x, np.zeros(6), p)[8] - state_derivative(x, np.zeros(6), p0)[8]
+    assert dw == pytest.approx(-3.0 * p.M_inv[2, 2], rel=1e-9)  # positive buoyancy accelerates upwards (-z)
+
+
+def test_current_carries_a_free_vehicle_at_the_current_velocity():
+    p = plant_parameters(_with("water_current").with_changes(
+        effects=(fx.PlantEffect("water_current", {"current_north_mps": 0.2, "current_east_mps": -0.1,
+                                                  "current_down_mps": 0.0}),)))
+    res = simulate(p, np.r_[0, 0, 1.0, np.zeros(9)], 80.0, dt=0.02, input_kind="thrust")
+    ned = kinematics(res.x[-1, :6], res.x[-1, 6:])[:2]  # moving with the water, nothing acts on it any more
+    np.testing.assert_allclose(ned, [0.2, -0.1], atol=0.01)
+
+
+def test_tether_drag_is_dissipative_and_a_vertical_cable_does_not_resist_heave():
+    p = plant_parameters(_with("tether_drag"))
+    x, _ = _states(50, seed=3)
+    X = np.moveaxis(x, -1, 0)
+    F = np.stack(fx.external_force(fx.NUMPY, X[:6], X[6:], p.effects), -1)
+    power = np.sum(F[:, :3] * x[:, 6:9], axis=1)
+    assert np.all(power <= 1e-12)
+    up = fx.PlantEffect("tether_drag", {**EXAMPLES["tether_drag"], "cable_elevation_rad": np.pi / 2})
+    heave = np.zeros((1, 12))
+    heave[0, 8] = 0.5
+    H = np.moveaxis(heave, -1, 0)
+    np.testing.assert_allclose(np.stack(fx.external_force(fx.NUMPY, H[:6], H[6:], (up,)), -1), 0.0, atol=1e-12)
+
+
+def test_wall_effect_adds_mass_and_suction_only_near_the_seabed():
+    p = plant_parameters(_with("wall_effect"))
+    near, far = np.zeros(12), np.zeros(12)
+    near[2], far[2] = 1.98, 0.5  # seabed at 2 m
+    near[6] = far[6] = 0.5  # gliding along it
+    for x, expect in ((near, True), (far, False)):
+        X = x[:, None]
+        dM = fx.added_mass_increment(fx.NUMPY, X[:6], X[6:], p.effects)
+        F = np.ravel(fx.external_force(fx.NUMPY, X[:6], X[6:], p.effects))
+        assert (float(np.ravel(dM[2][2])[0]) > 1.0) == expect
+        assert (F[2] > 0.5) == expect  # suction pulls down (+z) towards the seabed
+
+
+def test_deadband_and_asymmetry_shape_the_delivered_thrust():
+    db = (fx.PlantEffect("thruster_deadband", EXAMPLES["thruster_deadband"]),)
+    ref = np.full(2, 30.0)
+    out = fx.static_thrust(fx.NUMPY, [np.array(2.0), np.array(10.0)], db, ref)
+    assert float(out[0]) == 0.0 and float(out[1]) == pytest.approx(10.0 - 3.0)
+    asym = (fx.PlantEffect("thruster_asymmetry", {"reverse_loss": 0.3}),)
+    out = fx.static_thrust(fx.NUMPY, [np.array(-10.0), np.array(10.0)], asym, ref)
+    assert float(out[0]) == pytest.approx(-7.0) and float(out[1]) == 10.0
+
+
+def test_thruster_lag_delays_the_response_by_its_time_constant():
+    T = 0.5
+    lagged = _with("thruster_lag").with_changes(effects=(fx.PlantEffect("thruster_lag", {"T_lag_s": T}),))
+    u = np.zeros((400, 4))
+    u[1:, :2] = 15.0  # surge step after the first step (the lag starts at rest)
+    fast = simulate(NOMINAL, np.r_[0, 0, 1.0, np.zeros(9)], 4.0, inputs=u, dt=0.01)
+    slow = simulate(lagged, np.r_[0, 0, 1.0, np.zeros(9)], 4.0, inputs=u, dt=0.01)
+    k = int(T / 0.01)
+    assert slow.x[k, 6] < 0.5 * fast.x[k, 6]  # the lagged thrust has reached 63 %: less impulse so far
+    assert slow.x[-1, 6] == pytest.approx(fast.x[-1, 6], rel=0.25)
+
+
+def test_model_file_round_trips_effects(tmp_path):
+    v = _with("tether_drag", "buoyancy_offset")
+    path = tmp_path / "corrected.json"
+    path.write_text(json.dumps(to_model_dict(v)))
+    back = read_model_file(path)
+    assert back.effects == v.effects
+
+
+@pytest.mark.parametrize("entry, message", [
+    ({"name": "tether_darg", "params": {}}, "did you mean 'tether_drag'"),
+    ({"name": "buoyancy_offset", "params": {"dB": 1.0}}, "did you mean 'dB_N'"),
+    ({"name": "buoyancy_offset", "params": {}}, "misses parameter"),
+    ({"name": "buoyancy_offset", "params": {"dB_N": "3"}}, "finite number"),
+    ({"name": "thruster_lag", "params": {"T_lag_s": -1.0}}, "must be > 0"),
+])
+def test_bad_effects_are_refused_naming_the_entry(tmp_path, entry, message):
+    doc = to_model_dict(NOMINAL)
+    doc["effects"] = [entry]
+    path = tmp_path / "m.json"
+    path.write_text(json.dumps(doc))
+    with pytest.raises(ValueError, match=message) as err:
+        read_model_file(path)
+    assert "effects[0]" in str(err.value) and str(path) in str(err.value)
+
+
+def test_simulation_paths_agree_with_thrust_lag_and_force_effects():
+    v = NOMINAL.with_changes(effects=tuple(fx.PlantEffect(n, EXAMPLES[n]) for n in (
+        "thrust_inflow_loss", "thruster_deadband", "thruster_lag", "tether_drag", "water_current")))
+    rng = np.random.default_rng(5)
+    u = np.repeat(rng.uniform(-20, 25, size=(10, 4)), 20, axis=0)
+    x0 = np.r_[0, 0, 1.0, np.zeros(9)]
+    a = simulate(v, x0, 2.0, inputs=u, dt=0.01, method="rk4")  # casadi step of the same equations
+    b = simulate(v, x0, 2.0, inputs=u, dt=0.01, method="rk4_numpy")
+    np.testing.assert_allclose(a.x, b.x, rtol=1e-9, atol=1e-10)
+    assert np.abs(a.x[-1, 6:]).max() > 0.05  # it moved

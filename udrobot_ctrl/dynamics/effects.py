@@ -1,0 +1,423 @@
+"""Unmodelled effects as parts of the plant: the diagnosis catalogue written once, for every tool.
+
+A model may carry an ``effects`` list (``udrobot-model/1``, ``docs/formats/model.md``): each entry is a
+:class:`PlantEffect`, a catalogue name and its parameters, as the diagnoser reports them. Every effect enters
+the plant in one of three ways:
+
+* **parameters** -- it changes the nominal matrices, so every tool (numpy, casadi, numba kernels, linearisation,
+  controller design) simulates it for free (:func:`fold_parameters`):
+
+  ``linear_damping``            D_L,ii += d_i  (``d_Xu`` ... ``d_Nr``; N s/m, N m s)
+  ``quadratic_damping_error``   Q_ii *= 1 + s_i  (``scale_Xu|u|`` ...)
+  ``added_mass_error``          M_A,ii *= 1 + s_i  (``scale_Xdu`` ...; M and its Coriolis part follow)
+  ``cross_coupled_damping``     D_L,ij += D_ij, Q_ij += Q_ij  (``D_Xv``, ``Q_Xv|v|`` ...)
+  ``buoyancy_offset``           B += dB  (``dB_N``; acting at the centre of buoyancy)
+  ``cg_cb_offset``              (r_g W - r_b B) += dBG  (``dBG_x_Nm`` ...; the centre of buoyancy moves)
+
+* **thrust** -- it changes the thrust each actuator delivers (:func:`delivered_thrust`, :class:`ThrusterLag`):
+
+  ``thruster_deadband``   f -> 0 for |f| < d, f - c d sign(f) beyond; d = ``width_fraction`` * f_ref
+  ``thruster_asymmetry``  f -> (1 - ``reverse_loss``) f for f < 0
+  ``thrust_inflow_loss``  f -> f - (k1 |f| + k2 sqrt(|f| f_ref)) u_a, never reversing f; u_a the actuator's axial
+                          advance speed (``k1_per_mps``, ``k2_per_mps``)
+  ``thruster_lag``        first-order lag of time constant ``T_lag_s`` (a state of the actuator: simulated
+                          by the simulator, refused by tools that need a static plant)
+
+  f_ref is each thruster's capacity (max(max_forward_N, max_reverse_N)); for a commanded wrench (``tau_*``
+  runs: six virtual actuators) the maps act per DOF, with per-DOF parameters (``shift_X`` ...) allowed.
+
+* **force** -- an external or velocity-dependent force (:func:`external_force`):
+
+  ``tether_drag``    F_ned = -(k_q |V_n| + k_l) V_n, V_n the NED velocity normal to a cable of direction e
+                     (``cable_azimuth_rad`` from north, ``cable_elevation_rad`` above the horizontal)
+  ``water_current``  damping and added-mass Coriolis act on nu_r = nu - [R^T v_c; 0] (v_c NED, m/s)
+  ``wall_effect``    near a plane at distance h: added mass a_m exp(-h/lam) n n^T and suction
+                     -a_s exp(-h/lam) |V_t|^2 n; the plane is the seabed at ``seabed_depth_m`` (NED z).
+
+Each term is written once with the elementary functions of a backend (:class:`Backend`: numpy arrays of any
+batch shape, or casadi expressions), so the numpy plant, its casadi twin and the diagnoser evaluate the same
+physics.
+"""
+from __future__ import annotations
+
+import difflib
+import math
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field, replace
+
+import casadi as ca
+import numpy as np
+
+DOF = ("X", "Y", "Z", "K", "M", "N")
+VEL = ("u", "v", "w", "p", "q", "r")
+CROSS_PAIRS = tuple((i, j) for i in range(6) for j in range(6) if i != j)
+
+
+def _per_dof(prefix):
+    return tuple(f"{prefix}_{d}" for d in DOF)
+
+
+@dataclass(frozen=True)
+class EffectKind:
+    """A catalogue entry as the plant sees it.
+
+    Attributes
+    ----------
+    name : str
+    meaning : str
+    enters : {'parameters', 'thrust', 'lag', 'force'}
+    parameters : tuple of str
+        The parameter names a model file gives.
+    alternatives : tuple of tuple of str
+        Other accepted parameter sets (per-DOF thruster maps of a commanded wrench).
+    optional : tuple of str
+        Parameters that may be absent (defaults in :data:`OPTIONAL_DEFAULTS`).
+    """
+
+    name: str
+    meaning: str
+    enters: str
+    parameters: tuple
+    alternatives: tuple = ()
+    optional: tuple = ()
+
+
+CATALOGUE = {k.name: k for k in (
+    EffectKind("thrust_inflow_loss", "thrust falls with the axial inflow speed through the thruster", "thrust",
+               ("k1_per_mps", "k2_per_mps")),
+    EffectKind("thruster_deadband", "small commands produce no thrust", "thrust", ("width_fraction", "shift"),
+               alternatives=(("width_fraction",) + _per_dof("shift"),)),
+    EffectKind("thruster_asymmetry", "reverse thrust weaker than modelled, relative to forward", "thrust",
+               ("reverse_loss",), alternatives=(_per_dof("reverse_loss"),)),
+    EffectKind("thruster_lag", "thrust follows the command with a first-order lag", "lag", ("T_lag_s",)),
+    EffectKind("tether_drag", "umbilical cross-flow drag, normal to the cable", "force",
+               ("k_quadratic_N_s2_per_m2", "k_linear_N_s_per_m", "cable_azimuth_rad", "cable_elevation_rad")),
+    EffectKind("wall_effect", "extra added mass and suction near the seabed", "force",
+               ("decay_length_m", "added_mass_at_contact_kg", "suction_N_s2_per_m2", "seabed_depth_m")),
+    EffectKind("water_current", "steady current; damping on the velocity relative to the water", "force",
+               ("current_north_mps", "current_east_mps", "current_down_mps")),
+    EffectKind("linear_damping", "linear damping missing or wrong", "parameters",
+               tuple(f"d_{d}{v}" for d, v in zip(DOF, VEL))),
+    EffectKind("quadratic_damping_error", "quadratic damping wrong in scale", "parameters",
+               tuple(f"scale_{d}{v}|{v}|" for d, v in zip(DOF, VEL))),
+    EffectKind("added_mass_error", "added mass wrong in scale", "parameters",
+               tuple(f"scale_{d}d{v}" for d, v in zip(DOF, VEL))),
+    EffectKind("cross_coupled_damping", "off-diagonal damping couples DOFs", "parameters", (),
+               optional=tuple(n for i, j in CROSS_PAIRS for n in (f"D_{DOF[i]}{VEL[j]}",
+                                                                  f"Q_{DOF[i]}{VEL[j]}|{VEL[j]}|"))),
+    EffectKind("buoyancy_offset", "net buoyancy differs from the model", "parameters", ("dB_N",)),
+    EffectKind("cg_cb_offset", "restoring moment (CG-CB separation) differs from the model", "parameters",
+               ("dBG_x_Nm", "dBG_y_Nm", "dBG_z_Nm")),
+)}
+EFFECT_NAMES = tuple(CATALOGUE)
+
+
+@dataclass(frozen=True)
+class PlantEffect:
+    """One effect of a model: a catalogue name and its parameters (SI units, names as in :data:`CATALOGUE`)."""
+
+    name: str
+    params: Mapping[str, float] = field(default_factory=dict)
+
+    @property
+    def kind(self) -> EffectKind:
+        return CATALOGUE[self.name]
+
+    def to_dict(self) -> dict:
+        """``{"name": ..., "params": {...}}`` as in a model file."""
+        return {"name": self.name, "params": {k: float(v) for k, v in self.params.items()}}
+
+
+def _suggest(word, choices) -> str:
+    close = difflib.get_close_matches(word, list(choices), n=1)
+    return f" (did you mean {close[0]!r}?)" if close else ""
+
+
+def plant_effect(doc, where: str = "effects[0]") -> PlantEffect:
+    """Parse and check one ``{"name": ..., "params": {...}}`` entry.
+
+    Raises
+    ------
+    ValueError
+        Naming ``where``: an unknown effect or parameter (with a suggestion), a missing parameter, or a value
+        that is not a finite number.
+    """
+    if not isinstance(doc, Mapping) or "name" not in doc:
+        raise ValueError(f"{where}: expected {{\"name\": ..., \"params\": {{...}}}}, got {doc!r}")
+    name = str(doc["name"])
+    if name not in CATALOGUE:
+        raise ValueError(f"{where}: unknown effect {name!r}{_suggest(name, CATALOGUE)}; known: "
+                         f"{', '.join(EFFECT_NAMES)}")
+    kind = CATALOGUE[name]
+    raw = doc.get("params", {}) or {}
+    if not isinstance(raw, Mapping):
+        raise ValueError(f"{where}.params: expected an object of numbers, got {raw!r}")
+    params = {}
+    for key, value in raw.items():
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(float(value)):
+            raise ValueError(f"{where}.params.{key}: expected a finite number, got {value!r}")
+        params[str(key)] = float(value)
+    sets = (kind.parameters,) + kind.alternatives
+    allowed = set(kind.optional).union(*sets)
+    for key in params:
+        if key not in allowed:
+            raise ValueError(f"{where}: effect {name!r} has no parameter {key!r}{_suggest(key, allowed)}; "
+                             f"expected {', '.join(kind.parameters) or ', '.join(kind.optional[:4]) + ', ...'}")
+    if not any(set(s) <= set(params) for s in sets):
+        missing = sorted(set(kind.parameters) - set(params))
+        raise ValueError(f"{where}: effect {name!r} misses parameter(s) {', '.join(missing)}")
+    if name == "thruster_lag" and params["T_lag_s"] <= 0:
+        raise ValueError(f"{where}.params.T_lag_s: must be > 0 s, got {params['T_lag_s']}")
+    if name == "wall_effect" and params["decay_length_m"] <= 0:
+        raise ValueError(f"{where}.params.decay_length_m: must be > 0 m, got {params['decay_length_m']}")
+    return PlantEffect(name, params)
+
+
+def parse_effects(docs, source: str = "<model>") -> tuple:
+    """The ``effects`` list of a model document as :class:`PlantEffect` objects (each name at most once)."""
+    if docs is None:
+        return ()
+    if not isinstance(docs, (list, tuple)):
+        raise ValueError(f"{source}: field 'effects' must be a list, got {type(docs).__name__}")
+    out = tuple(plant_effect(d, f"{source}: effects[{i}]") for i, d in enumerate(docs))
+    names = [e.name for e in out]
+    dup = sorted({n for n in names if names.count(n) > 1})
+    if dup:
+        raise ValueError(f"{source}: effect(s) listed twice: {', '.join(dup)} (merge their parameters)")
+    return out
+
+
+# ----------------------------------------------------------------------------------------- parameters
+def fold_parameters(p, effects):
+    """Plant parameters with the *parameters* effects of ``effects`` folded in; the others are kept on ``p``.
+
+    Parameters
+    ----------
+    p : udrobot_ctrl.dynamics.plant.PlantParameters
+        Nominal parameters (single vehicle) with ``M_A`` set.
+    effects : sequence of PlantEffect
+
+    Returns
+    -------
+    PlantParameters
+        M, M_inv, M_A, D_L, Q, buoyancy and r_b corrected; ``effects`` holds the effects that enter as thrust,
+        lag or force (evaluated at run time).
+    """
+    M_A = np.array(p.M_A if p.M_A is not None else np.zeros((6, 6)), float)
+    M_RB = np.asarray(p.M, float) - M_A
+    D_L, Q = np.array(p.D_L, float), np.array(p.Q, float)
+    buoyancy = float(p.buoyancy)
+    dBG = np.zeros(3)
+    runtime = []
+    for e in effects:
+        q = e.params
+        if e.name == "linear_damping":
+            D_L[np.diag_indices(6)] += [q[f"d_{d}{v}"] for d, v in zip(DOF, VEL)]
+        elif e.name == "quadratic_damping_error":
+            Q[np.diag_indices(6)] *= 1.0 + np.array([q[f"scale_{d}{v}|{v}|"] for d, v in zip(DOF, VEL)])
+        elif e.name == "added_mass_error":
+            M_A[np.diag_indices(6)] *= 1.0 + np.array([q[f"scale_{d}d{v}"] for d, v in zip(DOF, VEL)])
+        elif e.name == "cross_coupled_damping":
+            for i, j in CROSS_PAIRS:
+                D_L[i, j] += q.get(f"D_{DOF[i]}{VEL[j]}", 0.0)
+                Q[i, j] += q.get(f"Q_{DOF[i]}{VEL[j]}|{VEL[j]}|", 0.0)
+        elif e.name == "buoyancy_offset":
+            buoyancy += q["dB_N"]
+        elif e.name == "cg_cb_offset":
+            dBG += [q["dBG_x_Nm"], q["dBG_y_Nm"], q["dBG_z_Nm"]]
+        else:
+            runtime.append(e)
+    r_b = np.array(p.r_b, float)
+    if np.any(dBG):
+        if buoyancy <= 0:
+            raise ValueError(f"model {p.name!r}: cg_cb_offset needs a positive buoyancy to move the centre of "
+                             f"buoyancy (B = {buoyancy:g} N)")
+        r_b = r_b - dBG / buoyancy  # (r_g W - r_b B) grows by dBG
+    M = M_RB + M_A
+    eig = np.linalg.eigvalsh(0.5 * (M + M.T))
+    if eig.min() <= 1e-9 * eig.max():
+        raise ValueError(f"model {p.name!r}: the effects make M_RB + M_A not positive definite "
+                         f"(smallest eigenvalue {eig.min():.3g}); check added_mass_error")
+    return replace(p, M=M, M_inv=np.linalg.inv(M), M_A=M_A, D_L=D_L, Q=Q, buoyancy=buoyancy, r_b=r_b,
+                   effects=tuple(runtime))
+
+
+# ----------------------------------------------------------------------------------------- backends
+@dataclass(frozen=True)
+class Backend:
+    """Elementary functions of one array backend (numpy or casadi)."""
+
+    sin: Callable
+    cos: Callable
+    sqrt: Callable
+    exp: Callable
+    where: Callable  # where(condition, a, b)
+    sign: Callable
+    fmax: Callable
+
+
+NUMPY = Backend(np.sin, np.cos, np.sqrt, np.exp, np.where, np.sign, np.maximum)
+CASADI = Backend(ca.sin, ca.cos, ca.sqrt, ca.exp, ca.if_else, ca.sign, ca.fmax)
+
+
+def _rotation(be, eta):
+    cf, sf = be.cos(eta[3]), be.sin(eta[3])
+    ct, st = be.cos(eta[4]), be.sin(eta[4])
+    cp, sp = be.cos(eta[5]), be.sin(eta[5])
+    return ((cp * ct, -sp * cf + cp * st * sf, sp * sf + cp * cf * st),
+            (sp * ct, cp * cf + sf * st * sp, -cp * sf + st * sp * cf),
+            (-st, ct * sf, ct * cf))
+
+
+def _to_ned(R, v):
+    return tuple(R[i][0] * v[0] + R[i][1] * v[1] + R[i][2] * v[2] for i in range(3))
+
+
+def _to_body(R, v):
+    return tuple(R[0][i] * v[0] + R[1][i] * v[1] + R[2][i] * v[2] for i in range(3))
+
+
+# ----------------------------------------------------------------------------------------- thrust
+def _per_actuator(params, key, n_actuators, virtual):
+    """One value per actuator: the per-DOF parameters of a commanded wrench, or the shared one."""
+    if virtual and f"{key}_X" in params:
+        return [params[f"{key}_{d}"] for d in DOF]
+    return [params.get(key, 0.0)] * n_actuators
+
+
+def static_thrust(be, f, effects, f_ref, virtual=False):
+    """Thrust after the static maps (deadband, then reverse loss) of the commanded, clipped thrusts ``f``.
+
+    Parameters
+    ----------
+    be : Backend
+    f : sequence of n components (N; or N, N m for a commanded wrench)
+    effects : sequence of PlantEffect
+    f_ref : (n,) array_like
+        Reference magnitude of each actuator (its capacity), N.
+    virtual : bool
+        The actuators are the six DOFs of a commanded wrench (per-DOF parameters accepted).
+    """
+    out = list(f)
+    n = len(out)
+    for e in effects:
+        if e.name == "thruster_deadband":
+            shift = _per_actuator(e.params, "shift", n, virtual)
+            for i in range(n):
+                d = e.params["width_fraction"] * float(f_ref[i])
+                out[i] = be.where(abs(out[i]) < d, 0.0 * out[i], out[i] - shift[i] * d * be.sign(out[i]))
+        elif e.name == "thruster_asymmetry":
+            loss = _per_actuator(e.params, "reverse_loss", n, virtual)
+            for i in range(n):
+                out[i] = be.where(out[i] < 0, (1.0 - loss[i]) * out[i], out[i])
+    return out
+
+
+def inflow_loss(be, f, nu, effects, inflow, f_ref):
+    """Thrust after the inflow loss: f - (k1 |f| + k2 sqrt(|f| f_ref)) u_a, never reversing f.
+
+    ``inflow`` (6, n): actuator j's axial advance speed is ``inflow[:, j] . nu`` (m/s).
+    """
+    out = list(f)
+    for e in effects:
+        if e.name != "thrust_inflow_loss":
+            continue
+        k1, k2 = e.params["k1_per_mps"], e.params["k2_per_mps"]
+        for j in range(len(out)):
+            col = np.asarray(inflow)[:, j]
+            ua = sum(float(col[i]) * nu[i] for i in range(6) if col[i] != 0.0)
+            fj = out[j]
+            fa = fj - (k1 * abs(fj) + k2 * be.sqrt(abs(fj) * float(f_ref[j]))) * ua
+            out[j] = be.where(fa * fj < 0, 0.0 * fj, fa)
+    return out
+
+
+def thrust_effects(effects) -> tuple:
+    """The effects that change the delivered thrust (static maps and inflow loss)."""
+    return tuple(e for e in effects if CATALOGUE[e.name].enters == "thrust")
+
+
+def lag_time_constant(effects) -> float | None:
+    """T_lag_s of a ``thruster_lag`` effect, or None."""
+    for e in effects:
+        if e.name == "thruster_lag":
+            return float(e.params["T_lag_s"])
+    return None
+
+
+def first_order_lag_step(f_prev, f_cmd, dt, T):
+    """Exact zero-order-hold step of T y' + y = f_cmd over ``dt`` s from ``f_prev`` (arrays or scalars)."""
+    a = math.exp(-dt / max(T, 1e-9))
+    return a * np.asarray(f_prev, float) + (1.0 - a) * np.asarray(f_cmd, float)
+
+
+# ----------------------------------------------------------------------------------------- forces
+def cable_direction(azimuth, elevation):
+    """Unit NED vector from the vehicle along its tether: azimuth (rad, from north towards east) and elevation
+    (rad, above the horizontal; pi/2 is a cable straight up to the surface)."""
+    ce = math.cos(elevation)
+    return (ce * math.cos(azimuth), ce * math.sin(azimuth), -math.sin(elevation))
+
+
+def _tether(be, eta, nu, q):
+    e = cable_direction(q["cable_azimuth_rad"], q["cable_elevation_rad"])
+    R = _rotation(be, eta)
+    v = _to_ned(R, nu)
+    along = v[0] * e[0] + v[1] * e[1] + v[2] * e[2]
+    vn = tuple(v[i] - along * e[i] for i in range(3))
+    speed = be.sqrt(vn[0] * vn[0] + vn[1] * vn[1] + vn[2] * vn[2])
+    k = q["k_quadratic_N_s2_per_m2"] * speed + q["k_linear_N_s_per_m"]
+    fb = _to_body(R, tuple(-k * vn[i] for i in range(3)))
+    return (fb[0], fb[1], fb[2], 0.0 * fb[0], 0.0 * fb[0], 0.0 * fb[0])
+
+
+def _wall_terms(be, eta, nu, q):
+    """exp(-h / lam), body normal and tangential speed^2 for the seabed plane."""
+    R = _rotation(be, eta)
+    nb = _to_body(R, (0.0, 0.0, -1.0))  # the seabed's normal points up, into the water
+    h = be.fmax(q["seabed_depth_m"] - eta[2], 0.0)
+    decay = be.exp(-h / q["decay_length_m"])
+    vn = nu[0] * nb[0] + nu[1] * nb[1] + nu[2] * nb[2]
+    vt2 = be.fmax(nu[0] * nu[0] + nu[1] * nu[1] + nu[2] * nu[2] - vn * vn, 0.0)
+    return decay, nb, vt2
+
+
+def _wall_force(be, eta, nu, q):
+    decay, nb, vt2 = _wall_terms(be, eta, nu, q)
+    s = -q["suction_N_s2_per_m2"] * decay * vt2
+    return (s * nb[0], s * nb[1], s * nb[2], 0.0 * s, 0.0 * s, 0.0 * s)
+
+
+def added_mass_increment(be, eta, nu, effects):
+    """Extra added mass (6 x 6 nested tuples, kg) of the position-dependent effects, or None."""
+    for e in effects:
+        if e.name == "wall_effect":
+            decay, nb, _ = _wall_terms(be, eta, nu, e.params)
+            a = e.params["added_mass_at_contact_kg"] * decay
+            zero = 0.0 * a
+            return tuple(tuple(a * nb[i] * nb[j] if i < 3 and j < 3 else zero for j in range(6)) for i in range(6))
+    return None
+
+
+def relative_velocity(be, eta, nu, effects):
+    """nu_r = nu - [R^T v_c ; 0] for a ``water_current`` effect (else ``nu``)."""
+    for e in effects:
+        if e.name == "water_current":
+            q = e.params
+            c = _to_body(_rotation(be, eta), (q["current_north_mps"], q["current_east_mps"], q["current_down_mps"]))
+            return (nu[0] - c[0], nu[1] - c[1], nu[2] - c[2], nu[3], nu[4], nu[5])
+    return nu
+
+
+def external_force(be, eta, nu, effects):
+    """Sum of the tether and wall suction forces (6 components, N and N m, body frame)."""
+    total = None
+    for e in effects:
+        if e.name == "tether_drag":
+            term = _tether(be, eta, nu, e.params)
+        elif e.name == "wall_effect":
+            term = _wall_force(be, eta, nu, e.params)
+        else:
+            continue
+        total = term if total is None else tuple(a + b for a, b in zip(total, term))
+    return total
