@@ -14,8 +14,9 @@ from udrobot_ctrl.sensitivity.executor import SweepExecutor
 from udrobot_ctrl.sensitivity.local import local_sensitivity
 from udrobot_ctrl.sensitivity.parameters import default_space
 
-# starts cruising at 0.5 m/s and ends cruising: final_error_u is the steady cruise-speed error
-CRUISE = Mission("sens-cruise", 12.0, initial={"z": 0.5, "psi": 0.0, "u": 0.5},
+# starts cruising at 0.5 m/s and ends cruising, long enough for the PID's surge integrator to settle:
+# final_error_u is the steady cruise-speed error
+CRUISE = Mission("sens-cruise", 30.0, initial={"z": 0.5, "psi": 0.0, "u": 0.5},
                  steps=(ReferenceStep("z", 0.5, 1.5), ReferenceStep("psi", 4.0, math.pi / 2)))
 SURGE_CD = np.array([[1.4015], [1.7021], [2.3432]])  # free decay, CFD, pendulum (Cely 2019)
 
@@ -52,10 +53,12 @@ def test_lqr_mission_settles_on_the_nominal_model_and_batches_are_independent():
     assert out["unsettled"][0] == 0
     assert abs(out["final_error_u"][0]) < 5e-3  # trim feed-forward from the same model: no speed error
     assert out["lost_control"][0] == 0 and out["max_pitch_deg"][0] < 30
-    # a sample evaluated alone gives the same metrics as inside the batch
-    alone = ev(X[2:3])
+    # a sample evaluated alone gives the same metrics as inside the batch (a sample that loses pitch
+    # tumbles chaotically, where rounding differences grow: compare one that keeps control)
+    assert out["lost_control"][1] == 0
+    alone = ev(X[1:2])
     for m in ("iae_z", "energy_J", "settling_z_s"):
-        assert alone[m][0] == pytest.approx(out[m][2], rel=1e-9)
+        assert alone[m][0] == pytest.approx(out[m][1], rel=1e-9)
 
 
 def test_wrong_surge_drag_slows_the_cruise_unless_redesigned():
@@ -74,9 +77,8 @@ def test_wrong_surge_drag_slows_the_cruise_unless_redesigned():
 def test_pid_integral_action_removes_the_speed_error_a_wrong_drag_causes():
     space = default_space("cfd:morison").subset(["surge.CD"])
     X = SURGE_CD[[0, 2]]
-    cruise = Mission("sens-cruise-30", 30.0, initial=CRUISE.initial, steps=CRUISE.steps)  # the integrator settles
-    lqr = MissionEvaluator(space, "lqr", mission=cruise)(X)
-    pid = MissionEvaluator(space, "pid", mission=cruise)(X)
+    lqr = MissionEvaluator(space, "lqr", mission=CRUISE)(X)
+    pid = MissionEvaluator(space, "pid", mission=CRUISE)(X)
     assert pid["error"] == ["", ""]
     assert np.all(np.abs(pid["final_error_u"]) < 0.3 * np.abs(lqr["final_error_u"]))
     assert pid["energy_J"][1] > pid["energy_J"][0]  # same speed against more drag costs more energy
@@ -85,7 +87,9 @@ def test_pid_integral_action_removes_the_speed_error_a_wrong_drag_causes():
 
 
 def test_local_sensitivity_of_the_mission_is_physical():
-    space = default_space("cfd:morison", rotational=False).subset(["surge.CD", "sway.CD", "heave.added_mass"])
+    # (heave.added_mass is not used here: at the high end of its range compare's LQR loses pitch on this plant,
+    # and that failure, not the speed physics, would dominate its one-at-a-time swing)
+    space = default_space("cfd:morison", rotational=False).subset(["surge.CD", "sway.CD", "surge.added_mass"])
     res = local_sensitivity(MissionEvaluator(space, "lqr", mission=CRUISE), space,
                             executor=SweepExecutor(workers=1), progress=False)
     j = res.names.index("surge.CD")
