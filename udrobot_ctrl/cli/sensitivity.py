@@ -11,13 +11,20 @@ Examples::
 from __future__ import annotations
 
 import json
+import sys
 import time
+import warnings
 from pathlib import Path
 
 import numpy as np
 
+from udrobot_ctrl.cli.main import CLIError
 from udrobot_ctrl.control.compare import CONTROL_DT, SIM_DT
 from udrobot_ctrl.control.missions import standard_mission
+from udrobot_ctrl.sensitivity.executor import SweepExecutor
+from udrobot_ctrl.sensitivity.global_ import run_monte_carlo, run_morris, run_sobol
+from udrobot_ctrl.sensitivity.local import local_sensitivity
+from udrobot_ctrl.sensitivity.results import StudyLock, StudyLockedError
 
 METHODS = ("local", "sobol", "morris", "montecarlo")
 
@@ -89,22 +96,29 @@ def build_evaluator(args, space):
 
 
 def run(args) -> int:
-    from udrobot_ctrl.sensitivity.executor import SweepExecutor
-    from udrobot_ctrl.sensitivity.global_ import run_monte_carlo, run_morris, run_sobol
-    from udrobot_ctrl.sensitivity.local import local_sensitivity
-
+    """Validate the arguments, then run the study holding the lock of its ``--out`` folder throughout."""
     if args.resume and not args.out:
         raise ValueError("--resume needs --out (the study directory to continue)")
-    if args.out and Path(args.out).exists() and any(Path(args.out).iterdir()) and not args.resume \
-            and (Path(args.out) / "study.json").exists():
-        raise ValueError(f"{args.out} already holds a study; pass --resume or choose another --out")
     space = build_space(args)
     evaluator = build_evaluator(args, space)
+    if not args.out:
+        return _run(args, space, evaluator)
+    try:
+        with StudyLock(args.out):
+            if not args.resume and (Path(args.out) / "study.json").exists():
+                raise ValueError(f"{args.out} already holds a study; pass --resume or choose another --out")
+            return _run(args, space, evaluator)
+    except StudyLockedError as exc:
+        raise CLIError(str(exc)) from None
+
+
+def _run(args, space, evaluator) -> int:
     progress = not args.quiet
     print(f"sensitivity: {args.method} of {args.controller} on {space.vehicle.name} ({space.form} form), "
           f"{len(space)} parameters")
     t0 = time.perf_counter()
-    with SweepExecutor(workers=args.workers, scheduler=args.scheduler) as ex:
+    with warnings.catch_warnings(), SweepExecutor(workers=args.workers, scheduler=args.scheduler) as ex:
+        warnings.filterwarnings("ignore", message="Sobol study:")  # printed below as "warning: ..."
         print(f"executor: {ex.describe()}")
         if args.method == "local":
             res = local_sensitivity(evaluator, space, executor=ex, out=args.out, resume=args.resume,
@@ -121,6 +135,8 @@ def run(args) -> int:
     wall = time.perf_counter() - t0
     print(f"{res.n_runs} closed-loop runs in {wall:.1f} s")
     print(summary_text(res, args.method, args.top))
+    for note in getattr(res, "warnings", []):
+        print(f"warning: {note}", file=sys.stderr)
     if args.out:
         out = Path(args.out)
         (out / "space.json").write_text(json.dumps(space.to_records(), indent=2))
