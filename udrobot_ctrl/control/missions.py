@@ -341,13 +341,15 @@ def run_mission(controller, plant_model, mission: Mission, dt: float = 0.01, con
     return res
 
 
-def run_mission_batch(controllers, plant_models, mission: Mission, dt: float = 0.01, control_dt: float = 0.05):
+def run_mission_batch(controllers, plant_models, mission: Mission, dt: float = 0.01, control_dt: float = 0.05,
+                      parallel: bool | None = None):
     """Fly N designed controllers, one per plant, through ``mission`` in one batch simulation.
 
     Each vehicle flies as :func:`run_mission` would fly it alone (``safe=True``): the controllers are
     wrapped by :func:`batch_controller`, the plants stacked (:func:`~udrobot_ctrl.dynamics.sim.stack_parameters`;
     they must share the thruster layout) and simulated together. A vehicle that diverges is frozen at NaN
-    without stopping the others (``on_divergence="freeze"``).
+    without stopping the others (``on_divergence="freeze"``). ``parallel``: threaded RK4 kernel (see
+    :func:`~udrobot_ctrl.dynamics.sim.integrate_rk4`; default automatic, False in worker processes).
 
     Returns
     -------
@@ -363,6 +365,6 @@ def run_mission_batch(controllers, plant_models, mission: Mission, dt: float = 0
     p = stack_parameters(plants)
     ctrl = batch_controller(ctrls, p.f_min, p.f_max)
     res = simulate(p, mission.x0(), mission.t_final, controller=ctrl, dt=dt, control_dt=control_dt,
-                   on_divergence="freeze")
+                   on_divergence="freeze", parallel=parallel)
     res.controller = ctrl
     return res

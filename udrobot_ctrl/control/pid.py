@@ -341,7 +341,8 @@ class BatchPID:
         self.T, self.f_min, self.f_max = c0.params.T, c0.params.f_min, c0.params.f_max
         self.Tp = np.linalg.pinv(self.T)
         names = list(LOOPS)
-        g = {k: np.array([[getattr(c.loops[n], k) for n in names] for c in ctrls]) for k in ("kp", "ki", "kd", "t_track")}
+        g = {k: np.array([[getattr(c.loops[n], k) for n in names] for c in ctrls])
+             for k in ("kp", "ki", "kd", "t_track")}
         self.kp, self.ki, self.kd, self.t_track = g["kp"], g["ki"], g["kd"], g["t_track"]
         with np.errstate(divide="ignore", invalid="ignore"):
             self.t_filter = c0.setpoint_filter * np.where(self.ki != 0, self.kp / self.ki, 0.0)

@@ -21,6 +21,7 @@ import numpy as np
 from udrobot_ctrl.control.compare import CONTROL_DT, SIM_DT
 from udrobot_ctrl.control.metrics import mission_metrics
 from udrobot_ctrl.control.missions import CONTROLLER_KINDS, make_controller, run_mission_batch, standard_mission
+from udrobot_ctrl.dynamics.plant import plant_parameters
 from udrobot_ctrl.dynamics.sim import SimResult, simulate, stack_parameters
 from udrobot_ctrl.sensitivity.parameters import ParameterSpace, apply_sample
 
@@ -63,7 +64,8 @@ class TerminalSurgeSpeed:
             p = stack_parameters([vehicles[i] for i in ok])
             surge = np.abs(p.T[0]) > 0.5
             f = np.where(surge, self.thrust_N / surge.sum(), 0.0)
-            res = simulate(p, np.zeros(12), self.t_final, inputs=f[None], dt=self.dt, on_divergence="freeze")
+            res = simulate(p, np.zeros(12), self.t_final, inputs=f[None], dt=self.dt, on_divergence="freeze",
+                           parallel=False)
             u[ok] = res.x[-1, :, 6]
         return {"u_terminal": u, "error": errors}
 
@@ -183,9 +185,11 @@ class MissionEvaluator:
         ctrls, ok = self._controllers(vehicles, ok, errors)
         rows = [{} for _ in vehicles]
         if ok:
-            plants = [vehicles[i] for i in ok]
-            res = run_mission_batch(ctrls, plants, self.mission, dt=self.sim_dt, control_dt=self.control_dt)
-            p = stack_parameters(plants)
+            plants = [plant_parameters(vehicles[i]) for i in ok]
+            # serial kernel: the executor runs chunks in parallel processes; threads inside them oversubscribe
+            res = run_mission_batch(ctrls, plants, self.mission, dt=self.sim_dt, control_dt=self.control_dt,
+                                    parallel=False)
+            f_min, f_max = plants[0].f_min, plants[0].f_max  # shared: stack_parameters checked it
             fallbacks = res.controller.fallbacks
             for j, i in enumerate(ok):
                 x = res.x[:, j]
@@ -195,6 +199,6 @@ class MissionEvaluator:
                     rows[i] = {"lost_control": 1.0}
                     continue
                 one = SimResult(t=res.t, x=x, u=res.u[:, j], tau=res.tau[:, j], saturated=res.saturated[:, j])
-                rows[i] = {**flat_metrics(one, self.mission, p.f_min, p.f_max), "fallbacks": float(fallbacks[j])}
+                rows[i] = {**flat_metrics(one, self.mission, f_min, f_max), "fallbacks": float(fallbacks[j])}
         names = sorted({k for r in rows for k in r})
         return {**{k: np.array([r.get(k, np.nan) for r in rows], float) for k in names}, "error": errors}

@@ -3,7 +3,9 @@
 :class:`SweepExecutor` wraps
 
 * ``workers=1`` -> in-process serial execution (no process start-up; used by small studies and tests);
-* ``workers=N`` (default: the CPU count) -> :class:`concurrent.futures.ProcessPoolExecutor`;
+* ``workers=N`` (default: the CPU count) -> :class:`concurrent.futures.ProcessPoolExecutor` started by a
+  *forkserver* (with the sensitivity evaluators preloaded): workers are not forked from a parent that may
+  already run threads (numba's OpenMP kernels abort a forked child);
 * ``scheduler="tcp://host:8786"`` or ``client=distributed.Client(...)`` -> dask.distributed; ``submit``
   returns dask futures and completion uses ``distributed.as_completed``;
 * ``executor=`` any :class:`concurrent.futures.Executor` you already have.
@@ -20,6 +22,7 @@ from __future__ import annotations
 
 import concurrent.futures as cf
 import math
+import multiprocessing as mp
 import os
 import sys
 import time
@@ -85,7 +88,9 @@ class SweepExecutor:
             if workers == 1:
                 self.executor, self.kind = _ImmediateExecutor(), "serial"
             else:
-                self.executor, self.kind = cf.ProcessPoolExecutor(max_workers=workers), "process"
+                ctx = mp.get_context("forkserver")
+                ctx.set_forkserver_preload(["udrobot_ctrl.sensitivity.evaluators"])
+                self.executor, self.kind = cf.ProcessPoolExecutor(max_workers=workers, mp_context=ctx), "process"
             self._own = True
 
     def submit(self, fn, *args, **kwargs):

@@ -216,7 +216,7 @@ def run_sobol(evaluator, space, N: int, executor=None, out=None, resume=False, s
             indices[metric]["S2"] = np.asarray(res["S2"])
     notes = sobol_warnings(N, indices)
     for note in notes:
-        warnings.warn(f"Sobol study: {note}", RuntimeWarning, stacklevel=2)
+        warnings.warn(f"Sobol study: {note}", RuntimeWarning, stacklevel=3)
     result = GlobalResult("sobol", problem["names"], indices, table, X.shape[0], wall, failed, conf_level, notes)
     if out is not None:
         write_table(f"{out}/indices" + ("_rank" if transform else ""), result.indices_table())

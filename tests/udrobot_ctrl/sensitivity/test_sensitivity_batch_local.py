@@ -10,7 +10,8 @@ from udrobot_ctrl.sensitivity.local import local_sensitivity
 from udrobot_ctrl.sensitivity.parameters import apply_sample, default_space
 
 SHORT = Mission("batch-test", 6.0, initial={"z": 0.5, "psi": 0.0, "u": 0.0},
-                steps=(ReferenceStep("z", 0.5, 1.5), ReferenceStep("psi", 2.0, np.pi / 2), ReferenceStep("u", 3.0, 0.5)))
+                steps=(ReferenceStep("z", 0.5, 1.5), ReferenceStep("psi", 2.0, np.pi / 2),
+                       ReferenceStep("u", 3.0, 0.5)))
 
 
 @pytest.mark.parametrize("kind", ["lqr", "pid"])
