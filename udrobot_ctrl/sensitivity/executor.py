@@ -3,9 +3,11 @@
 :class:`SweepExecutor` wraps
 
 * ``workers=1`` -> in-process serial execution (no process start-up; used by small studies and tests);
-* ``workers=N`` (default: the CPU count) -> :class:`concurrent.futures.ProcessPoolExecutor` started by a
-  *forkserver* (with the sensitivity evaluators preloaded): workers are not forked from a parent that may
-  already run threads (numba's OpenMP kernels abort a forked child);
+* ``workers=N`` (default: the CPU count) -> :class:`concurrent.futures.ProcessPoolExecutor` (the platform's
+  default start method: fork on Linux, so workers inherit the parent's caches and a script needs no
+  ``__main__`` guard). The evaluators run numba's *serial* kernel, so they start no OpenMP threads; a parent
+  that already ran the threaded kernel (:func:`udrobot_ctrl.dynamics.sim.simulate` of >= 16 vehicles) must
+  not fork (OpenMP aborts the child): pass ``executor=ProcessPoolExecutor(mp_context=get_context("forkserver"))``;
 * ``scheduler="tcp://host:8786"`` or ``client=distributed.Client(...)`` -> dask.distributed; ``submit``
   returns dask futures and completion uses ``distributed.as_completed``;
 * ``executor=`` any :class:`concurrent.futures.Executor` you already have.
@@ -22,7 +24,6 @@ from __future__ import annotations
 
 import concurrent.futures as cf
 import math
-import multiprocessing as mp
 import os
 import sys
 import time
@@ -88,9 +89,7 @@ class SweepExecutor:
             if workers == 1:
                 self.executor, self.kind = _ImmediateExecutor(), "serial"
             else:
-                ctx = mp.get_context("forkserver")
-                ctx.set_forkserver_preload(["udrobot_ctrl.sensitivity.evaluators"])
-                self.executor, self.kind = cf.ProcessPoolExecutor(max_workers=workers, mp_context=ctx), "process"
+                self.executor, self.kind = cf.ProcessPoolExecutor(max_workers=workers), "process"
             self._own = True
 
     def submit(self, fn, *args, **kwargs):
