@@ -21,8 +21,7 @@ CRUISE = Mission("sens-cruise", 30.0, initial={"z": 0.5, "psi": 0.0, "u": 0.5},
 SURGE_CD = np.array([[1.4015], [1.7021], [2.3432]])  # free decay, CFD, pendulum (Cely 2019)
 
 
-@pytest.mark.slow
-@pytest.mark.parametrize("kind", ["lqr", "pid", "lmpc"])
+@pytest.mark.parametrize("kind", ["lqr", "pid", pytest.param("lmpc", marks=pytest.mark.slow)])
 def test_nominal_sample_gives_compare_metrics(kind):
     # the sensitivity study flies compare's controller on compare's mission and scores it with compare's
     # metrics: the nominal sample must reproduce compare's row (same keys, same values)
