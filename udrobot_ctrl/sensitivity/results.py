@@ -52,6 +52,17 @@ class StudyLockedError(RuntimeError):
 _HELD: dict = {}  # resolved study folder -> [fd, depth]: the locks this process holds (re-entrant)
 
 
+def _forget_locks_in_child() -> None:
+    """In a forked child (a pool worker): close the inherited lock descriptors, so the lock ends with its
+    holder's release and not with the last worker; the parent's descriptor keeps the lock."""
+    for fd, _ in _HELD.values():
+        os.close(fd)
+    _HELD.clear()
+
+
+os.register_at_fork(after_in_child=_forget_locks_in_child)
+
+
 class StudyLock:
     """Exclusive, re-entrant (within one process) lock of a study folder: ``flock`` on ``OUT/.lock``.
 

@@ -220,3 +220,16 @@ def test_sobol_with_seed_0_is_reproducible_and_a_tiny_sample_warns():
     for k in ("S1", "S1_conf", "ST", "ST_conf"):
         np.testing.assert_array_equal(a[k], b[k])
     assert any("N = 16" in w for w in runs[0].warnings)
+
+
+def test_the_lock_ends_with_the_run_not_with_its_pool_workers(tmp_path):
+    from udrobot_ctrl.sensitivity.results import StudyLock
+
+    f = Ishigami()
+    with SweepExecutor(workers=2) as ex:  # the workers are forked while the study holds its lock
+        run_morris(f, f.problem(), 4, executor=ex, out=tmp_path / "a", progress=False)
+        probe = subprocess.run([sys.executable, "-c", _HOLDER.format(out=str(tmp_path / "a")).replace(
+            "time.sleep(60)", "pass")], capture_output=True, text=True, timeout=60)
+        assert probe.stdout.strip() == "locked", probe.stderr  # another process may take it while workers live
+        with StudyLock(tmp_path / "a"):
+            pass
