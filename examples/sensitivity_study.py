@@ -1,12 +1,13 @@
-"""Which coefficient matters for my controller? A sensitivity study of an LQR depth-and-heading mission.
+"""Which coefficient matters for my controller? A sensitivity study of compare's controllers on the standard mission.
 
 The paper's three identification methods disagree on surge C_D (free decay 1.40, CFD 1.70, pendulum
 2.34). This script answers whether that disagreement changes closed-loop results, and ranks every
 coefficient:
 
-1. the mission (1 m depth and 90 deg heading steps while cruising at 0.5 m/s, 20 s) with an LQR, a
-   PID and a linear MPC designed on the CFD Morison model, flown by plants that differ only in surge C_D (the three
-   values), then with the controllers redesigned on each;
+1. the standard quick mission of ``compare --quick`` (depth step, 90 deg turn, 0.5 m/s transit and stop, 23 s)
+   with ``compare``'s gain-scheduled LQR, PID and linear MPC designed on the CFD Morison model, flown by plants
+   that differ only in surge C_D (the three values), then with the controllers redesigned on each (metrics of
+   :func:`udrobot_ctrl.control.metrics.mission_metrics`, the ones ``compare`` reports);
 2. local sensitivity (finite differences + one-at-a-time range swings, tornado plots);
 3. global Sobol indices (LQR) over the ranges spanned by the three sets (+10 %), with 95 % CIs.
 
@@ -32,12 +33,11 @@ from udrobot_ctrl.sensitivity.parameters import default_space
 from udrobot_ctrl.sensitivity.results import write_table
 
 SURGE_CD = {"free_decay": 1.4015, "cfd": 1.7021, "pendulum": 2.3432}  # Cely 2019 Tables 7, 5, 10
-SHOW = (("speed_error", "m/s", 1), ("iae_speed", "m", 1), ("energy", "J", 1), ("iae_depth", "m s", 1),
-        ("iae_heading", "rad s", 1), ("settling_depth", "s", 1), ("overshoot_depth", "%", 1),
-        ("max_speed", "m/s", 1), ("max_pitch", "deg", 1))
+SHOW = (("iae_u", "m", 1), ("energy_J", "J", 1), ("iae_z", "m s", 1), ("iae_psi", "rad s", 1),
+        ("settling_z_s", "s", 1), ("overshoot_z", "%", 1), ("max_speed", "m/s", 1), ("max_pitch_deg", "deg", 1))
 
 
-def three_surge_cd(space, executor, out, controllers=("lqr", "pid", "mpc")):
+def three_surge_cd(space, executor, out, controllers=("lqr", "pid", "lmpc")):
     """Metrics for the three published surge C_D, each controller designed on the nominal or redesigned."""
     sub = space.subset(["surge.CD"])
     X = np.array([[v] for v in SURGE_CD.values()])
@@ -68,37 +68,6 @@ def three_surge_cd(space, executor, out, controllers=("lqr", "pid", "mpc")):
     return rows
 
 
-def toolbox_controllers(space, executor, out):
-    """The same question on the toolbox's standard mission (quick variant) and its own controllers."""
-    import importlib.util
-
-    kinds = [k for k, mod in (("lqr", "udrobot_ctrl.control.lqr"), ("pid", "udrobot_ctrl.control.pid"),
-                                   ("lmpc", "udrobot_ctrl.control.mpc"))
-             if importlib.util.find_spec(mod) is not None]
-    if importlib.util.find_spec("udrobot_ctrl.control.missions") is None or not kinds:
-        print("\n1b) toolbox controllers: udrobot_ctrl.control.missions not available, skipped")
-        return
-    from udrobot_ctrl.control.missions import standard_mission
-
-    sub = space.subset(["surge.CD"])
-    X = np.array([[v] for v in SURGE_CD.values()])
-    print(f"\n1b) toolbox controllers ({', '.join(kinds)}) on the standard quick mission, designed on the nominal")
-    table = {"controller": [], "metric": [], **{k: [] for k in SURGE_CD}}
-    for kind in kinds:
-        ev = MissionEvaluator(sub, kind, mission=standard_mission(quick=True), backend="missions")
-        r = run_sweep(ev, X, executor=executor, progress=False)
-        if any(r["error"]):
-            print(f"   {kind}: {[e for e in r['error'] if e][0]}")
-            continue
-        for m in ("iae_u", "final_error_u", "energy_J", "iae_z", "iae_psi", "settling_z_s", "max_pitch_deg"):
-            print(f"   {kind:<5}{m:<15}" + "".join(f"{v:14.4g}" for v in r[m]) + f"   spread {np.ptp(r[m]):.3g}")
-            table["controller"].append(kind)
-            table["metric"].append(m)
-            for k, v in zip(SURGE_CD, r[m]):
-                table[k].append(float(v))
-    write_table(out / "three_surge_cd_toolbox", table)
-
-
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--model", default="cfd:morison")
@@ -124,7 +93,6 @@ def main(argv=None) -> int:
     with SweepExecutor(workers=args.workers, scheduler=args.scheduler) as ex:
         print(f"executor: {ex.describe()}")
         three = three_surge_cd(space, ex, out)
-        toolbox_controllers(space, ex, out)
 
         ev = MissionEvaluator(space, "lqr")
         loc = local_sensitivity(ev, space, executor=ex, out=out / "local", resume=True)
@@ -150,23 +118,14 @@ def main(argv=None) -> int:
     import matplotlib.pyplot as plt
 
     plt.close("all")
-    y = three["lqr", False]
-    de = (y["energy"][2] - y["energy"][0]) / y["energy"][1] * 100
-    ds = y["speed_error"][2] - y["speed_error"][0]
-    dz = (y["iae_depth"][2] - y["iae_depth"][0]) / y["iae_depth"][1] * 100
-    dpsi = (y["iae_heading"][2] - y["iae_heading"][0]) / y["iae_heading"][1] * 100
-    print("\nAnswer: surge C_D 1.40 -> 2.34 (design on the CFD value) changes the cruise speed by "
-          f"{ds:+.3f} m/s ({ds / 0.5 * 100:+.1f} % of 0.5 m/s, no integral action), the thrust energy by {de:+.1f} %, "
-          f"depth IAE by {dz:+.1f} % and heading IAE by {dpsi:+.1f} %.")
-    yp = three["pid", False]
-    print(f"With the PID (integral action on speed) the cruise speed changes by "
-          f"{yp['speed_error'][2] - yp['speed_error'][0]:+.3f} m/s and the energy by "
-          f"{(yp['energy'][2] - yp['energy'][0]) / yp['energy'][1] * 100:+.1f} %.")
-    ym = three["mpc", False]
-    print(f"With the linear MPC (no integral action) the cruise speed changes by "
-          f"{ym['speed_error'][2] - ym['speed_error'][0]:+.3f} m/s and the energy by "
-          f"{(ym['energy'][2] - ym['energy'][0]) / ym['energy'][1] * 100:+.1f} %.")
-    print(f"{lost} of {sob.n_runs} Sobol runs lost pitch control (Munk moment at cruise, passive pitch); see "
+    for ctrl, what in (("lqr", "gain-scheduled LQR, no integral action"), ("pid", "PID, integral action"),
+                       ("lmpc", "linear MPC")):
+        y = three[ctrl, False]
+        change = {m: (y[m][2] - y[m][0]) / y[m][1] * 100 for m in ("iae_u", "energy_J", "iae_z", "iae_psi")}
+        print(f"{ctrl} ({what}), surge C_D 1.40 -> 2.34 with the design on the CFD value: speed-tracking IAE "
+              f"{change['iae_u']:+.1f} %, energy {change['energy_J']:+.1f} %, depth IAE {change['iae_z']:+.1f} %, "
+              f"heading IAE {change['iae_psi']:+.1f} %.")
+    print(f"{lost} of {sob.n_runs} Sobol runs lost pitch control (|theta| > 45 deg; passive pitch); see "
           "lost_control's indices for the coefficients behind it.")
     print(f"tables and plots in {out.resolve()}")
     return 0

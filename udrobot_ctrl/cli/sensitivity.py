@@ -11,10 +11,20 @@ Examples::
 from __future__ import annotations
 
 import json
+import sys
 import time
+import warnings
 from pathlib import Path
 
 import numpy as np
+
+from udrobot_ctrl.cli.main import CLIError
+from udrobot_ctrl.control.compare import CONTROL_DT, SIM_DT
+from udrobot_ctrl.control.missions import standard_mission
+from udrobot_ctrl.sensitivity.executor import SweepExecutor
+from udrobot_ctrl.sensitivity.global_ import run_monte_carlo, run_morris, run_sobol
+from udrobot_ctrl.sensitivity.local import local_sensitivity
+from udrobot_ctrl.sensitivity.results import StudyLock, StudyLockedError
 
 METHODS = ("local", "sobol", "morris", "montecarlo")
 
@@ -40,18 +50,11 @@ def register(subparsers):
     p.add_argument("--margin", type=float, default=0.10, help="widening of the min..max spread of the sets (0.10)")
     p.add_argument("--no-rotational", action="store_true", help="leave the rotational scale factors out")
     p.add_argument("--redesign", action="store_true", help="redesign the controller on every perturbed model")
-    p.add_argument("--backend", default="auto", choices=("auto", "batch", "missions"),
-                   help="batch: vectorised depth-and-heading mission (lqr, pid, mpc); missions: one run per sample "
-                        "via udrobot_ctrl.control.missions (any controller); auto: batch unless nmpc")
-    p.add_argument("--surge", type=float, default=0.5, help="mission cruise speed, m/s (0.5)")
-    p.add_argument("--depth", type=float, default=1.0, help="mission depth step, m (1.0)")
-    p.add_argument("--heading", type=float, default=90.0, help="mission heading step, deg (90)")
-    p.add_argument("--duration", type=float, default=20.0, help="mission duration, s (20)")
-    p.add_argument("--dt", type=float, default=None,
-                   help="integration step, s (batch: 0.04, also the LQR/PID control step; missions: 0.02)")
-    p.add_argument("--control-dt", type=float, default=0.05, help="missions backend: controller step, s (0.05)")
+    p.add_argument("--dt", type=float, default=SIM_DT, help=f"RK4 step, s ({SIM_DT}, as compare)")
+    p.add_argument("--control-dt", type=float, default=CONTROL_DT,
+                   help=f"controller step, s ({CONTROL_DT}, as compare)")
     p.add_argument("--full-mission", action="store_true",
-                   help="missions backend: the full 46 s standard mission instead of the quick 23 s one")
+                   help="the full 46 s standard mission of compare instead of the quick 23 s one (compare --quick)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--rank", action="store_true", help="sobol: indices of the metrics' ranks (robust to the few "
                    "runs that lose control)")
@@ -84,38 +87,38 @@ def build_space(args):
 
 
 def build_evaluator(args, space):
+    """compare's controller and mission (standard, quick unless ``--full-mission``) on the perturbed vehicles."""
     from udrobot_ctrl.sensitivity.evaluators import MissionEvaluator
-    from udrobot_ctrl.sensitivity.mission import DepthHeadingMission
 
-    if args.backend == "missions" or (args.backend == "auto" and args.controller == "nmpc"):
-        from udrobot_ctrl.control.missions import standard_mission
-
-        mission = standard_mission(quick=not args.full_mission)
-        return MissionEvaluator(space, controller=args.controller, mission=mission, redesign=args.redesign,
-                                backend="missions", sim_dt=args.dt or 0.02, control_dt=args.control_dt)
-    mission = DepthHeadingMission(depth_m=args.depth, heading_rad=np.radians(args.heading), surge_mps=args.surge,
-                                  t_final=args.duration, dt=args.dt or 0.04)
+    mission = standard_mission(quick=not args.full_mission)
     return MissionEvaluator(space, controller=args.controller, mission=mission, redesign=args.redesign,
-                            backend=args.backend)
+                            sim_dt=args.dt, control_dt=args.control_dt)
 
 
 def run(args) -> int:
-    from udrobot_ctrl.sensitivity.executor import SweepExecutor
-    from udrobot_ctrl.sensitivity.global_ import run_monte_carlo, run_morris, run_sobol
-    from udrobot_ctrl.sensitivity.local import local_sensitivity
-
+    """Validate the arguments, then run the study holding the lock of its ``--out`` folder throughout."""
     if args.resume and not args.out:
         raise ValueError("--resume needs --out (the study directory to continue)")
-    if args.out and Path(args.out).exists() and any(Path(args.out).iterdir()) and not args.resume \
-            and (Path(args.out) / "study.json").exists():
-        raise ValueError(f"{args.out} already holds a study; pass --resume or choose another --out")
     space = build_space(args)
     evaluator = build_evaluator(args, space)
+    if not args.out:
+        return _run(args, space, evaluator)
+    try:
+        with StudyLock(args.out):
+            if not args.resume and (Path(args.out) / "study.json").exists():
+                raise ValueError(f"{args.out} already holds a study; pass --resume or choose another --out")
+            return _run(args, space, evaluator)
+    except StudyLockedError as exc:
+        raise CLIError(str(exc)) from None
+
+
+def _run(args, space, evaluator) -> int:
     progress = not args.quiet
     print(f"sensitivity: {args.method} of {args.controller} on {space.vehicle.name} ({space.form} form), "
           f"{len(space)} parameters")
     t0 = time.perf_counter()
-    with SweepExecutor(workers=args.workers, scheduler=args.scheduler) as ex:
+    with warnings.catch_warnings(), SweepExecutor(workers=args.workers, scheduler=args.scheduler) as ex:
+        warnings.filterwarnings("ignore", message="Sobol study:")  # printed below as "warning: ..."
         print(f"executor: {ex.describe()}")
         if args.method == "local":
             res = local_sensitivity(evaluator, space, executor=ex, out=args.out, resume=args.resume,
@@ -132,6 +135,8 @@ def run(args) -> int:
     wall = time.perf_counter() - t0
     print(f"{res.n_runs} closed-loop runs in {wall:.1f} s")
     print(summary_text(res, args.method, args.top))
+    for note in getattr(res, "warnings", []):
+        print(f"warning: {note}", file=sys.stderr)
     if args.out:
         out = Path(args.out)
         (out / "space.json").write_text(json.dumps(space.to_records(), indent=2))
@@ -141,11 +146,9 @@ def run(args) -> int:
     return 0
 
 
-KEY_METRICS = ("iae_depth", "iae_heading", "iae_speed", "speed_error", "overshoot_depth", "settling_depth",
-               "settling_heading", "energy", "saturation", "max_speed", "max_pitch", "lost_control",
-               # names of udrobot_ctrl.control.metrics (missions backend)
-               "iae", "iae_z", "iae_psi", "iae_u", "overshoot_z", "settling_z_s", "settling_psi_s", "energy_J",
-               "saturation_s", "max_pitch_deg", "final_error_u")
+#: metrics of udrobot_ctrl.control.metrics (compare's) listed first and plotted
+KEY_METRICS = ("iae", "iae_z", "iae_psi", "iae_u", "overshoot_z", "settling_z_s", "settling_psi_s", "final_error_u",
+               "energy_J", "saturation_s", "max_pitch_deg", "max_speed", "lost_control", "unsettled")
 
 
 def summary_text(res, method: str, top: int = 5) -> str:

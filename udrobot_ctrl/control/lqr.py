@@ -189,3 +189,82 @@ class ScheduledLQR:
         if not np.all(np.isfinite(f)):
             f = self.trim(ref["u"])  # safe fallback on a non-finite state
         return np.clip(f, self.f_min, self.f_max)
+
+
+class BatchScheduledLQR:
+    """N :class:`ScheduledLQR` controllers flown at once: ``controller(t, x (N, 12)) -> thrusts (N, n)``.
+
+    The law of each vehicle is exactly its controller's (gain interpolated in its own measured surge
+    speed between its own operating points, trim of its own design model at the reference speed, the
+    trim as fallback on a non-finite state, clipped), evaluated for all vehicles with array operations.
+    Vehicles whose controllers have fewer operating points are padded with copies of their last gain
+    at speeds above their range, which the clipping of the surge speed never reaches.
+
+    Parameters
+    ----------
+    controllers : sequence of ScheduledLQR
+        One per vehicle (the same object may repeat: a design shared by several plants); they must
+        share the reference callable and the thruster limits.
+    """
+
+    def __init__(self, controllers):
+        ctrls = list(controllers)
+        if not ctrls:
+            raise ValueError("BatchScheduledLQR needs at least one controller")
+        first = ctrls[0]
+        for i, c in enumerate(ctrls):
+            if not isinstance(c, ScheduledLQR):
+                raise TypeError(f"controller {i} is a {type(c).__name__}, not a ScheduledLQR")
+            if c.reference != first.reference:
+                raise ValueError(f"controller {i} follows another reference than controller 0")
+            if not (np.array_equal(c.f_min, first.f_min) and np.array_equal(c.f_max, first.f_max)):
+                raise ValueError(f"controller {i} has other thrust limits than controller 0")
+        self.controllers = ctrls
+        self.reference = first.reference
+        self.f_min, self.f_max = first.f_min, first.f_max
+        n_pts = max(len(c.speeds) for c in ctrls) + 1  # >= 2 columns, room for one padding point
+        self.speeds = np.empty((len(ctrls), n_pts))
+        self.gains = np.empty((len(ctrls), n_pts) + first.gains.shape[1:])
+        self.top = np.empty(len(ctrls))
+        for i, c in enumerate(ctrls):
+            k = len(c.speeds)
+            self.speeds[i, :k], self.gains[i, :k] = c.speeds, c.gains
+            self.speeds[i, k:] = c.speeds[-1] + 1.0 + np.arange(n_pts - k)
+            self.gains[i, k:] = c.gains[-1]
+            self.top[i] = c.speeds[-1]
+        self._trims: dict = {}
+
+    def __len__(self) -> int:
+        return len(self.controllers)
+
+    def trim(self, surge: float) -> np.ndarray:
+        """(N, n) trim thrusts of every design model at the reference surge speed (N)."""
+        key = round(float(surge), 6)
+        f = self._trims.get(key)
+        if f is None:
+            per_object = {}
+            f = self._trims[key] = np.stack([per_object.setdefault(id(c), c.trim(key)) for c in self.controllers])
+        return f
+
+    def gain(self, surge) -> np.ndarray:
+        """(N, n, 10) gains interpolated in each vehicle's surge speed (m/s, (N,)), held at the ends."""
+        s = np.clip(np.asarray(surge, float), self.speeds[:, 0], self.top)
+        k = np.clip(np.sum(self.speeds < s[:, None], axis=1) - 1, 0, self.speeds.shape[1] - 2)
+        rows = np.arange(len(s))
+        lo, hi = self.speeds[rows, k], self.speeds[rows, k + 1]
+        a = ((s - lo) / (hi - lo))[:, None, None]
+        return (1 - a) * self.gains[rows, k] + a * self.gains[rows, k + 1]
+
+    def __call__(self, t, x):
+        x = np.asarray(x, float).reshape(len(self), 12)
+        ref = self.reference(t)
+        xr = np.zeros(12)
+        xr[2], xr[5], xr[6] = ref["z"], ref["psi"], ref["u"]
+        e = (x - xr)[:, list(REDUCED_INDEX)]
+        e[:, PSI_R] = _wrap(e[:, PSI_R])
+        u = np.where(np.isfinite(x[:, 6]), x[:, 6], ref["u"])
+        trim = self.trim(ref["u"])
+        f = trim - np.einsum("nij,nj->ni", self.gain(u), e)
+        bad = ~np.all(np.isfinite(f), axis=1)
+        f[bad] = trim[bad]  # safe fallback on a non-finite state, as ScheduledLQR
+        return np.clip(f, self.f_min, self.f_max)

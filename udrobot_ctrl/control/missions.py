@@ -31,6 +31,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from udrobot_ctrl.control.lqr import BatchScheduledLQR, ScheduledLQR
+from udrobot_ctrl.control.pid import BatchPID, PIDController
+
 CHANNELS = ("z", "psi", "u")
 CHANNEL_INDEX = {"z": 2, "psi": 5, "u": 6}
 CHANNEL_UNITS = {"z": "m", "psi": "rad", "u": "m/s"}
@@ -191,6 +194,83 @@ class SafeController:
         return self.last.copy()
 
 
+class SafeBatch:
+    """:class:`SafeController` for a vectorised batch law ``controller(t, x (N, 12)) -> (N, n)``, per vehicle.
+
+    A vehicle whose command is non-finite gets its last good command (zero before the first one); an
+    exception of the whole call gives every vehicle its last good command. Commands are clipped to
+    ``[f_min, f_max]``; ``fallbacks`` (N,) counts the substitutions of each vehicle.
+    """
+
+    def __init__(self, controller, f_min, f_max):
+        self.controller = controller
+        self.f_min, self.f_max = np.asarray(f_min, float), np.asarray(f_max, float)
+        n = len(controller)
+        self.last = np.zeros((n,) + self.f_min.shape)
+        self.fallbacks = np.zeros(n, dtype=np.int64)
+        self.last_error = ""
+
+    def __len__(self) -> int:
+        return len(self.last)
+
+    def __call__(self, t, x):
+        try:
+            f = np.asarray(self.controller(t, x), float).reshape(self.last.shape)
+        except Exception as exc:  # noqa: BLE001 - a controller in the loop must never throw
+            self.fallbacks += 1
+            self.last_error = f"t = {t:.3f} s: {type(exc).__name__}: {exc}"
+            warnings.warn(f"batch controller failed ({self.last_error}); holding the last good commands",
+                          RuntimeWarning, stacklevel=2)
+            return self.last.copy()
+        bad = ~np.all(np.isfinite(f), axis=1)
+        if bad.any():
+            self.fallbacks[bad] += 1
+            self.last_error = f"t = {t:.3f} s: non-finite thrust command"
+        self.last = np.where(bad[:, None], self.last, np.clip(f, self.f_min, self.f_max))
+        return self.last.copy()
+
+
+class ControllerBatch:
+    """N controllers, one per vehicle, each in its own :class:`SafeController`, called row by row.
+
+    For laws that are not vectorised (the MPCs: one solver per vehicle). ``fallbacks`` (N,) per vehicle.
+    """
+
+    def __init__(self, controllers, f_min, f_max):
+        self.safe = [SafeController(c, f_min, f_max) for c in controllers]
+
+    def __len__(self) -> int:
+        return len(self.safe)
+
+    def __call__(self, t, x):
+        x = np.asarray(x, float).reshape(len(self.safe), 12)
+        return np.stack([s(t, xi) for s, xi in zip(self.safe, x)])
+
+    @property
+    def fallbacks(self) -> np.ndarray:
+        return np.array([s.fallbacks for s in self.safe], dtype=np.int64)
+
+    @property
+    def last_error(self) -> str:
+        return next((s.last_error for s in self.safe if s.last_error), "")
+
+
+def batch_controller(controllers, f_min, f_max):
+    """One ``controller(t, x (N, 12)) -> thrusts (N, n)`` flying the N designed ``controllers`` (one per vehicle).
+
+    Scheduled LQRs and PIDs (clipped pseudo-inverse allocation) are vectorised
+    (:class:`~udrobot_ctrl.control.lqr.BatchScheduledLQR`, :class:`~udrobot_ctrl.control.pid.BatchPID`) inside a
+    :class:`SafeBatch`; any other controller runs row by row in a :class:`ControllerBatch`. Either way each
+    vehicle gets exactly the command its own controller, wrapped in :class:`SafeController`, would give.
+    """
+    ctrls = list(controllers)
+    if all(isinstance(c, ScheduledLQR) for c in ctrls):
+        return SafeBatch(BatchScheduledLQR(ctrls), f_min, f_max)
+    if all(isinstance(c, PIDController) and c.allocation == "clipped pseudo-inverse" for c in ctrls):
+        return SafeBatch(BatchPID(ctrls), f_min, f_max)
+    return ControllerBatch(ctrls, f_min, f_max)
+
+
 # ----------------------------------------------------------------------------- factory and runner
 def make_controller(kind: str, design_model, mission: Mission, control_dt: float = 0.05, **opts):
     """Controller of ``kind`` designed on ``design_model`` for ``mission``.
@@ -257,5 +337,34 @@ def run_mission(controller, plant_model, mission: Mission, dt: float = 0.01, con
     p = as_parameters(plant_model)
     ctrl = SafeController(controller, p.f_min, p.f_max) if safe else controller
     res = simulate(p, mission.x0(), mission.t_final, controller=ctrl, dt=dt, control_dt=control_dt)
+    res.controller = ctrl
+    return res
+
+
+def run_mission_batch(controllers, plant_models, mission: Mission, dt: float = 0.01, control_dt: float = 0.05,
+                      parallel: bool | None = None):
+    """Fly N designed controllers, one per plant, through ``mission`` in one batch simulation.
+
+    Each vehicle flies as :func:`run_mission` would fly it alone (``safe=True``): the controllers are
+    wrapped by :func:`batch_controller`, the plants stacked (:func:`~udrobot_ctrl.dynamics.sim.stack_parameters`;
+    they must share the thruster layout) and simulated together. A vehicle that diverges is frozen at NaN
+    without stopping the others (``on_divergence="freeze"``). ``parallel``: threaded RK4 kernel (see
+    :func:`~udrobot_ctrl.dynamics.sim.integrate_rk4`; default automatic, False in worker processes).
+
+    Returns
+    -------
+    SimResult
+        ``x`` (n+1, N, 12), ``u`` (n, N, k); ``result.controller`` is the batch wrapper (``fallbacks`` (N,)).
+    """
+    from udrobot_ctrl.dynamics.sim import simulate, stack_parameters
+
+    ctrls = list(controllers)
+    plants = list(plant_models)
+    if len(ctrls) != len(plants):
+        raise ValueError(f"{len(ctrls)} controllers for {len(plants)} plants; expected one controller per plant")
+    p = stack_parameters(plants)
+    ctrl = batch_controller(ctrls, p.f_min, p.f_max)
+    res = simulate(p, mission.x0(), mission.t_final, controller=ctrl, dt=dt, control_dt=control_dt,
+                   on_divergence="freeze", parallel=parallel)
     res.controller = ctrl
     return res

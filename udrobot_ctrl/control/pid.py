@@ -307,3 +307,109 @@ class PIDController:
             else:
                 self.integral[name] += self.dt * lp.ki * e
         return np.clip(f, p.f_min, p.f_max)
+
+
+class BatchPID:
+    """N :class:`PIDController` laws flown at once: ``controller(t, x (N, 12)) -> thrusts (N, n)``.
+
+    Each vehicle keeps its own integrators and setpoint-filter states and uses its controller's gains,
+    design model (trim wrench) and anti-windup, exactly as :meth:`PIDController.__call__`, with array
+    operations over the vehicles. The controllers are only read (the same object may repeat: one design
+    shared by several plants); they must share the reference, sampling period, anti-windup mode,
+    setpoint filter, thruster layout and the clipped pseudo-inverse allocation.
+    """
+
+    def __init__(self, controllers):
+        ctrls = list(controllers)
+        if not ctrls:
+            raise ValueError("BatchPID needs at least one controller")
+        c0 = ctrls[0]
+        for i, c in enumerate(ctrls):
+            if not isinstance(c, PIDController):
+                raise TypeError(f"controller {i} is a {type(c).__name__}, not a PIDController")
+            same = (c.reference == c0.reference and c.dt == c0.dt and c.anti_windup == c0.anti_windup
+                    and c.setpoint_filter == c0.setpoint_filter and c.allocation == c0.allocation
+                    and np.array_equal(c.params.T, c0.params.T) and np.array_equal(c.params.f_min, c0.params.f_min)
+                    and np.array_equal(c.params.f_max, c0.params.f_max))
+            if not same:
+                raise ValueError(f"controller {i} differs from controller 0 in reference, dt, anti-windup, setpoint "
+                                 "filter, allocation or thrusters; only gains and design models may differ")
+        if c0.allocation != "clipped pseudo-inverse":
+            raise ValueError(f"BatchPID vectorises the clipped pseudo-inverse allocation, not {c0.allocation!r}")
+        self.controllers = ctrls
+        self.reference, self.dt, self.anti_windup = c0.reference, c0.dt, c0.anti_windup
+        self.T, self.f_min, self.f_max = c0.params.T, c0.params.f_min, c0.params.f_max
+        self.Tp = np.linalg.pinv(self.T)
+        names = list(LOOPS)
+        g = {k: np.array([[getattr(c.loops[n], k) for n in names] for c in ctrls])
+             for k in ("kp", "ki", "kd", "t_track")}
+        self.kp, self.ki, self.kd, self.t_track = g["kp"], g["ki"], g["kd"], g["t_track"]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            self.t_filter = c0.setpoint_filter * np.where(self.ki != 0, self.kp / self.ki, 0.0)
+        self.out_idx = [STATE_INDEX[y] for y, _r, _d in LOOPS.values()]
+        self.has_rate = np.array([r is not None for _y, r, _d in LOOPS.values()])
+        self.dofs = [d for _y, _r, d in LOOPS.values()]
+        self.psi_col = [y for y, _r, _d in LOOPS.values()].index("psi")
+        self._trims: dict = {}
+        self.reset()
+
+    def __len__(self) -> int:
+        return len(self.controllers)
+
+    def reset(self):
+        n = (len(self.controllers), len(LOOPS))
+        self.integral = np.zeros(n)
+        self.filtered = np.zeros(n)
+        self.started = np.zeros(n[0], bool)
+
+    def trim_wrench(self, surge: float) -> np.ndarray:
+        """(N, 6) trim wrench of every design model at the reference surge speed (N, N m)."""
+        key = round(float(surge), 6)
+        w = self._trims.get(key)
+        if w is None:
+            per_object = {}
+            w = self._trims[key] = np.stack([per_object.setdefault(id(c), c.trim_wrench(key))
+                                             for c in self.controllers])
+        return w
+
+    def _filter(self, target, ok):
+        """Setpoint prefilter of :meth:`PIDController._filter` for the vehicles ``ok``."""
+        prev = self.filtered
+        step = np.where(self.t_filter > 0, 1.0 - np.exp(-self.dt / np.where(self.t_filter > 0, self.t_filter, 1.0)),
+                        1.0)
+        r = target.copy()
+        r[:, self.psi_col] = prev[:, self.psi_col] + _wrap(target[:, self.psi_col] - prev[:, self.psi_col])
+        moved = prev + (r - prev) * step
+        first = ~self.started[:, None] | (self.t_filter <= 0)
+        out = np.where(first, target, moved)
+        self.filtered = np.where(ok[:, None], out, self.filtered)
+        self.started |= ok
+        return out
+
+    def __call__(self, t, x):
+        x = np.asarray(x, float).reshape(len(self), 12)
+        ref = self.reference(t)
+        trim = self.trim_wrench(ref["u"])
+        ok = np.all(np.isfinite(x), axis=1)
+        xs = np.where(ok[:, None], x, 0.0)
+        eta_dot = np.concatenate([kinematics(xs[:, :6], xs[:, 6:]), np.zeros((len(x), 6))], axis=1)
+        goal = np.array([ref["u"], ref["z"], 0.0, ref["psi"]])
+        target = self._filter(np.broadcast_to(goal, (len(x), 4)), ok)
+        e = target - xs[:, self.out_idx]
+        e[:, self.psi_col] = _wrap(e[:, self.psi_col])
+        d = np.where(self.has_rate, eta_dot[:, self.out_idx], 0.0)
+        tau = trim.copy()
+        tau[:, self.dofs] += self.kp * e + self.integral - self.kd * d
+        f = np.clip(tau @ self.Tp.T, self.f_min, self.f_max)
+        short = (f @ self.T.T - tau)[:, self.dofs]
+        if self.anti_windup == "back-calculation":
+            step = self.dt * (self.ki * e + short / self.t_track)
+        elif self.anti_windup == "conditional":
+            saturated = np.abs(short) > 1e-6 * np.maximum(1.0, np.abs(tau[:, self.dofs]))
+            grows = np.sign(e) == np.sign(tau[:, self.dofs] - trim[:, self.dofs])
+            step = np.where(saturated & grows, 0.0, self.dt * self.ki * e)
+        else:
+            step = self.dt * self.ki * e
+        self.integral = np.where(ok[:, None], self.integral + step, self.integral)
+        f_safe = np.clip(trim @ self.Tp.T, self.f_min, self.f_max)  # non-finite state: trim, as PIDController
+        return np.where(ok[:, None], np.clip(f, self.f_min, self.f_max), f_safe)

@@ -9,8 +9,8 @@
   step ``map``-ped over vehicles), one shared input sequence, states recorded every ``record_every`` steps.
 
 Thrust inputs are clipped to each thruster's limits before integration (as :func:`udrobot_ctrl.dynamics.sim.simulate`).
-Closed-loop simulation stays in :mod:`udrobot_ctrl.dynamics.sim`; per-sample parameter sweeps in numpy are in
-:mod:`udrobot_ctrl.sensitivity.batch`.
+Closed-loop simulation, also of N vehicles with their own parameters (the sensitivity sweeps), stays in
+:mod:`udrobot_ctrl.dynamics.sim`.
 """
 from __future__ import annotations
 

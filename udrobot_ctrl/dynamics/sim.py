@@ -18,6 +18,10 @@ method="rk4", control_dt=None, disturbance=None) -> SimResult``
   own mass, damping and restoring parameters (Monte Carlo over coefficients) sharing one thruster layout.
 * ``record_every`` (default 1) keeps every k-th state only (t, x, u, tau, saturated at those steps),
   to bound memory for long batches.
+* ``on_divergence``: ``"raise"`` (default) raises ``FloatingPointError`` when a state becomes non-finite;
+  ``"freeze"`` (batches) sets a diverged vehicle's state to NaN from then on and carries on with the others
+  (its controller then receives NaN rows).
+* ``parallel``: threaded RK4 kernel over vehicles (default: for 16 or more); False in worker processes.
 
 Speed: ``method='rk4'`` runs a numba kernel (compiled once, cached on disk in ``__pycache__``; pure
 parameters are runtime arrays, so no per-model compilation). Without a controller or disturbance the
@@ -197,7 +201,7 @@ def _kernel_arrays(p: PlantParameters):
             lead(p.buoyancy, 0), lead(p.r_g, 1), lead(p.r_b, 1))
 
 
-def integrate_rk4(p: PlantParameters, x0, taus, dt, nsteps, tau_every=1, record_every=1, out=None):
+def integrate_rk4(p: PlantParameters, x0, taus, dt, nsteps, tau_every=1, record_every=1, out=None, parallel=None):
     """Fixed-step RK4 of N vehicles in compiled code (numba), the wrench held per row of ``taus``.
 
     Parameters
@@ -216,6 +220,10 @@ def integrate_rk4(p: PlantParameters, x0, taus, dt, nsteps, tau_every=1, record_
         Store every k-th state.
     out : (nsteps // record_every + 1, N, 12) ndarray, optional
         Output buffer (row 0 is set to x0).
+    parallel : bool, optional
+        Threaded kernel over vehicles; default: when N >= ``PARALLEL_MIN_VEHICLES``. Pass False inside worker
+        processes that already use every core (threads there oversubscribe: measured ~10x slower per step on
+        a loaded 2-core machine).
 
     Returns
     -------
@@ -239,14 +247,20 @@ def integrate_rk4(p: PlantParameters, x0, taus, dt, nsteps, tau_every=1, record_
         out = np.empty((nsteps // record_every + 1, n, 12))
     out[0] = x0
     status = np.empty(n, dtype=np.int64)
-    serial, parallel = _kernels()
-    run = parallel if n >= PARALLEL_MIN_VEHICLES else serial
+    serial, threaded = _kernels()
+    run = threaded if (n >= PARALLEL_MIN_VEHICLES if parallel is None else parallel) else serial
     run(x0, taus, int(tau_every), int(nsteps), float(dt), int(record_every), *arrays, out, status)
     return out, status
 
 
-def _divergence(p, status, t0, dt):
+def _divergence(p, status, t0, dt, out=None, record_every=1):
+    """Raise for diverged vehicles, or (``out`` given: freeze mode) set their recorded states to NaN from the
+    first non-finite one on."""
     bad = np.flatnonzero(status >= 0)
+    if out is not None:
+        for i in bad:
+            out[(int(status[i]) + 1) // record_every:, i] = np.nan
+        return
     if bad.size:
         k = int(status[bad].min())
         which = "" if status.size == 1 else f" (vehicles {bad[:10].tolist()})"
@@ -262,7 +276,8 @@ def _input_width(p, input_kind):
 
 
 def simulate(model, x0, t_final, controller=None, inputs=None, dt=0.01, input_kind="thrust",
-             method="rk4", control_dt=None, disturbance=None, record_every=1) -> SimResult:
+             method="rk4", control_dt=None, disturbance=None, record_every=1, on_divergence="raise",
+             parallel=None) -> SimResult:
     """Simulate the plant; see the module docstring. Times in s, states in SI units.
 
     Raises
@@ -270,9 +285,12 @@ def simulate(model, x0, t_final, controller=None, inputs=None, dt=0.01, input_ki
     ValueError
         Bad arguments (shapes, method, input kind).
     FloatingPointError
-        If the state becomes non-finite (names the time and the vehicles).
+        If the state becomes non-finite (names the time and the vehicles) and ``on_divergence`` is ``"raise"``.
     """
     p = as_parameters(model)
+    if on_divergence not in ("raise", "freeze"):
+        raise ValueError(f"on_divergence must be 'raise' or 'freeze', got {on_divergence!r}")
+    freeze = on_divergence == "freeze"
     if not (dt > 0 and t_final > 0):
         raise ValueError(f"dt and t_final must be > 0 (got dt={dt}, t_final={t_final})")
     if method not in ("rk4", "rk4_numpy", "solve_ivp"):
@@ -300,11 +318,11 @@ def simulate(model, x0, t_final, controller=None, inputs=None, dt=0.01, input_ki
     if method == "rk4" and disturbance is None and not _numba_available():  # pragma: no cover
         warnings.warn("numba unavailable: using the plain-numpy RK4", RuntimeWarning, stacklevel=2)
     if use_kernel and controller is None:
-        return _simulate_open_loop(p, x, n, dt, inputs, input_kind, k_in, record_every)
+        return _simulate_open_loop(p, x, n, dt, inputs, input_kind, k_in, record_every, freeze, parallel)
     if use_kernel:
-        return _simulate_closed_loop(p, x, n, dt, controller, hold, input_kind, record_every)
+        return _simulate_closed_loop(p, x, n, dt, controller, hold, input_kind, record_every, freeze, parallel)
     return _simulate_python(p, x, n, dt, controller, inputs, input_kind, k_in, hold, method, disturbance,
-                            record_every, batch)
+                            record_every, batch, freeze)
 
 
 def _open_loop_inputs(inputs, n, dt, k_in):
@@ -324,15 +342,15 @@ def _open_loop_inputs(inputs, n, dt, k_in):
     return u
 
 
-def _simulate_open_loop(p, x, n, dt, inputs, input_kind, k_in, record_every):
+def _simulate_open_loop(p, x, n, dt, inputs, input_kind, k_in, record_every, freeze=False, parallel=None):
     batch = x.shape[:-1]
     u = _open_loop_inputs(inputs, n, dt, k_in)
     if u.ndim == 3 and (not batch or u.shape[1] != batch[0]):
         raise ValueError(f"per-vehicle inputs have {u.shape[1]} vehicles, x0 has shape {x.shape}")
     tau_rows, sat_rows = _wrench(u, p, input_kind)
     taus = tau_rows[:, None, :] if tau_rows.ndim == 2 else tau_rows
-    xs, status = integrate_rk4(p, x.reshape(-1, 12), taus, dt, n, 1, record_every)
-    _divergence(p, status, 0.0, dt)
+    xs, status = integrate_rk4(p, x.reshape(-1, 12), taus, dt, n, 1, record_every, parallel=parallel)
+    _divergence(p, status, 0.0, dt, xs if freeze else None, record_every)
     m = xs.shape[0] - 1
     sel = np.arange(m) * record_every
 
@@ -346,7 +364,7 @@ def _simulate_open_loop(p, x, n, dt, inputs, input_kind, k_in, record_every):
                      u=expand(u, (k_in,)), tau=expand(tau_rows, (6,)), saturated=expand(sat_rows, ()))
 
 
-def _simulate_closed_loop(p, x, n, dt, controller, hold, input_kind, record_every):
+def _simulate_closed_loop(p, x, n, dt, controller, hold, input_kind, record_every, freeze=False, parallel=None):
     batch = x.shape[:-1]
     flat = x.reshape(-1, 12)
     xs = np.empty((n // record_every + 1, flat.shape[0], 12))
@@ -361,8 +379,8 @@ def _simulate_closed_loop(p, x, n, dt, controller, hold, input_kind, record_ever
         u = np.asarray(controller(t_all[k0], flat.reshape(batch + (12,))), dtype=float)
         tau, sat = _wrench(u, p, input_kind)
         tau_b = np.broadcast_to(tau, batch + (6,)).reshape(1, -1, 6)
-        out, status = integrate_rk4(p, flat, tau_b, dt, steps, hold, 1, out=buf[: steps + 1])
-        _divergence(p, status, t_all[k0], dt)
+        out, status = integrate_rk4(p, flat, tau_b, dt, steps, hold, 1, out=buf[: steps + 1], parallel=parallel)
+        _divergence(p, status, t_all[k0], dt, out if freeze else None)
         for j in range(steps):
             k = k0 + j
             if k % record_every == 0:
@@ -378,7 +396,7 @@ def _simulate_closed_loop(p, x, n, dt, controller, hold, input_kind, record_ever
 
 
 def _simulate_python(p, x, n, dt, controller, inputs, input_kind, k_in, hold, method, disturbance, record_every,
-                     batch):
+                     batch, freeze=False):
     """Reference loop in numpy (``rk4_numpy``, ``solve_ivp``, or ``rk4`` with a disturbance)."""
     t = np.arange(n + 1) * dt
     xs = [x.copy()]
@@ -422,7 +440,9 @@ def _simulate_python(p, x, n, dt, controller, inputs, input_kind, k_in, hold, me
 
             sol = solve_ivp(rhs, (t[k], t[k + 1]), x.ravel(), rtol=1e-9, atol=1e-11)
             x = sol.y[:, -1].reshape(x.shape)
-        if not np.all(np.isfinite(x)):
+        if freeze:
+            x = np.where(np.all(np.isfinite(x), axis=-1, keepdims=True), x, np.nan)
+        elif not np.all(np.isfinite(x)):
             raise FloatingPointError(f"simulation of {p.name!r} diverged at t = {t[k + 1]:.3f} s")
         if k % record_every == 0:
             us.append(u)

@@ -1,14 +1,32 @@
 """Evaluators: picklable ``evaluator(X) -> {metric: (n,)}`` that turn coefficient samples into metrics.
 
 They carry only a specification (parameter space, controller kind, mission); anything expensive
-(a controller design, an MPC solver) is built lazily in the worker process and cached there.
+(a controller design, an MPC solver) is built lazily in the worker process (nominal designs are cached
+there).
+
+:class:`MissionEvaluator` flies exactly what ``udrobot-ctrl compare`` flies: the controllers of
+:func:`udrobot_ctrl.control.missions.make_controller` (gain-scheduled LQR, PID, linear and nonlinear MPC,
+designed as ``compare`` designs them), through a :class:`~udrobot_ctrl.control.missions.Mission` (default:
+the standard quick mission, ``compare --quick``), on the plant of :mod:`udrobot_ctrl.dynamics.sim` at
+``compare``'s steps (RK4 0.01 s, controller 0.05 s), scored by
+:func:`udrobot_ctrl.control.metrics.mission_metrics`. A chunk of samples is flown as one batch
+(:func:`udrobot_ctrl.control.missions.run_mission_batch`: one stacked simulation, the LQR and PID laws
+vectorised over vehicles, the MPCs one solver per vehicle), which gives each vehicle the same trajectory
+as a run of its own.
 """
 from __future__ import annotations
 
 import numpy as np
 
-from udrobot_ctrl.sensitivity.batch import batch_plant, simulate_batch
+from udrobot_ctrl.control.compare import CONTROL_DT, SIM_DT
+from udrobot_ctrl.control.metrics import mission_metrics
+from udrobot_ctrl.control.missions import CONTROLLER_KINDS, make_controller, run_mission_batch, standard_mission
+from udrobot_ctrl.dynamics.plant import plant_parameters
+from udrobot_ctrl.dynamics.sim import SimResult, simulate, stack_parameters
 from udrobot_ctrl.sensitivity.parameters import ParameterSpace, apply_sample
+
+#: assumed threshold: beyond |theta| = 45 deg a mission is counted as having lost (passive) pitch control
+LOST_PITCH_DEG = 45.0
 
 
 def _vehicles(space: ParameterSpace, X):
@@ -43,11 +61,11 @@ class TerminalSurgeSpeed:
         ok = [i for i, v in enumerate(vehicles) if v is not None]
         u = np.full(len(vehicles), np.nan)
         if ok:
-            bp = batch_plant([vehicles[i] for i in ok])
-            surge = np.abs(bp.T[0]) > 0.5
+            p = stack_parameters([vehicles[i] for i in ok])
+            surge = np.abs(p.T[0]) > 0.5
             f = np.where(surge, self.thrust_N / surge.sum(), 0.0)
-            res = simulate_batch(bp, np.zeros(12), self.t_final, lambda t, x: np.broadcast_to(f, (len(x), f.size)),
-                                 dt=self.dt)
+            res = simulate(p, np.zeros(12), self.t_final, inputs=f[None], dt=self.dt, on_divergence="freeze",
+                           parallel=False)
             u[ok] = res.x[-1, :, 6]
         return {"u_terminal": u, "error": errors}
 
@@ -56,207 +74,19 @@ class TerminalSurgeSpeed:
 _DESIGN_CACHE: dict = {}  # per worker process: nominal designs keyed by the evaluator's spec
 
 
-class MissionEvaluator:
-    """Closed-loop metrics of a controller on perturbed plants.
+def flat_metrics(res, mission, f_min, f_max) -> dict:
+    """Scalar metrics of one run: :func:`udrobot_ctrl.control.metrics.mission_metrics` with its own keys and
+    values, flattened for tables, plus the sensitivity-specific columns.
 
-    Parameters
-    ----------
-    space : ParameterSpace
-        Coefficients varied; its vehicle is the nominal plant *and* the design model.
-    controller : {'lqr', 'pid', 'mpc', 'lmpc', 'nmpc'}
-        ``mpc`` = ``lmpc`` (linear MPC with hard thrust limits); ``nmpc`` needs the missions backend.
-    mission : DepthHeadingMission, optional
-        Mission of the fast path (default: 1 m depth and 90 deg heading steps at 0.5 m/s, 20 s, dt 0.04 s).
-    redesign : bool
-        False (default): design once on the nominal model, evaluate on each perturbed plant (what a
-        user who trusts one coefficient set gets). True: redesign on each perturbed model (the
-        sensitivity of the *best achievable* performance to the coefficient).
-    controller_opts : dict, optional
-        Passed to the design (LQRWeights / PIDTuning / MPCSettings fields on the batch backend).
-    backend : {'auto', 'batch', 'missions'}
-        ``batch``: this package's vectorised mission (lqr, pid, mpc: one chunk of vehicles simulated at
-        once). ``missions``: one simulation per sample through :mod:`udrobot_ctrl.control.missions` (any
-        controller, the toolbox's standard mission, quick variant by default). ``auto``: batch unless the
-        controller is nmpc.
-    sim_dt, control_dt : float
-        Integration and controller steps of the missions backend, s (the batch backend uses the
-        mission's ``dt`` and, for MPC, ``MPCSettings.Ts``).
+    * ``final_error`` becomes ``final_error_z`` (m), ``final_error_psi`` (rad), ``final_error_u`` (m/s);
+    * a settling time that is ``None`` in ``mission_metrics`` (the response leaves the 2 % band at the end
+      of its event's window: not settled) is censored at the mission duration ``mission.t_final`` so that
+      global indices stay defined, and ``unsettled`` counts such channels (0..3: z, psi, u);
+    * ``max_speed`` (m/s): largest body-frame translational speed;
+    * ``lost_control`` (0/1): ``max_pitch_deg`` beyond :data:`LOST_PITCH_DEG` (passive pitch lost).
     """
-
-    def __init__(self, space, controller: str = "lqr", mission=None, redesign: bool = False,
-                 controller_opts: dict | None = None, backend: str = "auto", sim_dt: float = 0.02,
-                 control_dt: float = 0.05):
-        from udrobot_ctrl.sensitivity.mission import DepthHeadingMission
-
-        if controller not in ("lqr", "pid", "lmpc", "nmpc", "mpc"):
-            raise ValueError(f"controller must be lqr, pid, lmpc, nmpc or mpc, got {controller!r}")
-        if backend == "auto":
-            backend = "batch" if controller != "nmpc" else "missions"
-        if backend not in ("batch", "missions"):
-            raise ValueError(f"backend must be auto, batch or missions, got {backend!r}")
-        if backend == "batch" and controller == "nmpc":
-            raise ValueError("the batch backend supports lqr, pid and (linear) mpc, not 'nmpc'; use backend='missions'")
-        if backend == "missions":
-            import importlib.util
-
-            needed = {"lqr": "udrobot_ctrl.control.lqr",
-                      "pid": "udrobot_ctrl.control.pid"}.get(controller, "udrobot_ctrl.control.mpc")
-            for mod in ("udrobot_ctrl.control.missions", needed):
-                if importlib.util.find_spec(mod) is None:
-                    raise ValueError(f"controller {controller!r} on the missions backend needs {mod}, not available "
-                                     "in this build (lqr, pid and mpc work on the batched fast path)")
-        self.space = space
-        self.controller = controller
-        self.backend = backend
-        self.mission = mission if mission is not None else (
-            DepthHeadingMission() if backend == "batch" else None)
-        self.redesign = bool(redesign)
-        self.controller_opts = dict(controller_opts or {})
-        # samples per task: vectorised batches amortise numpy overhead (1.8 ms/run at 256 vs 4.2 at 64);
-        # one-by-one runs keep tasks small so progress and interruptions stay fine-grained
-        self.max_chunk = 256 if backend == "batch" else 4
-        self.sim_dt, self.control_dt = float(sim_dt), float(control_dt)
-
-    def describe(self) -> str:
-        how = "redesigned per sample" if self.redesign else "designed on nominal"
-        extra = "" if self.backend == "batch" else f", dt {self.sim_dt} s, control_dt {self.control_dt} s"
-        return (f"{self.controller} on {self.space.vehicle.name} ({how}), {self.backend} backend{extra}, "
-                f"mission {self.mission}, opts {sorted(self.controller_opts.items())}")
-
-    def _key(self):
-        return (self.describe(), tuple(self.space.names), tuple(self.space.nominal))
-
-    def __call__(self, X):
-        vehicles, errors = _vehicles(self.space, X)
-        if self.backend == "batch":
-            metrics = self._batch(vehicles, errors)
-        else:
-            metrics = self._per_sample(vehicles, errors)
-        return {**metrics, "error": errors}
-
-    # ------------------------------------------------------------------ batched fast path
-    def _design(self, vehicle):
-        """Design on one model: LQR (K, trim), PID (gains, trim) or MPC (qp, trim)."""
-        from udrobot_ctrl.dynamics.plant import plant_parameters
-        from udrobot_ctrl.sensitivity.mission import (
-            LQRWeights,
-            MPCSettings,
-            PIDTuning,
-            lqr_gain,
-            mpc_matrices,
-            pid_gains,
-            trim_thrust,
-        )
-
-        if self.controller == "lqr":
-            return lqr_gain(vehicle, LQRWeights(**self.controller_opts), self.mission)
-        if self.controller in ("mpc", "lmpc"):
-            qp = mpc_matrices(vehicle, self.mission, MPCSettings(**self.controller_opts))
-            return qp, qp["trim"]
-        tuning = PIDTuning(**self.controller_opts)
-        return pid_gains(vehicle, tuning), trim_thrust(plant_parameters(vehicle), self.mission.operating_point())
-
-    def _nominal_design(self):
-        key = self._key()
-        if key not in _DESIGN_CACHE:
-            _DESIGN_CACHE[key] = self._design(self.space.vehicle)
-        return _DESIGN_CACHE[key]
-
-    def _batch(self, vehicles, errors):
-        from udrobot_ctrl.sensitivity.mission import (
-            BatchLQR,
-            BatchMPC,
-            BatchPID,
-            MPCSettings,
-            PIDTuning,
-            mission_metrics,
-        )
-
-        ok = [i for i, v in enumerate(vehicles) if v is not None]
-        if not ok:
-            return {}
-        bp = batch_plant([vehicles[i] for i in ok])
-        gain, trim = self._nominal_design()
-        if self.redesign:  # gains and feed-forward trim from each perturbed model
-            designs = []
-            for i in ok:
-                try:
-                    designs.append(self._design(vehicles[i]))
-                except Exception as exc:  # noqa: BLE001 - a failed design is that sample's error
-                    designs.append(None)
-                    errors[i] = f"{self.controller} redesign failed: {exc}"
-            fill = self._nominal_design()
-            designs = [d if d is not None else fill for d in designs]
-            trim = np.stack([d[1] for d in designs])
-            if self.controller == "lqr":
-                gain = np.stack([d[0] for d in designs])
-            elif self.controller in ("mpc", "lmpc"):
-                gain = [d[0] for d in designs]
-            else:
-                gain = {k: tuple(np.array([d[0][k][j] for d in designs]) for j in range(3)) for k in gain}
-        m = self.mission
-        control_dt = None
-        if self.controller == "lqr":
-            ctrl = BatchLQR(gain, trim, m)
-        elif self.controller in ("mpc", "lmpc"):
-            settings = MPCSettings(**self.controller_opts)
-            ctrl = BatchMPC(gain, m, bp.f_min, bp.f_max, settings)
-            control_dt = settings.Ts
-        else:
-            ctrl = BatchPID(gain, trim, bp.T, m, PIDTuning(**self.controller_opts).integral_limit_N)
-        res = simulate_batch(bp, m.x0(), m.t_final, ctrl, dt=m.dt, control_dt=control_dt)
-        met = mission_metrics(res, m, bp.f_min, bp.f_max)
-        out = {k: np.full(len(vehicles), np.nan) for k in met}
-        for k, v in met.items():
-            out[k][ok] = v
-        for j, i in enumerate(ok):
-            if not np.all(np.isfinite(res.x[-1, j])) and not errors[i]:
-                errors[i] = "simulation diverged"
-        return out
-
-    # ------------------------------------------------------------------ generic path
-    def _missions(self):
-        from udrobot_ctrl.control import missions
-
-        mission = self.mission if self.mission is not None else missions.standard_mission(quick=True)
-        return missions, mission
-
-    def _per_sample(self, vehicles, errors):
-        """One closed-loop run per sample through :func:`udrobot_ctrl.control.missions.run_mission` (any controller)."""
-        from udrobot_ctrl.dynamics.plant import plant_parameters
-
-        missions, mission = self._missions()
-        kind = "lmpc" if self.controller == "mpc" else self.controller
-        rows = []
-        for i, v in enumerate(vehicles):
-            if v is None:
-                rows.append({})
-                continue
-            try:
-                # a fresh design for every sample (on the nominal model unless redesign): a reset solver
-                # would keep its warm start, and results must not depend on which samples ran before
-                design = v if self.redesign else self.space.vehicle
-                ctrl = missions.make_controller(kind, design, mission, control_dt=self.control_dt,
-                                                **self.controller_opts)
-                res = missions.run_mission(ctrl, v, mission, dt=self.sim_dt, control_dt=self.control_dt)
-                p = plant_parameters(v)
-                rows.append(_flat_metrics(res, mission, p.f_min, p.f_max))
-            except Exception as exc:  # noqa: BLE001 - the sweep goes on, the sample carries the error
-                rows.append({})
-                errors[i] = f"{type(exc).__name__}: {exc}"
-        names = sorted({k for r in rows for k in r})
-        return {k: np.array([float(r.get(k, np.nan)) for r in rows]) for k in names}
-
-
-def _flat_metrics(res, mission, f_min, f_max) -> dict:
-    """Scalar metrics of a run: :func:`udrobot_ctrl.control.metrics.mission_metrics` flattened, plus ``max_speed``
-    (m/s), ``fallbacks`` (SafeController substitutions) and ``unsettled`` (events not settled; their
-    settling time is censored at the mission duration so that global indices stay defined)."""
-    from udrobot_ctrl.control import metrics
-
-    met = metrics.mission_metrics(res, mission, f_min, f_max)
-    out = {}
-    unsettled = 0
+    met = mission_metrics(res, mission, f_min, f_max)
+    out, unsettled = {}, 0
     for k, v in met.items():
         if isinstance(v, dict):
             for kk, vv in v.items():
@@ -268,5 +98,107 @@ def _flat_metrics(res, mission, f_min, f_max) -> dict:
             out[k] = float(v)
     out["unsettled"] = float(unsettled)
     out["max_speed"] = float(np.max(np.linalg.norm(np.asarray(res.x)[:, 6:9], axis=-1)))
-    out["fallbacks"] = float(getattr(getattr(res, "controller", None), "fallbacks", 0))
+    out["lost_control"] = float(out["max_pitch_deg"] > LOST_PITCH_DEG)
     return out
+
+
+class MissionEvaluator:
+    """Closed-loop metrics of one of ``compare``'s controllers on perturbed vehicles.
+
+    Which vehicle a sample perturbs: the *plant* always (the sample's coefficients are applied to the
+    space's vehicle, :func:`~udrobot_ctrl.sensitivity.parameters.apply_sample`); the *design model* only with
+    ``redesign``.
+
+    Parameters
+    ----------
+    space : ParameterSpace
+        Coefficients varied; its vehicle is the nominal plant *and* the design model.
+    controller : {'lqr', 'pid', 'lmpc', 'nmpc', 'mpc'}
+        A kind of :func:`udrobot_ctrl.control.missions.make_controller` (``mpc`` = ``lmpc``).
+    mission : Mission, optional
+        Default: :func:`udrobot_ctrl.control.missions.standard_mission` ``(quick=True)`` (23 s).
+    redesign : bool
+        False (default): design once on the nominal model, fly it on each perturbed plant (what a user
+        who trusts one coefficient set gets). True: redesign on each perturbed model (the sensitivity of
+        the *best achievable* performance to the coefficient).
+    controller_opts : dict, optional
+        Passed to :func:`~udrobot_ctrl.control.missions.make_controller` (the controller's design options).
+    sim_dt, control_dt : float
+        RK4 and controller steps, s (default ``compare``'s 0.01 s and 0.05 s).
+    """
+
+    def __init__(self, space, controller: str = "lqr", mission=None, redesign: bool = False,
+                 controller_opts: dict | None = None, sim_dt: float = SIM_DT, control_dt: float = CONTROL_DT):
+        kind = "lmpc" if controller == "mpc" else controller
+        if kind not in CONTROLLER_KINDS:
+            raise ValueError(f"controller must be one of {', '.join(CONTROLLER_KINDS)} or mpc, got {controller!r}")
+        if not (sim_dt > 0 and control_dt > 0):
+            raise ValueError(f"sim_dt and control_dt must be > 0 s, got {sim_dt} and {control_dt}")
+        self.space = space
+        self.controller = kind
+        self.mission = mission if mission is not None else standard_mission(quick=True)
+        self.redesign = bool(redesign)
+        self.controller_opts = dict(controller_opts or {})
+        self.sim_dt, self.control_dt = float(sim_dt), float(control_dt)
+        # samples per task: the vectorised LQR/PID batches amortise the per-step overhead over many vehicles;
+        # the MPCs solve one QP/NLP per vehicle, so small tasks keep progress and interruptions fine-grained
+        self.max_chunk = 256 if kind in ("lqr", "pid") else 4
+
+    def describe(self) -> str:
+        how = "redesigned per sample" if self.redesign else "designed on nominal"
+        m = self.mission
+        steps = ", ".join(f"{s.channel}={s.value:g}@{s.t:g}s" for s in m.steps)
+        return (f"{self.controller} on {self.space.vehicle.name} ({how}), mission {m.name} ({m.t_final:g} s; "
+                f"initial {m.initial}; {steps}), dt {self.sim_dt} s, control_dt {self.control_dt} s, "
+                f"opts {sorted(self.controller_opts.items())}")
+
+    def _design(self, model):
+        return make_controller(self.controller, model, self.mission, control_dt=self.control_dt,
+                               **self.controller_opts)
+
+    def _nominal(self):
+        """The nominal design, cached per process (LQR, PID: read-only inside the batch laws)."""
+        key = (self.describe(), tuple(self.space.names), tuple(self.space.nominal))
+        if key not in _DESIGN_CACHE:
+            _DESIGN_CACHE[key] = self._design(self.space.vehicle)
+        return _DESIGN_CACHE[key]
+
+    def _controllers(self, vehicles, ok, errors):
+        """One designed controller per vehicle of ``ok`` (ids whose design failed are dropped with an error)."""
+        shared = self.controller in ("lqr", "pid") and not self.redesign
+        ctrls, kept = [], []
+        for i in ok:
+            if shared:
+                ctrls.append(self._nominal())
+                kept.append(i)
+                continue
+            try:  # a fresh MPC per sample: results must not depend on which samples a solver saw before
+                ctrls.append(self._design(vehicles[i] if self.redesign else self.space.vehicle))
+                kept.append(i)
+            except (ValueError, np.linalg.LinAlgError, RuntimeError) as exc:
+                errors[i] = f"{self.controller} design failed: {type(exc).__name__}: {exc}"
+        return ctrls, kept
+
+    def __call__(self, X):
+        vehicles, errors = _vehicles(self.space, X)
+        ok = [i for i, v in enumerate(vehicles) if v is not None]
+        ctrls, ok = self._controllers(vehicles, ok, errors)
+        rows = [{} for _ in vehicles]
+        if ok:
+            plants = [plant_parameters(vehicles[i]) for i in ok]
+            # serial kernel: the executor runs chunks in parallel processes; threads inside them oversubscribe
+            res = run_mission_batch(ctrls, plants, self.mission, dt=self.sim_dt, control_dt=self.control_dt,
+                                    parallel=False)
+            f_min, f_max = plants[0].f_min, plants[0].f_max  # shared: stack_parameters checked it
+            fallbacks = res.controller.fallbacks
+            for j, i in enumerate(ok):
+                x = res.x[:, j]
+                if not np.all(np.isfinite(x[-1])):
+                    k = int(np.argmax(~np.all(np.isfinite(x), axis=-1)))
+                    errors[i] = f"diverged at t = {res.t[k]:.2f} s"
+                    rows[i] = {"lost_control": 1.0}
+                    continue
+                one = SimResult(t=res.t, x=x, u=res.u[:, j], tau=res.tau[:, j], saturated=res.saturated[:, j])
+                rows[i] = {**flat_metrics(one, self.mission, f_min, f_max), "fallbacks": float(fallbacks[j])}
+        names = sorted({k for r in rows for k in r})
+        return {**{k: np.array([r.get(k, np.nan) for r in rows], float) for k in names}, "error": errors}

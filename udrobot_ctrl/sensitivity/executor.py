@@ -3,7 +3,11 @@
 :class:`SweepExecutor` wraps
 
 * ``workers=1`` -> in-process serial execution (no process start-up; used by small studies and tests);
-* ``workers=N`` (default: the CPU count) -> :class:`concurrent.futures.ProcessPoolExecutor`;
+* ``workers=N`` (default: the CPU count) -> :class:`concurrent.futures.ProcessPoolExecutor` (the platform's
+  default start method: fork on Linux, so workers inherit the parent's caches and a script needs no
+  ``__main__`` guard). The evaluators run numba's *serial* kernel, so they start no OpenMP threads; a parent
+  that already ran the threaded kernel (:func:`udrobot_ctrl.dynamics.sim.simulate` of >= 16 vehicles) must
+  not fork (OpenMP aborts the child): pass ``executor=ProcessPoolExecutor(mp_context=get_context("forkserver"))``;
 * ``scheduler="tcp://host:8786"`` or ``client=distributed.Client(...)`` -> dask.distributed; ``submit``
   returns dask futures and completion uses ``distributed.as_completed``;
 * ``executor=`` any :class:`concurrent.futures.Executor` you already have.

@@ -6,16 +6,48 @@ local processes or a dask cluster and resume from a study directory.
 Sample counts (SALib 1.6 ``sample.sobol``): a base sample of ``N`` points (a power of 2) gives
 ``N (d + 2)`` model runs for first and total indices, ``N (2 d + 2)`` with second-order indices.
 Morris with ``r`` trajectories gives ``r (d + 1)`` runs.
+
+Reproducibility: the same ``seed`` (0 included) gives the same design *and* the same bootstrap intervals
+(SALib's Sobol analysis treats an int seed 0 as "no seed", so the seed is passed as a
+``numpy.random.Generator``). A study with an ``out`` folder holds the folder's lock for the whole call
+(:class:`~udrobot_ctrl.sensitivity.results.StudyLock`).
+
+Small samples: Sobol indices lie in [0, 1]; :attr:`GlobalResult.warnings` (also issued as a
+``RuntimeWarning``) flags a base sample below :data:`SOBOL_MIN_N` and any metric whose interval half-width
+exceeds :data:`SOBOL_MAX_CONF` (then the interval spans more than half the index range and the
+ranking means little).
 """
 from __future__ import annotations
 
+import functools
+import inspect
 import time
+import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from udrobot_ctrl.sensitivity.executor import as_executor, run_sweep
-from udrobot_ctrl.sensitivity.results import ResultStore, write_table
+from udrobot_ctrl.sensitivity.results import ResultStore, StudyLock, write_table
+
+#: assumed: below N = 64 base samples the bootstrap interval of an index is typically wider than its range
+SOBOL_MIN_N = 64
+#: assumed: an interval half-width above 0.5 spans more than half of the [0, 1] index range
+SOBOL_MAX_CONF = 0.5
+
+
+def holds_study_lock(fn):
+    """Run ``fn`` holding the lock of its ``out`` study folder (keyword argument) for the whole call."""
+    sig = inspect.signature(fn)
+
+    @functools.wraps(fn)
+    def run(*args, **kwargs):
+        out = sig.bind(*args, **kwargs).arguments.get("out")
+        if out is None:
+            return fn(*args, **kwargs)
+        with StudyLock(out):
+            return fn(*args, **kwargs)
+    return run
 
 
 @dataclass
@@ -48,6 +80,7 @@ class GlobalResult:
     wall_s: float
     failed: dict = field(default_factory=dict)
     conf_level: float = 0.95
+    warnings: list = field(default_factory=list)
 
     @property
     def metrics(self) -> list:
@@ -88,6 +121,7 @@ def _study(method, problem, evaluator, **kw) -> dict:
 def _sweep(evaluator, X, executor, out, resume, study, names, progress, chunk_size, desc):
     ex = as_executor(executor)
     own = ex is not executor
+    store = None
     try:
         store = ResultStore(out, study, X, names, resume=resume) if out is not None else None
         t0 = time.perf_counter()
@@ -96,6 +130,8 @@ def _sweep(evaluator, X, executor, out, resume, study, names, progress, chunk_si
         if store is not None:
             table = store.consolidate()
     finally:
+        if store is not None:
+            store.close()
         if own:
             ex.close()
     return table, wall
@@ -115,6 +151,22 @@ def sobol_samples(problem: dict, N: int, seed: int = 0, second_order: bool = Fal
     return sobol_sample.sample(problem, N, calc_second_order=second_order, scramble=True, seed=seed)
 
 
+def sobol_warnings(N: int, indices: dict) -> list:
+    """Why Sobol indices of a study may be uninformative: a small base sample, too wide intervals."""
+    out = []
+    if N < SOBOL_MIN_N:
+        out.append(f"base sample N = {N} < {SOBOL_MIN_N}: bootstrap intervals of the indices are typically wider "
+                   f"than their [0, 1] range; use N >= {SOBOL_MIN_N} (the interval shrinks like 1/sqrt(N))")
+    for metric, idx in indices.items():
+        conf = np.concatenate([np.ravel(idx.get("S1_conf", [])), np.ravel(idx.get("ST_conf", []))])
+        conf = conf[np.isfinite(conf)]
+        if conf.size and conf.max() > SOBOL_MAX_CONF:
+            out.append(f"{metric}: confidence half-width up to {conf.max():.2f} (> {SOBOL_MAX_CONF}); its indices "
+                       "are not resolved, increase N (or use --rank for a heavy-tailed metric)")
+    return out
+
+
+@holds_study_lock
 def run_sobol(evaluator, space, N: int, executor=None, out=None, resume=False, seed: int = 0,
               second_order: bool = False, conf_level: float = 0.95, num_resamples: int = 200,
               progress: bool = True, chunk_size: int | None = None, transform: str | None = None) -> GlobalResult:
@@ -156,17 +208,22 @@ def run_sobol(evaluator, space, N: int, executor=None, out=None, resume=False, s
             nan = np.full(d, np.nan) if failed[metric] else np.zeros(d)
             indices[metric] = {"S1": nan, "S1_conf": nan, "ST": nan, "ST_conf": nan}
             continue
+        # a Generator, not the int: SALib's analyze skips seeding for seed 0 (``if seed:``)
         res = sobol_analyze.analyze(problem, Y, calc_second_order=second_order, num_resamples=num_resamples,
-                                    conf_level=conf_level, seed=seed)
+                                    conf_level=conf_level, seed=np.random.default_rng(seed))
         indices[metric] = {k: np.asarray(res[k]) for k in ("S1", "S1_conf", "ST", "ST_conf")}
         if second_order:
             indices[metric]["S2"] = np.asarray(res["S2"])
-    result = GlobalResult("sobol", problem["names"], indices, table, X.shape[0], wall, failed, conf_level)
+    notes = sobol_warnings(N, indices)
+    for note in notes:
+        warnings.warn(f"Sobol study: {note}", RuntimeWarning, stacklevel=3)
+    result = GlobalResult("sobol", problem["names"], indices, table, X.shape[0], wall, failed, conf_level, notes)
     if out is not None:
         write_table(f"{out}/indices" + ("_rank" if transform else ""), result.indices_table())
     return result
 
 
+@holds_study_lock
 def run_morris(evaluator, space, trajectories: int = 20, executor=None, out=None, resume=False, seed: int = 0,
                num_levels: int = 4, conf_level: float = 0.95, num_resamples: int = 200, progress: bool = True,
                chunk_size: int | None = None) -> GlobalResult:
@@ -242,6 +299,7 @@ class MonteCarloResult:
     wall_s: float
 
 
+@holds_study_lock
 def run_monte_carlo(evaluator, space, n: int, executor=None, out=None, resume=False, seed: int = 0,
                     progress: bool = True, chunk_size: int | None = None) -> MonteCarloResult:
     """``n`` independent uniform samples over the ranges of ``space`` through the executor.

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from udrobot_ctrl.sensitivity.global_ import _metric_columns, _sweep
+from udrobot_ctrl.sensitivity.global_ import _metric_columns, _sweep, holds_study_lock
 
 
 @dataclass
@@ -114,6 +114,7 @@ def local_design(nominal, bounds, step) -> np.ndarray:
     return np.array(rows)
 
 
+@holds_study_lock
 def local_sensitivity(evaluator, space, rel_step: float = 1e-2, executor=None, out=None, resume: bool = False,
                       progress: bool = True, chunk_size: int | None = None) -> LocalResult:
     """Derivatives of every metric of ``evaluator`` at the nominal point of ``space``.

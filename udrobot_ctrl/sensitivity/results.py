@@ -2,6 +2,7 @@
 
 Layout of a study directory::
 
+    OUT/.lock               held (``fcntl.flock``, exclusive) by the one run using the folder; holds its pid
     OUT/study.json          what the study is (method, parameters, design hash); written atomically once
     OUT/design.npy          the full sample matrix (n_samples, d), so a resume evaluates the same points
     OUT/chunks/c########-####.csv   one file per finished chunk of samples (tmp file + atomic rename)
@@ -12,14 +13,24 @@ The chunk files *are* the manifest of finished sample ids: a chunk either exists
 atomic) or not at all, so an interrupted sweep loses at most the chunks in flight and a resume evaluates
 only the missing sample ids. Tidy table columns: ``sample_id``, one column per parameter, one per
 metric, and ``error`` (empty when the evaluation succeeded; metrics are NaN otherwise).
+
+One run at a time: a :class:`ResultStore` (and the CLI, for the whole run) holds an exclusive lock on
+``OUT/.lock``; a second run on the same folder fails at once with :class:`StudyLockedError` naming the folder
+and the holder's pid, so two runs can never mix their samples. A resume must request the same study
+(method, seed, sample size, parameters and ranges, controller, mission: everything in ``study.json``);
+otherwise :class:`StudyMismatchError` names the fields that differ. Temporary files are named after their
+writer's pid plus a random token (``.NAME.PID.TOKEN.tmp``, created exclusively, never through a symlink) and
+only the writer, or a later run once that pid is gone, removes them.
 """
 from __future__ import annotations
 
 import csv
+import fcntl
 import hashlib
 import io
 import json
 import os
+import secrets
 from pathlib import Path
 
 import numpy as np
@@ -27,21 +38,134 @@ import numpy as np
 STUDY_FILE = "study.json"
 DESIGN_FILE = "design.npy"
 CHUNK_DIR = "chunks"
+LOCK_FILE = ".lock"
 
 
 class StudyMismatchError(ValueError):
     """The output directory holds a different study than the one requested."""
 
 
+class StudyLockedError(RuntimeError):
+    """Another run holds the study folder's lock."""
+
+
+_HELD: dict = {}  # resolved study folder -> [fd, depth]: the locks this process holds (re-entrant)
+
+
+def _forget_locks_in_child() -> None:
+    """In a forked child (a pool worker): close the inherited lock descriptors, so the lock ends with its
+    holder's release and not with the last worker; the parent's descriptor keeps the lock."""
+    for fd, _ in _HELD.values():
+        os.close(fd)
+    _HELD.clear()
+
+
+os.register_at_fork(after_in_child=_forget_locks_in_child)
+
+
+class StudyLock:
+    """Exclusive, re-entrant (within one process) lock of a study folder: ``flock`` on ``OUT/.lock``.
+
+    Held from :meth:`acquire` to the matching :meth:`release` (or the ``with`` block); the lock file holds the
+    holder's pid. The kernel drops the lock when the holder dies, so a killed run never blocks a resume.
+
+    Raises
+    ------
+    StudyLockedError
+        From :meth:`acquire`, at once, if another process holds the lock.
+    """
+
+    def __init__(self, out):
+        self.out = Path(out)
+        self._key = None
+
+    def acquire(self) -> StudyLock:
+        self.out.mkdir(parents=True, exist_ok=True)
+        key = str(self.out.resolve())
+        held = _HELD.get(key)
+        if held is not None:
+            held[1] += 1
+            self._key = key
+            return self
+        fd = os.open(self.out / LOCK_FILE, os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW | os.O_CLOEXEC, 0o666)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            holder = os.pread(fd, 32, 0).decode(errors="replace").strip() or "unknown"
+            os.close(fd)
+            raise StudyLockedError(f"{self.out}: the study folder is in use by another sensitivity run (pid {holder}); "
+                                   "wait for it to finish or choose another --out") from None
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+        _HELD[key] = [fd, 1]
+        self._key = key
+        return self
+
+    def release(self) -> None:
+        if self._key is None:
+            return
+        key, self._key = self._key, None
+        held = _HELD.get(key)
+        if held is None:
+            return
+        held[1] -= 1
+        if held[1] == 0:
+            del _HELD[key]
+            os.ftruncate(held[0], 0)
+            os.close(held[0])  # closing the descriptor drops the flock
+
+    def __enter__(self):
+        return self.acquire()
+
+    def __exit__(self, *exc):
+        self.release()
+        return False
+
+
+def _pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # exists, owned by someone else
+        return True
+    return True
+
+
+def remove_stale_temp_files(folder) -> list:
+    """Remove ``.NAME.PID.TOKEN.tmp`` files of ``folder`` whose writer (PID) is gone; returns the removed paths.
+
+    A temporary file of a live writer is never touched (only its owner removes it).
+    """
+    removed = []
+    for tmp in Path(folder).glob(".*.tmp"):
+        parts = tmp.name.split(".")
+        pid = int(parts[-3]) if len(parts) >= 4 and parts[-3].isdigit() else None
+        if pid is not None and (pid == os.getpid() or _pid_alive(pid)):
+            continue
+        tmp.unlink(missing_ok=True)
+        removed.append(tmp)
+    return removed
+
+
 def atomic_write_bytes(path, data: bytes) -> None:
-    """Write ``data`` to ``path`` via a temporary file in the same directory and an atomic rename."""
+    """Write ``data`` to ``path`` via a temporary file in the same directory and an atomic rename.
+
+    The temporary file ``.NAME.PID.TOKEN.tmp`` is created exclusively (``O_EXCL``, never through a symlink)
+    with the user's umask, and removed if the write fails.
+    """
     path = Path(path)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    with open(tmp, "wb") as fh:
-        fh.write(data)
-        fh.flush()
-        os.fsync(fh.fileno())
-    os.replace(tmp, path)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.{secrets.token_hex(6)}.tmp")
+    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW | os.O_CLOEXEC, 0o666)
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(data)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
 
 
 def atomic_write_text(path, text: str) -> None:
@@ -126,10 +250,41 @@ class ResultStore:
     resume : bool
         Continue an existing study; without it an existing non-empty study directory is an error
         (results are never overwritten).
+
+    The store holds the folder's :class:`StudyLock` from construction to :meth:`close` (or the end of a
+    ``with`` block).
+
+    Raises
+    ------
+    StudyLockedError
+        Another run uses the folder.
+    StudyMismatchError
+        ``resume`` of a folder holding another study (the message names the differing fields).
+    FileExistsError
+        The folder holds a study and ``resume`` is False.
     """
 
     def __init__(self, out, study: dict, design, param_names, resume: bool = False):
         self.out = Path(out)
+        self.lock = StudyLock(self.out).acquire()
+        try:
+            self._open(study, design, param_names, resume)
+        except BaseException:
+            self.lock.release()
+            raise
+
+    def close(self) -> None:
+        """Release the folder's lock (the results stay on disk)."""
+        self.lock.release()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+        return False
+
+    def _open(self, study, design, param_names, resume):
         self.design = np.asarray(design, dtype=float)
         self.param_names = list(param_names)
         if self.design.ndim != 2 or self.design.shape[1] != len(self.param_names):
@@ -143,10 +298,10 @@ class ResultStore:
                 raise FileExistsError(f"{self.out} already holds a study ({STUDY_FILE}); pass --resume to continue it "
                                       "or choose another --out (results are never overwritten)")
             old = json.loads(study_path.read_text())
-            if old.get("design_hash") != self.study["design_hash"] or _strip(old) != _strip(self.study):
-                raise StudyMismatchError(
-                    f"{study_path}: the stored study differs from the requested one "
-                    f"(design {old.get('design_hash')} vs {self.study['design_hash']}); use another --out")
+            diff = study_differences(old, self.study)
+            if diff:
+                raise StudyMismatchError(f"{study_path}: the stored study differs from the requested one in "
+                                         f"{'; '.join(diff)}; resume with the same settings or use another --out")
             stored = np.load(self.out / DESIGN_FILE)
             if stored.shape != self.design.shape or not np.array_equal(stored, self.design):
                 raise StudyMismatchError(f"{self.out / DESIGN_FILE}: stored design differs from the requested one")
@@ -157,8 +312,8 @@ class ResultStore:
             atomic_write_bytes(self.out / DESIGN_FILE, buf.getvalue())
             atomic_write_text(study_path, json.dumps(self.study, indent=2, default=_json_default))
         self.chunk_dir.mkdir(exist_ok=True)
-        for tmp in self.chunk_dir.glob(".*.tmp"):  # leftovers of a writer killed mid-write
-            tmp.unlink(missing_ok=True)
+        for folder in (self.out, self.chunk_dir):  # leftovers of writers killed mid-write (never a live one's)
+            remove_stale_temp_files(folder)
 
     # -------------------------------------------------------------- chunks
     def chunk_files(self):
@@ -230,6 +385,18 @@ def write_table(path_stem, table: dict) -> list:
     if write_parquet(stem.with_suffix(".parquet"), table):
         paths.append(stem.with_suffix(".parquet"))
     return paths
+
+
+def study_differences(old: dict, new: dict) -> list:
+    """``["seed: stored 0, requested 3", ...]`` for every field of two study descriptions that differs."""
+    a, b = _strip(old), _strip(new)
+    return [f"{k}: stored {_short(a.get(k))}, requested {_short(b.get(k))}"
+            for k in sorted(set(a) | set(b)) if a.get(k) != b.get(k)]
+
+
+def _short(v, n: int = 120) -> str:
+    text = json.dumps(v, default=_json_default)
+    return text if len(text) <= n else text[: n - 3] + "..."
 
 
 def _strip(study: dict) -> dict:

@@ -29,6 +29,7 @@ def test_sobol_recovers_ishigami_indices_within_ci_on_local_processes(tmp_path):
         assert np.all(err <= 2 * idx[key + "_conf"] + 1e-3), (key, idx[key], truth, idx[key + "_conf"])
         assert np.all(idx[key + "_conf"] < 0.1)
     assert res.ranking("y") == ["x1", "x2", "x3"]
+    assert res.warnings == []  # N = 2048: resolved indices, nothing to warn about
     rows = read_csv_table(tmp_path / "ishigami" / "results.csv")
     assert len(rows["sample_id"]) == res.n_runs and np.array_equal(rows["sample_id"], np.arange(res.n_runs))
     assert (tmp_path / "ishigami" / "indices.csv").exists()
@@ -85,16 +86,16 @@ def test_resume_after_a_killed_sweep_recomputes_only_missing_samples(tmp_path):
     X = np.random.default_rng(0).uniform(-np.pi, np.pi, (400, 3))
     np.save(tmp_path / "design_in.npy", X)
     out = tmp_path / "study"
-    ResultStore(out, {"method": "test"}, X, ["x1", "x2", "x3"])  # create the study directory
+    ResultStore(out, {"method": "test"}, X, ["x1", "x2", "x3"]).close()  # create the study directory
     code = _CHILD.format(testdir=os.path.dirname(__file__), design=str(tmp_path / "design_in.npy"), out=str(out),
                          log=str(tmp_path / "first.log"))
     proc = subprocess.Popen([sys.executable, "-c", code])
-    store = ResultStore(out, {"method": "test"}, X, ["x1", "x2", "x3"], resume=True)
     deadline = time.time() + 60
-    while len(store.chunk_files()) < 5 and time.time() < deadline and proc.poll() is None:
+    while len(list((out / "chunks").glob("c*.csv"))) < 5 and time.time() < deadline and proc.poll() is None:
         time.sleep(0.05)
-    proc.send_signal(signal.SIGKILL)  # hard interruption: no cleanup handlers run
+    proc.send_signal(signal.SIGKILL)  # hard interruption: no cleanup handlers run (the kernel drops its lock)
     proc.wait()
+    store = ResultStore(out, {"method": "test"}, X, ["x1", "x2", "x3"], resume=True)
     (out / "chunks" / ".c99999999-0008.csv.123.tmp").write_text("sample_id,x1\n5,0.1")  # a half-written chunk
     done_before = store.finished_ids()
     assert 0 < len(done_before) < len(X)
@@ -150,3 +151,85 @@ def test_rank_transform_keeps_the_ishigami_ordering():
     assert np.all(np.isfinite(st)) and st[0] > st[2] > 0.05 and st[1] > 0.2
     with pytest.raises(ValueError, match="transform"):
         run_sobol(f, f.problem(), 8, executor=SweepExecutor(workers=1), transform="log")
+
+
+_HOLDER = textwrap.dedent("""
+    import sys, time
+    from udrobot_ctrl.sensitivity.results import StudyLock
+    with StudyLock({out!r}):
+        print("locked", flush=True)
+        time.sleep(60)
+""")
+
+
+def test_a_second_run_on_a_locked_study_folder_fails_at_once(tmp_path, capsys):
+    from udrobot_ctrl.cli import main
+    from udrobot_ctrl.sensitivity.results import StudyLockedError
+
+    out = tmp_path / "study"
+    proc = subprocess.Popen([sys.executable, "-c", _HOLDER.format(out=str(out))], stdout=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout.readline().strip() == "locked"
+        t0 = time.perf_counter()
+        with pytest.raises(StudyLockedError, match=rf"{out}.*pid {proc.pid}"):
+            ResultStore(out, {"method": "a"}, np.zeros((4, 3)), ["x1", "x2", "x3"])
+        assert time.perf_counter() - t0 < 5  # fails at once, does not wait
+        f = Ishigami()
+        with pytest.raises(StudyLockedError):
+            run_morris(f, f.problem(), 2, executor=SweepExecutor(workers=1), out=out, progress=False)
+        argv = ["sensitivity", "--method", "morris", "--samples", "2", "--params", "surge.CD", "--workers", "1",
+                "--out", str(out), "--quiet"]
+        assert main(argv) == 2
+        err = capsys.readouterr().err
+        assert f"pid {proc.pid}" in err and "in use" in err and "Traceback" not in err
+        assert not (out / "study.json").exists()  # nothing written by the refused runs
+    finally:
+        proc.kill()
+        proc.wait()
+    with ResultStore(out, {"method": "a"}, np.zeros((4, 3)), ["x1", "x2", "x3"]):  # holder gone: the lock is free
+        pass
+
+
+def test_resume_refuses_another_seed_and_keeps_a_live_writers_temp_files(tmp_path):
+    f = Ishigami()
+    out = tmp_path / "s"
+    run_sobol(f, f.problem(), 8, executor=SweepExecutor(workers=1), out=out, seed=0, progress=False)
+    with pytest.raises(ValueError, match=r"seed: stored 0, requested 1"):
+        run_sobol(f, f.problem(), 8, executor=SweepExecutor(workers=1), out=out, seed=1, resume=True, progress=False)
+    live = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+    try:
+        mine = out / "chunks" / f".c00000000-0008.csv.{live.pid}.a1b2c3.tmp"  # a running writer's temp file
+        mine.write_text("sample_id\n")
+        dead = out / "chunks" / ".c00000008-0008.csv.999999999.d4e5f6.tmp"  # its writer is gone
+        dead.write_text("sample_id\n")
+        run_sobol(f, f.problem(), 8, executor=SweepExecutor(workers=1), out=out, seed=0, resume=True, progress=False)
+        assert mine.exists() and not dead.exists()
+    finally:
+        live.kill()
+        live.wait()
+
+
+def test_sobol_with_seed_0_is_reproducible_and_a_tiny_sample_warns():
+    f = Ishigami()
+    runs = []
+    for _ in range(2):
+        with pytest.warns(RuntimeWarning, match="N = 16 < 64"):
+            runs.append(run_sobol(f, f.problem(), 16, executor=SweepExecutor(workers=1), seed=0, progress=False))
+        np.random.seed(len(runs))  # noqa: NPY002 - the legacy global state SALib fell back on must not matter
+    a, b = (r.indices["y"] for r in runs)
+    for k in ("S1", "S1_conf", "ST", "ST_conf"):
+        np.testing.assert_array_equal(a[k], b[k])
+    assert any("N = 16" in w for w in runs[0].warnings)
+
+
+def test_the_lock_ends_with_the_run_not_with_its_pool_workers(tmp_path):
+    from udrobot_ctrl.sensitivity.results import StudyLock
+
+    f = Ishigami()
+    with SweepExecutor(workers=2) as ex:  # the workers are forked while the study holds its lock
+        run_morris(f, f.problem(), 4, executor=ex, out=tmp_path / "a", progress=False)
+        probe = subprocess.run([sys.executable, "-c", _HOLDER.format(out=str(tmp_path / "a")).replace(
+            "time.sleep(60)", "pass")], capture_output=True, text=True, timeout=60)
+        assert probe.stdout.strip() == "locked", probe.stderr  # another process may take it while workers live
+        with StudyLock(tmp_path / "a"):
+            pass
