@@ -73,6 +73,13 @@ class Damage:
         """Total count of damage kinds starting with ``prefix`` (all kinds by default)."""
         return sum(k.count for name, k in self.kinds.items() if name.startswith(prefix))
 
+    def summary(self) -> str:
+        """One line for an error message: each kind with its count and first byte offset."""
+        if not self.kinds:
+            return "empty file"
+        return "; ".join(f"{name}: {k.count} ({k.nbytes} bytes) from byte offset {k.offsets[0]}"
+                         for name, k in sorted(self.kinds.items(), key=lambda kv: -kv[1].count))
+
     def notes(self, path) -> list:
         """``damage:`` lines for the sidecar notes (one per kind, largest first); ``damage: none`` if clean."""
         if not self.kinds:
@@ -290,8 +297,8 @@ def read_tlog_streams(path, mapping, optional: dict | None = None) -> DecodedLog
             boot = np.nan
         entry["boot"].append(float(boot))
     if facts.decoded == 0:
-        raise LogImportError(f"{path}: nothing usable decodes (no MAVLink frame with a valid CRC); "
-                             + ("; ".join(facts.damage.notes(path)[1:4]) or "empty file"))
+        raise LogImportError(f"{path}: nothing usable decodes (no MAVLink frame with a valid CRC): "
+                             f"{facts.damage.summary()}")
     streams = {}
     for name, entry in data.items():
         if not entry["t"]:
@@ -299,7 +306,7 @@ def read_tlog_streams(path, mapping, optional: dict | None = None) -> DecodedLog
         t = np.asarray(entry["t"])
         boot = np.asarray(entry["boot"])
         alt, alt_source = None, ""
-        if np.all(np.isfinite(boot)) and np.all(boot > 0):
+        if np.all(np.isfinite(boot)) and np.any(boot > 0):
             alt = boot + np.median(t - boot)
             alt_source = "autopilot time (aligned by median offset)"
         stream = finish_stream(name, t, entry["cols"], "tlog receive time", alt, alt_source)
@@ -434,8 +441,7 @@ def read_bin_streams(path, mapping, optional: dict | None = None) -> DecodedLog:
             value = values.get(f, np.nan)
             cols[f].append(float(value) if isinstance(value, (int, float)) else np.nan)
     if facts.decoded == 0:
-        raise LogImportError(f"{path}: nothing usable decodes (no dataflash record); "
-                             + ("; ".join(facts.damage.notes(path)[1:4]) or "empty file"))
+        raise LogImportError(f"{path}: nothing usable decodes (no dataflash record): {facts.damage.summary()}")
     streams = {}
     for name, e in data.items():
         if not e["t"]:
