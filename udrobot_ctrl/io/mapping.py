@@ -680,7 +680,6 @@ def assemble_run(mapping: Mapping, streams: dict, source_path: str, extra_notes=
     present = [r for r in rules if _present(r, streams) and (r.stream not in extra_streams or r.index >= 0
                                                               or _finite_fields(r, streams))]
     selection_notes, chosen, seen = [], [], set()
-    evaluated = {}
     for rule in present:
         if set(rule.to) & seen:
             continue
