@@ -5,9 +5,10 @@ The tlog is built with pymavlink's own encoder at the stream rates of the shared
 DISTANCE_SENSOR 3 Hz of which 2 in 3 frames have a bad CRC, SYS_STATUS 3 Hz, SCALED_PRESSURE,
 SCALED_PRESSURE2, RAW_IMU, SERVO_OUTPUT_RAW and RC_CHANNELS 2 Hz, NAMED_VALUE_FLOAT 16 Hz, HEARTBEAT 1 Hz;
 plus AHRS 20 Hz and SCALED_IMU2 2 Hz: ~113 frames/s against ~165 in the real log. It carries the parameters
-SCALED_PRESSURE2, RAW_IMU, SERVO_OUTPUT_RAW and RC_CHANNELS 2 Hz, NAMED_VALUE_FLOAT 16 Hz, HEARTBEAT
-1 Hz;
-times and MB/s; nothing is asserted (2 shared cores here; figures depend on load). Target: < 10 s for 30 min.
+of a BlueROV2 Heavy and a truncated last frame.
+
+Usage: ``python bench/convert.py [--minutes 30] [--json]``. Prints build and convert times, MB/s and frames/s;
+nothing is asserted (2 shared cores here; figures depend on load). Target: < 10 s for 30 min.
 """
 from __future__ import annotations
 
