@@ -424,8 +424,17 @@ def pressure_to_depth(pressure_pa, params: dict, where: str, log_params: dict | 
     except LogImportError as exc:
         raise LogImportError(f"{where}: {exc}") from exc
     depth = (pressure_pa - ref.pressure_pa) / (rho * G)
-    notes = [f"surface reference {ref.pressure_pa / 100:.2f} hPa: {ref.reason}; {rho_reason}, g = {G} m/s^2"]
+    notes = []
     finite = depth[np.isfinite(depth)]
+    if ref.reason.startswith("log parameter") and finite.size and np.mean(finite < -0.1) > 0.05:
+        # the autopilot's calibration does not fit this log (recalibrated, sensor swapped): use the log's own
+        own = surface_reference(pressure_pa, rho, {**params, "surface_params": []}, log_params)
+        notes.append(f"{ref.reason} puts {100 * np.mean(finite < -0.1):.0f} % of the samples more than 0.1 m above "
+                     f"the surface: not used")
+        ref = own
+        depth = (pressure_pa - ref.pressure_pa) / (rho * G)
+        finite = depth[np.isfinite(depth)]
+    notes.insert(0, f"surface reference {ref.pressure_pa / 100:.2f} hPa: {ref.reason}; {rho_reason}, g = {G} m/s^2")
     if finite.size and np.mean(finite < -0.1) > 0.05:
         notes.append(f"{100 * np.mean(finite < -0.1):.0f} % of the depth samples are more than 0.1 m above the "
                      f"surface (min {finite.min():.2f} m): the surface reference is wrong for this log")

@@ -194,14 +194,19 @@ def test_mid_dive_start_takes_the_shallowest_point_as_surface(tmp_path):
 
 
 def test_surface_parameter_is_used_and_log_start_at_surface(tmp_path):
-    """With BARO2_GND_PRESS logged (here 1000 Pa above the standard atmosphere: 0.102 m), it is the surface."""
+    """With BARO2_GND_PRESS logged (here 500 Pa above the standard atmosphere: 0.051 m), it is the surface."""
     def depth(t):
         return np.interp(t, [0, 10, 60], [0.0, 0.0, 9.4])
 
-    path = dive_tlog(tmp_path / "g.tlog", depth, params={"BARO2_GND_PRESS": 102325.0, "BARO_SPEC_GRAV": 1.0})
+    path = dive_tlog(tmp_path / "g.tlog", depth, params={"BARO2_GND_PRESS": 101825.0, "BARO_SPEC_GRAV": 1.0})
     run = convert_log(path, "ardusub")
-    _depth_check(run, lambda t: depth(t) - 1000.0 / RHO_G, 0.01)
-    assert "log parameter BARO2_GND_PRESS = 102325 Pa" in run.metadata["notes"]
+    _depth_check(run, lambda t: depth(t) - 500.0 / RHO_G, 0.01)
+    assert "log parameter BARO2_GND_PRESS = 101825 Pa" in run.metadata["notes"]
+    # a calibration that does not fit the log (1 m of water too high) is named and replaced by the log's own surface
+    run = convert_log(dive_tlog(tmp_path / "w.tlog", depth, params={"BARO2_GND_PRESS": 101325.0 + RHO_G}), "ardusub")
+    _depth_check(run, depth, 0.01)
+    assert "log parameter BARO2_GND_PRESS = 111135 Pa" in run.metadata["notes"] and "above the surface: not used" in \
+        run.metadata["notes"]
     # without it, the pre-dive samples are the surface (stated as assumed)
     run = convert_log(dive_tlog(tmp_path / "f.tlog", depth), "ardusub")
     _depth_check(run, depth, 0.01)
