@@ -16,6 +16,7 @@ from udrobot_ctrl.io.runlog import read_run, write
 
 T0 = 1_700_000_000.0
 RHO_G = 1000.0 * 9.81  # Pa per m of fresh water, as the converter uses (rho = 1000 BARO_SPEC_GRAV, g = 9.81)
+# ../shared next to the repository (as the other tests); UDROBOT_SHARED overrides it (e.g. from a git worktree)
 SHARED = Path(os.environ.get("UDROBOT_SHARED", Path(__file__).resolve().parents[3] / ".." / "shared"))
 ARDUSUB_LOGS = SHARED / "data" / "ardusub_log_tools"
 
@@ -418,3 +419,24 @@ def test_shared_ardusub_logs_convert_with_damage_depth_and_vehicle():
     assert "source: z <- BARO[1][Alt]" in notes
     assert 0.0 <= np.nanmin(run.channels["z"]) and np.nanmax(run.channels["z"]) < 0.02
     np.testing.assert_allclose(np.nanmean(run.channels["az"]), -9.8, atol=0.15)
+
+
+def _ardupilot_files():
+    if not ARDUSUB_LOGS.is_dir():
+        return []
+    return sorted(p for p in ARDUSUB_LOGS.iterdir() if p.suffix.lower() in (".tlog", ".bin"))
+
+
+@pytest.mark.skipif(not ARDUSUB_LOGS.is_dir(), reason="shared ArduSub logs not present")
+@pytest.mark.parametrize("path", _ardupilot_files(), ids=lambda p: p.name)
+def test_every_shared_ardupilot_file_converts(path):
+    """Each file converts with a damage statement, a named vehicle with all its motors, a finite depth at the
+    surface (none of the shared logs is a dive: the Bar30 moves < 4 cm) and the depth source stated."""
+    run = convert_log(path, "ardusub")
+    notes = run.metadata["notes"]
+    assert "damage: " in notes and "source: z <- " in notes
+    assert run.metadata["vehicle"] in ("bluerov2", "bluerov2-heavy")
+    assert run.inputs.shape[1] == {"bluerov2": 6, "bluerov2-heavy": 8}[run.metadata["vehicle"]]
+    z = run.channels["z"]
+    assert np.isfinite(z).mean() > 0.99 and -0.01 < np.nanmin(z) and np.nanmax(z) < 0.04
+    assert {"ax", "ay", "az"} <= set(run.channels)
