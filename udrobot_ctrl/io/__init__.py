@@ -10,7 +10,7 @@ from pathlib import Path
 from udrobot_ctrl.io.runlog import Run, read_run
 
 from .mapping import Mapping, MappingError, assemble_run, load_mapping, motor_rules
-from .mavlink import DecodedLog, detect_vehicle
+from .mavlink import DecodedLog, detect_vehicle, water_density_from_params
 from .qgc_csv import is_qgc_csv
 from .streams import LogImportError
 
@@ -106,6 +106,10 @@ def convert_log(path, mapping=None, require_inputs: bool = True) -> Run:
                            log_params=facts.params, extra_rules=motor_rules(mapping, servos))
         if vehicle.name is not None:
             run.metadata["vehicle"] = vehicle.name
+        density = water_density_from_params(facts.params)
+        if density is not None and "water_density" not in mapping.metadata:
+            run.metadata["water_density"] = density[0]
+            run.metadata["notes"] += "\n" + density[1]
     else:
         run = assemble_run(mapping, decoded, str(path), require_inputs=require_inputs)
     run.path = str(path)

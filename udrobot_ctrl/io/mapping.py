@@ -79,6 +79,7 @@ class ChannelRule:
     params: dict = field(default_factory=dict)
     index: int = 0
     role: str = ""
+    keep_if: tuple = ()
 
 
 @dataclass(frozen=True)
@@ -142,6 +143,7 @@ class Mapping:
         out = {}
         for rule in self.rules:
             out.setdefault(rule.stream, set()).update(rule.fields)
+            out[rule.stream].update(f for f, _ in rule.keep_if)
         if self.time_base:
             out.setdefault(self.time_base, set())
         return out
@@ -227,7 +229,7 @@ def parse_mapping(text: str, source_name: str = "mapping") -> Mapping:
     for i, entry in enumerate(entries):
         w = f"{source_name}: channels[{i}]"
         unknown = set(entry) - {"to", "stream", "field", "fields", "transform", "scale", "offset", "frame", "params",
-                                "comment", "role"}
+                                "comment", "role", "keep_if"}
         if unknown:
             raise MappingError(f"{w}: unknown key(s) {sorted(unknown)}")
         if "to" not in entry or "stream" not in entry or ("field" in entry) == ("fields" in entry):
@@ -255,9 +257,14 @@ def parse_mapping(text: str, source_name: str = "mapping") -> Mapping:
         role = entry.get("role", "")
         if role not in ("", "measurement", "estimate"):
             raise MappingError(f"{w}: 'role' must be 'measurement' or 'estimate', got {role!r}")
+        keep_if = entry.get("keep_if", {})
+        if not isinstance(keep_if, dict) or not all(isinstance(v, (int, float)) and not isinstance(v, bool)
+                                                    for v in keep_if.values()):
+            raise MappingError(f"{w}: 'keep_if' must be a table of field = number (samples kept where equal)")
         rules.append(ChannelRule(to=to, stream=str(entry["stream"]), fields=fields, transform=transform,
                                  scale=_number(entry, "scale", 1.0, w), offset=_number(entry, "offset", 0.0, w),
-                                 frame=frame, params=params, index=i, role=role))
+                                 frame=frame, params=params, index=i, role=role,
+                                 keep_if=tuple(sorted((str(k), float(v)) for k, v in keep_if.items()))))
     files = doc.get("files", {})
     if not isinstance(files, dict) or not all(isinstance(v, str) and "{suffix}" in v for v in files.values()):
         raise MappingError(f"{source_name}: [files] must map stream names to patterns containing '{{suffix}}'")
@@ -629,14 +636,36 @@ def _input_layout(mapping: Mapping, found, where, require_inputs: bool, rules=No
     return kind, cols, notes
 
 
-def _present(rule, streams):
+def rule_stream(rule: ChannelRule, streams: dict) -> Stream | None:
+    """The rule's stream, restricted to the samples whose ``keep_if`` fields equal the given values (e.g. only the
+    downward DISTANCE_SENSOR, orientation 25); None if absent or lacking a field."""
     stream = streams.get(rule.stream)
-    return stream is not None and stream.t.size > 0 and all(f in stream.fields for f in rule.fields)
+    if stream is None or stream.t.size == 0 or not all(f in stream.fields for f in rule.fields):
+        return None
+    if not rule.keep_if:
+        return stream
+    if not all(f in stream.fields for f, _ in rule.keep_if):
+        return None
+    keep = np.ones(stream.t.size, bool)
+    for f, value in rule.keep_if:
+        keep &= stream.fields[f] == value
+    if not keep.any():
+        return None
+    alt = None if stream.t_alternative is None else stream.t_alternative[keep]
+    cond = ", ".join(f"{f} = {v:g}" for f, v in rule.keep_if)
+    return Stream(name=stream.name, t=stream.t[keep], fields={k: v[keep] for k, v in stream.fields.items()},
+                  time_source=stream.time_source, t_alternative=alt, alternative_source=stream.alternative_source,
+                  notes=stream.notes + ([f"{stream.name}: {int((~keep).sum())} of {keep.size} samples dropped "
+                                         f"(kept where {cond})"] if not keep.all() else []))
+
+
+def _present(rule, streams):
+    return rule_stream(rule, streams) is not None
 
 
 def _finite_fields(rule, streams):
     """A motor source whose servo fields are all nan (the log lacks those outputs) is not present."""
-    stream = streams[rule.stream]
+    stream = rule_stream(rule, streams)
     return all(np.isfinite(stream.fields[f]).any() for f in rule.fields)
 
 
@@ -698,8 +727,9 @@ def assemble_run(mapping: Mapping, streams: dict, source_path: str, extra_notes=
             cands = [r for r in present if column in r.to and not (set(r.to) - set(rule.to)) & seen]
             cand_objs = []
             for r in cands:
-                values, _ = _apply_rule(r, streams[r.stream], where, log_params)
-                cand_objs.append(Candidate(r, streams[r.stream].t, values[column]))
+                r_stream = rule_stream(r, streams)
+                values, _ = _apply_rule(r, r_stream, where, log_params)
+                cand_objs.append(Candidate(r, r_stream.t, values[column]))
             winner, notes = select_by_evidence(column, cand_objs, mapping.select[column])
             selection_notes += notes
             rule = winner.rule
@@ -733,8 +763,10 @@ def assemble_run(mapping: Mapping, streams: dict, source_path: str, extra_notes=
 
     out, provenance, rate_notes, gap_notes = {}, [], [], []
     deferred = []
+    used_streams = {}
     for rule in chosen:
-        stream = streams[rule.stream]
+        stream = rule_stream(rule, streams)
+        used_streams.setdefault(rule.stream, stream)
         values, rule_notes = _apply_rule(rule, stream, where, log_params)
         limit = gap_limit(stream.t, mapping)
         inputs_here = [n for n in values if _is_input(n)]
@@ -780,8 +812,8 @@ def assemble_run(mapping: Mapping, streams: dict, source_path: str, extra_notes=
     if missing:
         notes.append("not in this log: " + ", ".join(missing))
     for s in sorted(used):
-        notes += streams[s].notes
-        st = streams[s]
+        st = used_streams[s]
+        notes += st.notes
         if st.t_alternative is not None and st.t_alternative.size:
             d = st.t_alternative - st.t
             notes.append(f"{s}: {st.alternative_source} - {st.time_source} delay median {np.median(d) * 1e3:.1f} ms "

@@ -574,3 +574,13 @@ def detect_vehicle(facts: LogFacts) -> VehicleInfo:
         notes.append(f"vehicle: named {name} with {len(servos)} thrusters (motor outputs in motor order -> "
                      f"pwm_1..pwm_{len(servos)})")
     return VehicleInfo(name=name, frame=frame, motor_servos=servos, notes=notes)
+
+
+def water_density_from_params(params: dict) -> tuple | None:
+    """(rho kg/m^3, note) from ArduSub's ``BARO_SPEC_GRAV`` (specific gravity the autopilot was told; rho = 1000 x
+    it), or None when the log does not hold it or holds an implausible value."""
+    sg = params.get("BARO_SPEC_GRAV")
+    if sg is None or not np.isfinite(sg) or not 0.9 < sg < 1.1:
+        return None
+    return 1000.0 * sg, (f"water_density: {1000 * sg:.0f} kg/m^3 from log parameter BARO_SPEC_GRAV = {sg:g} (the "
+                         f"water the operator configured: 1.0 fresh, 1.024 sea water)")

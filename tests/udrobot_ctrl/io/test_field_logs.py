@@ -98,6 +98,8 @@ def test_damaged_tlog_bad_crc_garbage_and_cut_tail(tmp_path):
             frame[-1] ^= 0x5A  # CRC byte wrong
             n_bad += 1
         ev.append((t, bytes(frame)))
+        # a forward-looking sonar (orientation 0) on the same message: not an altitude
+        ev.append((t + 0.001, mav.distance_sensor_encode(int(t * 1000), 20, 5000, 1000, 1, 2, 0, 0)))
     path = write_events(tmp_path / "d.tlog", mav, ev)
     data = bytearray(path.read_bytes())
     garbage_at = len(data) // 2
@@ -113,6 +115,7 @@ def test_damaged_tlog_bad_crc_garbage_and_cut_tail(tmp_path):
     # the good altitude frames decode to their values (k not divisible by 3 -> 3.0 + 0.01 k m)
     alt = run.channels["altitude"]
     assert np.nanmin(alt) >= 3.01 - 1e-9 and np.nanmax(alt) <= 3.0 + 0.01 * 199 + 1e-9
+    assert "DISTANCE_SENSOR: 200 of " in notes and "samples dropped (kept where orientation = 25)" in notes
     assert np.all(np.isfinite(run.channels["phi"][:10]))
     np.testing.assert_allclose(np.nanmean(run.channels["phi"]), 0.1, atol=1e-6)
 
@@ -203,6 +206,7 @@ def test_surface_parameter_is_used_and_log_start_at_surface(tmp_path):
     run = convert_log(path, "ardusub")
     _depth_check(run, lambda t: depth(t) - 500.0 / RHO_G, 0.01)
     assert "log parameter BARO2_GND_PRESS = 101825 Pa" in run.metadata["notes"]
+    assert run.metadata["water_density"] == 1000.0 and "from log parameter BARO_SPEC_GRAV = 1" in run.metadata["notes"]
     # a calibration that does not fit the log (1 m of water too high) is named and replaced by the log's own surface
     run = convert_log(dive_tlog(tmp_path / "w.tlog", depth, params={"BARO2_GND_PRESS": 101325.0 + RHO_G}), "ardusub")
     _depth_check(run, depth, 0.01)
