@@ -11,16 +11,31 @@ docs/mappings.md. In short::
     rate_hz = 50.0              # output time base (uniform); omit to use the samples of `time_base`
     time_base = "ATTITUDE"      # stream whose span (and, without rate_hz, samples) define t
     time = "header"             # ROS: header.stamp when present, else bag record time ("receive")
-    max_gap_s = 0.5             # linear interpolation never bridges a gap longer than this
+    max_gap_s = 0.5             # linear interpolation never bridges a gap longer than this ...
     input_kind = "pwm"
 
+    gap_factor = 3.0            # ... or longer than gap_factor x the stream's own median interval, whichever is longer
+
+    [select.z]                  # optional: choose among the alternatives of `z` by evidence (select_by_evidence)
+    flat = 0.01
+    moving = 0.10
+    agree = 0.05
+    min_value = -0.1
+
+    [motors]                    # optional: all motor outputs in motor order (servo numbers from the log)
+    sources = [{stream = "SERVO_OUTPUT_RAW", field = "servo{n}_raw"}]
+    default_servos = [1, 2, 3, 4]
+
     [[channels]]                # several [[channels]] with the same `to`: the first present in the log wins
+                                # (or, with [select.COLUMN], the first that passes the evidence checks)
     to = ["phi", "theta", "psi"]
     stream = "ATTITUDE"
     fields = ["roll", "pitch", "yaw"]
     scale = 1.0                 # value = scale * raw + offset, then `transform`
     transform = "none"          # none | quaternion_to_euler | vector_enu_to_ned | vector_flu_to_frd
                                 # | pressure_to_depth | world_to_body (after resampling, needs phi/theta/psi)
+    role = "measurement"        # measurement | estimate, for [select.COLUMN]
+    keep_if = {orientation = 25}  # only the samples whose field equals the value
 
 Resampling: measured channels linearly (angles unwrapped), inputs and extra columns zero-order hold
 (the command logged at t_k holds until the next one). The output t starts at 0; the absolute log time of

@@ -354,19 +354,23 @@ def _df_layout(fmt):
     return struct.Struct(fmt.msg_struct)
 
 
-def iter_dataflash(path, damage: Damage | None = None):
+def iter_dataflash(path, damage: Damage | None = None, wanted=None, tally: dict | None = None):
     """Yield (index, byte_offset, name, dict of field -> value) for every dataflash record.
 
     Values use pymavlink's multipliers (e.g. ``c`` int16 * 0.01). FMT records define the layouts. Damage is
     skipped and recorded in ``damage``: bytes that are not ``A3 95 <known type>`` (``garbage (no record
     header)``, skipped to the next record header), a last record cut short (``truncated tail (TYPE)``) and
     FMT records pymavlink cannot parse (``bad FMT``). Dataflash has no checksum: corruption inside a record
-    that keeps its header is not detectable.
+    that keeps its header is not detectable. ``wanted`` (set of message names): records of other types are
+    stepped over without unpacking (their framing is still checked); the index still counts them.
+    ``tally['valid']`` counts every well-framed record (FMT included), yielded or not.
     """
     from pymavlink.DFReader import DFFormat, null_term
 
     data = Path(path).read_bytes()
     damage = Damage() if damage is None else damage
+    tally = {} if tally is None else tally
+    tally.setdefault("valid", 0)
     formats = {DF_FMT_TYPE: DFFormat(DF_FMT_TYPE, "FMT", 89, "BBnNZ", "Type,Length,Name,Format,Columns")}
     layouts = {}
     size = len(data)
@@ -388,6 +392,11 @@ def iter_dataflash(path, damage: Damage | None = None):
         if offset + fmt.len > size:
             damage.add(f"truncated tail ({fmt.name})", offset, size - offset)
             break
+        tally["valid"] += 1
+        if wanted is not None and mtype != DF_FMT_TYPE and fmt.name not in wanted:
+            offset += fmt.len
+            index += 1
+            continue
         layout = layouts.get(mtype)
         if layout is None:
             try:
@@ -441,8 +450,9 @@ def read_bin_streams(path, mapping, optional: dict | None = None) -> DecodedLog:
         opt = sorted(set(optional.get(name, ())) - set(req))
         data[name] = {"t": [], "req": req, "opt": opt, "cols": {f: [] for f in req + opt}}
     facts = LogFacts()
-    for index, offset, name, values in iter_dataflash(path, facts.damage):
-        facts.decoded += 1
+    wanted = {name.split("[")[0] for name in data} | {"PARM", "MSG"}
+    tally = {}
+    for index, offset, name, values in iter_dataflash(path, facts.damage, wanted, tally):
         if name == "PARM":
             facts.params[str(values.get("Name", ""))] = float(values.get("Value", np.nan))
             continue
@@ -470,6 +480,7 @@ def read_bin_streams(path, mapping, optional: dict | None = None) -> DecodedLog:
         for f in entry["opt"]:
             value = values.get(f, np.nan)
             cols[f].append(float(value) if isinstance(value, (int, float)) else np.nan)
+    facts.decoded = tally["valid"]
     if facts.decoded == 0:
         raise LogImportError(f"{path}: nothing usable decodes (no dataflash record): {facts.damage.summary()}")
     streams = {}
