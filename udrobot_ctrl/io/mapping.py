@@ -74,6 +74,7 @@ TRANSFORMS = {
     "world_to_body": (3, 3),
 }
 G = 9.81
+AUXILIARY_CHANNELS = ("altitude", "voltage", "ax", "ay", "az")  # never shorten the run to their span
 
 
 class MappingError(ValueError):
@@ -697,14 +698,18 @@ def _rate_notes(name, stream, grid_rate, is_input) -> list:
             f"interpolated onto the {grid_rate:g} Hz grid: motion faster than ~{2 * med:.1f} s is not observed in it"]
 
 
-def _gap_notes(name, stream, values, limit) -> list:
+def _gap_notes(name, stream, values, limit, grid) -> list:
     frac = float(np.mean(~np.isfinite(values))) if values.size else 0.0
     if frac <= 0.05:
         return []
     dt = np.diff(stream.t)
     big = dt[dt > limit]
+    span = ""
+    if stream.t[0] > grid[0] or stream.t[-1] < grid[-1]:
+        span = (f"; {stream.name} covers only {stream.t[0] - grid[0]:.1f}..{stream.t[-1] - grid[0]:.1f} s of the "
+                f"run's 0..{grid[-1] - grid[0]:.1f} s")
     return [f"gaps: {name} is nan in {100 * frac:.0f} % of the rows: {stream.name} has {big.size} gap(s) longer than "
-            f"{limit:.2f} s (longest {big.max() if big.size else 0:.1f} s) that are not bridged; the diagnoser "
+            f"{limit:.2f} s (longest {big.max() if big.size else 0:.1f} s) that are not bridged{span}; the diagnoser "
             f"compares {name} only where it is finite"]
 
 
@@ -759,11 +764,14 @@ def assemble_run(mapping: Mapping, streams: dict, source_path: str, extra_notes=
         chosen[0].stream
     base = streams[base_name]
     used = {r.stream for r in chosen}
-    start = max(streams[s].t[0] for s in used)
-    stop = min(streams[s].t[-1] for s in used)
+    # auxiliary channels (altitude, voltage, accelerometer) do not cut the run: they are nan outside their own span
+    # (named in gaps:), so a sonar that starts late never shortens the states and commands
+    core = {base_name} | {r.stream for r in chosen if not set(r.to) <= set(AUXILIARY_CHANNELS)}
+    start = max(streams[s].t[0] for s in core)
+    stop = min(streams[s].t[-1] for s in core)
     if not stop > start:
-        raise LogImportError(f"{where}: the mapped streams do not overlap in time "
-                             + "; ".join(f"{s}: {streams[s].t[0]:.3f}..{streams[s].t[-1]:.3f} s" for s in sorted(used)))
+        raise LogImportError(f"{where}: the time base and the command streams do not overlap in time "
+                             + "; ".join(f"{s}: {streams[s].t[0]:.3f}..{streams[s].t[-1]:.3f} s" for s in sorted(core)))
     if mapping.rate_hz:
         t_rel = np.arange(int(np.floor((stop - start) * mapping.rate_hz + 1e-9)) + 1) / mapping.rate_hz
         grid = start + t_rel
@@ -790,7 +798,7 @@ def assemble_run(mapping: Mapping, streams: dict, source_path: str, extra_notes=
                 out[name] = hold_previous(stream.t, y, grid)
             else:
                 out[name] = _interp_gapped(stream.t, y, grid, limit, angle=name in ANGLE_CHANNELS)
-                gap_notes += _gap_notes(name, stream, out[name], limit)
+                gap_notes += _gap_notes(name, stream, out[name], limit, grid)
         label = "/".join(rule.to) if len(rule.to) <= 6 else f"{rule.to[0]}..{rule.to[-1]}"
         rate_notes += _rate_notes(label if inputs_here else "/".join(n for n in rule.to if n in CHANNELS) or label,
                                   stream, grid_rate, bool(inputs_here))
@@ -820,7 +828,8 @@ def assemble_run(mapping: Mapping, streams: dict, source_path: str, extra_notes=
     extra["t_source"] = hold_previous(base.t, base.t, grid)
     notes = [f"converted from {source_path} with mapping {mapping.name} ({mapping.path}); t = 0 is log time "
              f"{grid[0]:.6f} s ({base.time_source} clock of {base_name}); time base: {interp} over the span where "
-             f"all used streams overlap; measured channels linear (angles unwrapped; no bridging of gaps longer than "
+             f"all used streams overlap (except {'/'.join(AUXILIARY_CHANNELS)}, nan outside their own span); "
+             f"measured channels linear (angles unwrapped; no bridging of gaps longer than "
              f"max({mapping.max_gap_s:g} s, {mapping.gap_factor:g} x the stream's median interval)), inputs "
              f"zero-order hold; t_source = original {base_name} time stamp held"]
     notes += provenance + selection_notes + rate_notes + gap_notes

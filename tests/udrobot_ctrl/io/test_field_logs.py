@@ -444,3 +444,19 @@ def test_every_shared_ardupilot_file_converts(path):
     z = run.channels["z"]
     assert np.isfinite(z).mean() > 0.99 and -0.01 < np.nanmin(z) and np.nanmax(z) < 0.04
     assert {"ax", "ay", "az"} <= set(run.channels)
+
+
+def test_late_sonar_does_not_shorten_the_run(tmp_path):
+    """A downward sonar that only reports from 30 s to 40 s: the run keeps its 60 s of states and commands,
+    altitude is nan outside the sonar's span and the notes name it."""
+    mav = _mav()
+    extra = [(t, mav.distance_sensor_encode(int(t * 1000), 20, 5000, 250, 1, 1, 25, 0))
+             for t in np.arange(30.0, 40.0, 0.1)]
+    run = convert_log(dive_tlog(tmp_path / "late.tlog", lambda t: 1.0 + 0 * t, extra=extra), "ardusub")
+    assert run.duration > 59.0
+    alt = run.channels["altitude"]
+    t = run.t + (run.extra["t_source"][0] - T0)
+    assert np.isnan(alt[t < 29.9]).all() and np.isnan(alt[t > 40.0]).all()
+    np.testing.assert_allclose(alt[(t > 30.1) & (t < 39.8)], 2.5)
+    assert "gaps: altitude is nan in" in run.metadata["notes"] and "DISTANCE_SENSOR covers only 30.0..39.9 s" in \
+        run.metadata["notes"]
