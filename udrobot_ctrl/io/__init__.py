@@ -95,7 +95,7 @@ def convert_log(path, mapping=None, require_inputs: bool = True) -> Run:
     if isinstance(decoded, DecodedLog):
         facts = decoded.facts
         vehicle = detect_vehicle(facts)
-        notes = facts.damage.notes(path) + vehicle.notes
+        notes = facts.damage.notes(path) + facts.notes + vehicle.notes
         servos = vehicle.motor_servos
         if not servos and mapping.motors:
             servos = mapping.motors.default_servos

@@ -105,13 +105,16 @@ class LogFacts:
         ``STATUSTEXT`` / ``MSG`` texts in log order.
     damage : Damage
     decoded : int
-        Messages decoded.
+        Frames / records with valid framing (and CRC).
+    notes : list of str
+        Further statements for the run's notes (e.g. ``frames:`` unknown message ids).
     """
 
     params: dict = field(default_factory=dict)
     texts: list = field(default_factory=list)
     damage: Damage = field(default_factory=Damage)
     decoded: int = 0
+    notes: list = field(default_factory=list)
 
 
 @dataclass
@@ -326,6 +329,9 @@ def read_tlog_streams(path, mapping, optional: dict | None = None) -> DecodedLog
             boot = np.nan
         entry["boot"].append(float(boot))
     facts.decoded = tally["valid"] + unknown
+    if unknown:
+        facts.notes.append(f"frames: {unknown} of {facts.decoded} frames in {path} have message ids unknown to the "
+                           f"ardupilotmega dialect (framing and length valid) and were not decoded")
     if facts.decoded == 0:
         raise LogImportError(f"{path}: nothing usable decodes (no MAVLink frame with a valid CRC): "
                              f"{facts.damage.summary()}")
@@ -340,9 +346,10 @@ def read_tlog_streams(path, mapping, optional: dict | None = None) -> DecodedLog
             alt = boot + np.median(t - boot)
             alt_source = "autopilot time (aligned by median offset)"
         stream = finish_stream(name, t, entry["cols"], "tlog receive time", alt, alt_source)
-        if unknown:
-            stream.notes.append(f"{path}: {unknown} of {facts.decoded} frames have message ids unknown to the "
-                                f"ardupilotmega dialect (framing and length valid) and were not decoded")
+        bad = facts.damage.count(f"bad CRC {name} (")
+        if bad:
+            stream.notes.append(f"{name}: {bad} frames with bad CRCs skipped (see damage:); the stream has "
+                                f"{t.size} good ones")
         streams[name] = stream
     return DecodedLog(streams, facts)
 

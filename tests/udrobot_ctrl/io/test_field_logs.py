@@ -460,3 +460,13 @@ def test_late_sonar_does_not_shorten_the_run(tmp_path):
     np.testing.assert_allclose(alt[(t > 30.1) & (t < 39.8)], 2.5)
     assert "gaps: altitude is nan in" in run.metadata["notes"] and "DISTANCE_SENSOR covers only 30.0..39.9 s" in \
         run.metadata["notes"]
+
+
+def test_unknown_message_id_is_counted_not_damage(tmp_path):
+    """A well-framed v2 frame with a message id the dialect does not know (a vendor message) is stepped over and
+    counted once under frames:, not as damage."""
+    unknown = bytes([0xFD, 4, 0, 0, 0, 1, 1]) + (60000).to_bytes(3, "little") + b"\x01\x02\x03\x04" + b"\xaa\xbb"
+    run = convert_log(dive_tlog(tmp_path / "u.tlog", lambda t: 1.0 + 0 * t, extra=[(5.0, unknown), (6.0, unknown)]),
+                      "ardusub")
+    notes = run.metadata["notes"]
+    assert "frames: 2 of " in notes and "damage: none found" in notes
