@@ -125,7 +125,7 @@ class SelectSpec:
 class MotorSpec:
     """``[motors]``: motor outputs mapped in motor order from the vehicle's servo function map.
 
-    ``sources`` are (stream, field pattern with ``{n}`` = servo number) in order of preference;
+    ``sources`` are (stream, field pattern with ``{n}`` = servo number, keep_if) in order of preference;
     ``default_servos`` is used when the log does not say which servo drives which motor.
     """
 
@@ -168,8 +168,9 @@ class Mapping:
         """Stream name -> fields read when present (nan otherwise): every servo of the ``[motors]`` sources."""
         out = {}
         if self.motors:
-            for stream, pattern in self.motors.sources:
+            for stream, pattern, keep_if in self.motors.sources:
                 out.setdefault(stream, set()).update(pattern.format(n=n) for n in range(1, self.motors.max_servo + 1))
+                out[stream].update(f for f, _ in keep_if)
         return out
 
 
@@ -310,7 +311,10 @@ def parse_mapping(text: str, source_name: str = "mapping") -> Mapping:
             if not isinstance(src, dict) or not isinstance(src.get("stream"), str) \
                     or not isinstance(src.get("field"), str) or "{n}" not in src["field"]:
                 raise MappingError(f"{w}: each source needs 'stream' and a 'field' pattern containing {{n}}")
-            sources.append((src["stream"], src["field"]))
+            keep_if = src.get("keep_if", {})
+            if not isinstance(keep_if, dict) or not all(isinstance(v, (int, float)) for v in keep_if.values()):
+                raise MappingError(f"{w}: a source's 'keep_if' must be a table of field = number")
+            sources.append((src["stream"], src["field"], tuple(sorted((k, float(v)) for k, v in keep_if.items()))))
         default = m.get("default_servos", [])
         if not isinstance(default, list) or not all(isinstance(k, int) and k >= 1 for k in default):
             raise MappingError(f"{w}: default_servos must be a list of servo numbers >= 1")
@@ -621,8 +625,8 @@ def motor_rules(mapping: Mapping, servos) -> list:
         return []
     to = tuple(f"pwm_{k}" for k in range(1, len(servos) + 1))
     return [ChannelRule(to=to, stream=stream, fields=tuple(pattern.format(n=n) for n in servos),
-                        index=-1 - i, role="")
-            for i, (stream, pattern) in enumerate(mapping.motors.sources)]
+                        index=-1 - i, role="", keep_if=keep_if)
+            for i, (stream, pattern, keep_if) in enumerate(mapping.motors.sources)]
 
 
 def _is_input(name: str) -> bool:

@@ -334,12 +334,14 @@ def test_heavy_frame_maps_all_eight_motors_in_motor_order(tmp_path):
               "SERVO9_FUNCTION": 59.0}
     mav = _mav()
     extra = [(0.5, mav.statustext_encode(6, b"Frame: VECTORED_6DOF"))]
+    # old firmware sends servos 9-16 as a second SERVO_OUTPUT_RAW with port = 1: never motor outputs 1-8
+    extra += [(t, mav.servo_output_raw_encode(int(t * 1e6), 1, *[1900] * 16)) for t in np.arange(0.035, 60.0, 0.5)]
     path = dive_tlog(tmp_path / "h.tlog", lambda t: 1.0 + 0 * t, params=params, extra=extra,
                      servo=lambda t: [1100 + 10 * n for n in range(1, 17)])
     run = convert_log(path, "ardusub")
     assert run.metadata["vehicle"] == "bluerov2-heavy"
     assert run.inputs.shape[1] == 8
-    np.testing.assert_array_equal(run.inputs[0], [1100 + 10 * s for s in servo_of_motor])
+    np.testing.assert_array_equal(run.inputs, np.tile([1100 + 10 * s for s in servo_of_motor], (run.n, 1)))
     assert "motor 1 = servo 3" in run.metadata["notes"]
     write(run, tmp_path / "h.csv")
     assert json.loads((tmp_path / "h.json").read_text())["vehicle"] == "bluerov2-heavy"
