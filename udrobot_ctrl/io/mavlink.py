@@ -342,10 +342,16 @@ def read_tlog_streams(path, mapping, optional: dict | None = None) -> DecodedLog
         t = np.asarray(entry["t"])
         boot = np.asarray(entry["boot"])
         alt, alt_source = None, ""
-        if np.all(np.isfinite(boot)) and np.any(boot > 0):
+        back = np.flatnonzero(np.diff(boot) < -1.0) if boot.size > 1 else np.array([], int)
+        if np.all(np.isfinite(boot)) and np.any(boot > 0) and back.size == 0:
             alt = boot + np.median(t - boot)
             alt_source = "autopilot time (aligned by median offset)"
         stream = finish_stream(name, t, entry["cols"], "tlog receive time", alt, alt_source)
+        if back.size:
+            k = back[0]
+            stream.notes.append(f"{name}: the autopilot clock goes back {back.size} time(s), first at receive time "
+                                f"{t[k + 1] - t[0]:.1f} s into the stream ({boot[k]:.1f} -> {boot[k + 1]:.1f} s since "
+                                f"boot): a reboot; the receive time is used throughout")
         bad = facts.damage.count(f"bad CRC {name} (")
         if bad:
             stream.notes.append(f"{name}: {bad} frames with bad CRCs skipped (see damage:); the stream has "

@@ -472,3 +472,14 @@ def test_unknown_message_id_is_counted_not_damage(tmp_path):
                       "ardusub")
     notes = run.metadata["notes"]
     assert "frames: 2 of " in notes and "damage: none found" in notes
+
+
+def test_reboot_mid_log_is_named(tmp_path):
+    """ATTITUDE time_boot_ms restarting at 30 s receive time: stated as a reboot, the receive clock kept."""
+    mav = _mav()
+    ev = [(t, mav.attitude_encode(int(((t if t < 30 else t - 30.0) + 100.0) * 1000), 0.0, 0.0, 0.0, 0.0, 0.0, 0.0))
+          for t in np.arange(0.01, 60.0, 0.05)]
+    ev += [(t, mav.servo_output_raw_encode(int(t * 1e6), 0, *[1500] * 16)) for t in np.arange(0.03, 60.0, 0.5)]
+    run = convert_log(write_events(tmp_path / "r.tlog", mav, ev), "ardusub")
+    assert run.duration > 59.0
+    assert "ATTITUDE: the autopilot clock goes back 1 time(s)" in run.metadata["notes"]
