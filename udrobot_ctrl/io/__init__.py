@@ -1,4 +1,4 @@
-"""Real log formats in and out: ROS bags, MAVLink/dataflash logs, rostopic CSV -> ``udrobot-run/1`` runs.
+"""Real log formats in and out: ROS bags, MAVLink/dataflash logs, QGC CSV, rostopic CSV -> ``udrobot-run/1`` runs.
 
 :func:`load_any` is what other commands call for ``--input``: it dispatches on the file type.
 :func:`convert_log` applies a mapping (``udrobot_ctrl.io.mapping``) to a log and returns a :class:`Run`.
@@ -9,14 +9,20 @@ from pathlib import Path
 
 from udrobot_ctrl.io.runlog import Run, read_run
 
-from .mapping import Mapping, MappingError, load_mapping
+from .mapping import Mapping, MappingError, assemble_run, load_mapping, motor_rules
+from .mavlink import DecodedLog, detect_vehicle, water_density_from_params
+from .qgc_csv import is_qgc_csv
 from .streams import LogImportError
 
-DEFAULT_MAPPINGS = {"ros": "bluerov2-mavros", "mavlink": "ardusub"}
+DEFAULT_MAPPINGS = {"ros": "bluerov2-mavros", "mavlink": "ardusub", "qgc_csv": "qgc-csv"}
 
 
 def log_kind(path) -> str:
-    """'run' (udrobot-run/1 CSV), 'rostopic_csv', 'ros' (bag), 'tlog' or 'bin' from the name (and CSV header)."""
+    """'run' (udrobot-run/1 CSV), 'rostopic_csv', 'qgc_csv', 'ros' (bag), 'tlog' or 'bin' from the name and header.
+
+    A ``.csv`` is a QGroundControl telemetry export when its header starts with ``Timestamp,`` (QGC's CSV
+    telemetry logging), a ``rostopic echo -p`` export when it starts with ``%time``, else a ``udrobot-run/1`` run.
+    """
     path = Path(path)
     suffix = path.suffix.lower()
     if suffix in (".bag", ".mcap", ".db3") or (path.is_dir() and (path / "metadata.yaml").is_file()):
@@ -28,16 +34,22 @@ def log_kind(path) -> str:
     if suffix == ".csv":
         with open(path, "rb") as fh:
             head = fh.read(6)
-        return "rostopic_csv" if head.startswith(b"%time") else "run"
+        if head.startswith(b"%time"):
+            return "rostopic_csv"
+        return "qgc_csv" if is_qgc_csv(path) else "run"
     raise LogImportError(f"{path}: unknown log type (expected .csv, .bag, .mcap, .db3, a ROS 2 bag directory, "
                          f".tlog or .bin)")
 
 
-def read_streams(path, mapping: Mapping) -> dict:
-    """Decode the streams ``mapping`` needs from any supported log."""
+def read_streams(path, mapping: Mapping):
+    """Decode the streams ``mapping`` needs from any supported log.
+
+    Returns a dict of streams, or for ``.tlog`` / ``.bin`` a :class:`~udrobot_ctrl.io.mavlink.DecodedLog`
+    (streams plus parameters, texts and damage counts).
+    """
     kind = log_kind(path)
-    expected = {"ros": "ros", "tlog": "mavlink", "bin": "mavlink", "rostopic_csv": "rostopic_csv"}[kind] \
-        if kind != "run" else None
+    expected = {"ros": "ros", "tlog": "mavlink", "bin": "mavlink", "rostopic_csv": "rostopic_csv",
+                "qgc_csv": "qgc_csv"}[kind] if kind != "run" else None
     if kind == "run":
         raise LogImportError(f"{path}: already a udrobot-run/1 CSV; nothing to convert")
     if mapping.source != expected:
@@ -49,11 +61,15 @@ def read_streams(path, mapping: Mapping) -> dict:
     if kind == "tlog":
         from . import mavlink
 
-        return mavlink.read_tlog_streams(path, mapping)
+        return mavlink.read_tlog_streams(path, mapping, mapping.optional_needs())
     if kind == "bin":
         from . import mavlink
 
-        return mavlink.read_bin_streams(path, mapping)
+        return mavlink.read_bin_streams(path, mapping, mapping.optional_needs())
+    if kind == "qgc_csv":
+        from . import qgc_csv
+
+        return qgc_csv.read_streams(path, mapping)
     from . import rostopic_csv
 
     return rostopic_csv.read_streams(path, mapping)
@@ -62,10 +78,12 @@ def read_streams(path, mapping: Mapping) -> dict:
 def convert_log(path, mapping=None, require_inputs: bool = True) -> Run:
     """Convert a log to a :class:`Run` with a mapping (path, shipped name or :class:`Mapping`).
 
-    Without a mapping, bags use ``bluerov2-mavros`` and ``.tlog``/``.bin`` use ``ardusub``.
+    Without a mapping, bags use ``bluerov2-mavros``, ``.tlog``/``.bin`` use ``ardusub`` and QGC CSV exports
+    ``qgc-csv``. For MAVLink/dataflash logs the damage skipped while reading goes to the notes (``damage:``
+    lines), the vehicle the log describes (FRAME_CONFIG, "Frame: ..." texts, SERVOn_FUNCTION) goes to the
+    sidecar's ``vehicle`` (``vehicle:`` lines say what was read and assumed), and all its motor outputs are
+    mapped to pwm_1..pwm_n in motor order through the mapping's ``[motors]`` table.
     """
-    from .mapping import assemble_run
-
     kind = log_kind(path)
     if mapping is None:
         source = {"tlog": "mavlink", "bin": "mavlink"}.get(kind, kind)
@@ -73,8 +91,27 @@ def convert_log(path, mapping=None, require_inputs: bool = True) -> Run:
             raise MappingError(f"{path}: a {kind} log needs an explicit mapping (--mapping)")
         mapping = DEFAULT_MAPPINGS[source]
     mapping = load_mapping(mapping)
-    streams = read_streams(path, mapping)
-    run = assemble_run(mapping, streams, str(path), require_inputs=require_inputs)
+    decoded = read_streams(path, mapping)
+    if isinstance(decoded, DecodedLog):
+        facts = decoded.facts
+        vehicle = detect_vehicle(facts)
+        notes = facts.damage.notes(path) + facts.notes + vehicle.notes
+        servos = vehicle.motor_servos
+        if not servos and mapping.motors:
+            servos = mapping.motors.default_servos
+            notes.append(f"vehicle: the log does not say which vehicle it is (no FRAME_CONFIG, no 'Frame:' text); "
+                         f"mapping default vehicle {mapping.metadata.get('vehicle', '(none)')!r} with motors on "
+                         f"servo {', '.join(map(str, servos))} assumed")
+        run = assemble_run(mapping, decoded.streams, str(path), extra_notes=notes, require_inputs=require_inputs,
+                           log_params=facts.params, extra_rules=motor_rules(mapping, servos))
+        if vehicle.name is not None:
+            run.metadata["vehicle"] = vehicle.name
+        density = water_density_from_params(facts.params)
+        if density is not None and "water_density" not in mapping.metadata:
+            run.metadata["water_density"] = density[0]
+            run.metadata["notes"] += "\n" + density[1]
+    else:
+        run = assemble_run(mapping, decoded, str(path), require_inputs=require_inputs)
     run.path = str(path)
     return run
 

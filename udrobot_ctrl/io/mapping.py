@@ -11,16 +11,31 @@ docs/mappings.md. In short::
     rate_hz = 50.0              # output time base (uniform); omit to use the samples of `time_base`
     time_base = "ATTITUDE"      # stream whose span (and, without rate_hz, samples) define t
     time = "header"             # ROS: header.stamp when present, else bag record time ("receive")
-    max_gap_s = 0.5             # linear interpolation never bridges a gap longer than this
+    max_gap_s = 0.5             # linear interpolation never bridges a gap longer than this ...
     input_kind = "pwm"
 
+    gap_factor = 3.0            # ... or longer than gap_factor x the stream's own median interval, whichever is longer
+
+    [select.z]                  # optional: choose among the alternatives of `z` by evidence (select_by_evidence)
+    flat = 0.01
+    moving = 0.10
+    agree = 0.05
+    min_value = -0.1
+
+    [motors]                    # optional: all motor outputs in motor order (servo numbers from the log)
+    sources = [{stream = "SERVO_OUTPUT_RAW", field = "servo{n}_raw"}]
+    default_servos = [1, 2, 3, 4]
+
     [[channels]]                # several [[channels]] with the same `to`: the first present in the log wins
+                                # (or, with [select.COLUMN], the first that passes the evidence checks)
     to = ["phi", "theta", "psi"]
     stream = "ATTITUDE"
     fields = ["roll", "pitch", "yaw"]
     scale = 1.0                 # value = scale * raw + offset, then `transform`
     transform = "none"          # none | quaternion_to_euler | vector_enu_to_ned | vector_flu_to_frd
                                 # | pressure_to_depth | world_to_body (after resampling, needs phi/theta/psi)
+    role = "measurement"        # measurement | estimate, for [select.COLUMN]
+    keep_if = {orientation = 25}  # only the samples whose field equals the value
 
 Resampling: measured channels linearly (angles unwrapped), inputs and extra columns zero-order hold
 (the command logged at t_k holds until the next one). The output t starts at 0; the absolute log time of
@@ -49,7 +64,7 @@ from udrobot_ctrl.io.runlog import (
 from .streams import LogImportError, Stream
 
 MAPPING_FORMAT = "udrobot-mapping/1"
-SOURCES = ("mavlink", "ros", "rostopic_csv")
+SOURCES = ("mavlink", "ros", "rostopic_csv", "qgc_csv")
 TRANSFORMS = {
     "none": (None, None),
     "quaternion_to_euler": (4, 3),
@@ -59,6 +74,7 @@ TRANSFORMS = {
     "world_to_body": (3, 3),
 }
 G = 9.81
+AUXILIARY_CHANNELS = ("altitude", "voltage", "ax", "ay", "az")  # never shorten the run to their span
 
 
 class MappingError(ValueError):
@@ -78,6 +94,44 @@ class ChannelRule:
     frame: str = "ned_frd"
     params: dict = field(default_factory=dict)
     index: int = 0
+    role: str = ""
+    keep_if: tuple = ()
+
+
+@dataclass(frozen=True)
+class SelectSpec:
+    """``[select.COLUMN]``: pick among the column's candidate rules by evidence (see :func:`select_by_evidence`).
+
+    Attributes
+    ----------
+    flat : float
+        A candidate whose range is below this while the reference moves more than ``moving`` is *flat*.
+    moving : float
+        Reference range above which a flat candidate is rejected.
+    agree : float
+        An ``estimate`` whose RMS difference to the reference exceeds max(agree, 3 x reference noise) is rejected.
+    min_value : float or None
+        Values below this are implausible (depth above the surface); a candidate with more than 5 % of its
+        samples below it is rejected.
+    """
+
+    flat: float = 0.01
+    moving: float = 0.10
+    agree: float = 0.05
+    min_value: float | None = None
+
+
+@dataclass(frozen=True)
+class MotorSpec:
+    """``[motors]``: motor outputs mapped in motor order from the vehicle's servo function map.
+
+    ``sources`` are (stream, field pattern with ``{n}`` = servo number, keep_if) in order of preference;
+    ``default_servos`` is used when the log does not say which servo drives which motor.
+    """
+
+    sources: tuple
+    default_servos: tuple
+    max_servo: int = 16
 
 
 @dataclass(frozen=True)
@@ -96,14 +150,27 @@ class Mapping:
     metadata: dict = field(default_factory=dict)
     description: str = ""
     files: dict = field(default_factory=dict)
+    gap_factor: float = 3.0
+    select: dict = field(default_factory=dict)
+    motors: MotorSpec | None = None
 
     def needs(self) -> dict:
         """Stream name -> set of field paths the mapping reads."""
         out = {}
         for rule in self.rules:
             out.setdefault(rule.stream, set()).update(rule.fields)
+            out[rule.stream].update(f for f, _ in rule.keep_if)
         if self.time_base:
             out.setdefault(self.time_base, set())
+        return out
+
+    def optional_needs(self) -> dict:
+        """Stream name -> fields read when present (nan otherwise): every servo of the ``[motors]`` sources."""
+        out = {}
+        if self.motors:
+            for stream, pattern, keep_if in self.motors.sources:
+                out.setdefault(stream, set()).update(pattern.format(n=n) for n in range(1, self.motors.max_servo + 1))
+                out[stream].update(f for f, _ in keep_if)
         return out
 
 
@@ -179,7 +246,7 @@ def parse_mapping(text: str, source_name: str = "mapping") -> Mapping:
     for i, entry in enumerate(entries):
         w = f"{source_name}: channels[{i}]"
         unknown = set(entry) - {"to", "stream", "field", "fields", "transform", "scale", "offset", "frame", "params",
-                                "comment"}
+                                "comment", "role", "keep_if"}
         if unknown:
             raise MappingError(f"{w}: unknown key(s) {sorted(unknown)}")
         if "to" not in entry or "stream" not in entry or ("field" in entry) == ("fields" in entry):
@@ -204,20 +271,61 @@ def parse_mapping(text: str, source_name: str = "mapping") -> Mapping:
         params = entry.get("params", {})
         if not isinstance(params, dict):
             raise MappingError(f"{w}: 'params' must be a table")
+        role = entry.get("role", "")
+        if role not in ("", "measurement", "estimate"):
+            raise MappingError(f"{w}: 'role' must be 'measurement' or 'estimate', got {role!r}")
+        keep_if = entry.get("keep_if", {})
+        if not isinstance(keep_if, dict) or not all(isinstance(v, (int, float)) and not isinstance(v, bool)
+                                                    for v in keep_if.values()):
+            raise MappingError(f"{w}: 'keep_if' must be a table of field = number (samples kept where equal)")
         rules.append(ChannelRule(to=to, stream=str(entry["stream"]), fields=fields, transform=transform,
                                  scale=_number(entry, "scale", 1.0, w), offset=_number(entry, "offset", 0.0, w),
-                                 frame=frame, params=params, index=i))
+                                 frame=frame, params=params, index=i, role=role,
+                                 keep_if=tuple(sorted((str(k), float(v)) for k, v in keep_if.items()))))
     files = doc.get("files", {})
     if not isinstance(files, dict) or not all(isinstance(v, str) and "{suffix}" in v for v in files.values()):
         raise MappingError(f"{source_name}: [files] must map stream names to patterns containing '{{suffix}}'")
     metadata = doc.get("metadata", {})
     if not isinstance(metadata, dict):
         raise MappingError(f"{source_name}: [metadata] must be a table")
+    select = {}
+    sel_doc = doc.get("select", {})
+    if not isinstance(sel_doc, dict):
+        raise MappingError(f"{source_name}: [select] must hold [select.COLUMN] tables")
+    for column, table in sel_doc.items():
+        w = f"{source_name}: [select.{column}]"
+        if not isinstance(table, dict) or set(table) - {"flat", "moving", "agree", "min_value"}:
+            raise MappingError(f"{w}: keys are flat, moving, agree, min_value (numbers)")
+        select[column] = SelectSpec(flat=_number(table, "flat", 0.01, w, positive=True),
+                                    moving=_number(table, "moving", 0.10, w, positive=True),
+                                    agree=_number(table, "agree", 0.05, w, positive=True),
+                                    min_value=_number(table, "min_value", None, w))
+    motors = None
+    if "motors" in doc:
+        m = doc["motors"]
+        w = f"{source_name}: [motors]"
+        if not isinstance(m, dict) or not isinstance(m.get("sources"), list) or not m["sources"]:
+            raise MappingError(f"{w}: needs sources = [{{stream = ..., field = \"...{{n}}...\"}}, ...]")
+        sources = []
+        for src in m["sources"]:
+            if not isinstance(src, dict) or not isinstance(src.get("stream"), str) \
+                    or not isinstance(src.get("field"), str) or "{n}" not in src["field"]:
+                raise MappingError(f"{w}: each source needs 'stream' and a 'field' pattern containing {{n}}")
+            keep_if = src.get("keep_if", {})
+            if not isinstance(keep_if, dict) or not all(isinstance(v, (int, float)) for v in keep_if.values()):
+                raise MappingError(f"{w}: a source's 'keep_if' must be a table of field = number")
+            sources.append((src["stream"], src["field"], tuple(sorted((k, float(v)) for k, v in keep_if.items()))))
+        default = m.get("default_servos", [])
+        if not isinstance(default, list) or not all(isinstance(k, int) and k >= 1 for k in default):
+            raise MappingError(f"{w}: default_servos must be a list of servo numbers >= 1")
+        motors = MotorSpec(sources=tuple(sources), default_servos=tuple(default),
+                           max_servo=int(_number(m, "max_servo", 16, w, positive=True)))
     return Mapping(name=str(head.get("name", source_name)), source=source, path=source_name, rules=tuple(rules),
                    rate_hz=_number(head, "rate_hz", None, where, positive=True),
                    time_base=head.get("time_base"), time=time,
                    max_gap_s=_number(head, "max_gap_s", 0.5, where, positive=True), input_kind=input_kind,
-                   metadata=metadata, description=str(head.get("description", "")), files=files)
+                   metadata=metadata, description=str(head.get("description", "")), files=files,
+                   gap_factor=_number(head, "gap_factor", 3.0, where, positive=True), select=select, motors=motors)
 
 
 # ------------------------------------------------------------------------------------------- transforms
@@ -260,27 +368,108 @@ def quaternion_to_euler(qx, qy, qz, qw, frame="ned_frd") -> tuple:
     return rotation_to_euler(R)
 
 
-def pressure_to_depth(pressure_pa, params: dict, where: str):
-    """Depth (m, positive down) from absolute pressure (Pa): (p - p_surface) / (rho g).
+P_ATM_STD = 101325.0  # Pa, ISA sea-level standard atmosphere
+P_ATM_MAX = 105000.0  # Pa, above any sea-level weather: a higher minimum pressure was never at the surface
+MID_DIVE_M = 0.5  # m: a first sample this much deeper than the log's shallowest point means a mid-dive start
 
-    ``params.water_density`` (kg/m^3, default 1000: assumed fresh water) and ``params.surface_pressure_pa``
-    (a number, or "first" = the first sample, assumed taken at the surface; default "first").
+
+@dataclass(frozen=True)
+class SurfaceReference:
+    """Surface pressure used for a depth, and why (for the notes)."""
+
+    pressure_pa: float
+    reason: str
+
+
+def surface_reference(pressure_pa, rho: float, params: dict, log_params: dict) -> SurfaceReference:
+    """Choose the surface (zero-depth) pressure of an absolute-pressure series, by evidence.
+
+    Order: a number in ``params.surface_pressure_pa``; the log parameters named in ``params.surface_params``
+    (ArduSub ``BARO2_GND_PRESS``: the autopilot's own surface calibration of the external sensor); then the
+    log itself: the first samples (median of the first 5, assumed pre-dive) unless the log starts mid-dive
+    (first sample more than 0.5 m of water deeper than the shallowest point: the shallowest point is then
+    taken as the surface when it is below 1050 hPa, else the standard atmosphere 1013.25 hPa is assumed).
+    ``surface_pressure_pa = "first"`` forces the first sample.
     """
-    rho = params.get("water_density", 1000.0)
-    p0 = params.get("surface_pressure_pa", "first")
-    pressure_pa = np.asarray(pressure_pa, dtype=float)
+    p = np.asarray(pressure_pa, dtype=float)
+    finite = p[np.isfinite(p)]
+    if finite.size == 0:
+        raise LogImportError("no finite pressure sample to take the surface pressure from")
+    p0 = params.get("surface_pressure_pa", "log")
+    if isinstance(p0, (int, float)) and not isinstance(p0, bool):
+        return SurfaceReference(float(p0), f"surface pressure {p0:.0f} Pa given by the mapping")
     if p0 == "first":
-        finite = pressure_pa[np.isfinite(pressure_pa)]
-        if finite.size == 0:
-            raise LogImportError(f"{where}: no finite pressure sample to take the surface pressure from")
-        p0 = float(finite[0])
-    if not isinstance(p0, (int, float)) or not isinstance(rho, (int, float)) or rho <= 0:
-        raise MappingError(f"{where}: params surface_pressure_pa / water_density must be numbers")
-    return (pressure_pa - p0) / (rho * G)
+        return SurfaceReference(float(finite[0]), "first sample, assumed taken at the surface (mapping says 'first')")
+    for name in params.get("surface_params", []):
+        value = log_params.get(name)
+        if value is not None and np.isfinite(value) and 50_000.0 < value < 150_000.0:
+            return SurfaceReference(float(value), f"log parameter {name} = {value:.0f} Pa (the autopilot's surface "
+                                                  f"calibration)")
+    first = float(np.median(finite[:5]))
+    k = min(5, finite.size)
+    shallow = float(np.min(np.convolve(finite, np.ones(k) / k, mode="valid")))  # 5-sample mean: noise-robust
+    metre = rho * G
+    if first - shallow > MID_DIVE_M * metre:
+        if shallow < P_ATM_MAX:
+            return SurfaceReference(shallow, f"log starts mid-dive (first samples {(first - shallow) / metre:.2f} m "
+                                             f"deeper than the shallowest point); the shallowest point "
+                                             f"({shallow / 100:.1f} hPa) is taken as the surface (assumed)")
+        return SurfaceReference(P_ATM_STD, f"log starts mid-dive and never reaches the surface (shallowest "
+                                           f"{shallow / 100:.1f} hPa > {P_ATM_MAX / 100:.0f} hPa); standard atmosphere "
+                                           f"1013.25 hPa assumed (about 1 cm of depth error per hPa of weather)")
+    if first > P_ATM_MAX:
+        return SurfaceReference(P_ATM_STD, f"first samples at {first / 100:.1f} hPa, far above atmospheric: the log "
+                                           f"starts under water; standard atmosphere 1013.25 hPa assumed (about "
+                                           f"1 cm of depth error per hPa of weather)")
+    return SurfaceReference(first, f"median of the first samples ({first / 100:.1f} hPa), assumed taken at the "
+                                   f"surface before the dive (no surface-pressure parameter in the log)")
 
 
-def _apply_rule(rule: ChannelRule, stream: Stream, where: str) -> dict:
-    """Outputs of one rule on the stream's own samples (world_to_body is deferred: raw NED values returned)."""
+def water_density(params: dict, log_params: dict) -> tuple:
+    """(rho kg/m^3, reason): 1000 x log parameter ``params.specific_gravity_param`` (ArduSub BARO_SPEC_GRAV), else
+    ``params.water_density`` (default 1000, fresh water assumed)."""
+    name = params.get("specific_gravity_param")
+    value = log_params.get(name) if name else None
+    if value is not None and np.isfinite(value) and 0.9 < value < 1.1:
+        return 1000.0 * value, f"rho = 1000 x {name} ({value:g}) = {1000 * value:.0f} kg/m^3"
+    rho = params.get("water_density", 1000.0)
+    if not isinstance(rho, (int, float)) or rho <= 0:
+        raise MappingError("params water_density must be a positive number")
+    return float(rho), f"rho = {rho:g} kg/m^3 (mapping default{'; no ' + name + ' in the log' if name else ''})"
+
+
+def pressure_to_depth(pressure_pa, params: dict, where: str, log_params: dict | None = None) -> tuple:
+    """Depth (m, positive down) from absolute pressure (Pa): (p - p_surface) / (rho g), and the notes.
+
+    The surface pressure follows :func:`surface_reference`, the density :func:`water_density`.
+    """
+    pressure_pa = np.asarray(pressure_pa, dtype=float)
+    log_params = log_params or {}
+    rho, rho_reason = water_density(params, log_params)
+    try:
+        ref = surface_reference(pressure_pa, rho, params, log_params)
+    except LogImportError as exc:
+        raise LogImportError(f"{where}: {exc}") from exc
+    depth = (pressure_pa - ref.pressure_pa) / (rho * G)
+    notes = []
+    finite = depth[np.isfinite(depth)]
+    if ref.reason.startswith("log parameter") and finite.size and np.mean(finite < -0.1) > 0.05:
+        # the autopilot's calibration does not fit this log (recalibrated, sensor swapped): use the log's own
+        own = surface_reference(pressure_pa, rho, {**params, "surface_params": []}, log_params)
+        notes.append(f"{ref.reason} puts {100 * np.mean(finite < -0.1):.0f} % of the samples more than 0.1 m above "
+                     f"the surface: not used")
+        ref = own
+        depth = (pressure_pa - ref.pressure_pa) / (rho * G)
+        finite = depth[np.isfinite(depth)]
+    notes.insert(0, f"surface reference {ref.pressure_pa / 100:.2f} hPa: {ref.reason}; {rho_reason}, g = {G} m/s^2")
+    if finite.size and np.mean(finite < -0.1) > 0.05:
+        notes.append(f"{100 * np.mean(finite < -0.1):.0f} % of the depth samples are more than 0.1 m above the "
+                     f"surface (min {finite.min():.2f} m): the surface reference is wrong for this log")
+    return depth, notes
+
+
+def _apply_rule(rule: ChannelRule, stream: Stream, where: str, log_params: dict | None = None) -> tuple:
+    """(outputs on the stream's own samples, notes) of one rule (world_to_body deferred: raw NED values)."""
     try:
         raw = [stream.fields[f] * rule.scale + rule.offset for f in rule.fields]
     except KeyError as exc:
@@ -288,11 +477,12 @@ def _apply_rule(rule: ChannelRule, stream: Stream, where: str) -> dict:
                              f"(fields: {', '.join(sorted(stream.fields))})") from exc
     tr = rule.transform
     if tr == "none":
-        return dict(zip(rule.to, raw))
+        return dict(zip(rule.to, raw)), []
     if tr == "quaternion_to_euler":
-        return dict(zip(rule.to, quaternion_to_euler(*raw, frame=rule.frame)))
+        return dict(zip(rule.to, quaternion_to_euler(*raw, frame=rule.frame))), []
     if tr == "pressure_to_depth":
-        return {rule.to[0]: pressure_to_depth(raw[0], rule.params, where)}
+        depth, notes = pressure_to_depth(raw[0], rule.params, where, log_params)
+        return {rule.to[0]: depth}, notes
     vec = np.stack(raw, axis=-1)
     if tr == "vector_enu_to_ned":
         vec = vec @ _ENU_TO_NED.T
@@ -300,7 +490,7 @@ def _apply_rule(rule: ChannelRule, stream: Stream, where: str) -> dict:
         vec = vec @ _FLU_TO_FRD.T
     elif tr == "world_to_body" and rule.frame == "enu_flu":
         vec = vec @ _ENU_TO_NED.T
-    return dict(zip(rule.to, vec.T))
+    return dict(zip(rule.to, vec.T)), []
 
 
 def _euler_rotation(phi, theta, psi) -> np.ndarray:
@@ -315,6 +505,24 @@ def _euler_rotation(phi, theta, psi) -> np.ndarray:
 # ------------------------------------------------------------------------------------------- assembly
 
 
+def median_interval(t) -> float:
+    """Median of the positive sample intervals of a stream, s (nan with fewer than two distinct times)."""
+    dt = np.diff(np.asarray(t, dtype=float))
+    dt = dt[dt > 0]
+    return float(np.median(dt)) if dt.size else float("nan")
+
+
+def gap_limit(t, mapping: Mapping) -> float:
+    """Longest interval linear interpolation bridges for a stream: max(max_gap_s, gap_factor x its median interval).
+
+    A slow but steady stream (2 Hz SERVO_OUTPUT_RAW / SCALED_PRESSURE2 in default QGC telemetry) is thus
+    interpolated between its samples instead of turning into mostly nan; a real gap (several missed samples)
+    still becomes nan.
+    """
+    med = median_interval(t)
+    return max(mapping.max_gap_s, mapping.gap_factor * med) if np.isfinite(med) else mapping.max_gap_s
+
+
 def _interp_gapped(t, y, t_new, max_gap, angle):
     out = interpolate_linear(t, y, t_new, angle=angle)
     if t.size > 1:
@@ -324,29 +532,111 @@ def _interp_gapped(t, y, t_new, max_gap, angle):
     return out
 
 
-def _select_rules(mapping: Mapping, streams: dict) -> tuple:
-    """First rule per output that has a non-empty stream; report what was chosen and what is missing."""
-    chosen, skipped, seen = [], [], set()
-    for rule in mapping.rules:
-        if set(rule.to) & seen:
+@dataclass
+class Candidate:
+    """One present source of an output column, evaluated on its own samples."""
+
+    rule: ChannelRule
+    t: np.ndarray
+    y: np.ndarray
+    verdict: str = ""
+
+    @property
+    def label(self) -> str:
+        return f"{self.rule.stream}[{','.join(self.rule.fields)}]"
+
+
+def _noise(y) -> float:
+    """Sample-to-sample noise (robust std of the first difference / sqrt 2) of a series."""
+    d = np.diff(y[np.isfinite(y)])
+    if d.size < 3:
+        return 0.0
+    return float(1.4826 * np.median(np.abs(d - np.median(d))) / np.sqrt(2.0))
+
+
+def select_by_evidence(column: str, candidates: list, spec: SelectSpec) -> tuple:
+    """Pick one of the present sources of ``column`` by checking them against each other.
+
+    Checks, in order: mostly nan (> 50 %) -> rejected; more than 5 % of samples below ``spec.min_value``
+    (e.g. a depth above the surface) -> rejected. The first remaining ``measurement`` is the reference. Any
+    other candidate is *flat* (rejected) when its range is below ``spec.flat`` while the reference moves more
+    than ``spec.moving``, or when it is exactly constant while the reference moves more than 5x its noise; an
+    ``estimate`` whose RMS difference to the reference exceeds max(``spec.agree``, 3 x reference noise) is
+    rejected (noisy or offset). The first candidate (mapping order) that passes wins; if none passes, the
+    first present one is used and the notes say so.
+
+    Returns
+    -------
+    (Candidate, list of str)
+        The winner and the ``source:`` note lines naming every candidate's verdict.
+    """
+    ok = []
+    for c in candidates:
+        fin = np.isfinite(c.y)
+        if fin.mean() < 0.5:
+            c.verdict = f"rejected: mostly nan ({100 * (1 - fin.mean()):.0f} % of its samples)"
+        elif spec.min_value is not None and np.mean(c.y[fin] < spec.min_value) > 0.05:
+            c.verdict = (f"rejected: {100 * np.mean(c.y[fin] < spec.min_value):.0f} % of samples below "
+                         f"{spec.min_value:g} (implausible, e.g. above the surface)")
+        else:
+            ok.append(c)
+    ref = next((c for c in ok if c.rule.role == "measurement"), None)
+    if ref is not None:
+        ref_y = ref.y[np.isfinite(ref.y)]
+        ref_range, ref_noise = float(np.ptp(ref_y)), _noise(ref.y)
+    for c in ok:
+        y = c.y[np.isfinite(c.y)]
+        rng = float(np.ptp(y))
+        if ref is None or c is ref:
+            c.verdict = f"ok ({'measurement, the reference' if c is ref else 'no measurement to check it against'};" \
+                        f" range {y.min():.3f}..{y.max():.3f})"
             continue
-        stream = streams.get(rule.stream)
-        if stream is None or stream.t.size == 0:
-            skipped.append(rule)
+        if (rng < spec.flat and ref_range > spec.moving) or (rng == 0.0 and ref_range > 5 * ref_noise > 0):
+            c.verdict = (f"rejected: flat (range {rng:.3f}) while {ref.label} moves {ref_range:.3f} "
+                         f"(its noise {ref_noise:.4f})")
             continue
-        chosen.append(rule)
-        seen.update(rule.to)
-    missing = sorted({n for r in skipped for n in r.to} - seen)
-    return chosen, missing
+        inside = (c.t >= ref.t[0]) & (c.t <= ref.t[-1])
+        yr = np.interp(c.t[inside], ref.t, ref.y)
+        d = c.y[inside] - yr
+        d = d[np.isfinite(d)]
+        rms = float(np.sqrt(np.mean(d**2))) if d.size else float("nan")
+        tol = max(spec.agree, 3 * ref_noise)
+        if c.rule.role == "estimate" and not rms <= tol:
+            c.verdict = (f"rejected: disagrees with {ref.label} by RMS {rms:.3f} > {tol:.3f} (noisy or offset "
+                         f"estimate; range {y.min():.3f}..{y.max():.3f})")
+        else:
+            c.verdict = f"ok (agrees with {ref.label} within RMS {rms:.3f}; range {y.min():.3f}..{y.max():.3f})"
+    winner = next((c for c in candidates if c.verdict.startswith("ok")), None)
+    notes = []
+    if winner is None:
+        winner = candidates[0]
+        notes.append(f"source: {column}: no candidate passed the checks; {winner.label} used anyway")
+    else:
+        notes.append(f"source: {column} <- {winner.label}, chosen by evidence: {winner.verdict}")
+    for c in candidates:
+        if c is not winner:
+            notes.append(f"source: {column} candidate {c.label} not used: {c.verdict}")
+    return winner, notes
+
+
+def motor_rules(mapping: Mapping, servos) -> list:
+    """Input rules pwm_1..pwm_n (motor order) from the ``[motors]`` sources for the given servo numbers."""
+    if not mapping.motors or not servos:
+        return []
+    to = tuple(f"pwm_{k}" for k in range(1, len(servos) + 1))
+    return [ChannelRule(to=to, stream=stream, fields=tuple(pattern.format(n=n) for n in servos),
+                        index=-1 - i, role="", keep_if=keep_if)
+            for i, (stream, pattern, keep_if) in enumerate(mapping.motors.sources)]
 
 
 def _is_input(name: str) -> bool:
     return name in TAU_COLUMNS or name.startswith(("thrust_", "pwm_"))
 
 
-def _input_layout(mapping: Mapping, found, where, require_inputs: bool):
+def _input_layout(mapping: Mapping, found, where, require_inputs: bool, rules=None):
     """(kind, columns, notes) of the run's inputs; columns the mapping names but the log lacks -> error or nan."""
-    mapped = [n for r in mapping.rules for n in r.to if _is_input(n)]
+    rules = mapping.rules if rules is None else rules
+    mapped = [n for r in rules for n in r.to if _is_input(n)]
     kinds = {("tau" if n in TAU_COLUMNS else n.split("_")[0]) for n in mapped} or \
         ({mapping.input_kind} if mapping.input_kind else set())
     if len(kinds) != 1:
@@ -366,18 +656,110 @@ def _input_layout(mapping: Mapping, found, where, require_inputs: bool):
     return kind, cols, notes
 
 
-def assemble_run(mapping: Mapping, streams: dict, source_path: str, extra_notes=(), require_inputs=True) -> Run:
+def rule_stream(rule: ChannelRule, streams: dict) -> Stream | None:
+    """The rule's stream, restricted to the samples whose ``keep_if`` fields equal the given values (e.g. only the
+    downward DISTANCE_SENSOR, orientation 25); None if absent or lacking a field."""
+    stream = streams.get(rule.stream)
+    if stream is None or stream.t.size == 0 or not all(f in stream.fields for f in rule.fields):
+        return None
+    if not rule.keep_if:
+        return stream
+    if not all(f in stream.fields for f, _ in rule.keep_if):
+        return None
+    keep = np.ones(stream.t.size, bool)
+    for f, value in rule.keep_if:
+        keep &= stream.fields[f] == value
+    if not keep.any():
+        return None
+    alt = None if stream.t_alternative is None else stream.t_alternative[keep]
+    cond = ", ".join(f"{f} = {v:g}" for f, v in rule.keep_if)
+    return Stream(name=stream.name, t=stream.t[keep], fields={k: v[keep] for k, v in stream.fields.items()},
+                  time_source=stream.time_source, t_alternative=alt, alternative_source=stream.alternative_source,
+                  notes=stream.notes + ([f"{stream.name}: {int((~keep).sum())} of {keep.size} samples dropped "
+                                         f"(kept where {cond})"] if not keep.all() else []))
+
+
+def _present(rule, streams):
+    return rule_stream(rule, streams) is not None
+
+
+def _finite_fields(rule, streams):
+    """A motor source whose servo fields are all nan (the log lacks those outputs) is not present."""
+    stream = rule_stream(rule, streams)
+    return all(np.isfinite(stream.fields[f]).any() for f in rule.fields)
+
+
+def _rate_notes(name, stream, grid_rate, is_input) -> list:
+    med = median_interval(stream.t)
+    if not np.isfinite(med) or grid_rate is None or 1.0 / med >= min(5.0, grid_rate / 2):
+        return []
+    if is_input:
+        return [f"rate: {name} from {stream.name} at {1 / med:.1f} Hz (median interval {med:.2f} s) on a "
+                f"{grid_rate:g} Hz grid: each command is held up to {med:.2f} s. The diagnoser can use this run for "
+                f"slow responses (steady states, holds, responses slower than ~{4 * med:.0f} s) but cannot resolve "
+                f"command changes, thruster dynamics or oscillations faster than ~{2 * med:.1f} s"]
+    return [f"rate: {name} from {stream.name} at {1 / med:.1f} Hz (median interval {med:.2f} s), linearly "
+            f"interpolated onto the {grid_rate:g} Hz grid: motion faster than ~{2 * med:.1f} s is not observed in it"]
+
+
+def _gap_notes(name, stream, values, limit, grid) -> list:
+    frac = float(np.mean(~np.isfinite(values))) if values.size else 0.0
+    if frac <= 0.05:
+        return []
+    dt = np.diff(stream.t)
+    big = dt[dt > limit]
+    span = ""
+    if stream.t[0] > grid[0] or stream.t[-1] < grid[-1]:
+        span = (f"; {stream.name} covers only {stream.t[0] - grid[0]:.1f}..{stream.t[-1] - grid[0]:.1f} s of the "
+                f"run's 0..{grid[-1] - grid[0]:.1f} s")
+    return [f"gaps: {name} is nan in {100 * frac:.0f} % of the rows: {stream.name} has {big.size} gap(s) longer than "
+            f"{limit:.2f} s (longest {big.max() if big.size else 0:.1f} s) that are not bridged{span}; the diagnoser "
+            f"compares {name} only where it is finite"]
+
+
+def assemble_run(mapping: Mapping, streams: dict, source_path: str, extra_notes=(), require_inputs=True,
+                 log_params: dict | None = None, extra_rules=()) -> Run:
     """Apply ``mapping`` to decoded ``streams`` and resample onto one time base.
+
+    Parameters
+    ----------
+    log_params : dict, optional
+        Parameters the log holds (surface pressure, water density for ``pressure_to_depth``).
+    extra_rules : sequence of ChannelRule
+        Rules placed before the mapping's own (motor outputs from the vehicle's servo map).
 
     Returns
     -------
     Run
         ``t`` starts at 0 s; ``extra['t_source']`` is the time-base stream's original time (log clock, s) at or
-        before each sample; ``metadata['notes']`` records the source of every column, the interpolation used,
-        the time origin and any clock delays (e.g. header stamp vs bag record time).
+        before each sample; ``metadata['notes']`` records the source of every column (and, for columns with a
+        ``[select.COLUMN]`` table, why it was chosen), the interpolation used, the time origin, slow streams,
+        gaps and any clock delays (e.g. header stamp vs bag record time).
     """
     where = f"{source_path} (mapping {mapping.name})"
-    chosen, missing = _select_rules(mapping, streams)
+    rules = list(extra_rules) + list(mapping.rules)
+    extra_streams = {r.stream for r in extra_rules}
+    present = [r for r in rules if _present(r, streams) and (r.stream not in extra_streams or r.index >= 0
+                                                              or _finite_fields(r, streams))]
+    selection_notes, chosen, seen = [], [], set()
+    for rule in present:
+        if set(rule.to) & seen:
+            continue
+        selected = [c for c in rule.to if c in mapping.select]
+        if selected:
+            column = selected[0]
+            cands = [r for r in present if column in r.to and not (set(r.to) - set(rule.to)) & seen]
+            cand_objs = []
+            for r in cands:
+                r_stream = rule_stream(r, streams)
+                values, _ = _apply_rule(r, r_stream, where, log_params)
+                cand_objs.append(Candidate(r, r_stream.t, values[column]))
+            winner, notes = select_by_evidence(column, cand_objs, mapping.select[column])
+            selection_notes += notes
+            rule = winner.rule
+        chosen.append(rule)
+        seen.update(rule.to)
+    missing = sorted({n for r in rules for n in r.to} - seen)
     if not chosen:
         raise LogImportError(f"{where}: none of the mapped streams is in the log "
                              f"(wanted {', '.join(sorted(mapping.needs()))}; log has "
@@ -386,36 +768,53 @@ def assemble_run(mapping: Mapping, streams: dict, source_path: str, extra_notes=
         chosen[0].stream
     base = streams[base_name]
     used = {r.stream for r in chosen}
-    start = max(streams[s].t[0] for s in used)
-    stop = min(streams[s].t[-1] for s in used)
+    # auxiliary channels (altitude, voltage, accelerometer) do not cut the run: they are nan outside their own span
+    # (named in gaps:), so a sonar that starts late never shortens the states and commands
+    core = {base_name} | {r.stream for r in chosen if not set(r.to) <= set(AUXILIARY_CHANNELS)}
+    start = max(streams[s].t[0] for s in core)
+    stop = min(streams[s].t[-1] for s in core)
     if not stop > start:
-        raise LogImportError(f"{where}: the mapped streams do not overlap in time "
-                             + "; ".join(f"{s}: {streams[s].t[0]:.3f}..{streams[s].t[-1]:.3f} s" for s in sorted(used)))
+        raise LogImportError(f"{where}: the time base and the command streams do not overlap in time "
+                             + "; ".join(f"{s}: {streams[s].t[0]:.3f}..{streams[s].t[-1]:.3f} s" for s in sorted(core)))
     if mapping.rate_hz:
         t_rel = np.arange(int(np.floor((stop - start) * mapping.rate_hz + 1e-9)) + 1) / mapping.rate_hz
         grid = start + t_rel
         interp = f"uniform {mapping.rate_hz:g} Hz grid"
+        grid_rate = mapping.rate_hz
     else:
         grid = base.t[(base.t >= start) & (base.t <= stop)]
         t_rel = grid - grid[0]
         interp = f"samples of {base_name}"
+        med = median_interval(grid)
+        grid_rate = 1.0 / med if np.isfinite(med) else None
 
-    out, provenance = {}, []
+    out, provenance, rate_notes, gap_notes = {}, [], [], []
     deferred = []
+    used_streams = {}
     for rule in chosen:
-        stream = streams[rule.stream]
-        values = _apply_rule(rule, stream, where)
+        stream = rule_stream(rule, streams)
+        used_streams.setdefault(rule.stream, stream)
+        values, rule_notes = _apply_rule(rule, stream, where, log_params)
+        limit = gap_limit(stream.t, mapping)
+        inputs_here = [n for n in values if _is_input(n)]
         for name, y in values.items():
             if _is_input(name) or name not in CHANNELS:
                 out[name] = hold_previous(stream.t, y, grid)
             else:
-                out[name] = _interp_gapped(stream.t, y, grid, mapping.max_gap_s, angle=name in ANGLE_CHANNELS)
+                out[name] = _interp_gapped(stream.t, y, grid, limit, angle=name in ANGLE_CHANNELS)
+                gap_notes += _gap_notes(name, stream, out[name], limit, grid)
+        label = "/".join(rule.to) if len(rule.to) <= 6 else f"{rule.to[0]}..{rule.to[-1]}"
+        rate_notes += _rate_notes(label if inputs_here else "/".join(n for n in rule.to if n in CHANNELS) or label,
+                                  stream, grid_rate, bool(inputs_here))
         if rule.transform == "world_to_body":
             deferred.append(rule)
         src = ",".join(rule.fields)
         rate = (stream.t.size - 1) / (stream.t[-1] - stream.t[0]) if stream.t.size > 1 else float("nan")
+        med = median_interval(stream.t)
         provenance.append(f"{'/'.join(rule.to)} <- {rule.stream}[{src}] ({rule.transform}, scale {rule.scale:g}, "
-                          f"offset {rule.offset:g}; {stream.t.size} samples, {rate:.1f} Hz, time {stream.time_source})")
+                          f"offset {rule.offset:g}; {stream.t.size} samples, {rate:.1f} Hz, median interval "
+                          f"{med:.3f} s, gaps > {limit:.2f} s not bridged; time {stream.time_source})"
+                          + "".join(f"; {n}" for n in rule_notes))
     for rule in deferred:
         att = [out.get(a) for a in ANGLE_CHANNELS]
         if any(a is None for a in att):
@@ -426,21 +825,23 @@ def assemble_run(mapping: Mapping, streams: dict, source_path: str, extra_notes=
         for k, name in enumerate(rule.to):
             out[name] = body[:, k]
 
-    kind, cols, input_notes = _input_layout(mapping, out, where, require_inputs)
+    kind, cols, input_notes = _input_layout(mapping, out, where, require_inputs, rules)
     inputs = np.column_stack([out.get(c, np.full(grid.shape, np.nan)) for c in cols])
     channels = {c: out[c] for c in CHANNELS if c in out}
     extra = {n: v for n, v in out.items() if n not in channels and n not in cols}
     extra["t_source"] = hold_previous(base.t, base.t, grid)
     notes = [f"converted from {source_path} with mapping {mapping.name} ({mapping.path}); t = 0 is log time "
              f"{grid[0]:.6f} s ({base.time_source} clock of {base_name}); time base: {interp} over the span where "
-             f"all used streams overlap; measured channels linear (angles unwrapped; no bridging of gaps > "
-             f"{mapping.max_gap_s:g} s), inputs zero-order hold; t_source = original {base_name} time stamp held"]
-    notes += provenance
+             f"all used streams overlap (except {'/'.join(AUXILIARY_CHANNELS)}, nan outside their own span); "
+             f"measured channels linear (angles unwrapped; no bridging of gaps longer than "
+             f"max({mapping.max_gap_s:g} s, {mapping.gap_factor:g} x the stream's median interval)), inputs "
+             f"zero-order hold; t_source = original {base_name} time stamp held"]
+    notes += provenance + selection_notes + rate_notes + gap_notes
     if missing:
         notes.append("not in this log: " + ", ".join(missing))
     for s in sorted(used):
-        notes += streams[s].notes
-        st = streams[s]
+        st = used_streams[s]
+        notes += st.notes
         if st.t_alternative is not None and st.t_alternative.size:
             d = st.t_alternative - st.t
             notes.append(f"{s}: {st.alternative_source} - {st.time_source} delay median {np.median(d) * 1e3:.1f} ms "

@@ -38,7 +38,7 @@ import numpy as np
 
 FORMAT = "udrobot-run/1"
 STATE_CHANNELS = ("x", "y", "z", "phi", "theta", "psi", "u", "v", "w", "p", "q", "r")
-OTHER_CHANNELS = ("altitude", "voltage")
+OTHER_CHANNELS = ("altitude", "voltage", "ax", "ay", "az")
 CHANNELS = STATE_CHANNELS + OTHER_CHANNELS
 ANGLE_CHANNELS = ("phi", "theta", "psi")
 TAU_COLUMNS = ("tau_X", "tau_Y", "tau_Z", "tau_K", "tau_M", "tau_N")

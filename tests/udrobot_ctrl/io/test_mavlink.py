@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from udrobot_ctrl.io import LogImportError, convert_log, load_any
-from udrobot_ctrl.io.mavlink import iter_dataflash, iter_tlog
+from udrobot_ctrl.io.mavlink import Damage, iter_dataflash, iter_tlog
 
 T0 = 1_700_000_000.0
 
@@ -63,35 +63,52 @@ def test_tlog_external_pressure_sensor_gives_depth(tmp_path):
     path = write_tlog(tmp_path / "p.tlog", pressure=True)
     run = convert_log(path, "ardusub")
     t = run.t + 0.005
-    # surface pressure assumed = first sample (taken at depth 1.0 m here): depth relative to it
-    np.testing.assert_allclose(run.channels["z"], 0.2 * (t - 0.001), atol=2e-4)
-    assert "SCALED_PRESSURE2[press_abs] (pressure_to_depth" in run.metadata["notes"]
+    # the log starts at 1.0 m (1111 hPa, above any weather): not the surface, so the standard atmosphere
+    # (101325 Pa, the value encoded) is the reference and the depth is the true one
+    np.testing.assert_allclose(run.channels["z"], 1.0 + 0.2 * (t - 0.001), atol=2e-4)
+    notes = run.metadata["notes"]
+    assert "SCALED_PRESSURE2[press_abs] (pressure_to_depth" in notes
+    assert "starts under water; standard atmosphere 1013.25 hPa assumed" in notes
 
 
-def test_tlog_corruption_and_truncation_named_by_offset(tmp_path):
+def test_tlog_damage_is_skipped_counted_and_named_by_offset(tmp_path):
     path = write_tlog(tmp_path / "a.tlog", duration=0.5)
     data = path.read_bytes()
     frames = list(iter_tlog(path))
     assert len(frames) == 25 * 2 + 5
-    # truncated in the middle of the last frame
+    # truncated in the middle of the last frame: everything before it is read, the tail is counted
     cut = tmp_path / "cut.tlog"
     cut.write_bytes(data[:-5])
     last_offset = frames[-1][1]
-    with pytest.raises(LogImportError, match=rf"message {len(frames) - 1} at byte offset {last_offset}.*truncated"):
-        convert_log(cut, "ardusub")
-    # a flipped payload byte: CRC failure at that frame
-    index, offset = frames[10][0], frames[10][1]
+    damage = Damage()
+    assert len(list(iter_tlog(cut, damage))) == len(frames) - 1
+    assert damage.kinds["truncated tail"].offsets == [last_offset]
+    run = convert_log(cut, "ardusub")
+    assert f"damage: truncated tail: 1 ({len(data) - 5 - last_offset} bytes), first byte offsets {last_offset}" \
+        in run.metadata["notes"]
+    # a flipped payload byte: that frame alone is skipped as a bad CRC of its type
+    index, offset, _, msg = frames[10]
     bad = bytearray(data)
     bad[offset + 8 + 12] ^= 0xFF
     (tmp_path / "crc.tlog").write_bytes(bytes(bad))
-    with pytest.raises(LogImportError, match=rf"message {index} at byte offset {offset}: cannot decode"):
-        convert_log(tmp_path / "crc.tlog", "ardusub")
-    # garbage where a start byte should be
+    damage = Damage()
+    kept = list(iter_tlog(tmp_path / "crc.tlog", damage))
+    assert len(kept) == len(frames) - 1 and offset not in [f[1] for f in kept]
+    kind = f"bad CRC {msg.get_type()} ({msg.get_msgId()})"
+    assert damage.kinds[kind].count == 1 and damage.kinds[kind].offsets == [offset]
+    # garbage where a start byte should be: skipped up to the next frame
     bad = bytearray(data)
     bad[frames[3][1] + 8] = 0x00
     (tmp_path / "start.tlog").write_bytes(bytes(bad))
-    with pytest.raises(LogImportError, match=rf"message 3 at byte offset {frames[3][1]}.*not a MAVLink start"):
-        convert_log(tmp_path / "start.tlog", "ardusub")
+    damage = Damage()
+    kept = list(iter_tlog(tmp_path / "start.tlog", damage))
+    assert [f[1] for f in kept] == [f[1] for f in frames if f[1] != frames[3][1]]
+    garbage = damage.kinds["garbage (no frame start)"]
+    assert garbage.offsets == [frames[3][1]] and garbage.nbytes == frames[4][1] - frames[3][1]
+    # nothing usable: refused with the file named
+    (tmp_path / "junk.tlog").write_bytes(bytes(range(256)) * 4)
+    with pytest.raises(LogImportError, match=r"junk.tlog: nothing usable decodes.*byte offset 0"):
+        convert_log(tmp_path / "junk.tlog", "ardusub")
 
 
 # ------------------------------------------------------------------------------------------- dataflash
@@ -153,13 +170,21 @@ def test_dataflash_round_trip_and_agrees_with_pymavlink(tmp_path):
 def test_dataflash_truncated_or_corrupt(tmp_path):
     path = write_bin(tmp_path / "a.bin", duration=0.2)
     data = path.read_bytes()
+    records = [(i, o, n) for i, o, n, _ in iter_dataflash(path)]
     (tmp_path / "cut.bin").write_bytes(data[:-7])
-    with pytest.raises(LogImportError, match=r"byte offset \d+: .* runs past the end.*truncated"):
-        convert_log(tmp_path / "cut.bin", "ardusub")
-    records = [(i, o) for i, o, _, _ in iter_dataflash(path)]
-    index, offset = records[7]
+    run = convert_log(tmp_path / "cut.bin", "ardusub")
+    _, last_offset, last_name = records[-1]
+    assert f"damage: truncated tail ({last_name}): 1 ({len(data) - 7 - last_offset} bytes), first byte offsets " \
+        f"{last_offset}" in run.metadata["notes"]
+    index, offset, _ = records[7]
     bad = bytearray(data)
-    bad[offset] ^= 0xFF  # broken record header
+    bad[offset] ^= 0xFF  # broken record header: that record is lost, the reader resynchronises on the next
     (tmp_path / "bad.bin").write_bytes(bytes(bad))
-    with pytest.raises(LogImportError, match=rf"message {index} at byte offset {offset}: .*not the dataflash header"):
-        convert_log(tmp_path / "bad.bin", "ardusub")
+    damage = Damage()
+    kept = [o for _, o, _, _ in iter_dataflash(tmp_path / "bad.bin", damage)]
+    assert kept == [o for _, o, _ in records if o != offset]
+    assert damage.kinds["garbage (no record header)"].offsets == [offset]
+    assert damage.kinds["garbage (no record header)"].nbytes == records[8][1] - offset
+    (tmp_path / "zero.bin").write_bytes(b"\0" * 100)
+    with pytest.raises(LogImportError, match=r"zero.bin: nothing usable decodes"):
+        convert_log(tmp_path / "zero.bin", "ardusub")

@@ -1,0 +1,107 @@
+"""QGroundControl telemetry CSV exports ("CSV telemetry logging" in QGC's application settings).
+
+QGC writes, once per second while the vehicle is armed (or always, with "save CSV log even if not armed"),
+one row of its vehicle *facts*: a header ``Timestamp,roll,pitch,heading,rollRate,...,gps.lat,...,
+battery0.voltage,...`` (top-level facts by name, fact groups as ``group.fact``) and rows whose first cell is
+the local wall-clock time ``yyyy-MM-dd hh:mm:ss.zzz``. Values are QGC's display ("cooked") units: angles in
+degrees, rates in deg/s, altitudes in m (``altitudeRelative`` positive up: ArduSub shows -depth), voltages in V.
+Empty cells are facts without a value yet (nan).
+
+The file is recognised by its header (first cell ``Timestamp``), so it is never mistaken for a
+``udrobot-run/1`` run (whose first column is ``t``). All numeric columns become one stream, named by the
+mapping's single stream (``telemetry`` in the shipped ``qgc-csv`` mapping); non-numeric columns (flight mode,
+hobbs meter ``hh:mm:ss``) are left out.
+"""
+from __future__ import annotations
+
+import csv
+import math
+from datetime import datetime
+from pathlib import Path
+
+from .streams import LogImportError, Stream, finish_stream
+
+HEADER_FIRST = "Timestamp"
+TIME_FORMATS = ("%Y-%m-%d %H:%M:%S.%f", "%Y-%m-%d %H:%M:%S", "%Y-%m-%dT%H:%M:%S.%f", "%Y-%m-%dT%H:%M:%S")
+
+
+def is_qgc_csv(path) -> bool:
+    """True if the file's first header cell is ``Timestamp`` (QGC's CSV telemetry log)."""
+    with open(path, "rb") as fh:
+        head = fh.read(64).lstrip(b"\xef\xbb\xbf")
+    return head.split(b",", 1)[0].strip() == HEADER_FIRST.encode()
+
+
+def _time(cell: str, where: str) -> float:
+    s = cell.strip()
+    for fmt in TIME_FORMATS:
+        try:
+            return datetime.strptime(s, fmt).timestamp()  # local wall clock, as QGC writes it
+        except ValueError:
+            continue
+    try:
+        return float(s)
+    except ValueError:
+        raise LogImportError(f"{where}: Timestamp {s[:40]!r} is neither 'yyyy-MM-dd hh:mm:ss.zzz' nor a number") \
+            from None
+
+
+def _cell(s: str) -> float:
+    s = s.strip()
+    if s == "":
+        return math.nan
+    try:
+        return float(s)
+    except ValueError:
+        return None
+
+
+def read_qgc_csv(path, name: str = "telemetry") -> Stream:
+    """One :class:`Stream` of every numeric column of a QGC telemetry CSV (time = wall clock, s since epoch).
+
+    Raises
+    ------
+    LogImportError
+        Header without ``Timestamp`` first, unreadable time stamp (row named), no data rows.
+    """
+    path = Path(path)
+    with open(path, newline="", encoding="utf-8-sig") as fh:
+        rows = list(csv.reader(fh))
+    if not rows or not rows[0] or rows[0][0].strip() != HEADER_FIRST:
+        raise LogImportError(f"{path}: not a QGroundControl telemetry CSV (first header cell must be "
+                             f"'{HEADER_FIRST}')")
+    header = [h.strip() for h in rows[0]]
+    data = [r for r in rows[1:] if any(c.strip() for c in r)]
+    if not data:
+        raise LogImportError(f"{path}: QGC telemetry CSV has a header but no data rows")
+    times = []
+    columns = {h: [] for h in header[1:]}
+    numeric = {h: True for h in header[1:]}
+    for k, row in enumerate(data, start=2):
+        if len(row) != len(header):
+            raise LogImportError(f"{path}: row {k} has {len(row)} cells, the header {len(header)}")
+        times.append(_time(row[0], f"{path}: row {k}, column Timestamp"))
+        for h, cell in zip(header[1:], row[1:]):
+            value = _cell(cell)
+            if value is None:
+                numeric[h] = False
+            else:
+                columns[h].append(value)
+    fields = {h: v for h, v in columns.items() if numeric[h]}
+    stream = finish_stream(name, times, fields, "QGC wall-clock Timestamp (local time)")
+    dropped = [h for h, ok in numeric.items() if not ok]
+    if dropped:
+        stream.notes.append(f"{path}: non-numeric QGC columns not read: {', '.join(dropped)}")
+    return stream
+
+
+def read_streams(path, mapping) -> dict:
+    """The mapping's single stream from a QGC telemetry CSV (fields checked against the header)."""
+    names = sorted(mapping.needs())
+    if len(names) != 1:
+        raise LogImportError(f"{path}: a qgc_csv mapping reads one stream (the CSV), got {names}")
+    stream = read_qgc_csv(path, names[0])
+    return {names[0]: stream}
+
+
+__all__ = ["is_qgc_csv", "read_qgc_csv", "read_streams"]
