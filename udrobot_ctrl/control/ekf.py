@@ -316,6 +316,7 @@ class UDrobotEKF:
         self._run_since = np.full(nc, np.nan)
         self._longest = np.zeros(nc)
         self.rejected_now = np.zeros(nc, bool)
+        self._reopen = np.zeros(nc, bool)
         self.channel_faults: list[ChannelFault] = []
 
     @property
@@ -338,6 +339,12 @@ class UDrobotEKF:
         i = channel_index(name)
         self.channel_enabled[i] = True
         self._run[i], self._run_since[i] = 0, np.nan
+
+    def reopen_gates(self):
+        """After a change of the process model (e.g. a thruster fault found and accounted for): every channel
+        in a rejection run is re-initialised at its next sample instead of waiting for ``reject_timeout_s``
+        (the model that rejected it was wrong)."""
+        self._reopen |= self._run > 0
 
     def channel_stats(self) -> tuple:
         """:class:`ChannelStats` of every channel since the last :meth:`reset`."""
@@ -451,15 +458,19 @@ class UDrobotEKF:
         self._longest[bad] = np.maximum(self._longest[bad], self.t - self._run_since[bad])
         for j in np.flatnonzero(rej):
             i = ch[j]
-            if self._run[i] >= self.reject_min_samples and self.t - self._run_since[i] >= self.reject_timeout_s:
+            timeout = self._run[i] >= self.reject_min_samples and self.t - self._run_since[i] >= self.reject_timeout_s
+            if timeout or self._reopen[i]:
+                self._reopen[i] = False
                 s = CHANNEL_STATE[i]
                 P = self.kf.P
                 var = self._r[i] + y[j] ** 2
                 P[s, :] = 0.0
                 P[:, s] = 0.0
                 P[s, s] = var
-                self.channel_faults.append(ChannelFault(t=self.t, channel=CHANNELS[i], since=float(self._run_since[i]),
-                                                        rejections=int(self._run[i]), innovation=float(y[j])))
+                self.channel_faults.append(ChannelFault(
+                    t=self.t, channel=CHANNELS[i], since=float(self._run_since[i]), rejections=int(self._run[i]),
+                    innovation=float(y[j]), action=ChannelFault.action if timeout else
+                    "re-initialised after a process-model change (reopen_gates): variance R + y^2, sample accepted"))
                 self._n_reinit[i] += 1
                 self.stats["channel_reinitialisations"] += 1
                 self._n_rejected[i] -= 1

@@ -221,13 +221,14 @@ class _Window:
 
     def __init__(self, t0, x0, P0, nu):
         self.t0 = t0
-        self.x = np.array(x0, float)
+        self.x0 = np.array(x0, float)
+        self.x = self.x0.copy()
         self.P0 = np.array(P0, float)
         self.Phi = [np.eye(12)]
         self.G = [np.zeros((12, nu))]
         self.C = [np.zeros((12, nu))]
         self.f: list = []  # thrust used in the simulation per step (N)
-        self.rows: list = []  # (step k, channel, state, residual)
+        self.rows: list = []  # (step k, channel, state, residual, measured value)
 
     @property
     def steps(self):
@@ -330,7 +331,8 @@ class ThrusterFaultDetector:
                     e = z_row[ch] - win.x[st]
                     ang = ANGLE_CHANNELS[ch]
                     e[ang] = (e[ang] + np.pi) % (2 * np.pi) - np.pi
-                    win.rows += [(win.steps, int(c), int(s), float(ei)) for c, s, ei in zip(ch, st, e)]
+                    win.rows += [(win.steps, int(c), int(s), float(ei), float(zi))
+                                 for c, s, ei, zi in zip(ch, st, e, z_row[ch])]
                 if win.steps >= self.window_steps:
                     done.append(win)
         else:  # a non-finite command: the windows cannot be simulated
@@ -359,6 +361,39 @@ class ThrusterFaultDetector:
         theta, *_ = np.linalg.lstsq(A, b, rcond=1e-12)
         r = b - A @ theta
         return float(r @ r), theta, np.linalg.pinv(A.T @ A, rcond=1e-12)
+
+    def _refine(self, win, i, k0, a, keep, prior, iterations=2):
+        """Gauss-Newton on ``a``: re-simulate the window with thruster ``i`` at ``a`` from step ``k0`` and refit
+        (the first fit linearises along the commanded trajectory, where quadratic drag is smaller, which biases
+        ``a`` towards the command)."""
+        rows = [r for r, kept in zip(win.rows, keep) if kept]
+        k = np.array([r[0] for r in rows])
+        chans = np.array([r[1] for r in rows])
+        st = np.array([r[2] for r in rows])
+        z = np.array([r[4] for r in rows])
+        sw = np.sqrt(self.w[chans])
+        ang = ANGLE_CHANNELS[chans]
+        for _ in range(iterations):
+            x = win.x0.copy()
+            X, Phi, Gi = [x], [np.eye(12)], [np.zeros(12)]
+            for step, fk in enumerate(win.f):
+                f = fk.copy()
+                if step >= k0:
+                    f[i] = a
+                xn, A, B = self.lin(x, f)
+                A, B = A.full(), B.full()
+                x = xn.full().ravel()
+                X.append(x)
+                Phi.append(A @ Phi[-1])
+                Gi.append(A @ Gi[-1] + (B[:, i] if step >= k0 else 0.0))
+            X, Phi, Gi = np.array(X), np.array(Phi), np.array(Gi)
+            e = z - X[k, st]
+            e[ang] = (e[ang] + np.pi) % (2 * np.pi) - np.pi
+            _, theta, _ = self._fit(np.column_stack([Phi[k, st], Gi[k, st]]) * sw[:, None], e * sw, prior)
+            if not np.isfinite(theta[12]):
+                break
+            a += float(theta[12])
+        return a
 
     def _evaluate(self, t, win: _Window):
         if len(win.rows) < 13:
@@ -417,6 +452,7 @@ class ThrusterFaultDetector:
         if (self.reported[i] or lam[i] <= self.threshold or lam[i] - second <= self.margin
                 or err < self.min_fault_N or not plausible or k0 > self.n_onsets or j_best > self.max_cost * m):
             return None
+        a = self._refine(win, i, k0, a, keep, prior)
         kind = DEAD if abs(a) <= max(self.dead_band_N, 3 * sd) else STUCK
         self.gain[i], self.offset[i] = 0.0, (0.0 if kind == DEAD else a)
         self.reported[i] = True
@@ -507,14 +543,18 @@ class EstimatorLoop:
         Sensor-noise seed.
     monitor : bool
         Run a :class:`FaultMonitor`.
+    reconfigure : bool
+        On a dead or stuck thruster, tell the controller (``controller.set_thruster_limits(i, a, a)``, e.g.
+        :meth:`udrobot_ctrl.control.mpc.LinearMPC.set_thruster_limits`) so that its model matches the vehicle.
     """
 
     def __init__(self, controller, ekf: UDrobotEKF, sensors: SensorConfig | None = None, sensor_faults=(),
-                 thruster_faults=(), seed=0, monitor=True, **monitor_options):
+                 thruster_faults=(), seed=0, monitor=True, reconfigure=True, **monitor_options):
         self.controller, self.ekf = controller, ekf
         self.sampler = SensorSampler(sensors or ekf.sensors, seed=seed)
         self.sensor_faults, self.thruster_faults = list(sensor_faults), list(thruster_faults)
         self.monitor = FaultMonitor(ekf, **monitor_options) if monitor else None
+        self.reconfigure = reconfigure
         self._f = None
         self.t, self.estimates, self.commands, self.measurements = [], [], [], []
 
@@ -531,7 +571,13 @@ class EstimatorLoop:
             f_model = self._f if self.monitor is None else self.monitor.thrusters.correct(self._f)
             self.ekf.step(f_model, z, t=t)
             if self.monitor is not None:
-                self.monitor.step(t, z, self._f)
+                for ev in self.monitor.step(t, z, self._f):
+                    if ev.kind in (DEAD, STUCK):
+                        self.ekf.reopen_gates()  # the rejections came from the model without the fault
+                    if self.reconfigure and ev.kind in (DEAD, STUCK) and hasattr(self.controller,
+                                                                                "set_thruster_limits"):
+                        a = 0.0 if ev.kind == DEAD else ev.value
+                        self.controller.set_thruster_limits(ev.index, a, a)
         f_cmd = np.asarray(self.controller(t, self.ekf.x.copy()), float)
         self._f = f_cmd.copy()
         f = f_cmd.copy()

@@ -401,6 +401,12 @@ class SparseMPCQP:
     def stack(self, X, U):
         return np.concatenate([np.asarray(X).reshape(-1), np.asarray(U).reshape(-1)])
 
+    def set_thrust_bounds(self, j, lo, hi):
+        """Bounds of thruster ``j`` (N) at every stage (e.g. ``lo == hi`` for a thruster stuck at that thrust)."""
+        r0 = self.nx * (self.N + 1)
+        rows = r0 + np.arange(self.N) * self.nu + int(j)
+        self.l[rows], self.u[rows] = float(lo), float(hi)
+
     def reset_solver(self):
         """Forget the solver's iterates after a failure: zero primal/dual warm start, ``rho`` back to its setting."""
         self.solver.warm_start(x=np.zeros(self.n), y=np.zeros(self.m))
@@ -483,7 +489,7 @@ class _MPCBase:
         if f is None:
             x = np.zeros(12)
             x[6] = surge
-            f = self._trim_cache[surge] = trim_thrust(self.params, x)
+            f = self._trim_cache[surge] = np.clip(trim_thrust(self.params, x), self.f_min, self.f_max)
         return f
 
     # -- fallback -----------------------------------------------------------------------------------
@@ -523,6 +529,29 @@ class _MPCBase:
         self._plan = None
         self._plan_age = 0
         self.last_command = None
+
+    def set_thruster_limits(self, j, lo, hi):
+        """Reconfigure after a thruster fault: thruster ``j`` (0-based) can only produce ``[lo, hi]`` N from now on
+        (a dead thruster: ``0, 0``; stuck at ``a``: ``a, a``). The prediction model then matches the vehicle, so
+        the other thrusters take over what the faulty one no longer does. Applies to the next call."""
+        j = int(j)
+        if not 0 <= j < self.nu or not lo <= hi:
+            raise ValueError(f"thruster index must be in [0, {self.nu}) and lo <= hi; got {j}, [{lo}, {hi}]")
+        self.f_min, self.f_max = self.f_min.copy(), self.f_max.copy()
+        self.f_min[j], self.f_max[j] = float(lo), float(hi)
+        qp = getattr(self, "qp", None)
+        if qp is not None:
+            qp.set_thrust_bounds(j, lo, hi)
+        if getattr(self, "_lbx", None) is not None:
+            n0 = 12 * (self.N + 1)
+            self._lbx[n0 + j::self.nu], self._ubx[n0 + j::self.nu] = float(lo), float(hi)
+        self._trim_cache.clear()
+        self._plan = None
+        self.last_command = None
+        for name in ("_z", "_X", "_U"):  # warm starts that assume the old limits
+            if hasattr(self, name):
+                setattr(self, name, None)
+        self._forget_solver_state()
 
     def _forget_solver_state(self):
         """After a failed solve: drop the shifted trajectories and reset the QP solver's iterates (the plan of
