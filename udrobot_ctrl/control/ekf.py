@@ -317,6 +317,8 @@ class UDrobotEKF:
         self._longest = np.zeros(nc)
         self.rejected_now = np.zeros(nc, bool)
         self._reopen = np.zeros(nc, bool)
+        self._gated_nis, self._gated_dof = 0.0, 0  # gated-out contribution of the last update to the NIS block
+        self._contribution = np.zeros(nc)  # per channel, of the last update
         self.channel_faults: list[ChannelFault] = []
 
     @property
@@ -435,8 +437,10 @@ class UDrobotEKF:
                     break
                 worst = int(np.argmax(yg ** 2 / np.diag(Sg)))
                 accept[pos[worst]] = False
-                self._gated_nis += min(yg[worst] ** 2 / Sg[worst, worst], self._gate(1))
+                contribution = min(yg[worst] ** 2 / Sg[worst, worst], self._gate(1))
+                self._gated_nis += contribution
                 self._gated_dof += 1
+                self._contribution[ch[pos[worst]]] = contribution
                 pos = np.delete(pos, worst)
         return accept
 
@@ -479,7 +483,7 @@ class UDrobotEKF:
                 accept[j] = True
                 forced[j] = True
                 # the forced channel no longer counts as gated out in the NIS block
-                self._gated_nis = max(0.0, self._gated_nis - self._gate(1))
+                self._gated_nis = max(0.0, self._gated_nis - self._contribution[i])
                 self._gated_dof = max(0, self._gated_dof - 1)
         return forced
 
@@ -506,10 +510,9 @@ class UDrobotEKF:
         if not (np.all(np.isfinite(kf.x)) and np.all(np.isfinite(kf.P))):
             return self._reinitialise("non-finite state or covariance")
         status = self.last_status if not self.last_status.startswith("diverged") else "ok"
-        gated_nis, gated_dof = getattr(self, "_gated_nis", 0.0), getattr(self, "_gated_dof", 0)
-        if self.dof or gated_dof:
-            self._block_nis += (self.nis if self.dof else 0.0) + gated_nis
-            self._block_dof += self.dof + gated_dof
+        if self.dof or self._gated_dof:
+            self._block_nis += (self.nis if self.dof else 0.0) + self._gated_nis
+            self._block_dof += self.dof + self._gated_dof
             self._block_n += 1
         if self._block_n >= self.nis_window:
             lo, hi, div = self._chi2_bounds(self._block_dof)
