@@ -134,7 +134,7 @@ def bench_ekf(v, n=1200):
     ekf = UDrobotEKF(v, dt, sensors=cfg, x0=res.x[0])
     ekf.run(stream, f[:-1])
     med, p99, _ = _stats(list(ekf.step_times), 1e6)
-    print(f"EKF (filterpy ExtendedKalmanFilter, compiled casadi RK4 + Jacobian, 7-13 channels/step): "
+    print(f"EKF (filterpy predict, gated Joseph update, compiled casadi RK4 + Jacobian, 7-13 channels/step): "
           f"predict+update median {med:.1f} us, p99 {p99:.1f} us")
     return {"ekf_step_us": med, "ekf_step_p99_us": p99}
 

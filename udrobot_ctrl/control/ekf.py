@@ -289,6 +289,7 @@ class UDrobotEKF:
             self._sensor_of[list(chans)] = g
         self._gates: dict[int, float] = {}
         self._bounds: dict[int, tuple] = {}
+        self._layouts: dict[bytes, tuple] = {}
         self.channel_enabled = np.ones(len(CHANNELS), bool)
         self.reset()
 
@@ -374,6 +375,24 @@ class UDrobotEKF:
         self.kf.predict(f)
         self.kf.x[5] = _wrap(self.kf.x[5])
 
+    def _layout(self, present):
+        """Per availability pattern (cached): channels, states, angle mask, R diagonal, H, sensor blocks by size."""
+        key = present.tobytes()
+        lay = self._layouts.get(key)
+        if lay is None:
+            ch = np.flatnonzero(present)
+            st = CHANNEL_STATE[ch]
+            H = np.zeros((ch.size, 12))
+            H[np.arange(ch.size), st] = 1.0
+            sensor = self._sensor_of[ch]
+            blocks: dict[int, list] = {}
+            for g in np.unique(sensor):
+                pos = np.flatnonzero(sensor == g)
+                blocks.setdefault(pos.size, []).append(pos)
+            blocks = {k: np.array(v) for k, v in blocks.items()}  # size -> (n_sensors, size) positions
+            lay = self._layouts[key] = (ch, st, ANGLE_CHANNELS[ch], self._r[ch], H, blocks)
+        return lay
+
     def update(self, z_row):
         """Gate and update with one row of channel values (13,), NaN where absent (see the module docstring).
 
@@ -387,51 +406,63 @@ class UDrobotEKF:
             self.nis, self.dof = np.nan, 0
             return np.nan
         kf = self.kf
-        ch = np.flatnonzero(present)
-        st = CHANNEL_STATE[ch]
+        ch, st, ang, r, H, blocks = self._layout(present)
         y = z_row[ch] - kf.x[st]
-        ang = ANGLE_CHANNELS[ch]
         if ang.any():
             y[ang] = _wrap(y[ang])
-        S = kf.P[np.ix_(st, st)] + np.diag(self._r[ch])
+        S = kf.P[st[:, None], st] + np.diag(r)
         self._last_value[ch] = z_row[ch]
         self._n_samples[ch] += 1
-        accept = self._gate_sensors(ch, y, S)
-        forced = self._reinitialise_stale(ch, y, accept)
-        if forced.any():  # P changed for the forced channels: innovation covariance again
-            S = kf.P[np.ix_(st, st)] + np.diag(self._r[ch])
-        a = np.flatnonzero(accept)
-        self.rejected_now[ch[~accept]] = True
-        self._last_accepted[ch[a]] = z_row[ch[a]]
-        if a.size == 0:
-            self.nis, self.dof = np.nan, 0
-            return np.nan
-        sa, ya, Sa = st[a], y[a], S[np.ix_(a, a)]
-        SI = np.linalg.inv(Sa)
+        SI = np.linalg.inv(S)
+        # a sensor's NIS never exceeds the joint NIS (marginal Mahalanobis distance <= joint): when the joint one
+        # is below the smallest gate, every sensor passes and the per-sensor test is skipped
+        if self.gate_probability <= 0 or float(y @ SI @ y) <= self._gate(min(blocks)):
+            accept = np.ones(ch.size, bool)
+        else:
+            accept = self._gate_sensors(ch, y, S, blocks)
+        if accept.all():
+            self._run[ch] = 0
+            self._run_since[ch] = np.nan
+            sa, ya, Sa, Ha, ra = st, y, S, H, r
+        else:
+            forced = self._reinitialise_stale(ch, y, accept)
+            if forced.any():  # P changed for the forced channels: innovation covariance again
+                S = kf.P[st[:, None], st] + np.diag(r)
+            a = np.flatnonzero(accept)
+            self.rejected_now[ch[~accept]] = True
+            if a.size == 0:
+                self.nis, self.dof = np.nan, 0
+                return np.nan
+            sa, ya, Sa, Ha, ra = st[a], y[a], S[a[:, None], a], H[a], r[a]
+            SI = np.linalg.inv(Sa)
+        self._last_accepted[ch[accept]] = z_row[ch[accept]]
         K = kf.P[:, sa] @ SI
-        H = np.zeros((a.size, 12))
-        H[np.arange(a.size), sa] = 1.0
-        I_KH = np.eye(12) - K @ H
-        P = I_KH @ kf.P @ I_KH.T + (K * self._r[ch[a]]) @ K.T  # Joseph form, as filterpy
+        I_KH = np.eye(12) - K @ Ha
+        P = I_KH @ kf.P @ I_KH.T + (K * ra) @ K.T  # Joseph form, as filterpy
         kf.P = 0.5 * (P + P.T)
         kf.x = kf.x + K @ ya
         kf.x[5] = _wrap(kf.x[5])
         kf.y, kf.S, kf.SI, kf.K = ya, Sa, SI, K
         self.nis = float(ya @ SI @ ya)
-        self.dof = int(a.size)
+        self.dof = int(ya.size)
         return self.nis
 
-    def _gate_sensors(self, ch, y, S):
-        """Accept mask over the present channels ``ch``: per sensor NIS gate, worst channel dropped first."""
+    def _gate_sensors(self, ch, y, S, blocks):
+        """Accept mask over the present channels ``ch``: per sensor NIS gate (batched over the sensors of one
+        size), then, for a rejected sensor, its worst channel is dropped until the rest passes."""
         accept = np.ones(ch.size, bool)
         if self.gate_probability <= 0:
             return accept
-        sensor = self._sensor_of[ch]
-        for g in np.unique(sensor):
-            pos = np.flatnonzero(sensor == g)
+        failed = []
+        for size, pos in blocks.items():  # pos (n_sensors, size)
+            yb = y[pos]
+            Sb = S[pos[:, :, None], pos[:, None, :]]
+            nis = np.einsum("ki,ki->k", yb, np.linalg.solve(Sb, yb[..., None])[..., 0])
+            failed += [pos[j] for j in np.flatnonzero(nis > self._gate(size))]
+        for pos in failed:
             while pos.size:
                 yg = y[pos]
-                Sg = S[np.ix_(pos, pos)]
+                Sg = S[pos[:, None], pos]
                 nis = float(yg @ np.linalg.solve(Sg, yg))
                 if nis <= self._gate(pos.size):
                     break
