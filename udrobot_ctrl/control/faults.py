@@ -362,6 +362,27 @@ class ThrusterFaultDetector:
         r = b - A @ theta
         return float(r @ r), theta, np.linalg.pinv(A.T @ A, rcond=1e-12)
 
+    def _glr(self, Phi, e, w, Pinv, G, C):
+        """Costs of all candidate explanations at once (Schur complement on the nuisance ``dx0``).
+
+        For target ``y_j = e + C_j`` and column ``G_j``: ``J_j = J(y_j) - (G_j' W r_j)^2 / (G_j' W s_j)`` with
+        ``r_j``, ``s_j`` the residuals of ``y_j``, ``G_j`` after the prior-regularised fit of ``Phi dx0``.
+        Returns ``lambda_j = J0(e) - J_j``, the thrust estimates ``a_j``, their variances and the ``dx0`` fits
+        (12, n_candidates); ``self._j0`` keeps ``J0(e)``.
+        """
+        M = np.linalg.inv(Phi.T @ (Phi * w[:, None]) + Pinv)
+        Y = e[:, None] + C
+        PWY, PWG, PWe = Phi.T @ (w[:, None] * Y), Phi.T @ (w[:, None] * G), Phi.T @ (w * e)
+        MY, MG = M @ PWY, M @ PWG
+        jy = np.einsum("m,mj,mj->j", w, Y, Y) - np.einsum("kj,kj->j", PWY, MY)
+        cross = np.einsum("m,mj,mj->j", w, G, Y) - np.einsum("kj,kj->j", PWG, MY)
+        gg = np.einsum("m,mj,mj->j", w, G, G) - np.einsum("kj,kj->j", PWG, MG)
+        gg = np.where(gg > 1e-12, gg, np.inf)
+        a = cross / gg
+        self._j0 = float(e @ (w * e) - PWe @ M @ PWe)
+        lam = self._j0 - (jy - cross * a)
+        return lam, a, 1.0 / gg, MY - MG * a
+
     def _refine(self, win, i, k0, a, keep, prior, iterations=2):
         """Gauss-Newton on ``a``: re-simulate the window with thruster ``i`` at ``a`` from step ``k0`` and refit
         (the first fit linearises along the commanded trajectory, where quadratic drag is smaller, which biases
@@ -414,42 +435,40 @@ class ThrusterFaultDetector:
         Phi_inv = np.linalg.inv(Phi[:no])
         vG = Phi_inv @ G[:no]  # (no, 12, nu): the initial-state offset equivalent to G at the onset
         vC = Phi_inv @ C[:no]
+        Pinv = prior.T @ prior
+        after = (k[:, None] > np.arange(no)[None, :]).astype(float)  # (m, no): row after onset k0
+        # candidate columns for every (thruster i, onset k0): sensitivity g and command contribution c (m, nu, no)
+        Gc = (Grow[:, :, None] - np.einsum("mj,ojn->mno", Prow, vG)) * after[:, None, :]
+        Cc = (Crow[:, :, None] - np.einsum("mj,ojn->mno", Prow, vC)) * after[:, None, :]
         keep = np.ones(len(e), bool)
-        lam = np.full(self.nu, -np.inf)
-        fits = {}
         for _ in range(2):  # second pass without the outliers of the best explanation (spikes)
-            j0, _, _ = self._fit(Prow[keep] * sw[keep, None], e[keep] * sw[keep], prior)
-            lam[:] = -np.inf
-            for i in range(self.nu):
-                for k0 in range(no):
-                    after = (k > k0)[keep]
-                    g = (Grow[keep, i] - Prow[keep] @ vG[k0, :, i]) * after
-                    c = (Crow[keep, i] - Prow[keep] @ vC[k0, :, i]) * after
-                    cost, theta, cov = self._fit(np.column_stack([Prow[keep], g]) * sw[keep, None],
-                                                 (e[keep] + c) * sw[keep], prior)
-                    if j0 - cost > lam[i]:
-                        lam[i] = j0 - cost
-                        fits[i] = (k0, theta, cov, g, c)
-            i = int(np.argmax(lam))
-            k0, theta, cov, g, c = fits[i]
-            r = np.zeros(len(e))
-            r[keep] = (e[keep] + c - np.column_stack([Prow[keep], g]) @ theta) * sw[keep]
+            lam, a_all, var_all, theta0 = self._glr(Prow[keep], e[keep], sw[keep] ** 2, Pinv,
+                                                    Gc[keep].reshape(int(keep.sum()), -1),
+                                                    Cc[keep].reshape(int(keep.sum()), -1))
+            j = int(np.argmax(lam))
+            i, k0 = divmod(j, no)
+            r = (e + Cc[:, i, k0] - Prow @ theta0[:, j] - Gc[:, i, k0] * a_all[j]) * sw
             new_keep = keep & (np.abs(r) <= self.outlier_sigma)
             if np.array_equal(new_keep, keep) or new_keep.sum() < 13:
                 break
             keep = new_keep
-        self.last_statistics = lam.copy()
-        order = np.argsort(lam)[::-1]
-        i, second = int(order[0]), (lam[order[1]] if self.nu > 1 else -np.inf)
-        k0, theta, cov, _, _ = fits[i]
-        a, sd = float(theta[12]), float(np.sqrt(max(cov[12, 12], 0.0)))
+        lam_i = lam.reshape(self.nu, no)
+        best_k0 = np.argmax(lam_i, axis=1)
+        lam_best = lam_i[np.arange(self.nu), best_k0]
+        self.last_statistics = lam_best.copy()
+        order = np.argsort(lam_best)[::-1]
+        i, second = int(order[0]), (lam_best[order[1]] if self.nu > 1 else -np.inf)
+        k0 = int(best_k0[i])
+        j = i * no + k0
+        a, sd = float(a_all[j]), float(np.sqrt(max(var_all[j], 0.0)))
+        j0 = float(self._j0)
         cmd = F[k0:, i]
         err = float(np.mean(np.abs(a - cmd)))
         slack = 3 * sd + 1.0
         plausible = self.params.f_min[i] - slack <= a <= self.params.f_max[i] + slack
-        j_best = float(j0 - lam[i])
+        j_best = float(j0 - lam_best[i])
         m = int(keep.sum())
-        if (self.reported[i] or lam[i] <= self.threshold or lam[i] - second <= self.margin
+        if (self.reported[i] or lam_best[i] <= self.threshold or lam_best[i] - second <= self.margin
                 or err < self.min_fault_N or not plausible or k0 > self.n_onsets or j_best > self.max_cost * m):
             return None
         a = self._refine(win, i, k0, a, keep, prior)
@@ -459,8 +478,8 @@ class ThrusterFaultDetector:
         t_onset = win.t0 + k0 * self.dt
         return FaultEvent(t, kind, f"thruster {i}", i, a,
                           f"onset ~{t_onset:.2f} s; produces {a:.2f} +- {sd:.2f} N against a mean command of "
-                          f"{np.mean(cmd):.2f} N; GLR {lam[i]:.3g} > {self.threshold:.3g}, next thruster {second:.3g}; "
-                          f"cost/sample {j_best / m:.3g}",
+                          f"{np.mean(cmd):.2f} N; GLR {lam_best[i]:.3g} > {self.threshold:.3g}, next thruster "
+                          f"{second:.3g}; cost/sample {j_best / m:.3g}",
                           t_onset=t_onset)
 
 
