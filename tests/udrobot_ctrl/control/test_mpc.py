@@ -231,3 +231,23 @@ def test_reset_solver_clears_diverged_iterates():
     status, z, info = qp.solve()
     assert status == "solved" and info.iter <= 2 * info_ref.iter + 50
     np.testing.assert_allclose(qp.split(z)[1][0], qp.split(z_ref)[1][0], atol=0.1)
+
+
+@pytest.mark.parametrize("kind", ["lmpc", "rti", "ipopt"])
+def test_thruster_reconfiguration_after_a_fault(kind):
+    """set_thruster_limits(j, a, a): the plan holds thruster j at a (dead: 0 N, stuck: a) and the others take
+    over; the depth step still asks both vertical thrusters before, only thruster 3 after thruster 2 died."""
+    ctrl = _make(kind, {"z": 2.0}, horizon=10)
+    x = np.zeros(12)
+    x[2] = 0.5
+    f = ctrl(0.0, x)
+    assert f[2] > 5.0 and f[3] > 5.0
+    ctrl.set_thruster_limits(2, 0.0, 0.0)
+    f = ctrl(0.05, x)
+    assert not ctrl.last_status.startswith("fallback")
+    assert abs(f[2]) < 1e-3 and f[3] > 5.0
+    ctrl.set_thruster_limits(0, 7.0, 7.0)  # stuck horizontal thruster
+    f = ctrl(0.1, x)
+    assert not ctrl.last_status.startswith("fallback") and abs(f[0] - 7.0) < 1e-3
+    with pytest.raises(ValueError, match="thruster index"):
+        ctrl.set_thruster_limits(4, 0.0, 0.0)
