@@ -2,8 +2,9 @@
 
 * Process model: one RK4 step of the casadi plant (:func:`udrobot_ctrl.dynamics.plant_casadi.rk4_step_function`)
   with the applied thrusts held over ``dt``; its Jacobian ``F = dx_next/dx`` comes from the same generated
-  casadi function (gcc-compiled and cached when possible). The filter is filterpy's
-  :class:`~filterpy.kalman.ExtendedKalmanFilter` with ``predict_x`` overridden by the RK4 step.
+  casadi function (gcc-compiled and cached when possible). The prediction is filterpy's
+  :class:`~filterpy.kalman.ExtendedKalmanFilter` with ``predict_x`` overridden by the RK4 step; the update
+  is done here (gated, Joseph form like filterpy's) and leaves ``kf.y``, ``kf.S``, ``kf.SI``, ``kf.K`` set.
 * Process noise: unmodelled forces and moments (tether, waves, model error) as piecewise-constant white
   noise through the inverse mass matrix, ``Q_nu = dt^2 M^-1 diag(sigma_tau^2) M^-T``, plus a small
   random walk on the pose (assumed magnitudes on :class:`ProcessNoise`).
