@@ -2,7 +2,8 @@
 
 Usage: ``python bench/control.py [--json] [--quick]``. Prints median and p99 per solve / step and, with
 ``--json``, ends with one JSON line holding ``lmpc_median_ms``, ``lmpc_p99_ms``, ``lmpc_first_move_err_N``,
-``nmpc_median_ms``, ``nmpc_p99_ms``, ``ekf_step_us`` (plus the tolerance sweep and the LQR design times).
+``nmpc_median_ms``, ``nmpc_p99_ms``, ``ekf_step_us``, ``fault_monitor_median_us`` (plus the tolerance sweep and
+the LQR design times). ``--only ekf,faults`` runs a subset (lmpc, nmpc, ekf, faults, lqr).
 
 Setup: design and plant ``cfd:morison``, horizon 20 at dt 0.05 s (12 states, 4 thrusts), the standard
 mission (quick variant, 23 s = 460 control steps) flown on the nonlinear plant (RK4 at 0.01 s). Times are
@@ -133,9 +134,35 @@ def bench_ekf(v, n=1200):
     ekf = UDrobotEKF(v, dt, sensors=cfg, x0=res.x[0])
     ekf.run(stream, f[:-1])
     med, p99, _ = _stats(list(ekf.step_times), 1e6)
-    print(f"EKF (filterpy ExtendedKalmanFilter, compiled casadi RK4 + Jacobian, 7-13 channels/step): "
+    print(f"EKF (filterpy predict, gated Joseph update, compiled casadi RK4 + Jacobian, 7-13 channels/step): "
           f"predict+update median {med:.1f} us, p99 {p99:.1f} us")
     return {"ekf_step_us": med, "ekf_step_p99_us": p99}
+
+
+def bench_faults(v, t_final=12.0):
+    """Fault monitor (frozen-sensor test + thruster GLR windows) per control step, healthy closed loop."""
+    from udrobot_ctrl.control.ekf import UDrobotEKF
+    from udrobot_ctrl.control.faults import EstimatorLoop
+    from udrobot_ctrl.control.missions import standard_mission
+
+    m = standard_mission(quick=True)
+    ekf = UDrobotEKF(v, 0.05, x0=m.x0())
+    loop = EstimatorLoop(LinearMPC(v, m, dt=0.05, horizon=20), ekf, seed=0)
+    times = []
+    step = loop.monitor.step
+
+    def timed(*a, **k):
+        t0 = time.perf_counter()
+        out = step(*a, **k)
+        times.append(time.perf_counter() - t0)
+        return out
+
+    loop.monitor.step = timed
+    simulate(v, m.x0(), t_final, controller=loop, dt=0.01, control_dt=0.05)
+    med, p99, mx = _stats(times, 1e6)
+    print(f"Fault monitor (frozen test + thruster GLR, 1 s windows every 0.25 s): median {med:.0f} us, "
+          f"p99 {p99:.0f} us, max {mx:.0f} us per control step; events {len(loop.report().events)}")
+    return {"fault_monitor_median_us": med, "fault_monitor_p99_us": p99}
 
 
 def bench_lqr(v, repeats=50):
@@ -175,14 +202,22 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--json", action="store_true", help="end with one JSON line of the figures")
     ap.add_argument("--quick", action="store_true", help="shorter runs (8 s of the mission)")
+    ap.add_argument("--only", default="lmpc,nmpc,ekf,faults,lqr", help="comma-separated subset to run")
     args = ap.parse_args(argv)
+    only = set(args.only.split(","))
     v = load_model(MODEL)
     mission, x0, t_final = _mission(args.quick)
     out = {}
-    out.update(bench_lmpc(v, mission, x0, t_final))
-    out.update(bench_nmpc(v, mission, x0, t_final, 20 if args.quick else 60))
-    out.update(bench_ekf(v, 400 if args.quick else 1200))
-    out.update(bench_lqr(v))
+    if "lmpc" in only:
+        out.update(bench_lmpc(v, mission, x0, t_final))
+    if "nmpc" in only:
+        out.update(bench_nmpc(v, mission, x0, t_final, 20 if args.quick else 60))
+    if "ekf" in only:
+        out.update(bench_ekf(v, 400 if args.quick else 1200))
+    if "faults" in only:
+        out.update(bench_faults(v, 8.0 if args.quick else 12.0))
+    if "lqr" in only:
+        out.update(bench_lqr(v))
     print("Goals: LMPC median <= 0.5 ms, p99 <= 2 ms, first move <= 0.1 N; NMPC median <= 10 ms, p99 <= 30 ms; "
           "EKF <= 150 us.")
     if args.json:

@@ -2,8 +2,9 @@
 
 * Process model: one RK4 step of the casadi plant (:func:`udrobot_ctrl.dynamics.plant_casadi.rk4_step_function`)
   with the applied thrusts held over ``dt``; its Jacobian ``F = dx_next/dx`` comes from the same generated
-  casadi function (gcc-compiled and cached when possible). The filter is filterpy's
-  :class:`~filterpy.kalman.ExtendedKalmanFilter` with ``predict_x`` overridden by the RK4 step.
+  casadi function (gcc-compiled and cached when possible). The prediction is filterpy's
+  :class:`~filterpy.kalman.ExtendedKalmanFilter` with ``predict_x`` overridden by the RK4 step; the update
+  is done here (gated, Joseph form like filterpy's) and leaves ``kf.y``, ``kf.S``, ``kf.SI``, ``kf.K`` set.
 * Process noise: unmodelled forces and moments (tether, waves, model error) as piecewise-constant white
   noise through the inverse mass matrix, ``Q_nu = dt^2 M^-1 diag(sigma_tau^2) M^-T``, plus a small
   random walk on the pose (assumed magnitudes on :class:`ProcessNoise`).
@@ -11,12 +12,27 @@
   body velocity, optional USBL position). Each step uses whichever channels are present (NaN = absent):
   H (rows of the identity) and R (diagonal) are built per availability pattern and cached; angle
   residuals are wrapped to [-pi, pi).
-* Consistency: the normalised innovation squared ``NIS = y' S^-1 y`` of every update; the sum over
-  blocks of ``nis_window`` steps is compared with the two-sided chi-square bounds (``alpha``) for the
-  total measurement dimension -> ``consistent`` / ``inconsistent``. Divergence: ``divergence_blocks``
-  consecutive blocks above the ``1 - divergence_alpha`` quantile, or a non-finite state/covariance.
-  The safe fallback then re-initialises the measured states from the latest measurement, keeps the
-  others and resets P to P0 (``stats['resets']``); the filter never raises inside the loop.
+* Innovation gating: before each update the innovation ``y`` of every sensor (depth, attitude, gyro, DVL,
+  USBL: :data:`udrobot_ctrl.control.sensors.SENSORS`) is tested, ``NIS_s = y_s' S_ss^-1 y_s`` against the
+  chi-square quantile ``chi2.ppf(1 - gate_probability, dof_s)`` (``dof_s`` = the sensor's present channels;
+  ``gate_probability`` 1e-4 = the chance of rejecting a correct sample of a consistent filter). A rejected
+  sensor drops its channel with the largest normalised innovation ``|y_i| / sqrt(S_ii)`` until the rest passes,
+  so one spiked DVL axis does not discard the other two. Rejections are counted per channel
+  (:meth:`UDrobotEKF.channel_stats`, :class:`ChannelStats`). A channel rejected at every sample for longer
+  than ``reject_timeout_s`` (and at least ``reject_min_samples`` samples) is reported (:class:`ChannelFault`:
+  a failed or frozen sensor, or a real jump the model cannot follow) and re-initialised: its state is
+  decorrelated and given the variance ``R + y^2``, and the sample is accepted, so the filter never locks a
+  correct sensor out forever. :meth:`UDrobotEKF.exclude_channel` takes a channel out (e.g. a frozen sensor
+  found by :mod:`udrobot_ctrl.control.faults`) until :meth:`UDrobotEKF.include_channel`.
+* Consistency: the normalised innovation squared ``NIS = y' S^-1 y`` of every update (accepted channels);
+  the sum over blocks of ``nis_window`` steps is compared with the two-sided chi-square bounds (``alpha``)
+  for the total measurement dimension -> ``consistent`` / ``inconsistent``; a gated-out channel enters
+  the block with its 1-dof gate value (so persistent rejection still reads as divergence, a lone spike
+  does not). Divergence: ``divergence_blocks`` consecutive blocks above the ``1 - divergence_alpha``
+  quantile, or a non-finite state/covariance. The safe fallback then re-initialises the measured states
+  from the latest accepted measurement (the latest one for a channel rejected for ``reject_min_samples``
+  samples or more), keeps the others and resets P to P0 (``stats['resets']``); the filter never raises
+  inside the loop.
 """
 from __future__ import annotations
 
@@ -29,7 +45,15 @@ import numpy as np
 from filterpy.kalman import ExtendedKalmanFilter
 from scipy.stats import chi2
 
-from udrobot_ctrl.control.sensors import ANGLE_CHANNELS, CHANNEL_STATE, CHANNELS, SensorConfig, SensorStream
+from udrobot_ctrl.control.sensors import (
+    ANGLE_CHANNELS,
+    CHANNEL_STATE,
+    CHANNELS,
+    SENSORS,
+    SensorConfig,
+    SensorStream,
+    channel_index,
+)
 from udrobot_ctrl.dynamics.plant import PlantParameters, plant_parameters
 
 STATE_NAMES = ("x", "y", "z", "phi", "theta", "psi", "u", "v", "w", "p", "q", "r")
@@ -98,10 +122,69 @@ def _wrap(a):
     return (a + np.pi) % (2 * np.pi) - np.pi
 
 
+@dataclass(frozen=True)
+class ChannelStats:
+    """Innovation-gating statistics of one channel over a filter run.
+
+    Attributes
+    ----------
+    channel : str
+        Channel name (:data:`udrobot_ctrl.control.sensors.CHANNELS`).
+    samples : int
+        Samples presented to the filter (present and not excluded).
+    rejected : int
+        Samples rejected by the innovation gate.
+    reinitialisations : int
+        Times the channel was re-initialised after ``reject_timeout_s`` of continuous rejection.
+    longest_rejection_s : float
+        Longest run of consecutive rejections, s (time from its first to its last rejected sample).
+    """
+
+    channel: str
+    samples: int
+    rejected: int
+    reinitialisations: int
+    longest_rejection_s: float
+
+    @property
+    def rejection_rate(self) -> float:
+        """Rejected / presented samples (NaN without samples)."""
+        return self.rejected / self.samples if self.samples else float("nan")
+
+
+@dataclass(frozen=True)
+class ChannelFault:
+    """A channel rejected at every sample for longer than the filter's ``reject_timeout_s``.
+
+    Attributes
+    ----------
+    t : float
+        Time of the report (the sample that was then accepted with inflated covariance), s.
+    channel : str
+    since : float
+        Time of the first rejected sample of the run, s.
+    rejections : int
+        Consecutive rejected samples before the report.
+    innovation : float
+        Measurement minus prediction at the report, in the channel's unit (m, rad, m/s, rad/s).
+    action : str
+        What the filter did.
+    """
+
+    t: float
+    channel: str
+    since: float
+    rejections: int
+    innovation: float
+    action: str = "re-initialised: state decorrelated, variance R + y^2, sample accepted"
+
+
 @dataclass
 class EKFResult:
     """Filter output over a stream: estimates ``x`` (n, 12), standard deviations ``sigma`` (n, 12),
-    ``nis`` (n,) (NaN without measurements), measurement dimension ``dof`` (n,), ``status`` per step."""
+    ``nis`` (n,) of the accepted measurements (NaN without any), their dimension ``dof`` (n,), ``status`` per
+    step, ``rejected`` (n, 13) samples refused by the innovation gate, ``channels`` the per-channel gating
+    statistics and ``channel_faults`` the channels re-initialised after continuous rejection."""
 
     t: np.ndarray
     x: np.ndarray
@@ -110,6 +193,9 @@ class EKFResult:
     dof: np.ndarray
     status: list
     resets: int
+    rejected: np.ndarray | None = None
+    channels: tuple = ()
+    channel_faults: tuple = ()
 
     def nis_mean(self) -> float:
         """Mean NIS over updated steps (to compare with the mean measurement dimension)."""
@@ -160,10 +246,21 @@ class UDrobotEKF:
         Consecutive blocks above the divergence bound before the filter re-initialises.
     compile : bool
         gcc-compile the generated step/Jacobian function (cached; falls back to casadi's VM).
+    gate_probability : float
+        Probability that the innovation gate rejects a correct sample of one sensor (chi-square upper tail,
+        dof = the sensor's present channels); 1e-4 (assumed: ~1 false rejection per sensor in 8 min at
+        20 Hz). 0 disables gating.
+    reject_timeout_s : float
+        s. A channel rejected at every sample for longer than this (2 s, assumed: longer than the frozen-
+        sensor window of :mod:`udrobot_ctrl.control.faults` and than any credible spike burst) is reported and
+        re-initialised.
+    reject_min_samples : int
+        ... and for at least this many samples (3: a 1 Hz USBL needs 3 s).
     """
 
     def __init__(self, vehicle, dt=0.05, sensors: SensorConfig | None = None, x0=None, P0=None, noise=None,
-                 nis_window=20, alpha=0.05, divergence_alpha=1e-3, divergence_blocks=2, compile=True):
+                 nis_window=20, alpha=0.05, divergence_alpha=1e-3, divergence_blocks=2, compile=True,
+                 gate_probability=1e-4, reject_timeout_s=2.0, reject_min_samples=3):
         self.params = vehicle if isinstance(vehicle, PlantParameters) else plant_parameters(vehicle)
         if not dt > 0:
             raise ValueError(f"dt must be > 0, got {dt}")
@@ -181,8 +278,20 @@ class UDrobotEKF:
         self.x0 = np.zeros(12) if x0 is None else np.asarray(x0, float).reshape(12)
         self.nis_window, self.alpha = int(nis_window), float(alpha)
         self.divergence_alpha, self.divergence_blocks = float(divergence_alpha), int(divergence_blocks)
-        self._cache: dict[bytes, tuple] = {}
+        if not 0 <= gate_probability < 1:
+            raise ValueError(f"gate_probability must be in [0, 1), got {gate_probability}")
+        if not reject_timeout_s > 0:
+            raise ValueError(f"reject_timeout_s must be > 0 s, got {reject_timeout_s}")
+        self.gate_probability = float(gate_probability)
+        self.reject_timeout_s, self.reject_min_samples = float(reject_timeout_s), int(reject_min_samples)
+        self._r = self.sigmas ** 2
+        self._sensor_of = np.empty(len(CHANNELS), int)
+        for g, (_, chans) in enumerate(SENSORS):
+            self._sensor_of[list(chans)] = g
+        self._gates: dict[int, float] = {}
         self._bounds: dict[int, tuple] = {}
+        self._layouts: dict[bytes, tuple] = {}
+        self.channel_enabled = np.ones(len(CHANNELS), bool)
         self.reset()
 
     # -- state --------------------------------------------------------------------------------------
@@ -192,12 +301,27 @@ class UDrobotEKF:
         self.kf.P = self.P0.copy()
         self._block_nis, self._block_dof, self._block_n = 0.0, 0, 0
         self._high_blocks = 0
-        self._last_z = None
         self.nis, self.dof = np.nan, 0
+        self.t = 0.0
         self.last_status = "ok"
         self.stats = {"steps": 0, "resets": 0, "divergences": 0, "inconsistent_blocks": 0, "blocks": 0,
-                      "status": "ok", "step_time_s": np.nan, "nis_block_mean": np.nan}
+                      "status": "ok", "step_time_s": np.nan, "nis_block_mean": np.nan, "rejected": 0,
+                      "channel_reinitialisations": 0}
         self.step_times: deque = deque(maxlen=100000)
+        nc = len(CHANNELS)
+        self._last_value = np.full(nc, np.nan)  # latest sample per channel
+        self._last_accepted = np.full(nc, np.nan)  # latest accepted sample per channel
+        self._n_samples = np.zeros(nc, int)
+        self._n_rejected = np.zeros(nc, int)
+        self._n_reinit = np.zeros(nc, int)
+        self._run = np.zeros(nc, int)  # consecutive rejections
+        self._run_since = np.full(nc, np.nan)
+        self._longest = np.zeros(nc)
+        self.rejected_now = np.zeros(nc, bool)
+        self._reopen = np.zeros(nc, bool)
+        self._gated_nis, self._gated_dof = 0.0, 0  # gated-out contribution of the last update to the NIS block
+        self._contribution = np.zeros(nc)  # per channel, of the last update
+        self.channel_faults: list[ChannelFault] = []
 
     @property
     def x(self) -> np.ndarray:
@@ -209,33 +333,41 @@ class UDrobotEKF:
         """Current covariance (12, 12)."""
         return self.kf.P
 
-    # -- measurement model ----------------------------------------------------------------------------
-    def _model(self, mask):
-        key = mask.tobytes()
-        m = self._cache.get(key)
-        if m is None:
-            idx = CHANNEL_STATE[mask]
-            H = np.zeros((len(idx), 12))
-            H[np.arange(len(idx)), idx] = 1.0
-            R = np.diag(self.sigmas[mask] ** 2)
-            ang = ANGLE_CHANNELS[mask]
+    # -- channels -----------------------------------------------------------------------------------
+    def exclude_channel(self, name: str):
+        """Stop using channel ``name`` (e.g. a sensor found frozen) until :meth:`include_channel`."""
+        self.channel_enabled[channel_index(name)] = False
 
-            def residual(z, hx, ang=ang):
-                d = z - hx
-                d[ang] = _wrap(d[ang])
-                return d
+    def include_channel(self, name: str):
+        """Use channel ``name`` again (its rejection run restarts)."""
+        i = channel_index(name)
+        self.channel_enabled[i] = True
+        self._run[i], self._run_since[i] = 0, np.nan
 
-            m = (H, R, (lambda x, H=H: H), (lambda x, idx=idx: x[idx]), residual, len(idx))
-            self._cache[key] = m
-        return m
+    def reopen_gates(self):
+        """After a change of the process model (e.g. a thruster fault found and accounted for): every channel
+        in a rejection run is re-initialised at its next sample instead of waiting for ``reject_timeout_s``
+        (the model that rejected it was wrong)."""
+        self._reopen |= self._run > 0
+
+    def channel_stats(self) -> tuple:
+        """:class:`ChannelStats` of every channel since the last :meth:`reset`."""
+        return tuple(ChannelStats(c, int(self._n_samples[i]), int(self._n_rejected[i]), int(self._n_reinit[i]),
+                                  float(self._longest[i])) for i, c in enumerate(CHANNELS))
 
     def _chi2_bounds(self, dof):
         b = self._bounds.get(dof)
         if b is None:
-            b = (chi2.ppf(self.alpha / 2, dof), chi2.ppf(1 - self.alpha / 2, dof), chi2.ppf(1 - self.divergence_alpha,
-                                                                                             dof))
-            self._bounds[dof] = b
+            b = self._bounds[dof] = (chi2.ppf(self.alpha / 2, dof), chi2.ppf(1 - self.alpha / 2, dof),
+                                     chi2.ppf(1 - self.divergence_alpha, dof))
         return b
+
+    def _gate(self, dof):
+        g = self._gates.get(dof)
+        if g is None:
+            g = self._gates[dof] = float(chi2.isf(self.gate_probability, dof)) if self.gate_probability > 0 \
+                else np.inf
+        return g
 
     # -- filter steps ---------------------------------------------------------------------------------
     def predict(self, thrust):
@@ -244,27 +376,154 @@ class UDrobotEKF:
         self.kf.predict(f)
         self.kf.x[5] = _wrap(self.kf.x[5])
 
+    def _layout(self, present):
+        """Per availability pattern (cached): channels, states, angle mask, R diagonal, H, sensor blocks by size."""
+        key = present.tobytes()
+        lay = self._layouts.get(key)
+        if lay is None:
+            ch = np.flatnonzero(present)
+            st = CHANNEL_STATE[ch]
+            H = np.zeros((ch.size, 12))
+            H[np.arange(ch.size), st] = 1.0
+            sensor = self._sensor_of[ch]
+            blocks: dict[int, list] = {}
+            for g in np.unique(sensor):
+                pos = np.flatnonzero(sensor == g)
+                blocks.setdefault(pos.size, []).append(pos)
+            blocks = {k: np.array(v) for k, v in blocks.items()}  # size -> (n_sensors, size) positions
+            lay = self._layouts[key] = (ch, st, ANGLE_CHANNELS[ch], self._r[ch], H, blocks)
+        return lay
+
     def update(self, z_row):
-        """Update with one row of channel values (13,), NaN where absent; returns the NIS (NaN if none)."""
+        """Gate and update with one row of channel values (13,), NaN where absent (see the module docstring).
+
+        Returns the NIS of the accepted channels (NaN if none); ``rejected_now`` (13,) marks the gated-out ones.
+        """
         z_row = np.asarray(z_row, float)
-        mask = np.isfinite(z_row)
-        if not mask.any():
+        present = np.isfinite(z_row) & self.channel_enabled
+        self.rejected_now = np.zeros(len(CHANNELS), bool)
+        self._gated_nis, self._gated_dof = 0.0, 0
+        if not present.any():
             self.nis, self.dof = np.nan, 0
             return np.nan
-        H, R, hjac, hx, residual, m = self._model(mask)
-        z = z_row[mask]
-        self._last_z = (mask, z)
         kf = self.kf
-        kf.update(z, hjac, hx, R=R, residual=residual)
+        ch, st, ang, r, H, blocks = self._layout(present)
+        y = z_row[ch] - kf.x[st]
+        if ang.any():
+            y[ang] = _wrap(y[ang])
+        S = kf.P[st[:, None], st] + np.diag(r)
+        self._last_value[ch] = z_row[ch]
+        self._n_samples[ch] += 1
+        SI = np.linalg.inv(S)
+        # a sensor's NIS never exceeds the joint NIS (marginal Mahalanobis distance <= joint): when the joint one
+        # is below the smallest gate, every sensor passes and the per-sensor test is skipped
+        if self.gate_probability <= 0 or float(y @ SI @ y) <= self._gate(min(blocks)):
+            accept = np.ones(ch.size, bool)
+        else:
+            accept = self._gate_sensors(ch, y, S, blocks)
+        if accept.all():
+            self._run[ch] = 0
+            self._run_since[ch] = np.nan
+            sa, ya, Sa, Ha, ra = st, y, S, H, r
+        else:
+            forced = self._reinitialise_stale(ch, y, accept)
+            if forced.any():  # P changed for the forced channels: innovation covariance again
+                S = kf.P[st[:, None], st] + np.diag(r)
+            a = np.flatnonzero(accept)
+            self.rejected_now[ch[~accept]] = True
+            if a.size == 0:
+                self.nis, self.dof = np.nan, 0
+                return np.nan
+            sa, ya, Sa, Ha, ra = st[a], y[a], S[a[:, None], a], H[a], r[a]
+            SI = np.linalg.inv(Sa)
+        self._last_accepted[ch[accept]] = z_row[ch[accept]]
+        K = kf.P[:, sa] @ SI
+        I_KH = np.eye(12) - K @ Ha
+        P = I_KH @ kf.P @ I_KH.T + (K * ra) @ K.T  # Joseph form, as filterpy
+        kf.P = 0.5 * (P + P.T)
+        kf.x = kf.x + K @ ya
         kf.x[5] = _wrap(kf.x[5])
-        y = kf.y
-        self.nis = float(y @ kf.SI @ y)
-        self.dof = m
+        kf.y, kf.S, kf.SI, kf.K = ya, Sa, SI, K
+        self.nis = float(ya @ SI @ ya)
+        self.dof = int(ya.size)
         return self.nis
 
-    def step(self, thrust, z_row):
-        """Predict with ``thrust`` then update with ``z_row``; never raises. Returns the estimate (12,)."""
+    def _gate_sensors(self, ch, y, S, blocks):
+        """Accept mask over the present channels ``ch``: per sensor NIS gate (batched over the sensors of one
+        size), then, for a rejected sensor, its worst channel is dropped until the rest passes."""
+        accept = np.ones(ch.size, bool)
+        if self.gate_probability <= 0:
+            return accept
+        failed = []
+        for size, pos in blocks.items():  # pos (n_sensors, size)
+            yb = y[pos]
+            Sb = S[pos[:, :, None], pos[:, None, :]]
+            nis = np.einsum("ki,ki->k", yb, np.linalg.solve(Sb, yb[..., None])[..., 0])
+            failed += [pos[j] for j in np.flatnonzero(nis > self._gate(size))]
+        for pos in failed:
+            while pos.size:
+                yg = y[pos]
+                Sg = S[pos[:, None], pos]
+                nis = float(yg @ np.linalg.solve(Sg, yg))
+                if nis <= self._gate(pos.size):
+                    break
+                worst = int(np.argmax(yg ** 2 / np.diag(Sg)))
+                accept[pos[worst]] = False
+                contribution = min(yg[worst] ** 2 / Sg[worst, worst], self._gate(1))
+                self._gated_nis += contribution
+                self._gated_dof += 1
+                self._contribution[ch[pos[worst]]] = contribution
+                pos = np.delete(pos, worst)
+        return accept
+
+    def _reinitialise_stale(self, ch, y, accept):
+        """Count rejection runs; a channel rejected for longer than the timeout is reported and re-initialised
+        (state decorrelated, variance R + y^2) and accepted. Returns the mask of such channels over ``ch``."""
+        forced = np.zeros(ch.size, bool)
+        rej = ~accept
+        ok = ch[accept]
+        self._run[ok], self._run_since[ok] = 0, np.nan
+        if not rej.any():
+            return forced
+        bad = ch[rej]
+        self._n_rejected[bad] += 1
+        self.stats["rejected"] += int(bad.size)
+        new = np.isnan(self._run_since[bad])
+        self._run_since[bad[new]] = self.t
+        self._run[bad] += 1
+        self._longest[bad] = np.maximum(self._longest[bad], self.t - self._run_since[bad])
+        for j in np.flatnonzero(rej):
+            i = ch[j]
+            timeout = self._run[i] >= self.reject_min_samples and self.t - self._run_since[i] >= self.reject_timeout_s
+            if timeout or self._reopen[i]:
+                self._reopen[i] = False
+                s = CHANNEL_STATE[i]
+                P = self.kf.P
+                var = self._r[i] + y[j] ** 2
+                P[s, :] = 0.0
+                P[:, s] = 0.0
+                P[s, s] = var
+                self.channel_faults.append(ChannelFault(
+                    t=self.t, channel=CHANNELS[i], since=float(self._run_since[i]), rejections=int(self._run[i]),
+                    innovation=float(y[j]), action=ChannelFault.action if timeout else
+                    "re-initialised after a process-model change (reopen_gates): variance R + y^2, sample accepted"))
+                self._n_reinit[i] += 1
+                self.stats["channel_reinitialisations"] += 1
+                self._n_rejected[i] -= 1
+                self.stats["rejected"] -= 1
+                self._run[i], self._run_since[i] = 0, np.nan
+                accept[j] = True
+                forced[j] = True
+                # the forced channel no longer counts as gated out in the NIS block
+                self._gated_nis = max(0.0, self._gated_nis - self._contribution[i])
+                self._gated_dof = max(0, self._gated_dof - 1)
+        return forced
+
+    def step(self, thrust, z_row, t=None):
+        """Predict with ``thrust`` then update with ``z_row`` taken at time ``t`` (s; default the previous
+        time + dt); never raises. Returns the estimate (12,)."""
         t0 = time.perf_counter()
+        self.t = self.t + self.dt if t is None else float(t)
         try:
             self.predict(thrust)
             self.update(z_row)
@@ -283,9 +542,9 @@ class UDrobotEKF:
         if not (np.all(np.isfinite(kf.x)) and np.all(np.isfinite(kf.P))):
             return self._reinitialise("non-finite state or covariance")
         status = self.last_status if not self.last_status.startswith("diverged") else "ok"
-        if self.dof:
-            self._block_nis += self.nis
-            self._block_dof += self.dof
+        if self.dof or self._gated_dof:
+            self._block_nis += (self.nis if self.dof else 0.0) + self._gated_nis
+            self._block_dof += self.dof + self._gated_dof
             self._block_n += 1
         if self._block_n >= self.nis_window:
             lo, hi, div = self._chi2_bounds(self._block_dof)
@@ -310,9 +569,10 @@ class UDrobotEKF:
         self.stats["divergences"] += 1
         self.stats["resets"] += 1
         x = np.where(np.isfinite(self.kf.x), self.kf.x, 0.0)
-        if self._last_z is not None:
-            mask, z = self._last_z
-            x[CHANNEL_STATE[mask]] = z
+        z = np.where(self._run >= self.reject_min_samples, self._last_value, self._last_accepted)
+        z = np.where(np.isfinite(z), z, self._last_value)
+        have = np.isfinite(z) & self.channel_enabled
+        x[CHANNEL_STATE[have]] = z[have]
         self.kf.x = x
         self.kf.P = self.P0.copy()
         self._block_nis, self._block_dof, self._block_n = 0.0, 0, 0
@@ -329,18 +589,22 @@ class UDrobotEKF:
         if thrusts.ndim != 2 or len(thrusts) < n - 1:
             raise ValueError(f"thrusts must be ({n - 1}, k) for a stream of {n} samples, got {thrusts.shape}")
         xs, sd, nis, dof, status = np.empty((n, 12)), np.empty((n, 12)), np.full(n, np.nan), np.zeros(n, int), []
+        rejected = np.zeros((n, len(CHANNELS)), bool)
+        ts = np.asarray(stream.t, float)
         for k in range(n):
             if k == 0:
+                self.t = float(ts[0])
                 self.update(stream.values[0])
                 self.last_status = "ok"
             else:
-                self.step(thrusts[k - 1], stream.values[k])
+                self.step(thrusts[k - 1], stream.values[k], t=ts[k])
             xs[k] = self.kf.x
             sd[k] = np.sqrt(np.clip(np.diag(self.kf.P), 0.0, None))
             nis[k], dof[k] = self.nis, self.dof
+            rejected[k] = self.rejected_now
             status.append(self.last_status)
-        return EKFResult(t=np.asarray(stream.t), x=xs, sigma=sd, nis=nis, dof=dof, status=status,
-                         resets=self.stats["resets"])
+        return EKFResult(t=ts, x=xs, sigma=sd, nis=nis, dof=dof, status=status, resets=self.stats["resets"],
+                         rejected=rejected, channels=self.channel_stats(), channel_faults=tuple(self.channel_faults))
 
 
 def ekf_on_trajectory(filter_model, t, x, u, dt=0.05, sensors: SensorConfig | None = None, seed=0, **ekf_options):

@@ -37,11 +37,19 @@ the Gauss-Newton QP (exact Hessian for this least-squares cost) is solved by OSQ
 > 1 iterates to convergence. ``method='ipopt'`` solves the full NLP with ipopt (the correctness
 reference, ~10x slower).
 
-Failure handling: a non-finite state, a solver exception, an infeasible or unsolved QP/NLP never
-raises in the loop; the controller applies the next move of the previous plan (shifted solution) while
-one is left, else the trim thrust (hover/cruise trim, clipped), and records it in ``last_status`` and
-``stats['fallbacks']`` (a ``RuntimeWarning`` is issued on the first fallback and then every 100th).
-Commands are always clipped to the thrust limits.
+Failure handling: a non-finite or implausible state (outside :data:`STATE_LIMITS`, e.g. the 1e44 m of an
+estimator that swallowed a sensor spike), a solver exception, non-finite QP data, an infeasible or unsolved
+QP/NLP never raises in the loop; the controller applies the next move of the previous plan (shifted
+solution) while one is left, else the trim thrust (hover/cruise trim, clipped), and records it in
+``last_status`` and ``stats['fallbacks']`` (a ``RuntimeWarning`` is issued on the first fallback and then
+every 100th). Commands are always clipped to the thrust limits.
+
+Recovery: an implausible state is rejected *before* it reaches the solver (OSQP silently keeps its old data
+when an update fails validation, and would "solve" the stale problem). After any failed solve the
+solver state is reset (:meth:`SparseMPCQP.reset_solver`: primal/dual iterates zeroed, ADMM step ``rho``
+back to its setting) and the shifted trajectories are dropped, so the next call with a sane state solves
+from a cold start: without this, OSQP's iterates and adapted ``rho`` from a poisoned solve made every
+later solve hit the iteration limit (``stats['solver_resets']`` counts the resets).
 """
 from __future__ import annotations
 
@@ -68,6 +76,14 @@ DEFAULT_STATE_WEIGHTS = {"z": 100.0, "psi": 100.0, "u": 100.0, "phi": 100.0, "th
 DEFAULT_THRUST_WEIGHT = 1.0 / 20.0 ** 2
 
 _OK_STATUSES = ("solved", "solved inaccurate")
+
+#: Plausible envelope of a state handed to the MPC (assumed; anything outside is an estimator or wiring fault,
+#: not a vehicle state): |x|, |y|, |z| <= 1e4 m (any ROV work area), |phi|, |theta| <= pi (Euler angles are
+#: wrapped), |psi| <= 1e3 rad (unwrapped headings are allowed), |u|, |v|, |w| <= 20 m/s (10x a BlueROV2-class
+#: top speed), |p|, |q|, |r| <= 50 rad/s.
+STATE_LIMITS = np.array([1e4, 1e4, 1e4, np.pi, np.pi, 1e3, 20.0, 20.0, 20.0, 50.0, 50.0, 50.0])
+#: Largest magnitude accepted in QP data (OSQP treats |values| >= 1e30 as infinite; 1e20 keeps a margin).
+_QP_DATA_LIMIT = 1e20
 
 
 def wrap_angle(a):
@@ -131,6 +147,21 @@ def _weights(W, n, default, names=None):
     if W.shape == (n, n):
         return 0.5 * (W + W.T)
     raise ValueError(f"weight must be a scalar, ({n},), ({n}, {n}) or a dict, got shape {W.shape}")
+
+
+def implausible_state(x) -> str | None:
+    """Why ``x`` cannot be a vehicle state (wrong shape, non-finite, outside :data:`STATE_LIMITS`), or None."""
+    x = np.asarray(x, dtype=float).reshape(-1)
+    if x.shape != (12,):
+        return f"malformed state (shape {x.shape}, expected (12,))"
+    bad = ~np.isfinite(x)
+    if bad.any():
+        return f"non-finite state ({', '.join(STATE_NAMES[i] for i in np.flatnonzero(bad))})"
+    out = np.abs(x) > STATE_LIMITS
+    if out.any():
+        i = int(np.flatnonzero(out)[0])
+        return f"implausible state ({STATE_NAMES[i]} = {x[i]:.3g}, limit +-{STATE_LIMITS[i]:.3g})"
+    return None
 
 
 def trim_thrust(p: PlantParameters, x_ref) -> np.ndarray:
@@ -336,8 +367,19 @@ class SparseMPCQP:
         return self._values[self._perm] * self._entry_scale
 
     def update(self, A, B, c, x0, xref, uref):
-        """Update the QP data: dynamics (A, B, affine c (N, nx)), initial state, references (N+1, nx), (N, nu)."""
+        """Update the QP data: dynamics (A, B, affine c (N, nx)), initial state, references (N+1, nx), (N, nu).
+
+        Raises
+        ------
+        FloatingPointError
+            If any of the data is non-finite or larger than 1e20 in magnitude; the solver is then left
+            untouched (OSQP would reject the update and silently keep solving its previous data).
+        """
         nx, N = self.nx, self.N
+        for name, a in (("A", A), ("B", B), ("c", c), ("x0", x0), ("reference", xref), ("trim thrust", uref)):
+            a = np.asarray(a, float)
+            if not np.all(np.abs(a) < _QP_DATA_LIMIT):  # False for NaN too
+                raise FloatingPointError(f"QP data {name} is non-finite or larger than {_QP_DATA_LIMIT:.0e}")
         Ax = self.set_dynamics(A, B)
         self.l[:nx] = x0
         self.u[:nx] = x0
@@ -357,6 +399,17 @@ class SparseMPCQP:
 
     def stack(self, X, U):
         return np.concatenate([np.asarray(X).reshape(-1), np.asarray(U).reshape(-1)])
+
+    def set_thrust_bounds(self, j, lo, hi):
+        """Bounds of thruster ``j`` (N) at every stage (e.g. ``lo == hi`` for a thruster stuck at that thrust)."""
+        r0 = self.nx * (self.N + 1)
+        rows = r0 + np.arange(self.N) * self.nu + int(j)
+        self.l[rows], self.u[rows] = float(lo), float(hi)
+
+    def reset_solver(self):
+        """Forget the solver's iterates after a failure: zero primal/dual warm start, ``rho`` back to its setting."""
+        self.solver.warm_start(x=np.zeros(self.n), y=np.zeros(self.m))
+        self.solver.update_settings(rho=self.settings.rho)
 
     def solve(self, warm=None):
         """Solve; returns (status string, primal z or None, OSQP info)."""
@@ -404,8 +457,8 @@ class _MPCBase:
         self._plan_age = 0
         self.last_command = None
         self.last_status = "not run"
-        self.stats = {"solves": 0, "fallbacks": 0, "status": "not run", "solve_time_s": np.nan,
-                      "call_time_s": np.nan, "iterations": 0}
+        self.stats = {"solves": 0, "fallbacks": 0, "solver_resets": 0, "status": "not run",
+                      "solve_time_s": np.nan, "call_time_s": np.nan, "iterations": 0}
         self.call_times: list[float] = []  # wall time of every call (linearisation + QP update + solve), s
         self.solve_times: list[float] = []  # solver-reported time of every call (OSQP solve / ipopt total), s
 
@@ -435,7 +488,7 @@ class _MPCBase:
         if f is None:
             x = np.zeros(12)
             x[6] = surge
-            f = self._trim_cache[surge] = trim_thrust(self.params, x)
+            f = self._trim_cache[surge] = np.clip(trim_thrust(self.params, x), self.f_min, self.f_max)
         return f
 
     # -- fallback -----------------------------------------------------------------------------------
@@ -475,6 +528,40 @@ class _MPCBase:
         self._plan = None
         self._plan_age = 0
         self.last_command = None
+
+    def set_thruster_limits(self, j, lo, hi):
+        """Reconfigure after a thruster fault: thruster ``j`` (0-based) can only produce ``[lo, hi]`` N from now on
+        (a dead thruster: ``0, 0``; stuck at ``a``: ``a, a``). The prediction model then matches the vehicle, so
+        the other thrusters take over what the faulty one no longer does. Applies to the next call."""
+        j = int(j)
+        if not 0 <= j < self.nu or not lo <= hi:
+            raise ValueError(f"thruster index must be in [0, {self.nu}) and lo <= hi; got {j}, [{lo}, {hi}]")
+        self.f_min, self.f_max = self.f_min.copy(), self.f_max.copy()
+        self.f_min[j], self.f_max[j] = float(lo), float(hi)
+        qp = getattr(self, "qp", None)
+        if qp is not None:
+            qp.set_thrust_bounds(j, lo, hi)
+        if getattr(self, "_lbx", None) is not None:
+            n0 = 12 * (self.N + 1)
+            self._lbx[n0 + j::self.nu], self._ubx[n0 + j::self.nu] = float(lo), float(hi)
+        self._trim_cache.clear()
+        self._plan = None
+        self.last_command = None
+        for name in ("_z", "_X", "_U"):  # warm starts that assume the old limits
+            if hasattr(self, name):
+                setattr(self, name, None)
+        self._forget_solver_state()
+
+    def _forget_solver_state(self):
+        """After a failed solve: drop the shifted trajectories and reset the QP solver's iterates (the plan of
+        the last good solve is kept for the fallback)."""
+        self.stats["solver_resets"] += 1
+        qp = getattr(self, "qp", None)
+        if qp is not None:
+            try:
+                qp.reset_solver()
+            except Exception:  # noqa: BLE001 - the fallback must still run; the next update re-validates
+                pass
 
 
 class LinearMPC(_MPCBase):
@@ -534,8 +621,9 @@ class LinearMPC(_MPCBase):
         t0 = time.perf_counter()
         x = np.asarray(x, dtype=float).reshape(-1)
         self.stats["solves"] += 1
-        if x.shape != (12,) or not np.all(np.isfinite(x)):
-            return self._finish(t0, self._fallback(t, np.zeros(12), "non-finite or malformed state"), self.last_status)
+        bad = implausible_state(x)
+        if bad is not None:  # rejected before it reaches the solver: nothing to recover from afterwards
+            return self._finish(t0, self._fallback(t, np.zeros(12), bad), self.last_status)
         try:
             self.build_qp(t, x)
             warm = None
@@ -544,9 +632,12 @@ class LinearMPC(_MPCBase):
                 warm = self.qp.stack(np.vstack([X[1:], X[-1:]]), np.vstack([U[1:], U[-1:]]))
             status, z, info = self.qp.solve(warm)
         except Exception as exc:  # noqa: BLE001 - never throw in the loop
+            self._z = None
+            self._forget_solver_state()
             return self._finish(t0, self._fallback(t, x, f"{type(exc).__name__}: {exc}"), self.last_status)
         if z is None:
             self._z = None
+            self._forget_solver_state()
             return self._finish(t0, self._fallback(t, x, f"OSQP status {status!r}"), self.last_status,
                                 info.solve_time, info.iter)
         self._z = z
@@ -707,16 +798,19 @@ class NonlinearMPC(_MPCBase):
         t0 = time.perf_counter()
         x = np.asarray(x, dtype=float).reshape(-1)
         self.stats["solves"] += 1
-        if x.shape != (12,) or not np.all(np.isfinite(x)):
-            return self._finish(t0, self._fallback(t, np.zeros(12), "non-finite or malformed state"), self.last_status)
+        bad = implausible_state(x)
+        if bad is not None:  # rejected before it reaches the solver
+            return self._finish(t0, self._fallback(t, np.zeros(12), bad), self.last_status)
         try:
             solve = self._solve_rti if self.method == "rti" else self._solve_ipopt
             status, X, U, st, iters = solve(t, x)
         except Exception as exc:  # noqa: BLE001 - never throw in the loop
             self._X = self._U = None
+            self._forget_solver_state()
             return self._finish(t0, self._fallback(t, x, f"{type(exc).__name__}: {exc}"), self.last_status)
         if X is None:
             self._X = self._U = None
+            self._forget_solver_state()
             return self._finish(t0, self._fallback(t, x, f"solver status {status!r}"), self.last_status, st, iters)
         self._X, self._U = X, U
         self._plan, self._plan_age = U.copy(), 0

@@ -29,6 +29,16 @@ CHANNEL_STATE = np.array([2, 3, 4, 5, 9, 10, 11, 6, 7, 8, 0, 1, 2])
 ANGLE_CHANNELS = np.array([False, True, True, True] + [False] * 9)
 DVL = slice(7, 10)
 USBL = slice(10, 13)
+#: physical sensors and the channels each one delivers (innovation gating is done per sensor)
+SENSORS = (("depth", (0,)), ("attitude", (1, 2, 3)), ("gyro", (4, 5, 6)), ("dvl", (7, 8, 9)), ("usbl", (10, 11, 12)))
+
+
+def channel_index(name: str) -> int:
+    """Index of a channel by name (see :data:`CHANNELS`); ``ValueError`` naming the valid ones otherwise."""
+    try:
+        return CHANNELS.index(name)
+    except ValueError:
+        raise ValueError(f"unknown sensor channel {name!r}; expected one of {', '.join(CHANNELS)}") from None
 
 
 @dataclass(frozen=True)

@@ -133,3 +133,100 @@ def test_filter_model_mismatch_shows_in_rmse_and_nis():
     assert matched["resets"] == 0
     with pytest.raises(ValueError, match="multiple"):
         ekf_on_trajectory(plant, res.t, res.x, res.u, dt=0.07)
+
+
+# ----------------------------------------------------------------------------- innovation gating (issue 16)
+def _gated_run(values_edit, n=400, seed=4, **ekf_kw):
+    t, x, f = _truth(n, seed=seed)
+    cfg = SensorConfig(seabed_depth=30.0)
+    stream = measure(t, x, cfg, seed=seed)
+    values_edit(t, stream.values)
+    ekf = UDrobotEKF(load_model(MODEL), DT, sensors=cfg, **ekf_kw)
+    return t, x, ekf.run(stream, f[:-1]), cfg
+
+
+def test_300m_depth_spike_is_rejected_and_estimate_stays_within_sensor_noise():
+    """The issue's spike: one 300 m depth sample. Gated out, counted, the estimate never moves beyond
+    a few sensor sigmas of the truth, no filter reset."""
+    iz = CHANNELS.index("depth")
+    k_spike = 200
+
+    def spike(t, v):
+        v[k_spike, iz] = 300.0
+
+    t, x, res, cfg = _gated_run(spike)
+    err = np.abs(res.x[:, 2] - x[:, 2])
+    assert err[20:].max() < 4 * cfg.depth_sigma  # 4 sigma of the 1 cm sensor, everywhere after the start
+    assert err[k_spike] < 4 * cfg.depth_sigma
+    assert res.rejected[k_spike, iz] and res.rejected[:, iz].sum() == 1
+    depth = next(c for c in res.channels if c.channel == "depth")
+    assert depth.rejected == 1 and depth.reinitialisations == 0 and depth.samples == len(t)
+    assert res.resets == 0 and not res.channel_faults
+    # the same spike without gating: the estimate jumps by metres (the failure the gate prevents)
+    _, _, raw, _ = _gated_run(spike, gate_probability=0.0)
+    assert np.abs(raw.x[k_spike, 2] - x[k_spike, 2]) > 10.0
+
+
+def test_spike_in_one_axis_keeps_the_other_axes_of_that_sensor():
+    """A 2 m/s spike on the DVL's u axis and a 5 rad/s spike on the gyro's p: only those channels are dropped."""
+    iu, ip = CHANNELS.index("dvl_u"), CHANNELS.index("p")
+
+    def spikes(t, v):
+        k_dvl = np.flatnonzero(np.isfinite(v[:, iu]) & (t > 8.0))[0]
+        v[k_dvl, iu] += 2.0
+        v[250, ip] += 5.0
+
+    t, x, res, cfg = _gated_run(spikes)
+    k_dvl = np.flatnonzero(res.rejected[:, iu])
+    assert k_dvl.size == 1 and t[k_dvl[0]] > 8.0
+    assert not res.rejected[k_dvl[0], [iu + 1, iu + 2]].any()  # dvl_v, dvl_w of the same ping used
+    assert np.flatnonzero(res.rejected[:, ip]).tolist() == [250]
+    assert not res.rejected[250, [ip + 1, ip + 2]].any()
+    assert np.abs(res.x[:, 6] - x[:, 6]).max() < 5 * cfg.dvl_sigma
+    assert np.abs(res.x[:, 9] - x[:, 9]).max() < 5 * cfg.rate_sigma
+
+
+def test_gate_rarely_rejects_correct_samples():
+    """On clean data the false-rejection rate follows gate_probability (1e-4 per sensor sample)."""
+    t, x, res, _ = _gated_run(lambda t, v: None, n=600)
+    sensor_samples = sum(c.samples for c in res.channels) / 2.5  # ~2.5 channels per sensor sample
+    expected = 1e-4 * sensor_samples
+    assert res.rejected.sum() <= max(3, 10 * expected)
+    assert res.resets == 0
+
+
+def test_persistent_jump_is_reported_and_the_channel_is_not_locked_out():
+    """A real 0.5 m jump of the depth reading (sensor re-zeroed) is rejected at first, then reported as a
+    ChannelFault after reject_timeout_s and followed: the filter must not ignore a sensor forever."""
+    iz = CHANNELS.index("depth")
+    t_jump = 8.0
+
+    def jump(t, v):
+        v[t >= t_jump, iz] += 0.5
+
+    t, x, res, cfg = _gated_run(jump, n=500)
+    faults = [f for f in res.channel_faults if f.channel == "depth"]
+    assert faults, "the depth channel's continuous rejection must be reported"
+    f0 = faults[0]
+    assert t_jump <= f0.since < t_jump + 0.2
+    assert 2.0 <= f0.t - f0.since <= 2.0 + 2 * DT and f0.rejections >= 3  # reject_timeout_s = 2 s
+    assert abs(f0.innovation - 0.5) < 0.1
+    late = t > f0.t + 1.0  # afterwards the filter follows the (offset) sensor and accepts it again
+    assert np.abs(res.x[late, 2] - (x[late, 2] + 0.5)).max() < 5 * cfg.depth_sigma
+    assert res.rejected[late, iz].mean() < 0.01
+    depth = next(c for c in res.channels if c.channel == "depth")
+    assert depth.reinitialisations == len(faults) and depth.longest_rejection_s >= 1.9
+
+
+def test_excluded_channel_is_not_used():
+    ekf = UDrobotEKF(load_model(MODEL), DT)
+    ekf.exclude_channel("depth")
+    z = np.full(len(CHANNELS), np.nan)
+    z[CHANNELS.index("depth")] = 3.0
+    ekf.step(np.zeros(4), z)
+    assert np.isnan(ekf.nis) and abs(ekf.x[2]) < 0.01
+    ekf.include_channel("depth")
+    ekf.step(np.zeros(4), np.where(np.isfinite(z), 0.02, np.nan))
+    assert ekf.dof == 1
+    with pytest.raises(ValueError, match="unknown sensor channel"):
+        ekf.exclude_channel("pressure")

@@ -143,3 +143,111 @@ def test_bad_reference_is_reported():
     v = load_model(DESIGN)
     with pytest.raises(ValueError, match="not a state"):
         LinearMPC(v, {"depth_m": 1.0})
+
+
+def _make(kind, reference, **kw):
+    v = load_model(DESIGN)
+    if kind == "lmpc":
+        return LinearMPC(v, reference, **kw)
+    return NonlinearMPC(v, reference, method=kind, **kw)
+
+
+@pytest.mark.parametrize("kind", ["lmpc", "rti", "ipopt"])
+def test_poisoned_states_cost_only_their_own_calls(kind):
+    """Issue 16: one 1e44 state (an EKF that swallowed a 300 m depth spike) made every later solve fall back.
+    Now the poisoned calls fall back (previous plan) and every sane call before and after solves."""
+    ctrl = _make(kind, {"z": 1.0, "psi": 0.3}, horizon=10 if kind == "ipopt" else 20)
+    x = np.zeros(12)
+    x[2] = 0.8
+    poison = {3: 1e44, 4: np.nan, 6: np.inf, 7: -1e44, 9: "all"}  # call index -> poisoned value of z (or all states)
+    n_calls = 14 if kind == "ipopt" else 30
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        for k in range(n_calls):
+            xk = x.copy()
+            if k in poison:
+                xk[:] = 1e44 if poison[k] == "all" else xk
+                xk[2] = 1e44 if poison[k] == "all" else poison[k]
+            f = ctrl(0.05 * k, xk)
+            assert np.all(np.isfinite(f)) and np.all(f >= ctrl.f_min) and np.all(f <= ctrl.f_max)
+            if k in poison:
+                assert ctrl.last_status.startswith("fallback (shifted previous solution)")
+                assert "z" in ctrl.last_status or "x = " in ctrl.last_status  # names the offending state
+            else:
+                assert not ctrl.last_status.startswith("fallback"), (k, ctrl.last_status)
+    assert ctrl.stats["fallbacks"] == len(poison) and ctrl.stats["solves"] == n_calls
+
+
+@pytest.mark.parametrize("kind", ["lmpc", "rti"])
+def test_qp_data_is_validated_before_it_reaches_osqp(kind, monkeypatch):
+    """Second line of defence: with the plausibility envelope switched off, a 1e44 state makes non-finite or
+    1e30-scale QP data, which must be refused before OSQP (which would keep its old data and 'solve' it)."""
+    import udrobot_ctrl.control.mpc as mpc
+
+    monkeypatch.setattr(mpc, "STATE_LIMITS", np.full(12, np.inf))
+    ctrl = _make(kind, {"z": 1.0}, horizon=20)
+    x = np.zeros(12)
+    x[2] = 0.8
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        ctrl(0.0, x)
+        bad = x.copy()
+        bad[8] = 1e44
+        ctrl(0.05, bad)
+        assert ctrl.last_status.startswith("fallback") and "FloatingPointError" in ctrl.last_status
+        for k in range(2, 12):
+            ctrl(0.05 * k, x)
+            assert not ctrl.last_status.startswith("fallback"), ctrl.last_status
+    assert ctrl.stats["fallbacks"] == 1 and ctrl.stats["solver_resets"] == 1
+
+
+@pytest.mark.parametrize("kind", ["lmpc", "rti"])
+def test_infeasible_solve_then_feasible_state_solves_again(kind):
+    """An infeasible QP (depth ceiling 0.5 m, vehicle at 2 m) falls back; the next feasible state solves."""
+    ctrl = _make(kind, {"z": 0.3}, horizon=10, state_bounds={"z": (0.0, 0.5)})
+    x = np.zeros(12)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        for k, z in enumerate([0.3, 2.0, 2.0, 0.35, 0.3, 0.3]):
+            x[2] = z
+            ctrl(0.05 * k, x)
+            assert ctrl.last_status.startswith("fallback") == (z > 1.0), (k, ctrl.last_status)
+    assert ctrl.stats["fallbacks"] == 2
+
+
+def test_reset_solver_clears_diverged_iterates():
+    """Diverged ADMM iterates (huge primal/dual, rho blown up) are forgotten by reset_solver."""
+    ctrl = LinearMPC(load_model(DESIGN), {"z": 1.0}, horizon=20)
+    x = np.zeros(12)
+    x[2] = 0.8
+    ctrl.build_qp(0.0, x)
+    _, z_ref, info_ref = ctrl.qp.solve()
+    qp = ctrl.qp
+    qp.solver.warm_start(x=np.full(qp.n, 1e25), y=np.full(qp.m, 1e25))
+    qp.solver.update_settings(rho=1e6)
+    status, _, _ = qp.solve()
+    assert status not in ("solved",)  # the poisoned solver does not converge
+    qp.reset_solver()
+    status, z, info = qp.solve()
+    assert status == "solved" and info.iter <= 2 * info_ref.iter + 50
+    np.testing.assert_allclose(qp.split(z)[1][0], qp.split(z_ref)[1][0], atol=0.1)
+
+
+@pytest.mark.parametrize("kind", ["lmpc", "rti", "ipopt"])
+def test_thruster_reconfiguration_after_a_fault(kind):
+    """set_thruster_limits(j, a, a): the plan holds thruster j at a (dead: 0 N, stuck: a) and the others take
+    over; the depth step still asks both vertical thrusters before, only thruster 3 after thruster 2 died."""
+    ctrl = _make(kind, {"z": 2.0}, horizon=10)
+    x = np.zeros(12)
+    x[2] = 0.5
+    f = ctrl(0.0, x)
+    assert f[2] > 5.0 and f[3] > 5.0
+    ctrl.set_thruster_limits(2, 0.0, 0.0)
+    f = ctrl(0.05, x)
+    assert not ctrl.last_status.startswith("fallback")
+    assert abs(f[2]) < 1e-3 and f[3] > 5.0
+    ctrl.set_thruster_limits(0, 7.0, 7.0)  # stuck horizontal thruster
+    f = ctrl(0.1, x)
+    assert not ctrl.last_status.startswith("fallback") and abs(f[0] - 7.0) < 1e-3
+    with pytest.raises(ValueError, match="thruster index"):
+        ctrl.set_thruster_limits(4, 0.0, 0.0)
