@@ -6,6 +6,7 @@ The initial state is the first row's measured state (missing channels -> 0, with
 """
 from __future__ import annotations
 
+import argparse
 import sys
 import warnings
 from pathlib import Path
@@ -21,11 +22,18 @@ DEFAULT_VOLTAGE = 12.0  # V, Cely 2019 sec. 3.1 nominal supply (used when the ru
 
 def register(subparsers):
     """Add the ``simulate`` sub-command."""
-    parser = subparsers.add_parser("simulate", help="replay a run's commanded inputs through the plant model")
+    parser = subparsers.add_parser(
+        "simulate", help="replay a run's commanded inputs through the plant model",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        description=__doc__.replace("``", "") + "\nWhat the model predicts for the commands the vehicle really "
+                    "received: compare --out with --input to see the sim-to-real gap (udrobot-ctrl diagnose "
+                    "explains it).\nRun logs are udrobot-run/1 (docs/formats/runlog.md).",
+        epilog="example: udrobot-ctrl simulate --model pendulum:chin --input pool.csv --out pool_sim.csv")
     parser.add_argument("--model", required=True, help=f"model name ({', '.join(MODEL_NAMES)}) or model file")
     parser.add_argument("--input", required=True, help="run to replay (udrobot-run/1 CSV or a log io can convert)")
     parser.add_argument("--out", required=True, help="simulated run to write (udrobot-run/1 CSV)")
-    parser.add_argument("--method", choices=("rk4", "solve_ivp"), default="rk4")
+    parser.add_argument("--method", choices=("rk4", "solve_ivp"), default="rk4",
+                        help="integrator: fixed-step RK4 sub-steps (default) or scipy solve_ivp (adaptive)")
     parser.add_argument("--max-step", type=float, default=0.01, help="largest RK4 sub-step, s (default 0.01)")
     parser.add_argument("--mapping", default=None, help="mapping for non-udrobot-run logs (see convert)")
     parser.set_defaults(func=run)

@@ -14,7 +14,9 @@ Estimation: for each plant B one data set is made by flying B with the LQR desig
 (:func:`udrobot_ctrl.control.ekf.ekf_on_trajectory`) built on model A filters B's simulated sensors (pressure
 depth, IMU, DVL); reported: RMSE of z (m), psi (rad), u (m/s) and the mean NIS.
 
-Pairs run in a ``concurrent.futures`` process pool (``--workers``, default 2). Outputs: the ``--json`` file
+Each controller is designed once per design model and flown on every plant; the designs (and the EKF per
+filter model) run in a ``concurrent.futures`` process pool (``--workers``), with a progress bar on a terminal.
+Outputs: the ``--json`` file
 holds exactly ``{"models", "results": [{design, plant, controller, iae, overshoot, settling_s, energy_J,
 saturation_s}], "ekf": [{filter_model, plant, rmse: {z, psi, u}, nis_mean}]}``; ``--out DIR`` gets
 ``compare.csv``, ``compare_ekf.csv``, ``compare.txt`` (readable tables, with skip/failure reasons),
@@ -25,7 +27,7 @@ from __future__ import annotations
 import json
 import os
 import time
-from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 
 import numpy as np
@@ -68,19 +70,21 @@ def _null_row(design, plant, kind, status):
     return row
 
 
-def _fly(kind, design, plant, mission):
-    """One controller run; returns (row with every metric, SimResult or None)."""
+def _fly(ctrl, kind, design, plant, mission):
+    """One flight of an already designed controller; returns (row with every metric, SimResult or None)."""
     from udrobot_ctrl.control.metrics import mission_metrics
-    from udrobot_ctrl.control.missions import make_controller, run_mission
+    from udrobot_ctrl.control.missions import run_mission
     from udrobot_ctrl.dynamics.sim import as_parameters
 
     t0 = time.perf_counter()
+    reset = getattr(ctrl, "reset", None)
+    if callable(reset):
+        reset()  # the same design flies on every plant: forget integrators, warm starts and plans
     try:
-        ctrl = make_controller(kind, design, mission, control_dt=CONTROL_DT)
         res = run_mission(ctrl, plant, mission, dt=SIM_DT, control_dt=CONTROL_DT)
     except FloatingPointError as exc:
         return _null_row(design, plant, kind, f"diverged: {exc}"), None
-    except Exception as exc:  # noqa: BLE001 - one failed design must not stop the matrix
+    except Exception as exc:  # noqa: BLE001 - one failed run must not stop the matrix
         return _null_row(design, plant, kind, f"failed: {type(exc).__name__}: {exc}"), None
     p = as_parameters(plant)
     m = mission_metrics(res, mission, p.f_min, p.f_max)
@@ -127,26 +131,68 @@ def _decimate(res, every=5):
     return {"t": res.t[::every], "z": res.x[::every, 2], "psi": res.x[::every, 5], "u": res.x[::every, 6]}
 
 
-def run_pair(design, plant, controllers, quick, with_ekf, keep_trajectory):
-    """All controllers (and the EKF) for one (design A, plant B) pair; worker function of the pool."""
+def run_design(kind, design, plants, quick, keep_trajectory):
+    """Design ``kind`` once on model ``design`` and fly it on every plant; worker function of the pool.
+
+    Returns (rows, trajectories); the trajectory of the matched pair (design == plant) is kept when asked.
+    """
+    from udrobot_ctrl.control.missions import make_controller
+
     mission = standard_mission(quick)
+    ok, why = controller_available(kind)
+    if not ok:
+        return [_null_row(design, b, kind, f"skipped: {why}") for b in plants], {}
+    try:
+        ctrl = make_controller(kind, design, mission, control_dt=CONTROL_DT)
+    except FloatingPointError as exc:
+        return [_null_row(design, b, kind, f"design diverged: {exc}") for b in plants], {}
+    except Exception as exc:  # noqa: BLE001 - one failed design must not stop the matrix
+        return [_null_row(design, b, kind, f"design failed: {type(exc).__name__}: {exc}") for b in plants], {}
+    rows, trajs = [], {}
+    for plant in plants:
+        row, res = _fly(ctrl, kind, design, plant, mission)
+        rows.append(row)
+        if keep_trajectory and res is not None and plant == design:
+            trajs[(kind, design, plant)] = _decimate(res)
+    return rows, trajs
+
+
+def run_filter(design, plants, quick):
+    """The EKF built on ``design`` on the data of every plant; worker function of the pool."""
+    mission = standard_mission(quick)
+    return [_estimate(design, b, mission) for b in plants]
+
+
+def run_pair(design, plant, controllers, quick, with_ekf, keep_trajectory):
+    """All controllers (and the EKF) for one (design A, plant B) pair, in this process."""
     rows, trajs = [], {}
     for kind in controllers:
-        ok, why = controller_available(kind)
-        if not ok:
-            rows.append(_null_row(design, plant, kind, f"skipped: {why}"))
-            continue
-        row, res = _fly(kind, design, plant, mission)
-        rows.append(row)
-        if keep_trajectory and res is not None:
-            trajs[(kind, design, plant)] = _decimate(res)
-    est = _estimate(design, plant, mission) if with_ekf else None
+        r, tr = run_design(kind, design, [plant], quick, keep_trajectory)
+        rows.extend(r)
+        trajs.update(tr)
+    est = run_filter(design, [plant], quick)[0] if with_ekf else None
     return rows, est, trajs
 
 
-def compare(models=MODEL_NAMES, controllers=CONTROLLER_KINDS, quick: bool = False, workers: int | None = 2,
-            keep_trajectories: bool = False, ekf: bool = True, t_final: float | None = None) -> dict:
+# relative cost of one design + flights, to start the longest jobs first (measured with bench/control.py)
+_JOB_COST = {"nmpc": 5.0, "lmpc": 3.5, "lqr": 1.0, "pid": 0.6, "ekf": 0.5}
+
+
+def _progress(total, desc):
+    """A tqdm bar on stderr, silent when stderr is not a terminal."""
+    from tqdm.auto import tqdm
+
+    return tqdm(total=total, desc=desc, unit="job", disable=None, leave=False)
+
+
+def compare(models=MODEL_NAMES, controllers=CONTROLLER_KINDS, quick: bool = False, workers: int | None = None,
+            keep_trajectories: bool = False, ekf: bool = True, t_final: float | None = None,
+            progress: bool = True) -> dict:
     """Run the (design A, plant B, controller) matrix and the EKF matrix.
+
+    Each controller is designed once per design model and flown on every plant (a design does not depend on
+    the plant); the jobs (one per controller and design model, one per EKF model) run in a process pool,
+    longest first.
 
     Parameters
     ----------
@@ -157,20 +203,22 @@ def compare(models=MODEL_NAMES, controllers=CONTROLLER_KINDS, quick: bool = Fals
     quick : bool
         Short (23 s) mission instead of the full 46 s one.
     workers : int or None
-        Processes of the pool (1 = run in this process).
+        Processes of the pool (1 = run in this process; None = one per core).
     keep_trajectories : bool
         Keep decimated trajectories of the matched pairs (design == plant) for plots.
     ekf : bool
         Also run the EKF matrix (skipped with a reason if :mod:`udrobot_ctrl.control.ekf` is missing).
     t_final : float, optional
         Backwards-compatible switch: a value below the full mission's 46 s selects ``quick``.
+    progress : bool
+        Show a progress bar on stderr (only when it is a terminal).
 
     Returns
     -------
     dict
-        ``models``, ``results`` (rows with the contract keys plus details and ``status``), ``ekf`` (rows),
-        ``skipped`` (name -> reason), ``mission`` (name and duration), ``wall_s``, and ``trajectories``
-        when asked.
+        ``models``, ``results`` (rows with the contract keys plus details and ``status``, ordered by design,
+        plant, controller), ``ekf`` (rows), ``skipped`` (name -> reason), ``mission`` (name and duration),
+        ``wall_s``, and ``trajectories`` when asked.
     """
     models = list(models)
     controllers = list(controllers)
@@ -195,24 +243,41 @@ def compare(models=MODEL_NAMES, controllers=CONTROLLER_KINDS, quick: bool = Fals
         ok, why = ekf_available()
         if not ok:
             skipped["ekf"], with_ekf = why, False
-    pairs = [(a, b) for a in models for b in models]
     t0 = time.perf_counter()
-    jobs = [(a, b, controllers, quick, with_ekf, keep_trajectories and a == b) for a, b in pairs]
+    jobs = [("ctrl", (kind, a, models, quick, keep_trajectories)) for a in models for kind in controllers]
+    if with_ekf:
+        jobs += [("ekf", (a, models, quick)) for a in models]
+    jobs.sort(key=lambda j: -_JOB_COST.get(j[1][0] if j[0] == "ctrl" else "ekf", 1.0))
     if workers is None:
-        workers = min(2, os.cpu_count() or 1)
-    if workers <= 1 or len(jobs) == 1:
-        outs = [run_pair(*j) for j in jobs]
+        workers = os.cpu_count() or 1
+    workers = max(1, min(workers, len(jobs)))
+    bar = _progress(len(jobs), "compare") if progress else None
+    outs = []
+    if workers <= 1:
+        for tag, a in jobs:
+            outs.append((tag, run_design(*a) if tag == "ctrl" else run_filter(*a)))
+            if bar is not None:
+                bar.update()
     else:
         import multiprocessing as mp
 
         with ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn")) as pool:
-            outs = list(pool.map(run_pair, *zip(*jobs)))
+            futures = {pool.submit(run_design if tag == "ctrl" else run_filter, *a): tag for tag, a in jobs}
+            for fut in as_completed(futures):
+                outs.append((futures[fut], fut.result()))
+                if bar is not None:
+                    bar.update()
+    if bar is not None:
+        bar.close()
     rows, ekf_rows, trajs = [], [], {}
-    for r, e, tr in outs:
-        rows.extend(r)
-        if e is not None:
-            ekf_rows.append(e)
-        trajs.update(tr)
+    for tag, out in outs:
+        if tag == "ctrl":
+            rows.extend(out[0])
+            trajs.update(out[1])
+        else:
+            ekf_rows.extend(out)
+    rows.sort(key=lambda r: (models.index(r["design"]), models.index(r["plant"]), controllers.index(r["controller"])))
+    ekf_rows.sort(key=lambda e: (models.index(e["filter_model"]), models.index(e["plant"])))
     mission = standard_mission(quick)
     out = {"models": models, "results": rows, "ekf": ekf_rows, "skipped": skipped,
            "mission": {"name": mission.name, "t_final": mission.t_final}, "wall_s": time.perf_counter() - t0}
