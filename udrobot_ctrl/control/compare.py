@@ -39,6 +39,8 @@ RESULT_KEYS = ("design", "plant", "controller", "iae", "overshoot", "settling_s"
 DETAIL_KEYS = ("iae_z", "iae_psi", "iae_u", "overshoot_psi", "settling_psi_s", "overshoot_u", "settling_u_s",
                "max_roll_deg", "max_pitch_deg", "max_sway_mps")
 EKF_STATES = ("z", "psi", "u")
+EKF_UNITS = {"z": "m", "psi": "rad", "u": "m/s"}
+EKF_LABELS = {"z": "depth z", "psi": "heading psi", "u": "surge speed u"}
 SIM_DT = 0.01  # s, RK4 step
 CONTROL_DT = 0.05  # s, controller period
 EKF_DT = 0.05  # s, filter period
@@ -305,6 +307,20 @@ def contract_json(result) -> dict:
                      "nis_mean": e["nis_mean"]} for e in result["ekf"]]})
 
 
+TABLE_LEGEND = """\
+legend (controller table): ctrl = controller (lqr: gain-scheduled LQR, pid: decoupled PID, lmpc: linear MPC,
+  nmpc: nonlinear MPC); design A = model the controller was designed on; plant B = model it flew on;
+  IAE s = sum over depth, heading and surge of the integral of |error| dt divided by the channel's largest
+  step (1 m, 90 deg, 0.5 m/s), s;
+  OS % = overshoot of the depth step, % of the step; Ts s = settling time of the depth step (2 % band), s,
+  '-' = did not settle before the next manoeuvre; E kJ = estimated thruster electrical energy, kJ;
+  sat s = time with a thruster at its limit, s; pitch = largest |pitch| angle, deg; '-' in any other
+  column = no value (the run failed: see status).
+legend (EKF table): EKF model A = model inside the filter; plant B = model that made the data; z m, psi rad,
+  u m/s = RMS estimation error of depth, heading and surge speed; NIS = mean normalised innovation squared
+  (about the number of measured components when the filter is consistent)."""
+
+
 def _f(v, fmt):
     return "-" if v is None or (isinstance(v, float) and not np.isfinite(v)) else format(v, fmt)
 
@@ -359,7 +375,7 @@ def write_outputs(result, out: Path) -> list:
         e["filter_model"], e["plant"], e["rmse"]["z"], e["rmse"]["psi"], e["rmse"]["u"], e["nis_mean"],
         e.get("status"))) for e in result["ekf"]]) + "\n")
     skipped = "".join(f"\nskipped {k}: {v}" for k, v in result.get("skipped", {}).items())
-    _write_atomic(files[2], text_table(rows, result["ekf"]) + skipped + "\n")
+    _write_atomic(files[2], text_table(rows, result["ekf"]) + "\n\n" + TABLE_LEGEND + skipped + "\n")
     _write_atomic(files[3], json.dumps(_finite({k: v for k, v in result.items() if k != "trajectories"}),
                                        indent=1, default=float))
     n = len(models)
@@ -396,10 +412,10 @@ def write_outputs(result, out: Path) -> list:
             im = ax.imshow(mat, cmap="magma")
             ax.set_xticks(range(n), short, fontsize=6)
             ax.set_yticks(range(n), short, fontsize=6)
-            ax.set_title(f"EKF RMSE {s}")
+            ax.set_title(f"EKF RMSE of {EKF_LABELS[s]}")
             ax.set_xlabel("plant B")
             ax.set_ylabel("filter model A")
-            fig.colorbar(im, ax=ax)
+            fig.colorbar(im, ax=ax, label=f"RMSE {s} ({EKF_UNITS[s]})")
         fig.tight_layout()
         path = out / "compare_ekf_rmse.png"
         fig.savefig(path, dpi=110)
@@ -420,7 +436,7 @@ def write_outputs(result, out: Path) -> list:
             tt = np.linspace(0, mission.t_final, 500)
             ref = mission.reference_array(tt)
             for i, (c, scale) in enumerate((("z", 1.0), ("psi", 180 / np.pi), ("u", 1.0))):
-                axes[i, j].plot(tt, ref[c] * scale, "k--", lw=0.8)
+                axes[i, j].plot(tt, ref[c] * scale, "k--", lw=0.8, label="reference" if i == 0 else None)
                 axes[i, j].grid(True, alpha=0.3)
             axes[0, j].set_title(f"{kind.upper()} (design = plant)")
             axes[0, j].invert_yaxis()
@@ -428,7 +444,7 @@ def write_outputs(result, out: Path) -> list:
         axes[0, 0].set_ylabel("depth z (m)")
         axes[1, 0].set_ylabel("heading (deg)")
         axes[2, 0].set_ylabel("surge u (m/s)")
-        axes[0, 0].legend(fontsize=7)
+        axes[0, 0].legend(fontsize=7, title="design = plant", title_fontsize=7)
         fig.tight_layout()
         path = out / "compare_missions.png"
         fig.savefig(path, dpi=110)

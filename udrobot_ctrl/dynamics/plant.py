@@ -192,9 +192,26 @@ def generalized_forces(x, p: PlantParameters):
 
 
 def state_derivative(x, tau, p: PlantParameters):
-    """x_dot = f(x, tau) for state (..., 12) and body wrench tau (..., 6) in N, N m."""
+    """x_dot = f(x, tau) for state (..., 12) and body wrench tau (..., 6) in N, N m.
+
+    ``tau`` is the body wrench, not per-thruster thrusts: convert those with :func:`thrust_to_wrench`.
+
+    Raises
+    ------
+    ValueError
+        If ``x`` does not end in 12 states or ``tau`` in 6 wrench components.
+    """
     x = np.asarray(x, dtype=float)
-    nu_dot = (np.asarray(tau, float) - generalized_forces(x, p)) @ p.M_inv.T
+    tau = np.asarray(tau, float)
+    if x.shape[-1:] != (12,):
+        raise ValueError(f"state_derivative: x has shape {x.shape}; expected (..., 12) "
+                         "(x y z phi theta psi u v w p q r)")
+    if tau.shape[-1:] != (6,):
+        hint = (f"; {tau.shape[-1]} values look like per-thruster thrusts: pass thrust_to_wrench(thrusts, p)"
+                if tau.ndim and tau.shape[-1] == p.T.shape[1] else "")
+        raise ValueError(f"state_derivative: tau has shape {tau.shape}; expected (..., 6), the body wrench "
+                         f"X Y Z K M N in N and N m{hint}")
+    nu_dot = (tau - generalized_forces(x, p)) @ p.M_inv.T
     return np.concatenate([kinematics(x[..., :6], x[..., 6:]), nu_dot], axis=-1)
 
 
