@@ -1,4 +1,4 @@
-"""Run logs in the ``udrobot-run/1`` format (../shared/spec/runlog.md): read, validate, write, resample.
+"""Run logs in the ``udrobot-run/1`` format (docs/formats/runlog.md): read, validate, write, resample.
 
 A run is one logged manoeuvre: a CSV ``NAME.csv`` (one header row, one row per sample, SI units,
 radians) and an optional sidecar ``NAME.json`` with the set-up metadata.
