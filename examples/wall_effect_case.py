@@ -8,10 +8,10 @@ What the sources report
 * The 2017 wall study (a 117 kg, 1.06 x 0.65 x 0.66 m welding robot for a nuclear reaction pool) adds a *wall
   hydrodynamic force* to the manoeuvring model: a lateral force and a yaw moment that appear when the robot moves
   parallel to a wall, grow with the flow speed (CFD and tank tests at 0.1-0.8 m/s) and decay with the wall distance
-  (tested at 0.05, 0.1, ..., 0.5 m). The paper fits the force against distance per speed and reads off an *influence scope*:
-  the distance beyond which the wall no longer matters. (The text of the paper available to us keeps the method and the
-  tested distances; its figure values are not in it, so no number of theirs is quoted here.)
-* Seed 000 section 5.1 (UDrobot itself) finds the heave added mass from free-decay launches near the container
+  (tested at 0.05, 0.1, ..., 0.5 m). The paper fits the force against distance per speed and reads off an
+  *influence scope*: the distance beyond which the wall no longer matters. (The text of the paper available to us
+  keeps the method and the tested distances; its figure values are not in it, so no number of theirs is quoted here.)
+* Cely 2019 section 5.1 (UDrobot itself) finds the heave added mass from free-decay launches near the container
   bottom ~40 % above the value of the launches with a larger gap ratio e / D (gap e between body and wall, D the
   body dimension normal to it): 10.64 kg vs 7.62 kg; with the gap ratio kept above 1 the two methods agree within
   1.5 %. The gap ratio, not the absolute distance, sets the effect.
