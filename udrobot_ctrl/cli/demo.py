@@ -272,9 +272,9 @@ def write_index(out: Path, failed=()) -> Path:
             paths = [out / pattern] if (out / pattern).is_dir() else []
         else:
             paths = sorted(out.glob(pattern))
-        for path in paths:
-            rel = path.relative_to(out).as_posix() + ("/" if path.is_dir() else "")
-            lines.append(f"| [{rel}]({rel}) | {what} |")
+        if paths:
+            rels = [p.relative_to(out).as_posix() + ("/" if p.is_dir() else "") for p in paths]
+            lines.append(f"| {', '.join(f'[{r}]({r})' for r in rels)} | {what} |")
     path = out / "README.md"
     path.write_text("\n".join(lines) + "\n")
     return path

@@ -322,7 +322,11 @@ legend (EKF table): EKF model A = model inside the filter; plant B = model that 
 
 
 def _f(v, fmt):
-    return "-" if v is None or (isinstance(v, float) and not np.isfinite(v)) else format(v, fmt)
+    """``v`` formatted with ``fmt``; a missing or non-finite value is ``-``, right-aligned to the same width."""
+    if v is None or (isinstance(v, float) and not np.isfinite(v)):
+        width = fmt.split(".")[0]
+        return format("-", f">{width}") if width.isdigit() else "-"
+    return format(v, fmt)
 
 
 def text_table(results, ekf_rows=()) -> str:
