@@ -52,6 +52,7 @@ def run(args) -> int:
     result = compare(models, controllers, quick=args.quick, workers=args.workers, keep_trajectories=bool(args.out),
                      ekf=not args.no_ekf)
     print(text_table(result["results"], result["ekf"]))
+    print(TABLE_LEGEND)
     for name, why in result["skipped"].items():
         print(f"skipped {name}: {why}")
     print(f"{len(result['results'])} controller runs, {len(result['ekf'])} EKF runs in {result['wall_s']:.1f} s")

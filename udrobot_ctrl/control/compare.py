@@ -330,23 +330,27 @@ def _f(v, fmt):
 
 
 def text_table(results, ekf_rows=()) -> str:
-    """Readable fixed-width tables of the controller rows (and the EKF rows)."""
-    hdr = (f"{'ctrl':<5} {'design A':<19} {'plant B':<19} {'IAE s':>7} {'OS %':>6} {'Ts s':>6} {'E kJ':>6} "
+    """Readable fixed-width tables of the controller rows (and the EKF rows); see :data:`TABLE_LEGEND`."""
+    names = [r[k] for r in results for k in ("design", "plant")] + [e[k] for e in ekf_rows for k in
+                                                                      ("filter_model", "plant")]
+    w = max([19, *map(len, names)])
+    hdr = (f"{'ctrl':<5} {'design A':<{w}} {'plant B':<{w}} {'IAE s':>7} {'OS %':>6} {'Ts s':>6} {'E kJ':>6} "
            f"{'sat s':>6} {'pitch':>6}  status")
     lines = [hdr, "-" * len(hdr)]
     for r in results:
         e = r.get("energy_J")
-        lines.append(f"{r['controller']:<5} {r['design']:<19} {r['plant']:<19} {_f(r.get('iae'), '7.3f')} "
+        lines.append(f"{r['controller']:<5} {r['design']:<{w}} {r['plant']:<{w}} {_f(r.get('iae'), '7.3f')} "
                      f"{_f(r.get('overshoot'), '6.1f')} {_f(r.get('settling_s'), '6.2f')} "
                      f"{_f(None if e is None else e / 1000, '6.2f')} {_f(r.get('saturation_s'), '6.2f')} "
                      f"{_f(r.get('max_pitch_deg'), '6.1f')}  {r.get('status', '')[:60]}")
     if ekf_rows:
-        h2 = f"\n{'EKF model A':<19} {'plant B':<19} {'z m':>8} {'psi rad':>8} {'u m/s':>8} {'NIS':>7}  status"
+        h2 = f"\n{'EKF model A':<{w}} {'plant B':<{w}} {'z m':>8} {'psi rad':>8} {'u m/s':>8} {'NIS':>7}  status"
         lines += [h2, "-" * len(h2)]
         for e in ekf_rows:
             rm = e["rmse"]
-            lines.append(f"{e['filter_model']:<19} {e['plant']:<19} {_f(rm['z'], '8.4f')} {_f(rm['psi'], '8.4f')} "
-                         f"{_f(rm['u'], '8.4f')} {_f(e['nis_mean'], '7.2f')}  {e.get('status', '')[:60]}")
+            lines.append(f"{e['filter_model']:<{w}} {e['plant']:<{w}} {_f(rm['z'], '8.4f')} "
+                         f"{_f(rm['psi'], '8.4f')} {_f(rm['u'], '8.4f')} {_f(e['nis_mean'], '7.2f')}  "
+                         f"{e.get('status', '')[:60]}")
     return "\n".join(lines)
 
 
