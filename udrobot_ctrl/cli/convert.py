@@ -34,15 +34,16 @@ def run(args) -> int:
 
     if not args.out and not args.segment:
         raise ValueError("nothing to do: give --out RUN.csv and/or --segment CHANNEL")
-    run_ = convert_log(args.input, args.mapping, require_inputs=not args.allow_missing_inputs)
-    print(f"{args.input}: {run_.n} samples, {run_.duration:.3f} s, dt {run_.dt_median * 1e3:.2f} ms, "
-          f"channels {', '.join(run_.channels) or 'none'}, inputs {run_.input_kind} x{run_.inputs.shape[1]}")
-    if args.out:
+    if args.out:  # checked before the (possibly long) conversion
         out = Path(args.out)
         if not out.parent.is_dir():
             raise CLIError(f"--out {out}: folder {out.parent} does not exist")
         if out.exists() and not args.force:
             raise CLIError(f"--out {out} exists; add --force to replace it")
+    run_ = convert_log(args.input, args.mapping, require_inputs=not args.allow_missing_inputs)
+    print(f"{args.input}: {run_.n} samples, {run_.duration:.3f} s, dt {run_.dt_median * 1e3:.2f} ms, "
+          f"channels {', '.join(run_.channels) or 'none'}, inputs {run_.input_kind} x{run_.inputs.shape[1]}")
+    if args.out:
         path = write(run_, out, overwrite=args.force)
         print(f"wrote {path} and {Path(path).with_suffix('.json')}")
     if args.segment:
