@@ -33,8 +33,8 @@ Control design for small underwater robots from identified hydrodynamic coeffici
 sim-to-real gap of a model against pool logs.
 
 commands, in the order of a typical job:
-  demo         the whole chain on the shipped UDrobot data, in 1 min: identification, five models,
-               controllers on every design/plant pair, plots; start here (udrobot-ctrl demo --out demo_out)
+  demo         start here: the whole chain on the shipped UDrobot data (about a minute on two idle cores):
+               identification, five models, controllers on every design/plant pair, plots and an index
   identify     coefficients with 95 % intervals from free-decay spring or pendulum launches, or CFD tables
   model        export a model as udrobot-model/1 JSON, or show its masses, damping and thrusters
   convert      a ROS bag, ArduPilot .bin/.tlog or rostopic CSV -> udrobot-run/1 run log
@@ -48,7 +48,10 @@ or given as a udrobot-model/1 JSON or coefficient-set TOML file. Formats: docs/f
 """
 
 EPILOG = """\
-example (a pool log, from the raw log to a diagnosis):
+first steps:
+  udrobot-ctrl demo --out demo_out      then open demo_out/README.md
+
+example (a pool log, from the raw log to a diagnosis; docs/tutorial.md goes on to a redesigned controller):
   udrobot-ctrl convert pool.bag --mapping bluerov2-mavros --out pool.csv
   udrobot-ctrl simulate --model pendulum:chin --input pool.csv --out pool_sim.csv
   udrobot-ctrl diagnose --model pendulum:chin --json gap.json --plot gap_plots pool.csv
@@ -69,9 +72,12 @@ EXPECTED_ERRORS = (CLIError, ValueError, FileNotFoundError, FileExistsError, Per
 
 def build_parser(only: str | None = None) -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="udrobot-ctrl", description=DESCRIPTION, epilog=EPILOG,
+                                     usage="%(prog)s [-h] [--version] COMMAND [OPTIONS ...]",
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
-    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    # the commands are listed, in the order of a job, in DESCRIPTION; argparse's own list would repeat them
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND", help=argparse.SUPPRESS,
+                                prog="udrobot-ctrl")
     for name, module in COMMANDS.items():
         if only is not None and name != only:
             sub.add_parser(name, help=f"(see udrobot-ctrl {name} --help)", add_help=False)
