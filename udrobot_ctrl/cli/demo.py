@@ -29,6 +29,10 @@ SYNTHETIC_NOTE = ("the identification data are SYNTHETIC: launch logs and CFD ta
                   "uncertainty")
 
 
+# units of the identified coefficients (launches: of the scaled test model; CFD: full size)
+COEFF_UNITS = {"Cm": "[-]", "CD": "[-]", "KL": "[N s/m]", "KQ": "[N s^2/m^2]"}
+
+
 def register(subparsers):
     p = subparsers.add_parser(
         "demo", help="identify, build the five models, run the controllers, write plots",
@@ -106,8 +110,10 @@ def step_identification(out: Path) -> dict:
         plot_report(rep, launches, base / "plots", kind, title_note=" (SYNTHETIC data from the paper's coefficients)")
         (base / f"{kind}_report.json").write_text(json.dumps(rep, indent=1, default=float))
         print(f"\n{kind}: {rep['n_ok']} of {rep['n_launches']} files identified, {rep['n_used']} used, "
-              f"{wall:.2f} s")
-        print(f"  {'axis':6s} " + " ".join(f"{k + ' (95% CI)':>30s}" for k in keys) + "   truth (generated with)")
+              f"{wall:.2f} s ({'full-size CFD tables' if kind == 'cfd' else 'scaled test model'}; "
+              "intervals from the synthetic noise)")
+        print(f"  {'axis':6s} " + " ".join(f"{k + ' ' + COEFF_UNITS[k] + ' (95% CI)':>30s}" for k in keys)
+              + "   truth (generated with)")
         for axis in rep["axes"]:
             agg = rep["by_axis"][axis]["aggregate"]
             cells = []
