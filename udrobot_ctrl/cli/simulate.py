@@ -12,6 +12,7 @@ import warnings
 from pathlib import Path
 
 import numpy as np
+from tqdm.auto import tqdm
 
 from udrobot_ctrl.dynamics.plant import plant_parameters, state_derivative
 from udrobot_ctrl.dynamics.sim import rk4_step
@@ -94,8 +95,10 @@ def input_wrenches(run, p) -> tuple:
     return f @ p.T.T, f
 
 
-def replay(model, t, x0, tau, method: str = "rk4", max_step: float = 0.01) -> np.ndarray:
+def replay(model, t, x0, tau, method: str = "rk4", max_step: float = 0.01, progress: bool = False) -> np.ndarray:
     """States (n, 12) at times ``t`` (n,) from ``x0`` with ``tau[k]`` held on [t_k, t_k+1).
+
+    ``progress`` shows a progress bar on stderr when it is a terminal.
 
     Raises
     ------
@@ -107,7 +110,10 @@ def replay(model, t, x0, tau, method: str = "rk4", max_step: float = 0.01) -> np
     xs = np.empty((len(t), 12))
     x = np.asarray(x0, float).copy()
     xs[0] = x
-    for k in range(len(t) - 1):
+    steps = range(len(t) - 1)
+    if progress:
+        steps = tqdm(steps, desc="simulate", unit="sample", disable=None, leave=False, mininterval=0.5)
+    for k in steps:
         h = t[k + 1] - t[k]
         if method == "rk4":
             m = max(1, int(np.ceil(h / max_step - 1e-9)))
@@ -152,7 +158,7 @@ def run(args) -> int:
         print(f"udrobot-ctrl simulate: warning: {w.message}", file=sys.stderr)
     tau, _ = input_wrenches(rn, p)
     try:
-        xs = replay(p, rn.t, x0, tau, args.method, args.max_step)
+        xs = replay(p, rn.t, x0, tau, args.method, args.max_step, progress=True)
     except FloatingPointError as exc:
         raise ValueError(f"{src} with model {vehicle.name}: {exc}") from exc
     channels = {name: xs[:, i] for i, name in enumerate(STATE_NAMES)}
