@@ -33,7 +33,7 @@ Control design for small underwater robots from identified hydrodynamic coeffici
 sim-to-real gap of a model against pool logs.
 
 commands, in the order of a typical job:
-  demo         start here: the whole chain on the shipped UDrobot data (about a minute on two idle cores):
+  demo         start here: the whole chain on the shipped UDrobot data (under a minute on two idle cores):
                identification, five models, controllers on every design/plant pair, plots and an index
   identify     coefficients with 95 % intervals from free-decay spring or pendulum launches, or CFD tables
   model        export a model as udrobot-model/1 JSON, or show its masses, damping and thrusters
