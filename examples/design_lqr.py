@@ -36,8 +36,11 @@ def main(argv):
     q = as_parameters(plant)
     m = mission_metrics(res, mission, q.f_min, q.f_max)
     print(f"LQR designed on {design}, flown on {plant} ({mission.name}):")
-    for k in ("iae", "overshoot", "settling_s", "energy_J", "saturation_s", "max_pitch_deg"):
-        print(f"  {k:>14} = {m[k]}")
+    for k, unit, fmt in (("iae", "s (weighted total)", ".3f"), ("overshoot", "% of the depth step", ".1f"),
+                         ("settling_s", "s (depth, 2 % band)", ".2f"), ("energy_J", "J (estimated)", ".0f"),
+                         ("saturation_s", "s at a thruster limit", ".2f"), ("max_pitch_deg", "deg", ".1f")):
+        v = m[k]
+        print(f"  {k:>14} = " + ("did not settle" if v is None else f"{v:{fmt}} {unit}"))
     return 0
 
 

@@ -1,4 +1,8 @@
-"""Diagnose a real pool log that no one here wrote: Tartan AUV, 2022-12-01 (../shared/data/tartan_auv_2022-12-01).
+"""Diagnose a real pool log that no one here wrote: Tartan AUV, 2022-12-01.
+
+The log is Carnegie Mellon RoboSub team's pool run (GitHub Tartan-AUV/TAUV-Playground,
+dynamics-parameter-estimation/data/bags-12-01-22/, public but unlicensed, so not shipped here); the script
+looks for it in ``../shared/data/tartan_auv_2022-12-01`` next to the repository, or in ``--data DIR``.
 
 The vehicle's parameters are unpublished, so the nominal model below is a documented guess (every number
 tagged ``assumed`` in its provenance). The log holds the controller's commanded body wrench (50 Hz) and the
@@ -94,14 +98,22 @@ def reading(report, mean_tau) -> list:
     return out
 
 
+def _params(params: dict) -> str:
+    """``name = value`` pairs at 3 significant digits (the fit is not more precise than that)."""
+    return ", ".join(f"{k} = {v:.3g}" for k, v in params.items())
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--out", default=str(Path(__file__).resolve().parent))
-    ap.add_argument("--fit", type=int, nargs="+", default=[0, 1, 2, 3])
-    ap.add_argument("--holdout", type=int, nargs="+", default=[4, 5])
+    ap.add_argument("--out", default=str(Path(__file__).resolve().parent), help="folder for the model and reports")
+    ap.add_argument("--fit", type=int, nargs="+", default=[0, 1, 2, 3], help="chunk numbers of the fit runs")
+    ap.add_argument("--holdout", type=int, nargs="+", default=[4, 5], help="chunk numbers of the holdout runs")
+    ap.add_argument("--data", type=Path, default=DATA, help="folder of the Tartan AUV navigation_state_i.csv and "
+                                                             "wrench_i.csv files")
     args = ap.parse_args(argv)
-    if not DATA.exists():
-        print(f"shared data not found at {DATA}; nothing to diagnose")
+    data = args.data
+    if not data.exists():
+        print(f"Tartan AUV data not found at {data}; nothing to diagnose (see the module docstring for the source)")
         return 0
     from udrobot_ctrl.gap.report import diagnose, summary, write_report
     from udrobot_ctrl.io import load_any
@@ -110,7 +122,7 @@ def main(argv=None) -> int:
     out.mkdir(parents=True, exist_ok=True)
     model_path = out / "tartan_model.json"
     model_path.write_text(json.dumps(tartan_model(), indent=2))
-    load = lambda i: load_any(DATA / f"navigation_state_{i}.csv", "tartan-auv")  # noqa: E731
+    load = lambda i: load_any(data / f"navigation_state_{i}.csv", "tartan-auv")  # noqa: E731
     fit, hold = [load(i) for i in args.fit], [load(i) for i in args.holdout]
     mean_tau = np.nanmean(np.concatenate([r.inputs for r in fit + hold]), axis=0)
     t0 = time.perf_counter()
@@ -132,7 +144,7 @@ def main(argv=None) -> int:
         f"Gap before: NRMSE {report['gap_before']['value']:.3f}; after the significant effects: "
         f"{report['gap_after']['value']:.3f} (unexplained {report['unexplained']:.2f}).",
         "",
-        "Significant effects: " + (", ".join(f"`{e['name']}` {e['params']}" for e in sig) or "none") + ".",
+        "Significant effects: " + (", ".join(f"`{e['name']}` ({_params(e['params'])})" for e in sig) or "none") + ".",
         "",
         *reading(report, mean_tau),
         "",

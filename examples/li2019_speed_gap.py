@@ -1,4 +1,5 @@
-"""Seed 002 (Li et al., "UUV's hydrodynamic modeling and its simulation and experimental studies"):
+"""Li, Kim, Kang, Lee and Cho (Korea Institute of Robot and Convergence), "UUV's Hydrodynamic Modeling and its
+Simulation and Experimental Studies" (2019):
 why the simulation said 3.2 m/s and the tank said 2.1 m/s.
 
 Paper data: X_u|u| = -67.4 kg/m (Table II), X_udot = -17.5 kg (Table III), four horizontal thrusters whose

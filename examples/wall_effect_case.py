@@ -1,14 +1,17 @@
-"""Case study, seeds 003 and 000 section 5.1: the diagnoser on pool passes near a wall and over the seabed.
+"""Case study after the wall-effect paper (Advances in Mechanical Engineering 2017, doi:10.1177/1687814017734500:
+a hydrodynamic model with a wall force for a nuclear-reaction-pool robot; below "the 2017 wall study") and
+Cely et al. 2019 section 5.1 ("Experimental and Computational Methodology for the Determination of Hydrodynamic
+Coefficients Based on Free Decay Test", Sensors 19, 3631): the diagnoser on pool passes near a wall and over the seabed.
 
 What the sources report
 -----------------------
-* Seed 003 (a 117 kg, 1.06 x 0.65 x 0.66 m welding robot for a nuclear reaction pool) adds a *wall hydrodynamic
-  force* to the manoeuvring model: a lateral force and a yaw moment that appear when the robot moves parallel to a
-  wall, grow with the flow speed (CFD and tank tests at 0.1-0.8 m/s) and decay with the wall distance (tested at
-  0.05, 0.1, ..., 0.5 m). The paper fits the force against distance per speed and reads off an *influence scope*:
-  the distance beyond which the wall no longer matters. (The stored text of the seed keeps the method and the
-  tested distances; its figure values are not in it, so no number of theirs is quoted here.)
-* Seed 000 section 5.1 (UDrobot itself) finds the heave added mass from free-decay launches near the container
+* The 2017 wall study (a 117 kg, 1.06 x 0.65 x 0.66 m welding robot for a nuclear reaction pool) adds a *wall
+  hydrodynamic force* to the manoeuvring model: a lateral force and a yaw moment that appear when the robot moves
+  parallel to a wall, grow with the flow speed (CFD and tank tests at 0.1-0.8 m/s) and decay with the wall distance
+  (tested at 0.05, 0.1, ..., 0.5 m). The paper fits the force against distance per speed and reads off an
+  *influence scope*: the distance beyond which the wall no longer matters. (The text of the paper available to us
+  keeps the method and the tested distances; its figure values are not in it, so no number of theirs is quoted here.)
+* Cely 2019 section 5.1 (UDrobot itself) finds the heave added mass from free-decay launches near the container
   bottom ~40 % above the value of the launches with a larger gap ratio e / D (gap e between body and wall, D the
   body dimension normal to it): 10.64 kg vs 7.62 kg; with the gap ratio kept above 1 the two methods agree within
   1.5 %. The gap ratio, not the absolute distance, sets the effect.
@@ -23,14 +26,14 @@ of the sources, not in the diagnoser's exponential template:
 
       dM = KAPPA (1 + G)^-3 [ (n^T M_A n) n n^T + 1/2 P_t M_A P_t ],   P_t = I - n n^T
 
-  (image-method decay ~ (a / h)^3; KAPPA = 1 puts +40 % on the heave added mass at G ~ 0.35, seed 000's figure);
-* suction towards the surface in motion along it (seed 003's lateral wall force, ~ U^2)::
+  (image-method decay ~ (a / h)^3; KAPPA = 1 puts +40 % on the heave added mass at G ~ 0.35, Cely 2019's figure);
+* suction towards the surface in motion along it (the 2017 wall study's lateral wall force, ~ U^2)::
 
       F = -1/2 rho C_S A_n (1 + G)^-4 |V_t|^2 n,   A_n the projected area facing the surface.
 
 The manoeuvres are pool passes: each run holds a wall distance (a heading loop steers the vehicle back to its lane,
 UDrobot has no sway thruster) and an altitude above the seabed, does surge passes along the wall in both
-directions, and heave oscillations at its altitude (seed 000's free-decay situation). Runs alternate near and far
+directions, and heave oscillations at its altitude (Cely 2019's free-decay situation). Runs alternate near and far
 lanes; the diagnoser gets the logs and the sidecar metadata (seabed depth, wall plane) and nothing else.
 
 The *distance below which it matters* uses one criterion for the truth and for the fitted template
@@ -44,10 +47,10 @@ which it matters, diagnosed vs truth: seabed 0.25 m vs 0.27 m, wall 0.29 m vs 0.
 over the seabed, 0.32 / 0.28 m at the wall). The wall distance is short by 10-25 %: the template shares one decay
 length between the seabed and the wall, while in the gap-ratio law the wall's reach scales with the body's width
 (0.35 m) and the seabed's with its height (0.17 m). As gap ratios e / D these are ~0.6 (wall) and ~1.1 (seabed),
-the order of seed 000's "gap ratio below 1" and within seed 003's 0.05-0.5 m test range scaled to a body half the
-size. Its holdout shrink is small (~0.1): beyond these distances the runs match the nominal model by construction,
-so most of the holdout gap is the noise floor. ``added_mass_error`` may be added as well: it takes the tangential
-added-mass rise of the gap-ratio law, which the template (normal direction only) does not have.
+the order of Cely 2019's "gap ratio below 1" and within the 2017 wall study's 0.05-0.5 m test range scaled to a body
+half the size. Its holdout shrink is small (~0.1): beyond these distances the runs match the nominal model by
+construction, so most of the holdout gap is the noise floor. ``added_mass_error`` may be added as well: it takes the
+tangential added-mass rise of the gap-ratio law, which the template (normal direction only) does not have.
 
     python examples/wall_effect_case.py [--json OUT.json]
 """
@@ -69,8 +72,8 @@ MODEL = "pendulum:chin"
 RHO = 1000.0
 SEABED = 2.0  # m, pool depth (assumed)
 WALL_Y = 0.0  # wall plane y = 0, water on y < 0
-KAPPA = 1.0  # assumed: +40 % heave added mass at gap ratio ~0.35 (seed 000: 10.64 vs 7.62 kg)
-C_S = 0.015  # assumed suction coefficient (seed 003: the wall force grows with U^2, decays with distance); small
+KAPPA = 1.0  # assumed: +40 % heave added mass at gap ratio ~0.35 (Cely 2019: 10.64 vs 7.62 kg)
+C_S = 0.015  # assumed suction coefficient (2017 wall study: the wall force grows with U^2, decays with distance); small
 # enough that the heading loop keeps the lane: UDrobot has no sway thruster and its sway damping is light
 FRACTION = 0.05  # the "matters" criterion, same as the diagnoser's
 CONTACT_K, CONTACT_C = 3000.0, 60.0  # N/m, N s/m: contact when the gap closes below 2 cm (rare; lanes keep off)
@@ -155,8 +158,8 @@ ALTITUDES = (0.6, 0.16, 0.35, 0.25, 0.18, 0.5)  # m above the seabed (near-wall 
 
 
 def lanes(n_runs, rng):
-    """(wall distance, altitude) per run, m from the body origin: several distances as in seed 003's tests (0.36-1 m
-    from the wall, 0.16-0.6 m above the seabed), cycled for more runs and jittered by +-1 cm."""
+    """(wall distance, altitude) per run, m from the body origin: several distances as in the 2017 wall
+    study's tests (0.36-1 m from the wall, 0.16-0.6 m above the seabed), cycled for more runs and jittered by +-1 cm."""
     idx = np.arange(n_runs) % len(WALL_LANES)
     wall = np.asarray(WALL_LANES)[idx] + rng.uniform(-0.01, 0.01, n_runs)
     alt = np.asarray(ALTITUDES)[idx] + rng.uniform(-0.01, 0.01, n_runs)

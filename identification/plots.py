@@ -17,8 +17,17 @@ def _plt():
     return plt
 
 
-def plot_fits(launches, axis, path, kind) -> Path | None:
-    """Grid of every launch of ``axis``: measurement and fitted model (or turning points)."""
+# units of the per-launch coefficients (model scale): C_m and C_D are dimensionless
+COEFF_LABELS = {"Cm": "C_m (-)", "CD": "C_D (-)", "KL": "K_L (N s/m)", "KQ": "K_Q (N s²/m²)"}
+MAX_POINTS = 400  # measured samples drawn per launch: enough to see the trace, cheap to lay out
+
+
+def _every(n: int) -> int:
+    return max(1, n // MAX_POINTS)
+
+
+def plot_fits(launches, axis, path, kind, title_note: str = "") -> Path | None:
+    """Grid of every launch of ``axis``: measurement and fitted model (or turning points) against time (s)."""
     rows = [e for e in launches if e["ok"] and (e["axis"] or "unspecified") == axis]
     if not rows:
         return None
@@ -26,34 +35,46 @@ def plot_fits(launches, axis, path, kind) -> Path | None:
     n = len(rows)
     ncol = min(6, n)
     nrow = math.ceil(n / ncol)
-    fig, axes = plt.subplots(nrow, ncol, figsize=(2.6 * ncol, 1.9 * nrow), squeeze=False, sharey=False)
-    scale, unit = (1e3, "mm") if kind == "spring" else (180 / math.pi, "deg")
+    fig, axes = plt.subplots(nrow, ncol, figsize=(2.6 * ncol, 1.9 * nrow + 0.6), squeeze=False, sharey=False)
+    scale, unit = (1e3, "displacement (mm)") if kind == "spring" else (180 / math.pi, "angle (deg)")
     for ax, e in zip(axes.flat, rows):
         fit = e.get("_fit")
         graph = e.get("_graph")
         if fit is not None:
-            ax.plot(fit.t, fit.x * scale, ".", ms=1.5, color="0.5", label="measured")
+            k = _every(len(fit.t))
+            ax.plot(fit.t[::k], fit.x[::k] * scale, ".", ms=1.5, color="0.5", label="measured")
             ax.plot(fit.t, fit.model * scale, "-", lw=0.9, color="C0", label="fit")
         elif graph is not None:
             launch, start, ext, _ = graph
-            ax.plot(launch.t, launch.x * scale, "-", lw=0.8, color="0.4")
-            ax.plot(ext.t, (ext.x + ext.offset) * scale, "o", ms=3, color="C3")
+            k = _every(len(launch.t))
+            ax.plot(launch.t[::k], launch.x[::k] * scale, "-", lw=0.8, color="0.4", label="measured")
+            ax.plot(ext.t, (ext.x + ext.offset) * scale, "o", ms=3, color="C3", label="turning points")
         title = Path(e["file"]).stem[-22:]
         if not e["used"]:
             title += " (rejected)"
         ax.set_title(title, fontsize=7)
         ax.tick_params(labelsize=6)
-    for ax in list(axes.flat)[n:]:
-        ax.axis("off")
-    axes[0, 0].set_ylabel(unit, fontsize=7)
-    fig.suptitle(f"{kind} launches, {axis}: measurement (grey) and fit", fontsize=9)
-    fig.tight_layout()
+    for i, ax in enumerate(axes.flat):
+        r, c = divmod(i, ncol)
+        if i >= n:
+            ax.axis("off")
+            continue
+        if r == nrow - 1 or i + ncol >= n:
+            ax.set_xlabel("t (s)", fontsize=7)
+        if c == 0:
+            ax.set_ylabel(unit, fontsize=7)
+    axes[0, 0].legend(fontsize=6, loc="upper right")
+    what = "fit" if any(e.get("_fit") is not None for e in rows) else "turning points"
+    fig.suptitle(f"{kind} launches, {axis}: measurement (grey) and {what}{title_note}", fontsize=9)
+    # fixed margins: tight_layout on a 24-panel grid costs seconds per figure
+    fig.subplots_adjust(left=0.06, right=0.99, bottom=0.5 / (1.9 * nrow + 0.6) + 0.04, top=1 - 0.5 / (1.9 * nrow + 0.6),
+                        wspace=0.35, hspace=0.75)
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return Path(path)
 
 
-def plot_vs_reynolds(launches, axis, path, kind) -> Path | None:
+def plot_vs_reynolds(launches, axis, path, kind, title_note: str = "") -> Path | None:
     """Per-launch coefficients with 95 % intervals against the Reynolds number."""
     rows = [e for e in launches if e["ok"] and (e["axis"] or "unspecified") == axis and "Re" in e]
     if not rows:
@@ -71,18 +92,18 @@ def plot_vs_reynolds(launches, axis, path, kind) -> Path | None:
             ci = np.array([e.get(k + "_ci95") or [x, x] for e, x in zip(sel, v)])
             ax.errorbar(re_, v, yerr=[v - ci[:, 0], ci[:, 1] - v], fmt=marker, ms=3, color=color, lw=0.6,
                         label="used" if used else "rejected")
-        ax.set_xlabel("Re", fontsize=8)
-        ax.set_title(k, fontsize=9)
+        ax.set_xlabel("Reynolds number Re (-)", fontsize=8)
+        ax.set_title(COEFF_LABELS.get(k, k), fontsize=9)
         ax.tick_params(labelsize=7)
     axes[0, 0].legend(fontsize=7)
-    fig.suptitle(f"{kind}, {axis}: coefficients vs Reynolds number (95 % intervals)", fontsize=9)
+    fig.suptitle(f"{kind}, {axis}: coefficients vs Reynolds number (95 % intervals){title_note}", fontsize=9)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return Path(path)
 
 
-def plot_cfd(launches, path) -> Path | None:
+def plot_cfd(launches, path, title_note: str = "") -> Path | None:
     """Force-speed points and both regressions, one panel per table."""
     rows = [e for e in launches if e["ok"] and "_table" in e]
     if not rows:
@@ -101,24 +122,29 @@ def plot_cfd(launches, path) -> Path | None:
         ax.set_title(f"{e['axis'] or Path(e['file']).stem}", fontsize=9)
         ax.legend(fontsize=6)
         ax.tick_params(labelsize=7)
+    if title_note:
+        fig.suptitle(f"CFD force tables and regressions{title_note}", fontsize=9)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return Path(path)
 
 
-def plot_report(report: dict, launches, directory, kind) -> list[Path]:
-    """Every plot of an identification run into ``directory``; returns the written paths."""
+def plot_report(report: dict, launches, directory, kind, title_note: str = "") -> list[Path]:
+    """Every plot of an identification run into ``directory``; returns the written paths.
+
+    ``title_note`` is appended to every figure title (e.g. ``" - SYNTHETIC data"``).
+    """
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
     launches = launches or report["launches"]
     out = []
     if kind == "cfd":
-        p = plot_cfd(launches, directory / "cfd_regressions.png")
+        p = plot_cfd(launches, directory / "cfd_regressions.png", title_note)
         return [p] if p else []
     for axis in report["axes"]:
         for fn, name in ((plot_fits, "fits"), (plot_vs_reynolds, "vs_reynolds")):
-            p = fn(launches, axis, directory / f"{kind}_{axis}_{name}.png", kind)
+            p = fn(launches, axis, directory / f"{kind}_{axis}_{name}.png", kind, title_note)
             if p:
                 out.append(p)
     return out

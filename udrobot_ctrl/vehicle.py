@@ -1,7 +1,7 @@
 """The vehicle: rigid body, restoring, hydrodynamic matrices and thrusters as plain data.
 
 A :class:`Vehicle` is exactly the content of a ``udrobot-model/1`` file
-(../shared/spec/model_export.md): it is built from a model name ``SET:FORM``
+(docs/formats/model.md): it is built from a model name ``SET:FORM``
 (``pendulum:chin`` ...) or read from such a file, and written back by :func:`to_model_dict`.
 """
 from __future__ import annotations

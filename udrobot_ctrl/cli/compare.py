@@ -1,24 +1,42 @@
 """``udrobot-ctrl compare``: design on model A, fly on plant B (see :mod:`udrobot_ctrl.control.compare`)."""
 from __future__ import annotations
 
+import argparse
 import json
 from pathlib import Path
 
-from udrobot_ctrl.control.compare import _write_atomic, compare, contract_json, text_table, write_outputs
+from udrobot_ctrl.control.compare import (
+    TABLE_LEGEND,
+    _write_atomic,
+    compare,
+    contract_json,
+    text_table,
+    write_outputs,
+)
 from udrobot_ctrl.control.missions import CONTROLLER_KINDS
 from udrobot_ctrl.vehicle import MODEL_NAMES
 
 
 def register(subparsers):
-    p = subparsers.add_parser("compare", help="design on model A, fly on plant B: every pair of the models, "
-                                              "LQR/PID/MPC metrics and EKF consistency")
-    p.add_argument("--out", help="folder for CSV, text tables, full JSON and plots")
-    p.add_argument("--json", help="write the JSON report (models, results, ekf) here")
+    p = subparsers.add_parser(
+        "compare", help="design on model A, fly on plant B: every pair of the models, "
+                        "LQR/PID/MPC metrics and EKF consistency",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        description="Every controller (LQR, PID, linear and nonlinear MPC) is designed on model A and flown on\n"
+                    "plant B through the standard mission (depth step 0.5 -> 1.5 m, heading 0 -> 90 deg, surge\n"
+                    "transit at 0.5 m/s and stop), for every pair (A, B) of the models; an EKF built on A filters\n"
+                    "B's simulated sensors. Shows how much a controller suffers when the coefficients it was\n"
+                    "designed with are wrong.\n\n" + TABLE_LEGEND,
+        epilog="example: udrobot-ctrl compare --quick --controllers lqr,pid --out compare_out")
+    p.add_argument("--out", help="folder for CSV, text tables (with a legend), full JSON and plots")
+    p.add_argument("--json", help="write the JSON report (models, results, ekf; NaN as null) here")
     p.add_argument("--controllers", default=",".join(CONTROLLER_KINDS),
                    help="comma-separated subset of lqr,pid,lmpc,nmpc (default all)")
-    p.add_argument("--models", default=",".join(MODEL_NAMES), help="comma-separated model names or files")
+    p.add_argument("--models", default=",".join(MODEL_NAMES),
+                   help="comma-separated model names or files, used both as design models and plants "
+                        "(default: the five shipped models)")
     p.add_argument("--quick", action="store_true", help="short mission (23 s instead of 46 s)")
-    p.add_argument("--workers", type=int, default=2, help="processes (default 2; 1 = no pool)")
+    p.add_argument("--workers", type=int, default=None, help="processes (default: one per core; 1 = no pool)")
     p.add_argument("--no-ekf", action="store_true", help="skip the EKF matrix")
     p.set_defaults(func=run)
 
@@ -29,11 +47,12 @@ def run(args) -> int:
         if c not in CONTROLLER_KINDS:
             raise ValueError(f"--controllers: unknown controller {c!r} (expected {', '.join(CONTROLLER_KINDS)})")
     models = [m.strip() for m in args.models.split(",") if m.strip()]
-    if args.workers < 1:
+    if args.workers is not None and args.workers < 1:
         raise ValueError(f"--workers must be >= 1, got {args.workers}")
     result = compare(models, controllers, quick=args.quick, workers=args.workers, keep_trajectories=bool(args.out),
                      ekf=not args.no_ekf)
     print(text_table(result["results"], result["ekf"]))
+    print(TABLE_LEGEND)
     for name, why in result["skipped"].items():
         print(f"skipped {name}: {why}")
     print(f"{len(result['results'])} controller runs, {len(result['ekf'])} EKF runs in {result['wall_s']:.1f} s")

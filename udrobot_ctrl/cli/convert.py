@@ -4,10 +4,14 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from udrobot_ctrl.cli.main import CLIError
+
 
 def register(subparsers) -> None:
     p = subparsers.add_parser("convert", help="convert a bag / .tlog / .bin / rostopic CSV to udrobot-run/1",
-                              description=__doc__)
+                              description=__doc__.replace("``", "") + "\nThe run-log format is defined in "
+                              "docs/formats/runlog.md, the mappings in docs/mappings.md.",
+                              epilog="example: udrobot-ctrl convert pool.bag --mapping bluerov2-mavros --out pool.csv")
     p.add_argument("input", help="log: .bag, .mcap, .db3, ROS 2 bag directory, .tlog, .bin, rostopic echo -p .csv")
     p.add_argument("--mapping", help="mapping TOML file or shipped name (ardusub, bluerov2-mavros, tartan-auv); "
                                      "default: bluerov2-mavros for bags, ardusub for .tlog/.bin")
@@ -30,14 +34,23 @@ def run(args) -> int:
 
     if not args.out and not args.segment:
         raise ValueError("nothing to do: give --out RUN.csv and/or --segment CHANNEL")
+    if args.out:  # checked before the (possibly long) conversion
+        out = Path(args.out)
+        if not out.parent.is_dir():
+            raise CLIError(f"--out {out}: folder {out.parent} does not exist")
+        if out.exists() and not args.force:
+            raise CLIError(f"--out {out} exists; add --force to replace it")
     run_ = convert_log(args.input, args.mapping, require_inputs=not args.allow_missing_inputs)
     print(f"{args.input}: {run_.n} samples, {run_.duration:.3f} s, dt {run_.dt_median * 1e3:.2f} ms, "
           f"channels {', '.join(run_.channels) or 'none'}, inputs {run_.input_kind} x{run_.inputs.shape[1]}")
     if args.out:
-        path = write(run_, args.out, overwrite=args.force)
+        path = write(run_, out, overwrite=args.force)
         print(f"wrote {path} and {Path(path).with_suffix('.json')}")
     if args.segment:
-        y = run_.channel(args.segment)
+        try:
+            y = run_.channel(args.segment)
+        except KeyError as exc:  # an unknown channel name is the user's input, not a bug
+            raise CLIError(f"--segment: {exc.args[0]}") from None
         column = args.segment_column or ("theta" if args.segment in ("phi", "theta", "psi") else "y")
         launches = find_launches(run_.t, y)
         if not launches:

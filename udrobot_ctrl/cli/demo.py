@@ -1,17 +1,19 @@
 """``udrobot-ctrl demo``: the main job, end to end.
 
-1. identification: synthetic free-decay and pendulum launches following Cely 2019's protocol are
-   identified back, and Table 7's added-mass coefficients are reproduced from its omega_n;
+1. identification: SYNTHETIC free-decay and pendulum launches and CFD tables, generated from the coefficients
+   of Cely et al. 2019 following its protocol (the paper's raw data are not public), are identified back, and
+   Table 7's added-mass coefficients are reproduced from its omega_n;
 2. models: the five coefficient sets become Fossen plants, exported as udrobot-model/1 files;
 3. plant: open-loop top speed and step responses of every model;
 4. controllers: LQR, PID, linear and nonlinear MPC and the EKF across the 5 x 5 design/plant matrix;
-5. plots and tables in ``--out``.
+5. plots and tables in ``--out``, indexed by ``--out/README.md`` (what each file is, what to open first).
 
 Every step that fails is reported and the demo goes on with the next one; the exit status
 is non-zero if any step failed.
 """
 from __future__ import annotations
 
+import argparse
 import json
 import time
 import traceback
@@ -21,11 +23,34 @@ import numpy as np
 
 from udrobot_ctrl.vehicle import MODEL_NAMES, load_model, write_model_file
 
+SYNTHETIC_NOTE = ("the identification data are SYNTHETIC: launch logs and CFD tables generated from the "
+                  "coefficients of Cely et al. 2019 (its raw data are not public) with simulated sensor noise; "
+                  "the intervals show how well the method recovers known values, not the real vehicle's "
+                  "uncertainty")
+
+
+# units of the identified coefficients (launches: of the scaled test model; CFD: full size)
+COEFF_UNITS = {"Cm": "[-]", "CD": "[-]", "KL": "[N s/m]", "KQ": "[N s^2/m^2]"}
+
 
 def register(subparsers):
-    p = subparsers.add_parser("demo", help="identify, build the five models, run the controllers, write plots")
+    p = subparsers.add_parser(
+        "demo", help="identify, build the five models, run the controllers, write plots",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        description="The whole chain on the UDrobot of Cely et al. 2019 (Sensors 19, 3631), under a minute on\n"
+                    "two idle cores:\n"
+                    "  1. identification of SYNTHETIC launch logs and CFD tables generated from the paper's\n"
+                    "     coefficients (its raw data are not public): checks the method, not the vehicle;\n"
+                    "  2. the five shipped models (cfd, free_decay, pendulum coefficient sets) as udrobot-model/1;\n"
+                    "  3. open-loop top speed per model;\n"
+                    "  4. LQR, PID, linear and nonlinear MPC designed on each model and flown on every other\n"
+                    "     (5 x 5), and the EKF likewise;\n"
+                    "  5. plots, tables and an index OUT/README.md saying what to open first.",
+        epilog="example: udrobot-ctrl demo --out demo_out   (then open demo_out/README.md)")
     p.add_argument("--out", default="demo_out", help="output folder (default: demo_out)")
-    p.add_argument("--full", action="store_true", help="full-length missions (slower) instead of the quick ones")
+    p.add_argument("--full", action="store_true", help="full-length missions (46 s instead of 23 s; slower)")
+    p.add_argument("--workers", type=int, default=None,
+                   help="processes for the controller matrix (default: one per core)")
     p.set_defaults(func=run)
 
 
@@ -49,7 +74,8 @@ def step_identification(out: Path) -> dict:
 
     base = out / "identification"
     raw = base / "raw"
-    summary: dict = {}
+    summary: dict = {"data": SYNTHETIC_NOTE}
+    print(f"NOTE: {SYNTHETIC_NOTE}\n")
     wn = np.array([7.1142, 7.8268, 6.8188])  # Cely 2019 Table 7
     cm = free_decay.mass_coefficient(free_decay.added_mass_from_frequency(wn, 63.6, 0.97), 1000.0, 344_868e-9)
     print("Table 7 check: C_m = (K / omega_n^2 - m) / (rho V) from its omega_n, K = 63.6 N/m, m = 0.97 kg")
@@ -77,15 +103,18 @@ def step_identification(out: Path) -> dict:
         cfd_paths.append(path)
     jobs["cfd"] = (cfd_paths, RigOptions(), None, ("KL", "KQ", "CD"))
     for kind, (paths, opts, truth, keys) in jobs.items():
+        print(f"identifying {len(paths)} synthetic {kind} files ...", flush=True)
         t0 = time.perf_counter()
         rep = identify_files(kind, paths, opts, keep_fits=True)
         wall = time.perf_counter() - t0
         launches = rep.pop("_launches")
-        plot_report(rep, launches, base / "plots", kind)
+        plot_report(rep, launches, base / "plots", kind, title_note=" (SYNTHETIC data from the paper's coefficients)")
         (base / f"{kind}_report.json").write_text(json.dumps(rep, indent=1, default=float))
         print(f"\n{kind}: {rep['n_ok']} of {rep['n_launches']} files identified, {rep['n_used']} used, "
-              f"{wall:.2f} s")
-        print(f"  {'axis':6s} " + " ".join(f"{k + ' (95% CI)':>30s}" for k in keys) + "   truth")
+              f"{wall:.2f} s ({'full-size CFD tables' if kind == 'cfd' else 'scaled test model'}; "
+              "intervals from the synthetic noise)")
+        print(f"  {'axis':6s} " + " ".join(f"{k + ' ' + COEFF_UNITS[k] + ' (95% CI)':>30s}" for k in keys)
+              + "   truth (generated with)")
         for axis in rep["axes"]:
             agg = rep["by_axis"][axis]["aggregate"]
             cells = []
@@ -196,19 +225,66 @@ def step_open_loop(out: Path) -> dict:
     return result
 
 
-def step_controllers(out: Path, full: bool = False) -> dict:
+def step_controllers(out: Path, full: bool = False, workers: int | None = None) -> dict:
     """LQR, PID, linear and nonlinear MPC designed on each model A and flown on every plant B (5 x 5), and the EKF
     with model A on data from plant B (``udrobot-ctrl compare``)."""
-    from udrobot_ctrl.control.compare import compare, contract_json, text_table, write_outputs
+    from udrobot_ctrl.control.compare import TABLE_LEGEND, compare, contract_json, text_table, write_outputs
 
-    result = compare(quick=not full, keep_trajectories=True)
+    print(f"{len(MODEL_NAMES)} x {len(MODEL_NAMES)} design/plant pairs, 4 controllers and the EKF "
+          f"({'full 46 s' if full else 'quick 23 s'} mission) ...", flush=True)
+    result = compare(quick=not full, keep_trajectories=True, workers=workers)
     write_outputs(result, out / "compare")
     (out / "compare" / "compare.json").write_text(json.dumps(contract_json(result), indent=2))
     print(text_table(result["results"], result.get("ekf", ())))
+    print(TABLE_LEGEND)
     for name, why in (result.get("skipped") or {}).items():
         print(f"skipped {name}: {why}")
     return {"rows": len(result["results"]), "ekf_rows": len(result.get("ekf", [])),
             "wall_s": result.get("wall_s")}
+
+
+# (file or glob relative to --out, what it is); the first entries are what to open first
+INDEX = (
+    ("compare/compare_missions.png", "start here: each controller flying the mission on the model it was designed "
+                                     "on (dashed: the reference)"),
+    ("compare/compare_iae_*.png", "tracking error (IAE) of each controller designed on model A and flown on plant "
+                                  "B: how much a wrong model costs"),
+    ("compare/compare.txt", "the controller and EKF tables with their legend"),
+    ("open_loop_surge.png", "full forward thrust: top surge speed per coefficient set"),
+    ("identification/plots/*_fits.png", "identification of the SYNTHETIC launches: measurement and fitted decay"),
+    ("identification/plots/*_vs_reynolds.png", "identified coefficients (95 % intervals) vs Reynolds number"),
+    ("identification/plots/cfd_regressions.png", "CFD force tables (SYNTHETIC) and the Chin / Morison regressions"),
+    ("compare/compare_ekf_rmse.png", "EKF built on model A filtering plant B's simulated sensors: RMSE"),
+    ("identification/*_report.json", "full identification reports (every launch, intervals, outliers, tests)"),
+    ("identification/*_identified.toml", "the identified coefficient sets, usable as --model FILE.toml:chin"),
+    ("identification/raw/", "the SYNTHETIC raw files (launch CSVs, CFD tables): sample input for "
+                            "udrobot-ctrl identify"),
+    ("models/*.json", "the five models as udrobot-model/1 (docs/formats/model.md)"),
+    ("compare/compare.csv", "every controller metric, one row per (controller, design, plant)"),
+    ("compare/compare.json", "the compare report (models, results, ekf)"),
+    ("demo_summary.json", "the numbers printed on screen"),
+)
+
+
+def write_index(out: Path, failed=()) -> Path:
+    """``out/README.md``: every file the demo wrote, what it is, what to open first; returns its path."""
+    lines = ["# udrobot-ctrl demo output", "",
+             f"Written by `udrobot-ctrl demo` on {time.strftime('%Y-%m-%d %H:%M')}.", "",
+             f"**Note:** {SYNTHETIC_NOTE}.", ""]
+    if failed:
+        lines += [f"**Failed steps:** {', '.join(failed)} (see the console output); their files are missing.", ""]
+    lines += ["| file | what it is |", "|---|---|"]
+    for pattern, what in INDEX:
+        if pattern.endswith("/"):
+            paths = [out / pattern] if (out / pattern).is_dir() else []
+        else:
+            paths = sorted(out.glob(pattern))
+        if paths:
+            rels = [p.relative_to(out).as_posix() + ("/" if p.is_dir() else "") for p in paths]
+            lines.append(f"| {', '.join(f'[{r}]({r})' for r in rels)} | {what} |")
+    path = out / "README.md"
+    path.write_text("\n".join(lines) + "\n")
+    return path
 
 
 STEPS = [("identification", step_identification), ("models", step_models), ("open_loop", step_open_loop),
@@ -219,17 +295,27 @@ def run(args) -> int:
     out = Path(args.out)
     (out / "models").mkdir(parents=True, exist_ok=True)
     summary, failed = {}, []
-    for name, fn in STEPS:
-        _banner(f"demo step: {name}")
+    t_start = time.perf_counter()
+    for i, (name, fn) in enumerate(STEPS, 1):
+        _banner(f"demo step {i}/{len(STEPS)}: {name}")
         t0 = time.perf_counter()
         try:
-            summary[name] = fn(out) if name != "controllers" else fn(out, full=args.full)
+            if name == "controllers":
+                summary[name] = fn(out, full=args.full, workers=getattr(args, "workers", None))
+            else:
+                summary[name] = fn(out)
         except Exception as exc:  # the demo reports a failed step and goes on
             traceback.print_exc()
             summary[name] = {"error": f"{type(exc).__name__}: {exc}"}
             failed.append(name)
-        print(f"[{name}: {time.perf_counter() - t0:.1f} s]")
+        print(f"[{name}: {time.perf_counter() - t0:.1f} s]", flush=True)
     (out / "demo_summary.json").write_text(json.dumps(summary, indent=2, default=float))
-    _banner("demo finished" + (f" with failed steps: {', '.join(failed)}" if failed else ""))
-    print(f"outputs in {out.resolve()}")
+    index = write_index(out, failed)
+    _banner(f"demo finished in {time.perf_counter() - t_start:.0f} s"
+            + (f" with failed steps: {', '.join(failed)}" if failed else ""))
+    print(f"outputs in {out.resolve()}; the index {index} lists them. Open first:")
+    for rel in ("compare/compare_missions.png", "compare/compare_iae_lqr.png", "compare/compare.txt"):
+        if (out / rel).exists():
+            print(f"  {out / rel}")
+    print(f"NOTE: {SYNTHETIC_NOTE}.")
     return 1 if failed else 0

@@ -2,27 +2,35 @@
 
     udrobot-ctrl diagnose --model MODEL --json REPORT.json [--holdout RUN.csv ...] [--plot DIR] RUN.csv [...]
 
-Positional runs fit the effects' parameters; ``--holdout`` runs only score. Without ``--holdout`` the last run
-is held out (a single run: its last third). Exit 0 whenever the diagnosis ran; 2 with a message on bad input.
+Positional runs fit the effects' parameters; ``--holdout`` runs only score (one run per ``--holdout``; repeat
+the option for several). Without ``--holdout`` the last run is held out (a single run: its last third).
+Options may come before or after the runs. The report format is ``udrobot-diagnosis/1`` (docs/formats/diagnosis.md).
+Exit 0 whenever the diagnosis ran; 2 with a message on bad input.
 """
 from __future__ import annotations
 
+import argparse
 import sys
 from pathlib import Path
 
 
 def register(subparsers):
-    p = subparsers.add_parser("diagnose", help="diagnose the sim-to-real gap of a model against real runs",
-                              description=__doc__.splitlines()[0])
+    p = subparsers.add_parser(
+        "diagnose", help="diagnose the sim-to-real gap of a model against real runs",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        description=__doc__.replace("``", ""),
+        epilog="example: udrobot-ctrl diagnose --model pendulum:chin --json gap.json --holdout run3.csv "
+               "--plot gap_plots run1.csv run2.csv")
     p.add_argument("runs", nargs="+", metavar="RUN.csv", help="fit runs (udrobot-run/1 CSV or a convertible log)")
     p.add_argument("--model", required=True, help="model name (pendulum:chin, ...) or a udrobot-model/1 file")
     p.add_argument("--json", required=True, metavar="REPORT.json", help="write the udrobot-diagnosis/1 report")
-    p.add_argument("--holdout", nargs="+", default=[], metavar="RUN.csv", help="runs used only to score")
+    p.add_argument("--holdout", action="append", default=[], metavar="RUN.csv",
+                   help="a run used only to score; repeat the option for several runs")
     p.add_argument("--plot", metavar="DIR", help="write residual and overlay figures to DIR")
     p.add_argument("--window", type=float, default=8.0, help="multiple-shooting window, s (default 8)")
     p.add_argument("--mapping", help="log mapping for non-udrobot-run inputs (see udrobot-ctrl convert)")
     p.add_argument("--effects", help="comma-separated subset of the catalogue to test (default: all)")
-    p.add_argument("--quiet", action="store_true")
+    p.add_argument("--quiet", action="store_true", help="no progress messages on stderr")
     p.set_defaults(func=run)
 
 

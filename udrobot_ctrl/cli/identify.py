@@ -16,6 +16,7 @@ CFD force tables, one per axis (``speed,force``; axis from the file name)::
 """
 from __future__ import annotations
 
+import argparse
 import json
 from pathlib import Path
 
@@ -39,7 +40,8 @@ def _area(text):
 
 def register(subparsers):
     p = subparsers.add_parser("identify", help="identify coefficients from spring/pendulum launches or CFD tables",
-                              description=__doc__.splitlines()[0])
+                              description=__doc__.replace("``", "").replace("::", ":"),
+                              formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("kind", choices=KINDS, help="test type")
     p.add_argument("files", nargs="+", help="launch CSVs (t,y | t,counts | t,theta) or CFD tables (speed,force); "
                                             "directories are searched for *.csv")

@@ -2,12 +2,19 @@
 
 Each subcommand module exposes ``register(subparsers)`` (adds its parser and sets
 ``func``) so that importing the CLI never pulls in heavy dependencies it does not need.
+
+Errors: the expected ones (:data:`EXPECTED_ERRORS`: bad input, missing or unreadable files, logs or mappings
+that cannot be imported) are printed as one line ``udrobot-ctrl CMD: error: ...`` with exit status 2; anything
+else is a bug and keeps its traceback. Output piped into a reader that closes early (``| head``) ends quietly.
 """
 from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import sys
+
+from udrobot_ctrl import __version__
 
 # subcommand -> module defining register(subparsers)
 COMMANDS = {
@@ -21,14 +28,56 @@ COMMANDS = {
     "convert": "udrobot_ctrl.cli.convert",
 }
 
+DESCRIPTION = """\
+Control design for small underwater robots from identified hydrodynamic coefficients, and the
+sim-to-real gap of a model against pool logs.
+
+commands, in the order of a typical job:
+  demo         start here: the whole chain on the shipped UDrobot data (under a minute on two idle cores):
+               identification, five models, controllers on every design/plant pair, plots and an index
+  identify     coefficients with 95 % intervals from free-decay spring or pendulum launches, or CFD tables
+  model        export a model as udrobot-model/1 JSON, or show its masses, damping and thrusters
+  convert      a ROS bag, ArduPilot .bin/.tlog or rostopic CSV -> udrobot-run/1 run log
+  simulate     replay a run's logged commands through a model (what the model predicts)
+  diagnose     where a model disagrees with real runs, which unmodelled effect explains it, how much
+  compare      LQR, PID and MPC designed on one model and flown on another, for every pair
+  sensitivity  which coefficient matters to a controller (local, Sobol or Morris)
+
+Models are named SET:FORM (cfd:chin, cfd:morison, free_decay:morison, pendulum:chin, pendulum:morison)
+or given as a udrobot-model/1 JSON or coefficient-set TOML file. Formats: docs/formats/ in the source.
+"""
+
+EPILOG = """\
+first steps:
+  udrobot-ctrl demo --out demo_out      then open demo_out/README.md
+
+example (a pool log, from the raw log to a diagnosis; docs/tutorial.md goes on to a redesigned controller):
+  udrobot-ctrl convert pool.bag --mapping bluerov2-mavros --out pool.csv
+  udrobot-ctrl simulate --model pendulum:chin --input pool.csv --out pool_sim.csv
+  udrobot-ctrl diagnose --model pendulum:chin --json gap.json --plot gap_plots pool.csv
+
+'udrobot-ctrl COMMAND --help' describes each command and its options."""
+
 
 class CLIError(Exception):
     """A user-facing error: printed without a traceback, exit status 2."""
 
 
+# Errors that mean "bad input or environment", not a bug: printed as one line. The project's own errors
+# (RunLogError, LogImportError, MappingError, LaunchError, SingularMassMatrixError, StudyMismatchError) are
+# ValueErrors raised by input validation.
+EXPECTED_ERRORS = (CLIError, ValueError, FileNotFoundError, FileExistsError, PermissionError, IsADirectoryError,
+                   NotADirectoryError)
+
+
 def build_parser(only: str | None = None) -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="udrobot-ctrl", description=__doc__.splitlines()[0])
-    sub = parser.add_subparsers(dest="command", required=True)
+    parser = argparse.ArgumentParser(prog="udrobot-ctrl", description=DESCRIPTION, epilog=EPILOG,
+                                     usage="%(prog)s [-h] [--version] COMMAND [OPTIONS ...]",
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
+    # the commands are listed, in the order of a job, in DESCRIPTION; argparse's own list would repeat them
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND", help=argparse.SUPPRESS,
+                                prog="udrobot-ctrl")
     for name, module in COMMANDS.items():
         if only is not None and name != only:
             sub.add_parser(name, help=f"(see udrobot-ctrl {name} --help)", add_help=False)
@@ -43,17 +92,29 @@ def build_parser(only: str | None = None) -> argparse.ArgumentParser:
     return parser
 
 
+def _quiet_broken_pipe() -> int:
+    """The reader of stdout went away (``| head``): stop writing, without a traceback (Python docs' idiom)."""
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(devnull, sys.stdout.fileno())
+    return 1
+
+
 def main(argv=None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     first = next((a for a in argv if not a.startswith("-")), None)
-    parser = build_parser(first if first in COMMANDS else None)
-    args = parser.parse_args(argv)
     try:
-        return int(args.func(args) or 0)
-    except (CLIError, ValueError, FileNotFoundError, KeyError) as exc:
-        msg = exc.args[0] if isinstance(exc, KeyError) and exc.args else exc
-        print(f"udrobot-ctrl {args.command}: error: {msg}", file=sys.stderr)
-        return 2
+        parser = build_parser(first if first in COMMANDS else None)
+        args = parser.parse_args(argv)
+        try:
+            status = int(args.func(args) or 0)
+        except EXPECTED_ERRORS as exc:
+            sys.stdout.flush()
+            print(f"udrobot-ctrl {args.command}: error: {exc}", file=sys.stderr)
+            return 2
+        sys.stdout.flush()
+        return status
+    except BrokenPipeError:
+        return _quiet_broken_pipe()
 
 
 if __name__ == "__main__":

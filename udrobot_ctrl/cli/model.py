@@ -5,19 +5,36 @@ from pathlib import Path
 
 import numpy as np
 
+from udrobot_ctrl.cli.main import CLIError
 from udrobot_ctrl.vehicle import DOF_NAMES, MODEL_NAMES, load_model, write_model_file
 
 
 def register(subparsers):
     """Add ``model`` with sub-commands ``export`` and ``show``."""
-    parser = subparsers.add_parser("model", help="export or show a plant model (udrobot-model/1)")
-    sub = parser.add_subparsers(dest="model_command", required=True)
-    exp = sub.add_parser("export", help="write the model as udrobot-model/1 JSON (with provenance)")
+    parser = subparsers.add_parser(
+        "model", help="export or show a plant model (udrobot-model/1)",
+        description="Export a model (a shipped name SET:FORM, a coefficient-set TOML as FILE.toml:FORM, or a "
+                    "udrobot-model/1 JSON file) as udrobot-model/1 JSON, or print its masses, restoring forces, "
+                    "added mass, damping, thrusters and which degrees of freedom the thrusters actuate. "
+                    "The format is defined in docs/formats/model.md.",
+        epilog="example: udrobot-ctrl model show --model pendulum:chin")
+    sub = parser.add_subparsers(dest="model_command", required=True, metavar="{export,show}")
+    exp = sub.add_parser(
+        "export", help="write the model as udrobot-model/1 JSON (with provenance)",
+        description="Write the model as udrobot-model/1 JSON: every coefficient in SI units with its provenance "
+                    "(measured, cfd, estimated, assumed, derived). Other tools (and diagnose, simulate, compare) "
+                    "read it back wherever a model name is accepted.",
+        epilog="example: udrobot-ctrl model export --model pendulum:chin --out pendulum_chin.json")
     exp.add_argument("--model", required=True, help=f"model name ({', '.join(MODEL_NAMES)}) or model file")
     exp.add_argument("--out", required=True, help="output JSON file")
     exp.add_argument("--force", action="store_true", help="replace an existing output file")
     exp.set_defaults(func=run_export)
-    show = sub.add_parser("show", help="print a summary of the model")
+    show = sub.add_parser(
+        "show", help="print a summary of the model",
+        description="Print the model's mass, weight and buoyancy, centres of gravity and buoyancy, the diagonal "
+                    "of M_total, M_A, linear (D_L) and quadratic (Q) damping per DOF, the thrusters, the actuated "
+                    "and passive DOFs and the provenance of every number.",
+        epilog="example: udrobot-ctrl model show --model demo_out/identification/pendulum_identified.toml:chin")
     show.add_argument("--model", required=True, help=f"model name ({', '.join(MODEL_NAMES)}) or model file")
     show.set_defaults(func=run_show)
     parser.set_defaults(func=run)
@@ -33,7 +50,9 @@ def run_export(args) -> int:
     vehicle = load_model(args.model)
     out = Path(args.out)
     if out.exists() and not getattr(args, "force", False):
-        raise ValueError(f"{out} exists; pass --force to replace it")
+        raise CLIError(f"{out} exists; add --force to replace it")
+    if not out.parent.is_dir():
+        raise CLIError(f"--out {out}: folder {out.parent} does not exist")
     if out.exists() and Path(str(args.model)).exists() and out.resolve() == Path(str(args.model)).resolve():
         raise ValueError(f"{out} is the input model file; choose another output")
     write_model_file(vehicle, out)

@@ -10,6 +10,7 @@ Examples::
 """
 from __future__ import annotations
 
+import argparse
 import json
 import sys
 import time
@@ -31,10 +32,14 @@ METHODS = ("local", "sobol", "morris", "montecarlo")
 
 def register(subparsers):
     p = subparsers.add_parser("sensitivity", help="local / Sobol / Morris sensitivity of closed-loop metrics "
-                              "to the hydrodynamic coefficients", description=__doc__.splitlines()[0])
+                              "to the hydrodynamic coefficients", description=__doc__.replace("``", ""),
+                              formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--model", default="cfd:morison", help="nominal (and design) model: SET:FORM or a model file")
-    p.add_argument("--controller", default="lqr", choices=("lqr", "pid", "mpc", "lmpc", "nmpc"))
-    p.add_argument("--method", default="local", choices=METHODS)
+    p.add_argument("--controller", default="lqr", choices=("lqr", "pid", "mpc", "lmpc", "nmpc"),
+                   help="controller whose closed-loop metrics are studied (default lqr; mpc = lmpc)")
+    p.add_argument("--method", default="local", choices=METHODS,
+                   help="local: one-at-a-time derivatives; sobol: variance shares; morris: screening; "
+                        "montecarlo: metric spread (default local)")
     p.add_argument("--samples", type=int, default=None,
                    help="sobol: base sample N (power of 2; N(d+2) runs, default 256); morris: trajectories "
                         "(r(d+1) runs, default 20); montecarlo: runs (default 500); local: ignored (1 + 6d runs)")
@@ -55,7 +60,7 @@ def register(subparsers):
                    help=f"controller step, s ({CONTROL_DT}, as compare)")
     p.add_argument("--full-mission", action="store_true",
                    help="the full 46 s standard mission of compare instead of the quick 23 s one (compare --quick)")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=int, default=0, help="random seed of the sampling (default 0)")
     p.add_argument("--rank", action="store_true", help="sobol: indices of the metrics' ranks (robust to the few "
                    "runs that lose control)")
     p.add_argument("--plot", action="store_true", help="write tornado / index plots into --out")

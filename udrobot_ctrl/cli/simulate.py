@@ -6,11 +6,13 @@ The initial state is the first row's measured state (missing channels -> 0, with
 """
 from __future__ import annotations
 
+import argparse
 import sys
 import warnings
 from pathlib import Path
 
 import numpy as np
+from tqdm.auto import tqdm
 
 from udrobot_ctrl.dynamics.plant import plant_parameters, state_derivative
 from udrobot_ctrl.dynamics.sim import rk4_step
@@ -21,11 +23,18 @@ DEFAULT_VOLTAGE = 12.0  # V, Cely 2019 sec. 3.1 nominal supply (used when the ru
 
 def register(subparsers):
     """Add the ``simulate`` sub-command."""
-    parser = subparsers.add_parser("simulate", help="replay a run's commanded inputs through the plant model")
+    parser = subparsers.add_parser(
+        "simulate", help="replay a run's commanded inputs through the plant model",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        description=__doc__.replace("``", "") + "\nWhat the model predicts for the commands the vehicle really "
+                    "received: compare --out with --input to see the sim-to-real gap (udrobot-ctrl diagnose "
+                    "explains it).\nRun logs are udrobot-run/1 (docs/formats/runlog.md).",
+        epilog="example: udrobot-ctrl simulate --model pendulum:chin --input pool.csv --out pool_sim.csv")
     parser.add_argument("--model", required=True, help=f"model name ({', '.join(MODEL_NAMES)}) or model file")
     parser.add_argument("--input", required=True, help="run to replay (udrobot-run/1 CSV or a log io can convert)")
     parser.add_argument("--out", required=True, help="simulated run to write (udrobot-run/1 CSV)")
-    parser.add_argument("--method", choices=("rk4", "solve_ivp"), default="rk4")
+    parser.add_argument("--method", choices=("rk4", "solve_ivp"), default="rk4",
+                        help="integrator: fixed-step RK4 sub-steps (default) or scipy solve_ivp (adaptive)")
     parser.add_argument("--max-step", type=float, default=0.01, help="largest RK4 sub-step, s (default 0.01)")
     parser.add_argument("--mapping", default=None, help="mapping for non-udrobot-run logs (see convert)")
     parser.set_defaults(func=run)
@@ -86,8 +95,10 @@ def input_wrenches(run, p) -> tuple:
     return f @ p.T.T, f
 
 
-def replay(model, t, x0, tau, method: str = "rk4", max_step: float = 0.01) -> np.ndarray:
+def replay(model, t, x0, tau, method: str = "rk4", max_step: float = 0.01, progress: bool = False) -> np.ndarray:
     """States (n, 12) at times ``t`` (n,) from ``x0`` with ``tau[k]`` held on [t_k, t_k+1).
+
+    ``progress`` shows a progress bar on stderr when it is a terminal.
 
     Raises
     ------
@@ -99,7 +110,10 @@ def replay(model, t, x0, tau, method: str = "rk4", max_step: float = 0.01) -> np
     xs = np.empty((len(t), 12))
     x = np.asarray(x0, float).copy()
     xs[0] = x
-    for k in range(len(t) - 1):
+    steps = range(len(t) - 1)
+    if progress:
+        steps = tqdm(steps, desc="simulate", unit="sample", disable=None, leave=False, mininterval=0.5)
+    for k in steps:
         h = t[k + 1] - t[k]
         if method == "rk4":
             m = max(1, int(np.ceil(h / max_step - 1e-9)))
@@ -144,7 +158,7 @@ def run(args) -> int:
         print(f"udrobot-ctrl simulate: warning: {w.message}", file=sys.stderr)
     tau, _ = input_wrenches(rn, p)
     try:
-        xs = replay(p, rn.t, x0, tau, args.method, args.max_step)
+        xs = replay(p, rn.t, x0, tau, args.method, args.max_step, progress=True)
     except FloatingPointError as exc:
         raise ValueError(f"{src} with model {vehicle.name}: {exc}") from exc
     channels = {name: xs[:, i] for i, name in enumerate(STATE_NAMES)}

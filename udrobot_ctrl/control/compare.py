@@ -14,7 +14,9 @@ Estimation: for each plant B one data set is made by flying B with the LQR desig
 (:func:`udrobot_ctrl.control.ekf.ekf_on_trajectory`) built on model A filters B's simulated sensors (pressure
 depth, IMU, DVL); reported: RMSE of z (m), psi (rad), u (m/s) and the mean NIS.
 
-Pairs run in a ``concurrent.futures`` process pool (``--workers``, default 2). Outputs: the ``--json`` file
+Each controller is designed once per design model and flown on every plant; the designs (and the EKF per
+filter model) run in a ``concurrent.futures`` process pool (``--workers``), with a progress bar on a terminal.
+Outputs: the ``--json`` file
 holds exactly ``{"models", "results": [{design, plant, controller, iae, overshoot, settling_s, energy_J,
 saturation_s}], "ekf": [{filter_model, plant, rmse: {z, psi, u}, nis_mean}]}``; ``--out DIR`` gets
 ``compare.csv``, ``compare_ekf.csv``, ``compare.txt`` (readable tables, with skip/failure reasons),
@@ -25,7 +27,7 @@ from __future__ import annotations
 import json
 import os
 import time
-from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 
 import numpy as np
@@ -37,6 +39,8 @@ RESULT_KEYS = ("design", "plant", "controller", "iae", "overshoot", "settling_s"
 DETAIL_KEYS = ("iae_z", "iae_psi", "iae_u", "overshoot_psi", "settling_psi_s", "overshoot_u", "settling_u_s",
                "max_roll_deg", "max_pitch_deg", "max_sway_mps")
 EKF_STATES = ("z", "psi", "u")
+EKF_UNITS = {"z": "m", "psi": "rad", "u": "m/s"}
+EKF_LABELS = {"z": "depth z", "psi": "heading psi", "u": "surge speed u"}
 SIM_DT = 0.01  # s, RK4 step
 CONTROL_DT = 0.05  # s, controller period
 EKF_DT = 0.05  # s, filter period
@@ -68,19 +72,21 @@ def _null_row(design, plant, kind, status):
     return row
 
 
-def _fly(kind, design, plant, mission):
-    """One controller run; returns (row with every metric, SimResult or None)."""
+def _fly(ctrl, kind, design, plant, mission):
+    """One flight of an already designed controller; returns (row with every metric, SimResult or None)."""
     from udrobot_ctrl.control.metrics import mission_metrics
-    from udrobot_ctrl.control.missions import make_controller, run_mission
+    from udrobot_ctrl.control.missions import run_mission
     from udrobot_ctrl.dynamics.sim import as_parameters
 
     t0 = time.perf_counter()
+    reset = getattr(ctrl, "reset", None)
+    if callable(reset):
+        reset()  # the same design flies on every plant: forget integrators, warm starts and plans
     try:
-        ctrl = make_controller(kind, design, mission, control_dt=CONTROL_DT)
         res = run_mission(ctrl, plant, mission, dt=SIM_DT, control_dt=CONTROL_DT)
     except FloatingPointError as exc:
         return _null_row(design, plant, kind, f"diverged: {exc}"), None
-    except Exception as exc:  # noqa: BLE001 - one failed design must not stop the matrix
+    except Exception as exc:  # noqa: BLE001 - one failed run must not stop the matrix
         return _null_row(design, plant, kind, f"failed: {type(exc).__name__}: {exc}"), None
     p = as_parameters(plant)
     m = mission_metrics(res, mission, p.f_min, p.f_max)
@@ -127,26 +133,58 @@ def _decimate(res, every=5):
     return {"t": res.t[::every], "z": res.x[::every, 2], "psi": res.x[::every, 5], "u": res.x[::every, 6]}
 
 
-def run_pair(design, plant, controllers, quick, with_ekf, keep_trajectory):
-    """All controllers (and the EKF) for one (design A, plant B) pair; worker function of the pool."""
+def run_design(kind, design, plants, quick, keep_trajectory):
+    """Design ``kind`` once on model ``design`` and fly it on every plant; worker function of the pool.
+
+    Returns (rows, trajectories); the trajectory of the matched pair (design == plant) is kept when asked.
+    """
+    from udrobot_ctrl.control.missions import make_controller
+
     mission = standard_mission(quick)
+    ok, why = controller_available(kind)
+    if not ok:
+        return [_null_row(design, b, kind, f"skipped: {why}") for b in plants], {}
+    try:
+        ctrl = make_controller(kind, design, mission, control_dt=CONTROL_DT)
+    except FloatingPointError as exc:
+        return [_null_row(design, b, kind, f"design diverged: {exc}") for b in plants], {}
+    except Exception as exc:  # noqa: BLE001 - one failed design must not stop the matrix
+        return [_null_row(design, b, kind, f"design failed: {type(exc).__name__}: {exc}") for b in plants], {}
     rows, trajs = [], {}
-    for kind in controllers:
-        ok, why = controller_available(kind)
-        if not ok:
-            rows.append(_null_row(design, plant, kind, f"skipped: {why}"))
-            continue
-        row, res = _fly(kind, design, plant, mission)
+    for plant in plants:
+        row, res = _fly(ctrl, kind, design, plant, mission)
         rows.append(row)
-        if keep_trajectory and res is not None:
+        if keep_trajectory and res is not None and plant == design:
             trajs[(kind, design, plant)] = _decimate(res)
-    est = _estimate(design, plant, mission) if with_ekf else None
-    return rows, est, trajs
+    return rows, trajs
 
 
-def compare(models=MODEL_NAMES, controllers=CONTROLLER_KINDS, quick: bool = False, workers: int | None = 2,
-            keep_trajectories: bool = False, ekf: bool = True, t_final: float | None = None) -> dict:
+def run_filter(design, plants, quick):
+    """The EKF built on ``design`` on the data of every plant; worker function of the pool."""
+    mission = standard_mission(quick)
+    return [_estimate(design, b, mission) for b in plants]
+
+
+# CPU seconds of one job (a design flown on the five plants, quick mission; the EKF on five data sets), measured
+# once on the development machine; only their order matters: the longest jobs start first
+_JOB_COST = {"nmpc": 2.5, "lmpc": 1.7, "lqr": 0.35, "pid": 0.27, "ekf": 0.4}
+
+
+def _progress(total, desc):
+    """A tqdm bar on stderr, silent when stderr is not a terminal."""
+    from tqdm.auto import tqdm
+
+    return tqdm(total=total, desc=desc, unit="job", disable=None, leave=False)
+
+
+def compare(models=MODEL_NAMES, controllers=CONTROLLER_KINDS, quick: bool = False, workers: int | None = None,
+            keep_trajectories: bool = False, ekf: bool = True, t_final: float | None = None,
+            progress: bool = True) -> dict:
     """Run the (design A, plant B, controller) matrix and the EKF matrix.
+
+    Each controller is designed once per design model and flown on every plant (a design does not depend on
+    the plant); the jobs (one per controller and design model, one per EKF model) run in a process pool,
+    longest first.
 
     Parameters
     ----------
@@ -157,20 +195,22 @@ def compare(models=MODEL_NAMES, controllers=CONTROLLER_KINDS, quick: bool = Fals
     quick : bool
         Short (23 s) mission instead of the full 46 s one.
     workers : int or None
-        Processes of the pool (1 = run in this process).
+        Processes of the pool (1 = run in this process; None = one per core).
     keep_trajectories : bool
         Keep decimated trajectories of the matched pairs (design == plant) for plots.
     ekf : bool
         Also run the EKF matrix (skipped with a reason if :mod:`udrobot_ctrl.control.ekf` is missing).
     t_final : float, optional
         Backwards-compatible switch: a value below the full mission's 46 s selects ``quick``.
+    progress : bool
+        Show a progress bar on stderr (only when it is a terminal).
 
     Returns
     -------
     dict
-        ``models``, ``results`` (rows with the contract keys plus details and ``status``), ``ekf`` (rows),
-        ``skipped`` (name -> reason), ``mission`` (name and duration), ``wall_s``, and ``trajectories``
-        when asked.
+        ``models``, ``results`` (rows with the contract keys plus details and ``status``, ordered by design,
+        plant, controller), ``ekf`` (rows), ``skipped`` (name -> reason), ``mission`` (name and duration),
+        ``wall_s``, and ``trajectories`` when asked.
     """
     models = list(models)
     controllers = list(controllers)
@@ -195,24 +235,41 @@ def compare(models=MODEL_NAMES, controllers=CONTROLLER_KINDS, quick: bool = Fals
         ok, why = ekf_available()
         if not ok:
             skipped["ekf"], with_ekf = why, False
-    pairs = [(a, b) for a in models for b in models]
     t0 = time.perf_counter()
-    jobs = [(a, b, controllers, quick, with_ekf, keep_trajectories and a == b) for a, b in pairs]
+    jobs = [("ctrl", (kind, a, models, quick, keep_trajectories)) for a in models for kind in controllers]
+    if with_ekf:
+        jobs += [("ekf", (a, models, quick)) for a in models]
+    jobs.sort(key=lambda j: -_JOB_COST.get(j[1][0] if j[0] == "ctrl" else "ekf", 1.0))
     if workers is None:
-        workers = min(2, os.cpu_count() or 1)
-    if workers <= 1 or len(jobs) == 1:
-        outs = [run_pair(*j) for j in jobs]
+        workers = os.cpu_count() or 1
+    workers = max(1, min(workers, len(jobs)))
+    bar = _progress(len(jobs), "compare") if progress else None
+    outs = []
+    if workers <= 1:
+        for tag, a in jobs:
+            outs.append((tag, run_design(*a) if tag == "ctrl" else run_filter(*a)))
+            if bar is not None:
+                bar.update()
     else:
         import multiprocessing as mp
 
         with ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn")) as pool:
-            outs = list(pool.map(run_pair, *zip(*jobs)))
+            futures = {pool.submit(run_design if tag == "ctrl" else run_filter, *a): tag for tag, a in jobs}
+            for fut in as_completed(futures):
+                outs.append((futures[fut], fut.result()))
+                if bar is not None:
+                    bar.update()
+    if bar is not None:
+        bar.close()
     rows, ekf_rows, trajs = [], [], {}
-    for r, e, tr in outs:
-        rows.extend(r)
-        if e is not None:
-            ekf_rows.append(e)
-        trajs.update(tr)
+    for tag, out in outs:
+        if tag == "ctrl":
+            rows.extend(out[0])
+            trajs.update(out[1])
+        else:
+            ekf_rows.extend(out)
+    rows.sort(key=lambda r: (models.index(r["design"]), models.index(r["plant"]), controllers.index(r["controller"])))
+    ekf_rows.sort(key=lambda e: (models.index(e["filter_model"]), models.index(e["plant"])))
     mission = standard_mission(quick)
     out = {"models": models, "results": rows, "ekf": ekf_rows, "skipped": skipped,
            "mission": {"name": mission.name, "t_final": mission.t_final}, "wall_s": time.perf_counter() - t0}
@@ -240,28 +297,50 @@ def contract_json(result) -> dict:
                      "nis_mean": e["nis_mean"]} for e in result["ekf"]]})
 
 
+TABLE_LEGEND = """\
+legend (controller table): ctrl = controller (lqr: gain-scheduled LQR, pid: decoupled PID, lmpc: linear MPC,
+  nmpc: nonlinear MPC); design A = model the controller was designed on; plant B = model it flew on;
+  IAE s = sum over depth, heading and surge of the integral of |error| dt divided by the channel's largest
+  step (1 m, 90 deg, 0.5 m/s), s;
+  OS % = overshoot of the depth step, % of the step; Ts s = settling time of the depth step (2 % band), s,
+  '-' = did not settle before the next manoeuvre; E kJ = estimated thruster electrical energy, kJ;
+  sat s = time with a thruster at its limit, s; pitch = largest |pitch| angle, deg; '-' in any other
+  column = no value (the run failed: see status).
+legend (EKF table): EKF model A = model inside the filter; plant B = model that made the data; z m, psi rad,
+  u m/s = RMS estimation error of depth, heading and surge speed; NIS = mean normalised innovation squared
+  (about the number of measured components when the filter is consistent)."""
+
+
 def _f(v, fmt):
-    return "-" if v is None or (isinstance(v, float) and not np.isfinite(v)) else format(v, fmt)
+    """``v`` formatted with ``fmt``; a missing or non-finite value is ``-``, right-aligned to the same width."""
+    if v is None or (isinstance(v, float) and not np.isfinite(v)):
+        width = fmt.split(".")[0]
+        return format("-", f">{width}") if width.isdigit() else "-"
+    return format(v, fmt)
 
 
 def text_table(results, ekf_rows=()) -> str:
-    """Readable fixed-width tables of the controller rows (and the EKF rows)."""
-    hdr = (f"{'ctrl':<5} {'design A':<19} {'plant B':<19} {'IAE s':>7} {'OS %':>6} {'Ts s':>6} {'E kJ':>6} "
+    """Readable fixed-width tables of the controller rows (and the EKF rows); see :data:`TABLE_LEGEND`."""
+    names = [r[k] for r in results for k in ("design", "plant")] + [e[k] for e in ekf_rows for k in
+                                                                      ("filter_model", "plant")]
+    w = max([19, *map(len, names)])
+    hdr = (f"{'ctrl':<5} {'design A':<{w}} {'plant B':<{w}} {'IAE s':>7} {'OS %':>6} {'Ts s':>6} {'E kJ':>6} "
            f"{'sat s':>6} {'pitch':>6}  status")
     lines = [hdr, "-" * len(hdr)]
     for r in results:
         e = r.get("energy_J")
-        lines.append(f"{r['controller']:<5} {r['design']:<19} {r['plant']:<19} {_f(r.get('iae'), '7.3f')} "
+        lines.append(f"{r['controller']:<5} {r['design']:<{w}} {r['plant']:<{w}} {_f(r.get('iae'), '7.3f')} "
                      f"{_f(r.get('overshoot'), '6.1f')} {_f(r.get('settling_s'), '6.2f')} "
                      f"{_f(None if e is None else e / 1000, '6.2f')} {_f(r.get('saturation_s'), '6.2f')} "
                      f"{_f(r.get('max_pitch_deg'), '6.1f')}  {r.get('status', '')[:60]}")
     if ekf_rows:
-        h2 = f"\n{'EKF model A':<19} {'plant B':<19} {'z m':>8} {'psi rad':>8} {'u m/s':>8} {'NIS':>7}  status"
+        h2 = f"\n{'EKF model A':<{w}} {'plant B':<{w}} {'z m':>8} {'psi rad':>8} {'u m/s':>8} {'NIS':>7}  status"
         lines += [h2, "-" * len(h2)]
         for e in ekf_rows:
             rm = e["rmse"]
-            lines.append(f"{e['filter_model']:<19} {e['plant']:<19} {_f(rm['z'], '8.4f')} {_f(rm['psi'], '8.4f')} "
-                         f"{_f(rm['u'], '8.4f')} {_f(e['nis_mean'], '7.2f')}  {e.get('status', '')[:60]}")
+            lines.append(f"{e['filter_model']:<{w}} {e['plant']:<{w}} {_f(rm['z'], '8.4f')} "
+                         f"{_f(rm['psi'], '8.4f')} {_f(rm['u'], '8.4f')} {_f(e['nis_mean'], '7.2f')}  "
+                         f"{e.get('status', '')[:60]}")
     return "\n".join(lines)
 
 
@@ -294,7 +373,7 @@ def write_outputs(result, out: Path) -> list:
         e["filter_model"], e["plant"], e["rmse"]["z"], e["rmse"]["psi"], e["rmse"]["u"], e["nis_mean"],
         e.get("status"))) for e in result["ekf"]]) + "\n")
     skipped = "".join(f"\nskipped {k}: {v}" for k, v in result.get("skipped", {}).items())
-    _write_atomic(files[2], text_table(rows, result["ekf"]) + skipped + "\n")
+    _write_atomic(files[2], text_table(rows, result["ekf"]) + "\n\n" + TABLE_LEGEND + skipped + "\n")
     _write_atomic(files[3], json.dumps(_finite({k: v for k, v in result.items() if k != "trajectories"}),
                                        indent=1, default=float))
     n = len(models)
@@ -331,10 +410,10 @@ def write_outputs(result, out: Path) -> list:
             im = ax.imshow(mat, cmap="magma")
             ax.set_xticks(range(n), short, fontsize=6)
             ax.set_yticks(range(n), short, fontsize=6)
-            ax.set_title(f"EKF RMSE {s}")
+            ax.set_title(f"EKF RMSE of {EKF_LABELS[s]}")
             ax.set_xlabel("plant B")
             ax.set_ylabel("filter model A")
-            fig.colorbar(im, ax=ax)
+            fig.colorbar(im, ax=ax, label=f"RMSE {s} ({EKF_UNITS[s]})")
         fig.tight_layout()
         path = out / "compare_ekf_rmse.png"
         fig.savefig(path, dpi=110)
@@ -355,7 +434,7 @@ def write_outputs(result, out: Path) -> list:
             tt = np.linspace(0, mission.t_final, 500)
             ref = mission.reference_array(tt)
             for i, (c, scale) in enumerate((("z", 1.0), ("psi", 180 / np.pi), ("u", 1.0))):
-                axes[i, j].plot(tt, ref[c] * scale, "k--", lw=0.8)
+                axes[i, j].plot(tt, ref[c] * scale, "k--", lw=0.8, label="reference" if i == 0 else None)
                 axes[i, j].grid(True, alpha=0.3)
             axes[0, j].set_title(f"{kind.upper()} (design = plant)")
             axes[0, j].invert_yaxis()
@@ -363,7 +442,7 @@ def write_outputs(result, out: Path) -> list:
         axes[0, 0].set_ylabel("depth z (m)")
         axes[1, 0].set_ylabel("heading (deg)")
         axes[2, 0].set_ylabel("surge u (m/s)")
-        axes[0, 0].legend(fontsize=7)
+        axes[0, 0].legend(fontsize=7, title="design = plant", title_fontsize=7)
         fig.tight_layout()
         path = out / "compare_missions.png"
         fig.savefig(path, dpi=110)

@@ -281,8 +281,9 @@ class StructureReport:
     dominant_states: dict
 
     def summary(self) -> str:
+        obs = "" if self.observable_rank is None else f"; observable rank {self.observable_rank}"
         lines = [f"states {', '.join(self.states)} ({len(self.states)}); controllable subspace dimension "
-                 f"{self.controllable_rank}; observable rank {self.observable_rank}"]
+                 f"{self.controllable_rank}{obs}"]
         for lam, m in zip(self.eigenvalues, self.pbh_margin):
             key = _fmt(lam)
             lines.append(f"  mode {key:>20}  PBH margin {m:8.2e}  ({', '.join(self.dominant_states[key])})")

@@ -224,15 +224,23 @@ def generalized_forces(x, p: PlantParameters):
 def state_derivative(x, tau, p: PlantParameters):
     """x_dot = f(x, tau) for state (..., 12) and body wrench tau (..., 6) in N, N m.
 
+    ``tau`` is the body wrench, not per-thruster thrusts: convert those with :func:`thrust_to_wrench`.
+
     Raises
     ------
     ValueError
-        If ``x`` or ``tau`` has the wrong number of components (e.g. thruster forces passed as ``tau``).
+        If ``x`` does not end in 12 states or ``tau`` in 6 wrench components.
     """
     x = np.asarray(x, dtype=float)
-    tau = np.asarray(tau, dtype=float)
-    _check_last_axis("x", x, 12)
-    _check_last_axis("tau", tau, 6)
+    tau = np.asarray(tau, float)
+    if x.shape[-1:] != (12,):
+        raise ValueError(f"state_derivative: x has shape {x.shape}; expected (..., 12) "
+                         "(x y z phi theta psi u v w p q r)")
+    if tau.shape[-1:] != (6,):
+        hint = (f"; {tau.shape[-1]} values look like per-thruster thrusts: pass thrust_to_wrench(thrusts, p)"
+                if tau.ndim and tau.shape[-1] == p.T.shape[1] else "")
+        raise ValueError(f"state_derivative: tau has shape {tau.shape}; expected (..., 6), the body wrench "
+                         f"X Y Z K M N in N and N m{hint}")
     if not p.effects:
         return _assemble(_EQ.state_derivative(_components(x), _components(tau), *_parameters(p)))
     X = _components(x)

@@ -149,7 +149,7 @@ def _magnitude_at_voltage(dpwm_abs, voltage, d0s, coeffs, volts, exponent):
 def _check_voltage(voltage):
     v = np.asarray(voltage, float)
     if np.any(~np.isfinite(v)) or np.any(v <= 0):
-        raise ValueError(f"supply voltage must be finite and > 0 V, got {voltage!r}")
+        raise ValueError(f"supply voltage must be finite and > 0 V, got {voltage}")
     return v
 
 

@@ -1,10 +1,21 @@
 """Figures of a diagnosis: residuals per channel with located windows shaded; simulated vs measured."""
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 from udrobot_ctrl.gap.shrink import errors
 from udrobot_ctrl.vehicle import STATE_INDEX
+
+# units of the state channels (udrobot-run/1): positions m, angles rad, velocities m/s and rad/s
+UNITS = {"x": "m", "y": "m", "z": "m", "phi": "rad", "theta": "rad", "psi": "rad", "u": "m/s", "v": "m/s",
+         "w": "m/s", "p": "rad/s", "q": "rad/s", "r": "rad/s"}
+
+
+def file_label(run_name: str) -> str:
+    """File-name-safe label of a run name: ``pool.csv[last third]`` -> ``pool_last_third``."""
+    label = re.sub(r"\.(csv|json|bag|mcap|db3|tlog|bin)(?=\[|$)", "", run_name, flags=re.IGNORECASE)
+    return re.sub(r"[^\w.-]+", "_", label).strip("_.") or "run"
 
 
 def write_plots(ctx, report, outdir):
@@ -26,12 +37,12 @@ def write_plots(ctx, report, outdir):
         fig, axes = plt.subplots(len(chans), 1, figsize=(10, 1.6 * len(chans) + 1), sharex=True, squeeze=False)
         for ax, c in zip(axes[:, 0], chans):
             ax.plot(prep.t, err[c], lw=0.7)
-            ax.set_ylabel(f"{c} sim-meas")
+            ax.set_ylabel(f"{c} sim - meas\n({UNITS.get(c, '')})")
             for a, b in windows.get(prep.name, []):
                 ax.axvspan(a, b, color="orange", alpha=0.25)
         axes[-1, 0].set_xlabel("t (s)")
         fig.suptitle(f"nominal model residuals, {prep.name} (located windows shaded)")
-        p = out / f"residuals_{Path(prep.name).stem}.png"
+        p = out / f"residuals_{file_label(prep.name)}.png"
         fig.savefig(p, dpi=90)
         plt.close(fig)
         paths.append(p)
@@ -46,11 +57,11 @@ def write_plots(ctx, report, outdir):
             ax.plot(prep.t, s0[:, STATE_INDEX[c]], lw=0.8, label="nominal")
             if s1 is not s0:
                 ax.plot(prep.t, s1[:, STATE_INDEX[c]], lw=0.8, label="with significant effects")
-            ax.set_ylabel(c)
+            ax.set_ylabel(f"{c} ({UNITS.get(c, '')})")
         axes[0, 0].legend(loc="upper right", fontsize=7)
         axes[-1, 0].set_xlabel("t (s)")
         fig.suptitle(f"holdout {prep.name}: multiple-shooting replay before/after")
-        p = out / f"overlay_{Path(prep.name).stem}.png"
+        p = out / f"overlay_{file_label(prep.name)}.png"
         fig.savefig(p, dpi=90)
         plt.close(fig)
         paths.append(p)

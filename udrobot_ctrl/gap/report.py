@@ -1,4 +1,4 @@
-"""The diagnosis end to end and its ``udrobot-diagnosis/1`` report (../shared/spec/diagnosis.md).
+"""The diagnosis end to end and its ``udrobot-diagnosis/1`` report (docs/formats/diagnosis.md).
 
 :func:`diagnose` prepares the runs, locates the gap with the nominal model, fits and selects effects on the
 fit runs (:mod:`udrobot_ctrl.gap.attribute`) and scores every effect, and the combination of the significant
@@ -50,7 +50,7 @@ def split_runs(runs, holdout):
     def part(mask, tag):
         return Run(path=f"{_name(r)}[{tag}]", t=r.t[mask], channels={c: v[mask] for c, v in r.channels.items()},
                    input_kind=r.input_kind, inputs=r.inputs[mask], extra={}, metadata=r.metadata)
-    return [part(a, "first 2/3")], [part(b, "last 1/3")], \
+    return [part(a, "first two thirds")], [part(b, "last third")], \
         f"no --holdout and one run: the first two thirds fit, the last third ({cut - r.t[0]:.1f} s on) is held out"
 
 
@@ -165,7 +165,9 @@ def diagnose(model, runs, holdout=None, window_s=8.0, effects=None, log=None, mo
     att.dofs = dofs & dofs_h
     sel = select(att, att_h, names, log=say) if True else None
     att_h.n_eff = max(10.0, att_h.N / max(sel["tau_int"], 1.0))
-    say(f"fitted {len(names)} effects; selected {sel['selected'] or 'none'} ({time.perf_counter() - t0:.1f} s)")
+    say(f"fitted {len(names)} candidate effects; {len(sel['selected'])} pass the fit-run tests"
+        + (f" ({', '.join(sel['selected'])}), to be confirmed on the holdout" if sel["selected"] else "")
+        + f" ({time.perf_counter() - t0:.1f} s)")
 
     # -- how far: simulate the holdout runs with each effect alone and with the selected ones together
     ho_sims0 = nominal_sims[len(fit_p):]
@@ -245,8 +247,9 @@ def diagnose(model, runs, holdout=None, window_s=8.0, effects=None, log=None, mo
                     "per_surface": per}
         entries.append(entry)
     unexplained = (g_after["value"] / g_before["value"]) if g_before["value"] > 0 else float("nan")
-    verdict = (f"significant: {', '.join(sel['selected'])}" if sel["selected"] else
-               "no catalogue effect explains the gap significantly")
+    verdict = (f"significant: {len(sel['selected'])} of {len(names)} effects tested ({', '.join(sel['selected'])})"
+               if sel["selected"] else
+               f"no catalogue effect explains the gap significantly ({len(names)} effects tested)")
     if sel["selected"] and unexplained > 0.5:
         verdict += f"; {100 * unexplained:.0f}% of the gap remains unexplained"
     elif not sel["selected"] and g_before["value"] > 0:

@@ -1,4 +1,4 @@
-"""Run logs in the ``udrobot-run/1`` format (../shared/spec/runlog.md): read, validate, write, resample.
+"""Run logs in the ``udrobot-run/1`` format (docs/formats/runlog.md): read, validate, write, resample.
 
 A run is one logged manoeuvre: a CSV ``NAME.csv`` (one header row, one row per sample, SI units,
 radians) and an optional sidecar ``NAME.json`` with the set-up metadata.
@@ -315,8 +315,8 @@ def read_run(path) -> Run:
             raise RunLogError(f"{_where(path, row=row, line=line, column='t')}: empty/nan time; every sample needs "
                               f"a finite time in s")
         if i and not t[i] > t[i - 1]:
-            raise RunLogError(f"{_where(path, row=row, line=line, column='t')}: t = {t[i]!r} s is not greater than "
-                              f"the previous row's {t[i - 1]!r} s; t must be strictly increasing")
+            raise RunLogError(f"{_where(path, row=row, line=line, column='t')}: t = {float(t[i])!r} s is not "
+                              f"greater than the previous row's {float(t[i - 1])!r} s; t must be strictly increasing")
     channels = {c: _column_values(path, rows, index[c], c, strict=True) for c in channel_cols}
     inputs = np.column_stack([_column_values(path, rows, index[c], c, strict=True) for c in input_cols])
     extra = {c: _column_values(path, rows, index[c], c, strict=False) for c in extra_cols}

@@ -76,7 +76,8 @@ def sobol_bars(global_result, metric: str, top: int | None = 12, path=None, titl
         ax.bar(x + (k - 0.5) * w, vals, w, yerr=err, capsize=3, label=label)
     ax.set_xticks(x, [r.names[j] for j in order], rotation=40, ha="right")
     ax.axhline(0, color="k", lw=0.8)
-    ax.set_ylabel("index" if r.method == "sobol" else f"{metric} units")
+    ax.set_ylabel("Sobol index (share of the variance of " + metric + ", -)" if r.method == "sobol"
+                  else f"Morris mu*, sigma (units of {metric})")
     ax.set_title(title or f"{r.method.capitalize()} indices of {metric} ({int(r.conf_level * 100)} % CI, "
                  f"{r.n_runs} runs)")
     ax.legend(fontsize="small")

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from udrobot_ctrl.dynamics import plant_casadi
-from udrobot_ctrl.dynamics.plant import coriolis_centripetal, plant_parameters, state_derivative
+from udrobot_ctrl.dynamics.plant import coriolis_centripetal, plant_parameters, state_derivative, thrust_to_wrench
 from udrobot_ctrl.dynamics.sim import rk4_step, simulate
 from udrobot_ctrl.vehicle import MODEL_NAMES, load_model
 
@@ -132,3 +132,19 @@ def test_small_roll_pitch_oscillation_frequency(name, axis):
     assert omega_meas == pytest.approx(omega_simple, rel=0.05)
     # amplitude preserved without damping
     assert np.max(np.abs(res.x[len(res.t) // 2:, axis])) == pytest.approx(np.deg2rad(2.0), rel=0.02)
+
+
+def test_state_derivative_names_a_wrong_shape():
+    """Per-thruster thrusts passed as the wrench get a clear error pointing at thrust_to_wrench, not a
+    broadcast error; a wrong state length is named too."""
+    p = plant_parameters(load_model("pendulum:chin"))
+    x = np.zeros(12)
+    with pytest.raises(ValueError, match=r"tau has shape \(4,\).*thrust_to_wrench"):
+        state_derivative(x, np.ones(4), p)
+    with pytest.raises(ValueError, match=r"x has shape \(6,\); expected \(\.\.\., 12\)"):
+        state_derivative(np.zeros(6), np.zeros(6), p)
+    tau = thrust_to_wrench(np.array([10.0, 10.0, 0.0, 0.0]), p)
+    np.testing.assert_allclose(tau, [20.0, 0, 0, 0, 0, 0], atol=1e-12)  # two forward thrusters, symmetric
+    xdot = state_derivative(x, tau, p)
+    # at rest: surge acceleration X / (m + m_a), raised by ~1 % by the surge-pitch coupling m z_g of M_RB
+    assert xdot[6] == pytest.approx(20.0 / p.M[0, 0], rel=0.02)

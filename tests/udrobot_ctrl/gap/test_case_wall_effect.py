@@ -32,7 +32,7 @@ def test_truth_law_is_seed_000_gap_ratio(wall):
     _, dM = tr.surface_terms(x)
     ratio = dM[:, 2, 2] / tr.MA[2, 2]
     assert ratio[0] < 0.01
-    assert ratio[1] == pytest.approx(0.40, abs=0.03)  # seed 000: 10.64 vs 7.62 kg near the bottom
+    assert ratio[1] == pytest.approx(0.40, abs=0.03)  # Cely et al. 2019: 10.64 vs 7.62 kg near the bottom
 
 
 def test_wall_effect_named_first(result):

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from udrobot_ctrl.cli import main
-from udrobot_ctrl.control.compare import DETAIL_KEYS, RESULT_KEYS, run_pair
+from udrobot_ctrl.control.compare import DETAIL_KEYS, RESULT_KEYS, run_design
 from udrobot_ctrl.control.missions import Mission, ReferenceStep, standard_mission
 from udrobot_ctrl.sensitivity.evaluators import MissionEvaluator
 from udrobot_ctrl.sensitivity.executor import SweepExecutor
@@ -28,7 +28,7 @@ def test_nominal_sample_gives_compare_metrics(kind):
     model = "cfd:morison"
     space = default_space(model)
     out = MissionEvaluator(space, kind, mission=standard_mission(quick=True))(space.nominal[None])
-    rows, _, _ = run_pair(model, model, [kind], quick=True, with_ekf=False, keep_trajectory=False)
+    rows, _ = run_design(kind, model, [model], quick=True, keep_trajectory=False)
     row = rows[0]
     assert out["error"] == [""] and row["status"] == "ok"
     for k in RESULT_KEYS[3:] + DETAIL_KEYS:
