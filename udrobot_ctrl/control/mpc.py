@@ -524,10 +524,14 @@ class _MPCBase:
         return f
 
     def reset(self):
-        """Forget the warm start and the previous plan."""
+        """Forget the warm start, the previous plan and the QP solver's iterates: a design flown again (compare
+        flies one design on every plant) starts like a fresh one."""
         self._plan = None
         self._plan_age = 0
         self.last_command = None
+        qp = getattr(self, "qp", None)
+        if qp is not None:
+            qp.reset_solver()
 
     def set_thruster_limits(self, j, lo, hi):
         """Reconfigure after a thruster fault: thruster ``j`` (0-based) can only produce ``[lo, hi]`` N from now on
