@@ -14,6 +14,9 @@ import numpy as np
 
 from udrobot_ctrl.vehicle import Vehicle
 
+#: V, thruster supply assumed when a vehicle states none (UDrobot: Cely 2019 sec. 3.1 nominal 12 V).
+DEFAULT_SUPPLY_VOLTAGE = 12.0
+
 
 class SingularMassMatrixError(ValueError):
     """The total mass matrix M_RB + M_A is not symmetric positive definite."""
@@ -155,6 +158,7 @@ class PlantParameters:
     f_max: np.ndarray
     name: str = ""
     M_A: np.ndarray | None = None
+    supply_voltage: float = DEFAULT_SUPPLY_VOLTAGE  # V, thruster supply for pwm -> thrust (the vehicle's own)
 
 
 def plant_parameters(vehicle: Vehicle) -> PlantParameters:
@@ -180,6 +184,7 @@ def plant_parameters(vehicle: Vehicle) -> PlantParameters:
         r_g=np.asarray(vehicle.r_g, float), r_b=np.asarray(vehicle.r_b, float),
         T=thruster_matrix(vehicle.thrusters), f_min=lo, f_max=hi, name=vehicle.name,
         M_A=np.asarray(vehicle.added_mass, float),
+        supply_voltage=float((vehicle.extras or {}).get("voltage", DEFAULT_SUPPLY_VOLTAGE)),
     )
 
 
