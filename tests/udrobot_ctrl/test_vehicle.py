@@ -1,10 +1,10 @@
 """Model names load; their surge/sway/heave entries equal Cely 2019's tables (issue 2, test 4)."""
 import json
-import tomllib
 from importlib import resources
 
 import numpy as np
 import pytest
+import tomllib
 
 from udrobot_ctrl.dynamics.plant import SingularMassMatrixError, plant_parameters
 from udrobot_ctrl.dynamics.thrusters import actuated_dofs, thrust_limits
@@ -209,7 +209,8 @@ def test_bluerov_model_file_round_trip(tmp_path, name):
 
 def test_vehicle_toml_path_and_bad_descriptions(tmp_path):
     src = tmp_path / "myrov.toml"
-    text = resources.files("udrobot_ctrl.models").joinpath("bluerov2.toml").read_text().replace('name = "bluerov2"', 'name = "myrov"')
+    shipped = resources.files("udrobot_ctrl.models").joinpath("bluerov2.toml").read_text()
+    text = shipped.replace('name = "bluerov2"', 'name = "myrov"')
     src.write_text(text)
     assert load_model(str(src)).name == "myrov"
     doc = tomllib.loads(text)
