@@ -85,8 +85,8 @@ def test_hover_trims(params):
     # 1.96 N light: the verticals push down; least squares trades ~1e-5 N of heave for the coupled pitch row
     np.testing.assert_allclose(h6.u0[4:].sum(), p6.buoyancy - p6.weight, rtol=1e-4)
     # the only residual is the small pitch moment of the verticals at x = 0.0025 m, left to the restoring moment
-    assert np.all(np.abs(h6.residual[:4]) < 1e-9) and abs(h6.residual[5]) < 1e-9
-    assert abs(h6.residual[4]) < 0.05
+    assert 1e-3 < abs(h6.residual[4]) < 0.05  # rad/s^2: 0.0025 m x ~1 N over I_yy + M_qdot
+    assert np.all(np.abs(h6.residual[[0, 1, 2, 3, 5]]) < 1e-2 * abs(h6.residual[4]))
 
 
 @pytest.mark.parametrize("name", sorted(N_THR))
