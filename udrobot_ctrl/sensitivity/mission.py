@@ -7,8 +7,9 @@ that module exists (IAE, overshoot, settling time, thrust energy, saturation) pl
 
 LQR design: the plant (casadi twin) is linearised at the cruise point (surge speed ``surge_mps``, level,
 at rest otherwise) with the trim thrust that balances the design model's drag and net buoyancy there
-(feed-forward); the design uses the controllable states z, phi, psi, u, w, p, r (sway and pitch are
-passive on UDrobot: no thruster acts on them). Control law
+(feed-forward); the design uses the states z, phi, psi, u, w, p, r for any thruster layout (sway and pitch
+are left to damping and restoring: passive on UDrobot, coupled to surge on the BlueROV2, actuated but not
+tracked by this mission on the BlueROV2 Heavy). Control law
 ``f = f_trim - K (x_r - x_ref_r)`` with the heading error wrapped to [-pi, pi], clipped by the thrusters.
 There is no integral action, so a plant whose surge drag differs from the design model's settles at a
 different speed: that is how a wrong C_D / K_Q shows in closed loop. At hover (``surge_mps = 0``)
@@ -22,7 +23,19 @@ import numpy as np
 
 from udrobot_ctrl.dynamics.plant import plant_parameters
 
-CONTROLLED = (2, 3, 5, 6, 8, 9, 11)  # z phi psi u w p r
+CONTROLLED = (2, 3, 5, 6, 8, 9, 11)  # z phi psi u w p r: the tracked channels and the DOFs every layout acts on
+STATE_LABELS = ("x", "y", "z", "phi", "theta", "psi", "u", "v", "w", "p", "q", "r")
+
+
+def design_states(T) -> tuple:
+    """State indices of the design: :data:`CONTROLLED` (heading third), then pitch (theta, q) when a thruster
+    makes a pitch moment and sway (v) when one makes a sway force (BlueROV2, Heavy: a controller that ignored
+    them would tip the vehicle with its vertical-thrust combinations). UDrobot: exactly :data:`CONTROLLED`."""
+    T = np.asarray(T, float)
+    scale = max(1.0, float(np.abs(T).max()))
+    extra = ((4, 10) if np.any(np.abs(T[4]) > 1e-9 * scale) else ()) + ((7,) if np.any(np.abs(T[1]) > 1e-9 * scale)
+                                                                         else ())
+    return CONTROLLED + extra
 
 
 @dataclass(frozen=True)
@@ -75,6 +88,13 @@ class LQRWeights:
     p: float = 0.5
     r: float = 0.5
     thrust_N: float = 10.0
+    theta: float = 0.2  # rad, only for layouts that act on pitch (design_states)
+    v: float = 0.3  # m/s, only for layouts that act on sway
+    q: float = 0.5  # rad/s, only for layouts that act on pitch
+
+    def q_matrix(self, states) -> np.ndarray:
+        """Bryson state weight diag(1 / dx_max^2) for the design ``states`` (indices into the 12-state)."""
+        return np.diag(1.0 / np.array([getattr(self, STATE_LABELS[i]) for i in states], float) ** 2)
 
 
 def trim_thrust(p, x_op) -> np.ndarray:
@@ -100,32 +120,35 @@ def linearise(p, x_op):
 
 
 def lqr_gain(vehicle, weights: LQRWeights = LQRWeights(), mission: DepthHeadingMission | None = None):
-    """LQR gain K (n_thr x 7) on the controlled states and the trim thrust at the mission's cruise point."""
+    """LQR gain K (n_thr x k) on :func:`design_states` and the trim thrust at the mission's cruise point."""
     import control
 
     p = plant_parameters(vehicle)
     x_op = (mission or DepthHeadingMission()).operating_point()
     A, B, trim = linearise(p, x_op)
-    idx = list(CONTROLLED)
+    idx = list(design_states(p.T))
     Ar, Br = A[np.ix_(idx, idx)], B[idx]
     w = weights
-    Q = np.diag(1.0 / np.array([w.z, w.phi, w.psi, w.u, w.w, w.p, w.r]) ** 2)
+    Q = w.q_matrix(idx)
     R = np.eye(Br.shape[1]) / w.thrust_N**2
     K, _, _ = control.lqr(Ar, Br, Q, R)
     return np.asarray(K), trim
 
 
 class BatchLQR:
-    """``controller(t, x (N, 12)) -> thrusts (N, n)``; ``K`` (n, 7) shared or (N, n, 7) per vehicle,
-    ``trim`` (n,) shared or (N, n) per vehicle."""
+    """``controller(t, x (N, 12)) -> thrusts (N, n)``; ``K`` (n, k) shared or (N, n, k) per vehicle on the
+    design ``states`` (k indices, :func:`design_states`), ``trim`` (n,) shared or (N, n) per vehicle."""
 
-    def __init__(self, K, trim, mission: DepthHeadingMission):
+    def __init__(self, K, trim, mission: DepthHeadingMission, states=CONTROLLED):
         self.K, self.trim = np.asarray(K, float), np.asarray(trim, float)
-        self.ref = mission.reference()[list(CONTROLLED)]
+        self.idx = list(states)
+        if self.K.shape[-1] != len(self.idx):
+            raise ValueError(f"gain has {self.K.shape[-1]} columns for {len(self.idx)} design states")
+        self.ref = mission.reference()[self.idx]
 
     def __call__(self, t, x):
         x = np.atleast_2d(x)
-        e = x[:, list(CONTROLLED)] - self.ref
+        e = x[:, self.idx] - self.ref
         e[:, 2] = (e[:, 2] + np.pi) % (2 * np.pi) - np.pi  # heading error wrapped
         if self.K.ndim == 3:
             return self.trim - np.einsum("nij,nj->ni", self.K, e)
@@ -315,13 +338,13 @@ def mpc_matrices(vehicle, mission: DepthHeadingMission, settings: MPCSettings = 
 
     p = plant_parameters(vehicle)
     A, B, trim = linearise(p, mission.operating_point())
-    idx = list(CONTROLLED)
+    idx = list(design_states(p.T))
     Ar, Br = A[np.ix_(idx, idx)], B[idx]
     n, m = Br.shape
     M = sla.expm(np.block([[Ar, Br], [np.zeros((m, n + m))]]) * settings.Ts)
     Ad, Bd = M[:n, :n], M[:n, n:]
     w = weights
-    Q = np.diag(1.0 / np.array([w.z, w.phi, w.psi, w.u, w.w, w.p, w.r]) ** 2) * settings.Ts
+    Q = w.q_matrix(idx) * settings.Ts
     R = np.eye(m) / w.thrust_N**2 * settings.Ts
     P = sla.solve_discrete_are(Ad, Bd, Q, R)
     N = settings.horizon
@@ -337,7 +360,7 @@ def mpc_matrices(vehicle, mission: DepthHeadingMission, settings: MPCSettings = 
     Qbar[-n:, -n:] = P
     H = Gam.T @ Qbar @ Gam + np.kron(np.eye(N), R)
     F = Phi.T @ Qbar @ Gam
-    return {"H": H, "F": F, "L": float(np.linalg.eigvalsh(H).max()), "trim": trim, "m": m}
+    return {"H": H, "F": F, "L": float(np.linalg.eigvalsh(H).max()), "trim": trim, "m": m, "states": tuple(idx)}
 
 
 class BatchMPC:
@@ -358,14 +381,15 @@ class BatchMPC:
         self.m = qps[0]["m"]
         self.N = settings.horizon
         self.iters = settings.iterations
-        self.ref = mission.reference()[list(CONTROLLED)]
+        self.idx = list(qps[0].get("states", CONTROLLED))
+        self.ref = mission.reference()[self.idx]
         self.f_min, self.f_max = np.asarray(f_min, float), np.asarray(f_max, float)
         self.U = None
 
     def __call__(self, t, x):
         x = np.atleast_2d(x)
         nv = len(x)
-        e = x[:, list(CONTROLLED)] - self.ref
+        e = x[:, self.idx] - self.ref
         e[:, 2] = (e[:, 2] + np.pi) % (2 * np.pi) - np.pi
         trim = np.broadcast_to(self.trim if not self.shared else self.trim[0], (nv, self.m))
         lo = np.tile(self.f_min, self.N) - np.tile(trim, self.N)
