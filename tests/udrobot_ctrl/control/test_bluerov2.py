@@ -124,6 +124,14 @@ def test_depth_step_settles(params, name, kind):
     assert met["max_pitch_deg"] < (1.0 if name == "bluerov2-heavy" else 25.0)
 
 
+def test_pid_levels_pitch_only_where_the_layout_actuates_it(params):
+    from udrobot_ctrl.control.pid import LOOPS, design_loops
+
+    assert set(design_loops(params["bluerov2-heavy"])) == set(LOOPS) | {"pitch"}
+    assert set(design_loops(params["bluerov2"])) == set(LOOPS)  # pitch coupled to surge/heave: not alone
+    assert set(design_loops(plant_parameters(load_model("cfd:chin")))) == set(LOOPS)
+
+
 @pytest.mark.parametrize("name", sorted(N_THR))
 def test_lqr_design_at_every_operating_point(params, name):
     """One gain row per thruster; continuous closed loop A - B K stable at hover, cruise and top speed."""
