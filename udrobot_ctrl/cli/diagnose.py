@@ -15,7 +15,7 @@ def register(subparsers):
     p = subparsers.add_parser("diagnose", help="diagnose the sim-to-real gap of a model against real runs",
                               description=__doc__.splitlines()[0])
     p.add_argument("runs", nargs="+", metavar="RUN.csv", help="fit runs (udrobot-run/1 CSV or a convertible log)")
-    p.add_argument("--model", required=True, help="model name (pendulum:chin, ...) or a udrobot-model/1 file")
+    p.add_argument("--model", required=True, help="model name (pendulum:chin, bluerov2-heavy, ...) or a model file")
     p.add_argument("--json", required=True, metavar="REPORT.json", help="write the udrobot-diagnosis/1 report")
     p.add_argument("--holdout", nargs="+", default=[], metavar="RUN.csv", help="runs used only to score")
     p.add_argument("--plot", metavar="DIR", help="write residual and overlay figures to DIR")

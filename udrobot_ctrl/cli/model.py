@@ -5,7 +5,7 @@ from pathlib import Path
 
 import numpy as np
 
-from udrobot_ctrl.vehicle import DOF_NAMES, MODEL_NAMES, load_model, write_model_file
+from udrobot_ctrl.vehicle import ALL_MODEL_NAMES, DOF_NAMES, load_model, write_model_file
 
 
 def register(subparsers):
@@ -13,12 +13,12 @@ def register(subparsers):
     parser = subparsers.add_parser("model", help="export or show a plant model (udrobot-model/1)")
     sub = parser.add_subparsers(dest="model_command", required=True)
     exp = sub.add_parser("export", help="write the model as udrobot-model/1 JSON (with provenance)")
-    exp.add_argument("--model", required=True, help=f"model name ({', '.join(MODEL_NAMES)}) or model file")
+    exp.add_argument("--model", required=True, help=f"model name ({', '.join(ALL_MODEL_NAMES)}) or model file")
     exp.add_argument("--out", required=True, help="output JSON file")
     exp.add_argument("--force", action="store_true", help="replace an existing output file")
     exp.set_defaults(func=run_export)
     show = sub.add_parser("show", help="print a summary of the model")
-    show.add_argument("--model", required=True, help=f"model name ({', '.join(MODEL_NAMES)}) or model file")
+    show.add_argument("--model", required=True, help=f"model name ({', '.join(ALL_MODEL_NAMES)}) or model file")
     show.set_defaults(func=run_show)
     parser.set_defaults(func=run)
 

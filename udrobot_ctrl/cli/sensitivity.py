@@ -22,7 +22,7 @@ METHODS = ("local", "sobol", "morris", "montecarlo")
 def register(subparsers):
     p = subparsers.add_parser("sensitivity", help="local / Sobol / Morris sensitivity of closed-loop metrics "
                               "to the hydrodynamic coefficients", description=__doc__.splitlines()[0])
-    p.add_argument("--model", default="cfd:morison", help="nominal (and design) model: SET:FORM or a model file")
+    p.add_argument("--model", default="cfd:morison", help="nominal (and design) model: name or file")
     p.add_argument("--controller", default="lqr", choices=("lqr", "pid", "mpc", "lmpc", "nmpc"))
     p.add_argument("--method", default="local", choices=METHODS)
     p.add_argument("--samples", type=int, default=None,
