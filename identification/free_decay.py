@@ -205,7 +205,7 @@ def _output_error(launch: Launch, rig: SpringRig, start, ext, linear=True):
 def identify_launch(launch: Launch, rig: SpringRig, method="output-error", keep_fit=False) -> dict:
     """Identify one spring launch; raises :class:`LaunchError` on bad data.
 
-    Physically impossible results (negative added mass, damping or drag beyond their 95 % interval) are listed
+    Physically impossible results (negative added mass, damping or drag, :func:`decay.physical_check`) are listed
     in ``impossible`` (reasons); :func:`identification.identify.identify_files` then reports the launch as not ok.
 
     Returns

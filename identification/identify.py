@@ -9,7 +9,7 @@ Steps (spring and pendulum):
 
 1. each file is read, validated and fitted on its own; a bad file becomes ``ok: false`` with the
    reason and never stops the others; so does a physically impossible fit (negative added mass, damping
-   or drag beyond its 95 % interval, :func:`identification.decay.physical_check`): its values are kept
+   or drag 3.29 standard errors below 0, :func:`identification.decay.physical_check`): its values are kept
    with ``impossible`` reasons, never counted as ok nor aggregated;
 2. launches are labelled with their axis (``--axis`` or a ``surge|sway|heave|x|y|z`` token in the
    file name) and amplitude group (an ``L1``..``L4`` token, else the nearest protocol amplitude);

@@ -204,7 +204,7 @@ def output_error_fit(launch: Launch, rig: PendulumRig, start, ext, form="chin"):
 def identify_launch(launch: Launch, rig: PendulumRig, method="output-error", keep_fit=False) -> dict:
     """Identify one pendulum launch in both forms; raises :class:`LaunchError` on bad data.
 
-    Physically impossible results (negative added mass, damping or drag beyond their 95 % interval) are listed
+    Physically impossible results (negative added mass, damping or drag, :func:`decay.physical_check`) are listed
     in ``impossible`` (reasons); :func:`identification.identify.identify_files` then reports the launch as not ok.
 
     Returns

@@ -61,14 +61,16 @@ def test_graphical_fit_rejects_negative_values_too(launches):
 
 
 def test_negative_but_consistent_with_zero_is_doubtful_not_impossible():
-    check = physical_check({"Cm": 0.8, "Cm_ci95": [0.7, 0.9], "KL": -0.01, "KL_ci95": [-0.05, 0.03],
-                            "KQ": 2.0, "KQ_ci95": [1.8, 2.2]})
-    assert check.impossible == () and len(check.doubtful) == 1 and "K_L = -0.01" in check.doubtful[0]
-    check = physical_check({"KQ": -11.2, "graphical": {"Cm": -1.02}})  # no intervals: the sign decides
+    check = physical_check({"Cm": 0.8, "Cm_se": 0.05, "KL": -0.058, "KL_se": 0.027, "KL_ci95": [-0.112, -0.005],
+                            "KQ": 2.0, "KQ_se": 0.1})
+    # 2.1 s.e. below 0: outside the 95 % interval but a true K_L = 0 does that in 2 % of launches: doubtful
+    assert check.impossible == () and len(check.doubtful) == 1 and "K_L = -0.058" in check.doubtful[0]
+    check = physical_check({"KQ": -11.2, "graphical": {"Cm": -1.02}})  # no standard errors: the sign decides
     assert len(check.impossible) == 2
     assert any(r.startswith("K_Q = -11.2") and "feeds energy" in r for r in check.impossible)
     assert any(r.startswith("graphical fit: C_m = -1.02") for r in check.impossible)
     assert physical_check({"KL": float("nan"), "Cm": 0.0}).impossible == ()
+    assert len(physical_check({"Cm": -1.02, "Cm_se": 0.05}).impossible) == 1  # the field-log case: 20 s.e.
 
 
 def test_spring_fluid_damping_below_zero_is_rejected(tmp_path):
@@ -79,7 +81,7 @@ def test_spring_fluid_damping_below_zero_is_rejected(tmp_path):
     opts = RigOptions(mass=truth.mass, volume=truth.volume, stiffness=truth.stiffness, area=truth.area,
                       mechanical_damping=0.6)
     e = identify_files("spring", [path], opts)["launches"][0]
-    assert not e["ok"] and e["KL"] == pytest.approx(-0.5, abs=0.1)
+    assert not e["ok"] and e["KL"] == pytest.approx(-0.5, abs=0.1) and e["KL"] + 3.29 * e["KL_se"] < 0
     assert "K_L = -0." in e["error"] and "feeds energy" in e["error"]
     # the same launch with the right rig damping is ok
     opts = RigOptions(mass=truth.mass, volume=truth.volume, stiffness=truth.stiffness, area=truth.area,
