@@ -308,24 +308,30 @@ def load_model(model) -> Vehicle:
 
 
 def apply_motor_directions(vehicle: Vehicle, directions) -> Vehicle:
-    """The vehicle as driven with ArduSub ``MOT_i_DIRECTION`` = ``directions[i]`` (+1 or -1 per thruster).
+    """The vehicle as seen through logged PWM when ArduSub ``MOT_i_DIRECTION`` = ``directions[i]`` (+1 or -1).
 
     ArduSub's motor factor tables (and the shipped BlueROV2 models) give the force of a positive motor
-    command. ``MOT_i_DIRECTION = -1`` (wiring, or a propeller of the other hand) makes the autopilot output
-    the opposite PWM for the same command, so the logged ``pwm_i`` > 1500 us then pushes along ``-direction``.
-    This returns a model in which thruster i's direction is ``directions[i] * direction`` (limits unchanged: the
-    forward limit is that of pwm > 1500 us).
+    command. ``MOT_i_DIRECTION = -1`` (a propeller of the other hand, or swapped motor wires) makes the autopilot
+    output ``pwm_i`` = 1500 - (command) instead of 1500 + (command): a logged ``pwm_i`` below 1500 us is then the
+    thruster's strong (forward) sense along ``direction``, above 1500 us its weak sense along ``-direction``.
+    The exact treatment converts the logged PWM to the motor command first
+    (:func:`udrobot_ctrl.dynamics.thrusters.motor_command_pwm`) and keeps this model. This function gives the
+    nearest model for the logged PWM as it is: thruster i's direction negated and its forward/reverse limits
+    swapped; between the limits the PWM -> thrust curve of the other sense is used (the T200's forward and
+    reverse curves differ by up to ~25 %, models/t200.toml).
     """
     dirs = np.asarray(directions, float).ravel()
     if dirs.shape != (vehicle.n_thrusters,) or not np.all(np.isin(dirs, (-1.0, 1.0))):
         raise ValueError(f"model {vehicle.name!r}: expected {vehicle.n_thrusters} motor directions of +1 or -1, "
                          f"got {list(np.asarray(directions).ravel())}")
-    thr = tuple(replace(t, direction=tuple(float(s) * np.asarray(t.direction)))
+    thr = tuple(t if s > 0 else replace(t, direction=tuple(-np.asarray(t.direction, float)),
+                                        max_forward_N=t.max_reverse_N, max_reverse_N=t.max_forward_N)
                 for t, s in zip(vehicle.thrusters, dirs))
     prov = dict(vehicle.provenance)
     for i, s in enumerate(dirs):
         if s < 0:
-            prov[f"thrusters[{i}]"] = prov.get(f"thrusters[{i}]", "") + "; direction reversed (MOT_DIRECTION = -1)"
+            prov[f"thrusters[{i}]"] = (prov.get(f"thrusters[{i}]", "") + "; direction reversed and limits swapped "
+                                       "(MOT_DIRECTION = -1)")
     return replace(vehicle, thrusters=thr, provenance=prov)
 
 

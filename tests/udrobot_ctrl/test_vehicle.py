@@ -230,11 +230,25 @@ def test_vehicle_toml_path_and_bad_descriptions(tmp_path):
 
 
 def test_motor_direction_reverses_one_thruster():
+    """MOT_i_DIRECTION = -1: logged pwm below 1500 us is thruster i's strong sense along its direction."""
+    from udrobot_ctrl.dynamics.thrusters import motor_command_pwm, pwm_to_thrust
+
     v = load_model("bluerov2-heavy")
-    dirs = [1, 1, -1, 1, 1, 1, 1, -1]
+    dirs = [-1, -1, 1, 1, -1, 1, 1, -1]  # MOT_1..8_DIRECTION of the shipped ardusub_log_tools Heavy logs
     w = apply_motor_directions(v, dirs)
     Tv, Tw = plant_parameters(v).T, plant_parameters(w).T
     np.testing.assert_allclose(Tw, Tv * np.array(dirs, float))
-    assert "MOT_DIRECTION = -1" in w.provenance["thrusters[2]"]
+    t1v, t1w = v.thrusters[0], w.thrusters[0]
+    assert (t1w.max_forward_N, t1w.max_reverse_N) == (t1v.max_reverse_N, t1v.max_forward_N)
+    assert w.thrusters[2] == v.thrusters[2]
+    assert "MOT_DIRECTION = -1" in w.provenance["thrusters[0]"]
+    # exact route: mirrored PWM through the unreversed model. Logged 1400 us on motor 1 (reversed) is a +100 us
+    # command: the strong forward thrust along motor 1's ArduSub direction
+    cmd = motor_command_pwm(np.array([1400.0] * 8), dirs)
+    np.testing.assert_array_equal(cmd, [1600, 1600, 1400, 1400, 1600, 1400, 1400, 1600])
+    f = pwm_to_thrust(cmd, 14.8)
+    assert f[0] == pwm_to_thrust(1600.0, 14.8) > -pwm_to_thrust(1400.0, 14.8) > 0  # strong sense, not the weak one
     with pytest.raises(ValueError, match="expected 8 motor directions"):
         apply_motor_directions(v, [1, -1])
+    with pytest.raises(ValueError, match="expected 8 motor directions"):
+        motor_command_pwm(np.zeros(8), [1, 2, 1, 1, 1, 1, 1, 1])
