@@ -205,6 +205,9 @@ def _output_error(launch: Launch, rig: SpringRig, start, ext, linear=True):
 def identify_launch(launch: Launch, rig: SpringRig, method="output-error", keep_fit=False) -> dict:
     """Identify one spring launch; raises :class:`LaunchError` on bad data.
 
+    Physically impossible results (negative added mass, damping or drag, :func:`decay.physical_check`) are listed
+    in ``impossible`` (reasons); :func:`identification.identify.identify_files` then reports the launch as not ok.
+
     Returns
     -------
     dict
@@ -229,6 +232,8 @@ def identify_launch(launch: Launch, rig: SpringRig, method="output-error", keep_
         else float(np.max(np.abs(np.gradient(fit.model, fit.t))))
     res["v_max_linear"] = res["amplitude"] * wn
     res["Re"] = res["v_max"] * rig.length_scale / NU_WATER
+    check = decay.physical_check(res)
+    res["impossible"], res["doubtful"] = list(check.impossible), list(check.doubtful)
     if keep_fit:
         res["_fit"] = fit
         res["_graph"] = (launch, start, ext, g)

@@ -8,7 +8,9 @@ This is what ``udrobot-ctrl identify`` runs; it is also the API for scripts::
 Steps (spring and pendulum):
 
 1. each file is read, validated and fitted on its own; a bad file becomes ``ok: false`` with the
-   reason and never stops the others;
+   reason and never stops the others; so does a physically impossible fit (negative added mass, damping
+   or drag 3.29 standard errors below 0, :func:`identification.decay.physical_check`): its values are kept
+   with ``impossible`` reasons, never counted as ok nor aggregated;
 2. launches are labelled with their axis (``--axis`` or a ``surge|sway|heave|x|y|z`` token in the
    file name) and amplitude group (an ``L1``..``L4`` token, else the nearest protocol amplitude);
 3. outliers: Tukey's far-out fences per axis on group-centred key coefficients; rejected launches
@@ -30,7 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
-from identification import cfd, free_decay, pendulum, similitude, statistics
+from identification import cfd, decay, free_decay, pendulum, similitude, statistics
 from identification.decay import LaunchError
 from identification.fossen import AXES
 
@@ -187,6 +189,11 @@ def _one(kind, path, opts: RigOptions, fit: str, keep_fit: bool) -> dict:
         entry["error"] = f"{path}: {exc}"
         return entry
     entry.update(res)
+    check = decay.physical_check(res)  # pendulum/spring results carry it already; CFD fits are checked here
+    entry["impossible"], entry["doubtful"] = list(check.impossible), list(check.doubtful)
+    if check.impossible:  # values kept for the record, never counted as ok nor aggregated
+        entry["error"] = f"{path}: physically impossible: " + "; ".join(check.impossible)
+        return entry
     entry["ok"] = True
     return entry
 
@@ -412,6 +419,11 @@ def format_table(report: dict) -> str:
     lines.append(head)
     for e in report["launches"]:
         name = Path(e["file"]).name[-32:]
+        if not e["ok"] and e.get("impossible"):
+            vals = " ".join(f"{_fmt(e.get(c)):>11s}" for c in cols)
+            lines.append(f"{name:32s} {str(e['axis'] or '-'):6s} {'-':4s} {vals}  REJECTED "
+                         + "; ".join(e["impossible"]))
+            continue
         if not e["ok"]:
             lines.append(f"{name:32s} {str(e['axis'] or '-'):6s} {'-':4s} " + " ".join(f"{'-':>11s}" for _ in cols)
                          + f"  ERROR {e['error']}")

@@ -204,6 +204,9 @@ def output_error_fit(launch: Launch, rig: PendulumRig, start, ext, form="chin"):
 def identify_launch(launch: Launch, rig: PendulumRig, method="output-error", keep_fit=False) -> dict:
     """Identify one pendulum launch in both forms; raises :class:`LaunchError` on bad data.
 
+    Physically impossible results (negative added mass, damping or drag, :func:`decay.physical_check`) are listed
+    in ``impossible`` (reasons); :func:`identification.identify.identify_files` then reports the launch as not ok.
+
     Returns
     -------
     dict
@@ -243,6 +246,8 @@ def identify_launch(launch: Launch, rig: PendulumRig, method="output-error", kee
                                   order=SG_ORDER)[1]
     res["v_max"] = float(np.max(np.abs(rate)) * rig.length)
     res["Re"] = res["v_max"] * rig.length_scale / NU_WATER
+    check = decay.physical_check(res)
+    res["impossible"], res["doubtful"] = list(check.impossible), list(check.doubtful)
     if keep_fit:
         res["_fit"] = fit
         res["_graph"] = (launch, start, ext, None)

@@ -1,8 +1,17 @@
 """The vehicle: rigid body, restoring, hydrodynamic matrices and thrusters as plain data.
 
-A :class:`Vehicle` is exactly the content of a ``udrobot-model/1`` file
-(docs/formats/model.md): it is built from a model name ``SET:FORM``
-(``pendulum:chin`` ...) or read from such a file, and written back by :func:`to_model_dict`.
+A :class:`Vehicle` is exactly the content of a ``udrobot-model/1`` file (docs/formats/model.md). It is
+built from
+
+* a UDrobot model name ``SET:FORM`` (``pendulum:chin`` ...): the shipped UDrobot description
+  ``models/udrobot.toml`` with an identified coefficient set and a damping form;
+* a vehicle name (``bluerov2``, ``bluerov2-heavy``, :data:`VEHICLE_MODEL_NAMES`): a shipped vehicle
+  description ``models/NAME.toml`` that carries its own published coefficients (``[hydrodynamics]``,
+  docs/vehicle_models.md), or a path to such a TOML;
+* a ``udrobot-model/1`` JSON file,
+
+and written back by :func:`to_model_dict`. Thrusters are data: any number, any layout; their order is the
+autopilot's motor order (thruster i is driven by the run's ``pwm_i``).
 """
 from __future__ import annotations
 
@@ -19,7 +28,13 @@ from identification.sets import coefficient_set_from_dict
 from udrobot_ctrl.dynamics.effects import parse_effects
 
 MODEL_FORMAT = "udrobot-model/1"
+#: UDrobot models: shipped coefficient set : damping form.
 MODEL_NAMES = ("cfd:chin", "cfd:morison", "free_decay:morison", "pendulum:chin", "pendulum:morison")
+#: Other vehicles shipped as descriptions with their own published coefficients (models/NAME.toml).
+VEHICLE_MODEL_NAMES = ("bluerov2", "bluerov2-heavy")
+#: Every model name accepted by :func:`load_model` besides a file path.
+ALL_MODEL_NAMES = MODEL_NAMES + VEHICLE_MODEL_NAMES
+VEHICLE_FORMAT = "udrobot-vehicle/1"
 DOF_NAMES = ("X", "Y", "Z", "K", "M", "N")
 STATE_NAMES = ("x", "y", "z", "phi", "theta", "psi", "u", "v", "w", "p", "q", "r")
 STATE_INDEX = {n: i for i, n in enumerate(STATE_NAMES)}
@@ -166,18 +181,161 @@ def build_vehicle(set_name: str, form: str, description: dict | None = None) -> 
     )
 
 
+def _diag_entries(table: dict, src: str, what: str, prov: dict, key: str) -> np.ndarray:
+    """A positive diagonal (6,) from a ``{X: {value, provenance}, ..., N: ...}`` table."""
+    out = np.zeros(6)
+    for i, dof in enumerate(DOF_NAMES):
+        if dof not in table:
+            raise ValueError(f"{src}: [hydrodynamics.{what}] lacks {dof!r} (expected X Y Z K M N)")
+        val = float(_tagged(table[dof], dof, prov, f"{key}[{i}][{i}]"))
+        if not np.isfinite(val) or val < 0:
+            raise ValueError(f"{src}: [hydrodynamics.{what}] {dof} = {val!r}: expected a finite value >= 0 "
+                             "(positive magnitude, M_A = -diag(X_udot, ...), D = -diag(X_u, ...))")
+        out[i] = val
+    return out
+
+
+def _thrust_limits_at(voltage: float, curve_name: str):
+    """(max_forward_N, max_reverse_N) of the shipped thruster curve ``models/CURVE.toml`` at ``voltage`` (V)."""
+    # local import: udrobot_ctrl.dynamics.thrusters imports this module (DOF_NAMES) at its top
+    from udrobot_ctrl.dynamics.thrusters import load_curve, thrust_limits
+
+    return thrust_limits(voltage, load_curve(curve_name))
+
+
+def vehicle_from_description(d: dict, source: str = "<description>") -> Vehicle:
+    """A :class:`Vehicle` from a description that carries its own coefficients (``[hydrodynamics]``).
+
+    The description (docs/vehicle_models.md) gives rho, g, mass, displaced volume, inertia about the CG, r_g,
+    r_b, the positive diagonals of M_A, D_L and D_n per DOF, the thruster model (curve name and supply voltage:
+    the thrust limits are the curve's at that voltage unless ``max_forward_N``/``max_reverse_N`` are given) and
+    the thrusters in autopilot motor order. Every number keeps its provenance string.
+
+    Raises
+    ------
+    ValueError
+        Naming ``source`` and the field, for a missing or malformed entry.
+    """
+    if d.get("format") != VEHICLE_FORMAT:
+        raise ValueError(f"{source}: field 'format' is {d.get('format')!r}, expected {VEHICLE_FORMAT!r}")
+    if "hydrodynamics" not in d:
+        raise ValueError(f"{source}: no [hydrodynamics] table: a description without its own coefficients "
+                         "needs a coefficient set (SET:FORM)")
+    prov: dict = {}
+    try:
+        rho = float(_tagged(d["rho"], "rho", prov, "rho"))
+        g = float(_tagged(d["g"], "g", prov, "g"))
+        mass = float(_tagged(d["mass"], "mass", prov, "mass"))
+        volume = float(_tagged(d["displaced_volume"], "displaced_volume", prov, "buoyancy"))
+        inertia = np.array(_tagged(d["inertia_cg"], "inertia_cg", prov, "inertia_cg"), dtype=float)
+        r_g = np.array(_tagged(d["r_g"], "r_g", prov, "r_g"), dtype=float)
+        r_b = np.array(_tagged(d["r_b"], "r_b", prov, "r_b"), dtype=float)
+        hyd = d["hydrodynamics"]
+        tm = d["thruster_model"]
+        tables = [hyd[k] for k in ("added_mass", "linear_damping", "quadratic_damping")]
+    except KeyError as exc:
+        raise ValueError(f"{source}: missing field {exc.args[0]!r}") from None
+    prov["weight"] = "derived: mass * g"
+    prov["buoyancy"] = "derived: rho * g * displaced_volume; " + prov["buoyancy"]
+    M_A, D_L, Q = (np.diag(_diag_entries(tab, source, k, prov, k)) for tab, k in
+                   zip(tables, ("added_mass", "linear_damping", "quadratic_damping")))
+    voltage = float(_tagged(tm["voltage"], "", prov, "thrusters.voltage"))
+    curve = str(tm.get("name", "t200"))
+    if "max_forward_N" in tm:
+        fwd = float(_tagged(tm["max_forward_N"], "", prov, "thrusters.max_forward_N"))
+        rev = float(_tagged(tm["max_reverse_N"], "", prov, "thrusters.max_reverse_N"))
+    else:
+        fwd, rev = _thrust_limits_at(voltage, curve)
+        prov["thrusters.max_forward_N"] = prov["thrusters.max_reverse_N"] = (
+            f"derived: models/{curve}.toml bollard curve at {voltage:g} V (pwm 1900 / 1100 us)")
+    thrusters = []
+    for i, t in enumerate(d.get("thrusters", [])):
+        try:
+            pos, dirn = np.array(t["position"], float), np.array(t["direction"], float)
+        except (KeyError, TypeError, ValueError) as exc:
+            raise ValueError(f"{source}: thrusters[{i}] needs numeric position and direction ({exc})") from None
+        if pos.shape != (3,) or dirn.shape != (3,) or abs(np.linalg.norm(dirn) - 1.0) > 1e-6:
+            raise ValueError(f"{source}: thrusters[{i}]: position and direction must be 3-vectors, direction of "
+                             f"unit length (got |d| = {np.linalg.norm(dirn):.6g})")
+        thrusters.append(Thruster(str(t.get("name", f"T{i + 1}")), tuple(pos), tuple(dirn), fwd, rev))
+        prov[f"thrusters[{i}]"] = t.get("provenance", "")
+    if not thrusters:
+        raise ValueError(f"{source}: no [[thrusters]]")
+    name = str(d.get("name", Path(source).stem))
+    return Vehicle(
+        name=name, mass=mass, inertia_cg=inertia, r_g=r_g, r_b=r_b, weight=mass * g, buoyancy=rho * g * volume,
+        added_mass=M_A, linear_damping=D_L, quadratic_damping=Q, thrusters=tuple(thrusters), rho=rho, g=g,
+        provenance=prov,
+        extras={"thruster_model": curve, "voltage": voltage, "ardusub_frame": d.get("ardusub_frame"),
+                "places": tuple(t.get("place", "") for t in d["thrusters"]),
+                "alternatives": {k: {q: np.asarray(v[q], float) for q in ("added_mass", "linear_damping",
+                                                                           "quadratic_damping") if q in v}
+                                 for k, v in d.get("alternatives", {}).items()}},
+    )
+
+
+def vehicle_model(name: str) -> Vehicle:
+    """A shipped vehicle with its own coefficients (:data:`VEHICLE_MODEL_NAMES`) or a path to such a TOML."""
+    path = Path(name)
+    if path.suffix.lower() == ".toml" and path.is_file():
+        try:
+            doc = tomllib.loads(path.read_text())
+        except tomllib.TOMLDecodeError as exc:
+            raise ValueError(f"{path}: not valid TOML ({exc})") from exc
+        return vehicle_from_description(doc, str(path))
+    if name not in VEHICLE_MODEL_NAMES:
+        raise ValueError(f"unknown vehicle {name!r}: expected one of {', '.join(VEHICLE_MODEL_NAMES)} or a "
+                         "udrobot-vehicle/1 .toml path")
+    return vehicle_from_description(_read_toml(f"{name}.toml"), f"models/{name}.toml")
+
+
 def load_model(model) -> Vehicle:
-    """A :class:`Vehicle` from a model name ``SET:FORM``, a ``udrobot-model/1`` JSON path, or a Vehicle."""
+    """A :class:`Vehicle` from a model name (:data:`ALL_MODEL_NAMES`), a model file, or a Vehicle.
+
+    Accepted: ``SET:FORM`` (UDrobot, :data:`MODEL_NAMES`), a vehicle name (:data:`VEHICLE_MODEL_NAMES`), a
+    ``udrobot-model/1`` JSON path, or a ``udrobot-vehicle/1`` TOML path with its own ``[hydrodynamics]``.
+    """
     if isinstance(model, Vehicle):
         return model
     text = str(model)
     path = Path(text)
+    if text in VEHICLE_MODEL_NAMES or (path.suffix.lower() == ".toml" and path.is_file()):
+        return vehicle_model(text)
     if path.suffix.lower() == ".json" or (path.exists() and path.is_file()):
         return read_model_file(path)
     if ":" not in text:
-        raise ValueError(f"model {text!r}: expected SET:FORM (one of {', '.join(MODEL_NAMES)}) or a model file")
+        raise ValueError(f"model {text!r}: expected SET:FORM (one of {', '.join(MODEL_NAMES)}), a vehicle "
+                         f"({', '.join(VEHICLE_MODEL_NAMES)}) or a model file")
     set_name, form = text.rsplit(":", 1)
     return build_vehicle(set_name, form)
+
+
+def apply_motor_directions(vehicle: Vehicle, directions) -> Vehicle:
+    """The vehicle as seen through logged PWM when ArduSub ``MOT_i_DIRECTION`` = ``directions[i]`` (+1 or -1).
+
+    ArduSub's motor factor tables (and the shipped BlueROV2 models) give the force of a positive motor
+    command. ``MOT_i_DIRECTION = -1`` (a propeller of the other hand, or swapped motor wires) makes the autopilot
+    output ``pwm_i`` = 1500 - (command) instead of 1500 + (command): a logged ``pwm_i`` below 1500 us is then the
+    thruster's strong (forward) sense along ``direction``, above 1500 us its weak sense along ``-direction``.
+    The exact treatment converts the logged PWM to the motor command first
+    (:func:`udrobot_ctrl.dynamics.thrusters.motor_command_pwm`) and keeps this model. This function gives the
+    nearest model for the logged PWM as it is: thruster i's direction negated and its forward/reverse limits
+    swapped; between the limits the PWM -> thrust curve of the other sense is used (the T200's forward and
+    reverse curves differ by up to ~25 %, models/t200.toml).
+    """
+    dirs = np.asarray(directions, float).ravel()
+    if dirs.shape != (vehicle.n_thrusters,) or not np.all(np.isin(dirs, (-1.0, 1.0))):
+        raise ValueError(f"model {vehicle.name!r}: expected {vehicle.n_thrusters} motor directions of +1 or -1, "
+                         f"got {list(np.asarray(directions).ravel())}")
+    thr = tuple(t if s > 0 else replace(t, direction=tuple(-np.asarray(t.direction, float)),
+                                        max_forward_N=t.max_reverse_N, max_reverse_N=t.max_forward_N)
+                for t, s in zip(vehicle.thrusters, dirs))
+    prov = dict(vehicle.provenance)
+    for i, s in enumerate(dirs):
+        if s < 0:
+            prov[f"thrusters[{i}]"] = (prov.get(f"thrusters[{i}]", "") + "; direction reversed and limits swapped "
+                                       "(MOT_DIRECTION = -1)")
+    return replace(vehicle, thrusters=thr, provenance=prov)
 
 
 # ----------------------------------------------------------------------------- udrobot-model/1
@@ -204,7 +362,16 @@ def to_model_dict(v: Vehicle) -> dict:
         ],
         "provenance": dict(v.provenance),
         **({"effects": [e.to_dict() for e in v.effects]} if v.effects else {}),
+        **_curve_entry(v),
     }
+
+
+def _curve_entry(v: Vehicle) -> dict:
+    """Optional ``thruster_curve`` field: the curve and supply voltage behind the limits and pwm -> thrust."""
+    ex = v.extras or {}
+    if "voltage" not in ex:
+        return {}
+    return {"thruster_curve": {"name": str(ex.get("thruster_model", "t200")), "supply_voltage_V": float(ex["voltage"])}}
 
 
 def _matrix(doc, key, shape, src):
@@ -243,6 +410,16 @@ def model_from_dict(doc: dict, source: str = "<dict>") -> Vehicle:
                                       float(t["max_forward_N"]), float(t["max_reverse_N"])))
         except (KeyError, TypeError, ValueError) as exc:
             raise ValueError(f"{source}: thrusters[{i}] is malformed ({exc})") from exc
+    extras = {}
+    curve = doc.get("thruster_curve")
+    if curve is not None:
+        try:
+            extras = {"thruster_model": str(curve.get("name", "t200")), "voltage": float(curve["supply_voltage_V"])}
+        except (AttributeError, KeyError, TypeError, ValueError) as exc:
+            raise ValueError(f"{source}: field 'thruster_curve' must be {{\"name\": str, \"supply_voltage_V\": "
+                             f"number}} ({exc!r})") from exc
+        if not (np.isfinite(extras["voltage"]) and extras["voltage"] > 0):
+            raise ValueError(f"{source}: thruster_curve.supply_voltage_V = {curve['supply_voltage_V']!r} must be > 0")
     return Vehicle(
         name=str(doc.get("name", Path(source).stem)), mass=scal["mass"],
         inertia_cg=_matrix(doc, "inertia_cg", (3, 3), source), r_g=_matrix(doc, "r_g", (3,), source),
@@ -252,6 +429,7 @@ def model_from_dict(doc: dict, source: str = "<dict>") -> Vehicle:
         quadratic_damping=_matrix(doc, "quadratic_damping", (6, 6), source),
         thrusters=tuple(thrusters), rho=scal["rho"], g=scal["g"], provenance=dict(doc.get("provenance", {})),
         effects=parse_effects(doc.get("effects"), source),
+        extras=extras,
     )
 
 

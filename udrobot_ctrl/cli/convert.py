@@ -30,7 +30,7 @@ def register(subparsers) -> None:
 def run(args) -> int:
     from udrobot_ctrl.io import convert_log
     from udrobot_ctrl.io.runlog import write
-    from udrobot_ctrl.io.segment import find_launches, write_launches
+    from udrobot_ctrl.io.segment import find_launches, idle_mask, write_launches
 
     if not args.out and not args.segment:
         raise ValueError("nothing to do: give --out RUN.csv and/or --segment CHANNEL")
@@ -51,13 +51,17 @@ def run(args) -> int:
             y = run_.channel(args.segment)
         except KeyError as exc:  # an unknown channel name is the user's input, not a bug
             raise CLIError(f"--segment: {exc.args[0]}") from None
-        column = args.segment_column or ("theta" if args.segment in ("phi", "theta", "psi") else "y")
-        launches = find_launches(run_.t, y)
+        angle = args.segment in ("phi", "theta", "psi")
+        column = args.segment_column or ("theta" if angle else "y")
+        # a launch needs a free vehicle: thrusters idle from the release on (rows without commands: a rig)
+        free = idle_mask(run_.input_kind, run_.inputs)
+        launches = find_launches(run_.t, y, angle=angle, free=free)
         if not launches:
-            raise ValueError(f"{args.input}: no launch (hold then release) found in channel '{args.segment}'")
+            raise ValueError(f"{args.input}: no launch (hold then release with the thrusters idle) found in channel "
+                             f"'{args.segment}' ({100 * free.mean():.0f} % of the rows have idle thrusters)")
         out_dir = args.segment_dir or (Path(args.out).parent if args.out else Path("."))
         stem = Path(args.out).stem if args.out else Path(args.input).stem
-        for launch, path in zip(launches, write_launches(run_.t, y, launches, out_dir, stem, column)):
+        for launch, path in zip(launches, write_launches(run_.t, y, launches, out_dir, stem, column, angle)):
             print(f"launch at t = {launch.t_release:.3f} s, amplitude {launch.amplitude:.4g}, "
                   f"{launch.stop - launch.start} samples -> {path}")
     return 0

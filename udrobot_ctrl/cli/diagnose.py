@@ -22,7 +22,7 @@ def register(subparsers):
         epilog="example: udrobot-ctrl diagnose --model pendulum:chin --json gap.json --holdout run3.csv "
                "--plot gap_plots run1.csv run2.csv")
     p.add_argument("runs", nargs="+", metavar="RUN.csv", help="fit runs (udrobot-run/1 CSV or a convertible log)")
-    p.add_argument("--model", required=True, help="model name (pendulum:chin, ...) or a udrobot-model/1 file")
+    p.add_argument("--model", required=True, help="model name (pendulum:chin, bluerov2-heavy, ...) or a model file")
     p.add_argument("--json", required=True, metavar="REPORT.json", help="write the udrobot-diagnosis/1 report")
     p.add_argument("--holdout", action="append", default=[], metavar="RUN.csv",
                    help="a run used only to score; repeat the option for several runs")

@@ -6,7 +6,7 @@ from pathlib import Path
 import numpy as np
 
 from udrobot_ctrl.cli.main import CLIError
-from udrobot_ctrl.vehicle import DOF_NAMES, MODEL_NAMES, load_model, write_model_file
+from udrobot_ctrl.vehicle import ALL_MODEL_NAMES, DOF_NAMES, load_model, write_model_file
 
 
 def register(subparsers):
@@ -25,7 +25,7 @@ def register(subparsers):
                     "(measured, cfd, estimated, assumed, derived). Other tools (and diagnose, simulate, compare) "
                     "read it back wherever a model name is accepted.",
         epilog="example: udrobot-ctrl model export --model pendulum:chin --out pendulum_chin.json")
-    exp.add_argument("--model", required=True, help=f"model name ({', '.join(MODEL_NAMES)}) or model file")
+    exp.add_argument("--model", required=True, help=f"model name ({', '.join(ALL_MODEL_NAMES)}) or model file")
     exp.add_argument("--out", required=True, help="output JSON file")
     exp.add_argument("--force", action="store_true", help="replace an existing output file")
     exp.set_defaults(func=run_export)
@@ -35,7 +35,7 @@ def register(subparsers):
                     "of M_total, M_A, linear (D_L) and quadratic (Q) damping per DOF, the thrusters, the actuated "
                     "and passive DOFs and the provenance of every number.",
         epilog="example: udrobot-ctrl model show --model demo_out/identification/pendulum_identified.toml:chin")
-    show.add_argument("--model", required=True, help=f"model name ({', '.join(MODEL_NAMES)}) or model file")
+    show.add_argument("--model", required=True, help=f"model name ({', '.join(ALL_MODEL_NAMES)}) or model file")
     show.set_defaults(func=run_show)
     parser.set_defaults(func=run)
 

@@ -16,9 +16,7 @@ from tqdm.auto import tqdm
 
 from udrobot_ctrl.dynamics.plant import plant_parameters, state_derivative
 from udrobot_ctrl.dynamics.sim import rk4_step
-from udrobot_ctrl.vehicle import MODEL_NAMES, STATE_NAMES, load_model
-
-DEFAULT_VOLTAGE = 12.0  # V, Cely 2019 sec. 3.1 nominal supply (used when the run has no voltage column)
+from udrobot_ctrl.vehicle import ALL_MODEL_NAMES, STATE_NAMES, load_model
 
 
 def register(subparsers):
@@ -30,7 +28,7 @@ def register(subparsers):
                     "received: compare --out with --input to see the sim-to-real gap (udrobot-ctrl diagnose "
                     "explains it).\nRun logs are udrobot-run/1 (docs/formats/runlog.md).",
         epilog="example: udrobot-ctrl simulate --model pendulum:chin --input pool.csv --out pool_sim.csv")
-    parser.add_argument("--model", required=True, help=f"model name ({', '.join(MODEL_NAMES)}) or model file")
+    parser.add_argument("--model", required=True, help=f"model name ({', '.join(ALL_MODEL_NAMES)}) or model file")
     parser.add_argument("--input", required=True, help="run to replay (udrobot-run/1 CSV or a log io can convert)")
     parser.add_argument("--out", required=True, help="simulated run to write (udrobot-run/1 CSV)")
     parser.add_argument("--method", choices=("rk4", "solve_ivp"), default="rk4",
@@ -70,8 +68,9 @@ def initial_state(run) -> np.ndarray:
 def input_wrenches(run, p) -> tuple:
     """Per-row body wrench (n, 6) N, N m, and the thrusts (n, n_thr) N (None for tau inputs).
 
-    ``pwm`` inputs are mapped by the T-200 curve at the row's ``voltage`` channel (12 V when absent or nan);
-    thrusts are clipped to each thruster's forward/reverse limit.
+    ``pwm`` inputs are mapped by the T-200 curve at the row's ``voltage`` channel (the model's supply voltage
+    ``p.supply_voltage`` when absent or nan: 12 V UDrobot, 14.8 V BlueROV2); thrusts are clipped to each
+    thruster's forward/reverse limit. Column i drives thruster i (the model's thruster order = motor order).
     """
     kind, u = run.input_kind, np.asarray(run.inputs, dtype=float)
     if not np.all(np.isfinite(u)):
@@ -86,8 +85,8 @@ def input_wrenches(run, p) -> tuple:
         from udrobot_ctrl.dynamics.thrusters import pwm_to_thrust
 
         volts = run.channels.get("voltage")
-        volts = np.full(run.n, DEFAULT_VOLTAGE) if volts is None else np.where(np.isfinite(volts), volts,
-                                                                               DEFAULT_VOLTAGE)
+        v0 = p.supply_voltage
+        volts = np.full(run.n, v0) if volts is None else np.where(np.isfinite(volts), volts, v0)
         u = np.array([pwm_to_thrust(u[k], float(volts[k])) for k in range(run.n)])
     elif kind != "thrust":
         raise ValueError(f"{run.path or 'run'}: unknown input kind {kind!r}")

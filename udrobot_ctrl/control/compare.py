@@ -223,8 +223,10 @@ def compare(models=MODEL_NAMES, controllers=CONTROLLER_KINDS, quick: bool = Fals
         quick = t_final < standard_mission(False).t_final
     from udrobot_ctrl.dynamics.sim import as_parameters
 
-    for m in models:
-        as_parameters(m)  # fail early, naming the model, before starting the pool
+    n_thr = {str(m): as_parameters(m).T.shape[1] for m in models}  # fail early, naming the model
+    if len(set(n_thr.values())) > 1:
+        raise ValueError("models with different thruster counts cannot be paired (a controller designed on one "
+                         "commands the other's thrusters): " + ", ".join(f"{m} {k}" for m, k in n_thr.items()))
     skipped = {}
     for c in controllers:
         ok, why = controller_available(c)

@@ -10,7 +10,8 @@ limits, balanced against the model's surge drag ``X(u) = K_L u + K_Q u|u|`` by r
 with ``inputs='thrust'``) exactly at the trim ``(x0, u0)`` and returns a python-control ``StateSpace``
 (inputs: the thrusts T1..Tn in N; states: ``x y z phi theta psi u v w p q r``; outputs selectable).
 
-Structure of UDrobot's layout (two surge thrusters at y = +-0.15 m, two vertical at y = +-0.15 m, all
+The layout is data (any number of thrusters, the vehicle's own thruster matrix). Structure of UDrobot's
+layout (two surge thrusters at y = +-0.15 m, two vertical at y = +-0.15 m, all
 in the z = 0 plane): the thruster matrix has rank 4 (surge X, heave Z, roll K, yaw N); sway Y and pitch M
 have zero rows. In the linear model:
 
@@ -94,11 +95,31 @@ def hover_trim(p: PlantParameters, depth: float = 1.0) -> OperatingPoint:
     return trim_at(p, 0.0, depth, "hover")
 
 
-def max_surge_force(p: PlantParameters, depth: float = 1.0) -> float:
-    """Largest steady surge force (N) the thrusters give with heave, roll and yaw held at the hover trim.
+def held_rows(T, tol: float = 1e-9) -> list:
+    """Wrench rows (1..5) held at trim while surging: those the thrusters set independently of surge.
 
-    Linear program: max (T f)_X s.t. (T f)_j = hover trim wrench_j for the other DOFs the thrusters act
-    on, f_min <= f <= f_max.
+    A row is held when it is non-zero and not a combination of the surge row and the rows already held.
+    A row that is such a combination (BlueROV2: the horizontals sit below CO, so the pitch row is
+    0.0725 X - 0.0025 Z) cannot be held without holding surge too: its moment is left to the restoring forces.
+    """
+    T = np.asarray(T, float)
+    scale = max(1.0, float(np.abs(T).max()))
+    rows: list = []
+    for j in range(1, 6):
+        if not np.any(np.abs(T[j]) > tol * scale):
+            continue
+        base = T[[0] + rows]
+        r0 = np.linalg.matrix_rank(base, tol * scale)
+        if np.linalg.matrix_rank(np.vstack([base, T[j]]), tol * scale) > r0:
+            rows.append(j)
+    return rows
+
+
+def max_surge_force(p: PlantParameters, depth: float = 1.0) -> float:
+    """Largest steady surge force (N) the thrusters give with the other wrench rows held at the hover trim.
+
+    Linear program: max (T f)_X s.t. (T f)_j = hover trim wrench_j for the rows of :func:`held_rows`
+    (UDrobot: heave, roll, yaw; BlueROV2 Heavy: all five), f_min <= f <= f_max.
 
     Raises
     ------
@@ -109,7 +130,7 @@ def max_surge_force(p: PlantParameters, depth: float = 1.0) -> float:
 
     T = p.T
     trim = T @ hover_trim(p, depth).u0
-    rows = [j for j in range(1, 6) if np.any(np.abs(T[j]) > 1e-12)]
+    rows = held_rows(T)
     res = linprog(-T[0], A_eq=T[rows] if rows else None, b_eq=trim[rows] if rows else None,
                   bounds=list(zip(p.f_min, p.f_max)), method="highs")
     if not res.success:

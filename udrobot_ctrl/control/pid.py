@@ -41,15 +41,26 @@ import numpy as np
 
 from udrobot_ctrl.control.linearize import STATE_INDEX, linearize, trim_at
 from udrobot_ctrl.dynamics.plant import PlantParameters, kinematics
+from udrobot_ctrl.dynamics.thrusters import actuated_dofs
 
 #: loop -> (output state, rate state, DOF index in tau)
 LOOPS = {"surge": ("u", None, 0), "depth": ("z", "w", 2), "roll": ("phi", "p", 3), "heading": ("psi", "r", 5)}
+#: levelling loop added when the layout actuates pitch on its own (BlueROV2 Heavy); UDrobot and the 6-thruster
+#: BlueROV2 leave pitch to the restoring moment
+PITCH_LOOP = {"pitch": ("theta", "q", 4)}
+ALL_LOOPS = {**LOOPS, **PITCH_LOOP}
+_LOOP_VEL = {"surge": "u", "depth": "w", "roll": "p", "heading": "r", "pitch": "q"}
+
+
+def loops_for(T) -> dict:
+    """Loops of a thruster layout: :data:`LOOPS`, plus :data:`PITCH_LOOP` when pitch is actuated alone."""
+    return {**LOOPS, **PITCH_LOOP} if "M" in actuated_dofs(T).actuated else dict(LOOPS)
 
 
 def _default_tau_c():
     # assumed closed-loop time constants (s): a 1 m depth step, a 90 deg turn and a 0.5 m/s change stay
     # within the thrust limits most of the time
-    return {"surge": 0.5, "depth": 0.3, "roll": 0.3, "heading": 0.2}
+    return {"surge": 0.5, "depth": 0.3, "roll": 0.3, "heading": 0.2, "pitch": 0.3}
 
 
 @dataclass(frozen=True)
@@ -82,7 +93,7 @@ class LoopDesign:
         s = control.tf("s")
         if self.name == "surge":
             return self.b / (s - self.a)
-        if self.name == "roll":
+        if self.name in ("roll", "pitch"):
             return self.b / (s**2 - self.a * s - self.k)
         return self.b / (s * (s - self.a))
 
@@ -132,24 +143,24 @@ def _pole_placement(a, b, k, tau_c):
 
 def design_loops(p: PlantParameters, tuning: PIDTuning | None = None, control_dt: float = 0.05,
                  surge_speed: float = 0.5, depth: float = 1.0) -> dict:
-    """Tune the four loops from the design model's linearisation; returns name -> :class:`LoopDesign`."""
+    """Tune the loops of the layout (:func:`loops_for`: four, or five with pitch) from the design model's
+    linearisation; returns name -> :class:`LoopDesign`."""
     tuning = tuning or PIDTuning()
     tau_c = _default_tau_c()
     tau_c.update(tuning.tau_c)
     theta = control_dt / 2 if tuning.delay is None else float(tuning.delay)
     Tp = np.linalg.pinv(p.T)
     out = {}
-    for name, (_y, _rate, dof) in LOOPS.items():
+    for name, (y, _rate, dof) in loops_for(p.T).items():
         point = trim_at(p, surge_speed if name == "surge" else 0.0, depth)
         lin = linearize(p, point)
         Btau = lin.B @ Tp
-        vel = {"surge": "u", "depth": "w", "roll": "p", "heading": "r"}[name]
-        iv = STATE_INDEX[vel]
+        iv = STATE_INDEX[_LOOP_VEL[name]]
         a, b = float(lin.A[iv, iv]), float(Btau[iv, dof])
         if not b > 0:
             raise ValueError(f"model {p.name!r}: loop {name} has no control authority (b = {b:.3g})")
-        k = float(lin.A[iv, STATE_INDEX["phi"]]) if name == "roll" else 0.0
-        if name == "roll":
+        k = float(lin.A[iv, STATE_INDEX[y]]) if name in ("roll", "pitch") else 0.0
+        if name in ("roll", "pitch"):
             method, kp, ki, kd = _pole_placement(a, b, k, tau_c[name])
             tt = np.sqrt(max(kp / ki, 1e-6) * max(kd / kp, 1e-6))
         else:
@@ -254,7 +265,8 @@ class PIDController:
     def _filter(self, target: dict) -> dict:
         """First-order setpoint prefilter, time constant ``setpoint_filter * tau_I`` per loop (0: none)."""
         out = {}
-        for name, (y, _rate, _dof) in LOOPS.items():
+        for name in self.loops:
+            y = ALL_LOOPS[name][0]
             r = target[y]
             prev = self.filtered.get(y)
             tf = self.setpoint_filter * (self.loops[name].kp / self.loops[name].ki if self.loops[name].ki else 0.0)
@@ -281,10 +293,11 @@ class PIDController:
         if not np.all(np.isfinite(x)):
             return np.clip(np.linalg.pinv(p.T) @ self.trim_wrench(ref["u"]), p.f_min, p.f_max)
         eta_dot = kinematics(x[:6], x[6:])
-        target = self._filter({"u": ref["u"], "z": ref["z"], "phi": 0.0, "psi": ref["psi"]})
+        target = self._filter({"u": ref["u"], "z": ref["z"], "phi": 0.0, "theta": 0.0, "psi": ref["psi"]})
         tau = self.trim_wrench(ref["u"]).copy()
         errs = {}
-        for name, (y, rate, dof) in LOOPS.items():
+        for name in self.loops:
+            y, rate, dof = ALL_LOOPS[name]
             lp = self.loops[name]
             e = target[y] - x[STATE_INDEX[y]]
             if y == "psi":
@@ -294,7 +307,8 @@ class PIDController:
             tau[dof] += lp.kp * e + self.integral[name] - lp.kd * d
         f = self.allocate(tau)
         achieved = p.T @ f
-        for name, (_y, _rate, dof) in LOOPS.items():
+        for name in self.loops:
+            dof = ALL_LOOPS[name][2]
             lp = self.loops[name]
             short = achieved[dof] - tau[dof]  # < 0 when the loop asks more than the thrusters give
             e = errs[name]

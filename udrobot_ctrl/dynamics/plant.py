@@ -19,6 +19,9 @@ from udrobot_ctrl.dynamics import effects as fx
 from udrobot_ctrl.dynamics.equations import equations
 from udrobot_ctrl.vehicle import Vehicle
 
+#: V, thruster supply assumed when a vehicle states none (UDrobot: Cely 2019 sec. 3.1 nominal 12 V).
+DEFAULT_SUPPLY_VOLTAGE = 12.0
+
 _EQ = equations(np.sin, np.cos, np.tan)
 
 
@@ -152,6 +155,7 @@ class PlantParameters:
     def f_ref(self) -> np.ndarray:
         """Each thruster's capacity max(max_forward_N, max_reverse_N), N (reference of the thrust maps)."""
         return np.maximum(np.asarray(self.f_max, float), -np.asarray(self.f_min, float))
+    supply_voltage: float = DEFAULT_SUPPLY_VOLTAGE  # V, thruster supply for pwm -> thrust (the vehicle's own)
 
 
 def plant_parameters(vehicle: Vehicle) -> PlantParameters:
@@ -177,6 +181,7 @@ def plant_parameters(vehicle: Vehicle) -> PlantParameters:
         r_g=np.asarray(vehicle.r_g, float), r_b=np.asarray(vehicle.r_b, float),
         T=thruster_matrix(vehicle.thrusters), f_min=lo, f_max=hi, name=vehicle.name,
         M_A=np.asarray(vehicle.added_mass, float),
+        supply_voltage=float((vehicle.extras or {}).get("voltage", DEFAULT_SUPPLY_VOLTAGE)),
     )
     return fx.fold_parameters(nominal, vehicle.effects) if vehicle.effects else nominal
 

@@ -155,13 +155,14 @@ def actuators(run: Run, p: PlantParameters, f_raw=None):
         if f.shape[1] != k:
             raise ValueError(f"{run.path or 'run'}: {f.shape[1]} {run.input_kind}_i columns but the model has {k} "
                              f"thrusters (columns must follow the model's thruster order)")
-        if run.input_kind == "pwm":  # the fitted T-200 curve at the logged battery voltage (12 V if absent)
+        if run.input_kind == "pwm":  # the fitted T-200 curve at the logged battery voltage (the model's if absent)
             from udrobot_ctrl.dynamics.thrusters import pwm_to_thrust
 
+            v0 = p.supply_voltage
             volts = run.channels.get("voltage")
-            v = 12.0 if volts is None or not np.isfinite(volts).any() else np.nan_to_num(volts, nan=12.0)[:, None]
+            v = v0 if volts is None or not np.isfinite(volts).any() else np.nan_to_num(volts, nan=v0)[:, None]
             if f_raw is not None and np.ndim(v):
-                v = 12.0
+                v = v0
             f = pwm_to_thrust(f, v)
         f = np.clip(f, p.f_min, p.f_max)
         return f, p.T.copy(), p.T.copy(), np.maximum(p.f_max, -p.f_min)

@@ -19,6 +19,7 @@ from __future__ import annotations
 import numpy as np
 
 from udrobot_ctrl.control.compare import CONTROL_DT, SIM_DT
+from udrobot_ctrl.control.linearize import held_rows
 from udrobot_ctrl.control.metrics import mission_metrics
 from udrobot_ctrl.control.missions import CONTROLLER_KINDS, make_controller, run_mission_batch, standard_mission
 from udrobot_ctrl.dynamics.plant import plant_parameters
@@ -43,7 +44,12 @@ def _vehicles(space: ParameterSpace, X):
 
 
 class TerminalSurgeSpeed:
-    """Open-loop surge speed after ``t_final`` s of a constant total surge thrust (both horizontal thrusters).
+    """Open-loop surge speed after ``t_final`` s of a constant surge force ``thrust_N`` (N).
+
+    The force is allocated over the vehicle's own thrusters as the minimum-norm thrusts giving surge
+    ``thrust_N`` and zero on every other wrench row set independently of surge
+    (:func:`udrobot_ctrl.control.linearize.held_rows`): UDrobot's two surge thrusters share it equally; a
+    vectored BlueROV2 runs its four 45 deg horizontals.
 
     For the chin form the steady state solves ``F = K_L u + K_Q u^2`` (sway, heave and rotations stay
     near zero): the analytic reference of the local-sensitivity tests. Metric ``u_terminal`` in m/s.
@@ -62,12 +68,28 @@ class TerminalSurgeSpeed:
         u = np.full(len(vehicles), np.nan)
         if ok:
             p = stack_parameters([vehicles[i] for i in ok])
-            surge = np.abs(p.T[0]) > 0.5
-            f = np.where(surge, self.thrust_N / surge.sum(), 0.0)
+            f = surge_thrusts(p.T, self.thrust_N)
             res = simulate(p, np.zeros(12), self.t_final, inputs=f[None], dt=self.dt, on_divergence="freeze",
                            parallel=False)
             u[ok] = res.x[-1, :, 6]
         return {"u_terminal": u, "error": errors}
+
+
+def surge_thrusts(T, force_N: float) -> np.ndarray:
+    """Minimum-norm thrusts (n,) N giving surge ``force_N`` and zero on the rows held independently of surge.
+
+    Raises
+    ------
+    ValueError
+        If the thrusters cannot produce a surge force (zero surge row).
+    """
+    T = np.asarray(T, float)
+    if not np.any(np.abs(T[0]) > 1e-9):
+        raise ValueError("no thruster acts in surge: the terminal-speed metric needs a surge force")
+    rows = [0] + held_rows(T)
+    rhs = np.zeros(len(rows))
+    rhs[0] = force_N
+    return np.linalg.lstsq(T[rows], rhs, rcond=None)[0]
 
 
 # ----------------------------------------------------------------------------- closed-loop missions

@@ -10,7 +10,9 @@ Parameters (names are ``AXIS.QUANTITY``):
   nominal strip-theory estimates (they are *estimated*, not measured, so a factor is the honest unit).
 
 Ranges: for a translational quantity, [min, max] over the shipped sets that give it (cfd, free_decay,
-pendulum; for added mass the form-specific value when the set has one), widened by ``margin`` (default
+pendulum; for added mass the form-specific value when the set has one) or, for a vehicle description with
+its own coefficients (``bluerov2``, ``bluerov2-heavy``), over the other published sets it records
+(``[alternatives]``: Wu 2018, the "11.4 kg" set), widened by ``margin`` (default
 10 %, *assumed*: the paper gives no uncertainty on its coefficients, 10 % covers the regression scatter of
 its fits, R^2 0.996) of the span's end values: ``[min (1 - margin), max (1 + margin)]``. The nominal value
 is the user's model, and the range is extended to contain it. Rotational scales default to
@@ -176,6 +178,28 @@ def set_values(form: str, sets=SETS) -> dict:
     return out
 
 
+_ALT_MATRIX = {"added_mass": "added_mass", "KL": "linear_damping", "KQ": "quadratic_damping"}
+
+
+def published_values(vehicle: Vehicle, form: str) -> dict:
+    """Translational values of the other published sets a vehicle description records (``[alternatives]``).
+
+    Same shape as :func:`set_values`: ``{quantity: {source: (3,) array}}``; empty when the vehicle has none
+    (UDrobot models: their spread comes from the shipped coefficient sets instead).
+    """
+    alts = (vehicle.extras or {}).get("alternatives") or {}
+    if not alts:
+        return {}
+    quantities = ("added_mass", "KL", "KQ") if form == "chin" else ("added_mass",)
+    out = {q: {} for q in quantities}
+    for src, mats in alts.items():
+        for q in quantities:
+            key = _ALT_MATRIX[q]
+            if key in mats:
+                out[q][src] = np.asarray(mats[key], float)[:3]
+    return out
+
+
 def _translational_nominal(vehicle: Vehicle, quantity: str, i: int, area) -> float:
     if quantity == "added_mass":
         return float(vehicle.added_mass[i, i])
@@ -210,7 +234,8 @@ def default_space(model="cfd:morison", margin: float = DEFAULT_MARGIN, sets=SETS
     vehicle = load_model(model)
     form = _form_of(vehicle)
     area = _projected_area(vehicle)
-    values = set_values(form, sets)
+    # a vehicle with its own published coefficients (BlueROV2 ...): ranges from the other published sets
+    values = published_values(vehicle, form) or set_values(form, sets)
     params = []
     for quantity, per_set in values.items():
         for i, axis in enumerate(AXES):
