@@ -7,6 +7,8 @@ from pathlib import Path
 
 import numpy as np
 
+from udrobot_ctrl.io.files import save_figure
+
 
 def _plt():
     import matplotlib
@@ -17,7 +19,7 @@ def _plt():
     return plt
 
 
-def plot_fits(launches, axis, path, kind) -> Path | None:
+def plot_fits(launches, axis, path, kind, protect=()) -> Path | None:
     """Grid of every launch of ``axis``: measurement and fitted model (or turning points)."""
     rows = [e for e in launches if e["ok"] and (e["axis"] or "unspecified") == axis]
     if not rows:
@@ -48,12 +50,12 @@ def plot_fits(launches, axis, path, kind) -> Path | None:
     axes[0, 0].set_ylabel(unit, fontsize=7)
     fig.suptitle(f"{kind} launches, {axis}: measurement (grey) and fit", fontsize=9)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, protect=protect, dpi=110)
     plt.close(fig)
     return Path(path)
 
 
-def plot_vs_reynolds(launches, axis, path, kind) -> Path | None:
+def plot_vs_reynolds(launches, axis, path, kind, protect=()) -> Path | None:
     """Per-launch coefficients with 95 % intervals against the Reynolds number."""
     rows = [e for e in launches if e["ok"] and (e["axis"] or "unspecified") == axis and "Re" in e]
     if not rows:
@@ -77,12 +79,12 @@ def plot_vs_reynolds(launches, axis, path, kind) -> Path | None:
     axes[0, 0].legend(fontsize=7)
     fig.suptitle(f"{kind}, {axis}: coefficients vs Reynolds number (95 % intervals)", fontsize=9)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, protect=protect, dpi=110)
     plt.close(fig)
     return Path(path)
 
 
-def plot_cfd(launches, path) -> Path | None:
+def plot_cfd(launches, path, protect=()) -> Path | None:
     """Force-speed points and both regressions, one panel per table."""
     rows = [e for e in launches if e["ok"] and "_table" in e]
     if not rows:
@@ -102,23 +104,23 @@ def plot_cfd(launches, path) -> Path | None:
         ax.legend(fontsize=6)
         ax.tick_params(labelsize=7)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, protect=protect, dpi=110)
     plt.close(fig)
     return Path(path)
 
 
-def plot_report(report: dict, launches, directory, kind) -> list[Path]:
+def plot_report(report: dict, launches, directory, kind, protect=()) -> list[Path]:
     """Every plot of an identification run into ``directory``; returns the written paths."""
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
     launches = launches or report["launches"]
     out = []
     if kind == "cfd":
-        p = plot_cfd(launches, directory / "cfd_regressions.png")
+        p = plot_cfd(launches, directory / "cfd_regressions.png", protect=protect)
         return [p] if p else []
     for axis in report["axes"]:
         for fn, name in ((plot_fits, "fits"), (plot_vs_reynolds, "vs_reynolds")):
-            p = fn(launches, axis, directory / f"{kind}_{axis}_{name}.png", kind)
+            p = fn(launches, axis, directory / f"{kind}_{axis}_{name}.png", kind, protect=protect)
             if p:
                 out.append(p)
     return out

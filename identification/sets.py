@@ -13,6 +13,7 @@ import numpy as np
 import tomllib
 
 from identification.fossen import AXES, FORMS, CoefficientSet
+from udrobot_ctrl.io.files import atomic_write
 
 FORMAT = "udrobot-coefficients/1"
 QUANTITIES = ("added_mass", "KL", "KQ", "CD")
@@ -99,11 +100,9 @@ def dump_coefficient_set(name: str, per_axis: dict, provenance: dict | None = No
     return "\n".join(lines)
 
 
-def write_coefficient_set(path, name, per_axis, provenance=None, description="") -> None:
-    """Write a set file atomically (never leaves a half-written file)."""
+def write_coefficient_set(path, name, per_axis, provenance=None, description="", protect=()) -> None:
+    """Write a set file atomically (never leaves a half-written file, never over a ``protect`` file)."""
     path = Path(path)
     text = dump_coefficient_set(name, per_axis, provenance, description)
     coefficient_set_from_dict(tomllib.loads(text), str(path))  # validate before writing
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(text)
-    tmp.replace(path)
+    atomic_write(path, text, protect=protect)

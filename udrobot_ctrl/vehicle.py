@@ -16,6 +16,7 @@ import tomllib
 
 from identification import fossen
 from identification.sets import coefficient_set_from_dict
+from udrobot_ctrl.io.files import atomic_write
 
 MODEL_FORMAT = "udrobot-model/1"
 MODEL_NAMES = ("cfd:chin", "cfd:morison", "free_decay:morison", "pendulum:chin", "pendulum:morison")
@@ -262,9 +263,6 @@ def read_model_file(path) -> Vehicle:
     return model_from_dict(doc, str(path))
 
 
-def write_model_file(v: Vehicle, path) -> None:
-    """Write ``udrobot-model/1`` JSON atomically."""
-    path = Path(path)
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(to_model_dict(v), indent=2))
-    tmp.replace(path)
+def write_model_file(v: Vehicle, path, protect=()) -> None:
+    """Write ``udrobot-model/1`` JSON atomically (never over a file in ``protect``: :mod:`udrobot_ctrl.io.files`)."""
+    atomic_write(path, json.dumps(to_model_dict(v), indent=2), protect=protect)

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from udrobot_ctrl.io.files import check_output_dir, check_outputs, run_files
+
 
 def register(subparsers) -> None:
     p = subparsers.add_parser("convert", help="convert a bag / .tlog / .bin / rostopic CSV to udrobot-run/1",
@@ -24,18 +26,21 @@ def register(subparsers) -> None:
 
 
 def run(args) -> int:
-    from udrobot_ctrl.io.runlog import write
-
     from udrobot_ctrl.io import convert_log
+    from udrobot_ctrl.io.runlog import write
     from udrobot_ctrl.io.segment import find_launches, write_launches
 
     if not args.out and not args.segment:
         raise ValueError("nothing to do: give --out RUN.csv and/or --segment CHANNEL")
+    if args.out:
+        check_outputs(run_files(args.out), [args.input], force=args.force, option="--out")
+    if args.segment_dir:
+        check_output_dir(args.segment_dir, [args.input], option="--segment-dir")
     run_ = convert_log(args.input, args.mapping, require_inputs=not args.allow_missing_inputs)
     print(f"{args.input}: {run_.n} samples, {run_.duration:.3f} s, dt {run_.dt_median * 1e3:.2f} ms, "
           f"channels {', '.join(run_.channels) or 'none'}, inputs {run_.input_kind} x{run_.inputs.shape[1]}")
     if args.out:
-        path = write(run_, args.out, overwrite=args.force)
+        path = write(run_, args.out, overwrite=args.force, protect=[args.input])
         print(f"wrote {path} and {Path(path).with_suffix('.json')}")
     if args.segment:
         y = run_.channel(args.segment)
@@ -45,7 +50,8 @@ def run(args) -> int:
             raise ValueError(f"{args.input}: no launch (hold then release) found in channel '{args.segment}'")
         out_dir = args.segment_dir or (Path(args.out).parent if args.out else Path("."))
         stem = Path(args.out).stem if args.out else Path(args.input).stem
-        for launch, path in zip(launches, write_launches(run_.t, y, launches, out_dir, stem, column)):
+        for launch, path in zip(launches, write_launches(run_.t, y, launches, out_dir, stem, column,
+                                                                  protect=[args.input])):
             print(f"launch at t = {launch.t_release:.3f} s, amplitude {launch.amplitude:.4g}, "
                   f"{launch.stop - launch.start} samples -> {path}")
     return 0

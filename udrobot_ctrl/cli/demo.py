@@ -19,13 +19,17 @@ from pathlib import Path
 
 import numpy as np
 
+from udrobot_ctrl.io.files import atomic_write, check_output_dir, open_atomic, save_figure
 from udrobot_ctrl.vehicle import MODEL_NAMES, load_model, write_model_file
+
+SUMMARY_FILE = "demo_summary.json"  # written last: its presence marks a folder holding an earlier demo
 
 
 def register(subparsers):
     p = subparsers.add_parser("demo", help="identify, build the five models, run the controllers, write plots")
     p.add_argument("--out", default="demo_out", help="output folder (default: demo_out)")
     p.add_argument("--full", action="store_true", help="full-length missions (slower) instead of the quick ones")
+    p.add_argument("--force", action="store_true", help="replace the outputs of an earlier demo in --out")
     p.set_defaults(func=run)
 
 
@@ -73,7 +77,8 @@ def step_identification(out: Path) -> dict:
         u, f = cfd.synthetic_table(kl, kq, noise=0.005, rng=np.random.default_rng(5))
         path = raw / "cfd" / f"cfd_{axis}.csv"
         path.parent.mkdir(parents=True, exist_ok=True)
-        np.savetxt(path, np.column_stack([u, f]), delimiter=",", header="speed,force", comments="", fmt="%.6g")
+        with open_atomic(path, "wb") as fh:
+            np.savetxt(fh, np.column_stack([u, f]), delimiter=",", header="speed,force", comments="", fmt="%.6g")
         cfd_paths.append(path)
     jobs["cfd"] = (cfd_paths, RigOptions(), None, ("KL", "KQ", "CD"))
     for kind, (paths, opts, truth, keys) in jobs.items():
@@ -82,7 +87,7 @@ def step_identification(out: Path) -> dict:
         wall = time.perf_counter() - t0
         launches = rep.pop("_launches")
         plot_report(rep, launches, base / "plots", kind)
-        (base / f"{kind}_report.json").write_text(json.dumps(rep, indent=1, default=float))
+        atomic_write(base / f"{kind}_report.json", json.dumps(rep, indent=1, default=float))
         print(f"\n{kind}: {rep['n_ok']} of {rep['n_launches']} files identified, {rep['n_used']} used, "
               f"{wall:.2f} s")
         print(f"  {'axis':6s} " + " ".join(f"{k + ' (95% CI)':>30s}" for k in keys) + "   truth")
@@ -191,7 +196,7 @@ def step_open_loop(out: Path) -> dict:
     ax.grid(True)
     ax.legend()
     fig.tight_layout()
-    fig.savefig(out / "open_loop_surge.png", dpi=120)
+    save_figure(fig, out / "open_loop_surge.png", dpi=120)
     plt.close(fig)
     return result
 
@@ -203,7 +208,7 @@ def step_controllers(out: Path, full: bool = False) -> dict:
 
     result = compare(quick=not full, keep_trajectories=True)
     write_outputs(result, out / "compare")
-    (out / "compare" / "compare.json").write_text(json.dumps(contract_json(result), indent=2))
+    atomic_write(out / "compare" / "compare.json", json.dumps(contract_json(result), indent=2))
     print(text_table(result["results"], result.get("ekf", ())))
     for name, why in (result.get("skipped") or {}).items():
         print(f"skipped {name}: {why}")
@@ -217,6 +222,7 @@ STEPS = [("identification", step_identification), ("models", step_models), ("ope
 
 def run(args) -> int:
     out = Path(args.out)
+    check_output_dir(out, force=getattr(args, "force", False), option="--out", names=[SUMMARY_FILE])
     (out / "models").mkdir(parents=True, exist_ok=True)
     summary, failed = {}, []
     for name, fn in STEPS:
@@ -229,7 +235,7 @@ def run(args) -> int:
             summary[name] = {"error": f"{type(exc).__name__}: {exc}"}
             failed.append(name)
         print(f"[{name}: {time.perf_counter() - t0:.1f} s]")
-    (out / "demo_summary.json").write_text(json.dumps(summary, indent=2, default=float))
+    atomic_write(out / SUMMARY_FILE, json.dumps(summary, indent=2, default=float))
     _banner("demo finished" + (f" with failed steps: {', '.join(failed)}" if failed else ""))
     print(f"outputs in {out.resolve()}")
     return 1 if failed else 0

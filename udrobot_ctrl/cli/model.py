@@ -5,6 +5,7 @@ from pathlib import Path
 
 import numpy as np
 
+from udrobot_ctrl.io.files import check_outputs, spec_files
 from udrobot_ctrl.vehicle import DOF_NAMES, MODEL_NAMES, load_model, write_model_file
 
 
@@ -30,13 +31,11 @@ def run(args) -> int:
 
 def run_export(args) -> int:
     """Write ``args.model`` to ``args.out`` atomically; refuses to overwrite without ``--force``."""
-    vehicle = load_model(args.model)
     out = Path(args.out)
-    if out.exists() and not getattr(args, "force", False):
-        raise ValueError(f"{out} exists; pass --force to replace it")
-    if out.exists() and Path(str(args.model)).exists() and out.resolve() == Path(str(args.model)).resolve():
-        raise ValueError(f"{out} is the input model file; choose another output")
-    write_model_file(vehicle, out)
+    inputs = spec_files(args.model)
+    check_outputs([out], inputs, force=getattr(args, "force", False), option="--out")
+    vehicle = load_model(args.model)
+    write_model_file(vehicle, out, protect=inputs)
     print(f"wrote {out} ({vehicle.name}, udrobot-model/1)")
     return 0
 

@@ -16,6 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
+from udrobot_ctrl.io.files import atomic_write, check_output_dir, spec_files
+
 METHODS = ("local", "sobol", "morris", "montecarlo")
 
 
@@ -109,6 +111,9 @@ def run(args) -> int:
     if args.out and Path(args.out).exists() and any(Path(args.out).iterdir()) and not args.resume \
             and (Path(args.out) / "study.json").exists():
         raise ValueError(f"{args.out} already holds a study; pass --resume or choose another --out")
+    inputs = spec_files(args.model, args.ranges)
+    if args.out:
+        check_output_dir(args.out, inputs, force=True, option="--out", names=["space.json"])
     space = build_space(args)
     evaluator = build_evaluator(args, space)
     progress = not args.quiet
@@ -134,7 +139,7 @@ def run(args) -> int:
     print(summary_text(res, args.method, args.top))
     if args.out:
         out = Path(args.out)
-        (out / "space.json").write_text(json.dumps(space.to_records(), indent=2))
+        atomic_write(out / "space.json", json.dumps(space.to_records(), indent=2), protect=inputs)
         if args.plot and args.method != "montecarlo":
             write_plots(res, args.method, out)
         print(f"tables in {out.resolve()}")

@@ -14,6 +14,7 @@ import numpy as np
 
 from udrobot_ctrl.dynamics.plant import plant_parameters, state_derivative
 from udrobot_ctrl.dynamics.sim import rk4_step
+from udrobot_ctrl.io.files import check_outputs, run_files, spec_files
 from udrobot_ctrl.vehicle import MODEL_NAMES, STATE_NAMES, load_model
 
 DEFAULT_VOLTAGE = 12.0  # V, Cely 2019 sec. 3.1 nominal supply (used when the run has no voltage column)
@@ -28,6 +29,7 @@ def register(subparsers):
     parser.add_argument("--method", choices=("rk4", "solve_ivp"), default="rk4")
     parser.add_argument("--max-step", type=float, default=0.01, help="largest RK4 sub-step, s (default 0.01)")
     parser.add_argument("--mapping", default=None, help="mapping for non-udrobot-run logs (see convert)")
+    parser.add_argument("--force", action="store_true", help="replace an existing output run (never an input)")
     parser.set_defaults(func=run)
 
 
@@ -128,8 +130,8 @@ def run(args) -> int:
     src, out = Path(args.input), Path(args.out)
     if not src.exists():
         raise FileNotFoundError(f"input run {src} does not exist")
-    if out.exists() and out.resolve() == src.resolve():
-        raise ValueError(f"--out {out} is the input file; refusing to overwrite the measured run")
+    inputs = [src, *spec_files(args.model, getattr(args, "mapping", None))]
+    check_outputs(run_files(out), inputs, force=getattr(args, "force", False), option="--out")
     if not args.max_step > 0:
         raise ValueError(f"--max-step must be > 0, got {args.max_step}")
     vehicle = load_model(args.model)
@@ -150,6 +152,6 @@ def run(args) -> int:
     channels = {name: xs[:, i] for i, name in enumerate(STATE_NAMES)}
     if "voltage" in rn.channels:
         channels["voltage"] = rn.channels["voltage"]
-    runlog.write_run(out, rn.t, channels, rn.input_kind, rn.inputs)
+    runlog.write_run(out, rn.t, channels, rn.input_kind, rn.inputs, protect=inputs)
     print(f"wrote {out}: {rn.n} rows, {rn.duration:.3f} s simulated with {vehicle.name} ({args.method})")
     return 0

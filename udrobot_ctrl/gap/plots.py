@@ -1,12 +1,27 @@
 """Figures of a diagnosis: residuals per channel with located windows shaded; simulated vs measured."""
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 from udrobot_ctrl.gap.shrink import STATE_INDEX, errors
+from udrobot_ctrl.io.files import save_figure
 
 
-def write_plots(ctx, report, outdir):
+def plot_stem(name: str) -> str:
+    """File-name-safe stem of a run name (``a.csv[last 1/3]`` -> ``a_last_1_3``): no folder separators."""
+    base = re.sub(r"\.[A-Za-z0-9]+(?=\[|$)", "", str(name))
+    return re.sub(r"[^A-Za-z0-9._-]+", "_", base).strip("_.") or "run"
+
+
+def plot_paths(outdir, fit_names, holdout_names) -> list:
+    """The figures :func:`write_plots` will write for these run names (checked before the diagnosis runs)."""
+    out = Path(outdir)
+    return ([out / f"residuals_{plot_stem(n)}.png" for n in [*fit_names, *holdout_names]]
+            + [out / f"overlay_{plot_stem(n)}.png" for n in holdout_names])
+
+
+def write_plots(ctx, report, outdir, protect=()):
     """Write residuals_<run>.png (all runs) and overlay_<run>.png (holdout runs, before/after); returns paths."""
     import matplotlib
 
@@ -30,8 +45,7 @@ def write_plots(ctx, report, outdir):
                 ax.axvspan(a, b, color="orange", alpha=0.25)
         axes[-1, 0].set_xlabel("t (s)")
         fig.suptitle(f"nominal model residuals, {prep.name} (located windows shaded)")
-        p = out / f"residuals_{Path(prep.name).stem}.png"
-        fig.savefig(p, dpi=90)
+        p = save_figure(fig, out / f"residuals_{plot_stem(prep.name)}.png", protect=protect, dpi=90)
         plt.close(fig)
         paths.append(p)
     n_fit = ctx["n_fit"]
@@ -49,8 +63,7 @@ def write_plots(ctx, report, outdir):
         axes[0, 0].legend(loc="upper right", fontsize=7)
         axes[-1, 0].set_xlabel("t (s)")
         fig.suptitle(f"holdout {prep.name}: multiple-shooting replay before/after")
-        p = out / f"overlay_{Path(prep.name).stem}.png"
-        fig.savefig(p, dpi=90)
+        p = save_figure(fig, out / f"overlay_{plot_stem(prep.name)}.png", protect=protect, dpi=90)
         plt.close(fig)
         paths.append(p)
     return paths

@@ -27,6 +27,7 @@ from udrobot_ctrl.gap.attribute import (
 from udrobot_ctrl.gap.data import prepare
 from udrobot_ctrl.gap.locate import locate
 from udrobot_ctrl.gap.shrink import gap, simulate_windows
+from udrobot_ctrl.io.files import atomic_write
 from udrobot_ctrl.vehicle import load_model
 
 FORMAT = "udrobot-diagnosis/1"
@@ -310,9 +311,6 @@ def summary(report) -> str:
     return "\n".join(lines)
 
 
-def write_report(report, path) -> None:
-    """Write the JSON report atomically."""
-    path = Path(path)
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(report, indent=2) + "\n")
-    tmp.replace(path)
+def write_report(report, path, protect=()) -> None:
+    """Write the JSON report atomically (never over a file in ``protect``, see :mod:`udrobot_ctrl.io.files`)."""
+    atomic_write(path, json.dumps(report, indent=2) + "\n", protect=protect)

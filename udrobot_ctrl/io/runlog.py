@@ -28,13 +28,13 @@ import csv
 import io
 import json
 import math
-import os
 import re
-import tempfile
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
+
+from udrobot_ctrl.io import files
 
 FORMAT = "udrobot-run/1"
 STATE_CHANNELS = ("x", "y", "z", "phi", "theta", "psi", "u", "v", "w", "p", "q", "r")
@@ -399,22 +399,11 @@ def _format(value: float) -> str:
     return "" if math.isnan(value) else repr(float(value))
 
 
-def _atomic_write_text(path: Path, text: str) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8", newline="") as fh:
-            fh.write(text)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+_WRITE_CHUNK = 65536  # rows formatted per batch when writing
 
 
-def write_run(path, t, channels, input_kind, inputs, metadata=None, extra=None, *, overwrite=True) -> Path:
+def write_run(path, t, channels, input_kind, inputs, metadata=None, extra=None, *, overwrite=True,
+              protect=()) -> Path:
     """Write a ``udrobot-run/1`` CSV (and the sidecar ``NAME.json`` if ``metadata`` is given), atomically.
 
     Parameters
@@ -433,7 +422,10 @@ def write_run(path, t, channels, input_kind, inputs, metadata=None, extra=None, 
     extra : dict of str -> (n,) array_like, optional
         Additional columns (numeric or strings), written after the standard ones.
     overwrite : bool
-        If False, refuse to replace an existing file.
+        If False, refuse to replace an existing CSV or sidecar. With True, a stale sidecar of the replaced
+        run is replaced too (by ``metadata``, or by ``{"format": "udrobot-run/1"}``).
+    protect : iterable of paths
+        Input files (and their sidecars) the output must not be (:mod:`udrobot_ctrl.io.files`).
 
     Returns
     -------
@@ -479,25 +471,31 @@ def write_run(path, t, channels, input_kind, inputs, metadata=None, extra=None, 
     meta = None
     if metadata is not None:
         meta = validate_metadata({"format": FORMAT, **metadata}, f"{path.with_suffix('.json')} (metadata)")
-    if not overwrite and path.exists():
-        raise RunLogError(f"{where}: exists; refusing to overwrite (pass overwrite=True / --force)")
+    side = files.sidecar(path)
+    if not overwrite:
+        for f in (path, side):
+            if f.exists() or f.is_symlink():
+                raise RunLogError(f"{f}: exists; refusing to overwrite (pass overwrite=True / --force)")
+    if meta is None and (side.exists() or side.is_symlink()):
+        meta = {"format": FORMAT}  # replace a stale sidecar: it described the file being replaced
 
-    buf = io.StringIO(newline="")
-    writer = csv.writer(buf, lineterminator="\n")
-    writer.writerow(list(cols))
     columns = [(v.dtype.kind == "f", v) for v in cols.values()]
-    for i in range(n):
-        writer.writerow([_format(v[i]) if is_float else str(v[i]) for is_float, v in columns])
-    _atomic_write_text(path, buf.getvalue())
+    with files.open_atomic(path, "w", protect=protect) as fh:
+        writer = csv.writer(fh, lineterminator="\n")
+        writer.writerow(list(cols))
+        for start in range(0, n, _WRITE_CHUNK):
+            stop = min(n, start + _WRITE_CHUNK)
+            writer.writerows([_format(v[i]) if is_float else str(v[i]) for is_float, v in columns]
+                             for i in range(start, stop))
     if meta is not None:
-        _atomic_write_text(path.with_suffix(".json"), json.dumps(meta, indent=2) + "\n")
+        files.atomic_write(side, json.dumps(meta, indent=2) + "\n", protect=protect)
     return path
 
 
-def write(run: Run, path, *, overwrite=True) -> Path:
+def write(run: Run, path, *, overwrite=True, protect=()) -> Path:
     """Write a :class:`Run` (channels, inputs, extra and metadata) to ``path``."""
     return write_run(path, run.t, run.channels, run.input_kind, run.inputs, metadata=run.metadata or None,
-                     extra=run.extra, overwrite=overwrite)
+                     extra=run.extra, overwrite=overwrite, protect=protect)
 
 
 # ----------------------------------------------------------------------------------------------- resampling

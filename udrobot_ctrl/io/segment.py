@@ -17,12 +17,12 @@ Method (all thresholds relative, so units do not matter):
 from __future__ import annotations
 
 import csv
-import os
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+
+from udrobot_ctrl.io import files
 
 
 @dataclass(frozen=True)
@@ -99,7 +99,7 @@ def find_launches(t, y, min_amplitude_frac=0.3, still_frac=0.05, hold_s=0.3, end
     return launches
 
 
-def write_launches(t, y, launches, out_dir, stem: str, column: str) -> list:
+def write_launches(t, y, launches, out_dir, stem: str, column: str, protect=()) -> list:
     """Write ``STEM_launchK.csv`` with columns ``t,COLUMN`` (t = 0 at release) for each launch; atomic, no overwrite.
 
     Returns the written paths. ``column`` is ``theta`` (pendulum, rad) or ``y`` (spring, m).
@@ -116,12 +116,10 @@ def write_launches(t, y, launches, out_dir, stem: str, column: str) -> list:
         if path.exists():
             raise ValueError(f"{path}: exists; refusing to overwrite a launch file")
         sl = slice(launch.start, launch.stop)
-        fd, tmp = tempfile.mkstemp(dir=out_dir, prefix=f".{path.name}.", suffix=".tmp")
-        with os.fdopen(fd, "w", newline="") as fh:
+        with files.open_atomic(path, "w", force=False, protect=protect) as fh:
             writer = csv.writer(fh, lineterminator="\n")
             writer.writerow(["t", column])
             for ti, yi in zip(t[sl] - t[launch.start], y[sl]):
                 writer.writerow([repr(float(ti)), "" if np.isnan(yi) else repr(float(yi))])
-        os.replace(tmp, path)
         paths.append(path)
     return paths
