@@ -2,11 +2,16 @@
 
 Same equations as :func:`udrobot_ctrl.dynamics.plant.state_derivative` written out per component (a test holds
 them equal to the numpy plant to ~1e-15). Parameters are runtime arrays with a leading vehicle axis of
-length 1 (shared) or N, so one compilation serves every model; it is cached on disk (``cache=True``,
-in ``__pycache__``), so only the very first use pays the compile.
+length 1 (shared) or N, so one compilation serves every model; it is cached on disk (``cache=True``) in a
+private per-user folder (:func:`udrobot_ctrl.caches.configure_numba_cache`: ``$NUMBA_CACHE_DIR`` if set, else
+``~/.cache/udrobot_ctrl/numba``, never the source tree), so only the very first use pays the compile.
 """
-import numba
-import numpy as np
+from udrobot_ctrl.caches import configure_numba_cache
+
+configure_numba_cache()  # before the decorators below choose their cache folder
+
+import numba  # noqa: E402
+import numpy as np  # noqa: E402
 
 
 @numba.njit(cache=True)

@@ -172,7 +172,7 @@ def _protect(path: Path, protect) -> None:
 
 @contextlib.contextmanager
 def open_atomic(path, mode: str = "w", *, force: bool = True, protect=(), encoding: str = "utf-8",
-                newline: str | None = ""):
+                newline: str | None = "", file_mode: int | None = None):
     """Open a temporary file next to ``path`` for writing; on success rename it over ``path``.
 
     Parameters
@@ -184,6 +184,8 @@ def open_atomic(path, mode: str = "w", *, force: bool = True, protect=(), encodi
         If False, refuse to replace an existing ``path``.
     protect : iterable of paths
         Inputs (and their sidecars) that ``path`` must not be.
+    file_mode : int, optional
+        Final permission bits (e.g. 0o600 for private caches); default ``0o666 & ~umask``.
 
     The temporary file has an unpredictable name, is created with ``O_EXCL`` (``mkstemp``, never following a
     symlink), is removed if anything fails, and ends with mode ``0o666 & ~umask``.
@@ -197,7 +199,7 @@ def open_atomic(path, mode: str = "w", *, force: bool = True, protect=(), encodi
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     try:
-        os.fchmod(fd, 0o666 & ~current_umask())
+        os.fchmod(fd, (0o666 & ~current_umask()) if file_mode is None else file_mode)
         if mode == "wb":
             fh = os.fdopen(fd, "wb")
         else:
@@ -215,10 +217,10 @@ def open_atomic(path, mode: str = "w", *, force: bool = True, protect=(), encodi
         raise
 
 
-def atomic_write(path, data, *, force: bool = True, protect=()) -> Path:
+def atomic_write(path, data, *, force: bool = True, protect=(), file_mode: int | None = None) -> Path:
     """Write ``data`` (str, UTF-8, or bytes) to ``path`` atomically; see :func:`open_atomic`."""
     with open_atomic(path, "wb" if isinstance(data, (bytes, bytearray)) else "w", force=force,
-                     protect=protect) as fh:
+                     protect=protect, file_mode=file_mode) as fh:
         fh.write(data)
     return Path(path)
 
