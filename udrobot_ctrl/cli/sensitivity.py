@@ -108,12 +108,12 @@ def run(args) -> int:
 
     if args.resume and not args.out:
         raise ValueError("--resume needs --out (the study directory to continue)")
-    if args.out and Path(args.out).exists() and any(Path(args.out).iterdir()) and not args.resume \
-            and (Path(args.out) / "study.json").exists():
-        raise ValueError(f"{args.out} already holds a study; pass --resume or choose another --out")
     inputs = spec_files(args.model, args.ranges)
     if args.out:
         check_output_dir(args.out, inputs, force=True, option="--out", names=["space.json"])
+    if args.out and Path(args.out).exists() and any(Path(args.out).iterdir()) and not args.resume \
+            and (Path(args.out) / "study.json").exists():
+        raise ValueError(f"{args.out} already holds a study; pass --resume or choose another --out")
     space = build_space(args)
     evaluator = build_evaluator(args, space)
     progress = not args.quiet
