@@ -207,7 +207,7 @@ def to_model_dict(v: Vehicle) -> dict:
 
 
 MODEL_KEYS = ("format", "name", "rho", "g", "mass", "inertia_cg", "r_g", "r_b", "weight", "buoyancy", "added_mass",
-              "linear_damping", "quadratic_damping", "thrusters", "provenance")
+              "linear_damping", "quadratic_damping", "thrusters", "provenance", "effects")
 THRUSTER_KEYS = ("name", "position", "direction", "max_forward_N", "max_reverse_N")
 PSD_TOL = 1e-9  # relative: eigenvalues of sym(D) above -PSD_TOL * max|D| count as >= 0 (round-off of exported files)
 

@@ -329,8 +329,8 @@ def check_time_gaps(t: np.ndarray, path="run", lines=None) -> None:
     if bad.size:
         k = int(bad[0])
         line = None if lines is None else int(lines[k + 1])
-        raise RunLogError(f"{_where(path, row=k + 2, line=line, column='t')}: t = {t[k + 1]!r} s follows "
-                          f"{t[k]!r} s (data row {k + 1}): a gap of {dt[k]:.6g} s, {dt[k] / med:.3g} times the "
+        raise RunLogError(f"{_where(path, row=k + 2, line=line, column='t')}: t = {float(t[k + 1])!r} s follows "
+                          f"{float(t[k])!r} s (data row {k + 1}): a gap of {dt[k]:.6g} s, {dt[k] / med:.3g} times the "
                           f"median step {med:.6g} s (limit {limit:.6g} s); a clock jump (e.g. a UNIX-time stamp) "
                           f"or two runs in one file: fix the time column or split the run")
 
@@ -363,8 +363,8 @@ def _process_chunk(path, cols: _Columns, fields: list, lines: list, index: dict,
     bad = np.flatnonzero(~(later > prev))
     if bad.size:
         i = int(bad[0]) + (0 if row0 else 1)
-        before = cols.t[row0 - 1] if i == 0 else t[i - 1]
-        raise RunLogError(f"{_where(path, row=row0 + i + 1, line=lines[i], column='t')}: t = {t[i]!r} s is not "
+        before = float(cols.t[row0 - 1] if i == 0 else t[i - 1])
+        raise RunLogError(f"{_where(path, row=row0 + i + 1, line=lines[i], column='t')}: t = {float(t[i])!r} s is not "
                           f"greater than the previous row's {before!r} s; t must be strictly increasing")
     cols.t[sl] = t
     cols.lines[sl] = lines
