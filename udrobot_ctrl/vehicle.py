@@ -262,7 +262,7 @@ def _check_dissipative(D: np.ndarray, key: str, src: str) -> None:
     diag = np.diag(D)
     if np.any(diag < 0):
         i = int(np.argmax(diag < 0))
-        raise ValueError(f"{src}: field {key!r}[{i}][{i}] = {diag[i]!r} < 0 ({DOF_NAMES[i]}): negative damping "
+        raise ValueError(f"{src}: field {key!r}[{i}][{i}] = {float(diag[i])!r} < 0 ({DOF_NAMES[i]}): negative damping "
                          f"feeds energy into the motion; expected >= 0")
     eig = np.linalg.eigvalsh(0.5 * (D + D.T))
     if eig.min() < -PSD_TOL * max(float(np.abs(D).max()), 1.0):
@@ -336,7 +336,7 @@ def model_from_dict(doc: dict, source: str = "<dict>") -> Vehicle:
     added = _matrix(doc, "added_mass", (6, 6), source)
     if np.any(np.diag(added) < 0):
         i = int(np.argmax(np.diag(added) < 0))
-        warnings.warn(f"{source}: field 'added_mass'[{i}][{i}] = {added[i, i]!r} < 0 ({DOF_NAMES[i]}); "
+        warnings.warn(f"{source}: field 'added_mass'[{i}][{i}] = {float(added[i, i])!r} < 0 ({DOF_NAMES[i]}); "
                       f"unusual for a submerged body", UserWarning, stacklevel=2)
     return Vehicle(
         name=str(doc.get("name", Path(source).stem)), mass=scal["mass"],
