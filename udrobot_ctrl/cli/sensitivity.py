@@ -4,7 +4,10 @@ Examples::
 
     udrobot-ctrl sensitivity --model cfd:morison --controller lqr --method local --out sens_local
     udrobot-ctrl sensitivity --model pendulum:chin --method sobol --samples 256 --workers 2 --out sens_sobol
-    udrobot-ctrl sensitivity --method sobol --samples 1024 --scheduler tcp://10.0.0.5:8786 --out s --resume
+    udrobot-ctrl sensitivity --method sobol --samples 1024 --scheduler tls://10.0.0.5:8786 --out s --resume
+
+A dask scheduler runs any code its clients send: use ``tls://`` with certificates (README, "Distributed sensitivity
+studies"), never a plain ``tcp://`` scheduler reachable by others.
     udrobot-ctrl sensitivity --method morris --samples 20 --params surge.CD,heave.CD,heave.added_mass \\
         --range surge.CD=1.2:2.6
 """
@@ -31,8 +34,9 @@ def register(subparsers):
                    help="sobol: base sample N (power of 2; N(d+2) runs, default 256); morris: trajectories "
                         "(r(d+1) runs, default 20); montecarlo: runs (default 500); local: ignored (1 + 6d runs)")
     p.add_argument("--workers", type=int, default=None, help="local worker processes (default: all CPUs; 1 = serial)")
-    p.add_argument("--scheduler", default=None, help="dask scheduler address (tcp://HOST:PORT) instead of local "
-                   "processes")
+    p.add_argument("--scheduler", default=None,
+                   help="dask scheduler address (tls://HOST:PORT; TLS settings from dask's config, see README) "
+                        "instead of local processes")
     p.add_argument("--out", default=None, help="study directory (tables, plots); resumable")
     p.add_argument("--resume", action="store_true", help="continue the study in --out, computing missing runs only")
     p.add_argument("--params", default=None, help="comma-separated parameters to vary (default: all)")
