@@ -429,7 +429,7 @@ def _text_columns(path: Path, names: list, index: dict, n: int) -> dict:
     return out
 
 
-def read_run(path, progress: bool | None = False) -> Run:
+def read_run(path, progress: bool | None = None) -> Run:
     """Read and validate a ``udrobot-run/1`` CSV and its optional sidecar ``NAME.json``.
 
     The file is parsed in batches into preallocated float64 arrays, so memory stays near the size of the
