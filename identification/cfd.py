@@ -56,7 +56,9 @@ def _read(path):
         raise LaunchError(path, f"header {','.join(header)!r} lacks the expected columns speed,force", row=line)
     idx = {c: header.index(c) for c in ("speed", "force")}
     data = {"speed": [], "force": []}
+    lines = []
     for line, r in numbered[1:]:
+        lines.append(line)
         for c, k in idx.items():
             if k >= len(r) or not r[k].strip():
                 raise LaunchError(path, "missing value", row=line, field=c)
@@ -72,7 +74,35 @@ def _read(path):
         raise LaunchError(path, f"only {speed.size} data rows, need at least {MIN_POINTS} speeds")
     if np.unique(np.abs(speed)).size < 2 or np.all(speed == 0):
         raise LaunchError(path, "need at least two distinct nonzero speeds to separate K_L from K_Q", field="speed")
+    check_drag(path, speed, force, lines)
     return {"speed": speed, "force": force}, "speed"
+
+
+def check_drag(path, speed, force, lines) -> None:
+    """Reject a table that is not a drag curve: the force must oppose the flow (same sign as the inflow speed,
+    nonzero) and its magnitude must increase with the speed (steady drag is monotonic in |u|).
+
+    Raises
+    ------
+    LaunchError
+        Naming the file, the row (file line) and the reason.
+    """
+    moving = speed != 0
+    bad = np.flatnonzero(moving & ~(force * np.sign(speed) > 0))
+    if bad.size:
+        k = int(bad[0])
+        what = "zero" if force[k] == 0 else "of the opposite sign to the speed"
+        raise LaunchError(path, f"force {force[k]:g} N at speed {speed[k]:g} m/s is {what}; a drag table needs "
+                          f"a force along the inflow (same sign as the speed, nonzero) at every nonzero speed",
+                          row=lines[k], field="force")
+    order = np.argsort(np.abs(speed), kind="stable")
+    u, f = np.abs(speed[order]), np.abs(force[order])
+    for a, b in zip(range(u.size - 1), range(1, u.size)):
+        if u[b] > u[a] and not f[b] > f[a]:
+            ia, ib = int(order[a]), int(order[b])
+            raise LaunchError(path, f"|force| {f[b]:g} N at |speed| {u[b]:g} m/s (row {lines[ib]}) is not above "
+                              f"{f[a]:g} N at {u[a]:g} m/s (row {lines[ia]}); drag must increase with speed "
+                              f"(a constant or falling force is not a drag curve)", row=lines[ib], field="force")
 
 
 def _ols(X, y):

@@ -26,8 +26,13 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from numba import njit
 from scipy import optimize, signal, stats
+
+from udrobot_ctrl.caches import configure_numba_cache
+
+configure_numba_cache()  # numba's cache in a private user folder, not the source tree (before @njit below)
+
+from numba import njit  # noqa: E402
 
 MIN_ROWS = 20
 MIN_EXTREMA = 3

@@ -7,6 +7,8 @@ from pathlib import Path
 
 import numpy as np
 
+from udrobot_ctrl.io.files import save_figure
+
 
 def _plt():
     import matplotlib
@@ -26,7 +28,7 @@ def _every(n: int) -> int:
     return max(1, n // MAX_POINTS)
 
 
-def plot_fits(launches, axis, path, kind, title_note: str = "") -> Path | None:
+def plot_fits(launches, axis, path, kind, title_note: str = "", protect=()) -> Path | None:
     """Grid of every launch of ``axis``: measurement and fitted model (or turning points) against time (s)."""
     rows = [e for e in launches if e["ok"] and (e["axis"] or "unspecified") == axis]
     if not rows:
@@ -69,12 +71,12 @@ def plot_fits(launches, axis, path, kind, title_note: str = "") -> Path | None:
     # fixed margins: tight_layout on a 24-panel grid costs seconds per figure
     fig.subplots_adjust(left=0.06, right=0.99, bottom=0.5 / (1.9 * nrow + 0.6) + 0.04, top=1 - 0.5 / (1.9 * nrow + 0.6),
                         wspace=0.35, hspace=0.75)
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, protect=protect, dpi=110)
     plt.close(fig)
     return Path(path)
 
 
-def plot_vs_reynolds(launches, axis, path, kind, title_note: str = "") -> Path | None:
+def plot_vs_reynolds(launches, axis, path, kind, title_note: str = "", protect=()) -> Path | None:
     """Per-launch coefficients with 95 % intervals against the Reynolds number."""
     rows = [e for e in launches if e["ok"] and (e["axis"] or "unspecified") == axis and "Re" in e]
     if not rows:
@@ -98,12 +100,12 @@ def plot_vs_reynolds(launches, axis, path, kind, title_note: str = "") -> Path |
     axes[0, 0].legend(fontsize=7)
     fig.suptitle(f"{kind}, {axis}: coefficients vs Reynolds number (95 % intervals){title_note}", fontsize=9)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, protect=protect, dpi=110)
     plt.close(fig)
     return Path(path)
 
 
-def plot_cfd(launches, path, title_note: str = "") -> Path | None:
+def plot_cfd(launches, path, title_note: str = "", protect=()) -> Path | None:
     """Force-speed points and both regressions, one panel per table."""
     rows = [e for e in launches if e["ok"] and "_table" in e]
     if not rows:
@@ -125,12 +127,12 @@ def plot_cfd(launches, path, title_note: str = "") -> Path | None:
     if title_note:
         fig.suptitle(f"CFD force tables and regressions{title_note}", fontsize=9)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, protect=protect, dpi=110)
     plt.close(fig)
     return Path(path)
 
 
-def plot_report(report: dict, launches, directory, kind, title_note: str = "") -> list[Path]:
+def plot_report(report: dict, launches, directory, kind, title_note: str = "", protect=()) -> list[Path]:
     """Every plot of an identification run into ``directory``; returns the written paths.
 
     ``title_note`` is appended to every figure title (e.g. ``" - SYNTHETIC data"``).
@@ -140,11 +142,11 @@ def plot_report(report: dict, launches, directory, kind, title_note: str = "") -
     launches = launches or report["launches"]
     out = []
     if kind == "cfd":
-        p = plot_cfd(launches, directory / "cfd_regressions.png", title_note)
+        p = plot_cfd(launches, directory / "cfd_regressions.png", title_note, protect=protect)
         return [p] if p else []
     for axis in report["axes"]:
         for fn, name in ((plot_fits, "fits"), (plot_vs_reynolds, "vs_reynolds")):
-            p = fn(launches, axis, directory / f"{kind}_{axis}_{name}.png", kind, title_note)
+            p = fn(launches, axis, directory / f"{kind}_{axis}_{name}.png", kind, title_note, protect=protect)
             if p:
                 out.append(p)
     return out

@@ -7,32 +7,62 @@ added mass. The identification CLI writes this format with ``--out``.
 """
 from __future__ import annotations
 
+import difflib
 from pathlib import Path
 
 import numpy as np
 import tomllib
 
 from identification.fossen import AXES, FORMS, CoefficientSet
+from udrobot_ctrl.io.files import atomic_write
 
 FORMAT = "udrobot-coefficients/1"
 QUANTITIES = ("added_mass", "KL", "KQ", "CD")
+AXIS_KEYS = QUANTITIES + tuple(f"added_mass_{form}" for form in FORMS)
+TOP_KEYS = ("format", "name", "description", "forms", *AXES)
+ENTRY_KEYS = ("value", "provenance")
+
+
+def _hint(key, known) -> str:
+    close = difflib.get_close_matches(str(key), list(known), n=1, cutoff=0.6)
+    return f" (did you mean {close[0]!r}?)" if close else ""
+
+
+def _number(value, where):
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise ValueError(f"{where}: expected a number, got {value!r}")
+    return float(value)
 
 
 def _value(entry, where):
     if isinstance(entry, dict):
         if "value" not in entry:
-            raise ValueError(f"{where}: expected a number or {{value = ..., provenance = ...}}")
-        return float(entry["value"]), str(entry.get("provenance", ""))
-    if isinstance(entry, (int, float)):
-        return float(entry), ""
-    raise ValueError(f"{where}: expected a number, got {entry!r}")
+            raise ValueError(f"{where}: expected a number or {{value = ..., provenance = ...}}"
+                             f"{_hint(next(iter(entry), ''), ENTRY_KEYS)}")
+        for key in entry:
+            if key not in ENTRY_KEYS:
+                raise ValueError(f"{where}: unknown field {key!r}{_hint(key, ENTRY_KEYS)}; an entry holds "
+                                 f"{' and '.join(ENTRY_KEYS)}")
+        return _number(entry["value"], where), str(entry.get("provenance", ""))
+    return _number(entry, where), ""
 
 
 def coefficient_set_from_dict(doc: dict, source: str = "<dict>") -> CoefficientSet:
     """Build a :class:`CoefficientSet` from a parsed set document; errors name ``source``."""
     if doc.get("format", FORMAT) != FORMAT:
         raise ValueError(f"{source}: format {doc.get('format')!r}, expected {FORMAT!r}")
+    for key in doc:
+        if key not in TOP_KEYS:
+            raise ValueError(f"{source}: unknown key {key!r}{_hint(key, TOP_KEYS)}; a set holds "
+                             f"{', '.join(TOP_KEYS)}")
     name = str(doc.get("name") or Path(source).stem)
+    forms_given = doc.get("forms")
+    if forms_given is not None:
+        if not isinstance(forms_given, list) or not all(isinstance(f, str) for f in forms_given):
+            raise ValueError(f"{source}: forms must be a list of names among {', '.join(FORMS)}")
+        for f in forms_given:
+            if f not in FORMS:
+                raise ValueError(f"{source}: forms: unknown form {f!r}{_hint(f, FORMS)}; expected {', '.join(FORMS)}")
     values: dict[str, list] = {}
     prov = {}
     for i, axis in enumerate(AXES):
@@ -40,6 +70,9 @@ def coefficient_set_from_dict(doc: dict, source: str = "<dict>") -> CoefficientS
         if not isinstance(table, dict):
             raise ValueError(f"{source}: missing table [{axis}]")
         for key, entry in table.items():
+            if key not in AXIS_KEYS:
+                raise ValueError(f"{source}: [{axis}] {key}: unknown quantity{_hint(key, AXIS_KEYS)}; expected "
+                                 f"{', '.join(AXIS_KEYS)}")
             v, p = _value(entry, f"{source}: [{axis}] {key}")
             if not np.isfinite(v) or v < 0:
                 raise ValueError(f"{source}: [{axis}] {key} = {v}: expected a finite value >= 0")
@@ -99,11 +132,9 @@ def dump_coefficient_set(name: str, per_axis: dict, provenance: dict | None = No
     return "\n".join(lines)
 
 
-def write_coefficient_set(path, name, per_axis, provenance=None, description="") -> None:
-    """Write a set file atomically (never leaves a half-written file)."""
+def write_coefficient_set(path, name, per_axis, provenance=None, description="", protect=()) -> None:
+    """Write a set file atomically (never leaves a half-written file, never over a ``protect`` file)."""
     path = Path(path)
     text = dump_coefficient_set(name, per_axis, provenance, description)
     coefficient_set_from_dict(tomllib.loads(text), str(path))  # validate before writing
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(text)
-    tmp.replace(path)
+    atomic_write(path, text, protect=protect)

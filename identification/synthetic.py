@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from identification.decay import simulate_decay
+from udrobot_ctrl.io.files import open_atomic
 
 AXES = ("surge", "sway", "heave")
 FULL_AREA = (0.04938, 0.09039, 0.09039)  # m^2, derived from Table 5 (models/udrobot.toml)
@@ -178,7 +179,8 @@ def write_launch(launch: SyntheticLaunch, path) -> Path:
     path = Path(path)
     fmt = "%.0f" if launch.column == "counts" else "%.9g"
     data = np.column_stack([launch.t, launch.values])
-    np.savetxt(path, data, delimiter=",", header=f"t,{launch.column}", comments="", fmt=["%.4f", fmt])
+    with open_atomic(path, "wb") as fh:
+        np.savetxt(fh, data, delimiter=",", header=f"t,{launch.column}", comments="", fmt=["%.4f", fmt])
     return path
 
 

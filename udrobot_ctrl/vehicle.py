@@ -15,7 +15,9 @@ autopilot's motor order (thruster i is driven by the run's ``pwm_i``).
 """
 from __future__ import annotations
 
+import difflib
 import json
+import warnings
 from dataclasses import dataclass, field, replace
 from importlib import resources
 from pathlib import Path
@@ -26,6 +28,7 @@ import tomllib
 from identification import fossen
 from identification.sets import coefficient_set_from_dict
 from udrobot_ctrl.dynamics.effects import parse_effects
+from udrobot_ctrl.io.files import atomic_write
 
 MODEL_FORMAT = "udrobot-model/1"
 #: UDrobot models: shipped coefficient set : damping form.
@@ -372,11 +375,46 @@ def _curve_entry(v: Vehicle) -> dict:
     if "voltage" not in ex:
         return {}
     return {"thruster_curve": {"name": str(ex.get("thruster_model", "t200")), "supply_voltage_V": float(ex["voltage"])}}
+MODEL_KEYS = ("format", "name", "rho", "g", "mass", "inertia_cg", "r_g", "r_b", "weight", "buoyancy", "added_mass",
+              "linear_damping", "quadratic_damping", "thrusters", "provenance", "effects", "thruster_curve")
+THRUSTER_KEYS = ("name", "position", "direction", "max_forward_N", "max_reverse_N")
+PSD_TOL = 1e-9  # relative: eigenvalues of sym(D) above -PSD_TOL * max|D| count as >= 0 (round-off of exported files)
+
+
+def did_you_mean(key: str, known) -> str:
+    """`` (did you mean 'x'?)`` for the closest known key (difflib), or ''."""
+    close = difflib.get_close_matches(str(key), list(known), n=1, cutoff=0.6)
+    return f" (did you mean {close[0]!r}?)" if close else ""
+
+
+def _missing(key: str, doc: dict, known, where: str) -> ValueError:
+    """Error for a missing field, pointing at an unknown field of ``doc`` that looks like a typo of it."""
+    close = difflib.get_close_matches(key, [k for k in doc if k not in known], n=1, cutoff=0.6)
+    hint = f" (found {close[0]!r}: a typo of {key!r}?)" if close else ""
+    return ValueError(f"{where}: missing field {key!r}{hint}")
+
+
+def _check_keys(doc: dict, known, where: str) -> None:
+    """Warn about unknown keys (kept out of the model), with the closest known key."""
+    for key in doc:
+        if key not in known:
+            warnings.warn(f"{where}: unknown field {key!r} ignored{did_you_mean(key, known)}; known fields: "
+                          f"{', '.join(known)}", UserWarning, stacklevel=4)
+
+
+def _numbers_only(value, where: str) -> None:
+    """Reject booleans and strings anywhere in a (nested list) value: JSON true is not 1."""
+    if isinstance(value, (bool, str)) or value is None:
+        raise ValueError(f"{where}: expected a number, got {json.dumps(value)}")
+    if isinstance(value, (list, tuple)):
+        for i, v in enumerate(value):
+            _numbers_only(v, f"{where}[{i}]")
 
 
 def _matrix(doc, key, shape, src):
     if key not in doc:
-        raise ValueError(f"{src}: missing field {key!r}")
+        raise _missing(key, doc, MODEL_KEYS, src)
+    _numbers_only(doc[key], f"{src}: field {key!r}")
     try:
         a = np.array(doc[key], dtype=float)
     except (TypeError, ValueError) as exc:
@@ -388,28 +426,87 @@ def _matrix(doc, key, shape, src):
     return a
 
 
+def _check_dissipative(D: np.ndarray, key: str, src: str) -> None:
+    """A damping matrix must dissipate: diagonal >= 0 and the symmetric part positive semidefinite."""
+    diag = np.diag(D)
+    if np.any(diag < 0):
+        i = int(np.argmax(diag < 0))
+        raise ValueError(f"{src}: field {key!r}[{i}][{i}] = {float(diag[i])!r} < 0 ({DOF_NAMES[i]}): negative damping "
+                         f"feeds energy into the motion; expected >= 0")
+    eig = np.linalg.eigvalsh(0.5 * (D + D.T))
+    if eig.min() < -PSD_TOL * max(float(np.abs(D).max()), 1.0):
+        raise ValueError(f"{src}: field {key!r}: symmetric part has eigenvalue {eig.min():.4g} < 0; the "
+                         f"off-diagonal terms make the damping generate energy for some motion (expected "
+                         f"(D + D^T)/2 positive semidefinite)")
+
+
+def _thruster(t, i: int, src: str) -> Thruster:
+    where = f"{src}: thrusters[{i}]"
+    if not isinstance(t, dict):
+        raise ValueError(f"{where}: expected an object with {', '.join(THRUSTER_KEYS)}, got {json.dumps(t)}")
+    _check_keys(t, THRUSTER_KEYS, where)
+    for key in THRUSTER_KEYS:
+        if key not in t:
+            raise _missing(key, t, THRUSTER_KEYS, where)
+    vec = {}
+    for key in ("position", "direction"):
+        _numbers_only(t[key], f"{where}.{key}")
+        a = np.asarray(t[key], dtype=float) if isinstance(t[key], list) else np.zeros(0)
+        if a.shape != (3,) or not np.all(np.isfinite(a)):
+            raise ValueError(f"{where}.{key}: expected 3 finite numbers (m, body frame), got {json.dumps(t[key])}")
+        vec[key] = a
+    norm = float(np.linalg.norm(vec["direction"]))
+    if abs(norm - 1.0) > 1e-3:
+        raise ValueError(f"{where}.direction: |d| = {norm:.6g}; expected a unit vector (the direction of positive "
+                         f"thrust)")
+    lim = {}
+    for key in ("max_forward_N", "max_reverse_N"):
+        _numbers_only(t[key], f"{where}.{key}")
+        lim[key] = float(t[key])
+        if not np.isfinite(lim[key]) or lim[key] < 0 or (key == "max_forward_N" and lim[key] == 0):
+            raise ValueError(f"{where}.{key} = {t[key]!r}: expected a finite thrust magnitude in N, "
+                             f"{'> 0' if key == 'max_forward_N' else '>= 0'}")
+    return Thruster(str(t["name"]), tuple(vec["position"].tolist()), tuple(vec["direction"].tolist()),
+                    lim["max_forward_N"], lim["max_reverse_N"])
+
+
 def model_from_dict(doc: dict, source: str = "<dict>") -> Vehicle:
-    """Parse a ``udrobot-model/1`` document; errors name the source and field."""
+    """Parse and check a ``udrobot-model/1`` document; errors name the source and field.
+
+    Rejected: booleans or strings as numbers, non-positive rho, g, mass, weight, negative buoyancy, inertia not
+    symmetric positive definite, negative or energy-generating damping, thrusters with non-finite position,
+    non-unit direction or negative limits. Unknown fields are ignored with a warning (and a "did you mean").
+    """
+    if not isinstance(doc, dict):
+        raise ValueError(f"{source}: expected a JSON object (udrobot-model/1), got {type(doc).__name__}")
     if doc.get("format") != MODEL_FORMAT:
         raise ValueError(f"{source}: field 'format' is {doc.get('format')!r}, expected {MODEL_FORMAT!r}")
+    _check_keys(doc, MODEL_KEYS, source)
     scal = {}
     for key in ("rho", "g", "mass", "weight", "buoyancy"):
         if key not in doc:
-            raise ValueError(f"{source}: missing field {key!r}")
-        try:
-            scal[key] = float(doc[key])
-        except (TypeError, ValueError) as exc:
-            raise ValueError(f"{source}: field {key!r} must be a number") from exc
-        if not np.isfinite(scal[key]) or scal[key] <= 0 and key != "buoyancy":
-            raise ValueError(f"{source}: field {key!r} = {doc[key]!r} must be finite and > 0")
-    thrusters = []
-    for i, t in enumerate(doc.get("thrusters", [])):
-        try:
-            thrusters.append(Thruster(str(t["name"]), tuple(float(x) for x in t["position"]),
-                                      tuple(float(x) for x in t["direction"]),
-                                      float(t["max_forward_N"]), float(t["max_reverse_N"])))
-        except (KeyError, TypeError, ValueError) as exc:
-            raise ValueError(f"{source}: thrusters[{i}] is malformed ({exc})") from exc
+            raise _missing(key, doc, MODEL_KEYS, source)
+        if isinstance(doc[key], bool) or not isinstance(doc[key], (int, float)):
+            raise ValueError(f"{source}: field {key!r} must be a number, got {json.dumps(doc[key])}")
+        scal[key] = float(doc[key])
+        if not np.isfinite(scal[key]) or (scal[key] < 0 if key == "buoyancy" else scal[key] <= 0):
+            raise ValueError(f"{source}: field {key!r} = {doc[key]!r} must be finite and "
+                             f"{'>= 0' if key == 'buoyancy' else '> 0'}")
+    if not isinstance(doc.get("thrusters", []), list):
+        raise ValueError(f"{source}: field 'thrusters' must be a list of thruster objects")
+    thrusters = [_thruster(t, i, source) for i, t in enumerate(doc.get("thrusters", []))]
+    inertia = _matrix(doc, "inertia_cg", (3, 3), source)
+    if not np.allclose(inertia, inertia.T, atol=1e-9 * max(float(np.abs(inertia).max()), 1.0)) or \
+            np.linalg.eigvalsh(inertia).min() <= 0:
+        raise ValueError(f"{source}: field 'inertia_cg' must be symmetric positive definite (kg m^2)")
+    damping = {k: _matrix(doc, k, (6, 6), source) for k in ("linear_damping", "quadratic_damping")}
+    for key, D in damping.items():
+        _check_dissipative(D, key, source)
+    added = _matrix(doc, "added_mass", (6, 6), source)
+    if np.any(np.diag(added) < 0):
+        i = int(np.argmax(np.diag(added) < 0))
+        warnings.warn(f"{source}: field 'added_mass'[{i}][{i}] = {float(added[i, i])!r} < 0 ({DOF_NAMES[i]}); "
+                      f"unusual for a submerged body", UserWarning, stacklevel=2)
     extras = {}
     curve = doc.get("thruster_curve")
     if curve is not None:
@@ -422,11 +519,9 @@ def model_from_dict(doc: dict, source: str = "<dict>") -> Vehicle:
             raise ValueError(f"{source}: thruster_curve.supply_voltage_V = {curve['supply_voltage_V']!r} must be > 0")
     return Vehicle(
         name=str(doc.get("name", Path(source).stem)), mass=scal["mass"],
-        inertia_cg=_matrix(doc, "inertia_cg", (3, 3), source), r_g=_matrix(doc, "r_g", (3,), source),
+        inertia_cg=inertia, r_g=_matrix(doc, "r_g", (3,), source),
         r_b=_matrix(doc, "r_b", (3,), source), weight=scal["weight"], buoyancy=scal["buoyancy"],
-        added_mass=_matrix(doc, "added_mass", (6, 6), source),
-        linear_damping=_matrix(doc, "linear_damping", (6, 6), source),
-        quadratic_damping=_matrix(doc, "quadratic_damping", (6, 6), source),
+        added_mass=added, linear_damping=damping["linear_damping"], quadratic_damping=damping["quadratic_damping"],
         thrusters=tuple(thrusters), rho=scal["rho"], g=scal["g"], provenance=dict(doc.get("provenance", {})),
         effects=parse_effects(doc.get("effects"), source),
         extras=extras,
@@ -445,9 +540,6 @@ def read_model_file(path) -> Vehicle:
     return model_from_dict(doc, str(path))
 
 
-def write_model_file(v: Vehicle, path) -> None:
-    """Write ``udrobot-model/1`` JSON atomically."""
-    path = Path(path)
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(to_model_dict(v), indent=2))
-    tmp.replace(path)
+def write_model_file(v: Vehicle, path, protect=()) -> None:
+    """Write ``udrobot-model/1`` JSON atomically (never over a file in ``protect``: :mod:`udrobot_ctrl.io.files`)."""
+    atomic_write(path, json.dumps(to_model_dict(v), indent=2), protect=protect)

@@ -7,13 +7,14 @@ from pathlib import Path
 
 from udrobot_ctrl.control.compare import (
     TABLE_LEGEND,
-    _write_atomic,
     compare,
     contract_json,
+    output_names,
     text_table,
     write_outputs,
 )
 from udrobot_ctrl.control.missions import CONTROLLER_KINDS
+from udrobot_ctrl.io.files import atomic_write, check_output_dir, check_outputs, spec_files
 from udrobot_ctrl.vehicle import MODEL_NAMES
 
 
@@ -38,6 +39,7 @@ def register(subparsers):
     p.add_argument("--quick", action="store_true", help="short mission (23 s instead of 46 s)")
     p.add_argument("--workers", type=int, default=None, help="processes (default: one per core; 1 = no pool)")
     p.add_argument("--no-ekf", action="store_true", help="skip the EKF matrix")
+    p.add_argument("--force", action="store_true", help="replace existing output files (never an input)")
     p.set_defaults(func=run)
 
 
@@ -49,6 +51,11 @@ def run(args) -> int:
     models = [m.strip() for m in args.models.split(",") if m.strip()]
     if args.workers is not None and args.workers < 1:
         raise ValueError(f"--workers must be >= 1, got {args.workers}")
+    inputs = spec_files(*models)
+    if args.json:
+        check_outputs([args.json], inputs, force=args.force, option="--json")
+    if args.out:
+        check_output_dir(args.out, inputs, force=args.force, option="--out", names=output_names(controllers))
     result = compare(models, controllers, quick=args.quick, workers=args.workers, keep_trajectories=bool(args.out),
                      ekf=not args.no_ekf)
     print(text_table(result["results"], result["ekf"]))
@@ -57,10 +64,10 @@ def run(args) -> int:
         print(f"skipped {name}: {why}")
     print(f"{len(result['results'])} controller runs, {len(result['ekf'])} EKF runs in {result['wall_s']:.1f} s")
     if args.out:
-        files = write_outputs(result, Path(args.out))
+        files = write_outputs(result, Path(args.out), protect=inputs)
         print(f"wrote {len(files)} files to {args.out}")
     if args.json:
         path = Path(args.json)
-        _write_atomic(path, json.dumps(contract_json(result), indent=1))
+        atomic_write(path, json.dumps(contract_json(result), indent=1), protect=inputs)
         print(f"wrote {path}")
     return 0

@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from udrobot_ctrl.cli.main import CLIError
+from udrobot_ctrl.io.files import check_output_dir, check_outputs, run_files
 
 
 def register(subparsers) -> None:
@@ -34,17 +35,15 @@ def run(args) -> int:
 
     if not args.out and not args.segment:
         raise ValueError("nothing to do: give --out RUN.csv and/or --segment CHANNEL")
-    if args.out:  # checked before the (possibly long) conversion
-        out = Path(args.out)
-        if not out.parent.is_dir():
-            raise CLIError(f"--out {out}: folder {out.parent} does not exist")
-        if out.exists() and not args.force:
-            raise CLIError(f"--out {out} exists; add --force to replace it")
+    if args.out:
+        check_outputs(run_files(args.out), [args.input], force=args.force, option="--out")
+    if args.segment_dir:
+        check_output_dir(args.segment_dir, [args.input], option="--segment-dir")
     run_ = convert_log(args.input, args.mapping, require_inputs=not args.allow_missing_inputs)
     print(f"{args.input}: {run_.n} samples, {run_.duration:.3f} s, dt {run_.dt_median * 1e3:.2f} ms, "
           f"channels {', '.join(run_.channels) or 'none'}, inputs {run_.input_kind} x{run_.inputs.shape[1]}")
     if args.out:
-        path = write(run_, out, overwrite=args.force)
+        path = write(run_, args.out, overwrite=args.force, protect=[args.input])
         print(f"wrote {path} and {Path(path).with_suffix('.json')}")
     if args.segment:
         try:
@@ -61,7 +60,8 @@ def run(args) -> int:
                              f"'{args.segment}' ({100 * free.mean():.0f} % of the rows have idle thrusters)")
         out_dir = args.segment_dir or (Path(args.out).parent if args.out else Path("."))
         stem = Path(args.out).stem if args.out else Path(args.input).stem
-        for launch, path in zip(launches, write_launches(run_.t, y, launches, out_dir, stem, column, angle)):
+        for launch, path in zip(launches, write_launches(run_.t, y, launches, out_dir, stem, column, angle,
+                                                                  protect=[args.input])):
             print(f"launch at t = {launch.t_release:.3f} s, amplitude {launch.amplitude:.4g}, "
                   f"{launch.stop - launch.start} samples -> {path}")
     return 0

@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from udrobot_ctrl.io.files import atomic_write, check_output_dir, open_atomic, save_figure
 from udrobot_ctrl.vehicle import MODEL_NAMES, load_model, write_model_file
 
 SYNTHETIC_NOTE = ("the identification data are SYNTHETIC: launch logs and CFD tables generated from the "
@@ -31,6 +32,7 @@ SYNTHETIC_NOTE = ("the identification data are SYNTHETIC: launch logs and CFD ta
 
 # units of the identified coefficients (launches: of the scaled test model; CFD: full size)
 COEFF_UNITS = {"Cm": "[-]", "CD": "[-]", "KL": "[N s/m]", "KQ": "[N s^2/m^2]"}
+SUMMARY_FILE = "demo_summary.json"  # written last: its presence marks a folder holding an earlier demo
 
 
 def register(subparsers):
@@ -51,6 +53,7 @@ def register(subparsers):
     p.add_argument("--full", action="store_true", help="full-length missions (46 s instead of 23 s; slower)")
     p.add_argument("--workers", type=int, default=None,
                    help="processes for the controller matrix (default: one per core)")
+    p.add_argument("--force", action="store_true", help="replace the outputs of an earlier demo in --out")
     p.set_defaults(func=run)
 
 
@@ -99,7 +102,8 @@ def step_identification(out: Path) -> dict:
         u, f = cfd.synthetic_table(kl, kq, noise=0.005, rng=np.random.default_rng(5))
         path = raw / "cfd" / f"cfd_{axis}.csv"
         path.parent.mkdir(parents=True, exist_ok=True)
-        np.savetxt(path, np.column_stack([u, f]), delimiter=",", header="speed,force", comments="", fmt="%.6g")
+        with open_atomic(path, "wb") as fh:
+            np.savetxt(fh, np.column_stack([u, f]), delimiter=",", header="speed,force", comments="", fmt="%.6g")
         cfd_paths.append(path)
     jobs["cfd"] = (cfd_paths, RigOptions(), None, ("KL", "KQ", "CD"))
     for kind, (paths, opts, truth, keys) in jobs.items():
@@ -109,7 +113,7 @@ def step_identification(out: Path) -> dict:
         wall = time.perf_counter() - t0
         launches = rep.pop("_launches")
         plot_report(rep, launches, base / "plots", kind, title_note=" (SYNTHETIC data from the paper's coefficients)")
-        (base / f"{kind}_report.json").write_text(json.dumps(rep, indent=1, default=float))
+        atomic_write(base / f"{kind}_report.json", json.dumps(rep, indent=1, default=float))
         print(f"\n{kind}: {rep['n_ok']} of {rep['n_launches']} files identified, {rep['n_used']} used, "
               f"{wall:.2f} s ({'full-size CFD tables' if kind == 'cfd' else 'scaled test model'}; "
               "intervals from the synthetic noise)")
@@ -220,7 +224,7 @@ def step_open_loop(out: Path) -> dict:
     ax.grid(True)
     ax.legend()
     fig.tight_layout()
-    fig.savefig(out / "open_loop_surge.png", dpi=120)
+    save_figure(fig, out / "open_loop_surge.png", dpi=120)
     plt.close(fig)
     return result
 
@@ -234,7 +238,7 @@ def step_controllers(out: Path, full: bool = False, workers: int | None = None) 
           f"({'full 46 s' if full else 'quick 23 s'} mission) ...", flush=True)
     result = compare(quick=not full, keep_trajectories=True, workers=workers)
     write_outputs(result, out / "compare")
-    (out / "compare" / "compare.json").write_text(json.dumps(contract_json(result), indent=2))
+    atomic_write(out / "compare" / "compare.json", json.dumps(contract_json(result), indent=2))
     print(text_table(result["results"], result.get("ekf", ())))
     print(TABLE_LEGEND)
     for name, why in (result.get("skipped") or {}).items():
@@ -293,6 +297,7 @@ STEPS = [("identification", step_identification), ("models", step_models), ("ope
 
 def run(args) -> int:
     out = Path(args.out)
+    check_output_dir(out, force=getattr(args, "force", False), option="--out", names=[SUMMARY_FILE])
     (out / "models").mkdir(parents=True, exist_ok=True)
     summary, failed = {}, []
     t_start = time.perf_counter()
@@ -309,7 +314,7 @@ def run(args) -> int:
             summary[name] = {"error": f"{type(exc).__name__}: {exc}"}
             failed.append(name)
         print(f"[{name}: {time.perf_counter() - t0:.1f} s]", flush=True)
-    (out / "demo_summary.json").write_text(json.dumps(summary, indent=2, default=float))
+    atomic_write(out / SUMMARY_FILE, json.dumps(summary, indent=2, default=float))
     index = write_index(out, failed)
     _banner(f"demo finished in {time.perf_counter() - t_start:.0f} s"
             + (f" with failed steps: {', '.join(failed)}" if failed else ""))

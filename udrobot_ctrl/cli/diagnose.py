@@ -13,6 +13,8 @@ import argparse
 import sys
 from pathlib import Path
 
+from udrobot_ctrl.io.files import check_output_dir, check_outputs, spec_files
+
 
 def register(subparsers):
     p = subparsers.add_parser(
@@ -30,6 +32,7 @@ def register(subparsers):
     p.add_argument("--window", type=float, default=8.0, help="multiple-shooting window, s (default 8)")
     p.add_argument("--mapping", help="log mapping for non-udrobot-run inputs (see udrobot-ctrl convert)")
     p.add_argument("--effects", help="comma-separated subset of the catalogue to test (default: all)")
+    p.add_argument("--force", action="store_true", help="replace existing output files (never an input)")
     p.add_argument("--quiet", action="store_true", help="no progress messages on stderr")
     p.set_defaults(func=run)
 
@@ -43,24 +46,27 @@ def _load(path, mapping):
 
 
 def run(args) -> int:
-    from udrobot_ctrl.gap.report import diagnose, summary, write_report
+    from udrobot_ctrl.gap.plots import plot_paths, write_plots
+    from udrobot_ctrl.gap.report import _name, diagnose, split_runs, summary, write_report
 
+    inputs = [*args.runs, *args.holdout, *spec_files(args.model), *spec_files(args.mapping)]
+    check_outputs([args.json], inputs, force=args.force, option="--json")
     fit = [_load(p, args.mapping) for p in args.runs]
     hold = [_load(p, args.mapping) for p in args.holdout]
+    if args.plot:
+        fit_s, hold_s, _ = split_runs(fit, hold or None)
+        check_output_dir(args.plot, inputs, force=args.force, option="--plot")
+        check_outputs(plot_paths(args.plot, [_name(r) for r in fit_s], [_name(r) for r in hold_s]), inputs,
+                      force=args.force, option="--plot")
     effects = [e.strip() for e in args.effects.split(",")] if args.effects else None
     if args.window <= 0:
         raise ValueError(f"--window must be > 0 s, got {args.window}")
     log = None if args.quiet else (lambda s: print(s, file=sys.stderr))
     report, ctx = diagnose(args.model, fit, hold or None, window_s=args.window, effects=effects, log=log,
                            model_label=args.model)
-    out = Path(args.json)
-    if out.parent and not out.parent.exists():
-        raise ValueError(f"--json {out}: directory {out.parent} does not exist")
-    write_report(report, out)
+    write_report(report, Path(args.json), protect=inputs)
     if args.plot:
-        from udrobot_ctrl.gap.plots import write_plots
-
-        for f in write_plots(ctx, report, args.plot):
+        for f in write_plots(ctx, report, args.plot, protect=inputs):
             print(f"wrote {f}", file=sys.stderr)
     print(summary(report))
     return 0

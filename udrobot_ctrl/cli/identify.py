@@ -21,6 +21,7 @@ import json
 from pathlib import Path
 
 from identification.identify import KINDS, RigOptions, coefficient_set_values, format_table, identify_files
+from udrobot_ctrl.io.files import atomic_write, check_output_dir, check_outputs, spec_files
 
 
 def _area(text):
@@ -73,6 +74,7 @@ def register(subparsers):
                                   "axes/quantities not identified here, tagged assumed")
     p.add_argument("--name", help="set name written with --out (default: the file stem)")
     p.add_argument("--quiet", action="store_true", help="do not print the table")
+    p.add_argument("--force", action="store_true", help="replace existing output files (never an input)")
     p.set_defaults(func=run)
 
 
@@ -91,24 +93,16 @@ def expand_files(items) -> list[Path]:
     return out
 
 
-def _guard(outputs, inputs):
-    ins = {p.resolve() for p in inputs}
-    for o in outputs:
-        if o is not None and Path(o).resolve() in ins:
-            raise ValueError(f"{o}: refusing to overwrite an input file")
-
-
-def _atomic_write(path, text):
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(text)
-    tmp.replace(path)
-
-
 def run(args) -> int:
     files = expand_files(args.files)
-    _guard([args.json, args.out], files)
+    inputs = [*files, *spec_files(args.base)]
+    force = getattr(args, "force", False)
+    check_outputs([args.out], inputs, force=force, option="--out")
+    check_outputs([args.json], inputs, force=force, option="--json")
+    if args.json and args.out:
+        check_outputs([args.json, args.out], option="--json/--out", force=True)
+    if args.plot:
+        check_output_dir(args.plot, inputs, force=force, option="--plot")
     opts = RigOptions(mass=args.mass, volume=args.volume, stiffness=args.stiffness, area=args.area,
                       length=args.length, gravity=args.gravity, rho=args.rho, scale=args.scale,
                       mechanical_damping=args.mechanical_damping, pivot_inertia=args.pivot_inertia,
@@ -122,15 +116,15 @@ def run(args) -> int:
         per_axis, prov, desc = coefficient_set_values(report, name, args.base)
         from identification.sets import write_coefficient_set
 
-        write_coefficient_set(args.out, name, per_axis, prov, desc)
+        write_coefficient_set(args.out, name, per_axis, prov, desc, protect=inputs)
         print(f"wrote {args.out} (use --model {args.out}:chin or :morison)")
     if args.json:
-        _atomic_write(args.json, json.dumps(report, indent=1, default=_json_default))
+        atomic_write(args.json, json.dumps(report, indent=1, default=_json_default), protect=inputs)
         print(f"wrote {args.json}")
     if args.plot:
         from identification.plots import plot_report
 
-        paths = plot_report(report, launches, args.plot, args.kind)
+        paths = plot_report(report, launches, args.plot, args.kind, protect=inputs)
         print(f"wrote {len(paths)} plots to {args.plot}")
     return 0 if report["n_ok"] else 1
 

@@ -5,7 +5,7 @@ from pathlib import Path
 
 import numpy as np
 
-from udrobot_ctrl.cli.main import CLIError
+from udrobot_ctrl.io.files import check_outputs, spec_files
 from udrobot_ctrl.vehicle import ALL_MODEL_NAMES, DOF_NAMES, load_model, write_model_file
 
 
@@ -47,15 +47,11 @@ def run(args) -> int:
 
 def run_export(args) -> int:
     """Write ``args.model`` to ``args.out`` atomically; refuses to overwrite without ``--force``."""
-    vehicle = load_model(args.model)
     out = Path(args.out)
-    if out.exists() and not getattr(args, "force", False):
-        raise CLIError(f"{out} exists; add --force to replace it")
-    if not out.parent.is_dir():
-        raise CLIError(f"--out {out}: folder {out.parent} does not exist")
-    if out.exists() and Path(str(args.model)).exists() and out.resolve() == Path(str(args.model)).resolve():
-        raise ValueError(f"{out} is the input model file; choose another output")
-    write_model_file(vehicle, out)
+    inputs = spec_files(args.model)
+    check_outputs([out], inputs, force=getattr(args, "force", False), option="--out")
+    vehicle = load_model(args.model)
+    write_model_file(vehicle, out, protect=inputs)
     print(f"wrote {out} ({vehicle.name}, udrobot-model/1)")
     return 0
 

@@ -4,7 +4,10 @@ Examples::
 
     udrobot-ctrl sensitivity --model cfd:morison --controller lqr --method local --out sens_local
     udrobot-ctrl sensitivity --model pendulum:chin --method sobol --samples 256 --workers 2 --out sens_sobol
-    udrobot-ctrl sensitivity --method sobol --samples 1024 --scheduler tcp://10.0.0.5:8786 --out s --resume
+    udrobot-ctrl sensitivity --method sobol --samples 1024 --scheduler tls://10.0.0.5:8786 --out s --resume
+
+A dask scheduler runs any code its clients send: use ``tls://`` with certificates (README, "Distributed sensitivity
+studies"), never a plain ``tcp://`` scheduler reachable by others.
     udrobot-ctrl sensitivity --method morris --samples 20 --params surge.CD,heave.CD,heave.added_mass \\
         --range surge.CD=1.2:2.6
 """
@@ -22,6 +25,7 @@ import numpy as np
 from udrobot_ctrl.cli.main import CLIError
 from udrobot_ctrl.control.compare import CONTROL_DT, SIM_DT
 from udrobot_ctrl.control.missions import standard_mission
+from udrobot_ctrl.io.files import atomic_write, check_output_dir, spec_files
 from udrobot_ctrl.sensitivity.executor import SweepExecutor
 from udrobot_ctrl.sensitivity.global_ import run_monte_carlo, run_morris, run_sobol
 from udrobot_ctrl.sensitivity.local import local_sensitivity
@@ -44,8 +48,9 @@ def register(subparsers):
                    help="sobol: base sample N (power of 2; N(d+2) runs, default 256); morris: trajectories "
                         "(r(d+1) runs, default 20); montecarlo: runs (default 500); local: ignored (1 + 6d runs)")
     p.add_argument("--workers", type=int, default=None, help="local worker processes (default: all CPUs; 1 = serial)")
-    p.add_argument("--scheduler", default=None, help="dask scheduler address (tcp://HOST:PORT) instead of local "
-                   "processes")
+    p.add_argument("--scheduler", default=None,
+                   help="dask scheduler address (tls://HOST:PORT; TLS settings from dask's config, see README) "
+                        "instead of local processes")
     p.add_argument("--out", default=None, help="study directory (tables, plots); resumable")
     p.add_argument("--resume", action="store_true", help="continue the study in --out, computing missing runs only")
     p.add_argument("--params", default=None, help="comma-separated parameters to vary (default: all)")
@@ -104,20 +109,23 @@ def run(args) -> int:
     """Validate the arguments, then run the study holding the lock of its ``--out`` folder throughout."""
     if args.resume and not args.out:
         raise ValueError("--resume needs --out (the study directory to continue)")
+    inputs = spec_files(args.model, args.ranges)
+    if args.out:
+        check_output_dir(args.out, inputs, force=True, option="--out", names=["space.json"])
     space = build_space(args)
     evaluator = build_evaluator(args, space)
     if not args.out:
-        return _run(args, space, evaluator)
+        return _run(args, space, evaluator, inputs)
     try:
         with StudyLock(args.out):
             if not args.resume and (Path(args.out) / "study.json").exists():
                 raise ValueError(f"{args.out} already holds a study; pass --resume or choose another --out")
-            return _run(args, space, evaluator)
+            return _run(args, space, evaluator, inputs)
     except StudyLockedError as exc:
         raise CLIError(str(exc)) from None
 
 
-def _run(args, space, evaluator) -> int:
+def _run(args, space, evaluator, inputs) -> int:
     progress = not args.quiet
     print(f"sensitivity: {args.method} of {args.controller} on {space.vehicle.name} ({space.form} form), "
           f"{len(space)} parameters")
@@ -144,7 +152,7 @@ def _run(args, space, evaluator) -> int:
         print(f"warning: {note}", file=sys.stderr)
     if args.out:
         out = Path(args.out)
-        (out / "space.json").write_text(json.dumps(space.to_records(), indent=2))
+        atomic_write(out / "space.json", json.dumps(space.to_records(), indent=2), protect=inputs)
         if args.plot and args.method != "montecarlo":
             write_plots(res, args.method, out)
         print(f"tables in {out.resolve()}")

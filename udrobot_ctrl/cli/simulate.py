@@ -12,10 +12,11 @@ import warnings
 from pathlib import Path
 
 import numpy as np
-from tqdm.auto import tqdm
+from tqdm import tqdm
 
 from udrobot_ctrl.dynamics.plant import plant_parameters, state_derivative
-from udrobot_ctrl.dynamics.sim import rk4_step
+from udrobot_ctrl.dynamics.sim import integrate_intervals
+from udrobot_ctrl.io.files import check_outputs, run_files, spec_files
 from udrobot_ctrl.vehicle import ALL_MODEL_NAMES, STATE_NAMES, load_model
 
 
@@ -35,6 +36,7 @@ def register(subparsers):
                         help="integrator: fixed-step RK4 sub-steps (default) or scipy solve_ivp (adaptive)")
     parser.add_argument("--max-step", type=float, default=0.01, help="largest RK4 sub-step, s (default 0.01)")
     parser.add_argument("--mapping", default=None, help="mapping for non-udrobot-run logs (see convert)")
+    parser.add_argument("--force", action="store_true", help="replace an existing output run (never an input)")
     parser.set_defaults(func=run)
 
 
@@ -87,17 +89,46 @@ def input_wrenches(run, p) -> tuple:
         volts = run.channels.get("voltage")
         v0 = p.supply_voltage
         volts = np.full(run.n, v0) if volts is None else np.where(np.isfinite(volts), volts, v0)
-        u = np.array([pwm_to_thrust(u[k], float(volts[k])) for k in range(run.n)])
+        u = pwm_to_thrust(u, np.asarray(volts, float)[:, None])  # broadcasts: one voltage per row
     elif kind != "thrust":
         raise ValueError(f"{run.path or 'run'}: unknown input kind {kind!r}")
     f = np.clip(u, p.f_min, p.f_max)
     return f @ p.T.T, f
 
 
-def replay(model, t, x0, tau, method: str = "rk4", max_step: float = 0.01, progress: bool = False) -> np.ndarray:
+REPLAY_CHUNK = 200_000  # rows per compiled call (progress granularity)
+MAX_SUBSTEPS_PER_ROW = 1.0e4  # assumed bound: beyond this the time column, not the dynamics, sets the work
+
+
+def substep_count(t, max_step: float) -> int:
+    """Total RK4 sub-steps of a replay: sum over intervals of ceil(h_k / max_step)."""
+    h = np.diff(np.asarray(t, float))
+    return int(np.sum(np.maximum(1, np.ceil(h / max_step - 1e-9))))
+
+
+def check_work(t, max_step: float, where: str = "run") -> int:
+    """Refuse a replay whose sub-step count is absurd for the number of rows (a clock jump in ``t``).
+
+    Returns the sub-step count. Raises ValueError naming the widest interval.
+    """
+    from udrobot_ctrl.io.runlog import check_time_gaps
+
+    check_time_gaps(t, where)
+    n_sub = substep_count(t, max_step)
+    if n_sub > MAX_SUBSTEPS_PER_ROW * max(len(t), 1e3):
+        k = int(np.argmax(np.diff(t)))
+        raise ValueError(f"{where}: replay needs {n_sub:.3g} RK4 sub-steps of {max_step:g} s for {len(t)} rows; "
+                         f"widest interval {t[k + 1] - t[k]:.6g} s (data rows {k + 1}-{k + 2}); check the time "
+                         f"column or raise --max-step")
+    return n_sub
+
+
+def replay(model, t, x0, tau, method: str = "rk4", max_step: float = 0.01,
+           progress: bool | None = None) -> np.ndarray:
     """States (n, 12) at times ``t`` (n,) from ``x0`` with ``tau[k]`` held on [t_k, t_k+1).
 
-    ``progress`` shows a progress bar on stderr when it is a terminal.
+    ``rk4`` runs compiled (numba, :func:`udrobot_ctrl.dynamics.sim.integrate_intervals`) in chunks of
+    :data:`REPLAY_CHUNK` rows with a progress bar (``progress`` None: only on a terminal and for long runs).
 
     Raises
     ------
@@ -106,28 +137,31 @@ def replay(model, t, x0, tau, method: str = "rk4", max_step: float = 0.01, progr
     """
     p = model if hasattr(model, "M_inv") else plant_parameters(load_model(model))
     t = np.asarray(t, float)
+    tau = np.asarray(tau, float)
     xs = np.empty((len(t), 12))
     x = np.asarray(x0, float).copy()
     xs[0] = x
-    steps = range(len(t) - 1)
-    if progress:
-        steps = tqdm(steps, desc="simulate", unit="sample", disable=None, leave=False, mininterval=0.5)
-    for k in steps:
-        h = t[k + 1] - t[k]
-        if method == "rk4":
-            m = max(1, int(np.ceil(h / max_step - 1e-9)))
-            for _ in range(m):
-                x = rk4_step(p, x, tau[k], h / m)
-        elif method == "solve_ivp":
-            from scipy.integrate import solve_ivp
+    if method == "rk4":
+        show = progress if progress is not None else (None if len(t) > REPLAY_CHUNK else False)
+        with tqdm(total=len(t) - 1, unit="row", desc="replay", disable=None if show is None else not show,
+                  leave=False) as bar:
+            for a in range(0, len(t) - 1, REPLAY_CHUNK):
+                b = min(len(t) - 1, a + REPLAY_CHUNK)
+                _, bad = integrate_intervals(p, xs[a], t[a:b + 1], tau[a:b], max_step, out=xs[a:b + 1])
+                if bad >= 0:
+                    raise FloatingPointError(f"simulation diverged at t = {t[a + bad + 1]:.4f} s")
+                bar.update(b - a)
+        return xs
+    if method != "solve_ivp":
+        raise ValueError(f"method must be 'rk4' or 'solve_ivp', got {method!r}")
+    from scipy.integrate import solve_ivp
 
-            sol = solve_ivp(lambda _t, xx, tk=tau[k]: state_derivative(xx, tk, p), (t[k], t[k + 1]), x,
-                            rtol=1e-8, atol=1e-10)
-            if not sol.success:
-                raise FloatingPointError(f"solve_ivp failed on [{t[k]:.4f}, {t[k + 1]:.4f}] s: {sol.message}")
-            x = sol.y[:, -1]
-        else:
-            raise ValueError(f"method must be 'rk4' or 'solve_ivp', got {method!r}")
+    for k in range(len(t) - 1):
+        sol = solve_ivp(lambda _t, xx, tk=tau[k]: state_derivative(xx, tk, p), (t[k], t[k + 1]), x,
+                        rtol=1e-8, atol=1e-10)
+        if not sol.success:
+            raise FloatingPointError(f"solve_ivp failed on [{t[k]:.4f}, {t[k + 1]:.4f}] s: {sol.message}")
+        x = sol.y[:, -1]
         if not np.all(np.isfinite(x)):
             raise FloatingPointError(f"simulation diverged at t = {t[k + 1]:.4f} s")
         xs[k + 1] = x
@@ -141,8 +175,8 @@ def run(args) -> int:
     src, out = Path(args.input), Path(args.out)
     if not src.exists():
         raise FileNotFoundError(f"input run {src} does not exist")
-    if out.exists() and out.resolve() == src.resolve():
-        raise ValueError(f"--out {out} is the input file; refusing to overwrite the measured run")
+    inputs = [src, *spec_files(args.model, getattr(args, "mapping", None))]
+    check_outputs(run_files(out), inputs, force=getattr(args, "force", False), option="--out")
     if not args.max_step > 0:
         raise ValueError(f"--max-step must be > 0, got {args.max_step}")
     vehicle = load_model(args.model)
@@ -150,6 +184,7 @@ def run(args) -> int:
     rn = read_input_run(src, getattr(args, "mapping", None))
     if rn.n < 2:
         raise ValueError(f"{src}: need at least 2 rows to simulate, got {rn.n}")
+    check_work(rn.t, args.max_step, str(src))
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         x0 = initial_state(rn)
@@ -163,6 +198,6 @@ def run(args) -> int:
     channels = {name: xs[:, i] for i, name in enumerate(STATE_NAMES)}
     if "voltage" in rn.channels:
         channels["voltage"] = rn.channels["voltage"]
-    runlog.write_run(out, rn.t, channels, rn.input_kind, rn.inputs)
+    runlog.write_run(out, rn.t, channels, rn.input_kind, rn.inputs, protect=inputs)
     print(f"wrote {out}: {rn.n} rows, {rn.duration:.3f} s simulated with {vehicle.name} ({args.method})")
     return 0

@@ -33,6 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from udrobot_ctrl.control.missions import CONTROLLER_KINDS, standard_mission
+from udrobot_ctrl.io.files import atomic_write, save_figure
 from udrobot_ctrl.vehicle import MODEL_NAMES
 
 RESULT_KEYS = ("design", "plant", "controller", "iae", "overshoot", "settling_s", "energy_J", "saturation_s")
@@ -346,18 +347,25 @@ def text_table(results, ekf_rows=()) -> str:
     return "\n".join(lines)
 
 
-def _write_atomic(path: Path, text: str):
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(text)
-    tmp.replace(path)
+def _write_atomic(path: Path, text: str, protect=()):
+    atomic_write(path, text, protect=protect)
 
 
 def _csv_value(v):
     return "" if v is None else str(v).replace(",", ";")
 
 
-def write_outputs(result, out: Path) -> list:
-    """CSV, text table, full JSON and plots in ``out``; returns the written paths."""
+OUTPUT_FILES = ("compare.csv", "compare_ekf.csv", "compare.txt", "compare_full.json", "compare_ekf_rmse.png",
+                "compare_missions.png")
+
+
+def output_names(controllers) -> list:
+    """File names :func:`write_outputs` may write for these controller kinds (checked before the runs)."""
+    return [*OUTPUT_FILES, *(f"compare_iae_{k}.png" for k in controllers)]
+
+
+def write_outputs(result, out: Path, protect=()) -> list:
+    """CSV, text table, full JSON and plots in ``out``; returns the written paths (never over a ``protect`` file)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -369,15 +377,15 @@ def write_outputs(result, out: Path) -> list:
     keys = ["controller", "design", "plant", *RESULT_KEYS[3:], *DETAIL_KEYS, "status"]
     files = [out / "compare.csv", out / "compare_ekf.csv", out / "compare.txt", out / "compare_full.json"]
     _write_atomic(files[0], "\n".join([",".join(keys)] + [",".join(_csv_value(r.get(k)) for k in keys)
-                                                          for r in rows]) + "\n")
+                                                          for r in rows]) + "\n", protect)
     ek = ["filter_model", "plant", "rmse_z", "rmse_psi", "rmse_u", "nis_mean", "status"]
     _write_atomic(files[1], "\n".join([",".join(ek)] + [",".join(_csv_value(v) for v in (
         e["filter_model"], e["plant"], e["rmse"]["z"], e["rmse"]["psi"], e["rmse"]["u"], e["nis_mean"],
-        e.get("status"))) for e in result["ekf"]]) + "\n")
+        e.get("status"))) for e in result["ekf"]]) + "\n", protect)
     skipped = "".join(f"\nskipped {k}: {v}" for k, v in result.get("skipped", {}).items())
-    _write_atomic(files[2], text_table(rows, result["ekf"]) + "\n\n" + TABLE_LEGEND + skipped + "\n")
+    _write_atomic(files[2], text_table(rows, result["ekf"]) + "\n\n" + TABLE_LEGEND + skipped + "\n", protect)
     _write_atomic(files[3], json.dumps(_finite({k: v for k, v in result.items() if k != "trajectories"}),
-                                       indent=1, default=float))
+                                       indent=1, default=float), protect)
     n = len(models)
     short = [m.replace(":", ":\n") for m in models]
     for kind in sorted({r["controller"] for r in rows}):
@@ -399,7 +407,7 @@ def write_outputs(result, out: Path) -> list:
         ax.set_title(f"{kind.upper()}: IAE, designed on A, flown on B")
         fig.tight_layout()
         path = out / f"compare_iae_{kind}.png"
-        fig.savefig(path, dpi=110)
+        save_figure(fig, path, protect=protect, dpi=110)
         plt.close(fig)
         files.append(path)
     if result["ekf"]:
@@ -418,7 +426,7 @@ def write_outputs(result, out: Path) -> list:
             fig.colorbar(im, ax=ax, label=f"RMSE {s} ({EKF_UNITS[s]})")
         fig.tight_layout()
         path = out / "compare_ekf_rmse.png"
-        fig.savefig(path, dpi=110)
+        save_figure(fig, path, protect=protect, dpi=110)
         plt.close(fig)
         files.append(path)
     trajs = result.get("trajectories") or {}
@@ -447,7 +455,7 @@ def write_outputs(result, out: Path) -> list:
         axes[0, 0].legend(fontsize=7, title="design = plant", title_fontsize=7)
         fig.tight_layout()
         path = out / "compare_missions.png"
-        fig.savefig(path, dpi=110)
+        save_figure(fig, path, protect=protect, dpi=110)
         plt.close(fig)
         files.append(path)
     return files

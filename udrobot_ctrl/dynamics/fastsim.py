@@ -19,22 +19,53 @@ import os
 import shutil
 import subprocess
 import tempfile
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
 import casadi as ca
 import numpy as np
 
+from udrobot_ctrl.caches import private_dir, unsafe_reason
 from udrobot_ctrl.dynamics import integrators, plant_casadi
 from udrobot_ctrl.dynamics.plant import PlantParameters, require_nominal
 from udrobot_ctrl.dynamics.sim import as_parameters
+from udrobot_ctrl.io.files import atomic_write
 
 COMPILE_TIMEOUT_S = 2.0
 
 
 def cache_dir() -> Path:
-    """Directory for compiled rollouts (``$UDROBOT_CACHE`` or ``~/.cache/udrobot_ctrl/fastsim``)."""
+    """Directory for compiled rollouts (``$UDROBOT_CACHE`` or ``~/.cache/udrobot_ctrl/fastsim``); see
+    :func:`private_cache_dir` for the checks made before anything in it is loaded."""
     return Path(os.environ.get("UDROBOT_CACHE", Path.home() / ".cache" / "udrobot_ctrl" / "fastsim"))
+
+
+def private_cache_dir() -> Path:
+    """:func:`cache_dir`, created 0700, if it is a folder owned by this user and not writable by others; else
+    (with a warning) a private temporary folder for this process (:func:`udrobot_ctrl.caches.private_dir`)."""
+    return private_dir(cache_dir(), "fastsim")
+
+
+def _sha256(path: Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def verified_library(lib: Path):
+    """None if ``lib`` may be loaded: ours, not writable by others, and its sha256 equals the one recorded in
+    ``<lib>.sha256`` when it was built; else the reason it must not be loaded."""
+    for f in (lib, lib.with_name(lib.name + ".sha256")):
+        why = unsafe_reason(f, want_dir=False)
+        if why is not None:
+            return f"{f.name} {why}"
+    recorded = lib.with_name(lib.name + ".sha256").read_text(encoding="ascii", errors="replace").strip()
+    if _sha256(lib) != recorded:
+        return f"{lib.name} does not match the sha256 recorded when it was built"
+    return None
 
 
 def parameter_hash(p: PlantParameters, *extra) -> str:
@@ -47,20 +78,29 @@ def parameter_hash(p: PlantParameters, *extra) -> str:
 
 
 def compile_function(fun: ca.Function, key: str, timeout: float = COMPILE_TIMEOUT_S):
-    """A gcc-compiled copy of ``fun`` loaded with ``casadi.external`` (cached as ``<key>.so``), or None.
+    """A gcc-compiled copy of ``fun`` loaded with ``casadi.external`` (cached as ``<name>_<key>.so``), or None.
 
-    Returns None (caller keeps the interpreted function) when gcc is missing, fails or exceeds ``timeout`` s.
+    The library lives in :func:`private_cache_dir` with its sha256 in ``<lib>.sha256``; a cached library is
+    loaded only if both files are this user's, not writable by others, and the hash matches (else it is
+    rebuilt, with a warning). Returns None (caller keeps the interpreted function) when gcc is missing,
+    fails or exceeds ``timeout`` s.
     """
-    lib = cache_dir() / f"{fun.name()}_{key}.so"
-    if lib.exists():
-        try:
-            return ca.external(fun.name(), str(lib))
-        except RuntimeError:
-            lib.unlink(missing_ok=True)
+    folder = private_cache_dir()
+    lib = folder / f"{fun.name()}_{key}.so"
+    digest = lib.with_name(lib.name + ".sha256")
+    if lib.exists() or lib.is_symlink():
+        why = verified_library(lib)
+        if why is None:
+            try:
+                return ca.external(fun.name(), str(lib))
+            except RuntimeError:
+                why = "failed to load"
+        warnings.warn(f"compiled kernel {lib}: {why}; rebuilding it", RuntimeWarning, stacklevel=2)
+        lib.unlink(missing_ok=True)
+        digest.unlink(missing_ok=True)
     gcc = shutil.which("gcc")
     if gcc is None:
         return None
-    lib.parent.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory() as tmp:
         src = f"{fun.name()}_{key}.c"
         gen = ca.CodeGenerator(src, {"with_header": False})
@@ -72,9 +112,14 @@ def compile_function(fun: ca.Function, key: str, timeout: float = COMPILE_TIMEOU
                            check=True, timeout=timeout, capture_output=True)
         except (subprocess.TimeoutExpired, subprocess.CalledProcessError, OSError):
             return None
-        tmp_lib = lib.with_name(lib.name + f".{os.getpid()}.tmp")
-        shutil.copyfile(out, tmp_lib)
-        tmp_lib.replace(lib)  # atomic: concurrent builders never see a half-written library
+        data = out.read_bytes()
+    sha = hashlib.sha256(data).hexdigest()
+    # the hash first, then the library: a reader never sees a library without its hash (concurrent builders
+    # write identical bytes); both via unpredictable O_EXCL temporary names in the private folder
+    atomic_write(digest, sha + "\n", file_mode=0o600)
+    atomic_write(lib, data, file_mode=0o600)
+    if verified_library(lib) is not None:  # replaced between our write and now: do not load it
+        return None
     return ca.external(fun.name(), str(lib))
 
 

@@ -253,6 +253,63 @@ def integrate_rk4(p: PlantParameters, x0, taus, dt, nsteps, tau_every=1, record_
     return out, status
 
 
+def integrate_intervals(p: PlantParameters, x0, t, taus, max_step: float, out=None) -> tuple:
+    """RK4 of one vehicle over non-uniform sample times, the wrench held on each [t_k, t_k+1) (compiled).
+
+    Each interval is split into ``ceil(h_k / max_step)`` equal sub-steps, so the result does not depend on the
+    other intervals. Uses numba when available, else the numpy RK4 (same numbers).
+
+    Parameters
+    ----------
+    p : PlantParameters
+        Single-vehicle parameters.
+    x0 : (12,) array_like
+    t : (n,) array_like
+        Strictly increasing times, s.
+    taus : (n, 6) or (n - 1, 6) array_like
+        Wrench held on each interval, N and N m.
+    max_step : float
+        Largest sub-step, s.
+    out : (n, 12) ndarray, optional
+
+    Returns
+    -------
+    out : (n, 12) ndarray
+        States at ``t``.
+    bad : int
+        -1, or the interval index at whose end the state became non-finite.
+    """
+    if is_stacked(p):
+        raise ValueError("integrate_intervals simulates one vehicle; got stacked parameters")
+    t = np.ascontiguousarray(np.asarray(t, float))
+    taus = np.ascontiguousarray(np.asarray(taus, float))
+    x0 = np.ascontiguousarray(np.asarray(x0, float).reshape(12))
+    if out is None:
+        out = np.empty((t.shape[0], 12))
+    if not max_step > 0:
+        raise ValueError(f"max_step must be > 0, got {max_step}")
+    if taus.shape[0] < t.shape[0] - 1 or taus.shape[1:] != (6,):
+        raise ValueError(f"taus must be ({t.shape[0] - 1} or more, 6), got {taus.shape}")
+    if _numba_available():
+        from udrobot_ctrl.dynamics import sim_kernels
+
+        M, Minv, DL, Q, W, B, rg, rb = (a[0] for a in _kernel_arrays(p))
+        bad = sim_kernels.replay_intervals(x0, taus, t, float(max_step), M, Minv, DL, Q, float(W), float(B), rg,
+                                           rb, out)
+        return out, int(bad)
+    x = x0.copy()  # pragma: no cover - numba is a dependency; kept for platforms without it
+    out[0] = x
+    for k in range(t.shape[0] - 1):
+        h = t[k + 1] - t[k]
+        m = max(1, int(np.ceil(h / max_step - 1e-9)))
+        for _ in range(m):
+            x = rk4_step(p, x, taus[k], h / m)
+        out[k + 1] = x
+        if not np.all(np.isfinite(x)):
+            return out, k
+    return out, -1
+
+
 def _divergence(p, status, t0, dt, out=None, record_every=1):
     """Raise for diverged vehicles, or (``out`` given: freeze mode) set their recorded states to NaN from the
     first non-finite one on."""

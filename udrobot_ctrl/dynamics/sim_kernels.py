@@ -1,14 +1,19 @@
 """numba kernels of :mod:`udrobot_ctrl.dynamics.sim`: fixed-step RK4 of the 6-DOF plant for N vehicles.
 
-The derivative is the one of :mod:`udrobot_ctrl.dynamics.equations`, compiled by numba (a test holds the
-kernels equal to the numpy plant to ~1e-15). Parameters are runtime arrays with a leading vehicle axis of
-length 1 (shared) or N, so one compilation serves every model; it is cached on disk (``cache=True``), so
-only the very first use pays the compile.
+The derivative is the one of :mod:`udrobot_ctrl.dynamics.equations`, compiled by numba (a test holds
+the kernels equal to the numpy plant to ~1e-15). Parameters are runtime arrays with a leading vehicle axis of
+length 1 (shared) or N, so one compilation serves every model; it is cached on disk (``cache=True``) in a
+private per-user folder (:func:`udrobot_ctrl.caches.configure_numba_cache`: ``$NUMBA_CACHE_DIR`` if set, else
+``~/.cache/udrobot_ctrl/numba``, never the source tree), so only the very first use pays the compile.
 """
-import numba
-import numpy as np
+from udrobot_ctrl.caches import configure_numba_cache
 
-from udrobot_ctrl.dynamics.equations import equations
+configure_numba_cache()  # before the decorators below choose their cache folder
+
+import numba  # noqa: E402
+import numpy as np  # noqa: E402
+
+from udrobot_ctrl.dynamics.equations import equations  # noqa: E402
 
 _state_derivative = equations(np.sin, np.cos, np.tan, jit=numba.njit(cache=True)).state_derivative
 
@@ -66,3 +71,43 @@ def run_serial(x0, taus, tau_every, nsteps, dt, rec_every, M, Minv, DL, Q, W, B,
 def run_parallel(x0, taus, tau_every, nsteps, dt, rec_every, M, Minv, DL, Q, W, B, rg, rb, out, status):
     for i in numba.prange(x0.shape[0]):
         status[i] = vehicle(np.int64(i), x0, taus, tau_every, nsteps, dt, rec_every, M, Minv, DL, Q, W, B, rg, rb, out)
+
+@numba.njit(cache=True)
+def replay_intervals(x0, taus, t, max_step, M, Minv, DL, Q, W, B, rg, rb, out):
+    """RK4 over each logged interval [t_k, t_k+1) with taus[k] held, in ceil(h / max_step) equal sub-steps.
+
+    Single vehicle: M, Minv, DL, Q (6, 6), W, B floats, rg, rb (3,). ``out[0] = x0``, ``out[k + 1]`` = state at
+    t[k + 1]. Returns -1, or the interval index k at whose end the state became non-finite.
+    """
+    x = x0.copy()
+    xt = np.empty(12)
+    k1 = np.empty(12)
+    k2 = np.empty(12)
+    k3 = np.empty(12)
+    k4 = np.empty(12)
+    h = np.empty(6)
+    rhs = np.empty(6)
+    out[0] = x
+    for k in range(t.shape[0] - 1):
+        span = t[k + 1] - t[k]
+        m = max(1, int(np.ceil(span / max_step - 1e-9)))
+        dt = span / m
+        tau = taus[k]
+        for _ in range(m):
+            deriv(x, tau, M, Minv, DL, Q, W, B, rg, rb, k1, h, rhs)
+            for j in range(12):
+                xt[j] = x[j] + 0.5 * dt * k1[j]
+            deriv(xt, tau, M, Minv, DL, Q, W, B, rg, rb, k2, h, rhs)
+            for j in range(12):
+                xt[j] = x[j] + 0.5 * dt * k2[j]
+            deriv(xt, tau, M, Minv, DL, Q, W, B, rg, rb, k3, h, rhs)
+            for j in range(12):
+                xt[j] = x[j] + dt * k3[j]
+            deriv(xt, tau, M, Minv, DL, Q, W, B, rg, rb, k4, h, rhs)
+            for j in range(12):
+                x[j] = x[j] + dt / 6.0 * (k1[j] + 2.0 * k2[j] + 2.0 * k3[j] + k4[j])
+        out[k + 1] = x
+        for j in range(12):
+            if not np.isfinite(x[j]):
+                return k
+    return -1

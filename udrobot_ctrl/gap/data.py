@@ -20,10 +20,11 @@ import numpy as np
 from scipy.signal import savgol_filter
 
 from udrobot_ctrl.dynamics.plant import PlantParameters, restoring_forces
-from udrobot_ctrl.io.runlog import Run, resample
+from udrobot_ctrl.io.runlog import Run, check_time_gaps, resample
 
 VEL = ("u", "v", "w", "p", "q", "r")
 POSE = ("x", "y", "z", "phi", "theta", "psi")
+MAX_GRID_RATIO = 100.0  # a uniform grid over 100 x the rows means a time column error, not a resampling need
 
 @dataclass
 class Prepared:
@@ -209,7 +210,12 @@ def prepare(run: Run, p: PlantParameters, name=None, window_s=0.8, dt=None) -> P
     notes = []
     if run.n < 20:
         raise ValueError(f"{label}: only {run.n} samples; a run needs at least 20")
+    check_time_gaps(run.t, label)
     dt = float(dt or run.dt_median)
+    n_grid = int(np.floor((run.t[-1] - run.t[0]) / dt + 1e-9)) + 1
+    if n_grid > MAX_GRID_RATIO * run.n + 1000:
+        raise ValueError(f"{label}: resampling {run.n} samples spanning {run.t[-1] - run.t[0]:.6g} s at dt {dt:.6g} s "
+                         f"would need {n_grid:.3g} samples (> {MAX_GRID_RATIO:g} x the rows); check the time column")
     t = run.t[0] + dt * np.arange(int(np.floor((run.t[-1] - run.t[0]) / dt + 1e-9)) + 1)
     r = resample(run, t) if (t.size != run.n or np.max(np.abs(t - run.t)) > 1e-9) else run
     meas = {c: np.asarray(v, float) for c, v in r.channels.items()}

@@ -5,6 +5,7 @@ import re
 from pathlib import Path
 
 from udrobot_ctrl.gap.shrink import errors
+from udrobot_ctrl.io.files import save_figure
 from udrobot_ctrl.vehicle import STATE_INDEX
 
 # units of the state channels (udrobot-run/1): positions m, angles rad, velocities m/s and rad/s
@@ -18,7 +19,14 @@ def file_label(run_name: str) -> str:
     return re.sub(r"[^\w.-]+", "_", label).strip("_.") or "run"
 
 
-def write_plots(ctx, report, outdir):
+def plot_paths(outdir, fit_names, holdout_names) -> list:
+    """The figures :func:`write_plots` will write for these run names (checked before the diagnosis runs)."""
+    out = Path(outdir)
+    return ([out / f"residuals_{file_label(n)}.png" for n in [*fit_names, *holdout_names]]
+            + [out / f"overlay_{file_label(n)}.png" for n in holdout_names])
+
+
+def write_plots(ctx, report, outdir, protect=()):
     """Write residuals_<run>.png (all runs) and overlay_<run>.png (holdout runs, before/after); returns paths."""
     import matplotlib
 
@@ -42,8 +50,7 @@ def write_plots(ctx, report, outdir):
                 ax.axvspan(a, b, color="orange", alpha=0.25)
         axes[-1, 0].set_xlabel("t (s)")
         fig.suptitle(f"nominal model residuals, {prep.name} (located windows shaded)")
-        p = out / f"residuals_{file_label(prep.name)}.png"
-        fig.savefig(p, dpi=90)
+        p = save_figure(fig, out / f"residuals_{file_label(prep.name)}.png", protect=protect, dpi=90)
         plt.close(fig)
         paths.append(p)
     n_fit = ctx["n_fit"]
@@ -61,8 +68,7 @@ def write_plots(ctx, report, outdir):
         axes[0, 0].legend(loc="upper right", fontsize=7)
         axes[-1, 0].set_xlabel("t (s)")
         fig.suptitle(f"holdout {prep.name}: multiple-shooting replay before/after")
-        p = out / f"overlay_{file_label(prep.name)}.png"
-        fig.savefig(p, dpi=90)
+        p = save_figure(fig, out / f"overlay_{file_label(prep.name)}.png", protect=protect, dpi=90)
         plt.close(fig)
         paths.append(p)
     return paths

@@ -27,6 +27,7 @@ from udrobot_ctrl.gap.attribute import (
 from udrobot_ctrl.gap.data import prepare
 from udrobot_ctrl.gap.locate import locate
 from udrobot_ctrl.gap.shrink import gap, simulate_windows
+from udrobot_ctrl.io.files import atomic_write
 from udrobot_ctrl.vehicle import load_model
 
 FORMAT = "udrobot-diagnosis/1"
@@ -55,7 +56,11 @@ def split_runs(runs, holdout):
 
 
 def _name(run):
-    return Path(run.path).name if run.path else "run"
+    """File name of a run; a split part keeps its tag (``a.csv[last 1/3]``, whose '/' is not a folder)."""
+    if not run.path:
+        return "run"
+    base, bracket, tag = run.path.partition("[")
+    return Path(base).name + bracket + tag
 
 
 def _clean(v):
@@ -250,6 +255,10 @@ def diagnose(model, runs, holdout=None, window_s=8.0, effects=None, log=None, mo
     verdict = (f"significant: {len(sel['selected'])} of {len(names)} effects tested ({', '.join(sel['selected'])})"
                if sel["selected"] else
                f"no catalogue effect explains the gap significantly ({len(names)} effects tested)")
+    if not scored:
+        const = ", ".join(g_before.get("undefined", {})) or "none"
+        verdict = (f"gap undefined: no measured channel varies above its noise (constant channels: {const}), so "
+                   f"there is nothing to score; fly a manoeuvre that excites the channels")
     if sel["selected"] and unexplained > 0.5:
         verdict += f"; {100 * unexplained:.0f}% of the gap remains unexplained"
     elif not sel["selected"] and g_before["value"] > 0:
@@ -259,10 +268,10 @@ def diagnose(model, runs, holdout=None, window_s=8.0, effects=None, log=None, mo
         "model": model_label or (str(model) if not hasattr(model, "name") else model.name),
         "fit_runs": [pr.name for pr in fit_p],
         "holdout_runs": [pr.name for pr in ho_p],
-        "gap_before": {k: g_before[k] for k in ("metric", "value", "per_channel")} | {"scored": scored},
+        "gap_before": {k: g_before[k] for k in ("metric", "value", "per_channel", "undefined")} | {"scored": scored},
         "location": location,
         "effects": entries,
-        "gap_after": {k: g_after[k] for k in ("metric", "value", "per_channel")} | {"scored": scored},
+        "gap_after": {k: g_after[k] for k in ("metric", "value", "per_channel", "undefined")} | {"scored": scored},
         "unexplained": unexplained,
         "verdict": verdict,
         "location_detail": detail,
@@ -286,13 +295,23 @@ def diagnose(model, runs, holdout=None, window_s=8.0, effects=None, log=None, mo
     return _clean(report), ctx
 
 
+def _num(value, spec: str, undefined: str = "undefined") -> str:
+    """``value`` formatted with ``spec``, or ``undefined`` for None / nan (JSON null)."""
+    if value is None or (isinstance(value, float) and not math.isfinite(value)):
+        return undefined
+    return format(value, spec)
+
+
 def summary(report) -> str:
-    """Human-readable summary of a report."""
+    """Human-readable summary of a report (undefined numbers, e.g. the gap of constant channels, say so)."""
     gb, ga = report["gap_before"], report["gap_after"]
+    why = gb.get("undefined") or {}
+    per = [f"{c} {_num(v, '.2f')}" for c, v in gb["per_channel"].items() if c in gb["scored"]]
+    per += [f"{c} undefined: channel constant" for c in why]
     lines = [f"model {report['model']}: fit {', '.join(report['fit_runs'])}; "
              f"holdout {', '.join(report['holdout_runs'])}",
-             f"gap before {gb['value']:.3f} (NRMSE; " + ", ".join(f"{c} {v:.2f}" for c, v in gb["per_channel"].items()
-                                                             if c in gb["scored"]) + ")"]
+             f"gap before {_num(gb['value'], '.3f', 'undefined (no channel to score)')} (NRMSE; "
+             + ", ".join(per) + ")"]
     for loc in report["location"]:
         lines.append(f"  where: {loc['channel']} holds {100 * loc['share']:.0f}% -- {loc['condition']}; windows "
                      f"{loc['windows'][:3]} in {loc['run']}")
@@ -304,18 +323,15 @@ def summary(report) -> str:
             extra = "; indistinguishable from " + ", ".join(a["name"] for a in e["indistinguishable_from"])
         if e.get("matters_below_m") is not None:
             extra += f"; matters below {e['matters_below_m']:.2f} m"
-        lines.append(f"  {e['name']:<26s} {tag:<11s} shrink {e['shrink']:+.2f}  dBIC {e['evidence']['delta_bic']:.0f}"
-                     f"{extra}")
+        lines.append(f"  {e['name']:<26s} {tag:<11s} shrink {_num(e['shrink'], '+.2f')}  "
+                     f"dBIC {_num(e['evidence']['delta_bic'], '.0f')}{extra}")
         if e["significant"]:
-            lines.append("      params " + ", ".join(f"{k}={v:.4g}" for k, v in e["params"].items()))
-    lines.append(f"gap after {ga['value']:.3f}; unexplained {report['unexplained']:.2f}")
+            lines.append("      params " + ", ".join(f"{k}={_num(v, '.4g')}" for k, v in e["params"].items()))
+    lines.append(f"gap after {_num(ga['value'], '.3f')}; unexplained {_num(report['unexplained'], '.2f')}")
     lines.append(report["verdict"])
     return "\n".join(lines)
 
 
-def write_report(report, path) -> None:
-    """Write the JSON report atomically."""
-    path = Path(path)
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(report, indent=2) + "\n")
-    tmp.replace(path)
+def write_report(report, path, protect=()) -> None:
+    """Write the JSON report atomically (never over a file in ``protect``, see :mod:`udrobot_ctrl.io.files`)."""
+    atomic_write(path, json.dumps(report, indent=2) + "\n", protect=protect)

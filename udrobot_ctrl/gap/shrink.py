@@ -125,7 +125,8 @@ def gap(preps, sims, scored=None):
 
     Returns
     -------
-    dict with ``value``, ``per_channel``, ``scored`` (channel list), ``scale`` (channel -> std of meas).
+    dict with ``value``, ``per_channel``, ``scored`` (channel list), ``scale`` (channel -> std of meas),
+    ``undefined`` (channel -> why its NRMSE is undefined, e.g. a constant channel; its per_channel is nan).
     """
     acc = {}
     for prep, sim in zip(preps, sims):
@@ -137,7 +138,7 @@ def gap(preps, sims, scored=None):
             m = prep.meas[c]
             a["meas"].append(m[np.isfinite(m)] if c not in ANGLES else np.unwrap(m[np.isfinite(m)]))
             a["noise"].append(channel_noise(m))
-    per, scale, auto = {}, {}, []
+    per, scale, auto, undefined = {}, {}, [], {}
     for c, a in acc.items():
         if a["n"] == 0:
             continue
@@ -145,9 +146,12 @@ def gap(preps, sims, scored=None):
         sd = float(np.std(allm)) if allm.size > 1 else 0.0
         scale[c] = sd
         per[c] = float(np.sqrt(a["se"] / a["n"]) / sd) if sd > 0 else float("nan")
+        if not sd > 0:
+            undefined[c] = "channel constant (standard deviation 0): NRMSE undefined"
         noise = np.nanmedian(a["noise"]) if np.isfinite(a["noise"]).any() else 0.0
         if sd > 3 * noise and sd > 1e-6 and np.isfinite(per[c]):
             auto.append(c)
     use = [c for c in (scored if scored is not None else auto) if c in per and np.isfinite(per[c])]
     value = float(np.sqrt(np.mean([per[c] ** 2 for c in use]))) if use else float("nan")
-    return {"metric": "nrmse", "value": value, "per_channel": per, "scored": use, "scale": scale}
+    return {"metric": "nrmse", "value": value, "per_channel": per, "scored": use, "scale": scale,
+            "undefined": undefined}

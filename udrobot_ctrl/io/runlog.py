@@ -25,16 +25,15 @@ Choices the spec leaves open (stated here so callers can rely on them):
 from __future__ import annotations
 
 import csv
-import io
 import json
 import math
-import os
 import re
-import tempfile
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
+
+from udrobot_ctrl.io import files
 
 FORMAT = "udrobot-run/1"
 STATE_CHANNELS = ("x", "y", "z", "phi", "theta", "psi", "u", "v", "w", "p", "q", "r")
@@ -171,17 +170,36 @@ def _parse_cell(text: str):
     return None
 
 
-def _read_text(path: Path) -> str:
-    try:
-        data = path.read_bytes()
-    except IsADirectoryError as exc:
-        raise RunLogError(f"{path}: is a directory, expected a udrobot-run/1 CSV file") from exc
-    try:
-        return data.decode("utf-8-sig")
-    except UnicodeDecodeError as exc:
-        line = data[: exc.start].count(b"\n") + 1
-        raise RunLogError(f"{path}: file line {line} (byte offset {exc.start}): not UTF-8 text "
-                          f"({exc.reason}); expected a udrobot-run/1 CSV") from exc
+def _bad_utf8(path: Path):
+    """(byte offset, file line, reason) of the first byte that is not UTF-8, or None; reads in 1 MiB blocks."""
+    carry, base, newlines = b"", 0, 0
+    with open(path, "rb") as fh:
+        while True:
+            block = fh.read(1 << 20)
+            data = carry + block
+            if not data:
+                return None
+            try:
+                data.decode("utf-8")
+            except UnicodeDecodeError as exc:
+                if block and exc.reason == "unexpected end of data":
+                    carry = data[exc.start:]
+                    newlines += data[:exc.start].count(b"\n")
+                    base += exc.start
+                    continue
+                return base + exc.start, newlines + data[:exc.start].count(b"\n") + 1, exc.reason
+            carry, base, newlines = b"", base + len(data), newlines + data.count(b"\n")
+            if not block:
+                return None
+
+
+def _count_lines(path: Path) -> int:
+    """Number of newline characters in the file (an upper bound on the data rows + 1), in 4 MiB blocks."""
+    n = 0
+    with open(path, "rb") as fh:
+        while block := fh.read(1 << 22):
+            n += block.count(b"\n")
+    return n
 
 
 def _map_header(path, header: list) -> tuple:
@@ -237,36 +255,36 @@ def _map_header(path, header: list) -> tuple:
     return names, input_kind, input_cols, channel_cols, extra_cols
 
 
-def _read_rows(path, text: str):
-    """Return (header, rows) with rows = [(data_row, file_line, fields)]; reject ragged rows and inner blank lines."""
-    reader = csv.reader(io.StringIO(text, newline=""), strict=True)
-    rows = []
+_CHUNK_ROWS = 4096  # rows parsed per batch: bounds the memory of the Python strings of one batch
+_FAST_BAD = re.compile(r"[^0-9eE+\-.nNaA \t\x1f]")  # a numeric column holding only these parses with float()
+MAX_GAP_S = 6 * 3600.0  # s; assumed: one run is one manoeuvre, a 6 h jump is a clock error (e.g. a UNIX-time stamp)
+MAX_GAP_RATIO = 1.0e4   # a gap over 1e4 median steps (and over MIN_RATIO_GAP_S) is a clock error, not a pause
+MIN_RATIO_GAP_S = 60.0  # s; below this a long pause of a fast log is accepted (work stays bounded)
+
+
+def _fast_floats(cells: list):
+    """Cells -> float64 via numpy when every cell is a plain decimal number, empty or nan; None otherwise.
+
+    The character filter leaves only text that Python's ``float`` parses exactly like :func:`_parse_cell`
+    (no ``inf``, hex, ``_`` or non-ASCII digits); anything else goes through the per-cell path.
+    """
+    if _FAST_BAD.search("\x1f".join(cells)):
+        return None
+    arr = np.array(cells)
+    if arr.dtype.kind != "U":
+        return None
+    arr[np.char.str_len(arr) == 0] = "nan"
     try:
-        header = next(reader, None)
-        if not header or (len(header) == 1 and header[0].strip() == ""):
-            raise RunLogError(f"{path}: file line 1: empty file or empty header; expected a udrobot-run/1 header "
-                              f"row starting with 't'")
-        width = len(header)
-        blank_at = None
-        for fields in reader:
-            line = reader.line_num
-            if not fields or (width > 1 and len(fields) == 1 and fields[0].strip() == ""):
-                blank_at = blank_at or line
-                continue
-            if blank_at is not None:
-                raise RunLogError(f"{_where(path, line=blank_at)}: blank line inside the data (data resumes at file "
-                                  f"line {line}); rows are never dropped, remove or fill the blank line")
-            row = len(rows) + 1
-            if len(fields) != width:
-                raise RunLogError(f"{_where(path, row=row, line=line)}: {len(fields)} cells, the header has {width}")
-            rows.append((row, line, fields))
-    except csv.Error as exc:
-        raise RunLogError(f"{_where(path, row=len(rows) + 1, line=reader.line_num + 1)}: malformed CSV ({exc})") \
-            from exc
-    return header, rows
+        return arr.astype(np.float64)
+    except ValueError:
+        return None
 
 
 def _column_values(path, rows, j: int, name: str, strict: bool) -> np.ndarray:
+    """Per-cell parse of column ``j`` of ``rows`` [(data row, file line, fields)]; names the first bad cell.
+
+    Non-strict (extra columns): an object array of the raw strings if any cell is not numeric.
+    """
     out = np.empty(len(rows))
     for i, (row, line, fields) in enumerate(rows):
         value = _parse_cell(fields[j])
@@ -282,13 +300,147 @@ def _column_values(path, rows, j: int, name: str, strict: bool) -> np.ndarray:
     return out
 
 
-def read_run(path) -> Run:
+def _chunk_column(path, fields: list, lines: list, row0: int, j: int, name: str, strict: bool):
+    """One column of a batch of rows: float64 (fast path), or the per-cell result (with its error)."""
+    values = _fast_floats([f[j] for f in fields])
+    if values is not None and not (strict and np.isinf(values).any()):
+        return values
+    rows = [(row0 + i + 1, lines[i], f) for i, f in enumerate(fields)]
+    return _column_values(path, rows, j, name, strict)
+
+
+def check_time_gaps(t: np.ndarray, path="run", lines=None) -> None:
+    """Reject a sample interval that no manoeuvre can have (a clock jump), naming the rows and the times.
+
+    A gap is absurd when it exceeds :data:`MAX_GAP_S`, or :data:`MAX_GAP_RATIO` median steps and
+    :data:`MIN_RATIO_GAP_S`. Simulating or resampling across such a gap would cost work proportional to it.
+
+    Raises
+    ------
+    RunLogError
+    """
+    t = np.asarray(t, float)
+    if t.size < 2:
+        return
+    dt = np.diff(t)
+    med = float(np.median(dt))
+    limit = min(MAX_GAP_S, max(MAX_GAP_RATIO * med, MIN_RATIO_GAP_S))
+    bad = np.flatnonzero(dt > limit)
+    if bad.size:
+        k = int(bad[0])
+        line = None if lines is None else int(lines[k + 1])
+        raise RunLogError(f"{_where(path, row=k + 2, line=line, column='t')}: t = {float(t[k + 1])!r} s follows "
+                          f"{float(t[k])!r} s (data row {k + 1}): a gap of {dt[k]:.6g} s, {dt[k] / med:.3g} times the "
+                          f"median step {med:.6g} s (limit {limit:.6g} s); a clock jump (e.g. a UNIX-time stamp) "
+                          f"or two runs in one file: fix the time column or split the run")
+
+
+class _Columns:
+    """Preallocated float64 columns of the rows of a run, filled batch by batch."""
+
+    def __init__(self, capacity: int, names: list, input_cols: list, extra_cols: list):
+        self.t = np.empty(capacity)
+        self.lines = np.empty(capacity, dtype=np.int64)
+        self.channels = {c: np.empty(capacity) for c in names}
+        self.inputs = np.empty((capacity, len(input_cols)))
+        self.extra = {c: np.empty(capacity) for c in extra_cols}
+        self.text_extra = set()  # extra columns holding non-numeric cells: re-read as strings at the end
+        self.n = 0
+
+
+def _process_chunk(path, cols: _Columns, fields: list, lines: list, index: dict, input_cols, channel_cols,
+                   extra_cols) -> None:
+    row0, m = cols.n, len(fields)
+    sl = slice(row0, row0 + m)
+    t = _chunk_column(path, fields, lines, row0, index["t"], "t", strict=True)
+    nan = np.flatnonzero(np.isnan(t))
+    if nan.size:
+        i = int(nan[0])
+        raise RunLogError(f"{_where(path, row=row0 + i + 1, line=lines[i], column='t')}: empty/nan time; every "
+                          f"sample needs a finite time in s")
+    prev = np.concatenate([cols.t[row0 - 1:row0], t[:-1]]) if row0 else t[:-1]
+    later = t if row0 else t[1:]
+    bad = np.flatnonzero(~(later > prev))
+    if bad.size:
+        i = int(bad[0]) + (0 if row0 else 1)
+        before = float(cols.t[row0 - 1] if i == 0 else t[i - 1])
+        raise RunLogError(f"{_where(path, row=row0 + i + 1, line=lines[i], column='t')}: t = {float(t[i])!r} s is not "
+                          f"greater than the previous row's {before!r} s; t must be strictly increasing")
+    cols.t[sl] = t
+    cols.lines[sl] = lines
+    for c in channel_cols:
+        cols.channels[c][sl] = _chunk_column(path, fields, lines, row0, index[c], c, strict=True)
+    for k, c in enumerate(input_cols):
+        cols.inputs[sl, k] = _chunk_column(path, fields, lines, row0, index[c], c, strict=True)
+    for c in extra_cols:
+        if c in cols.text_extra:
+            continue
+        values = _chunk_column(path, fields, lines, row0, index[c], c, strict=False)
+        if values.dtype == object:
+            cols.text_extra.add(c)
+        else:
+            cols.extra[c][sl] = values
+    cols.n += m
+
+
+def _rows(path: Path, fh, on_header):
+    """Yield (file line, fields) of the data rows; reject ragged rows and blank lines inside the data."""
+    reader = csv.reader(fh, strict=True)
+    n_rows = 0
+    try:
+        header = next(reader, None)
+        if not header or (len(header) == 1 and header[0].strip() == ""):
+            raise RunLogError(f"{path}: file line 1: empty file or empty header; expected a udrobot-run/1 header "
+                              f"row starting with 't'")
+        on_header(header)
+        width = len(header)
+        blank_at = None
+        for fields in reader:
+            line = reader.line_num
+            if not fields or (width > 1 and len(fields) == 1 and fields[0].strip() == ""):
+                blank_at = blank_at or line
+                continue
+            if blank_at is not None:
+                raise RunLogError(f"{_where(path, line=blank_at)}: blank line inside the data (data resumes at file "
+                                  f"line {line}); rows are never dropped, remove or fill the blank line")
+            n_rows += 1
+            if len(fields) != width:
+                raise RunLogError(f"{_where(path, row=n_rows, line=line)}: {len(fields)} cells, the header has "
+                                  f"{width}")
+            yield line, fields
+    except csv.Error as exc:
+        raise RunLogError(f"{_where(path, row=n_rows + 1, line=reader.line_num + 1)}: malformed CSV ({exc})") \
+            from exc
+
+
+def _open_text(path: Path):
+    if path.is_dir():
+        raise RunLogError(f"{path}: is a directory, expected a udrobot-run/1 CSV file")
+    return open(path, encoding="utf-8-sig", newline="")
+
+
+def _text_columns(path: Path, names: list, index: dict, n: int) -> dict:
+    """Second pass: the raw strings of the named (extra) columns."""
+    out = {c: np.empty(n, dtype=object) for c in names}
+    with _open_text(path) as fh:
+        for i, (_line, fields) in enumerate(_rows(path, fh, lambda h: None)):
+            for c in names:
+                out[c][i] = fields[index[c]]
+    return out
+
+
+def read_run(path, progress: bool | None = None) -> Run:
     """Read and validate a ``udrobot-run/1`` CSV and its optional sidecar ``NAME.json``.
+
+    The file is parsed in batches into preallocated float64 arrays, so memory stays near the size of the
+    arrays (8 bytes per numeric cell) plus one batch of text, whatever the file size.
 
     Parameters
     ----------
     path : str or Path
         The CSV file. The file is only read, never modified.
+    progress : bool or None
+        Show a progress bar (None: only on a terminal, and only for files over 50 MB).
 
     Returns
     -------
@@ -297,32 +449,73 @@ def read_run(path) -> Run:
     Raises
     ------
     RunLogError
-        On any violation of the spec; the message names file, data row / file line and column.
+        On any violation of the spec (including an absurd time gap, :func:`check_time_gaps`); the message
+        names file, data row / file line and column.
     FileNotFoundError
         If the file does not exist.
     """
     path = Path(path)
-    text = _read_text(path)
-    header, rows = _read_rows(path, text)
-    names, input_kind, input_cols, channel_cols, extra_cols = _map_header(path, header)
-    if not rows:
-        raise RunLogError(f"{path}: no data rows after the header; a run needs at least one sample")
-    index = {name: j for j, name in enumerate(names)}
+    with _open_text(path) as fh:
+        capacity = _count_lines(path) + 1
+        state = {}
 
-    t = _column_values(path, rows, index["t"], "t", strict=True)
-    for i, (row, line, _fields) in enumerate(rows):
-        if math.isnan(t[i]):
-            raise RunLogError(f"{_where(path, row=row, line=line, column='t')}: empty/nan time; every sample needs "
-                              f"a finite time in s")
-        if i and not t[i] > t[i - 1]:
-            raise RunLogError(f"{_where(path, row=row, line=line, column='t')}: t = {float(t[i])!r} s is not "
-                              f"greater than the previous row's {float(t[i - 1])!r} s; t must be strictly increasing")
-    channels = {c: _column_values(path, rows, index[c], c, strict=True) for c in channel_cols}
-    inputs = np.column_stack([_column_values(path, rows, index[c], c, strict=True) for c in input_cols])
-    extra = {c: _column_values(path, rows, index[c], c, strict=False) for c in extra_cols}
+        def on_header(header):
+            names, input_kind, input_cols, channel_cols, extra_cols = _map_header(path, header)
+            state.update(index={name: j for j, name in enumerate(names)}, input_kind=input_kind,
+                         input_cols=input_cols, channel_cols=channel_cols, extra_cols=extra_cols,
+                         cols=_Columns(capacity, channel_cols, input_cols, extra_cols))
+
+        size = path.stat().st_size
+        bar = _progress(size, path, progress)
+        fields, lines = [], []
+        try:
+            for line, row in _rows(path, fh, on_header):
+                fields.append(row)
+                lines.append(line)
+                if len(fields) == _CHUNK_ROWS:
+                    _process_chunk(path, state["cols"], fields, lines, state["index"], state["input_cols"],
+                                   state["channel_cols"], state["extra_cols"])
+                    fields, lines = [], []
+                    if bar is not None:
+                        bar.update(fh.buffer.tell() - bar.n if hasattr(fh, "buffer") else 0)
+            if fields:
+                _process_chunk(path, state["cols"], fields, lines, state["index"], state["input_cols"],
+                               state["channel_cols"], state["extra_cols"])
+        except UnicodeDecodeError as exc:
+            where = _bad_utf8(path)
+            offset, line, reason = where if where else (exc.start, None, exc.reason)
+            raise RunLogError(f"{path}: file line {line} (byte offset {offset}): not UTF-8 text ({reason}); "
+                              f"expected a udrobot-run/1 CSV") from exc
+        finally:
+            if bar is not None:
+                bar.close()
+    cols = state["cols"]
+    n = cols.n
+    if not n:
+        raise RunLogError(f"{path}: no data rows after the header; a run needs at least one sample")
+
+    def trim(a):
+        return a[:n] if n > 0.9 * a.shape[0] else a[:n].copy()
+
+    t = trim(cols.t)
+    check_time_gaps(t, path, cols.lines)
+    extra = {c: trim(v) for c, v in cols.extra.items() if c not in cols.text_extra}
+    if cols.text_extra:
+        extra.update(_text_columns(path, sorted(cols.text_extra), state["index"], n))
+    extra = {c: extra[c] for c in state["extra_cols"]}
     metadata = read_metadata(path.with_suffix(".json")) if path.with_suffix(".json").exists() else {}
-    return Run(path=str(path), t=t, channels=channels, input_kind=input_kind, inputs=inputs, extra=extra,
-               metadata=metadata)
+    return Run(path=str(path), t=t, channels={c: trim(v) for c, v in cols.channels.items()},
+               input_kind=state["input_kind"], inputs=trim(cols.inputs), extra=extra, metadata=metadata)
+
+
+def _progress(total_bytes: int, path, progress):
+    """A tqdm bar over bytes, or None (``progress`` None: on a terminal and for files over 50 MB)."""
+    if progress is False or (progress is None and total_bytes < 50e6):
+        return None
+    from tqdm import tqdm
+
+    return tqdm(total=total_bytes, unit="B", unit_scale=True, desc=f"reading {Path(path).name}",
+                disable=None if progress is None else False, leave=False)
 
 
 # ----------------------------------------------------------------------------------------------- metadata
@@ -399,22 +592,11 @@ def _format(value: float) -> str:
     return "" if math.isnan(value) else repr(float(value))
 
 
-def _atomic_write_text(path: Path, text: str) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8", newline="") as fh:
-            fh.write(text)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+_WRITE_CHUNK = 65536  # rows formatted per batch when writing
 
 
-def write_run(path, t, channels, input_kind, inputs, metadata=None, extra=None, *, overwrite=True) -> Path:
+def write_run(path, t, channels, input_kind, inputs, metadata=None, extra=None, *, overwrite=True,
+              protect=()) -> Path:
     """Write a ``udrobot-run/1`` CSV (and the sidecar ``NAME.json`` if ``metadata`` is given), atomically.
 
     Parameters
@@ -433,7 +615,10 @@ def write_run(path, t, channels, input_kind, inputs, metadata=None, extra=None, 
     extra : dict of str -> (n,) array_like, optional
         Additional columns (numeric or strings), written after the standard ones.
     overwrite : bool
-        If False, refuse to replace an existing file.
+        If False, refuse to replace an existing CSV or sidecar. With True, a stale sidecar of the replaced
+        run is replaced too (by ``metadata``, or by ``{"format": "udrobot-run/1"}``).
+    protect : iterable of paths
+        Input files (and their sidecars) the output must not be (:mod:`udrobot_ctrl.io.files`).
 
     Returns
     -------
@@ -452,6 +637,7 @@ def write_run(path, t, channels, input_kind, inputs, metadata=None, extra=None, 
     bad = np.flatnonzero(~(np.diff(t) > 0))
     if bad.size:
         raise RunLogError(f"{_where(where, row=int(bad[0]) + 2, column='t')}: t must be strictly increasing")
+    check_time_gaps(t, where)
     inputs = np.asarray(inputs, dtype=float)
     if inputs.ndim == 1:
         inputs = inputs[:, None]
@@ -479,25 +665,31 @@ def write_run(path, t, channels, input_kind, inputs, metadata=None, extra=None, 
     meta = None
     if metadata is not None:
         meta = validate_metadata({"format": FORMAT, **metadata}, f"{path.with_suffix('.json')} (metadata)")
-    if not overwrite and path.exists():
-        raise RunLogError(f"{where}: exists; refusing to overwrite (pass overwrite=True / --force)")
+    side = files.sidecar(path)
+    if not overwrite:
+        for f in (path, side):
+            if f.exists() or f.is_symlink():
+                raise RunLogError(f"{f}: exists; refusing to overwrite (pass overwrite=True / --force)")
+    if meta is None and (side.exists() or side.is_symlink()):
+        meta = {"format": FORMAT}  # replace a stale sidecar: it described the file being replaced
 
-    buf = io.StringIO(newline="")
-    writer = csv.writer(buf, lineterminator="\n")
-    writer.writerow(list(cols))
     columns = [(v.dtype.kind == "f", v) for v in cols.values()]
-    for i in range(n):
-        writer.writerow([_format(v[i]) if is_float else str(v[i]) for is_float, v in columns])
-    _atomic_write_text(path, buf.getvalue())
+    with files.open_atomic(path, "w", protect=protect) as fh:
+        writer = csv.writer(fh, lineterminator="\n")
+        writer.writerow(list(cols))
+        for start in range(0, n, _WRITE_CHUNK):
+            stop = min(n, start + _WRITE_CHUNK)
+            writer.writerows([_format(v[i]) if is_float else str(v[i]) for is_float, v in columns]
+                             for i in range(start, stop))
     if meta is not None:
-        _atomic_write_text(path.with_suffix(".json"), json.dumps(meta, indent=2) + "\n")
+        files.atomic_write(side, json.dumps(meta, indent=2) + "\n", protect=protect)
     return path
 
 
-def write(run: Run, path, *, overwrite=True) -> Path:
+def write(run: Run, path, *, overwrite=True, protect=()) -> Path:
     """Write a :class:`Run` (channels, inputs, extra and metadata) to ``path``."""
     return write_run(path, run.t, run.channels, run.input_kind, run.inputs, metadata=run.metadata or None,
-                     extra=run.extra, overwrite=overwrite)
+                     extra=run.extra, overwrite=overwrite, protect=protect)
 
 
 # ----------------------------------------------------------------------------------------------- resampling

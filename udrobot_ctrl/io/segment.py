@@ -27,14 +27,13 @@ Field logs (a dive, not a rig): two more rules keep only what a free-decay ident
 from __future__ import annotations
 
 import csv
-import os
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from udrobot_ctrl.dynamics.thrusters import PWM_NEUTRAL, load_curve
+from udrobot_ctrl.io import files
 
 #: Thrust (N) and wrench (N, N m) magnitudes below which a thruster / the vehicle counts as idle (assumed:
 #: ~1 % of a T200's 12 V maximum, below what moves a 10 kg ROV measurably within one decay period).
@@ -205,7 +204,7 @@ def _find(t, y, min_amplitude_frac, still_frac, hold_s, end_frac) -> list:
     return launches
 
 
-def write_launches(t, y, launches, out_dir, stem: str, column: str, angle: bool = False) -> list:
+def write_launches(t, y, launches, out_dir, stem: str, column: str, angle: bool = False, protect=()) -> list:
     """Write ``STEM_launchK.csv`` with columns ``t,COLUMN`` (t = 0 at release) for each launch; atomic, no overwrite.
 
     Returns the written paths. ``column`` is ``theta`` (pendulum, rad) or ``y`` (spring, m). With ``angle``
@@ -225,13 +224,11 @@ def write_launches(t, y, launches, out_dir, stem: str, column: str, angle: bool 
         if path.exists():
             raise ValueError(f"{path}: exists; refusing to overwrite a launch file")
         sl = slice(launch.start, launch.stop)
-        fd, tmp = tempfile.mkstemp(dir=out_dir, prefix=f".{path.name}.", suffix=".tmp")
-        with os.fdopen(fd, "w", newline="") as fh:
+        with files.open_atomic(path, "w", force=False, protect=protect) as fh:
             writer = csv.writer(fh, lineterminator="\n")
             writer.writerow(["t", column])
             turns = 2 * np.pi * np.round(launch.rest / (2 * np.pi)) if angle else 0.0
             for ti, yi in zip(t[sl] - t[launch.start], y[sl] - turns):
                 writer.writerow([repr(float(ti)), "" if np.isnan(yi) else repr(float(yi))])
-        os.replace(tmp, path)
         paths.append(path)
     return paths

@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from udrobot_ctrl.io.files import save_figure
+
 
 def _plt():
     import matplotlib
@@ -50,7 +52,7 @@ def tornado(local_result, metric: str, top: int | None = 12, path=None, unit: st
     ax.legend(loc="lower right", fontsize="small")
     fig.tight_layout()
     if path:
-        fig.savefig(path, dpi=120)
+        save_figure(fig, path, dpi=120)
     return fig
 
 
@@ -83,5 +85,5 @@ def sobol_bars(global_result, metric: str, top: int | None = 12, path=None, titl
     ax.legend(fontsize="small")
     fig.tight_layout()
     if path:
-        fig.savefig(path, dpi=120)
+        save_figure(fig, path, dpi=120)
     return fig

@@ -83,7 +83,7 @@ def test_simulate_refuses_to_overwrite_input(tmp_path, capsys):
     before = src.read_bytes()
     assert main(["simulate", "--model", "cfd:chin", "--input", str(src), "--out", str(src)]) == 2
     assert src.read_bytes() == before
-    assert "input file" in capsys.readouterr().err
+    assert "is the input" in capsys.readouterr().err
 
 
 def test_fastsim_rollout_equals_numpy_rk4(tmp_path, monkeypatch):

@@ -1,0 +1,128 @@
+"""Compiled code is never loaded from a place others can write, nor when it differs from what was built."""
+from __future__ import annotations
+
+import os
+import shutil
+import stat
+import subprocess
+
+import casadi as ca
+import numpy as np
+import pytest
+
+from udrobot_ctrl import caches
+from udrobot_ctrl.dynamics import fastsim
+
+needs_gcc = pytest.mark.skipif(shutil.which("gcc") is None, reason="gcc not installed")
+
+PLANT_C = """
+#include <stdio.h>
+__attribute__((constructor)) static void planted(void) {
+    FILE *f = fopen("%s", "w");
+    if (f) { fputs("planted code ran", f); fclose(f); }
+}
+"""
+
+
+def _planted_library(tmp_path, marker):
+    """A shared library whose loading (dlopen) writes ``marker``: any load of it is visible."""
+    src = tmp_path / "planted.c"
+    src.write_text(PLANT_C % marker)
+    lib = tmp_path / "planted.so"
+    subprocess.run(["gcc", "-shared", "-fPIC", str(src), "-o", str(lib)], check=True, capture_output=True)
+    return lib
+
+
+def _double():
+    x = ca.SX.sym("x")
+    return ca.Function("double_it", [x], [2 * x])
+
+
+@pytest.fixture
+def cache(tmp_path, monkeypatch):
+    folder = tmp_path / "cache" / "fastsim"
+    monkeypatch.setenv("UDROBOT_CACHE", str(folder))
+    monkeypatch.setattr(caches, "_FALLBACKS", {})
+    return folder
+
+
+@needs_gcc
+def test_cache_folder_is_private_and_library_hash_recorded(cache):
+    fun = fastsim.compile_function(_double(), "k1")
+    assert fun is not None and float(fun(3.0)) == 6.0
+    assert stat.S_IMODE(os.stat(cache).st_mode) == 0o700
+    lib = cache / "double_it_k1.so"
+    assert (cache / "double_it_k1.so.sha256").read_text().strip() == fastsim._sha256(lib)
+    assert stat.S_IMODE(os.stat(lib).st_mode) == 0o600
+
+
+@needs_gcc
+def test_planted_library_with_wrong_hash_is_not_loaded(cache, tmp_path):
+    assert fastsim.compile_function(_double(), "k2") is not None
+    marker = tmp_path / "ran.txt"
+    lib = cache / "double_it_k2.so"
+    shutil.copyfile(_planted_library(tmp_path, marker), lib)  # same owner and mode, different bytes
+    with pytest.warns(RuntimeWarning, match="sha256"):
+        fun = fastsim.compile_function(_double(), "k2")
+    assert not marker.exists()
+    assert float(fun(4.0)) == 8.0  # rebuilt from the casadi function
+    assert (cache / "double_it_k2.so.sha256").read_text().strip() == fastsim._sha256(lib)
+
+
+@needs_gcc
+@pytest.mark.parametrize("attack", ["group_writable_dir", "symlinked_dir", "no_hash", "world_writable_lib"])
+def test_planted_library_in_unsafe_place_is_not_loaded(cache, tmp_path, attack):
+    marker = tmp_path / "ran.txt"
+    planted = _planted_library(tmp_path, marker)
+    name = "double_it_k3.so"
+    if attack == "symlinked_dir":
+        other = tmp_path / "elsewhere"
+        other.mkdir(mode=0o700)
+        cache.parent.mkdir(parents=True)
+        cache.symlink_to(other)
+        target = other
+    else:
+        cache.mkdir(parents=True, mode=0o700)
+        target = cache
+    shutil.copyfile(planted, target / name)
+    if attack != "no_hash":
+        (target / (name + ".sha256")).write_text(fastsim._sha256(target / name) + "\n")
+    if attack == "group_writable_dir":
+        os.chmod(cache, 0o770)
+    if attack == "world_writable_lib":
+        os.chmod(target / name, 0o666)
+    with pytest.warns(RuntimeWarning):
+        fun = fastsim.compile_function(_double(), "k3")
+    assert not marker.exists()
+    assert fun is None or float(fun(1.5)) == 3.0
+
+
+def test_numba_cache_goes_to_a_private_user_folder(tmp_path, monkeypatch):
+    from numba.core import config
+
+    monkeypatch.setattr(config, "CACHE_DIR", config.CACHE_DIR)
+    monkeypatch.delenv("NUMBA_CACHE_DIR", raising=False)
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
+    monkeypatch.setattr(caches, "_FALLBACKS", {})
+    folder = caches.configure_numba_cache()
+    assert folder == str(tmp_path / "udrobot_ctrl" / "numba") == os.environ["NUMBA_CACHE_DIR"] == config.CACHE_DIR
+    assert stat.S_IMODE(os.stat(folder).st_mode) == 0o700
+    # a folder others can write is not used
+    monkeypatch.delenv("NUMBA_CACHE_DIR")
+    os.chmod(folder, 0o777)
+    with pytest.warns(RuntimeWarning, match="writable by group or others"):
+        other = caches.configure_numba_cache()
+    assert other != folder and caches.unsafe_reason(other, want_dir=True) is None
+
+
+def test_user_numba_cache_choice_is_kept(tmp_path, monkeypatch):
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path / "mine"))
+    assert caches.configure_numba_cache() == str(tmp_path / "mine")
+
+
+def test_rollout_compiled_still_matches_interpreted(cache):
+    x0 = np.zeros(12)
+    u = np.full((20, 4), 5.0)
+    a = fastsim.Rollout("cfd:chin", 0.01, 20)(x0, u)
+    b = fastsim.Rollout("cfd:chin", 0.01, 20, compile=shutil.which("gcc") is not None)(x0, u)
+    np.testing.assert_allclose(a, b, atol=1e-12)
