@@ -19,6 +19,8 @@ def register(subparsers):
     p.add_argument("--json", required=True, metavar="REPORT.json", help="write the udrobot-diagnosis/1 report")
     p.add_argument("--holdout", nargs="+", default=[], metavar="RUN.csv", help="runs used only to score")
     p.add_argument("--plot", metavar="DIR", help="write residual and overlay figures to DIR")
+    p.add_argument("--out-model", metavar="CORRECTED.json",
+                   help="write the model with the significant effects added (udrobot-model/1 with an effects list)")
     p.add_argument("--window", type=float, default=8.0, help="multiple-shooting window, s (default 8)")
     p.add_argument("--mapping", help="log mapping for non-udrobot-run inputs (see udrobot-ctrl convert)")
     p.add_argument("--effects", help="comma-separated subset of the catalogue to test (default: all)")
@@ -49,6 +51,12 @@ def run(args) -> int:
     if out.parent and not out.parent.exists():
         raise ValueError(f"--json {out}: directory {out.parent} does not exist")
     write_report(report, out)
+    if args.out_model:
+        from udrobot_ctrl.gap.report import corrected_model
+        from udrobot_ctrl.vehicle import write_model_file
+
+        write_model_file(corrected_model(args.model, report, fit + hold), args.out_model)
+        print(f"wrote {args.out_model}", file=sys.stderr)
     if args.plot:
         from udrobot_ctrl.gap.plots import write_plots
 
