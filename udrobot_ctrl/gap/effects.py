@@ -174,18 +174,21 @@ def plant_hooks(e: PlantEffect, p: PlantParameters, B, inflow, f_ref, M_A) -> Ho
         with_current = replace(nominal, effects=(e,))
         return Hooks(force=lambda x, f, ctx: _stack(effect_forces(_comps(x), with_current)))
     if e.name == "wall_effect":  # the planes are the run's measured surfaces (ctx), not one seabed depth
+        def known(dist):  # an unmeasured distance is no surface nearby
+            return np.where(np.isfinite(dist), dist, np.inf)
+
         def wall_force(x, f, ctx):
             X = _comps(x)
             out = np.zeros(np.shape(x)[:-1] + (6,))
             for dist, normal in ctx["surfaces"]:
-                out += _stack(pfx.surface_suction(pfx.NUMPY, X[:6], X[6:], dist, tuple(normal), e.params))
+                out += _stack(pfx.surface_suction(pfx.NUMPY, X[:6], X[6:], known(dist), tuple(normal), e.params))
             return out
 
         def wall_mass(x, ctx):
             X = _comps(x)
             out = np.zeros(np.shape(x)[:-1] + (6, 6))
             for dist, normal in ctx["surfaces"]:
-                rows = pfx.surface_added_mass(pfx.NUMPY, X[:6], X[6:], dist, tuple(normal), e.params)
+                rows = pfx.surface_added_mass(pfx.NUMPY, X[:6], X[6:], known(dist), tuple(normal), e.params)
                 out += np.stack([_stack(r) for r in rows], axis=-2)
             return out
         return Hooks(force=wall_force, mass=wall_mass)
