@@ -29,6 +29,8 @@ def register(subparsers):
     p.add_argument("--holdout", action="append", default=[], metavar="RUN.csv",
                    help="a run used only to score; repeat the option for several runs")
     p.add_argument("--plot", metavar="DIR", help="write residual and overlay figures to DIR")
+    p.add_argument("--out-model", metavar="CORRECTED.json",
+                   help="write the model with the significant effects added (udrobot-model/1 with an effects list)")
     p.add_argument("--window", type=float, default=8.0, help="multiple-shooting window, s (default 8)")
     p.add_argument("--mapping", help="log mapping for non-udrobot-run inputs (see udrobot-ctrl convert)")
     p.add_argument("--effects", help="comma-separated subset of the catalogue to test (default: all)")
@@ -47,10 +49,13 @@ def _load(path, mapping):
 
 def run(args) -> int:
     from udrobot_ctrl.gap.plots import plot_paths, write_plots
-    from udrobot_ctrl.gap.report import _name, diagnose, split_runs, summary, write_report
+    from udrobot_ctrl.gap.report import _name, corrected_model, diagnose, split_runs, summary, write_report
+    from udrobot_ctrl.vehicle import write_model_file
 
     inputs = [*args.runs, *args.holdout, *spec_files(args.model), *spec_files(args.mapping)]
     check_outputs([args.json], inputs, force=args.force, option="--json")
+    if args.out_model:
+        check_outputs([args.out_model], inputs, force=args.force, option="--out-model")
     fit = [_load(p, args.mapping) for p in args.runs]
     hold = [_load(p, args.mapping) for p in args.holdout]
     if args.plot:
@@ -65,6 +70,9 @@ def run(args) -> int:
     report, ctx = diagnose(args.model, fit, hold or None, window_s=args.window, effects=effects, log=log,
                            model_label=args.model)
     write_report(report, Path(args.json), protect=inputs)
+    if args.out_model:
+        write_model_file(corrected_model(args.model, report, fit + hold), args.out_model, protect=inputs)
+        print(f"wrote {args.out_model}", file=sys.stderr)
     if args.plot:
         for f in write_plots(ctx, report, args.plot, protect=inputs):
             print(f"wrote {f}", file=sys.stderr)

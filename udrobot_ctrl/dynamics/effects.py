@@ -47,6 +47,7 @@ from dataclasses import dataclass, field, replace
 
 import casadi as ca
 import numpy as np
+from scipy.signal import lfilter
 
 DOF = ("X", "Y", "Z", "K", "M", "N")
 VEL = ("u", "v", "w", "p", "q", "r")
@@ -278,14 +279,18 @@ def _to_body(R, v):
 
 
 # ----------------------------------------------------------------------------------------- thrust
-def _per_actuator(params, key, n_actuators, virtual):
-    """One value per actuator: the per-DOF parameters of a commanded wrench, or the shared one."""
-    if virtual and f"{key}_X" in params:
+def _per_actuator(params, key, n_actuators):
+    """One value per actuator: the per-DOF parameters of a commanded wrench (six virtual actuators), or the
+    shared one."""
+    if f"{key}_X" in params:
+        if n_actuators != 6:
+            raise ValueError(f"per-DOF {key}_X ... parameters need the six virtual actuators of a commanded wrench, "
+                             f"not {n_actuators} thrusters")
         return [params[f"{key}_{d}"] for d in DOF]
     return [params.get(key, 0.0)] * n_actuators
 
 
-def static_thrust(be, f, effects, f_ref, virtual=False):
+def static_thrust(be, f, effects, f_ref):
     """Thrust after the static maps (deadband, then reverse loss) of the commanded, clipped thrusts ``f``.
 
     Parameters
@@ -295,19 +300,17 @@ def static_thrust(be, f, effects, f_ref, virtual=False):
     effects : sequence of PlantEffect
     f_ref : (n,) array_like
         Reference magnitude of each actuator (its capacity), N.
-    virtual : bool
-        The actuators are the six DOFs of a commanded wrench (per-DOF parameters accepted).
     """
     out = list(f)
     n = len(out)
     for e in effects:
         if e.name == "thruster_deadband":
-            shift = _per_actuator(e.params, "shift", n, virtual)
+            shift = _per_actuator(e.params, "shift", n)
             for i in range(n):
                 d = e.params["width_fraction"] * float(f_ref[i])
                 out[i] = be.where(abs(out[i]) < d, 0.0 * out[i], out[i] - shift[i] * d * be.sign(out[i]))
         elif e.name == "thruster_asymmetry":
-            loss = _per_actuator(e.params, "reverse_loss", n, virtual)
+            loss = _per_actuator(e.params, "reverse_loss", n)
             for i in range(n):
                 out[i] = be.where(out[i] < 0, (1.0 - loss[i]) * out[i], out[i])
     return out
@@ -345,10 +348,25 @@ def lag_time_constant(effects) -> float | None:
     return None
 
 
+def lag_pole(dt, T) -> float:
+    """exp(-dt / T): the exact zero-order-hold discretisation of T y' + y = f over a step of ``dt`` s."""
+    return math.exp(-dt / max(T, 1e-9))
+
+
 def first_order_lag_step(f_prev, f_cmd, dt, T):
-    """Exact zero-order-hold step of T y' + y = f_cmd over ``dt`` s from ``f_prev`` (arrays or scalars)."""
-    a = math.exp(-dt / max(T, 1e-9))
+    """One step of the lag from ``f_prev`` with the command ``f_cmd`` held over ``dt`` s (arrays or scalars)."""
+    a = lag_pole(dt, T)
     return a * np.asarray(f_prev, float) + (1.0 - a) * np.asarray(f_cmd, float)
+
+
+def first_order_lag(f, dt, T, f0=None):
+    """The lag over a whole uniform command sequence f (n, k) held per step of ``dt`` s, from ``f0`` (default the
+    first command): the same recursion as :func:`first_order_lag_step`, run by ``scipy.signal.lfilter``."""
+    a = lag_pole(dt, T)
+    f = np.asarray(f, float)
+    zi = ((f[0] if f0 is None else np.asarray(f0, float)) * a)[None, :]
+    y, _ = lfilter([1 - a], [1, -a], f, axis=0, zi=zi)
+    return y
 
 
 # ----------------------------------------------------------------------------------------- forces
@@ -371,31 +389,43 @@ def _tether(be, eta, nu, q):
     return (fb[0], fb[1], fb[2], 0.0 * fb[0], 0.0 * fb[0], 0.0 * fb[0])
 
 
-def _wall_terms(be, eta, nu, q):
-    """exp(-h / lam), body normal and tangential speed^2 for the seabed plane."""
-    R = _rotation(be, eta)
-    nb = _to_body(R, (0.0, 0.0, -1.0))  # the seabed's normal points up, into the water
-    h = be.fmax(q["seabed_depth_m"] - eta[2], 0.0)
-    decay = be.exp(-h / q["decay_length_m"])
+SEABED_NORMAL = (0.0, 0.0, -1.0)  # NED; the seabed's normal points up, into the water
+
+
+def surface_terms(be, eta, nu, h, normal_ned, decay_length):
+    """exp(-h / lam), the surface normal in body axes and the speed^2 along the surface, for a plane at distance
+    ``h`` (m, >= 0 in the water) with unit normal ``normal_ned`` pointing into the water."""
+    nb = _to_body(_rotation(be, eta), normal_ned)
+    decay = be.exp(-be.fmax(h, 0.0) / decay_length)
     vn = nu[0] * nb[0] + nu[1] * nb[1] + nu[2] * nb[2]
     vt2 = be.fmax(nu[0] * nu[0] + nu[1] * nu[1] + nu[2] * nu[2] - vn * vn, 0.0)
     return decay, nb, vt2
 
 
-def _wall_force(be, eta, nu, q):
-    decay, nb, vt2 = _wall_terms(be, eta, nu, q)
+def surface_suction(be, eta, nu, h, normal_ned, q):
+    """Suction towards a plane (6 components, N): -a_s exp(-h/lam) |V_t|^2 n."""
+    decay, nb, vt2 = surface_terms(be, eta, nu, h, normal_ned, q["decay_length_m"])
     s = -q["suction_N_s2_per_m2"] * decay * vt2
     return (s * nb[0], s * nb[1], s * nb[2], 0.0 * s, 0.0 * s, 0.0 * s)
+
+
+def surface_added_mass(be, eta, nu, h, normal_ned, q):
+    """Extra added mass of a plane (6 x 6 nested tuples, kg): a_m exp(-h/lam) n n^T on the translations."""
+    decay, nb, _ = surface_terms(be, eta, nu, h, normal_ned, q["decay_length_m"])
+    a = q["added_mass_at_contact_kg"] * decay
+    zero = 0.0 * a
+    return tuple(tuple(a * nb[i] * nb[j] if i < 3 and j < 3 else zero for j in range(6)) for i in range(6))
+
+
+def _seabed_distance(eta, q):
+    return q["seabed_depth_m"] - eta[2]
 
 
 def added_mass_increment(be, eta, nu, effects):
     """Extra added mass (6 x 6 nested tuples, kg) of the position-dependent effects, or None."""
     for e in effects:
         if e.name == "wall_effect":
-            decay, nb, _ = _wall_terms(be, eta, nu, e.params)
-            a = e.params["added_mass_at_contact_kg"] * decay
-            zero = 0.0 * a
-            return tuple(tuple(a * nb[i] * nb[j] if i < 3 and j < 3 else zero for j in range(6)) for i in range(6))
+            return surface_added_mass(be, eta, nu, _seabed_distance(eta, e.params), SEABED_NORMAL, e.params)
     return None
 
 
@@ -416,7 +446,7 @@ def external_force(be, eta, nu, effects):
         if e.name == "tether_drag":
             term = _tether(be, eta, nu, e.params)
         elif e.name == "wall_effect":
-            term = _wall_force(be, eta, nu, e.params)
+            term = surface_suction(be, eta, nu, _seabed_distance(eta, e.params), SEABED_NORMAL, e.params)
         else:
             continue
         total = term if total is None else tuple(a + b for a, b in zip(total, term))

@@ -9,8 +9,10 @@ measured (smoothed) velocities, each effect predicts ``r``. The parameters split
 parameters (searched on a grid and refined, e.g. a lag time constant or a decay length) and *amplitude*
 parameters entering linearly (fitted by bounded least squares): ``p = b0(shape) + A(shape) a``.
 
-The same physics is used to simulate: :meth:`Effect.hooks` returns an input filter (effects acting on the
-command sequence only: deadband, asymmetry, lag), a state-dependent force and an added-mass increment.
+Replays use the plant's own definition of each effect (:mod:`udrobot_ctrl.dynamics.effects`, the physics a
+corrected model simulates): :meth:`Effect.hooks` wraps it as an input filter (deadband, asymmetry, lag), a
+state-dependent force and an added-mass increment. The regressors below are the derivatives of those forms with
+respect to their amplitude parameters, evaluated on the measured (smoothed) data.
 
 Templates (the diagnoser's lumped forms; a truth generator should use different forms):
 
@@ -33,17 +35,22 @@ Templates (the diagnoser's lumped forms; a truth generator should use different 
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
-from scipy.signal import lfilter
 
-from udrobot_ctrl.dynamics.plant import PlantParameters, coriolis_centripetal, rotation_zyx
+from udrobot_ctrl.dynamics import effects as pfx
+from udrobot_ctrl.dynamics.effects import PlantEffect
+from udrobot_ctrl.dynamics.plant import (
+    PlantParameters,
+    coriolis_centripetal,
+    effect_forces,
+    generalized_forces,
+    rotation_zyx,
+)
 from udrobot_ctrl.gap.data import restoring_gradient
 
-EFFECT_NAMES = ("thrust_inflow_loss", "thruster_deadband", "thruster_asymmetry", "thruster_lag", "tether_drag",
-                "wall_effect", "water_current", "linear_damping", "quadratic_damping_error", "added_mass_error",
-                "cross_coupled_damping", "buoyancy_offset", "cg_cb_offset")
+EFFECT_NAMES = pfx.EFFECT_NAMES
 DOF = ("X", "Y", "Z", "K", "M", "N")
 VEL = ("u", "v", "w", "p", "q", "r")
 
@@ -84,13 +91,7 @@ class Stack:
         return np.nan_to_num(np.concatenate(parts, axis=0))
 
 
-def first_order_lag(f, dt, T, f0=None):
-    """Exact zero-order-hold discretisation of T y' + y = f over a uniform sequence f (n, k); dt, T in s."""
-    a = np.exp(-dt / max(T, 1e-9))
-    f = np.asarray(f, float)
-    zi = ((f[0] if f0 is None else f0) * a)[None, :]
-    y, _ = lfilter([1 - a], [1, -a], f, axis=0, zi=zi)
-    return y
+first_order_lag = pfx.first_order_lag
 
 
 def _to_body(R, vec):
@@ -125,7 +126,76 @@ class Effect:
         raise NotImplementedError
 
     def hooks(self, params: dict, p: PlantParameters, B, inflow, f_ref, M_A) -> Hooks:
-        raise NotImplementedError
+        """How the fitted effect enters a replay: the plant's own definition of it (:func:`plant_hooks`)."""
+        return plant_hooks(PlantEffect(self.name, params), p, B, inflow, f_ref, M_A)
+
+
+def _comps(a):
+    return list(np.moveaxis(np.asarray(a, float), -1, 0))
+
+
+def _stack(parts):
+    return np.stack(np.broadcast_arrays(*parts), axis=-1)
+
+
+def plant_hooks(e: PlantEffect, p: PlantParameters, B, inflow, f_ref, M_A) -> Hooks:
+    """Input filter, force and added-mass increment of ``e`` for a replay, from :mod:`udrobot_ctrl.dynamics.effects`
+    (the physics the plant simulates; nothing is written twice).
+
+    Parameters
+    ----------
+    e : PlantEffect
+    p : PlantParameters
+        Nominal plant.
+    B, inflow : (6, k) ndarray
+        Actuator matrix and axial-inflow matrix of the run's actuators (thrusters, or six virtual ones).
+    f_ref : (k,) ndarray
+        Reference magnitude of each actuator, N.
+    M_A : (6, 6) ndarray
+        Nominal added mass.
+    """
+    nominal = replace(p, M_A=np.asarray(M_A, float), effects=())
+    if e.name == "thruster_lag":
+        T = e.params["T_lag_s"]
+        return Hooks(input_filter=lambda f, dt: pfx.first_order_lag(f, dt, T), order=1)
+    if e.name in ("thruster_deadband", "thruster_asymmetry"):
+        return Hooks(input_filter=lambda f, dt: _stack(pfx.static_thrust(pfx.NUMPY, _comps(f), (e,), f_ref)))
+    if e.name == "thrust_inflow_loss":
+        def inflow_force(x, f, ctx):
+            fa = _stack(pfx.inflow_loss(pfx.NUMPY, _comps(f), _comps(x)[6:], (e,), inflow, f_ref))
+            return (fa - f) @ np.asarray(B).T
+        return Hooks(force=inflow_force)
+    if e.name == "tether_drag":
+        def tether_force(x, f, ctx):
+            X = _comps(x)
+            return _stack(pfx.external_force(pfx.NUMPY, X[:6], X[6:], (e,)))
+        return Hooks(force=tether_force)
+    if e.name == "water_current":
+        with_current = replace(nominal, effects=(e,))
+        return Hooks(force=lambda x, f, ctx: _stack(effect_forces(_comps(x), with_current)))
+    if e.name == "wall_effect":  # the planes are the run's measured surfaces (ctx), not one seabed depth
+        def known(dist):  # an unmeasured distance is no surface nearby
+            return np.where(np.isfinite(dist), dist, np.inf)
+
+        def wall_force(x, f, ctx):
+            X = _comps(x)
+            out = np.zeros(np.shape(x)[:-1] + (6,))
+            for dist, normal in ctx["surfaces"]:
+                out += _stack(pfx.surface_suction(pfx.NUMPY, X[:6], X[6:], known(dist), tuple(normal), e.params))
+            return out
+
+        def wall_mass(x, ctx):
+            X = _comps(x)
+            out = np.zeros(np.shape(x)[:-1] + (6, 6))
+            for dist, normal in ctx["surfaces"]:
+                rows = pfx.surface_added_mass(pfx.NUMPY, X[:6], X[6:], known(dist), tuple(normal), e.params)
+                out += np.stack([_stack(r) for r in rows], axis=-2)
+            return out
+        return Hooks(force=wall_force, mass=wall_mass)
+    folded = pfx.fold_parameters(nominal, (e,))  # an effect on the nominal matrices
+    dM = folded.M - nominal.M
+    return Hooks(force=lambda x, f, ctx: generalized_forces(x, nominal) - generalized_forces(x, folded),
+                 mass=(lambda x, ctx: np.broadcast_to(dM, np.shape(x)[:-1] + (6, 6))) if np.any(dM) else None)
 
 
 # ------------------------------------------------------------------------------------------- thrusters
@@ -138,20 +208,6 @@ class InflowLoss(Effect):
         A = s.full(cols)
         return np.zeros((s.n, 6)), A, ("k1_per_mps", "k2_per_mps"), np.zeros(2), np.array([2.0, 2.0])
 
-    def hooks(self, params, p, B, inflow, f_ref, M_A):
-        k1, k2 = params["k1_per_mps"], params["k2_per_mps"]
-
-        def force(x, f, ctx):
-            ua = x[..., 6:] @ inflow
-            fa = f - (k1 * np.abs(f) + k2 * np.sqrt(np.abs(f) * f_ref)) * ua
-            fa = np.where(fa * f < 0, 0.0, fa)  # a loss never reverses the thrust
-            return (fa - f) @ B.T
-        return Hooks(force=force)
-
-
-def _deadband(f, d, c):
-    out = np.where(np.abs(f) < d, 0.0, f - c * d * np.sign(f))
-    return out
 
 
 WRENCH_DOF_NOTE = ("a commanded wrench (tau_* inputs) hides the thrusters behind each generalised force, so the "
@@ -201,10 +257,6 @@ class Deadband(Effect):
         col = s.full(lambda r: (np.where(np.abs(r["f"]) < d, 0.0, -d * np.sign(r["f"])) * x) @ s.B.T, held=True)
         return b0, col[..., None], ("shift",), np.zeros(1), np.ones(1)
 
-    def hooks(self, params, p, B, inflow, f_ref, M_A):
-        d = params["width_fraction"] * f_ref
-        c = np.array([params[f"shift_{k}"] for k in DOF]) if "shift_X" in params else params["shift"]
-        return Hooks(input_filter=lambda f, dt: _deadband(f, d, c))
 
 
 class Asymmetry(Effect):
@@ -220,10 +272,6 @@ class Asymmetry(Effect):
         col = s.full(lambda r: (-np.minimum(r["f"], 0.0) * x) @ s.B.T, held=True)
         return np.zeros((s.n, 6)), col[..., None], ("reverse_loss",), np.array([-0.5]), np.array([0.7])
 
-    def hooks(self, params, p, B, inflow, f_ref, M_A):
-        a = np.array([params[f"reverse_loss_{k}"] for k in DOF]) if "reverse_loss_X" in params \
-            else params["reverse_loss"]
-        return Hooks(input_filter=lambda f, dt: np.where(f < 0, (1 - a) * f, f))
 
 
 class Lag(Effect):
@@ -232,9 +280,6 @@ class Lag(Effect):
         b0 = s.full(lambda r: (first_order_lag(r["f"], r["dt"], T) - r["f"]) @ s.B.T, held=True)
         return b0, np.zeros((s.n, 6, 0)), (), np.zeros(0), np.zeros(0)
 
-    def hooks(self, params, p, B, inflow, f_ref, M_A):
-        T = params["T_lag_s"]
-        return Hooks(input_filter=lambda f, dt: first_order_lag(f, dt, T), order=1)
 
 
 # ------------------------------------------------------------------------------------------- environment
@@ -270,10 +315,6 @@ class TetherDrag(Effect):
         return np.zeros((s.n, 6)), A, ("k_quadratic_N_s2_per_m2", "k_linear_N_s_per_m"), np.zeros(2), \
             np.array([1e4, 1e4])
 
-    def hooks(self, params, p, B, inflow, f_ref, M_A):
-        k = np.array([params["k_quadratic_N_s2_per_m2"], params["k_linear_N_s_per_m"]])
-        e = cable_direction(params["cable_azimuth_rad"], params["cable_elevation_rad"])
-        return Hooks(force=lambda x, f, ctx: _tether_columns(x[..., :6], x[..., 6:], e) @ k)
 
 
 def _surface_terms(eta, nu, nu_dot, dist, normal, lam):
@@ -303,23 +344,6 @@ class WallEffect(Effect):
         return np.zeros((s.n, 6)), A, ("added_mass_at_contact_kg", "suction_N_s2_per_m2"), np.zeros(2), \
             np.array([1e4, 1e5])
 
-    def hooks(self, params, p, B, inflow, f_ref, M_A):
-        lam, am, as_ = params["decay_length_m"], params["added_mass_at_contact_kg"], params["suction_N_s2_per_m2"]
-
-        def force(x, f, ctx):
-            out = np.zeros(x.shape[:-1] + (6,))
-            for dist, normal in ctx["surfaces"]:
-                e, nb, vt2, _ = _surface_terms(x[..., :6], x[..., 6:], None, dist, normal, lam)
-                out[..., :3] += -(as_ * e * vt2)[..., None] * nb
-            return out
-
-        def mass(x, ctx):
-            out = np.zeros(x.shape[:-1] + (6, 6))
-            for dist, normal in ctx["surfaces"]:
-                e, nb, _, _ = _surface_terms(x[..., :6], x[..., 6:], None, dist, normal, lam)
-                out[..., :3, :3] += (am * e)[..., None, None] * nb[..., :, None] * nb[..., None, :]
-            return out
-        return Hooks(force=force, mass=mass)
 
 
 def _damping_force(nu, p):
@@ -340,9 +364,6 @@ class Current(Effect):
         b0 = s.full(lambda r: _current_force(r["eta"], r["nu"], c, s.p, s.M_A))
         return b0, np.zeros((s.n, 6, 0)), (), np.zeros(0), np.zeros(0)
 
-    def hooks(self, params, p, B, inflow, f_ref, M_A):
-        c = np.array([params["current_north_mps"], params["current_east_mps"], params["current_down_mps"]])
-        return Hooks(force=lambda x, f, ctx: _current_force(x[..., :6], x[..., 6:], c, p, M_A))
 
 
 # ------------------------------------------------------------------------------------------- hydrodynamics
@@ -352,9 +373,6 @@ class LinearDamping(Effect):
         lo = -np.diag(s.p.D_L).copy()
         return np.zeros((s.n, 6)), A, tuple(f"d_{d}{v}" for d, v in zip(DOF, VEL)), lo, np.full(6, 1e4)
 
-    def hooks(self, params, p, B, inflow, f_ref, M_A):
-        d = np.array([params[f"d_{a}{v}"] for a, v in zip(DOF, VEL)])
-        return Hooks(force=lambda x, f, ctx: -d * x[..., 6:])
 
 
 class QuadDampingError(Effect):
@@ -364,9 +382,6 @@ class QuadDampingError(Effect):
         return np.zeros((s.n, 6)), A, tuple(f"scale_{d}{v}|{v}|" for d, v in zip(DOF, VEL)), np.full(6, -0.95), \
             np.full(6, 10.0)
 
-    def hooks(self, params, p, B, inflow, f_ref, M_A):
-        sc = np.array([params[f"scale_{d}{v}|{v}|"] for d, v in zip(DOF, VEL)]) * np.diag(p.Q)
-        return Hooks(force=lambda x, f, ctx: -sc * np.abs(x[..., 6:]) * x[..., 6:])
 
 
 class AddedMassError(Effect):
@@ -385,11 +400,6 @@ class AddedMassError(Effect):
         return np.zeros((s.n, 6)), A, tuple(f"scale_{d}d{v}" for d, v in zip(DOF, VEL)), np.full(6, -0.9), \
             np.full(6, 10.0)
 
-    def hooks(self, params, p, B, inflow, f_ref, M_A):
-        sc = np.array([params[f"scale_{d}d{v}"] for d, v in zip(DOF, VEL)])
-        dM = np.diag(sc * np.diag(M_A))
-        return Hooks(force=lambda x, f, ctx: -coriolis_centripetal(dM, x[..., 6:]),
-                     mass=lambda x, ctx: np.broadcast_to(dM, x.shape[:-1] + (6, 6)))
 
 
 CROSS_PAIRS = tuple((i, j) for i in range(6) for j in range(6) if i != j)
@@ -411,13 +421,6 @@ class CrossDamping(Effect):
         k = A.shape[-1]
         return np.zeros((s.n, 6)), A, tuple(names), np.full(k, -1e4), np.full(k, 1e4)
 
-    def hooks(self, params, p, B, inflow, f_ref, M_A):
-        DL = np.zeros((6, 6))
-        Q = np.zeros((6, 6))
-        for i, j in CROSS_PAIRS:
-            DL[i, j] = params.get(f"D_{DOF[i]}{VEL[j]}", 0.0)
-            Q[i, j] = params.get(f"Q_{DOF[i]}{VEL[j]}|{VEL[j]}|", 0.0)
-        return Hooks(force=lambda x, f, ctx: -(x[..., 6:] @ DL.T + (np.abs(x[..., 6:]) * x[..., 6:]) @ Q.T))
 
 
 class BuoyancyOffset(Effect):
@@ -425,9 +428,6 @@ class BuoyancyOffset(Effect):
         A = -s.full(lambda r: restoring_gradient(r["eta"], s.p, "B"))[..., None]
         return np.zeros((s.n, 6)), A, ("dB_N",), np.array([-0.5 * s.p.weight]), np.array([0.5 * s.p.weight])
 
-    def hooks(self, params, p, B, inflow, f_ref, M_A):
-        dB = params["dB_N"]
-        return Hooks(force=lambda x, f, ctx: -dB * restoring_gradient(x[..., :6], p, "B"))
 
 
 class CgCbOffset(Effect):
@@ -442,11 +442,6 @@ class CgCbOffset(Effect):
             lo[2] = -0.9 * bgz
         return np.zeros((s.n, 6)), A, ("dBG_x_Nm", "dBG_y_Nm", "dBG_z_Nm"), lo, hi
 
-    def hooks(self, params, p, B, inflow, f_ref, M_A):
-        keys = ("BG_x", "BG_y", "BG_z")
-        vals = [params[f"d{k}_Nm"] for k in keys]
-        return Hooks(force=lambda x, f, ctx: -sum(v * restoring_gradient(x[..., :6], p, k)
-                                                   for v, k in zip(vals, keys)))
 
 
 def catalogue() -> dict:

@@ -13,7 +13,8 @@ from pathlib import Path
 
 import numpy as np
 
-from udrobot_ctrl.dynamics.plant import plant_parameters
+from udrobot_ctrl.dynamics.effects import plant_effect
+from udrobot_ctrl.dynamics.plant import plant_parameters, require_nominal
 from udrobot_ctrl.gap import effects as fx
 from udrobot_ctrl.gap.attribute import (
     BIC_STRONG,
@@ -124,6 +125,61 @@ def wall_distances(params, surfaces, eta, p, speed):
     return out
 
 
+def seabed_depth(runs) -> float | None:
+    """Median NED depth of the seabed (z + altitude, m) over the runs that log both, or None."""
+    values = []
+    for r in runs:
+        z, alt = r.channels.get("z"), r.channels.get("altitude")
+        if z is not None and alt is not None:
+            s = np.asarray(z, float) + np.asarray(alt, float)
+            values.append(s[np.isfinite(s)])
+    values = np.concatenate(values) if values else np.zeros(0)
+    return float(np.median(values)) if values.size else None
+
+
+def corrected_model(model, report, runs=()):
+    """The model plus the report's significant effects: what ``diagnose --out-model`` writes.
+
+    Parameters
+    ----------
+    model : str, Path or Vehicle
+        The nominal model that was diagnosed.
+    report : dict
+        A ``udrobot-diagnosis/1`` report.
+    runs : sequence of Run
+        The diagnosed runs (a significant ``wall_effect`` takes the seabed depth from their z + altitude).
+
+    Returns
+    -------
+    Vehicle
+        With ``effects`` (each checked as a model file's entry would be) and their provenance.
+
+    Raises
+    ------
+    ValueError
+        If a significant effect cannot be placed in the plant (a wall effect without a logged seabed).
+    """
+    vehicle = load_model(model)
+    added = []
+    for i, e in enumerate(x for x in report["effects"] if x["significant"]):
+        params = dict(e["params"])
+        if e["name"] == "wall_effect":
+            depth = seabed_depth(runs)
+            if depth is None:
+                raise ValueError("wall_effect is significant but the runs log no altitude, so the seabed depth the "
+                                 "corrected plant needs is unknown; add a seabed_depth_m to the effect by hand")
+            params["seabed_depth_m"] = depth
+        added.append(plant_effect({"name": e["name"], "params": params}, f"report effects[{i}] ({e['name']})"))
+    prov = dict(vehicle.provenance)
+    for e in added:
+        prov[f"effects.{e.name}"] = (f"estimated: udrobot-ctrl diagnose, fitted on {', '.join(report['fit_runs'])}, "
+                                     f"scored on {', '.join(report['holdout_runs'])} (shrink "
+                                     f"{next(x['shrink'] for x in report['effects'] if x['name'] == e.name):.2f})")
+    names = "+".join(e.name for e in added)
+    return vehicle.with_changes(effects=tuple(vehicle.effects) + tuple(added), provenance=prov,
+                                name=f"{vehicle.name}+{names}" if added else vehicle.name)
+
+
 def diagnose(model, runs, holdout=None, window_s=8.0, effects=None, log=None, model_label=None):
     """Run the whole diagnosis; returns (report dict, context dict for plots).
 
@@ -144,7 +200,9 @@ def diagnose(model, runs, holdout=None, window_s=8.0, effects=None, log=None, mo
     say = log or (lambda s: None)
     vehicle = load_model(model)
     p = plant_parameters(vehicle)
-    M_A = np.asarray(vehicle.added_mass, float)
+    require_nominal(p, "the diagnoser (it fits effects on top of the plant; a model's parameter effects are "
+                       "folded in, its thrust, lag and force effects are not), so diagnose the model without them")
+    M_A = np.asarray(p.M_A, float)
     fit_runs, ho_runs, split_note = split_runs(runs, holdout)
     cat = fx.catalogue()
     names = list(effects or fx.EFFECT_NAMES)

@@ -1,0 +1,53 @@
+"""``diagnose --out-model``: the significant effects become part of the plant a user redesigns on."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from udrobot_ctrl.dynamics.plant import plant_parameters
+from udrobot_ctrl.dynamics.sim import simulate
+from udrobot_ctrl.gap.report import corrected_model, diagnose
+from udrobot_ctrl.vehicle import load_model, read_model_file, to_model_dict
+
+from .truth import generate, random_magnitudes
+
+
+@pytest.fixture(scope="module")
+def buoyancy_case():
+    rng = np.random.default_rng(104)
+    truth = {"buoyancy_offset": random_magnitudes("buoyancy_offset", rng)}
+    runs = generate(truth, n_runs=3, duration=90.0, rate=20.0, seed=4)
+    report, _ = diagnose("pendulum:chin", runs)
+    return runs, report
+
+
+@pytest.mark.slow
+def test_corrected_model_carries_the_significant_effects(buoyancy_case, tmp_path):
+    runs, report = buoyancy_case
+    sig = {e["name"]: e["params"] for e in report["effects"] if e["significant"]}
+    assert "buoyancy_offset" in sig
+    v = corrected_model("pendulum:chin", report, runs)
+    assert {e.name: dict(e.params) for e in v.effects} == sig
+    path = tmp_path / "corrected.json"
+    path.write_text(json.dumps(to_model_dict(v)))
+    back = read_model_file(path)
+    assert back.effects == v.effects and "effects.buoyancy_offset" in back.provenance
+    p0, p1 = plant_parameters(load_model("pendulum:chin")), plant_parameters(back)
+    assert p1.buoyancy - p0.buoyancy == pytest.approx(sig["buoyancy_offset"]["dB_N"])
+
+
+@pytest.mark.slow
+def test_corrected_plant_settles_at_the_heave_speed_of_its_fitted_net_buoyancy(buoyancy_case):
+    """Open loop from rest the corrected plant drifts in heave until its damping balances the net buoyancy
+    B + dB - W (D_L w + Q |w| w = W - B'), the fitted dB included."""
+    runs, report = buoyancy_case
+    v = corrected_model("pendulum:chin", report, runs)
+    p = plant_parameters(v)
+    res = simulate(v, np.r_[0, 0, 1.0, np.zeros(9)], 40.0, dt=0.02)
+    dl, q, net = p.D_L[2, 2], p.Q[2, 2], p.weight - p.buoyancy
+    w_terminal = np.sign(net) * (-dl + np.sqrt(dl ** 2 + 4 * q * abs(net))) / (2 * q) if q > 0 else net / dl
+    assert res.x[-1, 8] == pytest.approx(w_terminal, rel=0.03)
+    nominal = plant_parameters(load_model("pendulum:chin"))
+    assert abs(net - (nominal.weight - nominal.buoyancy)) > 0.5  # the fitted offset is not negligible
