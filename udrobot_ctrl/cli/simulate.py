@@ -14,8 +14,9 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
+from udrobot_ctrl.dynamics import effects as fx
 from udrobot_ctrl.dynamics.plant import plant_parameters, state_derivative
-from udrobot_ctrl.dynamics.sim import integrate_intervals
+from udrobot_ctrl.dynamics.sim import Actuators, integrate_intervals, rk4_step
 from udrobot_ctrl.io.files import check_outputs, run_files, spec_files
 from udrobot_ctrl.vehicle import ALL_MODEL_NAMES, STATE_NAMES, load_model
 
@@ -124,11 +125,13 @@ def check_work(t, max_step: float, where: str = "run") -> int:
 
 
 def replay(model, t, x0, tau, method: str = "rk4", max_step: float = 0.01,
-           progress: bool | None = None) -> np.ndarray:
+           progress: bool | None = None, thrust=None) -> np.ndarray:
     """States (n, 12) at times ``t`` (n,) from ``x0`` with ``tau[k]`` held on [t_k, t_k+1).
 
     ``rk4`` runs compiled (numba, :func:`udrobot_ctrl.dynamics.sim.integrate_intervals`) in chunks of
     :data:`REPLAY_CHUNK` rows with a progress bar (``progress`` None: only on a terminal and for long runs).
+    A model with run-time effects (a corrected model, ``dynamics.effects``) is replayed in numpy instead, with
+    the clipped thrusts ``thrust`` (n, n_thr) N, which its thrust effects (maps, lag, inflow loss) act on.
 
     Raises
     ------
@@ -141,6 +144,8 @@ def replay(model, t, x0, tau, method: str = "rk4", max_step: float = 0.01,
     xs = np.empty((len(t), 12))
     x = np.asarray(x0, float).copy()
     xs[0] = x
+    if method == "rk4" and p.effects:
+        return _replay_with_effects(p, t, x, tau, thrust, max_step, xs)
     if method == "rk4":
         show = progress if progress is not None else (None if len(t) > REPLAY_CHUNK else False)
         with tqdm(total=len(t) - 1, unit="row", desc="replay", disable=None if show is None else not show,
@@ -154,6 +159,8 @@ def replay(model, t, x0, tau, method: str = "rk4", max_step: float = 0.01,
         return xs
     if method != "solve_ivp":
         raise ValueError(f"method must be 'rk4' or 'solve_ivp', got {method!r}")
+    if fx.thrust_effects(p.effects) or fx.lag_time_constant(p.effects) is not None:
+        raise ValueError(f"model {p.name!r} has thrust effects, which --method solve_ivp does not replay; use rk4")
     from scipy.integrate import solve_ivp
 
     for k in range(len(t) - 1):
@@ -162,6 +169,29 @@ def replay(model, t, x0, tau, method: str = "rk4", max_step: float = 0.01,
         if not sol.success:
             raise FloatingPointError(f"solve_ivp failed on [{t[k]:.4f}, {t[k + 1]:.4f}] s: {sol.message}")
         x = sol.y[:, -1]
+        if not np.all(np.isfinite(x)):
+            raise FloatingPointError(f"simulation diverged at t = {t[k + 1]:.4f} s")
+        xs[k + 1] = x
+    return xs
+
+
+def _replay_with_effects(p, t, x, tau, thrust, max_step, xs):
+    """The numpy RK4 of :mod:`udrobot_ctrl.dynamics.sim` with the model's effects, sub-step by sub-step."""
+    actuators = None
+    if fx.thrust_effects(p.effects) or fx.lag_time_constant(p.effects) is not None:
+        if thrust is None:
+            raise ValueError(f"model {p.name!r} has thrust effects; the run must give thrust or pwm inputs, not a "
+                             f"commanded wrench")
+        actuators = Actuators(p, max_step)
+    for k in range(len(t) - 1):
+        h = t[k + 1] - t[k]
+        m = max(1, int(np.ceil(h / max_step - 1e-9)))
+        for _ in range(m):
+            tau_k, dist = tau[k], None
+            if actuators is not None:
+                actuators.dt = h / m
+                tau_k, dist = actuators.step(thrust[k], None)
+            x = rk4_step(p, x, tau_k, h / m, dist)
         if not np.all(np.isfinite(x)):
             raise FloatingPointError(f"simulation diverged at t = {t[k + 1]:.4f} s")
         xs[k + 1] = x
@@ -190,9 +220,9 @@ def run(args) -> int:
         x0 = initial_state(rn)
     for w in caught:
         print(f"udrobot-ctrl simulate: warning: {w.message}", file=sys.stderr)
-    tau, _ = input_wrenches(rn, p)
+    tau, thrust = input_wrenches(rn, p)
     try:
-        xs = replay(p, rn.t, x0, tau, args.method, args.max_step, progress=True)
+        xs = replay(p, rn.t, x0, tau, args.method, args.max_step, progress=True, thrust=thrust)
     except FloatingPointError as exc:
         raise ValueError(f"{src} with model {vehicle.name}: {exc}") from exc
     channels = {name: xs[:, i] for i, name in enumerate(STATE_NAMES)}

@@ -121,7 +121,7 @@ def _wrench(u, p, input_kind):
     raise ValueError(f"input_kind must be 'thrust' or 'tau', got {input_kind!r}")
 
 
-class _Actuators:
+class Actuators:
     """The thrust effects of a model between the command and the plant: clip, static maps, lag (held per step of
     ``dt`` s, exact zero-order-hold discretisation), and the state-dependent inflow loss inside each RK4 stage."""
 
@@ -281,6 +281,7 @@ def integrate_intervals(p: PlantParameters, x0, t, taus, max_step: float, out=No
     """
     if is_stacked(p):
         raise ValueError("integrate_intervals simulates one vehicle; got stacked parameters")
+    require_nominal(p, "integrate_intervals (wrench inputs, compiled kernel)")
     t = np.ascontiguousarray(np.asarray(t, float))
     taus = np.ascontiguousarray(np.asarray(taus, float))
     x0 = np.ascontiguousarray(np.asarray(x0, float).reshape(12))
@@ -459,7 +460,7 @@ def _simulate_python(p, x, n, dt, controller, inputs, input_kind, k_in, hold, me
     xs = [x.copy()]
     us, taus, sats = [], [], []
     u = None
-    actuators = _Actuators(p, dt) if p.effects and input_kind == "thrust" else None
+    actuators = Actuators(p, dt) if p.effects and input_kind == "thrust" else None
     # a model with effects: one casadi RK4 step (the same equations, compiled by casadi) per step, unless the
     # numpy reference is asked for or a numpy disturbance must enter the stages
     stepper = None

@@ -179,3 +179,21 @@ def test_simulation_paths_agree_with_thrust_lag_and_force_effects():
     b = simulate(v, x0, 2.0, inputs=u, dt=0.01, method="rk4_numpy")
     np.testing.assert_allclose(a.x, b.x, rtol=1e-9, atol=1e-10)
     assert np.abs(a.x[-1, 6:]).max() > 0.05  # it moved
+
+
+def test_simulate_command_replays_a_corrected_model_like_the_simulator(tmp_path):
+    from udrobot_ctrl.cli.simulate import input_wrenches, replay
+    from udrobot_ctrl.io.runlog import Run
+
+    v = NOMINAL.with_changes(effects=tuple(fx.PlantEffect(n, EXAMPLES[n]) for n in (
+        "thrust_inflow_loss", "thruster_asymmetry", "thruster_lag", "water_current")))
+    p = plant_parameters(v)
+    rng = np.random.default_rng(9)
+    u = np.repeat(rng.uniform(-20, 25, size=(8, 4)), 25, axis=0)  # 200 rows at 20 Hz
+    t = np.arange(200) * 0.05
+    x0 = np.r_[0, 0, 1.0, np.zeros(9)]
+    run = Run(path="r.csv", t=t, channels={}, input_kind="thrust", inputs=u, extra={}, metadata={})
+    tau, thrust = input_wrenches(run, p)
+    xs = replay(p, t, x0, tau, max_step=0.01, thrust=thrust)
+    ref = simulate(v, x0, 9.95, inputs=np.repeat(u[:-1], 5, axis=0), dt=0.01, method="rk4_numpy")
+    np.testing.assert_allclose(xs[1:], ref.x[5::5], rtol=1e-8, atol=1e-9)
