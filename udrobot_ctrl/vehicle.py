@@ -321,7 +321,7 @@ def apply_motor_directions(vehicle: Vehicle, directions) -> Vehicle:
     output ``pwm_i`` = 1500 - (command) instead of 1500 + (command): a logged ``pwm_i`` below 1500 us is then the
     thruster's strong (forward) sense along ``direction``, above 1500 us its weak sense along ``-direction``.
     The exact treatment converts the logged PWM to the motor command first
-    (:func:`udrobot_ctrl.dynamics.thrusters.motor_command_pwm`) and keeps this model. This function gives the
+    (:func:`udrobot_ctrl.io.mavlink.motor_command_pwm`) and keeps this model. This function gives the
     nearest model for the logged PWM as it is: thruster i's direction negated and its forward/reverse limits
     swapped; between the limits the PWM -> thrust curve of the other sense is used (the T200's forward and
     reverse curves differ by up to ~25 %, models/t200.toml).

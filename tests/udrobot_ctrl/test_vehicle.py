@@ -231,7 +231,8 @@ def test_vehicle_toml_path_and_bad_descriptions(tmp_path):
 
 def test_motor_direction_reverses_one_thruster():
     """MOT_i_DIRECTION = -1: logged pwm below 1500 us is thruster i's strong sense along its direction."""
-    from udrobot_ctrl.dynamics.thrusters import motor_command_pwm, pwm_to_thrust
+    from udrobot_ctrl.dynamics.thrusters import pwm_to_thrust
+    from udrobot_ctrl.io.mavlink import motor_command_pwm
 
     v = load_model("bluerov2-heavy")
     dirs = [-1, -1, 1, 1, -1, 1, 1, -1]  # MOT_1..8_DIRECTION of the shipped ardusub_log_tools Heavy logs

@@ -27,6 +27,30 @@ def deriv(x, tau, M, Minv, DL, Q, W, B, rg, rb, out):
 
 
 @numba.njit(cache=True)
+def rk4_step(x, tau, dt, M, Minv, DL, Q, W, B, rg, rb, xt, k1, k2, k3, k4):
+    """One classical RK4 step of ``dt`` s in place on ``x`` (12,); xt, k1..k4 are (12,) scratch buffers.
+
+    The compiled twin of :func:`udrobot_ctrl.dynamics.integrators.rk4_step`. Returns False if x became non-finite.
+    """
+    deriv(x, tau, M, Minv, DL, Q, W, B, rg, rb, k1)
+    for j in range(12):
+        xt[j] = x[j] + 0.5 * dt * k1[j]
+    deriv(xt, tau, M, Minv, DL, Q, W, B, rg, rb, k2)
+    for j in range(12):
+        xt[j] = x[j] + 0.5 * dt * k2[j]
+    deriv(xt, tau, M, Minv, DL, Q, W, B, rg, rb, k3)
+    for j in range(12):
+        xt[j] = x[j] + dt * k3[j]
+    deriv(xt, tau, M, Minv, DL, Q, W, B, rg, rb, k4)
+    finite = True
+    for j in range(12):
+        x[j] = x[j] + dt / 6.0 * (k1[j] + 2.0 * k2[j] + 2.0 * k3[j] + k4[j])
+        if not np.isfinite(x[j]):
+            finite = False
+    return finite
+
+
+@numba.njit(cache=True)
 def vehicle(i, x0, taus, tau_every, nsteps, dt, rec_every, M, Minv, DL, Q, W, B, rg, rb, out):
     """RK4 of vehicle i; returns -1, or the step index at which its state became non-finite."""
     pi = i if M.shape[0] > 1 else 0
@@ -41,21 +65,7 @@ def vehicle(i, x0, taus, tau_every, nsteps, dt, rec_every, M, Minv, DL, Q, W, B,
     k4 = np.empty(12)
     for k in range(nsteps):
         tau = taus[k // tau_every, ti]
-        deriv(x, tau, Mi, Minvi, DLi, Qi, Wi, Bi, rgi, rbi, k1)
-        for j in range(12):
-            xt[j] = x[j] + 0.5 * dt * k1[j]
-        deriv(xt, tau, Mi, Minvi, DLi, Qi, Wi, Bi, rgi, rbi, k2)
-        for j in range(12):
-            xt[j] = x[j] + 0.5 * dt * k2[j]
-        deriv(xt, tau, Mi, Minvi, DLi, Qi, Wi, Bi, rgi, rbi, k3)
-        for j in range(12):
-            xt[j] = x[j] + dt * k3[j]
-        deriv(xt, tau, Mi, Minvi, DLi, Qi, Wi, Bi, rgi, rbi, k4)
-        finite = True
-        for j in range(12):
-            x[j] = x[j] + dt / 6.0 * (k1[j] + 2.0 * k2[j] + 2.0 * k3[j] + k4[j])
-            if not np.isfinite(x[j]):
-                finite = False
+        finite = rk4_step(x, tau, dt, Mi, Minvi, DLi, Qi, Wi, Bi, rgi, rbi, xt, k1, k2, k3, k4)
         if (k + 1) % rec_every == 0:
             out[(k + 1) // rec_every, i] = x
         if not finite:
@@ -85,8 +95,6 @@ def replay_intervals(x0, taus, t, max_step, M, Minv, DL, Q, W, B, rg, rb, out):
     k2 = np.empty(12)
     k3 = np.empty(12)
     k4 = np.empty(12)
-    h = np.empty(6)
-    rhs = np.empty(6)
     out[0] = x
     for k in range(t.shape[0] - 1):
         span = t[k + 1] - t[k]
@@ -94,18 +102,7 @@ def replay_intervals(x0, taus, t, max_step, M, Minv, DL, Q, W, B, rg, rb, out):
         dt = span / m
         tau = taus[k]
         for _ in range(m):
-            deriv(x, tau, M, Minv, DL, Q, W, B, rg, rb, k1, h, rhs)
-            for j in range(12):
-                xt[j] = x[j] + 0.5 * dt * k1[j]
-            deriv(xt, tau, M, Minv, DL, Q, W, B, rg, rb, k2, h, rhs)
-            for j in range(12):
-                xt[j] = x[j] + 0.5 * dt * k2[j]
-            deriv(xt, tau, M, Minv, DL, Q, W, B, rg, rb, k3, h, rhs)
-            for j in range(12):
-                xt[j] = x[j] + dt * k3[j]
-            deriv(xt, tau, M, Minv, DL, Q, W, B, rg, rb, k4, h, rhs)
-            for j in range(12):
-                x[j] = x[j] + dt / 6.0 * (k1[j] + 2.0 * k2[j] + 2.0 * k3[j] + k4[j])
+            rk4_step(x, tau, dt, M, Minv, DL, Q, W, B, rg, rb, xt, k1, k2, k3, k4)
         out[k + 1] = x
         for j in range(12):
             if not np.isfinite(x[j]):

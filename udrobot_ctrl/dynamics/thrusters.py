@@ -187,20 +187,6 @@ def zero_band(voltage=DEFAULT_VOLTAGE, curve: ThrusterCurve | None = None):
             PWM_NEUTRAL + _band_half_width(v, c.voltages, c.fwd_d0))
 
 
-def motor_command_pwm(pwm, directions):
-    """Logged ESC PWM (us, (..., n)) -> the motor-command PWM of ArduSub (``MOT_i_DIRECTION`` = ``directions[i]``).
-
-    ArduSub outputs 1500 - (command) for a motor with ``MOT_i_DIRECTION = -1`` (propeller of the other hand or
-    swapped wires), so that the thruster's strong (forward) sense still follows a positive command: mirroring
-    the PWM about 1500 us recovers 1500 + (command), which this curve and the vehicle model's directions expect.
-    """
-    pwm = np.asarray(pwm, float)
-    d = np.asarray(directions, float)
-    if d.shape != pwm.shape[-1:] or not np.all(np.isin(d, (-1.0, 1.0))):
-        raise ValueError(f"expected {pwm.shape[-1]} motor directions of +1 or -1, got {list(d.ravel())}")
-    return np.where(d < 0, 2 * PWM_NEUTRAL - pwm, pwm)
-
-
 def thrust_limits(voltage=DEFAULT_VOLTAGE, curve: ThrusterCurve | None = None):
     """(max_forward_N, max_reverse_N) of one thruster at ``voltage`` (V), both positive (N)."""
     c = curve or load_curve()

@@ -7,10 +7,12 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
+
 from udrobot_ctrl.io.runlog import Run, read_run
 
 from .mapping import Mapping, MappingError, assemble_run, load_mapping, motor_rules
-from .mavlink import DecodedLog, detect_vehicle, water_density_from_params
+from .mavlink import DecodedLog, detect_vehicle, motor_command_pwm, water_density_from_params
 from .qgc_csv import is_qgc_csv
 from .streams import LogImportError
 
@@ -106,6 +108,9 @@ def convert_log(path, mapping=None, require_inputs: bool = True) -> Run:
                            log_params=facts.params, extra_rules=motor_rules(mapping, servos))
         if vehicle.name is not None:
             run.metadata["vehicle"] = vehicle.name
+        note = apply_motor_directions(run, facts.params)
+        if note:
+            run.metadata["notes"] += "\n" + note
         density = water_density_from_params(facts.params)
         if density is not None and "water_density" not in mapping.metadata:
             run.metadata["water_density"] = density[0]
@@ -114,6 +119,30 @@ def convert_log(path, mapping=None, require_inputs: bool = True) -> Run:
         run = assemble_run(mapping, decoded, str(path), require_inputs=require_inputs)
     run.path = str(path)
     return run
+
+
+def apply_motor_directions(run: Run, params: dict) -> str:
+    """Mirror the logged PWM of motors with ``MOT_k_DIRECTION = -1`` about 1500 us, in place; returns the note.
+
+    ArduSub writes 1500 - (command) to a reversed motor (a propeller of the other hand, or swapped wires), so that
+    its thrust still follows the command; after mirroring, ``pwm_k`` > 1500 us means positive thrust along
+    thruster k's direction in the vehicle model, as the T-200 curve and the model expect
+    (:func:`udrobot_ctrl.io.mavlink.motor_command_pwm`). Nothing is changed when the log holds no
+    direction parameters or the run's inputs are not PWM.
+    """
+    if run.input_kind != "pwm":
+        return ""
+    n = run.inputs.shape[1]
+    dirs = [params.get(f"MOT_{k}_DIRECTION") for k in range(1, n + 1)]
+    if all(d is None for d in dirs):
+        return ""
+    known = [1.0 if d is None or not np.isfinite(d) else float(np.sign(d) or 1.0) for d in dirs]
+    run.inputs = motor_command_pwm(run.inputs, known)
+    reversed_ = [k + 1 for k, d in enumerate(known) if d < 0]
+    listed = ", ".join(f"{k + 1}: {'?' if d is None else int(d)}" for k, d in enumerate(dirs))
+    return (f"motors: MOT_k_DIRECTION ({listed}) from the log; pwm of reversed motor(s) "
+            f"{', '.join(map(str, reversed_)) or 'none'} mirrored about 1500 us (pwm' = 3000 - pwm) so that pwm_k > "
+            f"1500 us is thruster k's positive thrust in the vehicle model")
 
 
 def load_any(path, mapping=None, require_inputs: bool = True) -> Run:

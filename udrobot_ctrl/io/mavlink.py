@@ -600,6 +600,23 @@ def detect_vehicle(facts: LogFacts) -> VehicleInfo:
     return VehicleInfo(name=name, frame=frame, motor_servos=servos, notes=notes)
 
 
+ARDUSUB_PWM_NEUTRAL = 1500.0  # us, ArduSub motor output at zero command
+
+
+def motor_command_pwm(pwm, directions):
+    """Logged ESC PWM (us, (..., n)) -> the motor-command PWM of ArduSub (``MOT_i_DIRECTION`` = ``directions[i]``).
+
+    ArduSub outputs 1500 - (command) for a motor with ``MOT_i_DIRECTION = -1`` (propeller of the other hand or
+    swapped wires), so that the thruster's strong (forward) sense still follows a positive command: mirroring
+    the PWM about 1500 us recovers 1500 + (command), which this curve and the vehicle model's directions expect.
+    """
+    pwm = np.asarray(pwm, float)
+    d = np.asarray(directions, float)
+    if d.shape != pwm.shape[-1:] or not np.all(np.isin(d, (-1.0, 1.0))):
+        raise ValueError(f"expected {pwm.shape[-1]} motor directions of +1 or -1, got {list(d.ravel())}")
+    return np.where(d < 0, 2 * ARDUSUB_PWM_NEUTRAL - pwm, pwm)
+
+
 def water_density_from_params(params: dict) -> tuple | None:
     """(rho kg/m^3, note) from ArduSub's ``BARO_SPEC_GRAV`` (specific gravity the autopilot was told; rho = 1000 x
     it), or None when the log does not hold it or holds an implausible value."""
