@@ -330,7 +330,11 @@ def inflow_loss(be, f, nu, effects, inflow, f_ref):
             col = np.asarray(inflow)[:, j]
             ua = sum(float(col[i]) * nu[i] for i in range(6) if col[i] != 0.0)
             fj = out[j]
-            fa = fj - (k1 * abs(fj) + k2 * be.sqrt(abs(fj) * float(f_ref[j]))) * ua
+            loss = k1 * abs(fj)
+            if k2:  # sqrt(|f| f_ref) with a floor of (1e-3 f_ref)^2 under the root: its slope stays finite at f = 0
+                ref = float(f_ref[j])  # (linearisation, Jacobians), the value changes by at most 1e-3 f_ref k2 |u_a|
+                loss = loss + k2 * be.sqrt(abs(fj) * ref + (1e-3 * ref) ** 2)
+            fa = fj - loss * ua
             out[j] = be.where(fa * fj < 0, 0.0 * fj, fa)
     return out
 
@@ -370,6 +374,9 @@ def first_order_lag(f, dt, T, f0=None):
 
 
 # ----------------------------------------------------------------------------------------- forces
+TETHER_SPEED_FLOOR = 1e-4  # m/s
+
+
 def cable_direction(azimuth, elevation):
     """Unit NED vector from the vehicle along its tether: azimuth (rad, from north towards east) and elevation
     (rad, above the horizontal; pi/2 is a cable straight up to the surface)."""
@@ -383,7 +390,9 @@ def _tether(be, eta, nu, q):
     v = _to_ned(R, nu)
     along = v[0] * e[0] + v[1] * e[1] + v[2] * e[2]
     vn = tuple(v[i] - along * e[i] for i in range(3))
-    speed = be.sqrt(vn[0] * vn[0] + vn[1] * vn[1] + vn[2] * vn[2])
+    # |V_n| with a floor of TETHER_SPEED_FLOOR under the root: smooth at rest (finite Jacobian for linearisation),
+    # the force changes by less than 1e-8 relative at 1 m/s
+    speed = be.sqrt(vn[0] * vn[0] + vn[1] * vn[1] + vn[2] * vn[2] + TETHER_SPEED_FLOOR ** 2)
     k = q["k_quadratic_N_s2_per_m2"] * speed + q["k_linear_N_s_per_m"]
     fb = _to_body(R, tuple(-k * vn[i] for i in range(3)))
     return (fb[0], fb[1], fb[2], 0.0 * fb[0], 0.0 * fb[0], 0.0 * fb[0])
