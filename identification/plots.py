@@ -6,18 +6,9 @@ import math
 from pathlib import Path
 
 import numpy as np
+from matplotlib.figure import Figure
 
 from udrobot_ctrl.io.files import save_figure
-
-
-def _plt():
-    import matplotlib
-
-    matplotlib.use("Agg", force=False)
-    import matplotlib.pyplot as plt
-
-    return plt
-
 
 # units of the per-launch coefficients (model scale): C_m and C_D are dimensionless
 COEFF_LABELS = {"Cm": "C_m (-)", "CD": "C_D (-)", "KL": "K_L (N s/m)", "KQ": "K_Q (N s²/m²)"}
@@ -33,11 +24,11 @@ def plot_fits(launches, axis, path, kind, title_note: str = "", protect=()) -> P
     rows = [e for e in launches if e["ok"] and (e["axis"] or "unspecified") == axis]
     if not rows:
         return None
-    plt = _plt()
     n = len(rows)
     ncol = min(6, n)
     nrow = math.ceil(n / ncol)
-    fig, axes = plt.subplots(nrow, ncol, figsize=(2.6 * ncol, 1.9 * nrow + 0.6), squeeze=False, sharey=False)
+    fig = Figure(figsize=(2.6 * ncol, 1.9 * nrow + 0.6))
+    axes = fig.subplots(nrow, ncol, squeeze=False, sharey=False)
     scale, unit = (1e3, "displacement (mm)") if kind == "spring" else (180 / math.pi, "angle (deg)")
     for ax, e in zip(axes.flat, rows):
         fit = e.get("_fit")
@@ -72,7 +63,6 @@ def plot_fits(launches, axis, path, kind, title_note: str = "", protect=()) -> P
     fig.subplots_adjust(left=0.06, right=0.99, bottom=0.5 / (1.9 * nrow + 0.6) + 0.04, top=1 - 0.5 / (1.9 * nrow + 0.6),
                         wspace=0.35, hspace=0.75)
     save_figure(fig, path, protect=protect, dpi=110)
-    plt.close(fig)
     return Path(path)
 
 
@@ -82,8 +72,8 @@ def plot_vs_reynolds(launches, axis, path, kind, title_note: str = "", protect=(
     if not rows:
         return None
     keys = {"spring": ("Cm", "CD", "KL"), "pendulum": ("Cm", "KL", "KQ", "CD")}[kind]
-    plt = _plt()
-    fig, axes = plt.subplots(1, len(keys), figsize=(3.2 * len(keys), 2.8), squeeze=False)
+    fig = Figure(figsize=(3.2 * len(keys), 2.8))
+    axes = fig.subplots(1, len(keys), squeeze=False)
     for ax, k in zip(axes[0], keys):
         for used, marker, color in ((True, "o", "C0"), (False, "x", "C3")):
             sel = [e for e in rows if e["used"] == used and e.get(k) is not None]
@@ -101,7 +91,6 @@ def plot_vs_reynolds(launches, axis, path, kind, title_note: str = "", protect=(
     fig.suptitle(f"{kind}, {axis}: coefficients vs Reynolds number (95 % intervals){title_note}", fontsize=9)
     fig.tight_layout()
     save_figure(fig, path, protect=protect, dpi=110)
-    plt.close(fig)
     return Path(path)
 
 
@@ -110,8 +99,8 @@ def plot_cfd(launches, path, title_note: str = "", protect=()) -> Path | None:
     rows = [e for e in launches if e["ok"] and "_table" in e]
     if not rows:
         return None
-    plt = _plt()
-    fig, axes = plt.subplots(1, len(rows), figsize=(3.4 * len(rows), 3.0), squeeze=False)
+    fig = Figure(figsize=(3.4 * len(rows), 3.0))
+    axes = fig.subplots(1, len(rows), squeeze=False)
     for ax, e in zip(axes[0], rows):
         t = e["_table"]
         u = np.linspace(min(0.0, t.speed.min()), t.speed.max(), 200)
@@ -128,7 +117,6 @@ def plot_cfd(launches, path, title_note: str = "", protect=()) -> Path | None:
         fig.suptitle(f"CFD force tables and regressions{title_note}", fontsize=9)
     fig.tight_layout()
     save_figure(fig, path, protect=protect, dpi=110)
-    plt.close(fig)
     return Path(path)
 
 

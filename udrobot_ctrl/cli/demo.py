@@ -20,6 +20,7 @@ import traceback
 from pathlib import Path
 
 import numpy as np
+from matplotlib.figure import Figure
 
 from udrobot_ctrl.io.files import atomic_write, check_output_dir, open_atomic, save_figure
 from udrobot_ctrl.vehicle import MODEL_NAMES, load_model, write_model_file
@@ -186,14 +187,11 @@ def munk_critical_speed(v) -> float:
 
 def step_open_loop(out: Path) -> dict:
     """Full forward thrust on both horizontal thrusters: top speed per model, with a plot."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
 
     from udrobot_ctrl.dynamics.sim import simulate
 
-    fig, ax = plt.subplots(figsize=(7, 4))
+    fig = Figure(figsize=(7, 4))
+    ax = fig.subplots()
     result = {}
     for name in MODEL_NAMES:
         v = load_model(name)
@@ -225,7 +223,6 @@ def step_open_loop(out: Path) -> dict:
     ax.legend()
     fig.tight_layout()
     save_figure(fig, out / "open_loop_surge.png", dpi=120)
-    plt.close(fig)
     return result
 
 

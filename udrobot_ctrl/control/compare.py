@@ -31,6 +31,7 @@ from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 
 import numpy as np
+from matplotlib.figure import Figure
 
 from udrobot_ctrl.control.missions import CONTROLLER_KINDS, standard_mission
 from udrobot_ctrl.io.files import atomic_write, save_figure
@@ -366,10 +367,6 @@ def output_names(controllers) -> list:
 
 def write_outputs(result, out: Path, protect=()) -> list:
     """CSV, text table, full JSON and plots in ``out``; returns the written paths (never over a ``protect`` file)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -393,7 +390,8 @@ def write_outputs(result, out: Path, protect=()) -> list:
         for r in rows:
             if r["controller"] == kind and r.get("iae") is not None:
                 mat[models.index(r["design"]), models.index(r["plant"])] = r["iae"]
-        fig, ax = plt.subplots(figsize=(6.5, 5.2))
+        fig = Figure(figsize=(6.5, 5.2))
+        ax = fig.subplots()
         im = ax.imshow(mat, cmap="viridis")
         ax.set_xticks(range(n), short, fontsize=7)
         ax.set_yticks(range(n), short, fontsize=7)
@@ -408,10 +406,10 @@ def write_outputs(result, out: Path, protect=()) -> list:
         fig.tight_layout()
         path = out / f"compare_iae_{kind}.png"
         save_figure(fig, path, protect=protect, dpi=110)
-        plt.close(fig)
         files.append(path)
     if result["ekf"]:
-        fig, axes = plt.subplots(1, 3, figsize=(15, 4.6))
+        fig = Figure(figsize=(15, 4.6))
+        axes = fig.subplots(1, 3)
         for ax, s in zip(axes, EKF_STATES):
             mat = np.full((n, n), np.nan)
             for e in result["ekf"]:
@@ -427,12 +425,12 @@ def write_outputs(result, out: Path, protect=()) -> list:
         fig.tight_layout()
         path = out / "compare_ekf_rmse.png"
         save_figure(fig, path, protect=protect, dpi=110)
-        plt.close(fig)
         files.append(path)
     trajs = result.get("trajectories") or {}
     if trajs:
         kinds = sorted({k for k, _, _ in trajs})
-        fig, axes = plt.subplots(3, len(kinds), figsize=(4.5 * len(kinds), 8), squeeze=False, sharex=True)
+        fig = Figure(figsize=(4.5 * len(kinds), 8))
+        axes = fig.subplots(3, len(kinds), squeeze=False, sharex=True)
         mission = standard_mission(result["mission"]["name"].endswith("quick"))
         for j, kind in enumerate(kinds):
             for (k, a, _b), tr in sorted(trajs.items()):
@@ -456,6 +454,5 @@ def write_outputs(result, out: Path, protect=()) -> list:
         fig.tight_layout()
         path = out / "compare_missions.png"
         save_figure(fig, path, protect=protect, dpi=110)
-        plt.close(fig)
         files.append(path)
     return files

@@ -4,6 +4,8 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
+from matplotlib.figure import Figure
+
 from udrobot_ctrl.gap.shrink import errors
 from udrobot_ctrl.io.files import save_figure
 from udrobot_ctrl.vehicle import STATE_INDEX
@@ -28,10 +30,6 @@ def plot_paths(outdir, fit_names, holdout_names) -> list:
 
 def write_plots(ctx, report, outdir, protect=()):
     """Write residuals_<run>.png (all runs) and overlay_<run>.png (holdout runs, before/after); returns paths."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
 
     out = Path(outdir)
     out.mkdir(parents=True, exist_ok=True)
@@ -42,7 +40,8 @@ def write_plots(ctx, report, outdir, protect=()):
     for prep, sim in zip(ctx["preps"], ctx["nominal_sims"]):
         err = errors(prep, sim)
         chans = list(err)
-        fig, axes = plt.subplots(len(chans), 1, figsize=(10, 1.6 * len(chans) + 1), sharex=True, squeeze=False)
+        fig = Figure(figsize=(10, 1.6 * len(chans) + 1))
+        axes = fig.subplots(len(chans), 1, sharex=True, squeeze=False)
         for ax, c in zip(axes[:, 0], chans):
             ax.plot(prep.t, err[c], lw=0.7)
             ax.set_ylabel(f"{c} sim - meas\n({UNITS.get(c, '')})")
@@ -51,14 +50,14 @@ def write_plots(ctx, report, outdir, protect=()):
         axes[-1, 0].set_xlabel("t (s)")
         fig.suptitle(f"nominal model residuals, {prep.name} (located windows shaded)")
         p = save_figure(fig, out / f"residuals_{file_label(prep.name)}.png", protect=protect, dpi=90)
-        plt.close(fig)
         paths.append(p)
     n_fit = ctx["n_fit"]
     for prep, s0, s1 in zip(ctx["preps"][n_fit:], ctx["nominal_sims"][n_fit:], ctx["after_sims"]):
         chans = [c for c in report["gap_before"]["scored"] if c in prep.meas]
         if not chans:
             continue
-        fig, axes = plt.subplots(len(chans), 1, figsize=(10, 1.6 * len(chans) + 1), sharex=True, squeeze=False)
+        fig = Figure(figsize=(10, 1.6 * len(chans) + 1))
+        axes = fig.subplots(len(chans), 1, sharex=True, squeeze=False)
         for ax, c in zip(axes[:, 0], chans):
             ax.plot(prep.t, prep.meas[c], "k.", ms=1.5, label="measured")
             ax.plot(prep.t, s0[:, STATE_INDEX[c]], lw=0.8, label="nominal")
@@ -69,6 +68,5 @@ def write_plots(ctx, report, outdir, protect=()):
         axes[-1, 0].set_xlabel("t (s)")
         fig.suptitle(f"holdout {prep.name}: multiple-shooting replay before/after")
         p = save_figure(fig, out / f"overlay_{file_label(prep.name)}.png", protect=protect, dpi=90)
-        plt.close(fig)
         paths.append(p)
     return paths

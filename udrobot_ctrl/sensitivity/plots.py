@@ -1,28 +1,14 @@
 """Plots of sensitivity results: tornado (local / one-at-a-time) and Sobol / Morris index bars with CIs.
 
-matplotlib is imported lazily; every function returns the Figure and saves it when ``path`` is given.
+Every function returns a matplotlib Figure (object API: no pyplot, no backend switch) and saves it when ``path`` is
+given.
 """
 from __future__ import annotations
 
 import numpy as np
+from matplotlib.figure import Figure
 
 from udrobot_ctrl.io.files import save_figure
-
-
-def _plt():
-    import matplotlib
-
-    if matplotlib.get_backend().lower() not in ("agg", "pdf", "svg") and not _has_display():
-        matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
-
-
-def _has_display() -> bool:
-    import os
-
-    return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
 
 
 def tornado(local_result, metric: str, top: int | None = 12, path=None, unit: str = "", title: str | None = None):
@@ -31,7 +17,6 @@ def tornado(local_result, metric: str, top: int | None = 12, path=None, unit: st
     Bars are sorted by the size of the swing; the vertical line is the nominal metric. Parameters whose
     finite-difference derivative is flagged unreliable (non-smooth metric) are marked with ``*``.
     """
-    plt = _plt()
     r = local_result
     base = r.base[metric]
     lo, hi = np.asarray(r.low[metric]), np.asarray(r.high[metric])
@@ -41,7 +26,8 @@ def tornado(local_result, metric: str, top: int | None = 12, path=None, unit: st
     order = order[::-1]
     rel = r.reliable(metric)
     labels = [r.names[j] + ("" if rel[j] else " *") for j in order]
-    fig, ax = plt.subplots(figsize=(7, 0.35 * len(order) + 1.5))
+    fig = Figure(figsize=(7, 0.35 * len(order) + 1.5))
+    ax = fig.subplots()
     y = np.arange(len(order))
     ax.barh(y, lo[order] - base, left=base, color="tab:blue", label="coefficient at range low")
     ax.barh(y, hi[order] - base, left=base, color="tab:orange", alpha=0.8, label="coefficient at range high")
@@ -58,7 +44,6 @@ def tornado(local_result, metric: str, top: int | None = 12, path=None, unit: st
 
 def sobol_bars(global_result, metric: str, top: int | None = 12, path=None, title: str | None = None):
     """Bar plot of first-order (S1) and total (ST) Sobol indices with their confidence intervals."""
-    plt = _plt()
     r = global_result
     idx = r.indices[metric]
     if r.method == "morris":
@@ -70,7 +55,8 @@ def sobol_bars(global_result, metric: str, top: int | None = 12, path=None, titl
     if top:
         order = order[:top]
     x = np.arange(len(order))
-    fig, ax = plt.subplots(figsize=(max(6, 0.6 * len(order) + 2), 4))
+    fig = Figure(figsize=(max(6, 0.6 * len(order) + 2), 4))
+    ax = fig.subplots()
     w = 0.38
     for k, (key, conf, label) in enumerate(keys):
         vals = np.asarray(idx[key])[order]
