@@ -54,7 +54,7 @@ from udrobot_ctrl.control.sensors import (
     SensorStream,
     channel_index,
 )
-from udrobot_ctrl.dynamics.plant import PlantParameters, plant_parameters
+from udrobot_ctrl.dynamics.plant import PlantParameters, plant_parameters, wrap_angle
 
 STATE_NAMES = ("x", "y", "z", "phi", "theta", "psi", "u", "v", "w", "p", "q", "r")
 #: default initial standard deviations (m, rad, m/s, rad/s; assumed: start at a known spot, roughly level)
@@ -117,9 +117,6 @@ class _PlantEKF(ExtendedKalmanFilter):
         self.F = F.full()
         self.x = xn.full().ravel()
 
-
-def _wrap(a):
-    return (a + np.pi) % (2 * np.pi) - np.pi
 
 
 @dataclass(frozen=True)
@@ -215,7 +212,7 @@ class EKFResult:
             i = STATE_NAMES.index(s)
             e = self.x[:, i] - truth[:, i]
             if i in (3, 4, 5):
-                e = _wrap(e)
+                e = wrap_angle(e)
             out[s] = float(np.sqrt(np.mean(e ** 2)))
         return out
 
@@ -374,7 +371,7 @@ class UDrobotEKF:
         """Propagate the estimate through the plant with the applied thrusts (N) over ``dt``."""
         f = np.clip(np.asarray(thrust, float), self.params.f_min, self.params.f_max)
         self.kf.predict(f)
-        self.kf.x[5] = _wrap(self.kf.x[5])
+        self.kf.x[5] = wrap_angle(self.kf.x[5])
 
     def _layout(self, present):
         """Per availability pattern (cached): channels, states, angle mask, R diagonal, H, sensor blocks by size."""
@@ -410,7 +407,7 @@ class UDrobotEKF:
         ch, st, ang, r, H, blocks = self._layout(present)
         y = z_row[ch] - kf.x[st]
         if ang.any():
-            y[ang] = _wrap(y[ang])
+            y[ang] = wrap_angle(y[ang])
         S = kf.P[st[:, None], st] + np.diag(r)
         self._last_value[ch] = z_row[ch]
         self._n_samples[ch] += 1
@@ -442,7 +439,7 @@ class UDrobotEKF:
         P = I_KH @ kf.P @ I_KH.T + (K * ra) @ K.T  # Joseph form, as filterpy
         kf.P = 0.5 * (P + P.T)
         kf.x = kf.x + K @ ya
-        kf.x[5] = _wrap(kf.x[5])
+        kf.x[5] = wrap_angle(kf.x[5])
         kf.y, kf.S, kf.SI, kf.K = ya, Sa, SI, K
         self.nis = float(ya @ SI @ ya)
         self.dof = int(ya.size)

@@ -63,7 +63,7 @@ from udrobot_ctrl.control.sensors import (
     SensorSampler,
     channel_index,
 )
-from udrobot_ctrl.dynamics.plant import PlantParameters
+from udrobot_ctrl.dynamics.plant import PlantParameters, wrap_angle
 
 FROZEN = "frozen sensor"
 RECOVERED = "sensor alive again"
@@ -330,7 +330,7 @@ class ThrusterFaultDetector:
                     st = CHANNEL_STATE[ch]
                     e = z_row[ch] - win.x[st]
                     ang = ANGLE_CHANNELS[ch]
-                    e[ang] = (e[ang] + np.pi) % (2 * np.pi) - np.pi
+                    e[ang] = wrap_angle(e[ang])
                     win.rows += [(win.steps, int(c), int(s), float(ei), float(zi))
                                  for c, s, ei, zi in zip(ch, st, e, z_row[ch])]
                 if win.steps >= self.window_steps:
@@ -409,7 +409,7 @@ class ThrusterFaultDetector:
                 Gi.append(A @ Gi[-1] + (B[:, i] if step >= k0 else 0.0))
             X, Phi, Gi = np.array(X), np.array(Phi), np.array(Gi)
             e = z - X[k, st]
-            e[ang] = (e[ang] + np.pi) % (2 * np.pi) - np.pi
+            e[ang] = wrap_angle(e[ang])
             _, theta, _ = self._fit(np.column_stack([Phi[k, st], Gi[k, st]]) * sw[:, None], e * sw, prior)
             if not np.isfinite(theta[12]):
                 break

@@ -37,7 +37,7 @@ from udrobot_ctrl.control.linearize import (
     structure_report,
     trim_at,
 )
-from udrobot_ctrl.dynamics.plant import PlantParameters
+from udrobot_ctrl.dynamics.plant import PlantParameters, wrap_angle
 
 PSI_R = REDUCED_STATES.index("psi")
 
@@ -126,9 +126,6 @@ def design_lqr(p: PlantParameters, point, weights: BrysonWeights | None = None, 
     return LQRDesign(lin, np.asarray(K), np.asarray(poles), rep, dt)
 
 
-def _wrap(a):
-    return (a + np.pi) % (2 * np.pi) - np.pi
-
 
 class ScheduledLQR:
     """Gain-scheduled LQR tracking depth, heading and surge speed: ``controller(t, x) -> thrusts`` (N).
@@ -183,7 +180,7 @@ class ScheduledLQR:
         xr = np.zeros(12)
         xr[2], xr[5], xr[6] = ref["z"], ref["psi"], ref["u"]
         e = (x - xr)[list(REDUCED_INDEX)]
-        e[PSI_R] = _wrap(e[PSI_R])
+        e[PSI_R] = wrap_angle(e[PSI_R])
         u = x[6] if np.isfinite(x[6]) else ref["u"]
         f = self.trim(ref["u"]) - self.gain(u) @ e
         if not np.all(np.isfinite(f)):
@@ -261,7 +258,7 @@ class BatchScheduledLQR:
         xr = np.zeros(12)
         xr[2], xr[5], xr[6] = ref["z"], ref["psi"], ref["u"]
         e = (x - xr)[:, list(REDUCED_INDEX)]
-        e[:, PSI_R] = _wrap(e[:, PSI_R])
+        e[:, PSI_R] = wrap_angle(e[:, PSI_R])
         u = np.where(np.isfinite(x[:, 6]), x[:, 6], ref["u"])
         trim = self.trim(ref["u"])
         f = trim - np.einsum("nij,nj->ni", self.gain(u), e)

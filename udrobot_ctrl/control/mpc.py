@@ -61,7 +61,7 @@ import casadi as ca
 import numpy as np
 import scipy.sparse as sp
 
-from udrobot_ctrl.dynamics.plant import PlantParameters, generalized_forces, plant_parameters
+from udrobot_ctrl.dynamics.plant import PlantParameters, generalized_forces, plant_parameters, wrap_angle
 from udrobot_ctrl.vehicle import STATE_INDEX, STATE_NAMES
 
 _ALIASES = {"depth": "z", "heading": "psi", "surge": "u", "yaw": "psi", "roll": "phi", "pitch": "theta"}
@@ -85,10 +85,6 @@ STATE_LIMITS = np.array([1e4, 1e4, 1e4, np.pi, np.pi, 1e3, 20.0, 20.0, 20.0, 50.
 #: Largest magnitude accepted in QP data (OSQP treats |values| >= 1e30 as infinite; 1e20 keeps a margin).
 _QP_DATA_LIMIT = 1e20
 
-
-def wrap_angle(a):
-    """Wrap angles (rad) to [-pi, pi)."""
-    return (np.asarray(a, float) + np.pi) % (2 * np.pi) - np.pi
 
 
 def _state_from_reference(r) -> np.ndarray:

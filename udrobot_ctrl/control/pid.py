@@ -40,7 +40,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from udrobot_ctrl.control.linearize import STATE_INDEX, linearize, trim_at
-from udrobot_ctrl.dynamics.plant import PlantParameters, kinematics
+from udrobot_ctrl.dynamics.plant import PlantParameters, kinematics, wrap_angle
 from udrobot_ctrl.dynamics.thrusters import actuated_dofs
 
 #: loop -> (output state, rate state, DOF index in tau)
@@ -213,9 +213,6 @@ def _allocator(p, allocation="pinv"):
         return (lambda tau: np.clip(Tp @ tau, p.f_min, p.f_max)), "clipped pseudo-inverse"
 
 
-def _wrap(a):
-    return (a + np.pi) % (2 * np.pi) - np.pi
-
 
 class PIDController:
     """Four PID loops + thrust allocation: ``controller(t, x) -> thrusts`` (N); stateful (integrators).
@@ -274,7 +271,7 @@ class PIDController:
                 out[y] = r
             else:
                 if y == "psi":
-                    r = prev + _wrap(r - prev)
+                    r = prev + wrap_angle(r - prev)
                 out[y] = prev + (r - prev) * (1.0 - np.exp(-self.dt / tf))
             self.filtered[y] = out[y]
         return out
@@ -301,7 +298,7 @@ class PIDController:
             lp = self.loops[name]
             e = target[y] - x[STATE_INDEX[y]]
             if y == "psi":
-                e = _wrap(e)
+                e = wrap_angle(e)
             errs[name] = e
             d = eta_dot[STATE_INDEX[y]] if rate else 0.0
             tau[dof] += lp.kp * e + self.integral[name] - lp.kd * d
@@ -392,7 +389,7 @@ class BatchPID:
         step = np.where(self.t_filter > 0, 1.0 - np.exp(-self.dt / np.where(self.t_filter > 0, self.t_filter, 1.0)),
                         1.0)
         r = target.copy()
-        r[:, self.psi_col] = prev[:, self.psi_col] + _wrap(target[:, self.psi_col] - prev[:, self.psi_col])
+        r[:, self.psi_col] = prev[:, self.psi_col] + wrap_angle(target[:, self.psi_col] - prev[:, self.psi_col])
         moved = prev + (r - prev) * step
         first = ~self.started[:, None] | (self.t_filter <= 0)
         out = np.where(first, target, moved)
@@ -410,7 +407,7 @@ class BatchPID:
         goal = np.array([ref["u"], ref["z"], 0.0, ref["psi"]])
         target = self._filter(np.broadcast_to(goal, (len(x), 4)), ok)
         e = target - xs[:, self.out_idx]
-        e[:, self.psi_col] = _wrap(e[:, self.psi_col])
+        e[:, self.psi_col] = wrap_angle(e[:, self.psi_col])
         d = np.where(self.has_rate, eta_dot[:, self.out_idx], 0.0)
         tau = trim.copy()
         tau[:, self.dofs] += self.kp * e + self.integral - self.kd * d

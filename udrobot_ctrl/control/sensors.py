@@ -22,6 +22,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from udrobot_ctrl.dynamics.plant import wrap_angle
+
 CHANNELS = ("depth", "phi", "theta", "psi", "p", "q", "r", "dvl_u", "dvl_v", "dvl_w", "usbl_x", "usbl_y", "usbl_z")
 #: state index measured by each channel
 CHANNEL_STATE = np.array([2, 3, 4, 5, 9, 10, 11, 6, 7, 8, 0, 1, 2])
@@ -164,7 +166,7 @@ def measure(t, x, config: SensorConfig | None = None, seed=0) -> SensorStream:
     rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
     sig = config.sigmas()
     vals = x[:, CHANNEL_STATE] + rng.standard_normal((len(t), len(CHANNELS))) * sig
-    vals[:, ANGLE_CHANNELS] = (vals[:, ANGLE_CHANNELS] + np.pi) % (2 * np.pi) - np.pi
+    vals[:, ANGLE_CHANNELS] = wrap_angle(vals[:, ANGLE_CHANNELS])
     vals[~sample_mask(t, x, config)] = np.nan
     return SensorStream(t=t, values=vals, sigmas=sig)
 
@@ -193,6 +195,6 @@ class SensorSampler:
         if not self.config.usbl:
             mask[USBL] = False
         vals = x[CHANNEL_STATE] + self.rng.standard_normal(len(CHANNELS)) * self.sigmas
-        vals[ANGLE_CHANNELS] = (vals[ANGLE_CHANNELS] + np.pi) % (2 * np.pi) - np.pi
+        vals[ANGLE_CHANNELS] = wrap_angle(vals[ANGLE_CHANNELS])
         vals[~mask] = np.nan
         return vals

@@ -6,8 +6,8 @@ import warnings
 import numpy as np
 import pytest
 
-from udrobot_ctrl.control.mpc import LinearMPC, NonlinearMPC, OSQPSettings, wrap_angle
-from udrobot_ctrl.dynamics.plant import plant_parameters
+from udrobot_ctrl.control.mpc import LinearMPC, NonlinearMPC, OSQPSettings
+from udrobot_ctrl.dynamics.plant import plant_parameters, wrap_angle
 from udrobot_ctrl.dynamics.sim import simulate
 from udrobot_ctrl.vehicle import load_model
 
