@@ -2,6 +2,7 @@
 import numpy as np
 import pytest
 
+from udrobot_ctrl.dynamics.effects import TETHER_SPEED_FLOOR
 from udrobot_ctrl.dynamics.plant import plant_parameters, rotation_zyx
 from udrobot_ctrl.gap.effects import cable_direction, catalogue
 from udrobot_ctrl.vehicle import load_model
@@ -36,7 +37,9 @@ def test_vertical_cable_is_horizontal_drag_opposing_motion():
     V = np.einsum("nij,nj->ni", R, x[:, 6:9])
     Vh = V.copy()
     Vh[:, 2] = 0.0
-    expect = -(10.0 * np.linalg.norm(Vh, axis=1, keepdims=True) + 2.0) * Vh
+    # |V_n| carries the template's regularisation floor (1e-4 m/s: a finite Jacobian at rest, 1e-8 relative here)
+    speed = np.sqrt(np.sum(Vh ** 2, axis=1, keepdims=True) + TETHER_SPEED_FLOOR ** 2)
+    expect = -(10.0 * speed + 2.0) * Vh
     assert F_ned == pytest.approx(expect, abs=1e-10)
     assert np.all(np.sum(F_ned * V, 1) <= 1e-12)  # drag never adds energy
     assert np.all(F[:, 3:] == 0.0)  # lumped at the body origin
@@ -52,4 +55,5 @@ def test_motion_along_the_cable_has_no_drag_and_normal_motion_full_drag():
     x[1, 6:9] = 0.5 * n
     F = _tether_force(az, el, x)
     assert np.abs(F[0]).max() < 1e-12
-    assert F[1, :3] == pytest.approx(-(10.0 * 0.5 + 2.0) * 0.5 * n, abs=1e-12)
+    speed = np.sqrt(0.5 ** 2 + TETHER_SPEED_FLOOR ** 2)
+    assert F[1, :3] == pytest.approx(-(10.0 * speed + 2.0) * 0.5 * n, abs=1e-12)

@@ -54,5 +54,5 @@ def test_diagnose_a_vehicle_holding_still(tmp_path, capsys):
     report = json.loads(out.read_text())
     assert report["gap_before"]["value"] is None and report["gap_before"]["scored"] == []
     assert set(report["gap_before"]["undefined"]) == set(channels)
-    assert report["fit_runs"] == ["still.csv[first 2/3]"]
+    assert report["fit_runs"] == ["still.csv[first two thirds]"]
     assert "gap undefined" in report["verdict"]
