@@ -71,8 +71,12 @@ def run(args) -> int:
                            model_label=args.model)
     write_report(report, Path(args.json), protect=inputs)
     if args.out_model:
-        write_model_file(corrected_model(args.model, report, fit + hold), args.out_model, protect=inputs)
-        print(f"wrote {args.out_model}", file=sys.stderr)
+        corrected, not_placed = corrected_model(args.model, report, fit + hold)
+        write_model_file(corrected, args.out_model, protect=inputs)
+        print(f"wrote {args.out_model} with effects: {', '.join(e.name for e in corrected.effects) or 'none'}",
+              file=sys.stderr)
+        for name, why in not_placed.items():
+            print(f"udrobot-ctrl diagnose: warning: {name} is not in {args.out_model}: {why}", file=sys.stderr)
     if args.plot:
         for f in write_plots(ctx, report, args.plot, protect=inputs):
             print(f"wrote {f}", file=sys.stderr)

@@ -151,8 +151,12 @@ def corrected_model(model, report, runs=()):
 
     Returns
     -------
-    Vehicle
+    vehicle : Vehicle
         With ``effects`` (each checked as a model file's entry would be) and their provenance.
+    not_placed : dict
+        Effect name -> reason, for significant effects the plant cannot carry: a static thrust map (deadband,
+        asymmetry, inflow loss) fitted on runs that log a commanded wrench (``tau_*``) acts on the six wrench
+        components, not on the model's thrusters. Each is also recorded in the provenance.
 
     Raises
     ------
@@ -160,9 +164,15 @@ def corrected_model(model, report, runs=()):
         If a significant effect cannot be placed in the plant (a wall effect without a logged seabed).
     """
     vehicle = load_model(model)
-    added = []
+    added, not_placed = [], {}
+    wrench_runs = any(getattr(r, "input_kind", None) == "tau" for r in runs)
     for i, e in enumerate(x for x in report["effects"] if x["significant"]):
         params = dict(e["params"])
+        if wrench_runs and e["name"] in ("thruster_deadband", "thruster_asymmetry", "thrust_inflow_loss"):
+            not_placed[e["name"]] = ("fitted on runs that log a commanded wrench (tau_*): it acts on the six wrench "
+                                     "components, which the plant's thrusters do not expose; fit it on thrust or "
+                                     "pwm runs to place it")
+            continue
         if e["name"] == "wall_effect":
             depth = seabed_depth(runs)
             if depth is None:
@@ -175,9 +185,11 @@ def corrected_model(model, report, runs=()):
         prov[f"effects.{e.name}"] = (f"estimated: udrobot-ctrl diagnose, fitted on {', '.join(report['fit_runs'])}, "
                                      f"scored on {', '.join(report['holdout_runs'])} (shrink "
                                      f"{next(x['shrink'] for x in report['effects'] if x['name'] == e.name):.2f})")
+    for name, why in not_placed.items():
+        prov[f"effects.{name}"] = f"not placed: significant in the diagnosis but {why}"
     names = "+".join(e.name for e in added)
     return vehicle.with_changes(effects=tuple(vehicle.effects) + tuple(added), provenance=prov,
-                                name=f"{vehicle.name}+{names}" if added else vehicle.name)
+                                name=f"{vehicle.name}+{names}" if added else vehicle.name), not_placed
 
 
 def diagnose(model, runs, holdout=None, window_s=8.0, effects=None, log=None, model_label=None):

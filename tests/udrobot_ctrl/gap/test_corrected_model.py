@@ -28,7 +28,8 @@ def test_corrected_model_carries_the_significant_effects(buoyancy_case, tmp_path
     runs, report = buoyancy_case
     sig = {e["name"]: e["params"] for e in report["effects"] if e["significant"]}
     assert "buoyancy_offset" in sig
-    v = corrected_model("pendulum:chin", report, runs)
+    v, not_placed = corrected_model("pendulum:chin", report, runs)
+    assert not_placed == {}
     assert {e.name: dict(e.params) for e in v.effects} == sig
     path = tmp_path / "corrected.json"
     path.write_text(json.dumps(to_model_dict(v)))
@@ -43,7 +44,7 @@ def test_corrected_plant_settles_at_the_heave_speed_of_its_fitted_net_buoyancy(b
     """Open loop from rest the corrected plant drifts in heave until its damping balances the net buoyancy
     B + dB - W (D_L w + Q |w| w = W - B'), the fitted dB included."""
     runs, report = buoyancy_case
-    v = corrected_model("pendulum:chin", report, runs)
+    v, _ = corrected_model("pendulum:chin", report, runs)
     p = plant_parameters(v)
     res = simulate(v, np.r_[0, 0, 1.0, np.zeros(9)], 40.0, dt=0.02)
     dl, q, net = p.D_L[2, 2], p.Q[2, 2], p.weight - p.buoyancy
@@ -51,3 +52,19 @@ def test_corrected_plant_settles_at_the_heave_speed_of_its_fitted_net_buoyancy(b
     assert res.x[-1, 8] == pytest.approx(w_terminal, rel=0.03)
     nominal = plant_parameters(load_model("pendulum:chin"))
     assert abs(net - (nominal.weight - nominal.buoyancy)) > 0.5  # the fitted offset is not negligible
+
+
+def test_thrust_maps_fitted_on_a_commanded_wrench_are_not_placed_and_said_so():
+    from udrobot_ctrl.io.runlog import Run
+
+    runs = [Run(path="w.csv", t=np.arange(3.0), channels={}, input_kind="tau", inputs=np.zeros((3, 6)), extra={},
+                metadata={})]
+    report = {"fit_runs": ["w.csv"], "holdout_runs": ["w.csv"], "effects": [
+        {"name": "cg_cb_offset", "significant": True, "shrink": 0.6,
+         "params": {"dBG_x_Nm": -5.5, "dBG_y_Nm": 1.0, "dBG_z_Nm": -5.3}},
+        {"name": "thruster_deadband", "significant": True, "shrink": -0.1,
+         "params": {"width_fraction": 0.25, **{f"shift_{d}": 1.0 for d in "XYZKMN"}}}]}
+    v, not_placed = corrected_model("pendulum:chin", report, runs)
+    assert [e.name for e in v.effects] == ["cg_cb_offset"]
+    assert set(not_placed) == {"thruster_deadband"} and "commanded wrench" in not_placed["thruster_deadband"]
+    assert v.provenance["effects.thruster_deadband"].startswith("not placed")
