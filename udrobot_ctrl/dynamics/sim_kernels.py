@@ -15,7 +15,9 @@ import numpy as np  # noqa: E402
 
 from udrobot_ctrl.dynamics.equations import equations  # noqa: E402
 
-_state_derivative = equations(np.sin, np.cos, np.tan, jit=numba.njit(cache=True)).state_derivative
+# inlined at the numba IR level: no call (and no reference counting of the shared parameter arrays, which made
+# threads contend in the parallel batch kernel) per term of the equations
+_state_derivative = equations(np.sin, np.cos, np.tan, jit=numba.njit(cache=True, inline="always")).state_derivative
 
 
 @numba.njit(cache=True)
