@@ -7,8 +7,8 @@ to 23 s) is flown on B by each controller designed on A (``lqr``, ``pid``, ``lmp
 :func:`udrobot_ctrl.control.metrics.mission_metrics`:
 ``iae`` (weighted total, s), ``overshoot`` (% of the depth step), ``settling_s`` (depth step, 2 % band; null
 when it does not settle before the next manoeuvre), ``energy_J`` (estimated T-200 electrical energy),
-``saturation_s`` (time with a thruster at a limit). A controller whose module is missing (the MPCs live in
-:mod:`udrobot_ctrl.control.mpc`) or whose run fails keeps its rows with null metrics and a recorded reason.
+``saturation_s`` (time with a thruster at a limit). A controller whose design fails or whose flight diverges keeps
+its rows with null metrics and a recorded reason.
 
 Estimation: for each plant B one data set is made by flying B with the LQR designed on B; the EKF
 (:func:`udrobot_ctrl.control.ekf.ekf_on_trajectory`) built on model A filters B's simulated sensors (pressure
@@ -32,8 +32,12 @@ from pathlib import Path
 
 import numpy as np
 from matplotlib.figure import Figure
+from tqdm.auto import tqdm
 
-from udrobot_ctrl.control.missions import CONTROLLER_KINDS, standard_mission
+from udrobot_ctrl.control.ekf import ekf_on_trajectory
+from udrobot_ctrl.control.metrics import mission_metrics
+from udrobot_ctrl.control.missions import CONTROLLER_KINDS, make_controller, run_mission, standard_mission
+from udrobot_ctrl.dynamics.sim import as_parameters
 from udrobot_ctrl.io.files import atomic_write, save_figure
 from udrobot_ctrl.vehicle import MODEL_NAMES
 
@@ -48,26 +52,6 @@ CONTROL_DT = 0.05  # s, controller period
 EKF_DT = 0.05  # s, filter period
 
 
-def controller_available(kind: str):
-    """(True, '') if the controller's module imports, else (False, reason)."""
-    if kind in ("lmpc", "nmpc"):
-        try:
-            from udrobot_ctrl.control import mpc
-
-            getattr(mpc, "LinearMPC" if kind == "lmpc" else "NonlinearMPC")
-        except Exception as exc:  # noqa: BLE001 - any import problem means "skip with a reason"
-            return False, f"udrobot_ctrl.control.mpc unavailable ({type(exc).__name__}: {exc})"
-    return True, ""
-
-
-def ekf_available():
-    try:
-        from udrobot_ctrl.control.ekf import ekf_on_trajectory  # noqa: F401
-    except Exception as exc:  # noqa: BLE001
-        return False, f"udrobot_ctrl.control.ekf unavailable ({type(exc).__name__}: {exc})"
-    return True, ""
-
-
 def _null_row(design, plant, kind, status):
     row = {k: None for k in RESULT_KEYS}
     row.update(design=design, plant=plant, controller=kind, status=status)
@@ -76,9 +60,6 @@ def _null_row(design, plant, kind, status):
 
 def _fly(ctrl, kind, design, plant, mission):
     """One flight of an already designed controller; returns (row with every metric, SimResult or None)."""
-    from udrobot_ctrl.control.metrics import mission_metrics
-    from udrobot_ctrl.control.missions import run_mission
-    from udrobot_ctrl.dynamics.sim import as_parameters
 
     t0 = time.perf_counter()
     reset = getattr(ctrl, "reset", None)
@@ -108,7 +89,6 @@ def _ekf_data(plant, mission):
     """Plant B flown by the LQR designed on B: (t, x, u), cached per process."""
     key = (plant, mission.name)
     if key not in _EKF_DATA:
-        from udrobot_ctrl.control.missions import make_controller, run_mission
 
         res = run_mission(make_controller("lqr", plant, mission, control_dt=CONTROL_DT), plant, mission,
                           dt=SIM_DT, control_dt=CONTROL_DT)
@@ -117,7 +97,6 @@ def _ekf_data(plant, mission):
 
 
 def _estimate(design, plant, mission):
-    from udrobot_ctrl.control.ekf import ekf_on_trajectory
 
     try:
         t, x, u = _ekf_data(plant, mission)
@@ -140,12 +119,8 @@ def run_design(kind, design, plants, quick, keep_trajectory):
 
     Returns (rows, trajectories); the trajectory of the matched pair (design == plant) is kept when asked.
     """
-    from udrobot_ctrl.control.missions import make_controller
 
     mission = standard_mission(quick)
-    ok, why = controller_available(kind)
-    if not ok:
-        return [_null_row(design, b, kind, f"skipped: {why}") for b in plants], {}
     try:
         ctrl = make_controller(kind, design, mission, control_dt=CONTROL_DT)
     except FloatingPointError as exc:
@@ -174,7 +149,6 @@ _JOB_COST = {"nmpc": 2.5, "lmpc": 1.7, "lqr": 0.35, "pid": 0.27, "ekf": 0.4}
 
 def _progress(total, desc):
     """A tqdm bar on stderr, silent when stderr is not a terminal."""
-    from tqdm.auto import tqdm
 
     return tqdm(total=total, desc=desc, unit="job", disable=None, leave=False)
 
@@ -201,7 +175,7 @@ def compare(models=MODEL_NAMES, controllers=CONTROLLER_KINDS, quick: bool = Fals
     keep_trajectories : bool
         Keep decimated trajectories of the matched pairs (design == plant) for plots.
     ekf : bool
-        Also run the EKF matrix (skipped with a reason if :mod:`udrobot_ctrl.control.ekf` is missing).
+        Also run the EKF matrix.
     t_final : float, optional
         Backwards-compatible switch: a value below the full mission's 46 s selects ``quick``.
     progress : bool
@@ -223,22 +197,13 @@ def compare(models=MODEL_NAMES, controllers=CONTROLLER_KINDS, quick: bool = Fals
         raise ValueError("no models given")
     if t_final is not None:
         quick = t_final < standard_mission(False).t_final
-    from udrobot_ctrl.dynamics.sim import as_parameters
 
     n_thr = {str(m): as_parameters(m).T.shape[1] for m in models}  # fail early, naming the model
     if len(set(n_thr.values())) > 1:
         raise ValueError("models with different thruster counts cannot be paired (a controller designed on one "
                          "commands the other's thrusters): " + ", ".join(f"{m} {k}" for m, k in n_thr.items()))
-    skipped = {}
-    for c in controllers:
-        ok, why = controller_available(c)
-        if not ok:
-            skipped[c] = why
+    skipped = {}  # every controller and the EKF are part of the package: nothing is skipped for being missing
     with_ekf = ekf
-    if ekf:
-        ok, why = ekf_available()
-        if not ok:
-            skipped["ekf"], with_ekf = why, False
     t0 = time.perf_counter()
     jobs = [("ctrl", (kind, a, models, quick, keep_trajectories)) for a in models for kind in controllers]
     if with_ekf:
