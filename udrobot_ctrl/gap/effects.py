@@ -91,9 +91,6 @@ class Stack:
         return np.nan_to_num(np.concatenate(parts, axis=0))
 
 
-first_order_lag = pfx.first_order_lag
-
-
 def _to_body(R, vec):
     return np.einsum("...ji,...j->...i", R, vec)
 
@@ -277,19 +274,12 @@ class Asymmetry(Effect):
 class Lag(Effect):
     def design(self, s, shape):
         (T,) = shape
-        b0 = s.full(lambda r: (first_order_lag(r["f"], r["dt"], T) - r["f"]) @ s.B.T, held=True)
+        b0 = s.full(lambda r: (pfx.first_order_lag(r["f"], r["dt"], T) - r["f"]) @ s.B.T, held=True)
         return b0, np.zeros((s.n, 6, 0)), (), np.zeros(0), np.zeros(0)
 
 
 
 # ------------------------------------------------------------------------------------------- environment
-def cable_direction(azimuth, elevation):
-    """Unit NED vector from the vehicle along its tether: azimuth (rad, from north towards east) and elevation
-    (rad, above the horizontal; pi/2 is a cable straight up to the surface)."""
-    ce = np.cos(elevation)
-    return np.array([ce * np.cos(azimuth), ce * np.sin(azimuth), -np.sin(elevation)])
-
-
 def _tether_columns(eta, nu, e):
     """Body-frame generalised force per unit (k_q, k_l) of the cable cross-flow drag (..., 6, 2) for a cable along
     unit NED ``e``: columns -|V_n| V_n and -V_n, with V_n the NED velocity normal to the cable."""
@@ -297,7 +287,8 @@ def _tether_columns(eta, nu, e):
     v = np.einsum("...ij,...j->...i", R, nu[..., :3])
     vn = v - np.sum(v * e, -1, keepdims=True) * e
     A = np.zeros(vn.shape[:-1] + (6, 2))
-    A[..., :3, 0] = _to_body(R, -np.linalg.norm(vn, axis=-1, keepdims=True) * vn)
+    speed = np.sqrt(np.sum(vn ** 2, axis=-1, keepdims=True) + pfx.TETHER_SPEED_FLOOR ** 2)  # as the plant's |V_n|
+    A[..., :3, 0] = _to_body(R, -speed * vn)
     A[..., :3, 1] = _to_body(R, -vn)
     return A
 
@@ -310,7 +301,7 @@ class TetherDrag(Effect):
     turns surge into a heave/sway force -- the signature that separates it from per-axis damping errors."""
 
     def design(self, s, shape):
-        e = cable_direction(*shape)
+        e = np.asarray(pfx.cable_direction(*shape))
         A = s.full(lambda r: _tether_columns(r["eta"], r["nu"], e))
         return np.zeros((s.n, 6)), A, ("k_quadratic_N_s2_per_m2", "k_linear_N_s_per_m"), np.zeros(2), \
             np.array([1e4, 1e4])

@@ -3,8 +3,9 @@ import numpy as np
 import pytest
 
 from udrobot_ctrl.dynamics.effects import TETHER_SPEED_FLOOR
+from udrobot_ctrl.dynamics.effects import cable_direction as _cable_direction
 from udrobot_ctrl.dynamics.plant import plant_parameters, rotation_zyx
-from udrobot_ctrl.gap.effects import cable_direction, catalogue
+from udrobot_ctrl.gap.effects import catalogue
 from udrobot_ctrl.vehicle import load_model
 
 
@@ -21,6 +22,10 @@ def _state(rng, n=50):
     x[:, 3:6] = rng.uniform(-0.4, 0.4, (n, 3))
     x[:, 6:12] = rng.uniform(-0.6, 0.6, (n, 6))
     return x
+
+
+def cable_direction(azimuth, elevation):
+    return np.asarray(_cable_direction(azimuth, elevation))
 
 
 def test_cable_direction_is_unit_and_vertical_at_90_deg():
