@@ -1,12 +1,21 @@
 """``udrobot-ctrl simulate``: replay a run's commanded inputs through the plant and write the simulated run.
 
-Inputs are held (zero-order hold) on the run's own timestamps, which may be non-uniform: each interval
-[t_k, t_k+1) is integrated with RK4 sub-steps of at most ``--max-step`` (0.01 s), or with ``solve_ivp``.
-The initial state is the first row's measured state (missing channels -> 0, with a warning).
+Open loop (default): inputs are held (zero-order hold) on the run's own timestamps, which may be non-uniform:
+each interval [t_k, t_k+1) is integrated with RK4 sub-steps of at most ``--max-step`` (0.01 s), or with
+``solve_ivp``. The initial state is the first row's measured state (missing channels -> 0, with a warning).
+
+Windowed (``--windows [S]``, S = 8 s when omitted): the diagnoser's multiple-shooting replay and gap metric.
+Each run is cut into windows of S seconds, each simulated from the measured state at its start with the logged
+commands held; the NRMSE per channel (RMS error / std of the measurement, over all runs) and their RMS over the
+channels that moved above their noise are printed (and written by ``--json``). This is the ``gap_before`` /
+``gap_after`` of a diagnosis report: replaying a report's holdout runs with the model ``diagnose --out-model``
+wrote gives its ``gap_after`` (with the same --windows as diagnose's --window). Several runs may be given; the
+gap pools them as the report does.
 """
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 import warnings
 from pathlib import Path
@@ -17,7 +26,8 @@ from tqdm import tqdm
 from udrobot_ctrl.dynamics import effects as fx
 from udrobot_ctrl.dynamics.plant import plant_parameters, state_derivative
 from udrobot_ctrl.dynamics.sim import Actuators, integrate_intervals, rk4_step
-from udrobot_ctrl.io.files import check_outputs, run_files, spec_files
+from udrobot_ctrl.gap.replay import WindowedGap, windowed_gap
+from udrobot_ctrl.io.files import atomic_write, check_outputs, run_files, spec_files
 from udrobot_ctrl.vehicle import ALL_MODEL_NAMES, STATE_NAMES, load_model
 
 
@@ -29,10 +39,19 @@ def register(subparsers):
         description=__doc__.replace("``", "") + "\nWhat the model predicts for the commands the vehicle really "
                     "received: compare --out with --input to see the sim-to-real gap (udrobot-ctrl diagnose "
                     "explains it).\nRun logs are udrobot-run/1 (docs/formats/runlog.md).",
-        epilog="example: udrobot-ctrl simulate --model pendulum:chin --input pool.csv --out pool_sim.csv")
+        epilog="examples:\n  udrobot-ctrl simulate --model pendulum:chin --input pool.csv --out pool_sim.csv\n"
+               "  udrobot-ctrl simulate --model corrected.json --windows 8 --input holdout.csv --json gap.json")
     parser.add_argument("--model", required=True, help=f"model name ({', '.join(ALL_MODEL_NAMES)}) or model file")
-    parser.add_argument("--input", required=True, help="run to replay (udrobot-run/1 CSV or a log io can convert)")
-    parser.add_argument("--out", required=True, help="simulated run to write (udrobot-run/1 CSV)")
+    parser.add_argument("--input", required=True, nargs="+", metavar="RUN",
+                        help="run to replay (udrobot-run/1 CSV or a log io can convert); with --windows, one or more")
+    parser.add_argument("--out", help="simulated run to write (udrobot-run/1 CSV); required without --windows; with "
+                                      "--windows (one run) the windowed replay, empty cells between windows")
+    parser.add_argument("--windows", type=float, nargs="?", const=8.0, default=None, metavar="S",
+                        help="windowed replay and NRMSE gap of diagnose (windows of S s from the measured state; "
+                             "S = 8 s, diagnose's default, when omitted)")
+    parser.add_argument("--json", metavar="GAP.json",
+                        help="with --windows: write the gap (the report's gap object plus model, effects, runs, "
+                             "window_s)")
     parser.add_argument("--method", choices=("rk4", "solve_ivp"), default="rk4",
                         help="integrator: fixed-step RK4 sub-steps (default) or scipy solve_ivp (adaptive)")
     parser.add_argument("--max-step", type=float, default=0.01, help="largest RK4 sub-step, s (default 0.01)")
@@ -198,11 +217,66 @@ def _replay_with_effects(p, t, x, tau, thrust, max_step, xs):
     return xs
 
 
-def run(args) -> int:
-    """Replay ``args.input`` through ``args.model`` and write ``args.out``."""
+def _format_gap(g: WindowedGap) -> str:
+    """Console lines of a windowed gap: the overall value and every channel (scored ones marked)."""
+    lines = [f"gap (NRMSE, {g.window_s:g} s windows) of {g.model} on {', '.join(g.runs)}: "
+             + (f"{g.value:.6f}" if np.isfinite(g.value) else "undefined (no channel moved above its noise)"),
+             "effects replayed: " + (", ".join(g.effects) or "none (nominal model)")]
+    for c, v in g.per_channel.items():
+        tag = "scored" if c in g.scored else ("undefined: " + g.undefined[c] if c in g.undefined else "not scored: "
+                                              "did not move above its noise")
+        lines.append(f"  {c:<6s} {v:10.6f}  {tag}")
+    return "\n".join(lines)
+
+
+def run_windows(args) -> int:
+    """``--windows``: the diagnoser's windowed replay and gap of ``args.model`` on the ``args.input`` runs."""
     from udrobot_ctrl.io import runlog
 
-    src, out = Path(args.input), Path(args.out)
+    srcs = [Path(s) for s in args.input]
+    for src in srcs:
+        if not src.exists():
+            raise FileNotFoundError(f"input run {src} does not exist")
+    if not args.windows > 0:
+        raise ValueError(f"--windows must be > 0 s, got {args.windows}")
+    inputs = [*srcs, *spec_files(args.model, getattr(args, "mapping", None))]
+    if args.out and len(srcs) > 1:
+        raise ValueError(f"--out writes one simulated run; {len(srcs)} --input runs were given (use --json for the "
+                         f"gap of several runs)")
+    if args.json:
+        check_outputs([args.json], inputs, force=getattr(args, "force", False), option="--json")
+    if args.out:
+        check_outputs(run_files(args.out), inputs, force=getattr(args, "force", False), option="--out")
+    runs = [read_input_run(src, getattr(args, "mapping", None)) for src in srcs]
+    g = windowed_gap(args.model, runs, args.windows, names=[src.name for src in srcs])
+    print(_format_gap(g))
+    if args.json:
+        atomic_write(Path(args.json), json.dumps(g.to_dict(), indent=2) + "\n", protect=inputs)
+        print(f"wrote {args.json}")
+    if args.out:
+        prep, xs = g.preps[0], g.sims[0]
+        channels = {name: xs[:, i] for i, name in enumerate(STATE_NAMES)}
+        runlog.write_run(args.out, prep.t, channels, "thrust" if prep.input_kind == "pwm" else prep.input_kind,
+                         prep.f, protect=inputs)
+        print(f"wrote {args.out}: windowed replay on the run's uniform grid ({prep.n} rows, dt {prep.dt:g} s; "
+              f"inputs are the clipped commands{' in N (converted from pwm)' if prep.input_kind == 'pwm' else ''})")
+    return 0
+
+
+def run(args) -> int:
+    """Replay ``args.input`` through ``args.model`` and write ``args.out`` (or ``--windows``: score the gap)."""
+    from udrobot_ctrl.io import runlog
+
+    if getattr(args, "windows", None) is not None:
+        return run_windows(args)
+    if getattr(args, "json", None):
+        raise ValueError("--json writes the gap of a windowed replay; add --windows")
+    if args.out is None:
+        raise ValueError("--out is required (the simulated run), unless --windows scores the gap")
+    if len(args.input) != 1:
+        raise ValueError(f"the open-loop replay takes one --input run, got {len(args.input)} "
+                         f"(--windows scores several)")
+    src, out = Path(args.input[0]), Path(args.out)
     if not src.exists():
         raise FileNotFoundError(f"input run {src} does not exist")
     inputs = [src, *spec_files(args.model, getattr(args, "mapping", None))]

@@ -290,6 +290,9 @@ def _per_actuator(params, key, n_actuators):
     return [params.get(key, 0.0)] * n_actuators
 
 
+STATIC_MAP_ORDER = {"thruster_deadband": 0, "thruster_asymmetry": 1}  # the order the static maps act in
+
+
 def static_thrust(be, f, effects, f_ref):
     """Thrust after the static maps (deadband, then reverse loss) of the commanded, clipped thrusts ``f``.
 
@@ -303,7 +306,9 @@ def static_thrust(be, f, effects, f_ref):
     """
     out = list(f)
     n = len(out)
-    for e in effects:
+    # deadband (the ESC's) before the reverse loss (the propeller's), whatever the order of the model's list: the
+    # two maps do not commute
+    for e in sorted((e for e in effects if e.name in STATIC_MAP_ORDER), key=lambda e: STATIC_MAP_ORDER[e.name]):
         if e.name == "thruster_deadband":
             shift = _per_actuator(e.params, "shift", n)
             for i in range(n):

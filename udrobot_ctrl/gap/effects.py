@@ -102,7 +102,7 @@ class Hooks:
     input_filter: object = None  # (f (n,k), dt) -> f_act (n,k); applied to the whole command sequence
     force: object = None  # (x (N,12), f (N,k), ctx dict) -> (N,6)
     mass: object = None  # (x (N,12), ctx dict) -> (N,6,6)
-    order: int = 0  # input filters run in increasing order (static nonlinearities 0, lag 1)
+    order: float = 0.0  # input filters run in increasing order (static maps in [0, 1) as the plant, lag 1)
 
 
 @dataclass
@@ -155,8 +155,9 @@ def plant_hooks(e: PlantEffect, p: PlantParameters, B, inflow, f_ref, M_A) -> Ho
     if e.name == "thruster_lag":
         T = e.params["T_lag_s"]
         return Hooks(input_filter=lambda f, dt: pfx.first_order_lag(f, dt, T), order=1)
-    if e.name in ("thruster_deadband", "thruster_asymmetry"):
-        return Hooks(input_filter=lambda f, dt: _stack(pfx.static_thrust(pfx.NUMPY, _comps(f), (e,), f_ref)))
+    if e.name in ("thruster_deadband", "thruster_asymmetry"):  # in the plant's order (pfx.STATIC_MAP_ORDER)
+        return Hooks(input_filter=lambda f, dt: _stack(pfx.static_thrust(pfx.NUMPY, _comps(f), (e,), f_ref)),
+                     order=pfx.STATIC_MAP_ORDER[e.name] / len(pfx.STATIC_MAP_ORDER))
     if e.name == "thrust_inflow_loss":
         def inflow_force(x, f, ctx):
             fa = _stack(pfx.inflow_loss(pfx.NUMPY, _comps(f), _comps(x)[6:], (e,), inflow, f_ref))
