@@ -37,8 +37,8 @@ What it shows (seeds 1 and 2; 17 s of CPU, 36-80 s on a shared machine):
   scale_Xu|u| = 0.075 also adds surge drag); ``simulate --windows 0.5`` with the corrected file gives the report's
   gap_after to all six decimals;
 * designed on the corrected model, flown on the corrected plant: LQR tracks the 1.8 m/s transit better (IAE_u 1.91
-  vs 2.86 m) and the standard mission slightly better (IAE 1.41 vs 1.48); linear MPC too (IAE_u 4.6 vs 8.3 m; it
-  plans within the thrust limits, so it spends more energy reaching the speed); PID tumbles in pitch at 1.8 m/s
+  vs 2.86 m) and the standard mission slightly better (IAE 1.41 vs 1.48); linear MPC too (IAE_u 4.6 vs 8.3 m: it
+  reaches 1.48 m/s where the nominal design stalls at 1.11, spending more energy); PID tumbles in pitch at 1.8 m/s
   with either design: its per-axis loops do not see the Munk coupling of surge, heave and pitch, which no
   correction of the surge effects changes. The corrected designs use more energy at speed: the cable and the
   thrust loss cost thrust the nominal design did not plan for.

@@ -133,6 +133,10 @@ def _run(args, space, evaluator, inputs) -> int:
     with warnings.catch_warnings(), SweepExecutor(workers=args.workers, scheduler=args.scheduler) as ex:
         warnings.filterwarnings("ignore", message="Sobol study:")  # printed below as "warning: ..."
         print(f"executor: {ex.describe()}")
+        slow = getattr(evaluator, "runtime_effects", ())
+        if slow:
+            print(f"model effects simulated at run time ({', '.join(slow)}): each sample flies alone in the numpy "
+                  f"simulator (the batched kernels hold the nominal equations), about 1 s of CPU per mission")
         if args.method == "local":
             res = local_sensitivity(evaluator, space, executor=ex, out=args.out, resume=args.resume,
                                     progress=progress)
