@@ -251,8 +251,8 @@ def case(seed=0, n_fit=4, n_holdout=2, log=None):
                                 95))
     truth = GapRatioTruth().matters_below(speed)
     fitted = wall.get("matters_below", {}).get("per_surface", {})
-    return {"report": report, "wall_effect": wall, "truth_matters_below": truth, "fitted_matters_below": fitted,
-            "speed95_mps": speed, "elapsed_s": elapsed,
+    return {"report": report, "runs": runs, "n_fit": n_fit, "wall_effect": wall, "truth_matters_below": truth,
+            "fitted_matters_below": fitted, "speed95_mps": speed, "elapsed_s": elapsed,
             "significant": [e["name"] for e in report["effects"] if e["significant"]]}
 
 

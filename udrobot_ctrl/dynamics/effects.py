@@ -32,7 +32,9 @@ the plant in one of three ways:
                      (``cable_azimuth_rad`` from north, ``cable_elevation_rad`` above the horizontal)
   ``water_current``  damping and added-mass Coriolis act on nu_r = nu - [R^T v_c; 0] (v_c NED, m/s)
   ``wall_effect``    near a plane at distance h: added mass a_m exp(-h/lam) n n^T and suction
-                     -a_s exp(-h/lam) |V_t|^2 n; the plane is the seabed at ``seabed_depth_m`` (NED z).
+                     -a_s exp(-h/lam) |V_t|^2 n, summed over the planes: the seabed at ``seabed_depth_m`` (NED z)
+                     and up to four walls ``wall1_point_n_m`` ... ``wall1_normal_d`` (a point of the plane, NED m,
+                     and its normal into the water) -- at least one plane.
 
 Each term is written once with the elementary functions of a backend (:class:`Backend`: numpy arrays of any
 batch shape, or casadi expressions), so the numpy plant, its casadi twin and the diagnoser evaluate the same
@@ -83,6 +85,10 @@ class EffectKind:
     optional: tuple = ()
 
 
+WALL_SLOTS = 4  # walls a wall_effect may list besides the seabed
+WALL_KEYS = ("point_n_m", "point_e_m", "point_d_m", "normal_n", "normal_e", "normal_d")
+WALL_PARAMETERS = tuple(f"wall{i}_{k}" for i in range(1, WALL_SLOTS + 1) for k in WALL_KEYS)
+
 CATALOGUE = {k.name: k for k in (
     EffectKind("thrust_inflow_loss", "thrust falls with the axial inflow speed through the thruster", "thrust",
                ("k1_per_mps", "k2_per_mps")),
@@ -93,8 +99,9 @@ CATALOGUE = {k.name: k for k in (
     EffectKind("thruster_lag", "thrust follows the command with a first-order lag", "lag", ("T_lag_s",)),
     EffectKind("tether_drag", "umbilical cross-flow drag, normal to the cable", "force",
                ("k_quadratic_N_s2_per_m2", "k_linear_N_s_per_m", "cable_azimuth_rad", "cable_elevation_rad")),
-    EffectKind("wall_effect", "extra added mass and suction near the seabed", "force",
-               ("decay_length_m", "added_mass_at_contact_kg", "suction_N_s2_per_m2", "seabed_depth_m")),
+    EffectKind("wall_effect", "extra added mass and suction near the seabed or a wall", "force",
+               ("decay_length_m", "added_mass_at_contact_kg", "suction_N_s2_per_m2"),
+               optional=("seabed_depth_m",) + WALL_PARAMETERS),
     EffectKind("water_current", "steady current; damping on the velocity relative to the water", "force",
                ("current_north_mps", "current_east_mps", "current_down_mps")),
     EffectKind("linear_damping", "linear damping missing or wrong", "parameters",
@@ -171,7 +178,42 @@ def plant_effect(doc, where: str = "effects[0]") -> PlantEffect:
         raise ValueError(f"{where}.params.T_lag_s: must be > 0 s, got {params['T_lag_s']}")
     if name == "wall_effect" and params["decay_length_m"] <= 0:
         raise ValueError(f"{where}.params.decay_length_m: must be > 0 m, got {params['decay_length_m']}")
+    if name == "wall_effect":
+        _check_walls(params, where)
     return PlantEffect(name, params)
+
+
+def _check_walls(params, where):
+    """A wall_effect names at least one plane; each wall gives all six numbers and a non-zero normal."""
+    walls = 0
+    for i in range(1, WALL_SLOTS + 1):
+        given = [k for k in WALL_KEYS if f"wall{i}_{k}" in params]
+        if given and len(given) < len(WALL_KEYS):
+            missing = ", ".join(f"wall{i}_{k}" for k in WALL_KEYS if k not in given)
+            raise ValueError(f"{where}: wall {i} of effect 'wall_effect' misses {missing} (a wall is a point "
+                             f"wall{i}_point_n_m/_e_m/_d_m and a normal wall{i}_normal_n/_e/_d into the water)")
+        if given:
+            if math.hypot(*(params[f"wall{i}_normal_{c}"] for c in "ned")) < 1e-9:
+                raise ValueError(f"{where}.params: wall{i}_normal_n/_e/_d is zero; give the normal into the water")
+            walls += 1
+    if walls == 0 and "seabed_depth_m" not in params:
+        raise ValueError(f"{where}: effect 'wall_effect' needs a plane: seabed_depth_m (NED z of the seabed, m) "
+                         f"and/or a wall (wall1_point_n_m ... wall1_normal_d)")
+
+
+def wall_parameters(walls, first: int = 1) -> dict:
+    """Flat ``wall<i>_...`` parameters of walls given as ``{"point": [n, e, d], "normal": [n, e, d]}`` (the run-log
+    sidecar's form), numbered from ``first``; at most :data:`WALL_SLOTS` walls in all."""
+    out = {}
+    for j, wall in enumerate(walls):
+        i = first + j
+        if i > WALL_SLOTS:
+            raise ValueError(f"wall_effect holds at most {WALL_SLOTS} walls, got {first - 1 + len(walls)}")
+        for c, v in zip("ned", wall["point"]):
+            out[f"wall{i}_point_{c}_m"] = float(v)
+        for c, v in zip("ned", wall["normal"]):
+            out[f"wall{i}_normal_{c}"] = float(v)
+    return out
 
 
 def parse_effects(docs, source: str = "<model>") -> tuple:
@@ -431,16 +473,35 @@ def surface_added_mass(be, eta, nu, h, normal_ned, q):
     return tuple(tuple(a * nb[i] * nb[j] if i < 3 and j < 3 else zero for j in range(6)) for i in range(6))
 
 
-def _seabed_distance(eta, q):
-    return q["seabed_depth_m"] - eta[2]
+def wall_planes(q) -> list:
+    """The planes of a wall_effect's parameters ``q``: (point (3,), unit normal (3,)) in NED, m; the seabed first
+    (point (0, 0, seabed_depth_m), normal up), then the walls in their order."""
+    out = []
+    if "seabed_depth_m" in q:
+        out.append(((0.0, 0.0, q["seabed_depth_m"]), SEABED_NORMAL))
+    for i in range(1, WALL_SLOTS + 1):
+        if f"wall{i}_normal_n" in q:
+            n = [q[f"wall{i}_normal_{c}"] for c in "ned"]
+            norm = math.sqrt(sum(c * c for c in n))
+            out.append((tuple(q[f"wall{i}_point_{c}_m"] for c in "ned"), tuple(c / norm for c in n)))
+    return out
+
+
+def plane_distance(eta, point, normal):
+    """Distance (m) of the body origin from a plane, positive on the water side: (eta[:3] - point) . normal."""
+    return sum((eta[k] - point[k]) * normal[k] for k in range(3) if normal[k] != 0.0)
 
 
 def added_mass_increment(be, eta, nu, effects):
     """Extra added mass (6 x 6 nested tuples, kg) of the position-dependent effects, or None."""
+    total = None
     for e in effects:
         if e.name == "wall_effect":
-            return surface_added_mass(be, eta, nu, _seabed_distance(eta, e.params), SEABED_NORMAL, e.params)
-    return None
+            for point, normal in wall_planes(e.params):
+                term = surface_added_mass(be, eta, nu, plane_distance(eta, point, normal), normal, e.params)
+                total = term if total is None else tuple(tuple(a + b for a, b in zip(ra, rb))
+                                                         for ra, rb in zip(total, term))
+    return total
 
 
 def relative_velocity(be, eta, nu, effects):
@@ -460,7 +521,10 @@ def external_force(be, eta, nu, effects):
         if e.name == "tether_drag":
             term = _tether(be, eta, nu, e.params)
         elif e.name == "wall_effect":
-            term = surface_suction(be, eta, nu, _seabed_distance(eta, e.params), SEABED_NORMAL, e.params)
+            term = None
+            for point, normal in wall_planes(e.params):
+                one = surface_suction(be, eta, nu, plane_distance(eta, point, normal), normal, e.params)
+                term = one if term is None else tuple(a + b for a, b in zip(term, one))
         else:
             continue
         total = term if total is None else tuple(a + b for a, b in zip(total, term))

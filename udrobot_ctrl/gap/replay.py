@@ -9,11 +9,11 @@ the same two functions on the same prepared runs (:func:`udrobot_ctrl.gap.data.p
 runs of a report with the corrected model its ``--out-model`` wrote gives the report's ``gap_after`` (up to the
 6-decimal rounding of the parameters in the files), and with the nominal model its ``gap_before``.
 
-One difference is deliberate: a ``wall_effect`` acts on the plane the *model* defines (the seabed at
-``seabed_depth_m``, distance ``seabed_depth_m - z`` from the simulated depth), as the plant simulates it, where
-the diagnoser uses the run's measured surfaces (logged altitude, sidecar walls). A corrected model's seabed depth
-is the median of the runs' z + altitude, so the two differ by the altitude noise and by any side wall of the
-sidecar, which the plant's wall effect does not hold.
+One difference is deliberate: a ``wall_effect`` acts on the planes the *model* defines (the seabed at
+``seabed_depth_m`` and its walls, the distance moving with the simulated position), as the plant simulates them,
+where the diagnoser uses the run's measured surfaces (logged altitude, sidecar walls). A corrected model holds the
+sidecar walls and, as its seabed depth, the median of the runs' z + altitude, so the two differ by the altitude
+noise (and the seabed's unevenness) only.
 """
 from __future__ import annotations
 
@@ -22,7 +22,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from udrobot_ctrl.dynamics.effects import SEABED_NORMAL
+from udrobot_ctrl.dynamics.effects import wall_planes
 from udrobot_ctrl.dynamics.plant import plant_parameters
 from udrobot_ctrl.gap.data import Prepared, prepare
 from udrobot_ctrl.gap.effects import plant_hooks
@@ -81,14 +81,15 @@ class WindowedGap:
 
 
 def model_surfaces(effects, prep: Prepared) -> list:
-    """The planes of the model's ``wall_effect`` as :class:`Prepared` surfaces (distance from the logged pose,
-    unit normal into the water, label); empty without one. The replay moves the distance with the simulated
-    position, so the plane is the model's, not the run's."""
+    """The planes of the model's ``wall_effect`` as :class:`Prepared` surfaces (distance (n,) m from the logged
+    pose, unit normal into the water (3,), label); empty without one. The replay moves the distance with the
+    simulated position, so the planes are the model's, not the run's."""
     out = []
     for e in effects:
         if e.name == "wall_effect":
-            out.append((e.params["seabed_depth_m"] - prep.eta[:, 2], np.asarray(SEABED_NORMAL, float),
-                        "seabed (model)"))
+            for k, (point, normal) in enumerate(wall_planes(e.params)):  # the seabed first, when given
+                n = np.asarray(normal, float)
+                out.append(((prep.eta[:, :3] - np.asarray(point, float)) @ n, n, f"plane {k} of the model"))
     return out
 
 

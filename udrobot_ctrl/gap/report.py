@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from udrobot_ctrl.dynamics.effects import plant_effect
+from udrobot_ctrl.dynamics.effects import plant_effect, wall_parameters
 from udrobot_ctrl.dynamics.plant import plant_parameters, require_nominal
 from udrobot_ctrl.gap import effects as fx
 from udrobot_ctrl.gap.attribute import (
@@ -126,7 +126,8 @@ def wall_distances(params, surfaces, eta, p, speed):
 
 
 def seabed_depth(runs) -> float | None:
-    """Median NED depth of the seabed (z + altitude, m) over the runs that log both, or None."""
+    """Median NED depth of the seabed (z + altitude, m) over the runs that log both; else the sidecars'
+    ``seabed_depth`` (their median); else None."""
     values = []
     for r in runs:
         z, alt = r.channels.get("z"), r.channels.get("altitude")
@@ -134,7 +135,24 @@ def seabed_depth(runs) -> float | None:
             s = np.asarray(z, float) + np.asarray(alt, float)
             values.append(s[np.isfinite(s)])
     values = np.concatenate(values) if values else np.zeros(0)
-    return float(np.median(values)) if values.size else None
+    if values.size:
+        return float(np.median(values))
+    meta = [float(r.metadata["seabed_depth"]) for r in runs if (r.metadata or {}).get("seabed_depth") is not None]
+    return float(np.median(meta)) if meta else None
+
+
+def run_walls(runs) -> list:
+    """The distinct walls of the runs' sidecars (``walls``: point and normal, NED), in order of appearance, of the
+    runs that log x and y (the diagnosis places walls only where the position is known)."""
+    out = []
+    for r in runs:
+        if not all(c in r.channels and np.isfinite(r.channels[c]).any() for c in ("x", "y")):
+            continue
+        for w in (r.metadata or {}).get("walls", []) or []:
+            wall = {"point": [float(v) for v in w["point"]], "normal": [float(v) for v in w["normal"]]}
+            if wall not in out:
+                out.append(wall)
+    return out
 
 
 def corrected_model(model, report, runs=()):
@@ -147,7 +165,8 @@ def corrected_model(model, report, runs=()):
     report : dict
         A ``udrobot-diagnosis/1`` report.
     runs : sequence of Run
-        The diagnosed runs (a significant ``wall_effect`` takes the seabed depth from their z + altitude).
+        The diagnosed runs (a significant ``wall_effect`` takes the seabed depth from their z + altitude, or their
+        sidecars' ``seabed_depth``, and the walls of their sidecars).
 
     Returns
     -------
@@ -161,7 +180,7 @@ def corrected_model(model, report, runs=()):
     Raises
     ------
     ValueError
-        If a significant effect cannot be placed in the plant (a wall effect without a logged seabed).
+        If a significant effect cannot be placed in the plant (a wall effect without a seabed or a wall).
     """
     vehicle = load_model(model)
     added, not_placed = [], {}
@@ -173,12 +192,15 @@ def corrected_model(model, report, runs=()):
                                      "components, which the plant's thrusters do not expose; fit it on thrust or "
                                      "pwm runs to place it")
             continue
-        if e["name"] == "wall_effect":
-            depth = seabed_depth(runs)
-            if depth is None:
-                raise ValueError("wall_effect is significant but the runs log no altitude, so the seabed depth the "
-                                 "corrected plant needs is unknown; add a seabed_depth_m to the effect by hand")
-            params["seabed_depth_m"] = depth
+        if e["name"] == "wall_effect":  # the planes the diagnosis saw: the seabed and the sidecar walls
+            depth, walls = seabed_depth(runs), run_walls(runs)
+            if depth is None and not walls:
+                raise ValueError("wall_effect is significant but the runs give neither an altitude or seabed_depth "
+                                 "nor walls, so the planes the corrected plant needs are unknown; add a "
+                                 "seabed_depth_m (or a wall) to the effect by hand")
+            if depth is not None:
+                params["seabed_depth_m"] = depth
+            params.update(wall_parameters(walls))
         added.append(plant_effect({"name": e["name"], "params": params}, f"report effects[{i}] ({e['name']})"))
     prov = dict(vehicle.provenance)
     for e in added:

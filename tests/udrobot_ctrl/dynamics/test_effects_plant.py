@@ -20,7 +20,7 @@ EXAMPLES = {
     "tether_drag": {"k_quadratic_N_s2_per_m2": 20.0, "k_linear_N_s_per_m": 2.0, "cable_azimuth_rad": 2.5,
                     "cable_elevation_rad": 0.4},
     "wall_effect": {"decay_length_m": 0.2, "added_mass_at_contact_kg": 8.0, "suction_N_s2_per_m2": 30.0,
-                    "seabed_depth_m": 2.0},
+                    "seabed_depth_m": 2.0, **fx.wall_parameters([{"point": [0.0, 0.5, 0.0], "normal": [0, -2.0, 0]}])},
     "water_current": {"current_north_mps": 0.2, "current_east_mps": -0.1, "current_down_mps": 0.02},
     "linear_damping": {f"d_{d}{v}": 3.0 for d, v in zip(fx.DOF, fx.VEL)},
     "quadratic_damping_error": {f"scale_{d}{v}|{v}|": 0.5 for d, v in zip(fx.DOF, fx.VEL)},
@@ -122,6 +122,28 @@ def test_wall_effect_adds_mass_and_suction_only_near_the_seabed():
         assert (F[2] > 0.5) == expect  # suction pulls down (+z) towards the seabed
 
 
+def test_a_side_wall_adds_mass_along_its_normal_and_pulls_a_vehicle_gliding_along_it():
+    """Wall plane y = 0.5 m, water on y < 0.5 (normal given unnormalised): 2 cm from it, surging at 0.5 m/s, the
+    vehicle gets a_m e^(-h/lam) of sway added mass and a_s e^(-h/lam) u^2 of suction towards +y; 2 m from it
+    (10 decay lengths), nothing."""
+    q = EXAMPLES["wall_effect"]
+    p = plant_parameters(_with("wall_effect"))
+    for y, expect in ((0.48, True), (-1.5, False)):
+        x = np.zeros(12)
+        x[1], x[2], x[6] = y, 0.5, 0.5
+        X = x[:, None]
+        dM = np.array([[float(np.ravel(c)[0]) for c in row] for row in fx.added_mass_increment(fx.NUMPY, X[:6],
+                                                                                             X[6:], p.effects)])
+        F = np.ravel(fx.external_force(fx.NUMPY, X[:6], X[6:], p.effects))
+        decay = np.exp(-(0.5 - y) / q["decay_length_m"])  # the seabed acts along z only
+        if expect:
+            assert dM[1, 1] == pytest.approx(q["added_mass_at_contact_kg"] * decay, rel=1e-9)
+            assert F[1] == pytest.approx(q["suction_N_s2_per_m2"] * decay * 0.25, rel=1e-9)
+        else:
+            assert dM[1, 1] < 1e-3 and abs(F[1]) < 1e-3
+        assert dM[0, 0] == pytest.approx(0.0, abs=1e-12)  # nothing along the wall
+
+
 def test_deadband_and_asymmetry_shape_the_delivered_thrust():
     db = (fx.PlantEffect("thruster_deadband", EXAMPLES["thruster_deadband"]),)
     ref = np.full(2, 30.0)
@@ -158,6 +180,10 @@ def test_model_file_round_trips_effects(tmp_path):
     ({"name": "buoyancy_offset", "params": {}}, "misses parameter"),
     ({"name": "buoyancy_offset", "params": {"dB_N": "3"}}, "finite number"),
     ({"name": "thruster_lag", "params": {"T_lag_s": -1.0}}, "must be > 0"),
+    ({"name": "wall_effect", "params": {"decay_length_m": 0.2, "added_mass_at_contact_kg": 1.0,
+                                        "suction_N_s2_per_m2": 1.0}}, "needs a plane"),
+    ({"name": "wall_effect", "params": {"decay_length_m": 0.2, "added_mass_at_contact_kg": 1.0,
+                                        "suction_N_s2_per_m2": 1.0, "wall1_point_n_m": 0.0}}, "misses wall1_point_e_m"),
 ])
 def test_bad_effects_are_refused_naming_the_entry(tmp_path, entry, message):
     doc = to_model_dict(NOMINAL)

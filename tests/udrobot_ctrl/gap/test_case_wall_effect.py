@@ -50,3 +50,19 @@ def test_distance_below_which_it_matters(result):
     assert fitted["wall 0"]["matters_below_m"] == pytest.approx(truth["wall 0"]["matters_below_m"], rel=0.35)
     assert result["wall_effect"]["matters_below_m"] == pytest.approx(
         max(v["matters_below_m"] for v in fitted.values()))
+
+
+def test_corrected_model_holds_the_seabed_and_the_wall_and_replays_gap_after(result, wall):
+    """The corrected plant's wall_effect acts on the planes the diagnosis saw (the sidecar's seabed depth and wall),
+    so the windowed replay of the holdout passes with it is the report's gap_after, to its 6-decimal rounding."""
+    from udrobot_ctrl.dynamics.effects import wall_planes
+    from udrobot_ctrl.gap.replay import windowed_gap
+    from udrobot_ctrl.gap.report import corrected_model
+
+    report, runs, n_fit = result["report"], result["runs"], result["n_fit"]
+    vehicle, not_placed = corrected_model(wall.MODEL, report, runs)
+    assert not_placed == {}
+    planes = wall_planes(next(e for e in vehicle.effects if e.name == "wall_effect").params)
+    assert planes == [((0.0, 0.0, wall.SEABED), (0.0, 0.0, -1.0)), ((0.0, wall.WALL_Y, 0.0), (0.0, -1.0, 0.0))]
+    g = windowed_gap(vehicle, runs[n_fit:], 8.0)
+    assert g.value == pytest.approx(report["gap_after"]["value"], abs=2e-6)
