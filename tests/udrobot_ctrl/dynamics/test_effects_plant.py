@@ -154,6 +154,25 @@ def test_deadband_and_asymmetry_shape_the_delivered_thrust():
     assert float(out[0]) == pytest.approx(-7.0) and float(out[1]) == 10.0
 
 
+def test_deadband_acts_before_the_reverse_loss_whatever_the_list_order():
+    """-4 N with a 3 N shifted deadband and a 50 % reverse loss: (-4 + 3) x 0.5 = -0.5 N (deadband first); the other
+    order would give -4 x 0.5 = -2 -> inside the deadband -> 0. The plant and the diagnoser's replay hooks agree."""
+    from udrobot_ctrl.gap.effects import plant_hooks
+
+    db = fx.PlantEffect("thruster_deadband", EXAMPLES["thruster_deadband"])
+    asym = fx.PlantEffect("thruster_asymmetry", {"reverse_loss": 0.5})
+    ref = np.full(1, 30.0)
+    for effects in ((db, asym), (asym, db)):
+        assert float(fx.static_thrust(fx.NUMPY, [np.array(-4.0)], effects, ref)[0]) == pytest.approx(-0.5)
+        p = plant_parameters(NOMINAL)
+        hooks = sorted((plant_hooks(e, p, np.eye(6)[:, :1], np.eye(6)[:, :1], ref, p.M_A) for e in effects),
+                       key=lambda h: h.order)
+        f = np.array([[-4.0]])
+        for h in hooks:
+            f = h.input_filter(f, 0.05)
+        assert float(f[0, 0]) == pytest.approx(-0.5)
+
+
 def test_thruster_lag_delays_the_response_by_its_time_constant():
     T = 0.5
     lagged = _with("thruster_lag").with_changes(effects=(fx.PlantEffect("thruster_lag", {"T_lag_s": T}),))
