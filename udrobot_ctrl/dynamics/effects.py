@@ -28,8 +28,10 @@ the plant in one of three ways:
 
 * **force** -- an external or velocity-dependent force (:func:`external_force`):
 
-  ``tether_drag``    F_ned = -(k_q |V_n| + k_l) V_n, V_n the NED velocity normal to a cable of direction e
-                     (``cable_azimuth_rad`` from north, ``cable_elevation_rad`` above the horizontal)
+  ``tether_drag``    F_ned = -(k_q |V_n| + k_l) V_n, V_n the NED velocity normal to the cable's direction e: from
+                     the vehicle towards a fixed anchor (``anchor_north_m anchor_east_m anchor_down_m``, the frame
+                     of the logged x y z), or along a fixed direction (``cable_azimuth_rad`` from north,
+                     ``cable_elevation_rad`` above the horizontal; the limit of an anchor far away)
   ``water_current``  damping and added-mass Coriolis act on nu_r = nu - [R^T v_c; 0] (v_c NED, m/s)
   ``wall_effect``    near a plane at distance h: added mass a_m exp(-h/lam) n n^T and suction
                      -a_s exp(-h/lam) |V_t|^2 n; the plane is the seabed at ``seabed_depth_m`` (NED z).
@@ -83,6 +85,11 @@ class EffectKind:
     optional: tuple = ()
 
 
+#: the tether's cable geometry: an anchor (NED position, m, in the frame of the logged x y z) or, for model files
+#: written before anchors, a fixed direction (rad)
+TETHER_ANCHOR = ("anchor_north_m", "anchor_east_m", "anchor_down_m")
+TETHER_FIXED_DIRECTION = ("cable_azimuth_rad", "cable_elevation_rad")
+
 CATALOGUE = {k.name: k for k in (
     EffectKind("thrust_inflow_loss", "thrust falls with the axial inflow speed through the thruster", "thrust",
                ("k1_per_mps", "k2_per_mps")),
@@ -92,7 +99,8 @@ CATALOGUE = {k.name: k for k in (
                ("reverse_loss",), alternatives=(_per_dof("reverse_loss"),)),
     EffectKind("thruster_lag", "thrust follows the command with a first-order lag", "lag", ("T_lag_s",)),
     EffectKind("tether_drag", "umbilical cross-flow drag, normal to the cable", "force",
-               ("k_quadratic_N_s2_per_m2", "k_linear_N_s_per_m", "cable_azimuth_rad", "cable_elevation_rad")),
+               ("k_quadratic_N_s2_per_m2", "k_linear_N_s_per_m") + TETHER_ANCHOR,
+               alternatives=(("k_quadratic_N_s2_per_m2", "k_linear_N_s_per_m") + TETHER_FIXED_DIRECTION,)),
     EffectKind("wall_effect", "extra added mass and suction near the seabed", "force",
                ("decay_length_m", "added_mass_at_contact_kg", "suction_N_s2_per_m2", "seabed_depth_m")),
     EffectKind("water_current", "steady current; damping on the velocity relative to the water", "force",
@@ -164,8 +172,12 @@ def plant_effect(doc, where: str = "effects[0]") -> PlantEffect:
         if key not in allowed:
             raise ValueError(f"{where}: effect {name!r} has no parameter {key!r}{_suggest(key, allowed)}; "
                              f"expected {', '.join(kind.parameters) or ', '.join(kind.optional[:4]) + ', ...'}")
+    if name == "tether_drag" and set(TETHER_ANCHOR) & set(params) and set(TETHER_FIXED_DIRECTION) & set(params):
+        raise ValueError(f"{where}: effect 'tether_drag' takes either an anchor ({', '.join(TETHER_ANCHOR)}) or a "
+                         f"fixed cable direction ({', '.join(TETHER_FIXED_DIRECTION)}), not both")
     if not any(set(s) <= set(params) for s in sets):
-        missing = sorted(set(kind.parameters) - set(params))
+        closest = max(sets, key=lambda c: len(set(c) & set(params)))  # the set the entry started to give
+        missing = sorted(set(closest) - set(params))
         raise ValueError(f"{where}: effect {name!r} misses parameter(s) {', '.join(missing)}")
     if name == "thruster_lag" and params["T_lag_s"] <= 0:
         raise ValueError(f"{where}.params.T_lag_s: must be > 0 s, got {params['T_lag_s']}")
@@ -375,6 +387,7 @@ def first_order_lag(f, dt, T, f0=None):
 
 # ----------------------------------------------------------------------------------------- forces
 TETHER_SPEED_FLOOR = 1e-4  # m/s
+ANCHOR_DISTANCE_FLOOR = 1e-3  # m
 
 
 def cable_direction(azimuth, elevation):
@@ -384,8 +397,35 @@ def cable_direction(azimuth, elevation):
     return (ce * math.cos(azimuth), ce * math.sin(azimuth), -math.sin(elevation))
 
 
-def _tether(be, eta, nu, q):
-    e = cable_direction(q["cable_azimuth_rad"], q["cable_elevation_rad"])
+def anchor_direction(be, position, anchor):
+    """Unit NED vector (3 components) from the vehicle at ``position`` (NED, m) towards the tether's ``anchor``.
+
+    The distance carries a floor of ``ANCHOR_DISTANCE_FLOOR`` under the root, so the direction stays finite (and
+    smooth) with the vehicle on the anchor; it is off by less than 1e-6 relative 1 m away.
+    """
+    d = tuple(anchor[i] - position[i] for i in range(3))
+    inv = 1.0 / be.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2] + ANCHOR_DISTANCE_FLOOR ** 2)
+    return tuple(d[i] * inv for i in range(3))
+
+
+def tether_direction(be, eta, q):
+    """Unit NED vector from the vehicle along its tether for the parameters ``q`` of a ``tether_drag`` effect:
+    towards the anchor (``anchor_north_m anchor_east_m anchor_down_m``; it turns as the vehicle moves) or, without
+    an anchor, the fixed direction (``cable_azimuth_rad cable_elevation_rad``: an anchor infinitely far away)."""
+    if TETHER_ANCHOR[0] in q:
+        return anchor_direction(be, eta[:3], tuple(q[k] for k in TETHER_ANCHOR))
+    return cable_direction(q["cable_azimuth_rad"], q["cable_elevation_rad"])
+
+
+def tether_force(be, eta, nu, q):
+    """Cross-flow drag of the tether (6 components, N, body frame, at the body origin).
+
+    F_ned = -(k_q |V_n| + k_l) V_n with V_n = V - (V.e) e the vehicle's NED velocity normal to the cable and e
+    its direction from the vehicle (:func:`tether_direction`): the water resists motion across the cable, not
+    along it. Linear in (``k_quadratic_N_s2_per_m2``, ``k_linear_N_s_per_m``): the diagnoser's regressors are
+    this function at (1, 0) and (0, 1).
+    """
+    e = tether_direction(be, eta, q)
     R = _rotation(be, eta)
     v = _to_ned(R, nu)
     along = v[0] * e[0] + v[1] * e[1] + v[2] * e[2]
@@ -453,7 +493,7 @@ def external_force(be, eta, nu, effects):
     total = None
     for e in effects:
         if e.name == "tether_drag":
-            term = _tether(be, eta, nu, e.params)
+            term = tether_force(be, eta, nu, e.params)
         elif e.name == "wall_effect":
             term = surface_suction(be, eta, nu, _seabed_distance(eta, e.params), SEABED_NORMAL, e.params)
         else:
