@@ -147,12 +147,11 @@ class Truth:
             vec = x[:, :3] - anchor
             L = np.linalg.norm(vec, axis=1, keepdims=True)
             eh = vec / L
-            tot = np.zeros((R_, 3))
-            for s in (np.arange(20) + 0.5) / 20:
-                ve = a_dot + s * (vned - a_dot)
-                vn = ve - np.sum(ve * eh, 1, keepdims=True) * eh
-                dF = -0.5 * RHO * c["cd"] * c["d"] * (L / 20) * np.linalg.norm(vn, axis=1, keepdims=True) * vn
-                tot += s * dF
+            s = ((np.arange(20) + 0.5) / 20)[None, :, None]  # 20 nodes from the anchor (0) to the vehicle (1)
+            ve = a_dot[:, None] + s * (vned - a_dot)[:, None]
+            vn = ve - np.sum(ve * eh[:, None], -1, keepdims=True) * eh[:, None]
+            dF = -0.5 * RHO * c["cd"] * c["d"] * (L[:, None] / 20) * np.linalg.norm(vn, axis=-1, keepdims=True) * vn
+            tot = np.sum(s * dF, axis=1)
             F[:, :3] += np.einsum("nji,nj->ni", Rm, tot)
         if "wall_effect" in e:
             c = e["wall_effect"]
