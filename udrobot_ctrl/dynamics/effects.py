@@ -418,25 +418,41 @@ def tether_direction(be, eta, q):
     return cable_direction(q["cable_azimuth_rad"], q["cable_elevation_rad"])
 
 
-def tether_force(be, eta, nu, q):
-    """Cross-flow drag of the tether (6 components, N, body frame, at the body origin).
-
-    F_ned = -(k_q |V_n| + k_l) V_n with V_n = V - (V.e) e the vehicle's NED velocity normal to the cable and e
-    its direction from the vehicle (:func:`tether_direction`): the water resists motion across the cable, not
-    along it. Linear in (``k_quadratic_N_s2_per_m2``, ``k_linear_N_s_per_m``): the diagnoser's regressors are
-    this function at (1, 0) and (0, 1).
-    """
+def tether_cross_flow(be, eta, nu, q):
+    """The rotation R (body to NED), the vehicle's NED velocity normal to the cable V_n = V - (V.e) e (3 components,
+    m/s; e from :func:`tether_direction`) and |V_n| (m/s) with a floor of ``TETHER_SPEED_FLOOR`` under the root:
+    smooth at rest (a finite Jacobian for linearisation); the force changes by less than 1e-8 relative at 1 m/s."""
     e = tether_direction(be, eta, q)
     R = _rotation(be, eta)
     v = _to_ned(R, nu)
     along = v[0] * e[0] + v[1] * e[1] + v[2] * e[2]
     vn = tuple(v[i] - along * e[i] for i in range(3))
-    # |V_n| with a floor of TETHER_SPEED_FLOOR under the root: smooth at rest (finite Jacobian for linearisation),
-    # the force changes by less than 1e-8 relative at 1 m/s
     speed = be.sqrt(vn[0] * vn[0] + vn[1] * vn[1] + vn[2] * vn[2] + TETHER_SPEED_FLOOR ** 2)
-    k = q["k_quadratic_N_s2_per_m2"] * speed + q["k_linear_N_s_per_m"]
-    fb = _to_body(R, tuple(-k * vn[i] for i in range(3)))
-    return (fb[0], fb[1], fb[2], 0.0 * fb[0], 0.0 * fb[0], 0.0 * fb[0])
+    return R, vn, speed
+
+
+def tether_unit_forces(be, eta, nu, q):
+    """The tether force per unit of each amplitude (two 6-component body wrenches, N per N s^2/m^2 and per N s/m):
+    R^T (-|V_n| V_n) and R^T (-V_n), from :func:`tether_cross_flow`. The force is linear in the amplitudes, so
+    these are its derivatives: the diagnoser's regressors."""
+    R, vn, speed = tether_cross_flow(be, eta, nu, q)
+    out = []
+    for k in (speed, 1.0):
+        fb = _to_body(R, tuple(-k * vn[i] for i in range(3)))
+        out.append((fb[0], fb[1], fb[2], 0.0 * fb[0], 0.0 * fb[0], 0.0 * fb[0]))
+    return tuple(out)
+
+
+def tether_force(be, eta, nu, q):
+    """Cross-flow drag of the tether (6 components, N, body frame, at the body origin).
+
+    F_ned = -(k_q |V_n| + k_l) V_n with V_n the vehicle's NED velocity normal to the cable
+    (:func:`tether_cross_flow`): the water resists motion across the cable, not along it; k_q =
+    ``k_quadratic_N_s2_per_m2``, k_l = ``k_linear_N_s_per_m`` times :func:`tether_unit_forces`.
+    """
+    dq, dl = tether_unit_forces(be, eta, nu, q)
+    kq, kl = q["k_quadratic_N_s2_per_m2"], q["k_linear_N_s_per_m"]
+    return tuple(kq * a + kl * b for a, b in zip(dq, dl))
 
 
 SEABED_NORMAL = (0.0, 0.0, -1.0)  # NED; the seabed's normal points up, into the water

@@ -293,18 +293,19 @@ class Lag(Effect):
 
 # ------------------------------------------------------------------------------------------- environment
 def _tether_columns(eta, nu, geometry):
-    """Body-frame generalised force per unit (k_q, k_l) of the tether drag (..., 6, 2): the plant's
-    :func:`udrobot_ctrl.dynamics.effects.tether_force` (linear in both) at (1, 0) and (0, 1), for the cable geometry
-    ``geometry`` (an anchor or a fixed direction, as a model file gives it)."""
-    E, V = _comps(eta), _comps(nu)
-    cols = [_stack(pfx.tether_force(pfx.NUMPY, E, V, {**geometry, "k_quadratic_N_s2_per_m2": kq,
-                                                      "k_linear_N_s_per_m": kl}))
-            for kq, kl in ((1.0, 0.0), (0.0, 1.0))]
-    return np.stack(cols, -1)
+    """Body-frame generalised force per unit (k_q, k_l) of the tether drag (..., 6, 2) for the cable geometry
+    ``geometry`` (an anchor or a fixed direction, as a model file gives it): the plant's own derivatives,
+    :func:`udrobot_ctrl.dynamics.effects.tether_unit_forces`."""
+    return np.stack([_stack(c) for c in pfx.tether_unit_forces(pfx.NUMPY, _comps(eta), _comps(nu), geometry)], -1)
 
 
 #: an anchor this far (m) from the runs is a fixed cable direction (the old template) to within 1e-3 rad
 FAR_ANCHOR_M = 1000.0
+#: near anchors searched on a lattice at the surface over the runs' area plus this margin (m), spaced at least
+#: ANCHOR_SPACING_M (m) and at most ANCHOR_LATTICE_MAX intervals along the longer side (the search cost)
+ANCHOR_MARGIN_M = 3.0
+ANCHOR_SPACING_M = 2.0
+ANCHOR_LATTICE_MAX = 7
 
 
 class TetherDrag(Effect):
@@ -315,22 +316,24 @@ class TetherDrag(Effect):
     depth z); the direction turns as the vehicle goes around the pool, so surge in one place becomes sway or heave
     drag in another -- the signature that separates it from per-axis damping errors and from an inflow loss.
 
-    The shape is searched where the data are (:meth:`search_space`): anchors at the surface around and above the
-    runs' area, and anchors ``FAR_ANCHOR_M`` away (straight up, or at 15/45 deg elevation towards eight headings),
-    which are fixed cable directions (a surface float trailing the vehicle, a cable straight up); the best is
-    refined locally. The lumped amplitudes do not grow with the distance to the anchor: the paid-out length,
+    The shape is searched where the data are (:meth:`search_space`): anchors at the surface on a lattice over the
+    runs' area and its margin, on a ring beyond it, and anchors ``FAR_ANCHOR_M`` away (straight up, or at 15/45
+    deg elevation towards eight headings), which are fixed cable directions (a surface float trailing the vehicle,
+    a cable straight up); the best is refined locally (Nelder-Mead, steps of 30 % of the anchor's distance). The lumped amplitudes do not grow with the distance to the anchor: the paid-out length,
     not the straight-line distance, sets the drag of a cable that is not taut.
     """
 
     def search_space(self, s):
         xy = s.eta[:, :2]
-        c = np.median(xy, axis=0)
-        radius = max(1.0, float(np.percentile(np.hypot(*(xy - c).T), 95)))
+        lo, hi = np.percentile(xy, 1, axis=0) - ANCHOR_MARGIN_M, np.percentile(xy, 99, axis=0) + ANCHOR_MARGIN_M
+        spacing = max(ANCHOR_SPACING_M, float(np.max(hi - lo)) / ANCHOR_LATTICE_MAX)
+        axes = [np.linspace(a, b, int(np.ceil((b - a) / spacing)) + 1) for a, b in zip(lo, hi)]
         z_top = 0.0  # anchors at the water surface (z = 0 in NED): a deck, a boat, a handler
+        grid = [(n, e, z_top) for n in axes[0] for e in axes[1]]
+        c = np.median(xy, axis=0)
         heads = np.radians(np.arange(0, 360, 45))
-        grid = [(c[0], c[1], z_top)]
-        for rho in (radius + 2.0, 3.0 * radius + 6.0):
-            grid += [(c[0] + rho * np.cos(h), c[1] + rho * np.sin(h), z_top) for h in heads]
+        rho = 3.0 * float(np.max(hi - lo))  # a deck beyond the area covered
+        grid += [(c[0] + rho * np.cos(h), c[1] + rho * np.sin(h), z_top) for h in heads]
         zc = float(np.median(s.eta[:, 2]))
         grid.append((c[0], c[1], zc - FAR_ANCHOR_M))
         for el in np.radians((15.0, 45.0)):
