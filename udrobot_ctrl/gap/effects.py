@@ -319,8 +319,9 @@ class TetherDrag(Effect):
     The shape is searched where the data are (:meth:`search_space`): anchors at the surface on a lattice over the
     runs' area and its margin, on a ring beyond it, and anchors ``FAR_ANCHOR_M`` away (straight up, or at 15/45
     deg elevation towards eight headings), which are fixed cable directions (a surface float trailing the vehicle,
-    a cable straight up); the best is refined locally (Nelder-Mead, steps of 30 % of the anchor's distance). The lumped amplitudes do not grow with the distance to the anchor: the paid-out length,
-    not the straight-line distance, sets the drag of a cable that is not taut.
+    a cable straight up); the best is refined locally (Nelder-Mead, steps of 30 % of the anchor's distance). The
+    lumped amplitudes do not grow with the distance to the anchor: the paid-out length, not the straight-line
+    distance, sets the drag of a cable that is not taut.
     """
 
     def search_space(self, s):
