@@ -299,7 +299,8 @@ def _tether_columns(eta, nu, geometry):
     return np.stack([_stack(c) for c in pfx.tether_unit_forces(pfx.NUMPY, _comps(eta), _comps(nu), geometry)], -1)
 
 
-#: an anchor this far (m) from the runs is a fixed cable direction (the old template) to within 1e-3 rad
+#: an anchor this far (m) from the runs is a fixed cable direction (the old template): over runs spanning 10 m
+#: its direction turns by 0.01 rad
 FAR_ANCHOR_M = 1000.0
 #: near anchors searched on a lattice at the surface over the runs' area plus this margin (m), spaced at least
 #: ANCHOR_SPACING_M (m) and at most ANCHOR_LATTICE_MAX intervals along the longer side (the search cost)
