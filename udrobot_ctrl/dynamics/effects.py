@@ -28,8 +28,10 @@ the plant in one of three ways:
 
 * **force** -- an external or velocity-dependent force (:func:`external_force`):
 
-  ``tether_drag``    F_ned = -(k_q |V_n| + k_l) V_n, V_n the NED velocity normal to a cable of direction e
-                     (``cable_azimuth_rad`` from north, ``cable_elevation_rad`` above the horizontal)
+  ``tether_drag``    F_ned = -(k_q |V_n| + k_l) V_n, V_n the NED velocity normal to the cable's direction e: from
+                     the vehicle towards a fixed anchor (``anchor_north_m anchor_east_m anchor_down_m``, the frame
+                     of the logged x y z), or along a fixed direction (``cable_azimuth_rad`` from north,
+                     ``cable_elevation_rad`` above the horizontal; the limit of an anchor far away)
   ``water_current``  damping and added-mass Coriolis act on nu_r = nu - [R^T v_c; 0] (v_c NED, m/s)
   ``wall_effect``    near a plane at distance h: added mass a_m exp(-h/lam) n n^T and suction
                      -a_s exp(-h/lam) |V_t|^2 n, summed over the planes: the seabed at ``seabed_depth_m`` (NED z)
@@ -88,6 +90,10 @@ class EffectKind:
 WALL_SLOTS = 4  # walls a wall_effect may list besides the seabed
 WALL_KEYS = ("point_n_m", "point_e_m", "point_d_m", "normal_n", "normal_e", "normal_d")
 WALL_PARAMETERS = tuple(f"wall{i}_{k}" for i in range(1, WALL_SLOTS + 1) for k in WALL_KEYS)
+#: the tether's cable geometry: an anchor (NED position, m, in the frame of the logged x y z) or, for model files
+#: written before anchors, a fixed direction (rad)
+TETHER_ANCHOR = ("anchor_north_m", "anchor_east_m", "anchor_down_m")
+TETHER_FIXED_DIRECTION = ("cable_azimuth_rad", "cable_elevation_rad")
 
 CATALOGUE = {k.name: k for k in (
     EffectKind("thrust_inflow_loss", "thrust falls with the axial inflow speed through the thruster", "thrust",
@@ -98,7 +104,8 @@ CATALOGUE = {k.name: k for k in (
                ("reverse_loss",), alternatives=(_per_dof("reverse_loss"),)),
     EffectKind("thruster_lag", "thrust follows the command with a first-order lag", "lag", ("T_lag_s",)),
     EffectKind("tether_drag", "umbilical cross-flow drag, normal to the cable", "force",
-               ("k_quadratic_N_s2_per_m2", "k_linear_N_s_per_m", "cable_azimuth_rad", "cable_elevation_rad")),
+               ("k_quadratic_N_s2_per_m2", "k_linear_N_s_per_m") + TETHER_ANCHOR,
+               alternatives=(("k_quadratic_N_s2_per_m2", "k_linear_N_s_per_m") + TETHER_FIXED_DIRECTION,)),
     EffectKind("wall_effect", "extra added mass and suction near the seabed or a wall", "force",
                ("decay_length_m", "added_mass_at_contact_kg", "suction_N_s2_per_m2"),
                optional=("seabed_depth_m",) + WALL_PARAMETERS),
@@ -171,8 +178,12 @@ def plant_effect(doc, where: str = "effects[0]") -> PlantEffect:
         if key not in allowed:
             raise ValueError(f"{where}: effect {name!r} has no parameter {key!r}{_suggest(key, allowed)}; "
                              f"expected {', '.join(kind.parameters) or ', '.join(kind.optional[:4]) + ', ...'}")
+    if name == "tether_drag" and set(TETHER_ANCHOR) & set(params) and set(TETHER_FIXED_DIRECTION) & set(params):
+        raise ValueError(f"{where}: effect 'tether_drag' takes either an anchor ({', '.join(TETHER_ANCHOR)}) or a "
+                         f"fixed cable direction ({', '.join(TETHER_FIXED_DIRECTION)}), not both")
     if not any(set(s) <= set(params) for s in sets):
-        missing = sorted(set(kind.parameters) - set(params))
+        closest = max(sets, key=lambda c: len(set(c) & set(params)))  # the set the entry started to give
+        missing = sorted(set(closest) - set(params))
         raise ValueError(f"{where}: effect {name!r} misses parameter(s) {', '.join(missing)}")
     if name == "thruster_lag" and params["T_lag_s"] <= 0:
         raise ValueError(f"{where}.params.T_lag_s: must be > 0 s, got {params['T_lag_s']}")
@@ -422,6 +433,7 @@ def first_order_lag(f, dt, T, f0=None):
 
 # ----------------------------------------------------------------------------------------- forces
 TETHER_SPEED_FLOOR = 1e-4  # m/s
+ANCHOR_DISTANCE_FLOOR = 1e-6  # m
 
 
 def cable_direction(azimuth, elevation):
@@ -431,18 +443,62 @@ def cable_direction(azimuth, elevation):
     return (ce * math.cos(azimuth), ce * math.sin(azimuth), -math.sin(elevation))
 
 
-def _tether(be, eta, nu, q):
-    e = cable_direction(q["cable_azimuth_rad"], q["cable_elevation_rad"])
+def anchor_direction(be, position, anchor):
+    """Unit NED vector (3 components) from the vehicle at ``position`` (NED, m) towards the tether's ``anchor``.
+
+    The distance carries a floor of ``ANCHOR_DISTANCE_FLOOR`` under the root, so the direction stays finite with
+    the vehicle on the anchor (a zero vector there: the drag then opposes the whole velocity); its length is
+    short of 1 by 5e-13 at 1 m.
+    """
+    d = tuple(anchor[i] - position[i] for i in range(3))
+    inv = 1.0 / be.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2] + ANCHOR_DISTANCE_FLOOR ** 2)
+    return tuple(d[i] * inv for i in range(3))
+
+
+def tether_direction(be, eta, q):
+    """Unit NED vector from the vehicle along its tether for the parameters ``q`` of a ``tether_drag`` effect:
+    towards the anchor (``anchor_north_m anchor_east_m anchor_down_m``; it turns as the vehicle moves) or, without
+    an anchor, the fixed direction (``cable_azimuth_rad cable_elevation_rad``: an anchor infinitely far away)."""
+    if TETHER_ANCHOR[0] in q:
+        return anchor_direction(be, eta[:3], tuple(q[k] for k in TETHER_ANCHOR))
+    return cable_direction(q["cable_azimuth_rad"], q["cable_elevation_rad"])
+
+
+def tether_cross_flow(be, eta, nu, q):
+    """The rotation R (body to NED), the vehicle's NED velocity normal to the cable V_n = V - (V.e) e (3 components,
+    m/s; e from :func:`tether_direction`) and |V_n| (m/s) with a floor of ``TETHER_SPEED_FLOOR`` under the root:
+    smooth at rest (a finite Jacobian for linearisation); the force changes by less than 1e-8 relative at 1 m/s."""
+    e = tether_direction(be, eta, q)
     R = _rotation(be, eta)
     v = _to_ned(R, nu)
     along = v[0] * e[0] + v[1] * e[1] + v[2] * e[2]
     vn = tuple(v[i] - along * e[i] for i in range(3))
-    # |V_n| with a floor of TETHER_SPEED_FLOOR under the root: smooth at rest (finite Jacobian for linearisation),
-    # the force changes by less than 1e-8 relative at 1 m/s
     speed = be.sqrt(vn[0] * vn[0] + vn[1] * vn[1] + vn[2] * vn[2] + TETHER_SPEED_FLOOR ** 2)
-    k = q["k_quadratic_N_s2_per_m2"] * speed + q["k_linear_N_s_per_m"]
-    fb = _to_body(R, tuple(-k * vn[i] for i in range(3)))
-    return (fb[0], fb[1], fb[2], 0.0 * fb[0], 0.0 * fb[0], 0.0 * fb[0])
+    return R, vn, speed
+
+
+def tether_unit_forces(be, eta, nu, q):
+    """The tether force per unit of each amplitude (two 6-component body wrenches, N per N s^2/m^2 and per N s/m):
+    R^T (-|V_n| V_n) and R^T (-V_n), from :func:`tether_cross_flow`. The force is linear in the amplitudes, so
+    these are its derivatives: the diagnoser's regressors."""
+    R, vn, speed = tether_cross_flow(be, eta, nu, q)
+    out = []
+    for k in (speed, 1.0):
+        fb = _to_body(R, tuple(-k * vn[i] for i in range(3)))
+        out.append((fb[0], fb[1], fb[2], 0.0 * fb[0], 0.0 * fb[0], 0.0 * fb[0]))
+    return tuple(out)
+
+
+def tether_force(be, eta, nu, q):
+    """Cross-flow drag of the tether (6 components, N, body frame, at the body origin).
+
+    F_ned = -(k_q |V_n| + k_l) V_n with V_n the vehicle's NED velocity normal to the cable
+    (:func:`tether_cross_flow`): the water resists motion across the cable, not along it; k_q =
+    ``k_quadratic_N_s2_per_m2``, k_l = ``k_linear_N_s_per_m`` times :func:`tether_unit_forces`.
+    """
+    dq, dl = tether_unit_forces(be, eta, nu, q)
+    kq, kl = q["k_quadratic_N_s2_per_m2"], q["k_linear_N_s_per_m"]
+    return tuple(kq * a + kl * b for a, b in zip(dq, dl))
 
 
 SEABED_NORMAL = (0.0, 0.0, -1.0)  # NED; the seabed's normal points up, into the water
@@ -519,7 +575,7 @@ def external_force(be, eta, nu, effects):
     total = None
     for e in effects:
         if e.name == "tether_drag":
-            term = _tether(be, eta, nu, e.params)
+            term = tether_force(be, eta, nu, e.params)
         elif e.name == "wall_effect":
             term = None
             for point, normal in wall_planes(e.params):

@@ -242,21 +242,22 @@ class Attributor:
         """Best fit of ``name`` (grid search over its shape and any ``seeds`` shapes, e.g. its refined single-effect
         shape, then local refinement) together with fixed terms."""
         eff = self.cat[name]
+        grid, bounds = eff.search_space(self.s)
         best = None
-        for shape in tuple(eff.shape_grid) + tuple(seeds):
+        for shape in tuple(grid) + tuple(seeds):
             f = self.fit(list(fixed) + [(name, shape)])
             if best is None or f.loglik_n < best.loglik_n:
                 best = f
-        if refine and eff.refine and eff.shape_bounds:
+        if refine and eff.refine and bounds:
             x0 = np.array(best.shapes[name], float)
-            lo = np.array([b[0] for b in eff.shape_bounds])
-            hi = np.array([b[1] for b in eff.shape_bounds])
+            lo = np.array([b[0] for b in bounds])
+            hi = np.array([b[1] for b in bounds])
 
             def obj(z):
                 zz = np.clip(z, lo, hi)
                 return self.fit(list(fixed) + [(name, tuple(zz))], iters=2).loglik_n
 
-            step = np.where(x0 != 0, 0.3 * np.abs(x0), 0.05)
+            step = eff.refine_step(self.s, x0)
             simplex = np.vstack([x0] + [x0 + np.diag(step)[i] for i in range(x0.size)])
             res = minimize(obj, x0, method="Nelder-Mead",
                            options={"initial_simplex": simplex, "xatol": 1e-3, "fatol": 1e-7, "maxfev": 40})

@@ -21,8 +21,10 @@ Templates (the diagnoser's lumped forms; a truth generator should use different 
 ``thruster_deadband``   f_act = 0 for |f| < d, f - c d sign(f) beyond (hard, c=0, or shifted, c=1).
 ``thruster_asymmetry``  reverse thrust (1 - a) f for f < 0.
 ``thruster_lag``        first-order lag of time constant T_lag on every actuator.
-``tether_drag``         cross-flow drag of a taut cable leaving the vehicle along NED unit e (azimuth, elevation):
-                        F_ned = -(k_q |V_n| + k_l) V_n, V_n = V - (V.e) e; a vertical cable gives horizontal drag.
+``tether_drag``         cross-flow drag of a cable from the vehicle to an anchor fixed in the pool (a deck, a boat;
+                        shape: its NED position), e the unit vector towards it: F_ned = -(k_q |V_n| + k_l) V_n,
+                        V_n = V - (V.e) e. The direction turns as the vehicle moves; a far anchor is a fixed
+                        direction (a cable straight up gives horizontal drag).
 ``wall_effect``         per surface at distance h with normal n: added mass a_m exp(-h/lam) n n^T and a
                         suction force -a_s exp(-h/lam) |V_t|^2 n (V_t the speed along the surface).
 ``water_current``       steady NED current (c_N, c_E, c_D): damping acts on nu - R^T c.
@@ -116,6 +118,16 @@ class Effect:
     shape_bounds: tuple = ()
     refine: bool = False
     mimics: tuple = field(default_factory=tuple)
+
+    def search_space(self, s: Stack):
+        """(grid, bounds) of the shape search on stack ``s``: the fixed ``shape_grid`` and ``shape_bounds`` unless
+        an effect's shape lives where the data are (a tether anchor)."""
+        return self.shape_grid, self.shape_bounds
+
+    def refine_step(self, s: Stack, x0):
+        """Initial simplex step of the local refinement from shape ``x0``: 30 % of each value (0.05 at zero)."""
+        x0 = np.asarray(x0, float)
+        return np.where(x0 != 0, 0.3 * np.abs(x0), 0.05)
 
     # -- to be provided per effect
     def design(self, s: Stack, shape):
@@ -281,29 +293,67 @@ class Lag(Effect):
 
 
 # ------------------------------------------------------------------------------------------- environment
-def _tether_columns(eta, nu, e):
-    """Body-frame generalised force per unit (k_q, k_l) of the cable cross-flow drag (..., 6, 2) for a cable along
-    unit NED ``e``: columns -|V_n| V_n and -V_n, with V_n the NED velocity normal to the cable."""
-    R = rotation_zyx(eta[..., 3], eta[..., 4], eta[..., 5])
-    v = np.einsum("...ij,...j->...i", R, nu[..., :3])
-    vn = v - np.sum(v * e, -1, keepdims=True) * e
-    A = np.zeros(vn.shape[:-1] + (6, 2))
-    speed = np.sqrt(np.sum(vn ** 2, axis=-1, keepdims=True) + pfx.TETHER_SPEED_FLOOR ** 2)  # as the plant's |V_n|
-    A[..., :3, 0] = _to_body(R, -speed * vn)
-    A[..., :3, 1] = _to_body(R, -vn)
-    return A
+def _tether_columns(eta, nu, geometry):
+    """Body-frame generalised force per unit (k_q, k_l) of the tether drag (..., 6, 2) for the cable geometry
+    ``geometry`` (an anchor or a fixed direction, as a model file gives it): the plant's own derivatives,
+    :func:`udrobot_ctrl.dynamics.effects.tether_unit_forces`."""
+    return np.stack([_stack(c) for c in pfx.tether_unit_forces(pfx.NUMPY, _comps(eta), _comps(nu), geometry)], -1)
+
+
+#: an anchor this far (m) from the runs is a fixed cable direction (the old template): over runs spanning 10 m
+#: its direction turns by 0.01 rad
+FAR_ANCHOR_M = 1000.0
+#: near anchors searched on a lattice at the surface over the runs' area plus this margin (m), spaced at least
+#: ANCHOR_SPACING_M (m) and at most ANCHOR_LATTICE_MAX intervals along the longer side (the search cost)
+ANCHOR_MARGIN_M = 3.0
+ANCHOR_SPACING_M = 2.0
+ANCHOR_LATTICE_MAX = 7
 
 
 class TetherDrag(Effect):
-    """Cross-flow drag of a taut tether: the water resists the velocity component *normal* to the cable,
-    F_ned = -(k_q |V_n| + k_l) V_n, with V_n = V - (V.e) e and e the cable's direction from the vehicle (shape
-    parameters azimuth and elevation). A cable straight up (elevation pi/2) gives the classic horizontal drag
-    opposing horizontal motion; a cable trailing at a shallow angle resists sway and heave more than surge, and
-    turns surge into a heave/sway force -- the signature that separates it from per-axis damping errors."""
+    """Cross-flow drag of a tether to an anchor fixed in the pool frame (a deck, a boat, a handler standing
+    still): the water resists the velocity component *normal* to the cable, F_ned = -(k_q |V_n| + k_l) V_n, with
+    V_n = V - (V.e) e and e the unit vector from the vehicle towards the anchor. The anchor's NED position is the
+    shape (``anchor_north_m anchor_east_m anchor_down_m``, in the frame of the logged or dead-reckoned x y and the
+    depth z); the direction turns as the vehicle goes around the pool, so surge in one place becomes sway or heave
+    drag in another -- the signature that separates it from per-axis damping errors and from an inflow loss.
+
+    The shape is searched where the data are (:meth:`search_space`): anchors at the surface on a lattice over the
+    runs' area and its margin, on a ring beyond it, and anchors ``FAR_ANCHOR_M`` away (straight up, or at 15/45
+    deg elevation towards eight headings), which are fixed cable directions (a surface float trailing the vehicle,
+    a cable straight up); the best is refined locally (Nelder-Mead, steps of 30 % of the anchor's distance). The
+    lumped amplitudes do not grow with the distance to the anchor: the paid-out length, not the straight-line
+    distance, sets the drag of a cable that is not taut.
+    """
+
+    def search_space(self, s):
+        xy = s.eta[:, :2]
+        lo, hi = np.percentile(xy, 1, axis=0) - ANCHOR_MARGIN_M, np.percentile(xy, 99, axis=0) + ANCHOR_MARGIN_M
+        spacing = max(ANCHOR_SPACING_M, float(np.max(hi - lo)) / ANCHOR_LATTICE_MAX)
+        axes = [np.linspace(a, b, int(np.ceil((b - a) / spacing)) + 1) for a, b in zip(lo, hi)]
+        z_top = 0.0  # anchors at the water surface (z = 0 in NED): a deck, a boat, a handler
+        grid = [(n, e, z_top) for n in axes[0] for e in axes[1]]
+        c = np.median(xy, axis=0)
+        heads = np.radians(np.arange(0, 360, 45))
+        rho = 3.0 * float(np.max(hi - lo))  # a deck beyond the area covered
+        grid += [(c[0] + rho * np.cos(h), c[1] + rho * np.sin(h), z_top) for h in heads]
+        zc = float(np.median(s.eta[:, 2]))
+        grid.append((c[0], c[1], zc - FAR_ANCHOR_M))
+        for el in np.radians((15.0, 45.0)):
+            grid += [(c[0] + FAR_ANCHOR_M * np.cos(el) * np.cos(h), c[1] + FAR_ANCHOR_M * np.cos(el) * np.sin(h),
+                      zc - FAR_ANCHOR_M * np.sin(el)) for h in heads]
+        span = 2.0 * FAR_ANCHOR_M
+        bounds = ((c[0] - span, c[0] + span), (c[1] - span, c[1] + span), (zc - span, zc + span))
+        return tuple(tuple(float(v) for v in g) for g in grid), bounds
+
+    def refine_step(self, s, x0):
+        """30 % of the anchor's distance from the runs' centre on each coordinate (at least 0.5 m)."""
+        centre = np.r_[np.median(s.eta[:, :2], axis=0), np.median(s.eta[:, 2])]
+        return np.full(3, max(0.5, 0.3 * float(np.linalg.norm(np.asarray(x0, float) - centre))))
 
     def design(self, s, shape):
-        e = np.asarray(pfx.cable_direction(*shape))
-        A = s.full(lambda r: _tether_columns(r["eta"], r["nu"], e))
+        geometry = dict(zip(self.shape_names, shape))
+        A = s.full(lambda r: _tether_columns(r["eta"], r["nu"], geometry))
         return np.zeros((s.n, 6)), A, ("k_quadratic_N_s2_per_m2", "k_linear_N_s_per_m"), np.zeros(2), \
             np.array([1e4, 1e4])
 
@@ -441,9 +491,6 @@ def catalogue() -> dict:
     lag_grid = tuple((T,) for T in (0.03, 0.06, 0.1, 0.15, 0.2, 0.3, 0.45, 0.7, 1.0))
     db_grid = tuple((d,) for d in (0.02, 0.04, 0.07, 0.1, 0.15, 0.2, 0.25))
     wall_grid = tuple((lam,) for lam in (0.03, 0.06, 0.1, 0.15, 0.22, 0.33, 0.5, 0.8))
-    # cable straight up, or leaving at 10/30/60 deg above the horizontal towards one of eight headings
-    tether_grid = ((0.0, np.pi / 2),) + tuple((np.radians(az), np.radians(el)) for el in (10, 30, 60)
-                                               for az in range(0, 360, 45))
     cur = tuple((cn, ce, 0.0) for cn in (-0.1, 0.0, 0.1) for ce in (-0.1, 0.0, 0.1))
     effects = [
         InflowLoss("thrust_inflow_loss", "thrust falls with the axial inflow speed through the thruster",
@@ -453,9 +500,8 @@ def catalogue() -> dict:
         Asymmetry("thruster_asymmetry", "reverse thrust weaker than modelled, relative to forward"),
         Lag("thruster_lag", "thrust follows the command with a first-order lag", ("T_lag_s",), lag_grid,
             ((0.005, 1.0),), refine=True, mimics=("added_mass_error",)),
-        TetherDrag("tether_drag", "umbilical cross-flow drag, normal to the cable", ("cable_azimuth_rad",
-                   "cable_elevation_rad"), tether_grid, ((-2 * np.pi, 2 * np.pi), (0.0, np.pi / 2)), refine=True,
-                   mimics=("quadratic_damping_error", "linear_damping", "thrust_inflow_loss")),
+        TetherDrag("tether_drag", "umbilical cross-flow drag, normal to the cable", pfx.TETHER_ANCHOR, (), (),
+                   refine=True, mimics=("quadratic_damping_error", "linear_damping", "thrust_inflow_loss")),
         WallEffect("wall_effect", "extra added mass and suction near the seabed or a wall", ("decay_length_m",),
                    wall_grid, ((0.01, 2.0),), refine=True),
         Current("water_current", "steady current; damping on the velocity relative to the water",
@@ -480,8 +526,8 @@ DISCRIMINATING_MANOEUVRE = {
         "one speed with two different thrusts",
     frozenset({"quadratic_damping_error", "tether_drag"}):
         "repeat the speed runs with a different paid-out tether length, and add sway/heave/yaw motion "
-        "(tether drag acts on the velocity normal to a cable fixed in the pool frame, the same in every heading; "
-        "a damping error acts per body axis)",
+        "(tether drag acts on the velocity normal to the cable towards its anchor in the pool, whatever the "
+        "heading; a damping error acts per body axis), and go around the anchor (the cable's direction turns)",
     frozenset({"linear_damping", "tether_drag"}):
         "repeat the speed runs with a different paid-out tether length",
     frozenset({"thrust_inflow_loss", "tether_drag"}):

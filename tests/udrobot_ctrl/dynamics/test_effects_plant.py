@@ -6,7 +6,13 @@ import pytest
 
 from udrobot_ctrl.dynamics import effects as fx
 from udrobot_ctrl.dynamics import plant_casadi
-from udrobot_ctrl.dynamics.plant import delivered_wrench, kinematics, plant_parameters, state_derivative
+from udrobot_ctrl.dynamics.plant import (
+    delivered_wrench,
+    kinematics,
+    plant_parameters,
+    rotation_zyx,
+    state_derivative,
+)
 from udrobot_ctrl.dynamics.sim import simulate
 from udrobot_ctrl.vehicle import load_model, read_model_file, to_model_dict
 
@@ -17,8 +23,8 @@ EXAMPLES = {
     "thruster_lag": {"T_lag_s": 0.3},
     "thruster_deadband": {"width_fraction": 0.1, "shift": 1.0},
     "thruster_asymmetry": {"reverse_loss": 0.3},
-    "tether_drag": {"k_quadratic_N_s2_per_m2": 20.0, "k_linear_N_s_per_m": 2.0, "cable_azimuth_rad": 2.5,
-                    "cable_elevation_rad": 0.4},
+    "tether_drag": {"k_quadratic_N_s2_per_m2": 20.0, "k_linear_N_s_per_m": 2.0, "anchor_north_m": -3.0,
+                    "anchor_east_m": 0.5, "anchor_down_m": -0.3},
     "wall_effect": {"decay_length_m": 0.2, "added_mass_at_contact_kg": 8.0, "suction_N_s2_per_m2": 30.0,
                     "seabed_depth_m": 2.0, **fx.wall_parameters([{"point": [0.0, 0.5, 0.0], "normal": [0, -2.0, 0]}])},
     "water_current": {"current_north_mps": 0.2, "current_east_mps": -0.1, "current_down_mps": 0.02},
@@ -59,6 +65,53 @@ def test_numpy_and_casadi_plants_agree_with_the_effect(name):
         fd = np.array(fx.static_thrust(fx.NUMPY, list(fi), maps, p.f_ref), float)
         ref = state_derivative(xi, delivered_wrench(xi, fd, p), p)
         np.testing.assert_allclose(np.asarray(f_cas(xi, fi)).ravel(), ref, rtol=1e-9, atol=1e-9)
+
+
+#: the fixed-direction tether of model files written before anchors (the limit of a far anchor)
+FIXED_TETHER = {"k_quadratic_N_s2_per_m2": 20.0, "k_linear_N_s_per_m": 2.0, "cable_azimuth_rad": 2.5,
+                "cable_elevation_rad": 0.4}
+
+
+def test_numpy_and_casadi_plants_agree_with_a_fixed_direction_tether():
+    p = plant_parameters(NOMINAL.with_changes(effects=(fx.PlantEffect("tether_drag", FIXED_TETHER),)))
+    f_cas = plant_casadi.dynamics_function(p, "thrust")
+    x, f = _states()
+    for xi, fi in zip(x, f):
+        ref = state_derivative(xi, delivered_wrench(xi, fi, p), p)
+        np.testing.assert_allclose(np.asarray(f_cas(xi, fi)).ravel(), ref, rtol=1e-9, atol=1e-9)
+
+
+def _tether_ned(params, x):
+    X = np.moveaxis(x, -1, 0)
+    F = np.stack(fx.external_force(fx.NUMPY, X[:6], X[6:], (fx.PlantEffect("tether_drag", params),)), -1)
+    return np.einsum("nij,nj->ni", rotation_zyx(x[:, 3], x[:, 4], x[:, 5]), F[:, :3])
+
+
+def test_anchored_tether_turns_with_the_vehicle_and_never_resists_motion_towards_the_anchor():
+    q = EXAMPLES["tether_drag"]
+    anchor = np.array([q["anchor_north_m"], q["anchor_east_m"], q["anchor_down_m"]])
+    x, _ = _states(40, seed=4)
+    x[:, :3] = np.random.default_rng(4).uniform([-8, -6, 0.5], [8, 6, 3], (40, 3))  # all around the anchor
+    e = anchor - x[:, :3]
+    e /= np.linalg.norm(e, axis=1, keepdims=True)
+    R = rotation_zyx(x[:, 3], x[:, 4], x[:, 5])
+    toward = x.copy()
+    toward[:, 6:9] = np.einsum("nji,nj->ni", R, 0.4 * e)  # body velocity of 0.4 m/s straight at the anchor
+    np.testing.assert_allclose(_tether_ned(q, toward), 0.0, atol=1e-12)
+    V = np.einsum("nij,nj->ni", R, x[:, 6:9])
+    Vn = V - np.sum(V * e, 1, keepdims=True) * e
+    speed = np.sqrt(np.sum(Vn ** 2, 1, keepdims=True) + fx.TETHER_SPEED_FLOOR ** 2)
+    np.testing.assert_allclose(_tether_ned(q, x), -(20.0 * speed + 2.0) * Vn, rtol=1e-10, atol=1e-12)
+
+
+def test_a_far_anchor_is_the_fixed_direction():
+    az, el = FIXED_TETHER["cable_azimuth_rad"], FIXED_TETHER["cable_elevation_rad"]
+    far = 1e7  # m: the direction differs by < |position| / far ~ 1e-6 rad over the states below
+    e = np.array(fx.cable_direction(az, el))
+    q = {"k_quadratic_N_s2_per_m2": 20.0, "k_linear_N_s_per_m": 2.0, "anchor_north_m": far * e[0],
+         "anchor_east_m": far * e[1], "anchor_down_m": far * e[2]}
+    x, _ = _states(30, seed=6)
+    np.testing.assert_allclose(_tether_ned(q, x), _tether_ned(FIXED_TETHER, x), rtol=1e-5, atol=1e-6)
 
 
 def test_tools_without_actuator_states_refuse_a_lag():
@@ -102,7 +155,7 @@ def test_tether_drag_is_dissipative_and_a_vertical_cable_does_not_resist_heave()
     F = np.stack(fx.external_force(fx.NUMPY, X[:6], X[6:], p.effects), -1)
     power = np.sum(F[:, :3] * x[:, 6:9], axis=1)
     assert np.all(power <= 1e-12)
-    up = fx.PlantEffect("tether_drag", {**EXAMPLES["tether_drag"], "cable_elevation_rad": np.pi / 2})
+    up = fx.PlantEffect("tether_drag", {**FIXED_TETHER, "cable_elevation_rad": np.pi / 2})
     heave = np.zeros((1, 12))
     heave[0, 8] = 0.5
     H = np.moveaxis(heave, -1, 0)
@@ -185,8 +238,10 @@ def test_thruster_lag_delays_the_response_by_its_time_constant():
     assert slow.x[-1, 6] == pytest.approx(fast.x[-1, 6], rel=0.25)
 
 
-def test_model_file_round_trips_effects(tmp_path):
-    v = _with("tether_drag", "buoyancy_offset")
+@pytest.mark.parametrize("tether", [EXAMPLES["tether_drag"], FIXED_TETHER], ids=["anchor", "fixed-direction"])
+def test_model_file_round_trips_effects(tmp_path, tether):
+    v = NOMINAL.with_changes(effects=(fx.PlantEffect("tether_drag", tether),
+                                      fx.PlantEffect("buoyancy_offset", EXAMPLES["buoyancy_offset"])))
     path = tmp_path / "corrected.json"
     path.write_text(json.dumps(to_model_dict(v)))
     back = read_model_file(path)
@@ -203,6 +258,11 @@ def test_model_file_round_trips_effects(tmp_path):
                                         "suction_N_s2_per_m2": 1.0}}, "needs a plane"),
     ({"name": "wall_effect", "params": {"decay_length_m": 0.2, "added_mass_at_contact_kg": 1.0,
                                         "suction_N_s2_per_m2": 1.0, "wall1_point_n_m": 0.0}}, "misses wall1_point_e_m"),
+    ({"name": "tether_drag", "params": {**EXAMPLES["tether_drag"], "cable_azimuth_rad": 1.0}}, "not both"),
+    ({"name": "tether_drag", "params": {"k_quadratic_N_s2_per_m2": 1.0, "k_linear_N_s_per_m": 0.0,
+                                        "anchor_north_m": 1.0, "anchor_east_m": 2.0}}, "misses .*anchor_down_m"),
+    ({"name": "tether_drag", "params": {"k_quadratic_N_s2_per_m2": 1.0, "k_linear_N_s_per_m": 0.0,
+                                        "cable_azimuth_rad": 1.0}}, "misses parameter.*cable_elevation_rad"),
 ])
 def test_bad_effects_are_refused_naming_the_entry(tmp_path, entry, message):
     doc = to_model_dict(NOMINAL)

@@ -1,11 +1,11 @@
-"""Physics of the tether template: cross-flow drag normal to the cable."""
+"""Physics of the tether template: cross-flow drag normal to the cable, towards an anchor or along a fixed direction."""
 import numpy as np
 import pytest
 
-from udrobot_ctrl.dynamics.effects import TETHER_SPEED_FLOOR
+from udrobot_ctrl.dynamics.effects import TETHER_SPEED_FLOOR, PlantEffect
 from udrobot_ctrl.dynamics.effects import cable_direction as _cable_direction
-from udrobot_ctrl.dynamics.plant import plant_parameters, rotation_zyx
-from udrobot_ctrl.gap.effects import catalogue
+from udrobot_ctrl.dynamics.plant import generalized_forces, plant_parameters, rotation_zyx
+from udrobot_ctrl.gap.effects import FAR_ANCHOR_M, Stack, _tether_columns, catalogue
 from udrobot_ctrl.vehicle import load_model
 
 
@@ -62,3 +62,62 @@ def test_motion_along_the_cable_has_no_drag_and_normal_motion_full_drag():
     assert np.abs(F[0]).max() < 1e-12
     speed = np.sqrt(0.5 ** 2 + TETHER_SPEED_FLOOR ** 2)
     assert F[1, :3] == pytest.approx(-(10.0 * speed + 2.0) * 0.5 * n, abs=1e-12)
+
+
+ANCHOR = {"anchor_north_m": -3.0, "anchor_east_m": 0.5, "anchor_down_m": -0.3}
+
+
+def _anchored_states(rng, n=60):
+    x = _state(rng, n)
+    x[:, :3] = rng.uniform([-8, -6, 0.3], [8, 6, 3.0], (n, 3))  # around the anchor, under the surface
+    return x
+
+
+def _stack(x, p):
+    """A stack whose filter is the identity: the regressor as the plant sees it, sample by sample."""
+    n = x.shape[0]
+    run = {"eta": x[:, :6], "nu": x[:, 6:], "idx": np.arange(n), "smooth": lambda y, held=False: y}
+    return Stack(nu=x[:, 6:], nu_dot=np.zeros((n, 6)), eta=x[:, :6], f=np.zeros((n, 4)), B=p.T, inflow=p.T,
+                 f_ref=np.ones(4), surfaces={}, runs=[run], p=p, M_A=p.M_A)
+
+
+@pytest.mark.parametrize("geometry", [ANCHOR, {"cable_azimuth_rad": 2.5, "cable_elevation_rad": 0.4}],
+                         ids=["anchor", "fixed-direction"])
+def test_tether_regressor_is_the_derivative_of_the_plant_force(geometry):
+    """b0 + A a of the diagnoser's design is the corrected plant's own force (the effect it writes to a model)."""
+    rng = np.random.default_rng(1)
+    p0 = plant_parameters(load_model("pendulum:chin"))
+    x = _anchored_states(rng)
+    eff = catalogue()["tether_drag"]
+    shape = tuple(geometry[k] for k in eff.shape_names) if "anchor_north_m" in geometry else None
+    if shape is None:  # the diagnoser fits anchors; a fixed direction enters through the same plant function
+        b0, A = np.zeros((x.shape[0], 6)), _tether_columns(x[:, :6], x[:, 6:], geometry)
+    else:
+        b0, A, names, lo, hi = eff.design(_stack(x, p0), shape)
+        assert names == ("k_quadratic_N_s2_per_m2", "k_linear_N_s_per_m")
+    a = np.array([12.0, 1.5])
+    params = {**geometry, "k_quadratic_N_s2_per_m2": a[0], "k_linear_N_s_per_m": a[1]}
+    corrected = plant_parameters(load_model("pendulum:chin").with_changes(
+        effects=(PlantEffect("tether_drag", params),)))
+    plant_force = generalized_forces(x, p0) - generalized_forces(x, corrected)  # what the effect adds to the plant
+    np.testing.assert_allclose(b0 + A @ a, plant_force, rtol=1e-10, atol=1e-12)
+    hooks = eff.hooks(params, p0, None, None, None, None)  # the replay's force is the same function
+    np.testing.assert_allclose(hooks.force(x, None, {}), plant_force, rtol=1e-10, atol=1e-12)
+
+
+def test_tether_search_covers_anchors_around_the_runs_and_the_fixed_directions():
+    rng = np.random.default_rng(2)
+    p0 = plant_parameters(load_model("pendulum:chin"))
+    x = _anchored_states(rng)
+    x[:, 0] += 40.0  # runs far from the frame's origin: the grid follows the data
+    grid, bounds = catalogue()["tether_drag"].search_space(_stack(x, p0))
+    g = np.array(grid)
+    centre = np.median(x[:, :2], axis=0)
+    dist = np.linalg.norm(g - np.r_[centre, np.median(x[:, 2])], axis=1)
+    near = dist < 100
+    assert near.sum() >= 9 and np.all(g[near, 2] == 0.0)  # at the surface, around and above the runs
+    assert np.hypot(*(g[near, :2] - centre).T).max() > np.hypot(*(x[:, :2] - centre).T).max()  # and beyond them
+    np.testing.assert_allclose(dist[~near], FAR_ANCHOR_M, rtol=1e-9)  # the fixed-direction limit
+    assert any(np.allclose(r[:2], centre) and r[2] < -0.99 * FAR_ANCHOR_M for r in g)
+    for (lo, hi), v in zip(bounds, g.T):
+        assert np.all((v >= lo) & (v <= hi))

@@ -9,7 +9,9 @@ means the physics was recovered, not a formula matched:
 * thruster_asymmetry: a reverse thrust curve with its own power law;
 * thruster_lag: first-order dynamics of the rotor speed (thrust ~ n|n|), not of the thrust;
 * tether_drag: a straight cable from a handler walking along the pool edge, normal drag integrated along
-  20 nodes with each node's velocity, weighted by its share carried by the vehicle end;
+  20 nodes with each node's velocity, weighted by its share carried by the vehicle end; or (``anchor`` given,
+  :func:`anchored_tether`) the same cable from a fixed point on a deck at the pool edge, its drag growing with the
+  straight-line length (the template: a lumped drag independent of the distance);
 * wall_effect: method-of-images sphere laws, added mass ~ (a/h)^3, suction ~ (a/h)^4;
 * water_current: a 1/7-power boundary-layer profile over the pool depth;
 * linear_damping: a |nu|^1.1 skin-friction law; quadratic_damping_error: drag on the speed *norm*;
@@ -57,6 +59,14 @@ def random_magnitudes(name, rng):
         "periodic_disturbance": {"A": u(1.5, 3.0), "period": u(3.0, 6.0)},
         "sensor_delay": {"delay": u(0.25, 0.4)},
     }[name]
+
+
+def anchored_tether(rng):
+    """Truth parameters of a tether to a fixed anchor on a deck at the pool edge (wall line y = 0), 0.3 m above the
+    water and 2.5-3.5 m behind the runs' start: a 12-20 mm cable (Li et al.'s is 12 mm) with a cylinder's
+    normal drag coefficient 1.0-1.2."""
+    u = rng.uniform
+    return {"d": u(0.012, 0.020), "cd": u(1.0, 1.2), "anchor": (-u(2.5, 3.5), WALL_Y, -0.3)}
 
 
 def _allocation(T):
@@ -128,17 +138,20 @@ class Truth:
         e = self.eff
         if "tether_drag" in e:
             c = e["tether_drag"]
-            anchor = np.stack([x[:, 0] - c["back"], np.full(R_, WALL_Y), np.zeros(R_)], 1)
+            if "anchor" in c:  # fixed on a deck: the cable's direction follows the vehicle around the pool
+                anchor = np.broadcast_to(np.asarray(c["anchor"], float), (R_, 3))
+                a_dot = np.zeros((R_, 3))
+            else:  # a handler walking along the pool edge, c["back"] m behind the vehicle
+                anchor = np.stack([x[:, 0] - c["back"], np.full(R_, WALL_Y), np.zeros(R_)], 1)
+                a_dot = np.stack([vned[:, 0], np.zeros(R_), np.zeros(R_)], 1)
             vec = x[:, :3] - anchor
             L = np.linalg.norm(vec, axis=1, keepdims=True)
             eh = vec / L
-            a_dot = np.stack([vned[:, 0], np.zeros(R_), np.zeros(R_)], 1)
-            tot = np.zeros((R_, 3))
-            for s in (np.arange(20) + 0.5) / 20:
-                ve = a_dot + s * (vned - a_dot)
-                vn = ve - np.sum(ve * eh, 1, keepdims=True) * eh
-                dF = -0.5 * RHO * c["cd"] * c["d"] * (L / 20) * np.linalg.norm(vn, axis=1, keepdims=True) * vn
-                tot += s * dF
+            s = ((np.arange(20) + 0.5) / 20)[None, :, None]  # 20 nodes from the anchor (0) to the vehicle (1)
+            ve = a_dot[:, None] + s * (vned - a_dot)[:, None]
+            vn = ve - np.sum(ve * eh[:, None], -1, keepdims=True) * eh[:, None]
+            dF = -0.5 * RHO * c["cd"] * c["d"] * (L[:, None] / 20) * np.linalg.norm(vn, axis=-1, keepdims=True) * vn
+            tot = np.sum(s * dF, axis=1)
             F[:, :3] += np.einsum("nji,nj->ni", Rm, tot)
         if "wall_effect" in e:
             c = e["wall_effect"]
@@ -204,8 +217,12 @@ class Truth:
         return np.concatenate([kinematics(x[:, :6], x[:, 6:]), nd], 1)
 
 
-def schedule(t, prm):
-    """References (u_ref, psi_ref, z_ref, surge_on) for a pool test of 90 s with randomised magnitudes."""
+def schedule(t, prm, turn_rate=0.0):
+    """References (u_ref, psi_ref, z_ref, surge_on) for a pool test of 90 s with randomised magnitudes.
+
+    ``turn_rate`` (rad/s) adds a steady heading ramp from t = 4 s: the surge legs become arcs and the vehicle
+    loops around the pool (``generate(path="loop")``).
+    """
     a1, a2, a3, dpsi, z0, zdeep = prm
     u_ref = np.zeros_like(a1)
     on = np.ones_like(a1, bool)
@@ -231,12 +248,22 @@ def schedule(t, prm):
         psi = 0.3 * np.sin(2 * np.pi * t / 17.0)
     if 28 <= t < 34:
         psi = psi + 0.5
+    if turn_rate and t >= 4:
+        psi = psi + turn_rate * (t - 4)
     return u_ref, psi, z, on
 
 
+#: heading rate of the loop path (rad/s): one turn in 40 s, i.e. circles of 2-4 m radius at 0.3-0.6 m/s, turning
+#: away from the wall (towards -y, into the pool)
+LOOP_TURN_RATE = -2 * np.pi / 40.0
+
+
 def generate(effects=None, n_runs=3, duration=90.0, rate=20.0, seed=0, model="pendulum:chin", partial=False,
-             wall_distance=None, noise_scale=1.0):
+             wall_distance=None, noise_scale=1.0, path="legs"):
     """Simulate ``n_runs`` closed-loop pool runs with the withheld ``effects`` (name -> params dict).
+
+    ``path``: ``"legs"`` (surge legs along the pool with yaw turns) or ``"loop"`` (the same legs as arcs of a steady
+    turn, :data:`LOOP_TURN_RATE`: the vehicle goes around, so a cable to a fixed anchor turns with it).
 
     Returns a list of :class:`udrobot_ctrl.io.runlog.Run` (thrust_i inputs, noisy sensors, sidecar metadata
     with the seabed depth and the wall) -- the diagnoser sees nothing else.
@@ -258,6 +285,9 @@ def generate(effects=None, n_runs=3, duration=90.0, rate=20.0, seed=0, model="pe
         wall_distance = np.where(near, rng.uniform(0.2, 0.35, R_), rng.uniform(1.2, 2.0, R_))
     ywall = -np.asarray(wall_distance, float) * np.ones(R_)
     prm = (a1, a2, a3, dpsi, z0, zdeep)
+    if path not in ("legs", "loop"):
+        raise ValueError(f"path must be 'legs' or 'loop', got {path!r}")
+    turn_rate = LOOP_TURN_RATE if path == "loop" else 0.0
     x = np.zeros((R_, 12))
     x[:, 2] = z0
     x[:, 1] = WALL_Y + ywall
@@ -270,7 +300,7 @@ def generate(effects=None, n_runs=3, duration=90.0, rate=20.0, seed=0, model="pe
     ff_z = -(p.weight - p.buoyancy)  # thrust that holds depth on the nominal model
     for k in range(n):
         t = k * dt
-        u_ref, psi_ref, z_ref, on = schedule(t, prm)
+        u_ref, psi_ref, z_ref, on = schedule(t, prm, turn_rate)
         u, w, r, phi, pp = x[:, 6], x[:, 8], x[:, 11], x[:, 3], x[:, 9]
         ez = z_ref - x[:, 2]
         iz = np.clip(iz + ez * dt, -2, 2)
