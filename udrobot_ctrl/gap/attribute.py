@@ -295,8 +295,11 @@ def holdout_loglik(att_h: Attributor, fit: Fit):
     return float(np.sum(np.log(np.sum(e ** 2, axis=0) / att_h.N + 1e-300)))
 
 
-def select(att: Attributor, att_h: Attributor, names=None, max_effects=4, log=None):
+def select(att: Attributor, att_h: Attributor, names=None, max_effects=4, log=None, exclude=()):
     """Single fits of every effect, noise floor, forward selection and look-alike groups.
+
+    Effects in ``exclude`` (unidentifiable on these runs, :mod:`udrobot_ctrl.gap.identifiability`) are fitted
+    alone for the record but never selected nor listed as look-alikes.
 
     Returns
     -------
@@ -316,7 +319,7 @@ def select(att: Attributor, att_h: Attributor, names=None, max_effects=4, log=No
         fixed = [(n, current.shapes[n]) for n in selected]
         cands = {}
         for n in names:
-            if n in selected:
+            if n in selected or n in exclude:
                 continue
             # the grid plus the effect's refined single-effect shape: a coarse grid must not hand the step to a
             # many-parameter look-alike (e.g. cross-coupled damping for a current between grid points)
@@ -338,7 +341,7 @@ def select(att: Attributor, att_h: Attributor, names=None, max_effects=4, log=No
         current, cur_bic, cur_ho = fbest, att.bic(fbest), ho
     out = {"nominal": nominal, "singles": singles, "delta_bic": delta, "steps": steps, "tau_int": tau,
            "n_eff": att.n_eff}
-    out.update(finalize(att, selected, names, current))
+    out.update(finalize(att, selected, [n for n in names if n not in exclude], current))
     return out
 
 

@@ -16,6 +16,7 @@ import numpy as np
 from udrobot_ctrl.dynamics.effects import plant_effect
 from udrobot_ctrl.dynamics.plant import plant_parameters, require_nominal
 from udrobot_ctrl.gap import effects as fx
+from udrobot_ctrl.gap import identifiability
 from udrobot_ctrl.gap.attribute import (
     BIC_STRONG,
     HOLDOUT_CHI2,
@@ -234,11 +235,13 @@ def diagnose(model, runs, holdout=None, window_s=8.0, effects=None, log=None, mo
 
     # -- which: equation-error fits on the fit runs, holdout confirmation
     st, r, dofs = build_stack(fit_p, p, M_A)
-    att = Attributor(st, r, dofs, cat)
     st_h, r_h, dofs_h = build_stack(ho_p, p, M_A)
+    ident = identifiability.assess(st, r, dofs & dofs_h, fit_p, cat, names)  # what the observed channels can tell
+    cat = ident.restrict(cat)
+    att = Attributor(st, r, dofs, cat)
     att_h = Attributor(st_h, r_h, dofs & dofs_h, cat)
     att.dofs = dofs & dofs_h
-    sel = select(att, att_h, names, log=say) if True else None
+    sel = select(att, att_h, names, log=say, exclude=ident.names)
     att_h.n_eff = max(10.0, att_h.N / max(sel["tau_int"], 1.0))
     say(f"fitted {len(names)} candidate effects; {len(sel['selected'])} pass the fit-run tests"
         + (f" ({', '.join(sel['selected'])}), to be confirmed on the holdout" if sel["selected"] else "")
@@ -281,7 +284,8 @@ def diagnose(model, runs, holdout=None, window_s=8.0, effects=None, log=None, mo
             pruned[n] = contrib
             members, g_after, after_sims = rest, g_rest, sims_rest
     if pruned:  # refit what remains (its parameters were shared with the dropped effects) and re-score
-        sel.update(finalize(att, [m for m in sel["selected"] if m in members], names))
+        sel.update(finalize(att, [m for m in sel["selected"] if m in members],
+                            [n for n in names if n not in ident.names]))
         g_after, after_sims = combo_gap(members)
     say(f"scored on holdout ({time.perf_counter() - t0:.1f} s)")
 
@@ -306,6 +310,7 @@ def diagnose(model, runs, holdout=None, window_s=8.0, effects=None, log=None, mo
                  "shrink": shrink[n], "evidence": ev, "meaning": cat[n].meaning}
         if not significant:
             entry["fitted_params_if_added"] = sel["singles"][n].params[n]
+        entry.update(ident.entry(n))
         if significant:
             alts = sel["indistinguishable"].get(n, [])
             if alts:
@@ -341,6 +346,8 @@ def diagnose(model, runs, holdout=None, window_s=8.0, effects=None, log=None, mo
         "gap_before": {k: g_before[k] for k in ("metric", "value", "per_channel", "undefined")} | {"scored": scored},
         "location": location,
         "effects": entries,
+        "unidentifiable": ident.report(),
+        "sensors": identifiability.sensors(fit_p + ho_p),
         "gap_after": {k: g_after[k] for k in ("metric", "value", "per_channel", "undefined")} | {"scored": scored},
         "unexplained": unexplained,
         "verdict": verdict,

@@ -45,7 +45,6 @@ from udrobot_ctrl.dynamics import plant_casadi as pc
 from udrobot_ctrl.dynamics.fastsim import compile_function, parameter_hash
 from udrobot_ctrl.dynamics.integrators import rk4_step
 from udrobot_ctrl.dynamics.plant import PlantParameters, rotation_zyx, wrap_angle
-from udrobot_ctrl.gap.shrink import channel_noise
 
 CHANNELS = ("x", "y", "z", "phi", "theta", "psi", "u", "v", "w", "p", "q", "r", "ax", "ay", "az")
 ANGLE_ROWS = (3, 4, 5)
@@ -212,6 +211,9 @@ def _functions(p: PlantParameters, s: SmootherSettings, dt: float, compile: bool
 
 def measurement_noise(meas: dict, channels) -> dict:
     """Noise std per channel: sample-to-sample MAD of the logged data (angles unwrapped), floored."""
+    # local import: gap.shrink imports gap.data, which imports this module (a real cycle)
+    from udrobot_ctrl.gap.shrink import channel_noise
+
     out = {}
     for c in channels:
         y = np.asarray(meas[c], float)
