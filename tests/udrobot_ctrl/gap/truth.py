@@ -345,6 +345,8 @@ def generate(effects=None, n_runs=3, duration=90.0, rate=20.0, seed=0, model="pe
                 ch.pop(c, None)
         meta = {"format": "udrobot-run/1", "vehicle": "udrobot", "water_density": RHO, "seabed_depth": SEABED,
                 "walls": [{"point": [0.0, WALL_Y, 0.0], "normal": [0.0, -1.0, 0.0]}]}
+        # stock runs carry the noiseless truth state as unknown columns true_* (kept and ignored by the diagnoser)
+        extra = {f"true_{c}": X_[:, j, i].copy() for i, c in enumerate(names)} if sensors == "stock" else {}
         runs.append(Run(path=f"truth_{j}.csv", t=tl.copy(), channels=ch, input_kind="thrust", inputs=Fc[:, j, :],
-                        metadata=meta))
+                        extra=extra, metadata=meta))
     return runs

@@ -1,0 +1,86 @@
+"""Blind score of the diagnoser with the stock sensor set (depth, attitude, gyro, accelerometer; no DVL, no position).
+
+For every catalogue effect (and none), the suite's truth generator (tests/udrobot_ctrl/gap/truth.py, forms that
+differ from the diagnoser's templates) simulates three closed-loop pool runs with that effect withheld and logs
+the stock sensors; two runs fit, one is held out. Each case is scored:
+
+* ``named``: the truth effect is significant (or listed indistinguishable from a significant one), nothing else;
+* ``unidentifiable``: the truth effect is listed under ``unidentifiable`` and no effect is significant;
+* ``wrong``: any other outcome (a wrong significant effect, an extra one, or the truth effect missed while
+  identifiable).
+
+Prints one line per case and the totals (and with --json one JSON line).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "udrobot_ctrl" / "gap"))
+
+from truth import generate, random_magnitudes  # noqa: E402
+
+from udrobot_ctrl.gap.effects import EFFECT_NAMES  # noqa: E402
+from udrobot_ctrl.gap.report import diagnose  # noqa: E402
+
+
+def classify(report, truth_names) -> str:
+    """'named', 'unidentifiable', 'none' (no effect, nothing significant) or 'wrong'."""
+    sig = [e for e in report["effects"] if e["significant"]]
+    names = {e["name"] for e in sig}
+    unid = {u["name"] for u in report["unidentifiable"]}
+    if not truth_names:
+        return "none" if not sig else "wrong"
+    covered = set()
+    for e in sig:
+        alts = {e["name"]} | {a["name"] for a in e.get("indistinguishable_from", [])}
+        hit = alts & set(truth_names)
+        if not hit:
+            return "wrong"
+        covered |= hit
+    if set(truth_names) <= covered:
+        return "named"
+    if set(truth_names) - covered <= unid and len(names) == len(covered & names):
+        return "unidentifiable" if not sig else "named"
+    return "wrong"
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--effects", nargs="*", default=["none"] + list(EFFECT_NAMES))
+    ap.add_argument("--duration", type=float, default=60.0, help="seconds per run (3 runs)")
+    ap.add_argument("--rate", type=float, default=20.0)
+    ap.add_argument("--seed", type=int, default=2)
+    ap.add_argument("--sensors", default="stock", choices=("stock", "full"))
+    ap.add_argument("--json", action="store_true")
+    args = ap.parse_args(argv)
+    tally, rows = {}, []
+    for name in args.effects:
+        names = [] if name == "none" else [name]
+        rng = np.random.default_rng(args.seed + 100)
+        truth = {n: random_magnitudes(n, rng) for n in names}
+        runs = generate(truth, n_runs=3, duration=args.duration, rate=args.rate, seed=args.seed,
+                        sensors=args.sensors)
+        t0 = time.perf_counter()
+        report, _ = diagnose("pendulum:chin", runs[:2], runs[2:])
+        dt = time.perf_counter() - t0
+        verdict = classify(report, names)
+        tally[verdict] = tally.get(verdict, 0) + 1
+        sig = [e["name"] for e in report["effects"] if e["significant"]]
+        unid = [u["name"] for u in report["unidentifiable"]]
+        rows.append({"truth": name, "verdict": verdict, "significant": sig, "unidentifiable": unid,
+                     "diagnose_s": round(dt, 1)})
+        print(f"{name:<26s} {verdict:<15s} significant {sig}; unidentifiable {unid} ({dt:.1f} s)", flush=True)
+    print("totals: " + ", ".join(f"{k} {v}" for k, v in sorted(tally.items())))
+    if args.json:
+        print(json.dumps({"sensors": args.sensors, "cases": rows, "totals": tally}))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
