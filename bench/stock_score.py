@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import pickle
 import sys
 import time
 from pathlib import Path
@@ -58,14 +59,23 @@ def main(argv=None) -> int:
     ap.add_argument("--seed", type=int, default=2)
     ap.add_argument("--sensors", default="stock", choices=("stock", "full"))
     ap.add_argument("--json", action="store_true")
+    ap.add_argument("--cache", help="folder to keep the generated runs in (pickles; reused when present)")
     args = ap.parse_args(argv)
     tally, rows = {}, []
     for name in args.effects:
         names = [] if name == "none" else [name]
         rng = np.random.default_rng(args.seed + 100)
         truth = {n: random_magnitudes(n, rng) for n in names}
-        runs = generate(truth, n_runs=3, duration=args.duration, rate=args.rate, seed=args.seed,
-                        sensors=args.sensors)
+        cached = Path(args.cache) / f"{name}_{args.sensors}_{args.duration:g}_{args.rate:g}_{args.seed}.pkl" \
+            if args.cache else None
+        if cached is not None and cached.exists():
+            runs = pickle.loads(cached.read_bytes())
+        else:
+            runs = generate(truth, n_runs=3, duration=args.duration, rate=args.rate, seed=args.seed,
+                            sensors=args.sensors)
+            if cached is not None:
+                cached.parent.mkdir(parents=True, exist_ok=True)
+                cached.write_bytes(pickle.dumps(runs))
         t0 = time.perf_counter()
         report, _ = diagnose("pendulum:chin", runs[:2], runs[2:])
         dt = time.perf_counter() - t0

@@ -6,9 +6,9 @@ smoother (:mod:`udrobot_ctrl.gap.smoother`) with a posterior standard deviation.
 (each amplitude column of its design ``A`` and, for shape-only forms such as a lag or a current, the shape term
 ``b0``), evaluated on the fit stack at a few shapes of its grid:
 
-* **share**: the part of the regressor's energy, each DOF normalised by its noise (the residual std of an
-  observed DOF; ``M_ii`` times the smoother's posterior std of the unmodelled acceleration for an unobserved
-  one), that lies in observed DOFs. Below :data:`SHARE_MIN` the parameter acts mostly where nothing is measured.
+* **share**: the part of the regressor's energy, each DOF normalised by its noise (``M_ii`` times the smoother's
+  posterior std of the unmodelled acceleration, :func:`noise_scale`), that lies in observed DOFs. Below
+  :data:`SHARE_MIN` the parameter acts mostly where nothing is measured.
 * **sensitivity**: the relative change of the regressor in the observed DOFs when the reconstructed states are
   moved by one posterior standard deviation (each reconstructed velocity in turn, and the dead-reckoned
   position by the integral of the horizontal velocity's std): a coherent offset, the way a reconstruction
@@ -34,9 +34,10 @@ from udrobot_ctrl.gap import effects as fx
 from udrobot_ctrl.gap.data import OBSERVING, VEL
 from udrobot_ctrl.gap.smoother import SmootherSettings
 
-#: a parameter whose noise-normalised regressor energy lies less than half in observed DOFs is not identified:
-#: more than half of what it predicts is then invisible to the fit, so its estimate rests on the minority part
-SHARE_MIN = 0.5
+#: a parameter with less than a quarter of its noise-normalised regressor energy in observed DOFs is not identified:
+#: the observed part is then a side effect of what it does where nothing is measured (a thruster parameter shared by
+#: horizontal and vertical thrusters keeps about half of its energy in observed DOFs, and is identified there)
+SHARE_MIN = 0.25
 #: a regressor that changes by more than 30 % (RMS, observed DOFs) when a reconstructed state moves by one
 #: posterior std hinges on that reconstruction: its fitted amplitude would be off by as much
 SENSITIVITY_MAX = 0.3
@@ -219,16 +220,17 @@ def _perturbed(stack, preps, what):
     return replace(stack, runs=runs)
 
 
-def noise_scale(stack, r, dofs, preps) -> np.ndarray:
-    """Per-DOF noise of the equation error (N, N m): the residual std of a scored DOF, else ``M_ii`` times the
-    smoother's posterior std of the unmodelled acceleration (its prior std when no smoother ran)."""
+def noise_scale(stack, preps) -> np.ndarray:
+    """Per-DOF noise of the equation error (N, N m): ``M_ii`` times the median posterior std of the smoother's
+    unmodelled acceleration over the runs (how well the data pin that DOF's acceleration), or its prior std when
+    no smoother ran. The same definition for every DOF, and independent of the gap itself (a residual's std would
+    grow with the very effect under test)."""
     s = SmootherSettings()
     prior = np.array([s.sigma_d_lin] * 3 + [s.sigma_d_ang] * 3)
-    sig = np.array([np.median(np.concatenate([pr.smoothed.sigma_d[:, i] for pr in preps if pr.smoothed is not None]))
-                    if any(pr.smoothed is not None for pr in preps) else prior[i] for i in range(6)])
-    scale = np.diag(stack.p.M) * np.where(np.isfinite(sig) & (sig > 0), sig, prior)
-    rs = r.std(axis=0)
-    return np.where(dofs & (rs > 0), rs, scale)
+    smoothed = [pr.smoothed for pr in preps if pr.smoothed is not None]
+    sig = np.array([np.nanmedian(np.concatenate([sm.sigma_d[:, i] for sm in smoothed])) if smoothed else prior[i]
+                    for i in range(6)])
+    return np.diag(stack.p.M) * np.where(np.isfinite(sig) & (sig > 0), sig, prior)
 
 
 def assess(stack, r, dofs, preps, catalogue: dict, names=None) -> Identifiability:
@@ -250,7 +252,7 @@ def assess(stack, r, dofs, preps, catalogue: dict, names=None) -> Identifiabilit
     names = list(names or catalogue)
     observed = np.asarray(dofs, bool)
     reconstructed = np.logical_or.reduce([pr.reconstructed for pr in preps])
-    sigma = noise_scale(stack, r, dofs, preps)
+    sigma = noise_scale(stack, preps)
     moves = [i for i in range(6) if reconstructed[i]]
     if any(pr.smoothed is not None and not any(c in pr.meas and np.isfinite(pr.meas[c]).any() for c in "xy")
            for pr in preps):
