@@ -109,6 +109,9 @@ def build_stack(preps, p: PlantParameters, M_A, rate_hz=FIT_RATE_HZ):
                      "surfaces": [(s[0], s[1]) for s in pr.surfaces], "labels": [s[2] for s in pr.surfaces],
                      "smooth": (lambda y, pr=pr, held=False: filter_forces(pr, y, held))})
         row += idx.size
+    if not np.logical_and.reduce([pr.dof_ok for pr in preps]).any():
+        raise ValueError("nothing is scoreable: no DOF's velocity is observed in every run (log depth, attitude or "
+                         "body rates, or body velocities; the thrusts alone constrain nothing)")
     if row < 20:
         raise ValueError("fewer than 20 usable samples (velocities and their derivatives) in the fit runs")
     labels = sorted({lab for pr in preps for _, _, lab in pr.surfaces})
