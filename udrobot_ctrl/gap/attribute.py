@@ -302,7 +302,8 @@ def select(att: Attributor, att_h: Attributor, names=None, max_effects=4, log=No
     """Single fits of every effect, noise floor, forward selection and look-alike groups.
 
     Effects in ``exclude`` (unidentifiable on these runs, :mod:`udrobot_ctrl.gap.identifiability`) are fitted
-    alone for the record but never selected nor listed as look-alikes.
+    alone for the record and never selected; they are still look-alikes of a selected effect whose fit they
+    match on the observed DOFs (the runs cannot tell them apart: that is what the report must say).
 
     Returns
     -------
@@ -344,7 +345,7 @@ def select(att: Attributor, att_h: Attributor, names=None, max_effects=4, log=No
         current, cur_bic, cur_ho = fbest, att.bic(fbest), ho
     out = {"nominal": nominal, "singles": singles, "delta_bic": delta, "steps": steps, "tau_int": tau,
            "n_eff": att.n_eff}
-    out.update(finalize(att, selected, [n for n in names if n not in exclude], current))
+    out.update(finalize(att, selected, names, current))
     return out
 
 

@@ -284,8 +284,7 @@ def diagnose(model, runs, holdout=None, window_s=8.0, effects=None, log=None, mo
             pruned[n] = contrib
             members, g_after, after_sims = rest, g_rest, sims_rest
     if pruned:  # refit what remains (its parameters were shared with the dropped effects) and re-score
-        sel.update(finalize(att, [m for m in sel["selected"] if m in members],
-                            [n for n in names if n not in ident.names]))
+        sel.update(finalize(att, [m for m in sel["selected"] if m in members], names))
         g_after, after_sims = combo_gap(members)
     say(f"scored on holdout ({time.perf_counter() - t0:.1f} s)")
 

@@ -1,6 +1,8 @@
 """Per-effect identifiability from the observed channels (one mechanism over every effect's regressors)."""
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -16,13 +18,11 @@ from .stock_sim import STATE, STOCK, simulate
 P = plant_parameters(load_model("pendulum:chin"))
 
 
-def _assess(channels, seabed=True):
-    preps = []
-    for seed in (11, 12):
-        run, _ = simulate(duration=30.0, seed=seed, sensors=channels)
-        if not seabed:
-            run.metadata = {k: v for k, v in run.metadata.items() if k != "seabed_depth"}
-        preps.append(prepare(run, P))
+def _assess(channels, drop_surfaces=False, preps=None):
+    if preps is None:
+        preps = [prepare(simulate(duration=30.0, seed=seed, sensors=channels)[0], P) for seed in (11, 12)]
+    if drop_surfaces:  # as if the sidecar gave no seabed depth
+        preps = [replace(pr, surfaces=[]) for pr in preps]
     st, r, dofs = build_stack(preps, P, P.M_A)
     return assess(st, r, dofs, preps, fx.catalogue()), preps
 
@@ -71,8 +71,8 @@ def test_full_sensors_identify_everything():
     assert rep["velocities"]["u"] == "observed" and rep["scored_dofs"] == list(fx.DOF)
 
 
-def test_vanishing_regressor_is_unidentifiable_with_its_reason():
-    ident, preps = _assess(STOCK, seabed=False)
+def test_vanishing_regressor_is_unidentifiable_with_its_reason(stock):
+    ident, preps = _assess(STOCK, drop_surfaces=True, preps=stock[1])
     assert "wall_effect" in ident.names
     reason = {u["name"]: u["reason"] for u in ident.report()}["wall_effect"]
     assert "zero on these runs" in reason and "altitude" in reason
