@@ -6,8 +6,10 @@ the stock sensors; two runs fit, one is held out. Each case is scored:
 
 * ``named``: the truth effect is significant (or listed indistinguishable from a significant one), nothing else;
 * ``unidentifiable``: the truth effect is listed under ``unidentifiable`` and no effect is significant;
-* ``wrong``: any other outcome (a wrong significant effect, an extra one, or the truth effect missed while
-  identifiable).
+* ``named+extra``: the truth effect is named, with other significant effects besides (wrong by the goal);
+* ``listed+wrong``: the truth effect is listed unidentifiable, but another effect is significant (wrong);
+* ``wrong``: a wrong significant effect and the (identifiable) truth effect missed; ``missed``: nothing
+  significant although the truth effect is identifiable.
 
 Prints one line per case and the totals (and with --json one JSON line).
 """
@@ -31,24 +33,21 @@ from udrobot_ctrl.gap.report import diagnose  # noqa: E402
 
 
 def classify(report, truth_names) -> str:
-    """'named', 'unidentifiable', 'none' (no effect, nothing significant) or 'wrong'."""
+    """Outcome of one case (see the module docstring); 'none' / 'wrong' for a case without effect."""
     sig = [e for e in report["effects"] if e["significant"]]
-    names = {e["name"] for e in sig}
     unid = {u["name"] for u in report["unidentifiable"]}
     if not truth_names:
         return "none" if not sig else "wrong"
-    covered = set()
-    for e in sig:
-        alts = {e["name"]} | {a["name"] for a in e.get("indistinguishable_from", [])}
-        hit = alts & set(truth_names)
-        if not hit:
-            return "wrong"
-        covered |= hit
-    if set(truth_names) <= covered:
-        return "named"
-    if set(truth_names) - covered <= unid and len(names) == len(covered & names):
-        return "unidentifiable" if not sig else "named"
-    return "wrong"
+    truth = set(truth_names)
+    named = {n for e in sig for n in ({e["name"]} | {a["name"] for a in e.get("indistinguishable_from", [])})
+             if n in truth}
+    extra = [e["name"] for e in sig if e["name"] not in truth
+             and not truth & {a["name"] for a in e.get("indistinguishable_from", [])}]
+    if named == truth:
+        return "named" if not extra else "named+extra"
+    if truth - named <= unid:
+        return "unidentifiable" if not sig else "listed+wrong"
+    return "wrong" if sig else "missed"
 
 
 def main(argv=None) -> int:
