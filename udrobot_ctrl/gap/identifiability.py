@@ -38,8 +38,8 @@ from udrobot_ctrl.gap.smoother import SmootherSettings
 #: the observed part is then a side effect of what it does where nothing is measured (a thruster parameter shared by
 #: horizontal and vertical thrusters keeps about half of its energy in observed DOFs, and is identified there)
 SHARE_MIN = 0.25
-#: a regressor that changes by more than 30 % (RMS, observed DOFs) when a reconstructed state moves by one
-#: posterior std hinges on that reconstruction: its fitted amplitude would be off by as much
+#: a regressor that changes by more than 30 % (RMS, observed DOFs) when a reconstructed state moves by its
+#: reconstruction error hinges on that reconstruction: its fitted amplitude would be off by as much
 SENSITIVITY_MAX = 0.3
 #: energy below this fraction of the largest column energy of all effects is "zero on the data"
 VANISH = 1e-12

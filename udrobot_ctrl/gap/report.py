@@ -403,6 +403,8 @@ def summary(report) -> str:
                      f"dBIC {_num(e['evidence']['delta_bic'], '.0f')}{extra}")
         if e["significant"]:
             lines.append("      params " + ", ".join(f"{k}={_num(v, '.4g')}" for k, v in e["params"].items()))
+    for u in report.get("unidentifiable", []):
+        lines.append(f"  unidentifiable with these sensors: {u['name']} ({u['reason']})")
     lines.append(f"gap after {_num(ga['value'], '.3f')}; unexplained {_num(report['unexplained'], '.2f')}")
     lines.append(report["verdict"])
     return "\n".join(lines)
