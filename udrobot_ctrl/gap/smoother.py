@@ -289,6 +289,7 @@ def smooth_run(t, meas: dict, tau, p: PlantParameters, settings: SmootherSetting
         if c in chans:
             y = np.asarray(meas[c], float)
             x0[i] = y[np.flatnonzero(np.isfinite(y))[0]]
+    # assumed initial std (m, rad, m/s, rad/s): wide, so that the first measurements set the state, not the prior
     sig0 = np.array([1.0, 1.0, 0.5, 0.2, 0.2, 0.5, 0.5, 0.5, 0.5, 0.3, 0.3, 0.3]
                     + [s.sigma_d_lin] * 3 + [s.sigma_d_ang] * 3 + [s.sigma_bias] * 3)
     P = np.diag(sig0[keep] ** 2)
