@@ -109,6 +109,9 @@ def build_stack(preps, p: PlantParameters, M_A, rate_hz=FIT_RATE_HZ):
                      "surfaces": [(s[0], s[1]) for s in pr.surfaces], "labels": [s[2] for s in pr.surfaces],
                      "smooth": (lambda y, pr=pr, held=False: filter_forces(pr, y, held))})
         row += idx.size
+    if not np.logical_and.reduce([pr.dof_ok for pr in preps]).any():
+        raise ValueError("nothing is scoreable: no DOF's velocity is observed in every run (log depth, attitude or "
+                         "body rates, or body velocities; the thrusts alone constrain nothing)")
     if row < 20:
         raise ValueError("fewer than 20 usable samples (velocities and their derivatives) in the fit runs")
     labels = sorted({lab for pr in preps for _, _, lab in pr.surfaces})
@@ -296,8 +299,12 @@ def holdout_loglik(att_h: Attributor, fit: Fit):
     return float(np.sum(np.log(np.sum(e ** 2, axis=0) / att_h.N + 1e-300)))
 
 
-def select(att: Attributor, att_h: Attributor, names=None, max_effects=4, log=None):
+def select(att: Attributor, att_h: Attributor, names=None, max_effects=4, log=None, exclude=()):
     """Single fits of every effect, noise floor, forward selection and look-alike groups.
+
+    Effects in ``exclude`` (unidentifiable on these runs, :mod:`udrobot_ctrl.gap.identifiability`) are fitted
+    alone for the record and never selected; they are still look-alikes of a selected effect whose fit they
+    match on the observed DOFs (the runs cannot tell them apart: that is what the report must say).
 
     Returns
     -------
@@ -317,7 +324,7 @@ def select(att: Attributor, att_h: Attributor, names=None, max_effects=4, log=No
         fixed = [(n, current.shapes[n]) for n in selected]
         cands = {}
         for n in names:
-            if n in selected:
+            if n in selected or n in exclude:
                 continue
             # the grid plus the effect's refined single-effect shape: a coarse grid must not hand the step to a
             # many-parameter look-alike (e.g. cross-coupled damping for a current between grid points)

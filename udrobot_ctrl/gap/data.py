@@ -10,7 +10,13 @@ Everything the diagnoser computes starts from a :class:`Prepared` run:
   that the nominal wrench is ``B f``: per-thruster thrusts (``thrust_i``; ``pwm_i`` converted with a T200
   curve) with the model's thruster matrix, or six virtual actuators (``tau_*``, ``B = I``);
 * the distances to the seabed and to the walls come from the sidecar metadata (``seabed_depth``,
-  ``walls``) and the logged position, or from the logged ``altitude``.
+  ``walls``) and the logged position, or from the logged ``altitude``;
+* a run that logs no body velocity in some translational DOF (a stock ROV: no DVL) is passed through the
+  model-based smoother (:mod:`udrobot_ctrl.gap.smoother`): every velocity that is not logged is *reconstructed*
+  from what is (depth, attitude, rates, accelerometer, thrusts, position if any) and differentiated like a
+  logged one, and ``x, y`` are dead-reckoned when not logged. A DOF is *observed* when a sensor measures its
+  velocity or the integral of it (X: ``u`` or ``x``; Y: ``v`` or ``y``; Z: ``w`` or ``z``; K/M/N: the rate or the
+  Euler angle); only observed DOFs are scored (``dof_ok``). Runs that log ``u v w`` take the path above unchanged.
 """
 from __future__ import annotations
 
@@ -20,10 +26,13 @@ import numpy as np
 from scipy.signal import savgol_filter
 
 from udrobot_ctrl.dynamics.plant import PlantParameters, restoring_forces
+from udrobot_ctrl.gap.smoother import SmoothedRun, SmootherError, smooth_run
 from udrobot_ctrl.io.runlog import Run, check_time_gaps, resample
 
 VEL = ("u", "v", "w", "p", "q", "r")
 POSE = ("x", "y", "z", "phi", "theta", "psi")
+#: a DOF's velocity is observed when any of these channels is logged (the velocity or its integral)
+OBSERVING = {0: ("u", "x"), 1: ("v", "y"), 2: ("w", "z"), 3: ("p", "phi"), 4: ("q", "theta"), 5: ("r", "psi")}
 MAX_GRID_RATIO = 100.0  # a uniform grid over 100 x the rows means a time column error, not a resampling need
 
 @dataclass
@@ -55,9 +64,17 @@ class Prepared:
     surfaces : list of (distance (n,), normal_ned (3,), label)
         Seabed / walls with the distance (m) from the body origin and the unit normal into the water.
     dof_ok : (6,) bool
-        DOFs whose velocity is measured (their equation of motion can be scored).
+        DOFs whose velocity is observed and available (their equation of motion can be scored).
     notes : list of str
         What was assumed while preparing.
+    window_s : float
+        Savitzky-Golay window, s.
+    observed : (6,) bool
+        DOFs whose velocity a sensor observes (see :data:`OBSERVING`).
+    reconstructed : (6,) bool
+        DOFs whose ``nu`` (and ``nu_dot``) come from the smoother, not from a logged velocity.
+    smoothed : SmoothedRun or None
+        The smoother's result (with posterior std) when it ran.
     """
 
     name: str
@@ -76,6 +93,9 @@ class Prepared:
     dof_ok: np.ndarray = field(default_factory=lambda: np.zeros(6, bool))
     notes: list = field(default_factory=list)
     window_s: float = 0.8
+    observed: np.ndarray = field(default_factory=lambda: np.zeros(6, bool))
+    reconstructed: np.ndarray = field(default_factory=lambda: np.zeros(6, bool))
+    smoothed: SmoothedRun | None = None
 
     @property
     def n(self) -> int:
@@ -83,12 +103,13 @@ class Prepared:
 
     def raw_state(self) -> np.ndarray:
         """(n, 12) state for the equation error: filled pose, logged velocities (rates derived from the attitude
-        where not logged, zero for unmeasured DOFs), nan inside velocity gaps."""
+        where not logged, reconstructed by the smoother where it ran, zero for other unmeasured DOFs), nan inside
+        velocity gaps."""
         nu = np.full((self.n, 6), 0.0)
         for i, c in enumerate(VEL):
             if c in self.meas and np.isfinite(self.meas[c]).any():
                 nu[:, i] = self.meas[c]
-            elif self.dof_ok[i]:
+            elif self.dof_ok[i] or self.reconstructed[i]:
                 nu[:, i] = self.nu[:, i]
         return np.concatenate([self.eta, nu], axis=1)
 
@@ -246,14 +267,40 @@ def prepare(run: Run, p: PlantParameters, name=None, window_s=0.8, dt=None) -> P
             nu[:, i], nu_dot[:, i] = smooth_derivative(rates[:, i - 3], dt, window_s)
         notes.append(f"{label}: body rates {', '.join(VEL[i] for i in missing_rates)} not logged; derived from "
                      f"the Euler-angle rates")
-    dof_ok = np.isfinite(nu).any(axis=0)
     f_raw = np.asarray(r.inputs, float)
     if np.isnan(f_raw).any():
         f_raw = np.column_stack([_fill(c) for c in f_raw.T])
     f, B, inflow, ref = actuators(run, p, f_raw)
+    observed = np.array([any(_logged(meas, c) for c in OBSERVING[i]) for i in range(6)])
+    reconstructed = np.zeros(6, bool)
+    smoothed = None
+    if not all(_logged(meas, c) for c in ("u", "v", "w")):
+        try:
+            smoothed = smooth_run(t, meas, f @ B.T, p, label=label)
+        except SmootherError as exc:
+            notes.append(f"{label}: {exc}; the unlogged velocities are not reconstructed (only DOFs whose velocity "
+                         f"is logged or derived from the attitude are scored)")
+        if smoothed is not None:
+            reconstructed = np.array([not _logged(meas, c) for c in VEL])
+            for i in np.flatnonzero(reconstructed):
+                nu[:, i], nu_dot[:, i] = smooth_derivative(smoothed.nu[:, i], dt, window_s)
+            for i, c in enumerate(("x", "y")):
+                if not _logged(meas, c):
+                    eta[:, i] = smoothed.eta[:, i]
+            notes.append(f"{label}: {', '.join(VEL[i] for i in np.flatnonzero(reconstructed))} not logged; "
+                         f"reconstructed by the model-based smoother from {', '.join(smoothed.channels)} and the "
+                         f"thrusts" + ("; x, y dead-reckoned" if not (_logged(meas, "x") or _logged(meas, "y"))
+                                       else ""))
+    dof_ok = observed & np.isfinite(nu).any(axis=0)
     return Prepared(name=label, t=t, dt=dt, meas=meas, eta=eta, nu=nu, nu_dot=nu_dot, f=f, B=B, inflow=inflow,
                     f_ref=ref, input_kind=run.input_kind, surfaces=_surfaces(run, meas, n), dof_ok=dof_ok,
-                    notes=notes, window_s=window_s)
+                    notes=notes, window_s=window_s, observed=observed, reconstructed=reconstructed,
+                    smoothed=smoothed)
+
+
+def _logged(meas, c) -> bool:
+    """True when channel c has any finite sample."""
+    return c in meas and bool(np.isfinite(meas[c]).any())
 
 
 def restoring_gradient(eta, p: PlantParameters, which: str):

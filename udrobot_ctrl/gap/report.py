@@ -16,6 +16,7 @@ import numpy as np
 from udrobot_ctrl.dynamics.effects import plant_effect, wall_parameters
 from udrobot_ctrl.dynamics.plant import plant_parameters, require_nominal
 from udrobot_ctrl.gap import effects as fx
+from udrobot_ctrl.gap import identifiability
 from udrobot_ctrl.gap.attribute import (
     BIC_STRONG,
     HOLDOUT_CHI2,
@@ -256,11 +257,13 @@ def diagnose(model, runs, holdout=None, window_s=8.0, effects=None, log=None, mo
 
     # -- which: equation-error fits on the fit runs, holdout confirmation
     st, r, dofs = build_stack(fit_p, p, M_A)
-    att = Attributor(st, r, dofs, cat)
     st_h, r_h, dofs_h = build_stack(ho_p, p, M_A)
+    ident = identifiability.assess(st, r, dofs & dofs_h, fit_p, cat, names)  # what the observed channels can tell
+    cat = ident.restrict(cat)
+    att = Attributor(st, r, dofs, cat)
     att_h = Attributor(st_h, r_h, dofs & dofs_h, cat)
     att.dofs = dofs & dofs_h
-    sel = select(att, att_h, names, log=say) if True else None
+    sel = select(att, att_h, names, log=say, exclude=ident.names)
     att_h.n_eff = max(10.0, att_h.N / max(sel["tau_int"], 1.0))
     say(f"fitted {len(names)} candidate effects; {len(sel['selected'])} pass the fit-run tests"
         + (f" ({', '.join(sel['selected'])}), to be confirmed on the holdout" if sel["selected"] else "")
@@ -328,6 +331,7 @@ def diagnose(model, runs, holdout=None, window_s=8.0, effects=None, log=None, mo
                  "shrink": shrink[n], "evidence": ev, "meaning": cat[n].meaning}
         if not significant:
             entry["fitted_params_if_added"] = sel["singles"][n].params[n]
+        entry.update(ident.entry(n))
         if significant:
             alts = sel["indistinguishable"].get(n, [])
             if alts:
@@ -363,6 +367,8 @@ def diagnose(model, runs, holdout=None, window_s=8.0, effects=None, log=None, mo
         "gap_before": {k: g_before[k] for k in ("metric", "value", "per_channel", "undefined")} | {"scored": scored},
         "location": location,
         "effects": entries,
+        "unidentifiable": ident.report(),
+        "sensors": identifiability.sensors(fit_p + ho_p),
         "gap_after": {k: g_after[k] for k in ("metric", "value", "per_channel", "undefined")} | {"scored": scored},
         "unexplained": unexplained,
         "verdict": verdict,
@@ -419,6 +425,8 @@ def summary(report) -> str:
                      f"dBIC {_num(e['evidence']['delta_bic'], '.0f')}{extra}")
         if e["significant"]:
             lines.append("      params " + ", ".join(f"{k}={_num(v, '.4g')}" for k, v in e["params"].items()))
+    for u in report.get("unidentifiable", []):
+        lines.append(f"  unidentifiable with these sensors: {u['name']} ({u['reason']})")
     lines.append(f"gap after {_num(ga['value'], '.3f')}; unexplained {_num(report['unexplained'], '.2f')}")
     lines.append(report["verdict"])
     return "\n".join(lines)

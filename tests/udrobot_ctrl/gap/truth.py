@@ -37,6 +37,11 @@ from udrobot_ctrl.vehicle import load_model
 RHO = 1000.0
 SEABED = 3.0
 WALL_Y = 0.0  # wall plane y = 0, water on y < 0 (normal (0, -1, 0))
+GRAVITY = 9.81  # m/s^2
+# accelerometer of the stock sensor set (assumed): white noise 0.03 m/s^2 per logged sample (an MPU-6000 class
+# MEMS, 400 ug/sqrt(Hz) over a ~20 Hz band plus thruster vibration) and a residual bias after calibration
+ACCEL_NOISE = 0.03
+ACCEL_BIAS = 0.03
 
 
 def random_magnitudes(name, rng):
@@ -258,16 +263,30 @@ def schedule(t, prm, turn_rate=0.0):
 LOOP_TURN_RATE = -2 * np.pi / 40.0
 
 
+def specific_force(x, nu_dot, g=GRAVITY):
+    """Accelerometer reading (specific force at the body origin, body FRD, m/s^2) of states x (..., 12) with body
+    accelerations nu_dot (..., 6): f = v_dot + omega x v - R^T [0, 0, g] (run-log format)."""
+    phi, th = x[..., 3], x[..., 4]
+    g_body = g * np.stack([-np.sin(th), np.cos(th) * np.sin(phi), np.cos(th) * np.cos(phi)], -1)
+    return nu_dot[..., :3] + np.cross(x[..., 9:12], x[..., 6:9]) - g_body
+
+
 def generate(effects=None, n_runs=3, duration=90.0, rate=20.0, seed=0, model="pendulum:chin", partial=False,
-             wall_distance=None, noise_scale=1.0, path="legs"):
+             wall_distance=None, noise_scale=1.0, path="legs", sensors="full"):
     """Simulate ``n_runs`` closed-loop pool runs with the withheld ``effects`` (name -> params dict).
 
     ``path``: ``"legs"`` (surge legs along the pool with yaw turns) or ``"loop"`` (the same legs as arcs of a steady
     turn, :data:`LOOP_TURN_RATE`: the vehicle goes around, so a cable to a fixed anchor turns with it).
+    ``sensors``: ``"full"`` logs pose, body velocities and altitude (a pool vehicle with DVL and positioning);
+    ``"stock"`` logs what a stock small ROV has: depth, attitude, gyro rates and the accelerometer ``ax ay az``
+    (specific force of the truth state, white noise ``ACCEL_NOISE`` plus a constant bias per axis and run drawn
+    uniformly in +-``ACCEL_BIAS``), no u v w x y altitude.
 
     Returns a list of :class:`udrobot_ctrl.io.runlog.Run` (thrust_i inputs, noisy sensors, sidecar metadata
     with the seabed depth and the wall) -- the diagnoser sees nothing else.
     """
+    if sensors not in ("full", "stock"):
+        raise ValueError(f"sensors must be 'full' or 'stock', got {sensors!r}")
     rng = np.random.default_rng(seed)
     tr = Truth(model, effects)
     R_ = n_runs
@@ -296,7 +315,7 @@ def generate(effects=None, n_runs=3, duration=90.0, rate=20.0, seed=0, model="pe
     p = tr.p
     iz = np.zeros(R_)
     iu = np.zeros(R_)
-    logs = {k: [] for k in ("t", "x", "f")}
+    logs = {k: [] for k in ("t", "x", "f", "nu_dot")}
     ff_z = -(p.weight - p.buoyancy)  # thrust that holds depth on the nominal model
     for k in range(n):
         t = k * dt
@@ -310,13 +329,16 @@ def generate(effects=None, n_runs=3, duration=90.0, rate=20.0, seed=0, model="pe
         epsi = (psi_ref - x[:, 5] + np.pi) % (2 * np.pi) - np.pi
         N = 3.0 * epsi - 1.5 * r
         K = -2.0 * phi - 0.5 * pp
-        if k % log_every == 0:  # the controller runs at the logging rate (commands held in between)
+        logging = k % log_every == 0
+        if logging:  # the controller runs at the logging rate (commands held in between)
             fc = np.clip(np.stack([X, Z, K, N], 1) @ A.T, p.f_min, p.f_max)
             logs["t"].append(t)
             logs["x"].append(x.copy())
             logs["f"].append(fc.copy())
         f, s_state = tr.thrust(fc, s_state, x, dt)
         k1 = tr.deriv(x, f, t)
+        if logging:
+            logs["nu_dot"].append(k1[:, 6:].copy())
         k2 = tr.deriv(x + dt / 2 * k1, f, t + dt / 2)
         k3 = tr.deriv(x + dt / 2 * k2, f, t + dt / 2)
         k4 = tr.deriv(x + dt * k3, f, t + dt)
@@ -324,6 +346,7 @@ def generate(effects=None, n_runs=3, duration=90.0, rate=20.0, seed=0, model="pe
     tl = np.array(logs["t"])
     X_ = np.array(logs["x"])  # (n, R, 12)
     Fc = np.array(logs["f"])
+    ND = np.array(logs["nu_dot"])  # (n, R, 6) truth body accelerations at the logged samples
     delay = effects.get("sensor_delay", {}).get("delay", 0.0) if effects else 0.0
     runs = []
     noise = {"x": 0.03, "y": 0.03, "z": 0.005, "phi": 0.003, "theta": 0.003, "psi": 0.005, "u": 0.008, "v": 0.008,
@@ -342,8 +365,17 @@ def generate(effects=None, n_runs=3, duration=90.0, rate=20.0, seed=0, model="pe
             for c in ("u", "v", "w"):
                 for g0 in rng.integers(0, tl.size - 40, 3):
                     ch[c][g0:g0 + int(rate * 1.5)] = np.nan
+        if sensors == "stock":
+            sf = specific_force(X_[:, j, :], ND[:, j, :])
+            bias = rng.uniform(-ACCEL_BIAS, ACCEL_BIAS, 3)
+            for i, c in enumerate(("ax", "ay", "az")):
+                ch[c] = sf[:, i] + bias[i] + rng.normal(0, noise_scale * ACCEL_NOISE, tl.size)
+            for c in ("u", "v", "w", "x", "y", "altitude"):
+                ch.pop(c, None)
         meta = {"format": "udrobot-run/1", "vehicle": "udrobot", "water_density": RHO, "seabed_depth": SEABED,
                 "walls": [{"point": [0.0, WALL_Y, 0.0], "normal": [0.0, -1.0, 0.0]}]}
+        # stock runs carry the noiseless truth state as unknown columns true_* (kept and ignored by the diagnoser)
+        extra = {f"true_{c}": X_[:, j, i].copy() for i, c in enumerate(names)} if sensors == "stock" else {}
         runs.append(Run(path=f"truth_{j}.csv", t=tl.copy(), channels=ch, input_kind="thrust", inputs=Fc[:, j, :],
-                        metadata=meta))
+                        extra=extra, metadata=meta))
     return runs

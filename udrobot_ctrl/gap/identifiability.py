@@ -1,0 +1,326 @@
+"""Which catalogue effects the runs' observed channels can identify: one test over every effect's regressors.
+
+The equation-error fit scores only the *observed* DOFs (a sensor measures the velocity or its integral, see
+:data:`udrobot_ctrl.gap.data.OBSERVING`); the velocities of the other DOFs are *reconstructed* by the model-based
+smoother (:mod:`udrobot_ctrl.gap.smoother`) with a posterior standard deviation. For each parameter of an effect
+(each amplitude column of its design ``A`` and, for shape-only forms such as a lag or a current, the shape term
+``b0``), evaluated on the fit stack at a few shapes of its grid:
+
+* **share**: the part of the regressor's energy, each DOF normalised by its noise (``M_ii`` times the smoother's
+  posterior std of the unmodelled acceleration, :func:`noise_scale`), that lies in observed DOFs. Below
+  :data:`SHARE_MIN` the parameter acts mostly where nothing is measured.
+* **sensitivity**: the relative change of the regressor in the observed DOFs when the reconstructed states are
+  moved by one posterior standard deviation (each reconstructed velocity in turn, and the dead-reckoned
+  position by the integral of the horizontal velocity's std): a coherent offset, the way a reconstruction
+  errs. Above :data:`SENSITIVITY_MAX` the regressor hinges on a state no sensor pins down, so a fit would
+  identify the reconstruction, not the effect.
+* a regressor that is zero on the data (e.g. a wall effect with no known distance to any surface) identifies
+  nothing.
+
+A parameter is identified when its regressor is non-zero, its share is at least ``SHARE_MIN`` and its
+sensitivity at most ``SENSITIVITY_MAX``. An effect with no identified parameter is *unidentifiable*: it is
+listed with the reason and the measurement that would fix it, excluded from selection and never significant.
+An effect identified in part stays testable with its non-identified amplitude parameters frozen at zero
+(:meth:`Identifiability.restrict`). With every DOF observed and nothing reconstructed, the only possible
+finding is a vanishing regressor.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from udrobot_ctrl.gap import effects as fx
+from udrobot_ctrl.gap.data import OBSERVING, VEL
+from udrobot_ctrl.gap.smoother import SmootherSettings
+
+#: a parameter with less than a quarter of its noise-normalised regressor energy in observed DOFs is not identified:
+#: the observed part is then a side effect of what it does where nothing is measured (a thruster parameter shared by
+#: horizontal and vertical thrusters keeps about half of its energy in observed DOFs, and is identified there)
+SHARE_MIN = 0.25
+#: a regressor that changes by more than 30 % (RMS, observed DOFs) when a reconstructed state moves by its
+#: reconstruction error hinges on that reconstruction: its fitted amplitude would be off by as much
+SENSITIVITY_MAX = 0.3
+#: energy below this fraction of the largest column energy of all effects is "zero on the data"
+VANISH = 1e-12
+N_SHAPES = 3  # grid shapes probed per effect: first, middle, last
+
+#: what measures each DOF's velocity (for the reason): DOF groups -> (what is missing, how to fix it)
+MISSING = {
+    "horizontal": ("horizontal velocity is not observed: no DVL or positioning in these runs",
+                   "log u, v (DVL) or x, y (USBL)"),
+    "heave": ("heave velocity is not observed: no DVL and no depth in these runs", "log w (DVL) or z (depth)"),
+    "roll": ("roll rate is not observed", "log p (gyro) or phi (attitude)"),
+    "pitch": ("pitch rate is not observed", "log q (gyro) or theta (attitude)"),
+    "yaw": ("yaw rate is not observed", "log r (gyro) or psi (heading)"),
+    "position": ("the horizontal position is not observed (only dead-reckoned)", "log x, y (USBL)"),
+}
+DOF_GROUP = ("horizontal", "horizontal", "heave", "roll", "pitch", "yaw")
+
+
+@dataclass
+class ParameterCheck:
+    """Identifiability of one parameter (an amplitude column, or an effect's shape term).
+
+    Attributes
+    ----------
+    name : str
+    share : float
+        Noise-normalised regressor energy in observed DOFs / total (0-1).
+    sensitivity : float
+        Largest relative RMS change of the regressor in observed DOFs under a one-std move of a reconstructed
+        state.
+    identified : bool
+    causes : tuple of str
+        Keys of :data:`MISSING` (or ``"vanishes"``) that make it non-identified.
+    """
+
+    name: str
+    share: float
+    sensitivity: float
+    identified: bool
+    causes: tuple = ()
+
+
+@dataclass
+class EffectCheck:
+    """Identifiability of one effect: its parameters' checks, and whether any is identified."""
+
+    name: str
+    params: list = field(default_factory=list)
+
+    @property
+    def identified(self) -> bool:
+        return any(c.identified for c in self.params)
+
+    @property
+    def not_identified(self) -> list:
+        return [c.name for c in self.params if not c.identified]
+
+    def reason(self) -> str:
+        """Why parameters are not identified, with the measurement that would fix it."""
+        causes = []
+        for c in self.params:
+            if not c.identified:
+                causes += [k for k in c.causes if k not in causes]
+        if "vanishes" in causes:
+            return ("its regressors are zero on these runs: nothing it acts on is present (a surface effect needs a "
+                    "known distance: log altitude, or give seabed_depth, or walls with logged x, y, in the sidecar)")
+        return "; ".join(f"{MISSING[k][0]}; {MISSING[k][1]}" for k in causes)
+
+
+@dataclass
+class Identifiability:
+    """Per-effect identifiability on a fit stack (see the module docstring)."""
+
+    effects: dict
+    observed: np.ndarray
+    reconstructed: np.ndarray
+
+    @property
+    def names(self) -> list:
+        """Names of the unidentifiable effects."""
+        return [n for n, e in self.effects.items() if not e.identified]
+
+    def report(self) -> list:
+        """The report's ``unidentifiable`` list: ``[{"name", "reason"}]``."""
+        return [{"name": n, "reason": self.effects[n].reason()} for n in self.names]
+
+    def entry(self, name) -> dict:
+        """Extra fields of an effect's report entry: the parameters not identified (partial effects only)."""
+        e = self.effects.get(name)
+        if e is None or not e.identified or not e.not_identified:
+            return {}
+        return {"not_identified": {"params": e.not_identified, "reason": e.reason()}}
+
+    def restrict(self, catalogue: dict) -> dict:
+        """The catalogue with each partly identified effect's non-identified amplitude parameters frozen at 0."""
+        out = {}
+        for n, eff in catalogue.items():
+            chk = self.effects.get(n)
+            frozen = tuple(chk.not_identified) if chk is not None and chk.identified else ()
+            out[n] = Restricted(eff, frozen) if frozen else eff
+        return out
+
+
+class Restricted(fx.Effect):
+    """A catalogue effect with some amplitude parameters frozen at zero (their columns removed from the design)."""
+
+    def __init__(self, inner: fx.Effect, frozen):
+        super().__init__(inner.name, inner.meaning, inner.shape_names, inner.shape_grid, inner.shape_bounds,
+                         inner.refine, inner.mimics)
+        self.inner = inner
+        self.frozen = tuple(frozen)
+
+    def design(self, s, shape):
+        b0, A, names, lo, hi = self.inner.design(s, shape)
+        keep = np.array([nm not in self.frozen for nm in names], float)
+        return b0, A * keep, names, lo, hi
+
+    def hooks(self, params, p, B, inflow, f_ref, M_A):
+        return self.inner.hooks(params, p, B, inflow, f_ref, M_A)
+
+
+def _shapes(eff: fx.Effect):
+    grid = list(eff.shape_grid)
+    if len(grid) <= N_SHAPES:
+        return grid
+    return [grid[0], grid[len(grid) // 2], grid[-1]]
+
+
+def _columns(eff, stack, shape):
+    """(n, 6, k) regressors of an effect at ``shape`` and their names: amplitude columns, then the shape term."""
+    b0, A, names, _, _ = eff.design(stack, tuple(shape))
+    cols, nm = [np.nan_to_num(A)], list(names)
+    b0 = np.nan_to_num(b0)
+    if eff.shape_names and np.any(b0):  # a shape-only form (lag, current, deadband's cut) acts through b0
+        cols.append(b0[..., None])
+        nm.append(",".join(eff.shape_names))
+    return np.concatenate(cols, axis=-1), nm
+
+
+def reconstruction_error(pr, p) -> np.ndarray:
+    """(n, 6) error scale of the reconstructed velocities of a prepared run (m/s, rad/s; 0 where logged).
+
+    The smoother's posterior std, and for a DOF no sensor observes at least the steady offset an unmodelled
+    acceleration of the smoother's assumed size would cause, ``sigma_d M_ii / (D_L,ii + 2 Q_ii |nu_i|)``
+    (capped at 1 m/s or rad/s): there the velocity is known only through the model, and a model error of that
+    size shifts it without any measured trace (at a steady speed the accelerometer reads the same).
+    """
+    out = np.zeros((pr.n, 6))
+    sm = pr.smoothed
+    if sm is None:
+        return out
+    s = SmootherSettings()
+    prior = np.array([s.sigma_d_lin] * 3 + [s.sigma_d_ang] * 3)
+    for i in np.flatnonzero(pr.reconstructed):
+        err = np.nan_to_num(sm.sigma_nu[:, i])
+        if not pr.observed[i]:
+            slope = p.D_L[i, i] + 2.0 * p.Q[i, i] * np.abs(pr.nu[:, i])
+            err = np.maximum(err, np.minimum(1.0, prior[i] * p.M[i, i] / np.maximum(slope, 1e-9)))
+        out[:, i] = err
+    return out
+
+
+def _perturbed(stack, preps, what):
+    """A copy of ``stack`` with reconstructed velocity ``what`` (0-5) moved by its :func:`reconstruction_error`, or
+    the dead-reckoned position (``what = "xy"``) by the time integral of the horizontal velocity's."""
+    runs = []
+    for r, pr in zip(stack.runs, preps):
+        nu, eta = r["nu"].copy(), r["eta"].copy()
+        if pr.smoothed is not None:
+            err = reconstruction_error(pr, stack.p)
+            if what == "xy":
+                drift = np.cumsum(np.hypot(err[:, 0], err[:, 1])) * pr.dt
+                eta[:, 0] += drift
+                eta[:, 1] += drift
+            else:
+                nu[:, what] += err[:, what]
+        runs.append(dict(r, nu=nu, eta=eta, x=np.concatenate([eta, nu], axis=1)))
+    return replace(stack, runs=runs)
+
+
+def noise_scale(stack, preps) -> np.ndarray:
+    """Per-DOF noise of the equation error (N, N m): ``M_ii`` times the median posterior std of the smoother's
+    unmodelled acceleration over the runs (how well the data pin that DOF's acceleration), or its prior std when
+    no smoother ran. The same definition for every DOF, and independent of the gap itself (a residual's std would
+    grow with the very effect under test)."""
+    s = SmootherSettings()
+    prior = np.array([s.sigma_d_lin] * 3 + [s.sigma_d_ang] * 3)
+    smoothed = [pr.smoothed for pr in preps if pr.smoothed is not None]
+    sig = np.array([np.nanmedian(np.concatenate([sm.sigma_d[:, i] for sm in smoothed])) if smoothed else prior[i]
+                    for i in range(6)])
+    return np.diag(stack.p.M) * np.where(np.isfinite(sig) & (sig > 0), sig, prior)
+
+
+def assess(stack, r, dofs, preps, catalogue: dict, names=None) -> Identifiability:
+    """Identifiability of each effect in ``names`` on the fit ``stack`` (see the module docstring).
+
+    Parameters
+    ----------
+    stack : effects.Stack
+        Fit stack (:func:`udrobot_ctrl.gap.attribute.build_stack`).
+    r : (n, 6) ndarray
+        Its residual.
+    dofs : (6,) bool
+        Scored (observed) DOFs.
+    preps : list of Prepared
+        The fit runs, in the stack's order (their ``reconstructed`` DOFs and smoother std).
+    catalogue : dict
+        Name -> Effect.
+    """
+    names = list(names or catalogue)
+    observed = np.asarray(dofs, bool)
+    reconstructed = np.logical_or.reduce([pr.reconstructed for pr in preps])
+    sigma = noise_scale(stack, preps)
+    moves = [i for i in range(6) if reconstructed[i]]
+    if any(pr.smoothed is not None and not any(c in pr.meas and np.isfinite(pr.meas[c]).any() for c in "xy")
+           for pr in preps):
+        moves.append("xy")
+    stacks = {m: _perturbed(stack, preps, m) for m in moves}
+    raw = {}
+    top = 0.0
+    for n in names:
+        eff = catalogue[n]
+        acc = {}
+        for shape in _shapes(eff):
+            A, nm = _columns(eff, stack, shape)
+            An = A / sigma[None, :, None]
+            e_obs = np.sum(An[:, observed] ** 2, axis=(0, 1))
+            e_all = np.sum(An ** 2, axis=(0, 1))
+            dev = {}
+            for m, st_m in stacks.items():
+                Am, _ = _columns(eff, st_m, shape)
+                dA = (Am - A) / sigma[None, :, None]
+                dev[m] = np.sum(dA[:, observed] ** 2, axis=(0, 1))
+            for j, pname in enumerate(nm):
+                a = acc.setdefault(pname, {"obs": 0.0, "all": 0.0, "dev": dict.fromkeys(stacks, 0.0),
+                                           "per_dof": np.zeros(6)})
+                a["obs"] += e_obs[j]
+                a["all"] += e_all[j]
+                a["per_dof"] += np.sum(An[:, :, j] ** 2, axis=0)
+                for m in stacks:
+                    a["dev"][m] += dev[m][j]
+        raw[n] = acc
+        top = max([top] + [a["all"] for a in acc.values()])
+    out = {}
+    for n in names:
+        checks = []
+        for pname, a in raw[n].items():
+            if a["all"] <= VANISH * max(top, 1e-300):
+                checks.append(ParameterCheck(pname, float("nan"), float("nan"), False, ("vanishes",)))
+                continue
+            share = a["obs"] / a["all"]
+            sens = {m: np.sqrt(d / a["obs"]) if a["obs"] > 0 else 0.0 for m, d in a["dev"].items()}
+            worst = max(sens.values(), default=0.0)
+            causes = []
+            if share < SHARE_MIN:
+                causes += [DOF_GROUP[i] for i in np.argsort(-a["per_dof"]) if not observed[i]
+                           and a["per_dof"][i] > 0.1 * a["all"]]
+            causes += ["position" if m == "xy" else DOF_GROUP[m] for m, v in sens.items() if v > SENSITIVITY_MAX]
+            causes = list(dict.fromkeys(causes))
+            ok = share >= SHARE_MIN and worst <= SENSITIVITY_MAX
+            checks.append(ParameterCheck(pname, float(share), float(worst), ok, () if ok else tuple(causes)))
+        if not checks:  # no amplitude column and a shape term that is zero at every probed shape
+            checks.append(ParameterCheck(",".join(catalogue[n].shape_names) or n, float("nan"), float("nan"), False,
+                                         ("vanishes",)))
+        out[n] = EffectCheck(n, checks)
+    return Identifiability(out, observed, reconstructed)
+
+
+def sensors(preps) -> dict:
+    """The report's ``sensors`` field: per velocity channel, ``observed`` (logged, or pinned by a logged
+    integral), ``reconstructed`` (by the smoother) or ``absent``; and the channels logged in every run."""
+    status = {}
+    for i, c in enumerate(VEL):
+        if all(pr.observed[i] for pr in preps):
+            how = "observed" if all(c in pr.meas and np.isfinite(pr.meas[c]).any() for pr in preps) else \
+                f"observed through {'/'.join(OBSERVING[i][1:])}, reconstructed by the smoother"
+        elif all(pr.reconstructed[i] for pr in preps):
+            how = "reconstructed by the smoother (not observed: not scored)"
+        else:
+            how = "absent"
+        status[c] = how
+    logged = sorted(set.intersection(*[{c for c, v in pr.meas.items() if np.isfinite(v).any()} for pr in preps]))
+    scored = [fx.DOF[i] for i in range(6) if all(pr.dof_ok[i] for pr in preps)]
+    return {"logged": logged, "velocities": status, "scored_dofs": scored}

@@ -1,0 +1,388 @@
+"""Model-based smoother: what a run did not measure, reconstructed from what it did (forward EKF + backward RTS).
+
+A stock small ROV logs depth, attitude, gyro rates, an accelerometer and its thruster outputs, but no body
+velocity (DVL) and no position (USBL). The equation-error diagnosis needs every body velocity and its
+derivative; this module reconstructs them with the nominal plant as process model and reports how well each
+is known (posterior standard deviation), so that :mod:`udrobot_ctrl.gap.identifiability` can tell which effects
+the measured channels can still identify.
+
+State (21, or 19 when neither ``x`` nor ``y`` is logged: the dynamics never depend on them, and an unobserved
+position only makes the covariance ill-conditioned; it is then dead-reckoned from the smoothed velocity):
+
+    s = [eta (6), nu (6), d (6), b (3)]
+
+* ``eta, nu``: pose (NED, ZYX Euler) and body velocity; ``nu_dot = f_nominal(eta, nu, tau) + d``, with ``f`` the
+  project's casadi twin of the plant (:func:`udrobot_ctrl.dynamics.plant_casadi.state_derivative`) and ``tau`` the
+  logged actuator wrench ``B f`` held over each interval (zero-order hold).
+* ``d``: the generalised acceleration the nominal model misses (m/s^2, rad/s^2), a first-order Gauss-Markov
+  process of time constant ``T_d`` and stationary std ``sigma_d`` (:class:`SmootherSettings`). It lets the
+  accelerometer and the depth pull the velocity away from the nominal model, and carries what the model misses.
+* ``b``: accelerometer bias (m/s^2, body FRD), a random constant: a calibrated MEMS accelerometer keeps an offset
+  of a few 0.01 m/s^2. Where the velocity is observed (depth gives heave), the bias is separated from ``d``
+  (the depth's second derivative is unbiased); in an unobserved DOF both are only known through the
+  accelerometer, and the reported velocity std says so.
+
+Measurements: whichever of ``x y z phi theta psi u v w p q r ax ay az`` are logged (nan = absent per sample). The
+accelerometer model is the specific force at the body origin in body axes (FRD),
+``f = v_dot + omega x v - R^T [0, 0, g] + b`` (the run-log format's definition). Noise std per channel is
+estimated from the data (:func:`udrobot_ctrl.gap.shrink.channel_noise`, sample-to-sample MAD) with floors
+(:data:`NOISE_FLOOR`); angle innovations are wrapped to [-pi, pi).
+
+The filter runs on a grid decimated to about ``rate_hz`` (the input is averaged over each interval), and the
+smoothed trajectory is interpolated back to the run's grid. A non-finite or non-positive covariance stops the
+pass with :class:`SmootherError` naming the time; :func:`udrobot_ctrl.gap.data.prepare` then falls back to the
+measured channels only.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import casadi as ca
+import numpy as np
+from scipy.interpolate import CubicSpline
+
+from udrobot_ctrl.dynamics import plant_casadi as pc
+from udrobot_ctrl.dynamics.fastsim import compile_function, parameter_hash
+from udrobot_ctrl.dynamics.integrators import rk4_step
+from udrobot_ctrl.dynamics.plant import PlantParameters, rotation_zyx, wrap_angle
+
+CHANNELS = ("x", "y", "z", "phi", "theta", "psi", "u", "v", "w", "p", "q", "r", "ax", "ay", "az")
+ANGLE_ROWS = (3, 4, 5)
+N_STATE = 21
+#: floors of the per-channel noise std (m, rad, m/s, rad/s, m/s^2): below a sensor's resolution / quantisation
+#: (assumed: 1 cm USBL, 2 mm pressure depth, 0.001 rad AHRS, 2 mm/s DVL, 0.001 rad/s gyro, 0.01 m/s^2 MEMS
+#: accelerometer), so that a channel logged with few digits or a simulated noiseless channel is not trusted blindly
+NOISE_FLOOR = {"x": 0.01, "y": 0.01, "z": 0.002, "phi": 1e-3, "theta": 1e-3, "psi": 1e-3, "u": 2e-3, "v": 2e-3,
+               "w": 2e-3, "p": 1e-3, "q": 1e-3, "r": 1e-3, "ax": 0.01, "ay": 0.01, "az": 0.01}
+GRAVITY = 9.81  # m/s^2, the vehicle model's default g (udrobot_ctrl.vehicle.Vehicle.g)
+
+
+class SmootherError(ValueError):
+    """Numerical failure of the smoother (non-finite or indefinite covariance, non-finite state)."""
+
+
+@dataclass(frozen=True)
+class SmootherSettings:
+    """Assumed magnitudes of the smoother (none is measured; each is a modelling choice with its reason).
+
+    Attributes
+    ----------
+    rate_hz : float
+        Filter rate, Hz (assumed 20 Hz: the vehicle's fastest modes, roll/pitch, are below 2 Hz; 50 Hz logs are
+        decimated to keep 10 min of logs within a few seconds).
+    T_d : float
+        Time constant of the unmodelled acceleration d, s (assumed 2 s: the catalogue effects change with the
+        manoeuvre, i.e. on the vehicle's velocity time constants of 1-5 s).
+    sigma_d_lin, sigma_d_ang : float
+        Stationary std of d, m/s^2 and rad/s^2 (assumed 0.3 m/s^2 and 1.0 rad/s^2: a pool-scale unmodelled force
+        of ~30 % of a T200's thrust on a 17 kg vehicle, and a moment of ~0.2 N m on 0.2 kg m^2).
+    sigma_bias : float
+        Prior std of the accelerometer bias, m/s^2 (assumed 0.1: a calibrated MEMS accelerometer).
+    bias_walk : float
+        Random walk of the bias per sqrt(s), m/s^2 (assumed 1e-4: a constant over a run).
+    pose_walk : float
+        Random walk on the pose per sqrt(s), m or rad (assumed 1e-3: kinematics are exact, this only conditions P).
+    nu_walk : float
+        Random walk on the velocity per sqrt(s), m/s or rad/s (assumed 1e-3; d carries the model error).
+    g : float
+        Gravity, m/s^2.
+    """
+
+    rate_hz: float = 20.0
+    T_d: float = 2.0
+    sigma_d_lin: float = 0.3
+    sigma_d_ang: float = 1.0
+    sigma_bias: float = 0.1
+    bias_walk: float = 1e-4
+    pose_walk: float = 1e-3
+    nu_walk: float = 1e-3
+    g: float = GRAVITY
+
+
+@dataclass
+class SmoothedRun:
+    """Smoothed trajectory of one run on the run's grid (n samples).
+
+    Attributes
+    ----------
+    t : (n,) ndarray
+        Time, s.
+    eta, nu, nu_dot : (n, 6) ndarray
+        Pose (m, rad; x, y dead-reckoned from the start when not logged), body velocity (m/s, rad/s) and its
+        derivative (m/s^2, rad/s^2) = nominal plant + unmodelled acceleration d.
+    d : (n, 6) ndarray
+        Unmodelled generalised acceleration (m/s^2, rad/s^2).
+    accel_bias : (3,) ndarray
+        Accelerometer bias at the end of the run, m/s^2 (nan without accelerometer).
+    sigma_eta, sigma_nu, sigma_nu_dot, sigma_d : (n, 6) ndarray
+        Posterior std of each (sigma_nu_dot is that of d, the uncertain part of nu_dot).
+    channels : tuple of str
+        Logged channels the smoother fused.
+    noise : dict of str -> float
+        Measurement noise std used per channel (estimated from the data, floored).
+    rate_hz : float
+        Filter rate actually used, Hz.
+    """
+
+    t: np.ndarray
+    eta: np.ndarray
+    nu: np.ndarray
+    nu_dot: np.ndarray
+    d: np.ndarray
+    accel_bias: np.ndarray
+    sigma_eta: np.ndarray
+    sigma_nu: np.ndarray
+    sigma_nu_dot: np.ndarray
+    sigma_d: np.ndarray
+    channels: tuple
+    noise: dict = field(default_factory=dict)
+    rate_hz: float = 0.0
+
+
+def _symbolic_model(p: PlantParameters, s: SmootherSettings):
+    """(xdot(x, tau), h(x, tau)) of the augmented state as casadi expressions."""
+    x = ca.SX.sym("x", N_STATE)
+    tau = ca.SX.sym("tau", 6)
+    f12 = pc.state_derivative(x[0:12], tau, p)
+    d, b = x[12:18], x[18:21]
+    nu_dot = f12[6:12] + d
+    xdot = ca.vertcat(f12[0:6], nu_dot, -d / s.T_d, ca.DM.zeros(3))
+    phi, th = x[3], x[4]
+    v, w = x[6:9], x[9:12]
+    g_body = s.g * ca.vertcat(-ca.sin(th), ca.cos(th) * ca.sin(phi), ca.cos(th) * ca.cos(phi))  # R^T [0, 0, g]
+    acc = nu_dot[0:3] + ca.cross(w, v) - g_body + b
+    h = ca.vertcat(x[0:12], acc)
+    return x, tau, xdot, h
+
+
+_CACHE: dict = {}
+COMPILE_TIMEOUT_S = 60.0  # gcc on the RK4 Jacobian takes ~5 s once; the library is cached on disk afterwards
+
+
+class _Buffered:
+    """Low-overhead evaluation of a casadi Function ``(x, tau) -> (a, B)`` into preallocated numpy arrays (casadi's
+    buffer interface: a plain call converts every argument and result, ~10x the cost of the evaluation)."""
+
+    def __init__(self, fun: ca.Function):
+        self.fun = fun
+        self.x = np.zeros(fun.size1_in(0))
+        self.u = np.zeros(fun.size1_in(1))
+        self.a = np.zeros(fun.size1_out(0))
+        self.B = np.zeros((fun.size1_out(1), fun.size2_out(1)), order="F")
+        self._buf, self._eval = fun.buffer()
+        self._buf.set_arg(0, memoryview(self.x))
+        self._buf.set_arg(1, memoryview(self.u))
+        self._buf.set_res(0, memoryview(self.a))
+        self._buf.set_res(1, memoryview(self.B.reshape(-1, order="F")))
+
+    def __call__(self, x, u):
+        """(a, B) for state x and input u (views of the buffers: copy what must be kept)."""
+        self.x[:] = x
+        self.u[:] = u
+        self._eval()
+        return self.a, self.B
+
+
+def _plant_key(p: PlantParameters, s: SmootherSettings, dt: float) -> tuple:
+    return (np.asarray(p.M).tobytes(), np.asarray(p.D_L).tobytes(), np.asarray(p.Q).tobytes(), float(p.weight),
+            float(p.buoyancy), np.asarray(p.r_g).tobytes(), np.asarray(p.r_b).tobytes(), s, round(dt, 9))
+
+
+def _functions(p: PlantParameters, s: SmootherSettings, dt: float, compile: bool = True):
+    """(step, meas, deriv), cached per plant, settings and dt: ``step(x, tau) -> (x_next, dx_next/dx)`` (RK4, tau
+    held; gcc-compiled when possible, see :func:`udrobot_ctrl.dynamics.fastsim.compile_function`),
+    ``meas(x, tau) -> (h, dh/dx)`` (both :class:`_Buffered`) and the casadi Function ``deriv(x, tau) -> x_dot``."""
+    key = _plant_key(p, s, dt) + (compile,)
+    if key not in _CACHE:
+        x, tau, xdot, h = _symbolic_model(p, s)
+        f = ca.Function("smoother_f", [x, tau], [xdot])
+        xn = rk4_step(lambda _t, xx: f(xx, tau), 0.0, x, dt)
+        step = ca.Function("smoother_step", [x, tau], [xn, ca.densify(ca.jacobian(xn, x))])
+        meas = ca.Function("smoother_meas", [x, tau], [h, ca.densify(ca.jacobian(h, x))])
+        if compile:
+            fast = compile_function(step, parameter_hash(p, "smoother", repr(s), round(dt, 9)),
+                                    timeout=COMPILE_TIMEOUT_S)
+            step = fast if fast is not None else step
+        if len(_CACHE) > 16:
+            _CACHE.clear()
+        _CACHE[key] = (_Buffered(step), _Buffered(meas), f)
+    return _CACHE[key]
+
+
+def measurement_noise(meas: dict, channels) -> dict:
+    """Noise std per channel: sample-to-sample MAD of the logged data (angles unwrapped), floored."""
+    # local import: gap.shrink imports gap.data, which imports this module (a real cycle)
+    from udrobot_ctrl.gap.shrink import channel_noise
+
+    out = {}
+    for c in channels:
+        y = np.asarray(meas[c], float)
+        if c in ("phi", "theta", "psi"):
+            ok = np.isfinite(y)
+            y = y.copy()
+            y[ok] = np.unwrap(y[ok])
+        sd = channel_noise(y)
+        out[c] = float(max(sd if np.isfinite(sd) else 0.0, NOISE_FLOOR[c]))
+    return out
+
+
+def _block_mean(a, step, n_out):
+    """Mean of ``a`` (n, k) over consecutive blocks of ``step`` rows (the last block may be shorter)."""
+    n = a.shape[0]
+    out = np.empty((n_out, a.shape[1]))
+    for k in range(n_out):
+        out[k] = a[k * step: min(n, (k + 1) * step)].mean(axis=0)
+    return out
+
+
+def smooth_run(t, meas: dict, tau, p: PlantParameters, settings: SmootherSettings | None = None,
+               label: str = "run") -> SmoothedRun:
+    """Forward EKF and backward RTS pass over one run (see the module docstring).
+
+    Parameters
+    ----------
+    t : (n,) ndarray
+        Uniform time grid, s.
+    meas : dict of str -> (n,) ndarray
+        Logged channels on the grid (nan where absent); any of :data:`CHANNELS` are used, others ignored.
+    tau : (n, 6) ndarray
+        Actuator wrench B f, N and N m, held from each sample to the next.
+    p : PlantParameters
+        Nominal plant (without run-time effects).
+    label : str
+        Run name for error messages.
+
+    Returns
+    -------
+    SmoothedRun
+
+    Raises
+    ------
+    SmootherError
+        If the covariance or the state becomes non-finite (names the time), or nothing is logged to fuse.
+    """
+    s = settings or SmootherSettings()
+    t = np.asarray(t, float)
+    n = t.size
+    dt_run = float(np.median(np.diff(t)))
+    step = max(1, int(round(1.0 / (s.rate_hz * dt_run))))
+    dt = step * dt_run
+    idx = np.arange(0, n, step)
+    m = idx.size
+    chans = tuple(c for c in CHANNELS if c in meas and np.isfinite(np.asarray(meas[c], float)).any())
+    if not chans:
+        raise SmootherError(f"{label}: no channel of {', '.join(CHANNELS)} is logged; nothing to smooth")
+    noise = measurement_noise(meas, chans)
+    rows = np.array([CHANNELS.index(c) for c in chans])
+    Z = np.column_stack([np.asarray(meas[c], float)[idx] for c in chans])
+    Rdiag = np.array([noise[c] ** 2 for c in chans])
+    has_acc = any(c in chans for c in ("ax", "ay", "az"))
+    has_xy = "x" in chans or "y" in chans
+    keep = np.arange(N_STATE) if has_xy else np.arange(2, N_STATE)
+    ns = keep.size
+    tau_c = _block_mean(np.nan_to_num(np.asarray(tau, float)), step, m)
+    f_step, f_meas, f_deriv = _functions(p, s, dt)
+
+    # initial state: first logged value of each pose/velocity channel; d = 0, b = 0
+    x0 = np.zeros(N_STATE)
+    for i, c in enumerate(CHANNELS[:12]):
+        if c in chans:
+            y = np.asarray(meas[c], float)
+            x0[i] = y[np.flatnonzero(np.isfinite(y))[0]]
+    # assumed initial std (m, rad, m/s, rad/s): wide, so that the first measurements set the state, not the prior
+    sig0 = np.array([1.0, 1.0, 0.5, 0.2, 0.2, 0.5, 0.5, 0.5, 0.5, 0.3, 0.3, 0.3]
+                    + [s.sigma_d_lin] * 3 + [s.sigma_d_ang] * 3 + [s.sigma_bias] * 3)
+    P = np.diag(sig0[keep] ** 2)
+    a = np.exp(-dt / s.T_d)
+    qd = np.array([s.sigma_d_lin] * 3 + [s.sigma_d_ang] * 3) ** 2 * (1 - a ** 2)
+    Qfull = np.diag(np.concatenate([np.full(6, s.pose_walk ** 2 * dt), np.full(6, s.nu_walk ** 2 * dt), qd,
+                                    np.full(3, s.bias_walk ** 2 * dt)]))
+    Q = Qfull[np.ix_(keep, keep)]
+
+    sl = slice(0, N_STATE) if has_xy else slice(2, N_STATE)
+    xs_f = np.empty((m, N_STATE))
+    xs_p = np.empty((m, N_STATE))
+    Ps_f = np.empty((m, ns, ns))
+    Ps_p = np.empty((m, ns, ns))
+    Fs = np.empty((m, ns, ns))
+    x = x0.copy()
+    patterns = {}
+    for k in range(m):
+        xs_p[k] = x
+        Ps_p[k] = P
+        z = Z[k]
+        ok = np.isfinite(z)
+        if ok.any():
+            key = ok.tobytes()
+            if key not in patterns:
+                r_ok = rows[ok]
+                patterns[key] = (r_ok, np.flatnonzero(np.isin(r_ok, ANGLE_ROWS)), np.diag(Rdiag[ok]))
+            r_ok, ang, Rk = patterns[key]
+            hk, Hk = f_meas(x, tau_c[k])
+            H = Hk[r_ok, sl]
+            y = z[ok] - hk[r_ok]
+            y[ang] = wrap_angle(y[ang])
+            PHt = P @ H.T
+            K = np.linalg.solve(H @ PHt + Rk, PHt.T).T
+            x[sl] += K @ y
+            P = P - K @ PHt.T
+            P = 0.5 * (P + P.T)
+        xs_f[k] = x
+        Ps_f[k] = P
+        xn, Fk = f_step(x, tau_c[k])
+        F = Fk[sl, sl]
+        Fs[k] = F
+        x = xn.copy()
+        P = F @ P @ F.T + Q
+        if not (np.isfinite(P).all() and np.isfinite(x).all()):
+            raise SmootherError(f"{label}: the smoother's forward pass diverged at t = {t[idx[k]]:.2f} s "
+                                f"(non-finite covariance or state)")
+    xs_p = np.vstack([xs_p[1:], x])  # prediction of step k+1 from step k
+
+    # backward RTS pass
+    xs = xs_f.copy()
+    Ps = Ps_f.copy()
+    for k in range(m - 2, -1, -1):
+        Pp = Ps_p[k + 1]
+        try:
+            C = np.linalg.solve(Pp, Fs[k] @ Ps_f[k]).T
+        except np.linalg.LinAlgError as exc:
+            raise SmootherError(f"{label}: singular predicted covariance at t = {t[idx[k + 1]]:.2f} s in the RTS "
+                                f"pass") from exc
+        dx = xs[k + 1, sl] - xs_p[k, sl]
+        xs[k, sl] = xs_f[k, sl] + C @ dx
+        Ps[k] = Ps_f[k] + C @ (Ps[k + 1] - Pp) @ C.T
+    var = np.einsum("kii->ki", Ps)
+    if not (np.isfinite(xs).all() and np.isfinite(var).all()) or (var < -1e-9 * (1 + np.abs(var).max())).any():
+        raise SmootherError(f"{label}: the smoother's backward pass produced a non-finite or negative covariance")
+    sd = np.full((m, N_STATE), np.nan)
+    sd[:, keep] = np.sqrt(np.maximum(var, 0.0))
+
+    # nu_dot at the nodes = nominal plant + d (the derivative of the process model), one vectorised call
+    nud = np.asarray(f_deriv.map(m)(xs.T, tau_c.T)).T[:, 6:12]
+
+    tc = t[idx]
+    eta_c = xs[:, 0:6].copy()
+    for j in (3, 4, 5):
+        eta_c[:, j] = np.unwrap(eta_c[:, j])
+
+    def interp(y):
+        if m < 4:
+            return np.array([np.interp(t, tc, col) for col in y.T]).T
+        return CubicSpline(tc, y, axis=0, bc_type="natural", extrapolate=True)(t)
+
+    def interp_lin(y):
+        return np.array([np.interp(t, tc, col) for col in y.T]).T
+
+    eta = interp(eta_c)
+    nu = interp(xs[:, 6:12])
+    if not has_xy:  # dead reckoning from the start: x_dot = (R nu)_xy
+        R = rotation_zyx(eta[:, 3], eta[:, 4], eta[:, 5])
+        v_ned = np.einsum("nij,nj->ni", R, nu[:, :3])
+        eta[:, 0:2] = np.concatenate([np.zeros((1, 2)),
+                                      np.cumsum(0.5 * (v_ned[1:, :2] + v_ned[:-1, :2]) * np.diff(t)[:, None], 0)])
+    return SmoothedRun(t=t, eta=eta, nu=nu, nu_dot=interp_lin(nud), d=interp_lin(xs[:, 12:18]),
+                       accel_bias=xs[-1, 18:21] if has_acc else np.full(3, np.nan),
+                       sigma_eta=interp_lin(sd[:, 0:6]), sigma_nu=interp_lin(sd[:, 6:12]),
+                       sigma_nu_dot=interp_lin(sd[:, 12:18]), sigma_d=interp_lin(sd[:, 12:18]), channels=chans,
+                       noise=noise, rate_hz=1.0 / dt)
