@@ -157,12 +157,19 @@ class Restricted(fx.Effect):
         keep = np.array([nm not in self.frozen for nm in names], float)
         return b0, A * keep, names, lo, hi
 
+    def search_space(self, s):
+        return self.inner.search_space(s)
+
+    def refine_step(self, s, x0):
+        return self.inner.refine_step(s, x0)
+
     def hooks(self, params, p, B, inflow, f_ref, M_A):
         return self.inner.hooks(params, p, B, inflow, f_ref, M_A)
 
 
-def _shapes(eff: fx.Effect):
-    grid = list(eff.shape_grid)
+def _shapes(eff: fx.Effect, stack):
+    """A few shapes of the effect's search grid on this stack (first, middle, last)."""
+    grid = list(eff.search_space(stack)[0])
     if len(grid) <= N_SHAPES:
         return grid
     return [grid[0], grid[len(grid) // 2], grid[-1]]
@@ -263,7 +270,7 @@ def assess(stack, r, dofs, preps, catalogue: dict, names=None) -> Identifiabilit
     for n in names:
         eff = catalogue[n]
         acc = {}
-        for shape in _shapes(eff):
+        for shape in _shapes(eff, stack):
             A, nm = _columns(eff, stack, shape)
             An = A / sigma[None, :, None]
             e_obs = np.sum(An[:, observed] ** 2, axis=(0, 1))
