@@ -4,6 +4,7 @@ from __future__ import annotations
 import pytest
 
 from identification import similitude
+from udrobot_ctrl.vehicle import full_size_vehicle
 
 RHO, MU = 1000.0, 1.0e-3  # water density kg/m^3, dynamic viscosity Pa s
 
@@ -43,8 +44,10 @@ def test_reference_masses():
     assert m_pend == pytest.approx(10.10, abs=0.01)
     m_none, _ = similitude.reference_displaced_mass(None, 107_597e-9, 0.22)
     assert m_none == m_pend
-    m_vehicle, desc = similitude.reference_displaced_mass("vehicle", 344_868e-9, 0.30)
+    m_vehicle, desc = similitude.reference_displaced_mass("vehicle", 344_868e-9, 0.30, vehicle=full_size_vehicle())
     assert 9.0 < m_vehicle < 10.0 and "udrobot.toml" in desc  # rho V of the full-size description
+    with pytest.raises(ValueError, match="full-size vehicle"):
+        similitude.reference_displaced_mass("vehicle", 344_868e-9, 0.30)  # the vehicle is the caller's to give
     assert similitude.reference_displaced_mass(9.2, 344_868e-9, 0.30)[0] == 9.2
     for bad in ("heavy", -3.0):
         with pytest.raises(ValueError):
