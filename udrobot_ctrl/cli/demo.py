@@ -26,6 +26,8 @@ from identification import cfd, free_decay, synthetic
 from identification.identify import RigOptions, coefficient_set_values, identify_files
 from identification.plots import plot_report
 from identification.sets import write_coefficient_set
+from udrobot_ctrl.control.compare import TABLE_LEGEND, compare, contract_json, text_table, write_outputs
+from udrobot_ctrl.dynamics.sim import simulate
 from udrobot_ctrl.io.files import atomic_write, check_output_dir, open_atomic, save_figure
 from udrobot_ctrl.vehicle import MODEL_NAMES, coefficient_set, full_size_vehicle, load_model, write_model_file
 
@@ -190,8 +192,6 @@ def munk_critical_speed(v) -> float:
 def step_open_loop(out: Path) -> dict:
     """Full forward thrust on both horizontal thrusters: top speed per model, with a plot."""
 
-    from udrobot_ctrl.dynamics.sim import simulate
-
     fig = Figure(figsize=(7, 4))
     ax = fig.subplots()
     result = {}
@@ -231,8 +231,6 @@ def step_open_loop(out: Path) -> dict:
 def step_controllers(out: Path, full: bool = False, workers: int | None = None) -> dict:
     """LQR, PID, linear and nonlinear MPC designed on each model A and flown on every plant B (5 x 5), and the EKF
     with model A on data from plant B (``udrobot-ctrl compare``)."""
-    from udrobot_ctrl.control.compare import TABLE_LEGEND, compare, contract_json, text_table, write_outputs
-
     print(f"{len(MODEL_NAMES)} x {len(MODEL_NAMES)} design/plant pairs, 4 controllers and the EKF "
           f"({'full 46 s' if full else 'quick 23 s'} mission) ...", flush=True)
     result = compare(quick=not full, keep_trajectories=True, workers=workers)

@@ -61,7 +61,9 @@ import casadi as ca
 import numpy as np
 import scipy.sparse as sp
 
+from udrobot_ctrl.dynamics.fastsim import compile_function, parameter_hash
 from udrobot_ctrl.dynamics.plant import PlantParameters, generalized_forces, plant_parameters, wrap_angle
+from udrobot_ctrl.dynamics.plant_casadi import rk4_step_function
 from udrobot_ctrl.vehicle import STATE_INDEX, STATE_NAMES
 
 _ALIASES = {"depth": "z", "heading": "psi", "surge": "u", "yaw": "psi", "roll": "phi", "pitch": "theta"}
@@ -175,8 +177,6 @@ def trim_thrust(p: PlantParameters, x_ref) -> np.ndarray:
 
 def linearization_function(p: PlantParameters, dt: float, name: str = "lin") -> ca.Function:
     """casadi Function ``(x[12], f[n]) -> (x_next, A = dx_next/dx, B = dx_next/df)`` of one RK4 step (dense)."""
-    from udrobot_ctrl.dynamics.plant_casadi import rk4_step_function
-
     F = rk4_step_function(p, dt, "thrust")
     x = ca.SX.sym("x", 12)
     u = ca.SX.sym("f", p.T.shape[1])
@@ -211,7 +211,6 @@ def maybe_compiled(fun: ca.Function, p: PlantParameters, *key, compile: bool = T
     :func:`udrobot_ctrl.dynamics.fastsim.compile_function`) or ``fun``."""
     if not compile:
         return fun
-    from udrobot_ctrl.dynamics.fastsim import compile_function, parameter_hash
 
     try:
         out = compile_function(fun, parameter_hash(p, fun.name(), *key), timeout=COMPILE_TIMEOUT_S)
@@ -681,8 +680,6 @@ class NonlinearMPC(_MPCBase):
 
     # -- ipopt path -----------------------------------------------------------------------------------
     def _build_nlp(self, ipopt_options):
-        from udrobot_ctrl.dynamics.plant_casadi import rk4_step_function
-
         N, nu = self.N, self.nu
         F = rk4_step_function(self.params, self.dt, "thrust")
         X = ca.MX.sym("X", 12, N + 1)

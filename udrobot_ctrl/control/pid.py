@@ -41,7 +41,7 @@ import numpy as np
 
 from udrobot_ctrl.control.linearize import STATE_INDEX, linearize, trim_at
 from udrobot_ctrl.dynamics.plant import PlantParameters, kinematics, wrap_angle
-from udrobot_ctrl.dynamics.thrusters import actuated_dofs
+from udrobot_ctrl.dynamics.thrusters import ThrustAllocator, actuated_dofs
 
 #: loop -> (output state, rate state, DOF index in tau)
 LOOPS = {"surge": ("u", None, 0), "depth": ("z", "w", 2), "roll": ("phi", "p", 3), "heading": ("psi", "r", 5)}
@@ -201,8 +201,6 @@ def _allocator(p, allocation="pinv"):
         Tp = np.linalg.pinv(p.T)
         return (lambda tau: np.clip(Tp @ tau, p.f_min, p.f_max)), "clipped pseudo-inverse"
     try:
-        from udrobot_ctrl.dynamics.thrusters import ThrustAllocator
-
         alloc = ThrustAllocator.from_parameters(p)
 
         def run(tau):

@@ -20,6 +20,7 @@ import numpy as np
 from scipy.signal import savgol_filter
 
 from udrobot_ctrl.dynamics.plant import PlantParameters, restoring_forces
+from udrobot_ctrl.dynamics.thrusters import pwm_to_thrust
 from udrobot_ctrl.io.runlog import Run, check_time_gaps, resample
 
 VEL = ("u", "v", "w", "p", "q", "r")
@@ -157,7 +158,6 @@ def actuators(run: Run, p: PlantParameters, f_raw=None):
             raise ValueError(f"{run.path or 'run'}: {f.shape[1]} {run.input_kind}_i columns but the model has {k} "
                              f"thrusters (columns must follow the model's thruster order)")
         if run.input_kind == "pwm":  # the fitted T-200 curve at the logged battery voltage (the model's if absent)
-            from udrobot_ctrl.dynamics.thrusters import pwm_to_thrust
 
             v0 = p.supply_voltage
             volts = run.channels.get("voltage")

@@ -10,7 +10,7 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from udrobot_ctrl import caches
+from udrobot_files import caches
 from udrobot_ctrl.dynamics import fastsim
 
 needs_gcc = pytest.mark.skipif(shutil.which("gcc") is None, reason="gcc not installed")
