@@ -211,7 +211,7 @@ def open_atomic(path, mode: str = "w", *, force: bool = True, protect=(), encodi
         if not force and (path.exists() or path.is_symlink()):
             raise OutputError(f"{path}: appeared while writing; pass --force to replace it")
         os.replace(tmp, path)
-    except BaseException:
+    except BaseException:  # cleanup, re-raised
         with contextlib.suppress(FileNotFoundError):
             os.unlink(tmp)
         raise

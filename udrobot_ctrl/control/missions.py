@@ -185,7 +185,7 @@ class SafeController:
             f = np.asarray(self.controller(t, x), float).reshape(self.f_min.shape)
             if not np.all(np.isfinite(f)):
                 raise FloatingPointError("non-finite thrust command")
-        except Exception as exc:  # noqa: BLE001 - a controller in the loop must never throw
+        except Exception as exc:  # noqa: BLE001 - a controller in the loop must never throw: held, warned
             self.fallbacks += 1
             self.last_error = f"t = {t:.3f} s: {type(exc).__name__}: {exc}"
             if self.fallbacks == 1:
@@ -218,7 +218,7 @@ class SafeBatch:
     def __call__(self, t, x):
         try:
             f = np.asarray(self.controller(t, x), float).reshape(self.last.shape)
-        except Exception as exc:  # noqa: BLE001 - a controller in the loop must never throw
+        except Exception as exc:  # noqa: BLE001 - a controller in the loop must never throw: held, warned
             self.fallbacks += 1
             self.last_error = f"t = {t:.3f} s: {type(exc).__name__}: {exc}"
             warnings.warn(f"batch controller failed ({self.last_error}); holding the last good commands",

@@ -38,6 +38,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+import osqp
 
 from udrobot_ctrl.control.linearize import STATE_INDEX, linearize, trim_at
 from udrobot_ctrl.dynamics.plant import PlantParameters, kinematics, wrap_angle
@@ -206,7 +207,7 @@ def _allocator(p, allocation="pinv"):
         def run(tau):
             return alloc(tau).f
         return run, "OSQP box-constrained allocation"
-    except Exception:  # noqa: BLE001 - fall back to the clipped pseudo-inverse
+    except (ValueError, osqp.OSQPException):  # OSQP rejects the allocation problem's data: clipped pinv
         Tp = np.linalg.pinv(p.T)
         return (lambda tau: np.clip(Tp @ tau, p.f_min, p.f_max)), "clipped pseudo-inverse"
 
