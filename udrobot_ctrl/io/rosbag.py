@@ -69,9 +69,10 @@ def read_streams(path, mapping) -> dict:
     from rosbags.rosbag2 import ReaderError as Rosbag2Error
     from rosbags.serde import SerdeError
 
-    # what rosbags and the decompressors raise on corrupt or truncated data (a bug elsewhere stays a bug)
+    # what rosbags raises on corrupt or truncated data (OverflowError: a huge length read from overwritten
+    # bytes); any other exception is a bug and stays one
     bag_errors = (AnyReaderError, Rosbag1Error, Rosbag2Error, SerdeError, OSError, EOFError, struct.error,
-                  ValueError, IndexError, KeyError, UnicodeDecodeError)
+                  ValueError, IndexError, KeyError, UnicodeDecodeError, OverflowError)
 
     path = Path(path)
     if not path.exists():
