@@ -25,6 +25,7 @@ are reported as indistinguishable on this data, with the manoeuvre that would se
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import lru_cache
 
 import numpy as np
 from scipy.optimize import lsq_linear, minimize
@@ -47,9 +48,16 @@ def deriv_kernel(prep: Prepared):
     over it) with w keeps the equation error exact for the linear part: a fast-varying command otherwise
     looks like a thruster lag, and raw attitude against smoothed rates like an added-mass error.
     """
-    win = max(5, int(round(prep.window_s / prep.dt)) | 1)
-    c = savgol_coeffs(win, 2, deriv=1, delta=prep.dt, use="dot")
-    return -prep.dt * np.cumsum(c)[:-1]
+    return _deriv_weights(max(5, int(round(prep.window_s / prep.dt)) | 1), float(prep.dt))
+
+
+@lru_cache(maxsize=64)
+def _deriv_weights(win: int, dt: float) -> np.ndarray:
+    """:func:`deriv_kernel` for a window of ``win`` samples of ``dt`` s (computed once per pair; read-only)."""
+    c = savgol_coeffs(win, 2, deriv=1, delta=dt, use="dot")
+    w = -dt * np.cumsum(c)[:-1]
+    w.flags.writeable = False
+    return w
 
 
 def filter_forces(prep: Prepared, y, held=False):
@@ -197,8 +205,9 @@ class Attributor:
         a = np.zeros(k)
         if k:
             A = np.concatenate(As, axis=-1)[:, d, :]  # (n, nd, k)
-            G = np.einsum("nik,nil->ikl", A, A)
-            h = np.einsum("nik,ni->ik", A, y)
+            At = np.ascontiguousarray(A.transpose(1, 2, 0))  # (nd, k, n): per-DOF normal equations by BLAS
+            G = At @ At.transpose(0, 2, 1)
+            h = (At @ np.ascontiguousarray(y.T)[..., None])[..., 0]
             lo, hi = np.concatenate(lo), np.concatenate(hi)
             active = np.einsum("ikk->k", G / sig[:, None, None] ** 2) > 1e-12 * max(
                 1.0, np.einsum("ikk->k", G / sig[:, None, None] ** 2).max())
@@ -213,9 +222,9 @@ class Attributor:
                 res = lsq_linear(L.T, bvec, bounds=(lo[active] * scale, hi[active] * scale), method="bvls")
                 a = np.zeros(k)
                 a[active] = res.x / scale
-                e = y - np.einsum("nik,k->ni", A, a)
+                e = y - A @ a
                 sig = np.sqrt(np.mean(e ** 2, axis=0)) + 1e-12
-            pred = b0[:, d] + np.einsum("nik,k->ni", A, a)
+            pred = b0[:, d] + A @ a
             kk = int(active.sum())
         else:
             pred = b0[:, d]
