@@ -4,6 +4,7 @@ from __future__ import annotations
 import pytest
 
 from identification import similitude
+from identification.identify import RigOptions, resolve_rig
 from udrobot_ctrl.vehicle import full_size_vehicle
 
 RHO, MU = 1000.0, 1.0e-3  # water density kg/m^3, dynamic viscosity Pa s
@@ -90,3 +91,13 @@ def test_invalid_scale_and_law():
         similitude.full_scale_factor("KL", 0.3, "weber")
     with pytest.raises(ValueError, match="no scaling law"):
         similitude.full_scale_factor("omega_n", 0.3)
+
+
+def test_default_area_needs_the_full_size_vehicle():
+    """Without --area the projected areas come from the full-size vehicle the caller gives, scaled by lambda^2."""
+    with pytest.raises(ValueError, match="projected area"):
+        resolve_rig("spring", RigOptions())
+    udrobot = full_size_vehicle()
+    o = resolve_rig("spring", RigOptions(vehicle=udrobot))
+    assert o.area["heave"] == pytest.approx(udrobot.projected_area["heave"] * 0.30 ** 2)
+    assert "models/udrobot.toml" in o.provenance["area"]
