@@ -24,6 +24,7 @@ DEFAULT_SUPPLY_VOLTAGE = 12.0
 
 _EQ = equations(np.sin, np.cos, np.tan)
 _KERNELS = None  # udrobot_ctrl.dynamics.sim_kernels once loaded (see _kernels)
+_KERNEL_PARAMETERS: dict = {}  # id(p) -> (p, kernel arguments), see _kernel_parameters
 
 
 class SingularMassMatrixError(ValueError):
@@ -205,10 +206,21 @@ def _kernels():
 
 
 def _kernel_parameters(p: PlantParameters) -> tuple:
-    """(M, D_L, Q, W, B, r_g, r_b) of one vehicle as the compiled kernels take them (C-contiguous float64)."""
+    """(M, D_L, Q, W, B, r_g, r_b) of one vehicle as the compiled kernels take them (C-contiguous float64).
+
+    Kept for the few most recent parameter sets (a replay evaluates the same ones thousands of times); the
+    entry holds ``p`` itself, so its id cannot be reused while cached, and ``p`` is frozen.
+    """
+    hit = _KERNEL_PARAMETERS.get(id(p))
+    if hit is not None and hit[0] is p:
+        return hit[1]
     def c(a):
         return np.ascontiguousarray(a, dtype=float)
-    return c(p.M), c(p.D_L), c(p.Q), float(p.weight), float(p.buoyancy), c(p.r_g), c(p.r_b)
+    out = (c(p.M), c(p.D_L), c(p.Q), float(p.weight), float(p.buoyancy), c(p.r_g), c(p.r_b))
+    if len(_KERNEL_PARAMETERS) >= 16:
+        _KERNEL_PARAMETERS.clear()
+    _KERNEL_PARAMETERS[id(p)] = (p, out)
+    return out
 
 
 def _parameters(p: PlantParameters) -> tuple:
