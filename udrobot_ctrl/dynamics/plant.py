@@ -74,8 +74,12 @@ def _components(a) -> np.ndarray:
 
 
 def _assemble(parts) -> np.ndarray:
-    """Tuple of components -> (..., k)."""
-    return np.stack(np.broadcast_arrays(*parts), axis=-1)
+    """Tuple of components -> (..., k) (components broadcast against each other)."""
+    arrays = [np.asarray(a) for a in parts]
+    out = np.empty(np.broadcast_shapes(*(a.shape for a in arrays)) + (len(arrays),), np.result_type(*arrays))
+    for i, a in enumerate(arrays):
+        out[..., i] = a
+    return out
 
 
 def coriolis_centripetal(M, nu):
