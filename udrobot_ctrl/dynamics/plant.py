@@ -70,7 +70,8 @@ def wrap_angle(a):
 
 def _components(a) -> np.ndarray:
     """(..., k) -> (k, ...): the component axis first, as :mod:`~udrobot_ctrl.dynamics.equations` indexes it."""
-    return np.moveaxis(np.asarray(a, dtype=float), -1, 0)
+    a = np.asarray(a, dtype=float)
+    return a.transpose((a.ndim - 1,) + tuple(range(a.ndim - 1))) if a.ndim > 1 else a  # np.moveaxis(a, -1, 0)
 
 
 def _assemble(parts) -> np.ndarray:
