@@ -3,7 +3,11 @@
 This is what ``udrobot-ctrl identify`` runs; it is also the API for scripts::
 
     from identification.identify import RigOptions, identify_files
-    report = identify_files("spring", paths, RigOptions(stiffness=63.6))
+    from udrobot_ctrl.vehicle import full_size_vehicle
+    report = identify_files("spring", paths, RigOptions(stiffness=63.6, vehicle=full_size_vehicle()))
+
+(``vehicle``: the full-size vehicle the scale-model results are referred to; this package never reads it
+itself, so that it depends on nothing of ``udrobot_ctrl``, which consumes its coefficient sets.)
 
 Steps (spring and pendulum):
 
@@ -21,7 +25,8 @@ Steps (spring and pendulum):
 
 Rig defaults are the paper's scale models (Table 2 spring model, Table 3 pendulum model, K = 63.6
 N/m) and are reported as such in ``rig``; the pendulum arm length is not in the paper and must be
-given. Projected areas default to the full-size areas of ``models/udrobot.toml`` times scale^2.
+given. Projected areas default to the full-size areas of ``RigOptions.vehicle`` (``udrobot-ctrl identify``:
+``models/udrobot.toml``) times scale^2.
 """
 from __future__ import annotations
 
