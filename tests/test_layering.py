@@ -9,6 +9,7 @@ that only some callers need).
 from __future__ import annotations
 
 import ast
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -72,7 +73,7 @@ def test_importing_identification_loads_no_udrobot_ctrl():
             f"for n in {names!r}: importlib.import_module(n)\n"
             "print(sorted(m for m in sys.modules if m.split('.')[0] == 'udrobot_ctrl'))")
     res = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=120,
-                         env={"MPLBACKEND": "Agg", **__import__("os").environ})
+                         env={"MPLBACKEND": "Agg", **os.environ})
     assert res.returncode == 0, res.stderr
     assert res.stdout.strip() == "[]"
 
