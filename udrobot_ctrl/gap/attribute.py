@@ -205,6 +205,7 @@ class Attributor:
         a = np.zeros(k)
         if k:
             A = np.concatenate(As, axis=-1)[:, d, :]  # (n, nd, k)
+            A2 = A.reshape(-1, k)  # (n nd, k) view: A a in one BLAS product
             At = np.ascontiguousarray(A.transpose(1, 2, 0))  # (nd, k, n): per-DOF normal equations by BLAS
             G = At @ At.transpose(0, 2, 1)
             h = (At @ np.ascontiguousarray(y.T)[..., None])[..., 0]
@@ -222,9 +223,9 @@ class Attributor:
                 res = lsq_linear(L.T, bvec, bounds=(lo[active] * scale, hi[active] * scale), method="bvls")
                 a = np.zeros(k)
                 a[active] = res.x / scale
-                e = y - A @ a
+                e = y - (A2 @ a).reshape(y.shape)
                 sig = np.sqrt(np.mean(e ** 2, axis=0)) + 1e-12
-            pred = b0[:, d] + A @ a
+            pred = b0[:, d] + (A2 @ a).reshape(y.shape)
             kk = int(active.sum())
         else:
             pred = b0[:, d]
