@@ -20,6 +20,9 @@ sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != Path(__file__)
 
 from identification import synthetic  # noqa: E402
 from identification.identify import RigOptions, identify_files  # noqa: E402
+from udrobot_ctrl.vehicle import full_size_vehicle  # noqa: E402
+
+UDROBOT = full_size_vehicle()  # its projected areas are the default areas for C_D
 
 
 def main(argv=None) -> int:
@@ -33,12 +36,12 @@ def main(argv=None) -> int:
         pend = synthetic.write_protocol(tmp / "p", synthetic.protocol("pendulum", synthetic.paper_pendulum_truth()),
                                         "p")
         t0 = time.perf_counter()
-        identify_files("spring", spring[:1], RigOptions())
+        identify_files("spring", spring[:1], RigOptions(vehicle=UDROBOT))
         out["first_call_s"] = time.perf_counter() - t0
         for key, kind, files, opts, fit in (
-                ("spring_72_s", "spring", spring, RigOptions(), "output-error"),
-                ("pendulum_72_s", "pendulum", pend, RigOptions(length=0.30), "output-error"),
-                ("graphical_72_s", "spring", spring, RigOptions(), "graphical")):
+                ("spring_72_s", "spring", spring, RigOptions(vehicle=UDROBOT), "output-error"),
+                ("pendulum_72_s", "pendulum", pend, RigOptions(length=0.30, vehicle=UDROBOT), "output-error"),
+                ("graphical_72_s", "spring", spring, RigOptions(vehicle=UDROBOT), "graphical")):
             best = float("inf")
             for _ in range(3):
                 t0 = time.perf_counter()

@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 from scipy import optimize, signal, stats
 
-from udrobot_ctrl.caches import configure_numba_cache
+from udrobot_files.caches import configure_numba_cache
 
 configure_numba_cache()  # numba's cache in a private user folder, not the source tree (before @njit below)
 

@@ -3,7 +3,11 @@
 This is what ``udrobot-ctrl identify`` runs; it is also the API for scripts::
 
     from identification.identify import RigOptions, identify_files
-    report = identify_files("spring", paths, RigOptions(stiffness=63.6))
+    from udrobot_ctrl.vehicle import full_size_vehicle
+    report = identify_files("spring", paths, RigOptions(stiffness=63.6, vehicle=full_size_vehicle()))
+
+(``vehicle``: the full-size vehicle the scale-model results are referred to; this package never reads it
+itself, so that it depends on nothing of ``udrobot_ctrl``, which consumes its coefficient sets.)
 
 Steps (spring and pendulum):
 
@@ -21,20 +25,22 @@ Steps (spring and pendulum):
 
 Rig defaults are the paper's scale models (Table 2 spring model, Table 3 pendulum model, K = 63.6
 N/m) and are reported as such in ``rig``; the pendulum arm length is not in the paper and must be
-given. Projected areas default to the full-size areas of ``models/udrobot.toml`` times scale^2.
+given. Projected areas default to the full-size areas of ``RigOptions.vehicle`` (``udrobot-ctrl identify``:
+``models/udrobot.toml``) times scale^2.
 """
 from __future__ import annotations
 
 import math
 import re
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 
 import numpy as np
 
 from identification import cfd, decay, free_decay, pendulum, similitude, statistics
 from identification.decay import LaunchError
-from identification.fossen import AXES
+from identification.fossen import AXES, CoefficientSet
+from identification.similitude import FullSizeVehicle
 
 KINDS = ("spring", "pendulum", "cfd")
 _AXIS_TOKENS = {"surge": "surge", "x": "surge", "sway": "sway", "y": "sway", "heave": "heave", "z": "heave"}
@@ -80,6 +86,10 @@ class RigOptions:
         Pendulum arm + pivot inertia about the pivot, kg m^2.
     reference_mass : str or float
         Full-size displaced mass for the added mass: ``vehicle``, ``geometric`` or kg.
+    vehicle : FullSizeVehicle or None
+        The full-size vehicle (projected areas, displaced volume), needed when ``area`` is None or
+        ``reference_mass`` is ``vehicle``; ``udrobot-ctrl identify`` passes UDrobot's
+        (:func:`udrobot_ctrl.vehicle.full_size_vehicle`).
     KL_law : str
         ``reynolds`` or ``froude`` scaling of K_L.
     axis : str or None
@@ -99,6 +109,7 @@ class RigOptions:
     reference_mass: str | float = "vehicle"
     KL_law: str = "reynolds"
     axis: str | None = None
+    vehicle: FullSizeVehicle | None = None
     provenance: dict = field(default_factory=dict)
 
 
@@ -119,7 +130,7 @@ def resolve_rig(kind: str, opts: RigOptions) -> RigOptions:
     """Fill unset rig values with the paper's, recording where every value came from."""
     if kind not in KINDS:
         raise ValueError(f"unknown identification kind {kind!r} (expected {', '.join(KINDS)})")
-    o = RigOptions(**{k: v for k, v in asdict(opts).items() if k != "provenance"})
+    o = replace(opts, area=dict(opts.area) if isinstance(opts.area, dict) else opts.area, provenance={})
     prov = {}
     for name, (value, source) in PAPER_RIG[kind].items():
         if getattr(o, name) is None:
@@ -131,12 +142,13 @@ def resolve_rig(kind: str, opts: RigOptions) -> RigOptions:
         raise ValueError("pendulum: --length (m, pivot to the model's centre) is required; the paper does not "
                          "state it")
     if o.area is None:
-        from udrobot_ctrl.vehicle import vehicle_description
-
-        full = vehicle_description()["projected_area"]
-        o.area = {a: float(full[a]["value"]) * o.scale ** 2 for a in AXES}
-        prov["area"] = (f"default: full-size projected areas of models/udrobot.toml x scale^2 "
-                        f"({full['surge']['provenance']})")
+        if o.vehicle is None:
+            raise ValueError("no projected area: give --area (m^2, one number or surge=..,sway=..,heave=..) or "
+                             "the full-size vehicle whose areas are scaled (RigOptions.vehicle)")
+        full = o.vehicle.projected_area
+        o.area = {a: float(full[a]) * o.scale ** 2 for a in AXES}
+        prov["area"] = (f"default: full-size projected areas of {o.vehicle.source} x scale^2 "
+                        f"({o.vehicle.area_provenance})")
     else:
         prov["area"] = "given"
     for name in ("mass", "volume", "stiffness", "length", "gravity", "rho", "scale"):
@@ -250,7 +262,8 @@ def identify_files(kind: str, paths, opts: RigOptions | None = None, fit: str = 
     report = {
         "format": "udrobot-identification/1",
         "method": _method_name(kind, fit),
-        "rig": {k: v for k, v in asdict(opts).items() if k != "provenance"} | {"provenance": opts.provenance},
+        "rig": {f.name: getattr(opts, f.name) for f in fields(opts) if f.name not in ("provenance", "vehicle")}
+        | {"provenance": opts.provenance},
         "launches": [_clean(e) for e in launches],
         "n_launches": len(launches), "n_ok": len(ok), "n_used": sum(e["used"] for e in launches),
         "axes": axes,
@@ -326,7 +339,7 @@ def _axis_summary(kind, axis, rows, used, opts) -> dict:
     full = {}
     if agg:
         ref, ref_desc = similitude.reference_displaced_mass(opts.reference_mass, opts.volume or 0.0, opts.scale,
-                                                            opts.rho) if kind != "cfd" else (None, None)
+                                                            opts.rho, opts.vehicle) if kind != "cfd" else (None, None)
         base = {k: v for k, v in agg.items() if isinstance(v, dict) and "value" in v}
         if kind == "cfd":
             base.pop("KD", None)
@@ -346,18 +359,14 @@ def _reload(entry, col="speed"):
 
 
 # ----------------------------------------------------------------------------- coefficient set
-def coefficient_set_values(report: dict, name: str, base: str | None = None) -> tuple[dict, dict, str]:
+def coefficient_set_values(report: dict, name: str, base: CoefficientSet | None = None) -> tuple[dict, dict, str]:
     """Full-scale per-axis arrays and provenance for :func:`identification.sets.write_coefficient_set`.
 
-    Axes or quantities the report lacks are taken from the shipped/path set ``base`` (tagged
-    ``assumed``); without ``base`` a missing added mass is an error (every set needs one).
+    Axes or quantities the report lacks are taken from the coefficient set ``base`` (tagged ``assumed``;
+    ``udrobot-ctrl identify --base`` loads it with :func:`udrobot_ctrl.vehicle.coefficient_set`); without
+    ``base`` a missing added mass is an error (every set needs one).
     """
     by_axis = report["by_axis"]
-    base_set = None
-    if base:
-        from udrobot_ctrl.vehicle import coefficient_set
-
-        base_set = coefficient_set(base)
     values = {"added_mass": [None] * 3, "KL": [None] * 3, "KQ": [None] * 3, "CD": [None] * 3}
     prov: dict = {}
     method = report["method"].split(",")[0]
@@ -388,10 +397,10 @@ def coefficient_set_values(report: dict, name: str, base: str | None = None) -> 
         for i, v in enumerate(vals):
             if v is not None:
                 continue
-            bv = _base_value(base_set, key, i) if base_set is not None else None
+            bv = _base_value(base, key, i) if base is not None else None
             if bv is not None:
                 vals[i] = bv
-                prov[f"{AXES[i]}.{key}"] = f"assumed: not identified here; from set {base!r}"
+                prov[f"{AXES[i]}.{key}"] = f"assumed: not identified here; from set {base.name!r}"
             elif key == "added_mass" or any(x is not None for x in vals):
                 missing.append(f"{AXES[i]}.{key}")
     if missing:

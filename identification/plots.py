@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 from matplotlib.figure import Figure
 
-from udrobot_ctrl.io.files import save_figure
+from udrobot_files.output import save_figure
 
 # units of the per-launch coefficients (model scale): C_m and C_D are dimensionless
 COEFF_LABELS = {"Cm": "C_m (-)", "CD": "C_D (-)", "KL": "K_L (N s/m)", "KQ": "K_Q (N s²/m²)"}

@@ -14,7 +14,7 @@ import numpy as np
 import tomllib
 
 from identification.fossen import AXES, FORMS, CoefficientSet
-from udrobot_ctrl.io.files import atomic_write
+from udrobot_files.output import atomic_write
 
 FORMAT = "udrobot-coefficients/1"
 QUANTITIES = ("added_mass", "KL", "KQ", "CD")

@@ -22,13 +22,17 @@ Reference displaced mass for the added mass. Three choices, reported in the outp
 * ``"geometric"`` (default of :func:`reference_displaced_mass` when ``choice`` is None): rho V_model /
   lambda^3, the strict similitude law.
 * ``"vehicle"`` (default of ``udrobot-ctrl identify`` and :class:`identification.identify.RigOptions`):
-  rho V of the full-size description ``models/udrobot.toml`` (9.38 kg, itself assumed, see that file),
-  so that the identified added mass is consistent with the buoyancy of the plant it is used in.
+  rho V of the full-size vehicle, a :class:`FullSizeVehicle` given by the caller (``udrobot-ctrl identify``
+  passes the description ``models/udrobot.toml``: 9.38 kg, itself assumed, see that file), so that the
+  identified added mass is consistent with the buoyancy of the plant it is used in. This package never reads
+  the vehicle itself: the vehicle models are built from its results (udrobot_ctrl.vehicle), not the reverse.
 * a number in kg: e.g. 9.20 reproduces the paper, whose full-size added masses are C_m x 9.20 kg
   (7.5187 = 0.8172 x 9.20; 8.3027 = 0.9024 x 9.20), i.e. referred to the robot's mass, not to a
   scaled volume (Table 2's model would give 12.8 kg, Table 3's 10.1 kg).
 """
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -42,17 +46,56 @@ LAWS = {
 KL_EXPONENTS = {"reynolds": 1.0, "froude": 2.5}
 
 
-def reference_displaced_mass(choice, model_volume, scale, rho=1000.0) -> tuple[float, str]:
-    """Full-size displaced mass (kg) used for the added mass, and a description of its origin."""
+@dataclass(frozen=True)
+class FullSizeVehicle:
+    """Facts of the full-size vehicle that scale-model results are referred to, given by the caller.
+
+    Attributes
+    ----------
+    projected_area : dict
+        ``{"surge"|"sway"|"heave": area}``, m^2: default areas for C_D (times lambda^2 on the model).
+    displaced_volume : float
+        Full-size displaced volume, m^3: the ``"vehicle"`` reference displaced mass is rho times it.
+    source : str
+        Where the facts come from (e.g. ``models/udrobot.toml``), written into the provenance.
+    area_provenance, volume_provenance : str
+        Provenance of the areas and of the volume in that source (measured / estimated / assumed ...).
+    """
+
+    projected_area: dict
+    displaced_volume: float
+    source: str
+    area_provenance: str = ""
+    volume_provenance: str = ""
+
+
+def reference_displaced_mass(choice, model_volume, scale, rho=1000.0,
+                             vehicle: FullSizeVehicle | None = None) -> tuple[float, str]:
+    """Full-size displaced mass (kg) used for the added mass, and a description of its origin.
+
+    Parameters
+    ----------
+    choice : {'geometric', 'vehicle'}, float or None
+        See the module docstring; None is ``geometric``.
+    model_volume : float
+        Displaced volume of the tested model, m^3.
+    scale : float
+        Model/full-size length ratio lambda.
+    rho : float
+        Water density, kg/m^3.
+    vehicle : FullSizeVehicle, optional
+        Required for ``choice="vehicle"``.
+    """
     if choice is None or choice == "geometric":
         v = rho * model_volume / scale ** 3
         return v, f"geometric: rho V_model / lambda^3 = {rho:g} x {model_volume:.6g} / {scale:g}^3"
     if choice == "vehicle":
-        from udrobot_ctrl.vehicle import vehicle_description
-
-        d = vehicle_description()
-        vol = float(d["displaced_volume"]["value"])
-        return rho * vol, f"vehicle: rho V of models/udrobot.toml ({vol:g} m^3; {d['displaced_volume']['provenance']})"
+        if vehicle is None:
+            raise ValueError("reference mass 'vehicle' needs the full-size vehicle's displaced volume: pass a "
+                             "FullSizeVehicle (e.g. udrobot_ctrl.vehicle.full_size_vehicle()), or choose "
+                             "'geometric' or a mass in kg")
+        vol = float(vehicle.displaced_volume)
+        return rho * vol, f"vehicle: rho V of {vehicle.source} ({vol:g} m^3; {vehicle.volume_provenance})"
     try:
         v = float(choice)
     except (TypeError, ValueError):

@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from identification.decay import simulate_decay
-from udrobot_ctrl.io.files import open_atomic
+from udrobot_files.output import open_atomic
 
 AXES = ("surge", "sway", "heave")
 FULL_AREA = (0.04938, 0.09039, 0.09039)  # m^2, derived from Table 5 (models/udrobot.toml)

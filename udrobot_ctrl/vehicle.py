@@ -26,7 +26,9 @@ import numpy as np
 import tomllib
 
 from identification import fossen
-from identification.sets import coefficient_set_from_dict
+from identification.fossen import AXES
+from identification.sets import coefficient_set_from_dict, load_coefficient_set
+from identification.similitude import FullSizeVehicle
 from udrobot_ctrl.dynamics.effects import parse_effects
 from udrobot_ctrl.io.files import atomic_write
 
@@ -125,12 +127,27 @@ def vehicle_description(name: str = "udrobot") -> dict:
     return _read_toml(f"{name}.toml")
 
 
+def full_size_vehicle(name: str = "udrobot") -> FullSizeVehicle:
+    """The full-size vehicle facts identification refers scale-model results to, from ``models/NAME.toml``.
+
+    Projected areas (m^2, surge/sway/heave: the default areas for C_D) and displaced volume (m^3: the
+    ``vehicle`` reference displaced mass of the added mass), with their provenance.
+    """
+    d = vehicle_description(name)
+    if "projected_area" not in d:
+        raise ValueError(f"models/{name}.toml has no [projected_area] table: identification needs the full-size "
+                         f"projected areas (give --area instead)")
+    areas = d["projected_area"]
+    return FullSizeVehicle(projected_area={a: float(areas[a]["value"]) for a in AXES},
+                           displaced_volume=float(d["displaced_volume"]["value"]), source=f"models/{name}.toml",
+                           area_provenance=areas["surge"]["provenance"],
+                           volume_provenance=d["displaced_volume"]["provenance"])
+
+
 def coefficient_set(name: str) -> fossen.CoefficientSet:
     """Shipped coefficient set ``cfd``, ``free_decay`` or ``pendulum``, or a path to a set file."""
     path = Path(name)
     if path.suffix == ".toml" and path.exists():
-        from identification.sets import load_coefficient_set
-
         return load_coefficient_set(path)
     if name not in ("cfd", "free_decay", "pendulum"):
         raise ValueError(f"unknown coefficient set {name!r}: expected cfd, free_decay, pendulum or a .toml path")

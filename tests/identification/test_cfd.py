@@ -10,6 +10,9 @@ from hypothesis.extra import numpy as hnp
 from identification import cfd
 from identification.decay import LaunchError
 from identification.identify import RigOptions, identify_files
+from udrobot_ctrl.vehicle import full_size_vehicle
+
+UDROBOT = full_size_vehicle()  # the full-size vehicle the scale-model results are referred to
 
 RHO = 1000.0
 # Table 5, surge
@@ -119,7 +122,7 @@ def test_identify_files_pools_cfd_tables_per_axis(tmp_path):
         paths.append(p)
     bad = tmp_path / "cfd_sway.csv"
     bad.write_text("speed,force\n1.0,30\n1.0,31\n1.0,29\n")
-    rep = identify_files("cfd", paths + [bad], RigOptions(area={"surge": 0.04938, "sway": 0.09039,
+    rep = identify_files("cfd", paths + [bad], RigOptions(vehicle=UDROBOT, area={"surge": 0.04938, "sway": 0.09039,
                                                                  "heave": 0.09039}))
     agg = rep["aggregate"]
     assert agg["surge"]["KL"]["value"] == pytest.approx(1.0503, rel=1e-6)

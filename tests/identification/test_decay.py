@@ -13,6 +13,9 @@ from hypothesis import strategies as st
 from identification import cfd, decay, free_decay, pendulum, synthetic
 from identification.decay import LaunchError
 from identification.identify import RigOptions, identify_files
+from udrobot_ctrl.vehicle import full_size_vehicle
+
+UDROBOT = full_size_vehicle()  # the full-size vehicle the scale-model results are referred to
 
 Q = 1e-3 / free_decay.COUNTS_PER_MM
 
@@ -66,7 +69,7 @@ def test_each_bad_launch_has_a_clear_error_and_the_batch_continues(tmp_path, goo
     t, c = good_counts
     goods = [_write(tmp_path / f"surge_good_{k}.csv", "counts", t, c + k) for k in range(2)]
     paths = goods[:1] + [b[0] for b in bad.values()] + goods[1:]
-    rep = identify_files("spring", paths, RigOptions(area=0.0044))
+    rep = identify_files("spring", paths, RigOptions(vehicle=UDROBOT, area=0.0044))
     entries = {Path(e["file"]).name: e for e in rep["launches"]}
     assert len(entries) == len(paths)
     for g in goods:
@@ -114,7 +117,7 @@ def test_pendulum_batch_with_bad_launches(tmp_path):
     x = synthetic.pendulum_launch(tr, math.radians(10), rng)
     deg = _write(tmp_path / "sway_degrees.csv", "theta", x.t, np.degrees(x.values))
     still = _write(tmp_path / "sway_still.csv", "theta", x.t, 1e-4 * rng.standard_normal(x.t.size))
-    rep = identify_files("pendulum", [deg, good, still], RigOptions(length=0.3, area=tr.area))
+    rep = identify_files("pendulum", [deg, good, still], RigOptions(vehicle=UDROBOT, length=0.3, area=tr.area))
     ok = {Path(e["file"]).name: e for e in rep["launches"]}
     assert ok["sway_good.csv"]["ok"]
     assert ok["sway_good.csv"]["Cm"] == pytest.approx(tr.Cm, rel=0.02)

@@ -15,6 +15,9 @@ from identification.decay import physical_check
 from identification.identify import RigOptions, format_table, identify_files
 from identification.synthetic import SpringTruth, spring_launch, write_launch
 from tests.identification.test_pendulum import AREA, MASS, VOLUME, pendulum_trace
+from udrobot_ctrl.vehicle import full_size_vehicle
+
+UDROBOT = full_size_vehicle()  # the full-size vehicle the scale-model results are referred to
 
 R = 0.30  # m, pendulum arm
 
@@ -38,7 +41,8 @@ def launches(tmp_path):
 
 
 def test_negative_added_mass_launch_is_rejected_with_its_reason(launches):
-    rep = identify_files("pendulum", launches, RigOptions(mass=MASS, volume=VOLUME, length=R, area=AREA))
+    rep = identify_files("pendulum", launches,
+                         RigOptions(vehicle=UDROBOT, mass=MASS, volume=VOLUME, length=R, area=AREA))
     bad = rep["launches"][2]
     assert not bad["ok"] and not bad["used"]
     assert bad["Cm"] == pytest.approx(-0.06 / (1000 * VOLUME), rel=0.05)  # the fitted value is kept for the record
@@ -55,8 +59,8 @@ def test_negative_added_mass_launch_is_rejected_with_its_reason(launches):
 
 
 def test_graphical_fit_rejects_negative_values_too(launches):
-    rep = identify_files("pendulum", launches[2:], RigOptions(mass=MASS, volume=VOLUME, length=R, area=AREA),
-                         fit="graphical")
+    rep = identify_files("pendulum", launches[2:],
+                         RigOptions(vehicle=UDROBOT, mass=MASS, volume=VOLUME, length=R, area=AREA), fit="graphical")
     assert rep["n_ok"] == 0 and "physically impossible" in rep["launches"][0]["error"]
 
 
@@ -78,12 +82,12 @@ def test_spring_fluid_damping_below_zero_is_rejected(tmp_path):
     truth = SpringTruth("surge", Cm=0.8, CD=1.0, area=0.01, mechanical_damping=0.1)
     path = write_launch(spring_launch(truth, 0.05, np.random.default_rng(0), as_counts=False),
                         tmp_path / "surge_spring.csv")
-    opts = RigOptions(mass=truth.mass, volume=truth.volume, stiffness=truth.stiffness, area=truth.area,
+    opts = RigOptions(vehicle=UDROBOT, mass=truth.mass, volume=truth.volume, stiffness=truth.stiffness, area=truth.area,
                       mechanical_damping=0.6)
     e = identify_files("spring", [path], opts)["launches"][0]
     assert not e["ok"] and e["KL"] == pytest.approx(-0.5, abs=0.1) and e["KL"] + 3.29 * e["KL_se"] < 0
     assert "K_L = -0." in e["error"] and "feeds energy" in e["error"]
     # the same launch with the right rig damping is ok
-    opts = RigOptions(mass=truth.mass, volume=truth.volume, stiffness=truth.stiffness, area=truth.area,
+    opts = RigOptions(vehicle=UDROBOT, mass=truth.mass, volume=truth.volume, stiffness=truth.stiffness, area=truth.area,
                       mechanical_damping=0.1)
     assert identify_files("spring", [path], opts)["launches"][0]["ok"]

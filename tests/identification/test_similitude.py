@@ -4,6 +4,8 @@ from __future__ import annotations
 import pytest
 
 from identification import similitude
+from identification.identify import RigOptions, resolve_rig
+from udrobot_ctrl.vehicle import full_size_vehicle
 
 RHO, MU = 1000.0, 1.0e-3  # water density kg/m^3, dynamic viscosity Pa s
 
@@ -43,8 +45,10 @@ def test_reference_masses():
     assert m_pend == pytest.approx(10.10, abs=0.01)
     m_none, _ = similitude.reference_displaced_mass(None, 107_597e-9, 0.22)
     assert m_none == m_pend
-    m_vehicle, desc = similitude.reference_displaced_mass("vehicle", 344_868e-9, 0.30)
+    m_vehicle, desc = similitude.reference_displaced_mass("vehicle", 344_868e-9, 0.30, vehicle=full_size_vehicle())
     assert 9.0 < m_vehicle < 10.0 and "udrobot.toml" in desc  # rho V of the full-size description
+    with pytest.raises(ValueError, match="full-size vehicle"):
+        similitude.reference_displaced_mass("vehicle", 344_868e-9, 0.30)  # the vehicle is the caller's to give
     assert similitude.reference_displaced_mass(9.2, 344_868e-9, 0.30)[0] == 9.2
     for bad in ("heavy", -3.0):
         with pytest.raises(ValueError):
@@ -87,3 +91,13 @@ def test_invalid_scale_and_law():
         similitude.full_scale_factor("KL", 0.3, "weber")
     with pytest.raises(ValueError, match="no scaling law"):
         similitude.full_scale_factor("omega_n", 0.3)
+
+
+def test_default_area_needs_the_full_size_vehicle():
+    """Without --area the projected areas come from the full-size vehicle the caller gives, scaled by lambda^2."""
+    with pytest.raises(ValueError, match="projected area"):
+        resolve_rig("spring", RigOptions())
+    udrobot = full_size_vehicle()
+    o = resolve_rig("spring", RigOptions(vehicle=udrobot))
+    assert o.area["heave"] == pytest.approx(udrobot.projected_area["heave"] * 0.30 ** 2)
+    assert "models/udrobot.toml" in o.provenance["area"]

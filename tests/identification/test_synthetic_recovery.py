@@ -18,6 +18,9 @@ import pytest
 
 from identification import decay, free_decay, pendulum, statistics, synthetic
 from identification.identify import KEYS, RigOptions, identify_files
+from udrobot_ctrl.vehicle import full_size_vehicle
+
+UDROBOT = full_size_vehicle()  # the full-size vehicle the scale-model results are referred to
 
 SEEDS = range(20)
 SPRING_SEEDS = range(40)  # spring fits are cheap: 120 intervals per coefficient make the 90 % check meaningful
@@ -54,7 +57,7 @@ def test_spring_protocol_files_identified_back(tmp_path):
     truth = synthetic.paper_spring_truth()
     paths = synthetic.write_protocol(tmp_path, synthetic.protocol("spring", truth, seed=1), "spring")
     assert len(paths) == 72
-    rep = identify_files("spring", paths, RigOptions(area={a: t.area for a, t in truth.items()}))
+    rep = identify_files("spring", paths, RigOptions(vehicle=UDROBOT, area={a: t.area for a, t in truth.items()}))
     assert rep["n_ok"] == 72
     assert rep["n_used"] >= 68  # the outlier rule may drop a launch or two, never a group
     for axis, tr in truth.items():
@@ -81,7 +84,8 @@ def test_spring_mechanical_damping_removed_gives_fluid_KL(tmp_path):
     launches = synthetic.protocol("spring", truth, seed=2, axes=("surge",))
     paths = synthetic.write_protocol(tmp_path, launches, "spring")
     tr = truth["surge"]
-    rep = identify_files("spring", paths, RigOptions(area=tr.area, mechanical_damping=tr.mechanical_damping))
+    rep = identify_files("spring", paths,
+                         RigOptions(vehicle=UDROBOT, area=tr.area, mechanical_damping=tr.mechanical_damping))
     agg = rep["aggregate"]
     assert _near(agg["KL"], 0.0)
     assert abs(agg["KL"]["value"]) < 0.1 * tr.mechanical_damping
@@ -127,8 +131,8 @@ def test_pendulum_protocol_files_chin_and_morison(tmp_path):
     area = {a: t.area for a, t in chin.items()}
     p_chin = synthetic.write_protocol(tmp_path / "chin", synthetic.protocol("pendulum", chin, seed=3), "pend")
     p_mor = synthetic.write_protocol(tmp_path / "mor", synthetic.protocol("pendulum", mor, seed=4), "pend")
-    rep_c = identify_files("pendulum", p_chin, RigOptions(length=length, area=area))
-    rep_m = identify_files("pendulum", p_mor, RigOptions(length=length, area=area))
+    rep_c = identify_files("pendulum", p_chin, RigOptions(vehicle=UDROBOT, length=length, area=area))
+    rep_m = identify_files("pendulum", p_mor, RigOptions(vehicle=UDROBOT, length=length, area=area))
     assert rep_c["n_ok"] == 72 and rep_m["n_ok"] == 72
     for axis in synthetic.AXES:
         tc, tm = chin[axis], mor[axis]

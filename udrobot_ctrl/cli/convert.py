@@ -5,7 +5,10 @@ from __future__ import annotations
 from pathlib import Path
 
 from udrobot_ctrl.cli.main import CLIError
+from udrobot_ctrl.io import convert_log
 from udrobot_ctrl.io.files import check_output_dir, check_outputs, run_files
+from udrobot_ctrl.io.runlog import write
+from udrobot_ctrl.io.segment import find_launches, idle_mask, write_launches
 
 
 def register(subparsers) -> None:
@@ -29,10 +32,6 @@ def register(subparsers) -> None:
 
 
 def run(args) -> int:
-    from udrobot_ctrl.io import convert_log
-    from udrobot_ctrl.io.runlog import write
-    from udrobot_ctrl.io.segment import find_launches, idle_mask, write_launches
-
     if not args.out and not args.segment:
         raise ValueError("nothing to do: give --out RUN.csv and/or --segment CHANNEL")
     if args.out:

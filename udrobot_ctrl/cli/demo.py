@@ -22,8 +22,14 @@ from pathlib import Path
 import numpy as np
 from matplotlib.figure import Figure
 
+from identification import cfd, free_decay, synthetic
+from identification.identify import RigOptions, coefficient_set_values, identify_files
+from identification.plots import plot_report
+from identification.sets import write_coefficient_set
+from udrobot_ctrl.control.compare import TABLE_LEGEND, compare, contract_json, text_table, write_outputs
+from udrobot_ctrl.dynamics.sim import simulate
 from udrobot_ctrl.io.files import atomic_write, check_output_dir, open_atomic, save_figure
-from udrobot_ctrl.vehicle import MODEL_NAMES, load_model, write_model_file
+from udrobot_ctrl.vehicle import MODEL_NAMES, coefficient_set, full_size_vehicle, load_model, write_model_file
 
 SYNTHETIC_NOTE = ("the identification data are SYNTHETIC: launch logs and CFD tables generated from the "
                   "coefficients of Cely et al. 2019 (its raw data are not public) with simulated sensor noise; "
@@ -71,11 +77,6 @@ def step_identification(out: Path) -> dict:
     paper's coefficients as truth, runs the same batch identification as ``udrobot-ctrl identify``
     on them, and compares. Table 7's added-mass coefficients are also recomputed from its omega_n.
     """
-    from identification import cfd, free_decay, synthetic
-    from identification.identify import RigOptions, coefficient_set_values, identify_files
-    from identification.plots import plot_report
-    from identification.sets import write_coefficient_set
-
     base = out / "identification"
     raw = base / "raw"
     summary: dict = {"data": SYNTHETIC_NOTE}
@@ -87,15 +88,17 @@ def step_identification(out: Path) -> dict:
         print(f"  {axis:6s} C_m {c:.4f}  (Table 7: {ref:.4f}, {100 * (c / ref - 1):+.1f} %)")
     summary["table7_Cm"] = cm.tolist()
 
+    udrobot = full_size_vehicle()  # its projected areas are the default areas for C_D
     spring_truth = synthetic.paper_spring_truth()
     pend_truth = synthetic.paper_pendulum_truth()
     jobs = {
         "spring": (synthetic.write_protocol(raw / "spring", synthetic.protocol("spring", spring_truth, seed=1),
                                             "spring"),
-                   RigOptions(mechanical_damping=0.5, reference_mass=9.20), spring_truth, ("Cm", "CD", "KQ")),
+                   RigOptions(mechanical_damping=0.5, reference_mass=9.20, vehicle=udrobot), spring_truth,
+                   ("Cm", "CD", "KQ")),
         "pendulum": (synthetic.write_protocol(raw / "pendulum", synthetic.protocol("pendulum", pend_truth, seed=1),
                                               "pendulum"),
-                     RigOptions(length=0.30, reference_mass=9.20), pend_truth, ("Cm", "KL", "KQ")),
+                     RigOptions(length=0.30, reference_mass=9.20, vehicle=udrobot), pend_truth, ("Cm", "KL", "KQ")),
     }
     table5 = {"surge": (1.0503, 43.2322), "sway": (0.5706, 28.7941), "heave": (0.1306, 58.5848)}
     cfd_paths = []
@@ -106,7 +109,7 @@ def step_identification(out: Path) -> dict:
         with open_atomic(path, "wb") as fh:
             np.savetxt(fh, np.column_stack([u, f]), delimiter=",", header="speed,force", comments="", fmt="%.6g")
         cfd_paths.append(path)
-    jobs["cfd"] = (cfd_paths, RigOptions(), None, ("KL", "KQ", "CD"))
+    jobs["cfd"] = (cfd_paths, RigOptions(vehicle=udrobot), None, ("KL", "KQ", "CD"))
     for kind, (paths, opts, truth, keys) in jobs.items():
         print(f"identifying {len(paths)} synthetic {kind} files ...", flush=True)
         t0 = time.perf_counter()
@@ -138,7 +141,8 @@ def step_identification(out: Path) -> dict:
                   "cannot give that when K_L > 0\n  (K_D = K_Q + K_L sum|u|^3 / sum u^4), so Table 5's C_D is not "
                   "reproducible from its own K_L, K_Q (tests/identification/test_cfd.py)")
         name = {"spring": "free_decay_identified", "pendulum": "pendulum_identified", "cfd": "cfd_identified"}[kind]
-        per_axis, prov, desc = coefficient_set_values(rep, name, base="pendulum" if kind == "cfd" else None)
+        borrowed = coefficient_set("pendulum") if kind == "cfd" else None
+        per_axis, prov, desc = coefficient_set_values(rep, name, base=borrowed)
         write_coefficient_set(base / f"{name}.toml", name, per_axis, prov, desc)
         summary[kind] = {"n_files": rep["n_launches"], "n_used": rep["n_used"], "wall_s": wall,
                          "aggregate": {a: {k: (rep["by_axis"][a]["aggregate"].get(k) or {}).get("value")
@@ -188,8 +192,6 @@ def munk_critical_speed(v) -> float:
 def step_open_loop(out: Path) -> dict:
     """Full forward thrust on both horizontal thrusters: top speed per model, with a plot."""
 
-    from udrobot_ctrl.dynamics.sim import simulate
-
     fig = Figure(figsize=(7, 4))
     ax = fig.subplots()
     result = {}
@@ -229,8 +231,6 @@ def step_open_loop(out: Path) -> dict:
 def step_controllers(out: Path, full: bool = False, workers: int | None = None) -> dict:
     """LQR, PID, linear and nonlinear MPC designed on each model A and flown on every plant B (5 x 5), and the EKF
     with model A on data from plant B (``udrobot-ctrl compare``)."""
-    from udrobot_ctrl.control.compare import TABLE_LEGEND, compare, contract_json, text_table, write_outputs
-
     print(f"{len(MODEL_NAMES)} x {len(MODEL_NAMES)} design/plant pairs, 4 controllers and the EKF "
           f"({'full 46 s' if full else 'quick 23 s'} mission) ...", flush=True)
     result = compare(quick=not full, keep_trajectories=True, workers=workers)
@@ -306,7 +306,7 @@ def run(args) -> int:
                 summary[name] = fn(out, full=args.full, workers=getattr(args, "workers", None))
             else:
                 summary[name] = fn(out)
-        except Exception as exc:  # the demo reports a failed step and goes on
+        except Exception as exc:  # noqa: BLE001 - the demo prints the traceback, lists the step as failed, goes on
             traceback.print_exc()
             summary[name] = {"error": f"{type(exc).__name__}: {exc}"}
             failed.append(name)

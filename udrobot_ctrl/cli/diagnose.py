@@ -13,7 +13,11 @@ import argparse
 import sys
 from pathlib import Path
 
+from udrobot_ctrl.gap.plots import plot_paths, write_plots
+from udrobot_ctrl.gap.report import _name, corrected_model, diagnose, split_runs, summary, write_report
+from udrobot_ctrl.io import load_any
 from udrobot_ctrl.io.files import check_output_dir, check_outputs, spec_files
+from udrobot_ctrl.vehicle import write_model_file
 
 
 def register(subparsers):
@@ -40,18 +44,12 @@ def register(subparsers):
 
 
 def _load(path, mapping):
-    from udrobot_ctrl.io import load_any
-
     if not Path(path).exists():
         raise FileNotFoundError(f"run file {path} does not exist")
     return load_any(path, mapping)
 
 
 def run(args) -> int:
-    from udrobot_ctrl.gap.plots import plot_paths, write_plots
-    from udrobot_ctrl.gap.report import _name, corrected_model, diagnose, split_runs, summary, write_report
-    from udrobot_ctrl.vehicle import write_model_file
-
     inputs = [*args.runs, *args.holdout, *spec_files(args.model), *spec_files(args.mapping)]
     check_outputs([args.json], inputs, force=args.force, option="--json")
     if args.out_model:

@@ -20,8 +20,13 @@ import argparse
 import json
 from pathlib import Path
 
+import numpy as np
+
 from identification.identify import KINDS, RigOptions, coefficient_set_values, format_table, identify_files
+from identification.plots import plot_report
+from identification.sets import write_coefficient_set
 from udrobot_ctrl.io.files import atomic_write, check_output_dir, check_outputs, spec_files
+from udrobot_ctrl.vehicle import coefficient_set, full_size_vehicle
 
 
 def _area(text):
@@ -106,32 +111,28 @@ def run(args) -> int:
     opts = RigOptions(mass=args.mass, volume=args.volume, stiffness=args.stiffness, area=args.area,
                       length=args.length, gravity=args.gravity, rho=args.rho, scale=args.scale,
                       mechanical_damping=args.mechanical_damping, pivot_inertia=args.pivot_inertia,
-                      reference_mass=args.reference_mass, KL_law=args.kl_law, axis=args.axis)
+                      reference_mass=args.reference_mass, KL_law=args.kl_law, axis=args.axis,
+                      vehicle=full_size_vehicle())
     report = identify_files(args.kind, files, opts, fit=args.fit, keep_fits=bool(args.plot))
     launches = report.pop("_launches", None)
     if not args.quiet:
         print(format_table(report))
     if args.out:
         name = args.name or Path(args.out).stem
-        per_axis, prov, desc = coefficient_set_values(report, name, args.base)
-        from identification.sets import write_coefficient_set
-
+        per_axis, prov, desc = coefficient_set_values(report, name,
+                                                      coefficient_set(args.base) if args.base else None)
         write_coefficient_set(args.out, name, per_axis, prov, desc, protect=inputs)
         print(f"wrote {args.out} (use --model {args.out}:chin or :morison)")
     if args.json:
         atomic_write(args.json, json.dumps(report, indent=1, default=_json_default), protect=inputs)
         print(f"wrote {args.json}")
     if args.plot:
-        from identification.plots import plot_report
-
         paths = plot_report(report, launches, args.plot, args.kind, protect=inputs)
         print(f"wrote {len(paths)} plots to {args.plot}")
     return 0 if report["n_ok"] else 1
 
 
 def _json_default(o):
-    import numpy as np
-
     if isinstance(o, np.generic):
         return o.item()
     if isinstance(o, np.ndarray):

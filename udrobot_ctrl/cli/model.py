@@ -5,6 +5,8 @@ from pathlib import Path
 
 import numpy as np
 
+from udrobot_ctrl.dynamics.plant import plant_parameters
+from udrobot_ctrl.dynamics.thrusters import actuated_dofs
 from udrobot_ctrl.io.files import check_outputs, spec_files
 from udrobot_ctrl.vehicle import ALL_MODEL_NAMES, DOF_NAMES, load_model, write_model_file
 
@@ -58,9 +60,6 @@ def run_export(args) -> int:
 
 def summary(vehicle) -> str:
     """Human-readable summary: masses, restoring, diagonal hydrodynamics, thrusters, actuated DOFs, provenance."""
-    from udrobot_ctrl.dynamics.plant import plant_parameters
-    from udrobot_ctrl.dynamics.thrusters import actuated_dofs
-
     p = plant_parameters(vehicle)
     lines = [f"model {vehicle.name}", f"  mass {vehicle.mass:.3f} kg, weight {vehicle.weight:.2f} N, "
              f"buoyancy {vehicle.buoyancy:.2f} N (net {vehicle.buoyancy - vehicle.weight:+.2f} N up)",

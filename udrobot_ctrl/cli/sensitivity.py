@@ -26,9 +26,12 @@ from udrobot_ctrl.cli.main import CLIError
 from udrobot_ctrl.control.compare import CONTROL_DT, SIM_DT
 from udrobot_ctrl.control.missions import standard_mission
 from udrobot_ctrl.io.files import atomic_write, check_output_dir, spec_files
+from udrobot_ctrl.sensitivity.evaluators import MissionEvaluator
 from udrobot_ctrl.sensitivity.executor import SweepExecutor
 from udrobot_ctrl.sensitivity.global_ import run_monte_carlo, run_morris, run_sobol
 from udrobot_ctrl.sensitivity.local import local_sensitivity
+from udrobot_ctrl.sensitivity.parameters import default_space, parse_range, read_study_file
+from udrobot_ctrl.sensitivity.plots import sobol_bars, tornado
 from udrobot_ctrl.sensitivity.results import StudyLock, StudyLockedError
 
 METHODS = ("local", "sobol", "morris", "montecarlo")
@@ -76,8 +79,6 @@ def register(subparsers):
 
 def build_space(args):
     """The parameter space of the CLI arguments (model, margin, subset, user ranges)."""
-    from udrobot_ctrl.sensitivity.parameters import default_space, parse_range, read_study_file
-
     space = default_space(args.model, margin=args.margin, rotational=not args.no_rotational)
     ranges, names = {}, None
     if args.ranges:
@@ -98,8 +99,6 @@ def build_space(args):
 
 def build_evaluator(args, space):
     """compare's controller and mission (standard, quick unless ``--full-mission``) on the perturbed vehicles."""
-    from udrobot_ctrl.sensitivity.evaluators import MissionEvaluator
-
     mission = standard_mission(quick=not args.full_mission)
     return MissionEvaluator(space, controller=args.controller, mission=mission, redesign=args.redesign,
                             sim_dt=args.dt, control_dt=args.control_dt)
@@ -202,8 +201,6 @@ def summary_text(res, method: str, top: int = 5) -> str:
 
 def write_plots(res, method: str, out: Path) -> list:
     import matplotlib.pyplot as plt
-
-    from udrobot_ctrl.sensitivity.plots import sobol_bars, tornado
 
     paths = []
     for m in [k for k in KEY_METRICS if k in res.metrics]:

@@ -26,8 +26,11 @@ from tqdm import tqdm
 from udrobot_ctrl.dynamics import effects as fx
 from udrobot_ctrl.dynamics.plant import plant_parameters, state_derivative
 from udrobot_ctrl.dynamics.sim import Actuators, integrate_intervals, rk4_step
+from udrobot_ctrl.dynamics.thrusters import pwm_to_thrust
 from udrobot_ctrl.gap.replay import WindowedGap, windowed_gap
+from udrobot_ctrl.io import load_any, runlog
 from udrobot_ctrl.io.files import atomic_write, check_outputs, run_files, spec_files
+from udrobot_ctrl.io.runlog import check_time_gaps
 from udrobot_ctrl.vehicle import ALL_MODEL_NAMES, STATE_NAMES, load_model
 
 
@@ -62,8 +65,6 @@ def register(subparsers):
 
 def read_input_run(path, mapping=None):
     """A Run from a udrobot-run/1 CSV (runlog.read_run) or any log udrobot_ctrl.io.load_any understands."""
-    from udrobot_ctrl.io import runlog
-
     path = Path(path)
     if path.suffix.lower() == ".csv":
         try:
@@ -71,7 +72,6 @@ def read_input_run(path, mapping=None):
         except runlog.RunLogError:
             if mapping is None:
                 raise
-    from udrobot_ctrl.io import load_any
 
     return load_any(path, mapping=mapping)
 
@@ -104,8 +104,6 @@ def input_wrenches(run, p) -> tuple:
     if u.shape[1] != n_thr:
         raise ValueError(f"{run.path or 'run'}: {u.shape[1]} {kind} columns but the model has {n_thr} thrusters")
     if kind == "pwm":
-        from udrobot_ctrl.dynamics.thrusters import pwm_to_thrust
-
         volts = run.channels.get("voltage")
         v0 = p.supply_voltage
         volts = np.full(run.n, v0) if volts is None else np.where(np.isfinite(volts), volts, v0)
@@ -131,8 +129,6 @@ def check_work(t, max_step: float, where: str = "run") -> int:
 
     Returns the sub-step count. Raises ValueError naming the widest interval.
     """
-    from udrobot_ctrl.io.runlog import check_time_gaps
-
     check_time_gaps(t, where)
     n_sub = substep_count(t, max_step)
     if n_sub > MAX_SUBSTEPS_PER_ROW * max(len(t), 1e3):
@@ -231,7 +227,6 @@ def _format_gap(g: WindowedGap) -> str:
 
 def run_windows(args) -> int:
     """``--windows``: the diagnoser's windowed replay and gap of ``args.model`` on the ``args.input`` runs."""
-    from udrobot_ctrl.io import runlog
 
     srcs = [Path(s) for s in args.input]
     for src in srcs:
@@ -265,7 +260,6 @@ def run_windows(args) -> int:
 
 def run(args) -> int:
     """Replay ``args.input`` through ``args.model`` and write ``args.out`` (or ``--windows``: score the gap)."""
-    from udrobot_ctrl.io import runlog
 
     if getattr(args, "windows", None) is not None:
         return run_windows(args)

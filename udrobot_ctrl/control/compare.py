@@ -41,6 +41,11 @@ from udrobot_ctrl.dynamics.sim import as_parameters
 from udrobot_ctrl.io.files import atomic_write, save_figure
 from udrobot_ctrl.vehicle import MODEL_NAMES
 
+#: How a design fails for a reason of the model, not of the code: reported in the row, the matrix goes on.
+DESIGN_ERRORS = (ValueError, np.linalg.LinAlgError)
+#: How the EKF comparison fails for a reason of the model (diverged data, broken covariance).
+ESTIMATION_ERRORS = (FloatingPointError, np.linalg.LinAlgError)
+
 RESULT_KEYS = ("design", "plant", "controller", "iae", "overshoot", "settling_s", "energy_J", "saturation_s")
 DETAIL_KEYS = ("iae_z", "iae_psi", "iae_u", "overshoot_psi", "settling_psi_s", "overshoot_u", "settling_u_s",
                "max_roll_deg", "max_pitch_deg", "max_sway_mps")
@@ -67,10 +72,8 @@ def _fly(ctrl, kind, design, plant, mission):
         reset()  # the same design flies on every plant: forget integrators, warm starts and plans
     try:
         res = run_mission(ctrl, plant, mission, dt=SIM_DT, control_dt=CONTROL_DT)
-    except FloatingPointError as exc:
+    except FloatingPointError as exc:  # the plant diverged (controller failures are caught by SafeController)
         return _null_row(design, plant, kind, f"diverged: {exc}"), None
-    except Exception as exc:  # noqa: BLE001 - one failed run must not stop the matrix
-        return _null_row(design, plant, kind, f"failed: {type(exc).__name__}: {exc}"), None
     p = as_parameters(plant)
     m = mission_metrics(res, mission, p.f_min, p.f_max)
     row = {"design": design, "plant": plant, "controller": kind}
@@ -104,7 +107,7 @@ def _estimate(design, plant, mission):
         rmse = {s: float(out["rmse"][s]) for s in EKF_STATES}
         return {"filter_model": design, "plant": plant, "rmse": rmse, "nis_mean": float(out["nis_mean"]),
                 "nis_per_dof": float(out.get("nis_per_dof", float("nan"))), "status": "ok"}
-    except Exception as exc:  # noqa: BLE001
+    except ESTIMATION_ERRORS as exc:  # the trajectory diverged or the filter's covariance broke down
         return {"filter_model": design, "plant": plant, "rmse": {s: None for s in EKF_STATES}, "nis_mean": None,
                 "status": f"failed: {type(exc).__name__}: {exc}"}
 
@@ -125,7 +128,7 @@ def run_design(kind, design, plants, quick, keep_trajectory):
         ctrl = make_controller(kind, design, mission, control_dt=CONTROL_DT)
     except FloatingPointError as exc:
         return [_null_row(design, b, kind, f"design diverged: {exc}") for b in plants], {}
-    except Exception as exc:  # noqa: BLE001 - one failed design must not stop the matrix
+    except DESIGN_ERRORS as exc:  # e.g. not stabilisable, Riccati failure: one failed design must not stop the matrix
         return [_null_row(design, b, kind, f"design failed: {type(exc).__name__}: {exc}") for b in plants], {}
     rows, trajs = [], {}
     for plant in plants:

@@ -45,6 +45,7 @@ import numpy as np
 from filterpy.kalman import ExtendedKalmanFilter
 from scipy.stats import chi2
 
+from udrobot_ctrl.control.mpc import maybe_compiled
 from udrobot_ctrl.control.sensors import (
     ANGLE_CHANNELS,
     CHANNEL_STATE,
@@ -53,8 +54,11 @@ from udrobot_ctrl.control.sensors import (
     SensorConfig,
     SensorStream,
     channel_index,
+    measure,
 )
 from udrobot_ctrl.dynamics.plant import PlantParameters, plant_parameters, wrap_angle
+from udrobot_ctrl.dynamics.plant_casadi import rk4_step_function
+from udrobot_ctrl.vehicle import load_model
 
 STATE_NAMES = ("x", "y", "z", "phi", "theta", "psi", "u", "v", "w", "p", "q", "r")
 #: default initial standard deviations (m, rad, m/s, rad/s; assumed: start at a known spot, roughly level)
@@ -93,9 +97,6 @@ def process_noise_covariance(p: PlantParameters, dt: float, noise: ProcessNoise 
 
 def step_jacobian_function(p: PlantParameters, dt: float, compile: bool = True) -> ca.Function:
     """``(x, f) -> (x_next, F)``: RK4 plant step (thrust inputs) and state Jacobian (compiled when gcc is there)."""
-    from udrobot_ctrl.control.mpc import maybe_compiled
-    from udrobot_ctrl.dynamics.plant_casadi import rk4_step_function
-
     step = rk4_step_function(p, dt, "thrust")
     x = ca.SX.sym("x", 12)
     f = ca.SX.sym("f", p.T.shape[1])
@@ -627,8 +628,6 @@ def ekf_on_trajectory(filter_model, t, x, u, dt=0.05, sensors: SensorConfig | No
         ``{"rmse": {state: value for every state}, "nis_mean": mean NIS, "nis_per_dof": mean NIS/dof,
         "dof_mean": mean measurement dimension, "resets": count, "result": EKFResult, "truth": (m, 12)}``.
     """
-    from udrobot_ctrl.control.sensors import measure
-
     t, x, u = np.asarray(t, float), np.asarray(x, float), np.asarray(u, float)
     if len(t) < 2 or x.shape != (len(t), 12) or len(u) < len(t) - 1:
         raise ValueError(f"need t (n,), x (n, 12), u (n-1, k); got {t.shape}, {x.shape}, {u.shape}")
@@ -637,8 +636,6 @@ def ekf_on_trajectory(filter_model, t, x, u, dt=0.05, sensors: SensorConfig | No
     if every < 1 or abs(every * step - dt) > 1e-9 * max(dt, 1.0):
         raise ValueError(f"filter step dt = {dt} s is not a multiple of the trajectory step {step:.6g} s")
     if not isinstance(filter_model, (PlantParameters,)) and not hasattr(filter_model, "added_mass"):
-        from udrobot_ctrl.vehicle import load_model
-
         filter_model = load_model(filter_model)
     sel = np.arange(0, len(t), every)
     ts, xs = t[sel], x[sel]

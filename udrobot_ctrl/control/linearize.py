@@ -35,6 +35,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from udrobot_ctrl.dynamics.plant import PlantParameters, generalized_forces
+from udrobot_ctrl.dynamics.plant_casadi import dynamics_function
 from udrobot_ctrl.vehicle import STATE_INDEX, STATE_NAMES
 
 #: Design state (position x, y dropped: not tracked, pure integrators).
@@ -174,8 +175,6 @@ _JAC_CACHE: dict = {}
 def jacobian_function(p: PlantParameters):
     """casadi Function (x, u) -> (f, df/dx, df/du) of the thruster-input plant (cached per parameters)."""
     import casadi as ca
-
-    from udrobot_ctrl.dynamics.plant_casadi import dynamics_function
 
     key = id(p)
     hit = _JAC_CACHE.get(key)

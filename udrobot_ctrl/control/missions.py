@@ -31,8 +31,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from udrobot_ctrl.control import mpc
 from udrobot_ctrl.control.lqr import BatchScheduledLQR, ScheduledLQR
 from udrobot_ctrl.control.pid import BatchPID, PIDController
+from udrobot_ctrl.dynamics.sim import as_parameters, simulate, stack_parameters
 
 CHANNELS = ("z", "psi", "u")
 CHANNEL_INDEX = {"z": 2, "psi": 5, "u": 6}
@@ -183,7 +185,7 @@ class SafeController:
             f = np.asarray(self.controller(t, x), float).reshape(self.f_min.shape)
             if not np.all(np.isfinite(f)):
                 raise FloatingPointError("non-finite thrust command")
-        except Exception as exc:  # noqa: BLE001 - a controller in the loop must never throw
+        except Exception as exc:  # noqa: BLE001 - a controller in the loop must never throw: held, warned
             self.fallbacks += 1
             self.last_error = f"t = {t:.3f} s: {type(exc).__name__}: {exc}"
             if self.fallbacks == 1:
@@ -216,7 +218,7 @@ class SafeBatch:
     def __call__(self, t, x):
         try:
             f = np.asarray(self.controller(t, x), float).reshape(self.last.shape)
-        except Exception as exc:  # noqa: BLE001 - a controller in the loop must never throw
+        except Exception as exc:  # noqa: BLE001 - a controller in the loop must never throw: held, warned
             self.fallbacks += 1
             self.last_error = f"t = {t:.3f} s: {type(exc).__name__}: {exc}"
             warnings.warn(f"batch controller failed ({self.last_error}); holding the last good commands",
@@ -290,21 +292,13 @@ def make_controller(kind: str, design_model, mission: Mission, control_dt: float
     **opts
         Passed to the controller's constructor.
     """
-    from udrobot_ctrl.dynamics.sim import as_parameters
-
     p = as_parameters(design_model)
     if kind == "lqr":
-        from udrobot_ctrl.control.lqr import ScheduledLQR
-
         opts.setdefault("dt", control_dt)  # discrete design at the sampling period (ZOH, dlqr)
         return ScheduledLQR.design(p, mission.reference, **opts)
     if kind == "pid":
-        from udrobot_ctrl.control.pid import PIDController
-
         return PIDController.design(p, mission.reference, dt=control_dt, **opts)
     if kind in ("lmpc", "nmpc"):
-        from udrobot_ctrl.control import mpc
-
         cls = mpc.LinearMPC if kind == "lmpc" else mpc.NonlinearMPC
         opts.setdefault("dt", control_dt)
         return cls(p, mission, **opts)
@@ -332,8 +326,6 @@ def run_mission(controller, plant_model, mission: Mission, dt: float = 0.01, con
     FloatingPointError
         If the plant state diverges (from :func:`udrobot_ctrl.dynamics.sim.simulate`).
     """
-    from udrobot_ctrl.dynamics.sim import as_parameters, simulate
-
     p = as_parameters(plant_model)
     ctrl = SafeController(controller, p.f_min, p.f_max) if safe else controller
     res = simulate(p, mission.x0(), mission.t_final, controller=ctrl, dt=dt, control_dt=control_dt)
@@ -356,8 +348,6 @@ def run_mission_batch(controllers, plant_models, mission: Mission, dt: float = 0
     SimResult
         ``x`` (n+1, N, 12), ``u`` (n, N, k); ``result.controller`` is the batch wrapper (``fallbacks`` (N,)).
     """
-    from udrobot_ctrl.dynamics.sim import simulate, stack_parameters
-
     ctrls = list(controllers)
     plants = list(plant_models)
     if len(ctrls) != len(plants):

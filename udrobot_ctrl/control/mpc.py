@@ -61,7 +61,9 @@ import casadi as ca
 import numpy as np
 import scipy.sparse as sp
 
+from udrobot_ctrl.dynamics.fastsim import compile_function, parameter_hash
 from udrobot_ctrl.dynamics.plant import PlantParameters, generalized_forces, plant_parameters, wrap_angle
+from udrobot_ctrl.dynamics.plant_casadi import rk4_step_function
 from udrobot_ctrl.vehicle import STATE_INDEX, STATE_NAMES
 
 _ALIASES = {"depth": "z", "heading": "psi", "surge": "u", "yaw": "psi", "roll": "phi", "pitch": "theta"}
@@ -175,8 +177,6 @@ def trim_thrust(p: PlantParameters, x_ref) -> np.ndarray:
 
 def linearization_function(p: PlantParameters, dt: float, name: str = "lin") -> ca.Function:
     """casadi Function ``(x[12], f[n]) -> (x_next, A = dx_next/dx, B = dx_next/df)`` of one RK4 step (dense)."""
-    from udrobot_ctrl.dynamics.plant_casadi import rk4_step_function
-
     F = rk4_step_function(p, dt, "thrust")
     x = ca.SX.sym("x", 12)
     u = ca.SX.sym("f", p.T.shape[1])
@@ -211,11 +211,10 @@ def maybe_compiled(fun: ca.Function, p: PlantParameters, *key, compile: bool = T
     :func:`udrobot_ctrl.dynamics.fastsim.compile_function`) or ``fun``."""
     if not compile:
         return fun
-    from udrobot_ctrl.dynamics.fastsim import compile_function, parameter_hash
 
     try:
         out = compile_function(fun, parameter_hash(p, fun.name(), *key), timeout=COMPILE_TIMEOUT_S)
-    except Exception:  # noqa: BLE001 - compilation is an optimisation only
+    except (OSError, RuntimeError):  # cache folder unusable, casadi codegen/load failed: compiling is optional
         out = None
     return fun if out is None else out
 
@@ -499,9 +498,9 @@ class _MPCBase:
             try:
                 f = self.trim(float(self.reference(t)[6]))
                 kind = "trim thrust"
-            except Exception:  # noqa: BLE001 - a broken reference must not stop the loop
+            except Exception as exc:  # noqa: BLE001 - a broken reference must not stop the loop; reported below
                 f = np.zeros(self.nu)
-                kind = "zero thrust"
+                kind = f"zero thrust; trim failed: {type(exc).__name__}: {exc}"
         self.last_status = f"fallback ({kind}): {reason}"
         if n == 1 or n % 100 == 0:
             warnings.warn(f"{type(self).__name__} at t = {t:.3f} s: {self.last_status} (fallback #{n})",
@@ -558,10 +557,7 @@ class _MPCBase:
         self.stats["solver_resets"] += 1
         qp = getattr(self, "qp", None)
         if qp is not None:
-            try:
-                qp.reset_solver()
-            except Exception:  # noqa: BLE001 - the fallback must still run; the next update re-validates
-                pass
+            qp.reset_solver()
 
 
 class LinearMPC(_MPCBase):
@@ -631,7 +627,7 @@ class LinearMPC(_MPCBase):
                 X, U = self.qp.split(self._z)
                 warm = self.qp.stack(np.vstack([X[1:], X[-1:]]), np.vstack([U[1:], U[-1:]]))
             status, z, info = self.qp.solve(warm)
-        except Exception as exc:  # noqa: BLE001 - never throw in the loop
+        except Exception as exc:  # noqa: BLE001 - never throw in the loop: falls back, reported in last_status
             self._z = None
             self._forget_solver_state()
             return self._finish(t0, self._fallback(t, x, f"{type(exc).__name__}: {exc}"), self.last_status)
@@ -681,8 +677,6 @@ class NonlinearMPC(_MPCBase):
 
     # -- ipopt path -----------------------------------------------------------------------------------
     def _build_nlp(self, ipopt_options):
-        from udrobot_ctrl.dynamics.plant_casadi import rk4_step_function
-
         N, nu = self.N, self.nu
         F = rk4_step_function(self.params, self.dt, "thrust")
         X = ca.MX.sym("X", 12, N + 1)
@@ -804,7 +798,7 @@ class NonlinearMPC(_MPCBase):
         try:
             solve = self._solve_rti if self.method == "rti" else self._solve_ipopt
             status, X, U, st, iters = solve(t, x)
-        except Exception as exc:  # noqa: BLE001 - never throw in the loop
+        except Exception as exc:  # noqa: BLE001 - never throw in the loop: falls back, reported in last_status
             self._X = self._U = None
             self._forget_solver_state()
             return self._finish(t0, self._fallback(t, x, f"{type(exc).__name__}: {exc}"), self.last_status)

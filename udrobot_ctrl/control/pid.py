@@ -38,10 +38,11 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+import osqp
 
 from udrobot_ctrl.control.linearize import STATE_INDEX, linearize, trim_at
 from udrobot_ctrl.dynamics.plant import PlantParameters, kinematics, wrap_angle
-from udrobot_ctrl.dynamics.thrusters import actuated_dofs
+from udrobot_ctrl.dynamics.thrusters import ThrustAllocator, actuated_dofs
 
 #: loop -> (output state, rate state, DOF index in tau)
 LOOPS = {"surge": ("u", None, 0), "depth": ("z", "w", 2), "roll": ("phi", "p", 3), "heading": ("psi", "r", 5)}
@@ -201,14 +202,12 @@ def _allocator(p, allocation="pinv"):
         Tp = np.linalg.pinv(p.T)
         return (lambda tau: np.clip(Tp @ tau, p.f_min, p.f_max)), "clipped pseudo-inverse"
     try:
-        from udrobot_ctrl.dynamics.thrusters import ThrustAllocator
-
         alloc = ThrustAllocator.from_parameters(p)
 
         def run(tau):
             return alloc(tau).f
         return run, "OSQP box-constrained allocation"
-    except Exception:  # noqa: BLE001 - fall back to the clipped pseudo-inverse
+    except (ValueError, osqp.OSQPException):  # OSQP rejects the allocation problem's data: clipped pinv
         Tp = np.linalg.pinv(p.T)
         return (lambda tau: np.clip(Tp @ tau, p.f_min, p.f_max)), "clipped pseudo-inverse"
 

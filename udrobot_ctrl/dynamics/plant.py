@@ -23,6 +23,8 @@ from udrobot_ctrl.vehicle import Vehicle
 DEFAULT_SUPPLY_VOLTAGE = 12.0
 
 _EQ = equations(np.sin, np.cos, np.tan)
+_KERNELS = None  # udrobot_ctrl.dynamics.sim_kernels once loaded (see _kernels)
+_KERNEL_PARAMETERS: dict = {}  # id(p) -> (p, kernel arguments), see _kernel_parameters
 
 
 class SingularMassMatrixError(ValueError):
@@ -68,12 +70,17 @@ def wrap_angle(a):
 
 def _components(a) -> np.ndarray:
     """(..., k) -> (k, ...): the component axis first, as :mod:`~udrobot_ctrl.dynamics.equations` indexes it."""
-    return np.moveaxis(np.asarray(a, dtype=float), -1, 0)
+    a = np.asarray(a, dtype=float)
+    return a.transpose((a.ndim - 1,) + tuple(range(a.ndim - 1))) if a.ndim > 1 else a  # np.moveaxis(a, -1, 0)
 
 
 def _assemble(parts) -> np.ndarray:
-    """Tuple of components -> (..., k)."""
-    return np.stack(np.broadcast_arrays(*parts), axis=-1)
+    """Tuple of components -> (..., k) (components broadcast against each other)."""
+    arrays = [np.asarray(a) for a in parts]
+    out = np.empty(np.broadcast_shapes(*(a.shape for a in arrays)) + (len(arrays),), np.result_type(*arrays))
+    for i, a in enumerate(arrays):
+        out[..., i] = a
+    return out
 
 
 def coriolis_centripetal(M, nu):
@@ -112,6 +119,12 @@ def kinematics(eta, nu):
 
     Returns (..., 6): NED velocity (m/s) and Euler-angle rates (rad/s).
     """
+    eta, nu = np.asarray(eta, dtype=float), np.asarray(nu, dtype=float)
+    if eta.shape == nu.shape and eta.ndim <= 2 and eta.shape[-1:] == (6,):  # the compiled twin, row by row
+        rows = eta.reshape(-1, 6)
+        out = np.empty(rows.shape)
+        _kernels().kinematics_rows(np.ascontiguousarray(rows), np.ascontiguousarray(nu.reshape(-1, 6)), out)
+        return out.reshape(eta.shape)
     return _assemble(_EQ.kinematics(_components(eta), _components(nu)))
 
 
@@ -186,6 +199,35 @@ def plant_parameters(vehicle: Vehicle) -> PlantParameters:
     return fx.fold_parameters(nominal, vehicle.effects) if vehicle.effects else nominal
 
 
+def _kernels():
+    """:mod:`udrobot_ctrl.dynamics.sim_kernels`, loaded on first use."""
+    global _KERNELS
+    if _KERNELS is None:
+        # local import: loading the numba kernels takes ~1.5 s, paid only by the calls that run them
+        from udrobot_ctrl.dynamics import sim_kernels
+
+        _KERNELS = sim_kernels
+    return _KERNELS
+
+
+def _kernel_parameters(p: PlantParameters) -> tuple:
+    """(M, D_L, Q, W, B, r_g, r_b) of one vehicle as the compiled kernels take them (C-contiguous float64).
+
+    Kept for the few most recent parameter sets (a replay evaluates the same ones thousands of times); the
+    entry holds ``p`` itself, so its id cannot be reused while cached, and ``p`` is frozen.
+    """
+    hit = _KERNEL_PARAMETERS.get(id(p))
+    if hit is not None and hit[0] is p:
+        return hit[1]
+    def c(a):
+        return np.ascontiguousarray(a, dtype=float)
+    out = (c(p.M), c(p.D_L), c(p.Q), float(p.weight), float(p.buoyancy), c(p.r_g), c(p.r_b))
+    if len(_KERNEL_PARAMETERS) >= 16:
+        _KERNEL_PARAMETERS.clear()
+    _KERNEL_PARAMETERS[id(p)] = (p, out)
+    return out
+
+
 def _parameters(p: PlantParameters) -> tuple:
     """(M, M_inv, D_L, Q, W, B, r_g, r_b) indexed as the equations expect; a leading vehicle axis moves last."""
     stacked = np.ndim(p.M) == 3
@@ -218,6 +260,11 @@ def generalized_forces(x, p: PlantParameters):
     """Sum of C(nu) nu + D(nu) nu + g(eta) for state x (..., 12), minus the force effects of the model; N, N m."""
     x = np.asarray(x, dtype=float)
     _check_last_axis("x", x, 12)
+    if x.ndim <= 2 and np.ndim(p.M) == 2:  # one vehicle: the compiled twin of the equations, row by row
+        out = np.empty((x.size // 12, 6))
+        _kernels().generalized_forces_rows(np.ascontiguousarray(x.reshape(-1, 12)), *_kernel_parameters(p), out)
+        F = out.reshape(x.shape[:-1] + (6,))
+        return F - _assemble(effect_forces(_components(x), p)) if p.effects else F
     M, _, D_L, Q, W, B, r_g, r_b = _parameters(p)
     X = _components(x)
     F = _EQ.generalized_forces(X, M, D_L, Q, W, B, r_g, r_b)

@@ -31,7 +31,6 @@ numba is unavailable) and ``method='solve_ivp'`` (RK45, rtol 1e-9) the reference
 """
 from __future__ import annotations
 
-import warnings
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -174,18 +173,11 @@ _KERNELS = None
 PARALLEL_MIN_VEHICLES = 16  # below this the thread start-up costs more than it saves
 
 
-def _numba_available() -> bool:
-    try:
-        import numba  # noqa: F401
-    except ImportError:  # pragma: no cover
-        return False
-    return True
-
-
 def _kernels():
     """(serial, parallel) numba kernels of :mod:`udrobot_ctrl.dynamics.sim_kernels`, imported on first use."""
     global _KERNELS
     if _KERNELS is None:
+        # local import: loading the numba kernels takes ~1.5 s, paid only by the calls that run them
         from udrobot_ctrl.dynamics import sim_kernels
 
         _KERNELS = (sim_kernels.run_serial, sim_kernels.run_parallel)
@@ -291,24 +283,12 @@ def integrate_intervals(p: PlantParameters, x0, t, taus, max_step: float, out=No
         raise ValueError(f"max_step must be > 0, got {max_step}")
     if taus.shape[0] < t.shape[0] - 1 or taus.shape[1:] != (6,):
         raise ValueError(f"taus must be ({t.shape[0] - 1} or more, 6), got {taus.shape}")
-    if _numba_available():
-        from udrobot_ctrl.dynamics import sim_kernels
+    # local import: loading the numba kernels takes ~1.5 s, paid only by the calls that run them
+    from udrobot_ctrl.dynamics import sim_kernels
 
-        M, Minv, DL, Q, W, B, rg, rb = (a[0] for a in _kernel_arrays(p))
-        bad = sim_kernels.replay_intervals(x0, taus, t, float(max_step), M, Minv, DL, Q, float(W), float(B), rg,
-                                           rb, out)
-        return out, int(bad)
-    x = x0.copy()  # pragma: no cover - numba is a dependency; kept for platforms without it
-    out[0] = x
-    for k in range(t.shape[0] - 1):
-        h = t[k + 1] - t[k]
-        m = max(1, int(np.ceil(h / max_step - 1e-9)))
-        for _ in range(m):
-            x = rk4_step(p, x, taus[k], h / m)
-        out[k + 1] = x
-        if not np.all(np.isfinite(x)):
-            return out, k
-    return out, -1
+    M, Minv, DL, Q, W, B, rg, rb = (a[0] for a in _kernel_arrays(p))
+    bad = sim_kernels.replay_intervals(x0, taus, t, float(max_step), M, Minv, DL, Q, float(W), float(B), rg, rb, out)
+    return out, int(bad)
 
 
 def _divergence(p, status, t0, dt, out=None, record_every=1):
@@ -372,9 +352,7 @@ def simulate(model, x0, t_final, controller=None, inputs=None, dt=0.01, input_ki
         raise ValueError(f"model {p.name!r} has thrust effects ({', '.join(e.name for e in p.effects)}): they act "
                          f"on each thruster's force, so simulate it with thrust inputs, not a commanded wrench")
     # the compiled kernels hold the nominal equations; a model's run-time effects go through the numpy loop
-    use_kernel = method == "rk4" and disturbance is None and not p.effects and _numba_available()
-    if method == "rk4" and disturbance is None and not _numba_available():  # pragma: no cover
-        warnings.warn("numba unavailable: using the plain-numpy RK4", RuntimeWarning, stacklevel=2)
+    use_kernel = method == "rk4" and disturbance is None and not p.effects
     if use_kernel and controller is None:
         return _simulate_open_loop(p, x, n, dt, inputs, input_kind, k_in, record_every, freeze, parallel)
     if use_kernel:

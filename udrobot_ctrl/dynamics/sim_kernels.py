@@ -17,7 +17,10 @@ from udrobot_ctrl.dynamics.equations import equations  # noqa: E402
 
 # inlined at the numba IR level: no call (and no reference counting of the shared parameter arrays, which made
 # threads contend in the parallel batch kernel) per term of the equations
-_state_derivative = equations(np.sin, np.cos, np.tan, jit=numba.njit(cache=True, inline="always")).state_derivative
+_EQ = equations(np.sin, np.cos, np.tan, jit=numba.njit(cache=True, inline="always"))
+_state_derivative = _EQ.state_derivative
+_generalized_forces = _EQ.generalized_forces
+_kinematics = _EQ.kinematics
 
 
 @numba.njit(cache=True)
@@ -110,3 +113,24 @@ def replay_intervals(x0, taus, t, max_step, M, Minv, DL, Q, W, B, rg, rb, out):
             if not np.isfinite(x[j]):
                 return k
     return -1
+
+
+@numba.njit(cache=True)
+def generalized_forces_rows(x, M, DL, Q, W, B, rg, rb, out):
+    """out[i] = C(nu) nu + D(nu) nu + g(eta) (N, N m) of state x[i] (N, 12), one vehicle's parameters.
+
+    The compiled twin of :func:`udrobot_ctrl.dynamics.plant.generalized_forces` for a batch of states.
+    """
+    for i in range(x.shape[0]):
+        F = _generalized_forces(x[i], M, DL, Q, W, B, rg, rb)
+        for j in range(6):
+            out[i, j] = F[j]
+
+
+@numba.njit(cache=True)
+def kinematics_rows(eta, nu, out):
+    """out[i] = J(eta[i]) nu[i] for (N, 6) poses and velocities: the compiled twin of ``plant.kinematics``."""
+    for i in range(eta.shape[0]):
+        k = _kinematics(eta[i], nu[i])
+        for j in range(6):
+            out[i, j] = k[j]

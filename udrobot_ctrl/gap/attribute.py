@@ -25,6 +25,7 @@ are reported as indistinguishable on this data, with the manoeuvre that would se
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import lru_cache
 
 import numpy as np
 from scipy.optimize import lsq_linear, minimize
@@ -47,9 +48,16 @@ def deriv_kernel(prep: Prepared):
     over it) with w keeps the equation error exact for the linear part: a fast-varying command otherwise
     looks like a thruster lag, and raw attitude against smoothed rates like an added-mass error.
     """
-    win = max(5, int(round(prep.window_s / prep.dt)) | 1)
-    c = savgol_coeffs(win, 2, deriv=1, delta=prep.dt, use="dot")
-    return -prep.dt * np.cumsum(c)[:-1]
+    return _deriv_weights(max(5, int(round(prep.window_s / prep.dt)) | 1), float(prep.dt))
+
+
+@lru_cache(maxsize=64)
+def _deriv_weights(win: int, dt: float) -> np.ndarray:
+    """:func:`deriv_kernel` for a window of ``win`` samples of ``dt`` s (computed once per pair; read-only)."""
+    c = savgol_coeffs(win, 2, deriv=1, delta=dt, use="dot")
+    w = -dt * np.cumsum(c)[:-1]
+    w.flags.writeable = False
+    return w
 
 
 def filter_forces(prep: Prepared, y, held=False):
@@ -170,6 +178,7 @@ class Attributor:
         self.cat = catalogue or fx.catalogue()
         self.N = stack.n
         self._cache = {}
+        self._dof_cache, self._gram_cache = {}, {}  # see _dof_design, _gram
         self.n_eff = float(self.N)
 
     def design(self, name, shape):
@@ -181,15 +190,35 @@ class Attributor:
             self._cache[key] = (np.nan_to_num(b0), np.nan_to_num(A), names, lo, hi)
         return self._cache[key]
 
+    def _dof_design(self, name, shape):
+        """Regressors of a design on the scored DOFs, (nd, k, n) C-contiguous (kept with the design cache)."""
+        key = (name, tuple(np.round(shape, 6)), self.dofs.tobytes())
+        if key not in self._dof_cache:
+            if len(self._dof_cache) > 400:
+                self._dof_cache.clear()
+                self._gram_cache.clear()
+            A = self.design(name, shape)[1]
+            self._dof_cache[key] = np.ascontiguousarray(A[:, self.dofs, :].transpose(1, 2, 0))
+        return self._dof_cache[key]
+
+    def _gram(self, ti, tj, At_i, At_j):
+        """Per-DOF cross products At_i At_j^T (nd, k_i, k_j) of two terms' regressors, cached per pair."""
+        key = (ti[0], tuple(np.round(ti[1], 6)), tj[0], tuple(np.round(tj[1], 6)), self.dofs.tobytes())
+        if key not in self._gram_cache:
+            if len(self._gram_cache) > 4000:
+                self._gram_cache.clear()
+            self._gram_cache[key] = At_i @ At_j.transpose(0, 2, 1)
+        return self._gram_cache[key]
+
     def fit(self, terms, iters=3):
         """Fit terms [(name, shape), ...] jointly; per-DOF variances by re-weighting."""
         d = self.dofs
         b0 = np.zeros_like(self.r)
-        As, names, lo, hi, owner = [], [], [], [], []
+        keys, names, lo, hi, owner = [], [], [], [], []
         for name, shape in terms:
             b, A, nm, l, h = self.design(name, shape)
             b0 = b0 + b
-            As.append(A)
+            keys.append((name, shape))
             names += list(nm)
             lo.append(l)
             hi.append(h)
@@ -199,9 +228,19 @@ class Attributor:
         sig = np.sqrt(np.mean(self.r[:, d] ** 2, axis=0)) + 1e-12
         a = np.zeros(k)
         if k:
-            A = np.concatenate(As, axis=-1)[:, d, :]  # (n, nd, k)
-            G = np.einsum("nik,nil->ikl", A, A)
-            h = np.einsum("nik,ni->ik", A, y)
+            Ats = [self._dof_design(name, shape) for name, shape in keys]  # (nd, k_i, n) per term
+            cuts = np.cumsum([0] + [At.shape[1] for At in Ats])
+            G = np.empty((int(d.sum()), k, k))  # per-DOF normal equations, blocks cached per pair of terms
+            for i, ti in enumerate(keys):
+                for j in range(i, len(keys)):
+                    g = self._gram(ti, keys[j], Ats[i], Ats[j])
+                    G[:, cuts[i]:cuts[i + 1], cuts[j]:cuts[j + 1]] = g
+                    G[:, cuts[j]:cuts[j + 1], cuts[i]:cuts[i + 1]] = g.transpose(0, 2, 1)
+            yt = np.ascontiguousarray(y.T)[..., None]
+            h = np.concatenate([(At @ yt)[..., 0] for At in Ats], axis=1)
+
+            def prediction(a):  # A a, (n, nd)
+                return sum(a[cuts[i]:cuts[i + 1]] @ At for i, At in enumerate(Ats)).T
             lo, hi = np.concatenate(lo), np.concatenate(hi)
             active = np.einsum("ikk->k", G / sig[:, None, None] ** 2) > 1e-12 * max(
                 1.0, np.einsum("ikk->k", G / sig[:, None, None] ** 2).max())
@@ -216,9 +255,9 @@ class Attributor:
                 res = lsq_linear(L.T, bvec, bounds=(lo[active] * scale, hi[active] * scale), method="bvls")
                 a = np.zeros(k)
                 a[active] = res.x / scale
-                e = y - np.einsum("nik,k->ni", A, a)
+                e = y - prediction(a)
                 sig = np.sqrt(np.mean(e ** 2, axis=0)) + 1e-12
-            pred = b0[:, d] + np.einsum("nik,k->ni", A, a)
+            pred = b0[:, d] + prediction(a)
             kk = int(active.sum())
         else:
             pred = b0[:, d]

@@ -26,6 +26,7 @@ import numpy as np
 from scipy.signal import savgol_filter
 
 from udrobot_ctrl.dynamics.plant import PlantParameters, restoring_forces
+from udrobot_ctrl.dynamics.thrusters import pwm_to_thrust
 from udrobot_ctrl.gap.smoother import SmoothedRun, SmootherError, smooth_run
 from udrobot_ctrl.io.runlog import Run, check_time_gaps, resample
 
@@ -178,8 +179,6 @@ def actuators(run: Run, p: PlantParameters, f_raw=None):
             raise ValueError(f"{run.path or 'run'}: {f.shape[1]} {run.input_kind}_i columns but the model has {k} "
                              f"thrusters (columns must follow the model's thruster order)")
         if run.input_kind == "pwm":  # the fitted T-200 curve at the logged battery voltage (the model's if absent)
-            from udrobot_ctrl.dynamics.thrusters import pwm_to_thrust
-
             v0 = p.supply_voltage
             volts = run.channels.get("voltage")
             v = v0 if volts is None or not np.isfinite(volts).any() else np.nan_to_num(volts, nan=v0)[:, None]

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from udrobot_ctrl.dynamics.effects import plant_effect, wall_parameters
-from udrobot_ctrl.dynamics.plant import plant_parameters, require_nominal
+from udrobot_ctrl.dynamics.plant import plant_parameters, require_nominal, rotation_zyx
 from udrobot_ctrl.gap import effects as fx
 from udrobot_ctrl.gap import identifiability
 from udrobot_ctrl.gap.attribute import (
@@ -30,6 +30,7 @@ from udrobot_ctrl.gap.data import prepare
 from udrobot_ctrl.gap.locate import locate
 from udrobot_ctrl.gap.shrink import gap, simulate_windows
 from udrobot_ctrl.io.files import atomic_write
+from udrobot_ctrl.io.runlog import Run
 from udrobot_ctrl.vehicle import load_model
 
 FORMAT = "udrobot-diagnosis/1"
@@ -40,8 +41,6 @@ def split_runs(runs, holdout):
 
     Returns (fit, holdout, note).
     """
-    from udrobot_ctrl.io.runlog import Run
-
     if holdout:
         return list(runs), list(holdout), "holdout runs given on the command line"
     if len(runs) >= 2:
@@ -109,8 +108,6 @@ def wall_distances(params, surfaces, eta, p, speed):
     -------
     dict label -> {"added_mass_m", "suction_m", "matters_below_m"}
     """
-    from udrobot_ctrl.dynamics.plant import rotation_zyx
-
     lam = params.get("decay_length_m", 0.0)
     am, as_ = params.get("added_mass_at_contact_kg", 0.0), params.get("suction_N_s2_per_m2", 0.0)
     drag = float(p.D_L[0, 0] * speed + p.Q[0, 0] * speed ** 2)

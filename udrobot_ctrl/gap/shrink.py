@@ -21,6 +21,7 @@ import numpy as np
 from udrobot_ctrl.dynamics.integrators import rk4_step
 from udrobot_ctrl.dynamics.plant import PlantParameters, generalized_forces, kinematics, wrap_angle
 from udrobot_ctrl.gap.data import Prepared
+from udrobot_ctrl.gap.smoother import channel_noise
 from udrobot_ctrl.vehicle import STATE_INDEX
 
 CHANNELS = ("u", "v", "w", "p", "q", "r", "z", "phi", "theta", "psi")
@@ -35,14 +36,21 @@ def window_starts(prep: Prepared, window_s: float):
     return starts[ok], w
 
 
-def _surface_ctx(prep: Prepared, k, xs):
-    """Per-step surface distances for a batch of windows at absolute indices k (N,), simulated state xs."""
+def _surface_ctx(prep: Prepared, k, xs, at_k=None):
+    """Per-step surface distances for a batch of windows at absolute indices k (N,), simulated state xs.
+
+    ``at_k``: :func:`_surfaces_at` (prep, k), when several states share the step's indices (RK4 stages).
+    """
     out = []
-    for dist, normal, _ in prep.surfaces:
-        d_meas = dist[k]
-        dpos = xs[:, :3] - prep.eta[k, :3]
-        out.append((d_meas + dpos @ normal, normal))
+    for (d_meas, pos_meas), (_, normal, _) in zip(at_k or _surfaces_at(prep, k), prep.surfaces):
+        out.append((d_meas + (xs[:, :3] - pos_meas) @ normal, normal))
     return out
+
+
+def _surfaces_at(prep: Prepared, k):
+    """Measured distance to each surface and measured position (N, 3) at absolute indices k (N,)."""
+    pos = prep.eta[k, :3]
+    return [(dist[k], pos) for dist, _, _ in prep.surfaces]
 
 
 def simulate_windows(prep: Prepared, p: PlantParameters, hooks=(), window_s=8.0, M_A=None):
@@ -70,8 +78,8 @@ def simulate_windows(prep: Prepared, p: PlantParameters, hooks=(), window_s=8.0,
     h_dt = prep.dt / nsub
     N = starts.size
 
-    def deriv(xx, k, fk, tk):
-        ctx = {"surfaces": _surface_ctx(prep, k, xx)}
+    def deriv(xx, k, fk, tk, at_k):
+        ctx = {"surfaces": _surface_ctx(prep, k, xx, at_k)}
         tot = tk - generalized_forces(xx, p)
         for fo in forces:
             tot = tot + fo(xx, fk, ctx)
@@ -86,9 +94,9 @@ def simulate_windows(prep: Prepared, p: PlantParameters, hooks=(), window_s=8.0,
     alive = np.ones(N, bool)
     for j in range(1, w):
         k = np.minimum(starts + j - 1, prep.n - 1)
-        fk, tk = f[k], tau_seq[k]
+        fk, tk, at_k = f[k], tau_seq[k], _surfaces_at(prep, k)
         for _ in range(nsub):
-            x = rk4_step(lambda _t, xx: deriv(xx, k, fk, tk), 0.0, x, h_dt)  # noqa: B023 - used at once
+            x = rk4_step(lambda _t, xx: deriv(xx, k, fk, tk, at_k), 0.0, x, h_dt)  # noqa: B023 - used at once
         bad = ~np.all(np.isfinite(x), axis=1) | (np.abs(x[:, 6:]).max(axis=1) > 1e3)
         alive &= ~bad
         x[bad] = 0.0
@@ -97,14 +105,6 @@ def simulate_windows(prep: Prepared, p: PlantParameters, hooks=(), window_s=8.0,
         if j < w:
             sim[idx[keep]] = x[keep]
     return sim
-
-
-def channel_noise(y):
-    """Sensor-noise std of a channel from its sample-to-sample differences (robust MAD), same units."""
-    d = np.diff(y[np.isfinite(y)])
-    if d.size < 5:
-        return np.nan
-    return float(1.4826 * np.median(np.abs(d - np.median(d))) / np.sqrt(2.0))
 
 
 def errors(prep: Prepared, sim):

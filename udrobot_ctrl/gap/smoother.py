@@ -25,7 +25,7 @@ position only makes the covariance ill-conditioned; it is then dead-reckoned fro
 Measurements: whichever of ``x y z phi theta psi u v w p q r ax ay az`` are logged (nan = absent per sample). The
 accelerometer model is the specific force at the body origin in body axes (FRD),
 ``f = v_dot + omega x v - R^T [0, 0, g] + b`` (the run-log format's definition). Noise std per channel is
-estimated from the data (:func:`udrobot_ctrl.gap.shrink.channel_noise`, sample-to-sample MAD) with floors
+estimated from the data (:func:`channel_noise`, sample-to-sample MAD) with floors
 (:data:`NOISE_FLOOR`); angle innovations are wrapped to [-pi, pi).
 
 The filter runs on a grid decimated to about ``rate_hz`` (the input is averaged over each interval), and the
@@ -209,11 +209,16 @@ def _functions(p: PlantParameters, s: SmootherSettings, dt: float, compile: bool
     return _CACHE[key]
 
 
+def channel_noise(y):
+    """Sensor-noise std of a channel from its sample-to-sample differences (robust MAD), same units."""
+    d = np.diff(y[np.isfinite(y)])
+    if d.size < 5:
+        return np.nan
+    return float(1.4826 * np.median(np.abs(d - np.median(d))) / np.sqrt(2.0))
+
+
 def measurement_noise(meas: dict, channels) -> dict:
     """Noise std per channel: sample-to-sample MAD of the logged data (angles unwrapped), floored."""
-    # local import: gap.shrink imports gap.data, which imports this module (a real cycle)
-    from udrobot_ctrl.gap.shrink import channel_noise
-
     out = {}
     for c in channels:
         y = np.asarray(meas[c], float)

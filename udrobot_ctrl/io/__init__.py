@@ -11,6 +11,7 @@ import numpy as np
 
 from udrobot_ctrl.io.runlog import Run, read_run
 
+from . import mavlink, qgc_csv, rosbag, rostopic_csv
 from .mapping import Mapping, MappingError, assemble_run, load_mapping, motor_rules
 from .mavlink import DecodedLog, detect_vehicle, motor_command_pwm, water_density_from_params
 from .qgc_csv import is_qgc_csv
@@ -57,22 +58,13 @@ def read_streams(path, mapping: Mapping):
     if mapping.source != expected:
         raise MappingError(f"{path}: is a {kind} log but mapping {mapping.name} is for source '{mapping.source}'")
     if kind == "ros":
-        from . import rosbag
-
         return rosbag.read_streams(path, mapping)
     if kind == "tlog":
-        from . import mavlink
-
         return mavlink.read_tlog_streams(path, mapping, mapping.optional_needs())
     if kind == "bin":
-        from . import mavlink
-
         return mavlink.read_bin_streams(path, mapping, mapping.optional_needs())
     if kind == "qgc_csv":
-        from . import qgc_csv
-
         return qgc_csv.read_streams(path, mapping)
-    from . import rostopic_csv
 
     return rostopic_csv.read_streams(path, mapping)
 

@@ -191,6 +191,7 @@ def iter_tlog(path, damage: Damage | None = None, wanted=None, tally: dict | Non
     damage = Damage() if damage is None else damage
     mav = dialect.MAVLink(None)
     mav.robust_parsing = False
+    mav_error = dialect.MAVError
     known = dialect.mavlink_map
     size = len(data)
     offset, index, last_us = 0, 0, None
@@ -232,7 +233,7 @@ def iter_tlog(path, damage: Damage | None = None, wanted=None, tally: dict | Non
         else:
             try:
                 msg = mav.decode(bytearray(data[start:end]))
-            except Exception as exc:  # dialect.MAVError and struct errors from a corrupt payload
+            except (mav_error, struct.error, ValueError, UnicodeDecodeError) as exc:  # a corrupt payload
                 if end < size and not _plausible_stamp(data, end, usec):
                     # the length byte itself is not trustworthy: lost framing
                     nxt = _resync(data, offset + 1, last_us)
@@ -378,7 +379,9 @@ def iter_dataflash(path, damage: Damage | None = None, wanted=None, tally: dict 
     stepped over without unpacking (their framing is still checked); the index still counts them.
     ``tally['valid']`` counts every well-framed record (FMT included), yielded or not.
     """
-    from pymavlink.DFReader import DFFormat, null_term
+    from pymavlink.DFReader import FORMAT_TO_STRUCT, DFFormat, null_term
+
+    format_chars = set(FORMAT_TO_STRUCT)
 
     data = Path(path).read_bytes()
     damage = Damage() if damage is None else damage
@@ -424,10 +427,11 @@ def iter_dataflash(path, damage: Damage | None = None, wanted=None, tally: dict 
         elements = layout.unpack_from(data, offset + 3)
         if mtype == DF_FMT_TYPE:
             ftype, flen, name, form, cols = elements
-            try:
-                formats[ftype] = DFFormat(ftype, null_term(name), flen, null_term(form), null_term(cols))
+            form = null_term(form)
+            if set(form) <= format_chars:  # else DFFormat would print and raise a bare Exception
+                formats[ftype] = DFFormat(ftype, null_term(name), flen, form, null_term(cols))
                 layouts.pop(ftype, None)
-            except Exception:
+            else:
                 damage.add("bad FMT", offset, fmt.len)
         else:
             values = {}

@@ -11,6 +11,7 @@ the message index (0-based, in bag order over the mapped topics) and its record 
 from __future__ import annotations
 
 import re
+import struct
 from pathlib import Path
 
 from .streams import LogImportError, finish_stream
@@ -63,7 +64,15 @@ def is_bag(path) -> bool:
 
 def read_streams(path, mapping) -> dict:
     """Decode the topics ``mapping`` needs from a bag into :class:`~udrobot_ctrl.io.streams.Stream` objects."""
-    from rosbags.highlevel import AnyReader
+    from rosbags.highlevel import AnyReader, AnyReaderError
+    from rosbags.rosbag1 import ReaderError as Rosbag1Error
+    from rosbags.rosbag2 import ReaderError as Rosbag2Error
+    from rosbags.serde import SerdeError
+
+    # what rosbags raises on corrupt or truncated data (OverflowError: a huge length read from overwritten
+    # bytes); any other exception is a bug and stays one
+    bag_errors = (AnyReaderError, Rosbag1Error, Rosbag2Error, SerdeError, OSError, EOFError, struct.error,
+                  ValueError, IndexError, KeyError, UnicodeDecodeError, OverflowError)
 
     path = Path(path)
     if not path.exists():
@@ -77,7 +86,7 @@ def read_streams(path, mapping) -> dict:
     try:
         reader = AnyReader([bag_path], default_typestore=typestore())
         reader.open()
-    except Exception as exc:  # rosbags raises several types for corrupt/truncated bags
+    except bag_errors as exc:
         raise LogImportError(f"{path}: cannot open bag ({type(exc).__name__}: {exc}); file size "
                              f"{_size(path)} bytes") from exc
     try:
@@ -86,7 +95,7 @@ def read_streams(path, mapping) -> dict:
             where = f"{path}: message {index} (topic {conn.topic}, record time {stamp_ns} ns)"
             try:
                 msg = reader.deserialize(raw, conn.msgtype)
-            except Exception as exc:
+            except bag_errors as exc:
                 raise LogImportError(f"{where}: cannot decode {conn.msgtype} ({type(exc).__name__}: {exc})") from exc
             entry = data[conn.topic]
             if entry["header"] is None:
@@ -105,7 +114,7 @@ def read_streams(path, mapping) -> dict:
                     from exc
     except LogImportError:
         raise
-    except Exception as exc:
+    except bag_errors as exc:
         raise LogImportError(f"{path}: reading failed after message {index} ({type(exc).__name__}: {exc}); "
                              f"the bag is corrupt or truncated, nothing was imported") from exc
     finally:

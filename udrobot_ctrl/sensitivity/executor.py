@@ -230,7 +230,7 @@ def _completed(ex: SweepExecutor, evaluator, chunks, X):
     try:
         for fut in ex.as_completed(futures):
             yield fut.result()
-    except BaseException:
+    except BaseException:  # cleanup, re-raised
         ex.cancel(futures)
         raise
 

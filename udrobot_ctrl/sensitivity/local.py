@@ -22,6 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from udrobot_ctrl.sensitivity.global_ import _metric_columns, _sweep, holds_study_lock
+from udrobot_ctrl.sensitivity.results import write_table
 
 
 @dataclass
@@ -157,7 +158,5 @@ def local_sensitivity(evaluator, space, rel_step: float = 1e-2, executor=None, o
         lo[m], hi[m] = Yr[:, 4], Yr[:, 5]
     result = LocalResult(names, p, h, base, der, err, ela, lo, hi, bounds, X.shape[0], wall)
     if out is not None:
-        from udrobot_ctrl.sensitivity.results import write_table
-
         write_table(f"{out}/local", result.table())
     return result

@@ -163,7 +163,7 @@ def atomic_write_bytes(path, data: bytes) -> None:
             fh.flush()
             os.fsync(fh.fileno())
         os.replace(tmp, path)
-    except BaseException:
+    except BaseException:  # cleanup, re-raised
         tmp.unlink(missing_ok=True)
         raise
 
@@ -269,7 +269,7 @@ class ResultStore:
         self.lock = StudyLock(self.out).acquire()
         try:
             self._open(study, design, param_names, resume)
-        except BaseException:
+        except BaseException:  # cleanup, re-raised
             self.lock.release()
             raise
 

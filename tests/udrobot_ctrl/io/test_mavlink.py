@@ -188,3 +188,18 @@ def test_dataflash_truncated_or_corrupt(tmp_path):
     (tmp_path / "zero.bin").write_bytes(b"\0" * 100)
     with pytest.raises(LogImportError, match=r"zero.bin: nothing usable decodes"):
         convert_log(tmp_path / "zero.bin", "ardusub")
+
+
+def test_dataflash_fmt_with_unknown_format_char_is_damage_not_a_crash(tmp_path, capsys):
+    """A FMT record whose format has a character pymavlink does not know is counted as 'bad FMT' damage (pymavlink
+    would print and raise a bare Exception); the other records are read."""
+    path = write_bin(tmp_path / "a.bin", duration=0.2)
+    good = [(o, n) for _, o, n, _ in iter_dataflash(path)]
+    bad_fmt = b"\xa3\x95" + FMT_STRUCT.pack(128, 140, 12, b"BAD", b"QX", b"TimeUS,V")
+    data = path.read_bytes()
+    (tmp_path / "b.bin").write_bytes(bad_fmt + data)
+    damage = Damage()
+    kept = [(o - len(bad_fmt), n) for _, o, n, _ in iter_dataflash(tmp_path / "b.bin", damage)]
+    assert kept == good
+    assert damage.kinds["bad FMT"].offsets == [0]
+    assert "Unsupported format char" not in capsys.readouterr().out

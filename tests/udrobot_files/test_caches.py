@@ -10,8 +10,8 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from udrobot_ctrl import caches
 from udrobot_ctrl.dynamics import fastsim
+from udrobot_files import caches
 
 needs_gcc = pytest.mark.skipif(shutil.which("gcc") is None, reason="gcc not installed")
 

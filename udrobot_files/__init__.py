@@ -1,0 +1,16 @@
+"""File-system rules shared by ``identification`` and ``udrobot_ctrl``: the output policy and private caches.
+
+Both packages write files and compile code; this small package holds the one definition of how (it imports
+only the standard library and, lazily, numba's configuration), so that neither package imports the other to
+get it. The dependency direction of the project is
+
+    udrobot_files  <-  identification  <-  udrobot_ctrl
+
+(arrows point from what uses to what is used): ``identification`` turns test data into coefficient sets and
+never imports ``udrobot_ctrl``; ``udrobot_ctrl`` (vehicle models, plant, control, diagnosis) consumes them.
+
+Modules
+-------
+output : output-file policy (never destroy an input, never overwrite without ``--force``, atomic writes)
+caches : private on-disk folders for compiled code (numba, casadi-generated C)
+"""

@@ -1,0 +1,243 @@
+"""One output-file policy for every writer: never destroy an input, never overwrite without ``--force``.
+
+Rules (the same for every command, see docs/files.md):
+
+- An output may not be an input, nor the sidecar (``NAME.json``) of an input run (``NAME.csv``), nor may an
+  output run's sidecar be an input. Paths are compared after resolving symbolic links, and by inode when both
+  exist (hard links).
+- An existing output (or the sidecar a run output would write) is replaced only with ``force=True``.
+- The destination folder is checked for writability *before* the computation (:func:`check_outputs`).
+- Files are written atomically (:func:`atomic_write`, :func:`open_atomic`): into an unpredictable temporary
+  file created exclusively (``O_EXCL | O_NOFOLLOW``, so never through a planted symlink) in the destination
+  folder, then renamed over the target; the temporary file is removed on any failure. The final mode is
+  ``0o666 & ~umask``, as for a file created by ``open()``.
+"""
+from __future__ import annotations
+
+import contextlib
+import os
+import stat
+import tempfile
+from pathlib import Path
+
+
+class OutputError(ValueError):
+    """An output path that would destroy user data or cannot be written; the message names the file."""
+
+
+def sidecar(path) -> Path:
+    """The ``udrobot-run/1`` sidecar of a run CSV: ``NAME.csv`` -> ``NAME.json``."""
+    return Path(path).with_suffix(".json")
+
+
+def run_files(path) -> list:
+    """Files a run output writes: the CSV and its sidecar (the sidecar may or may not be written)."""
+    return [Path(path), sidecar(path)]
+
+
+def _input_family(path) -> list:
+    """(file, description) for an input and, for a run CSV, its sidecar (which belongs to the input)."""
+    p = Path(path)
+    fam = [(p, f"the input {p}")]
+    if p.suffix.lower() == ".csv":
+        fam.append((sidecar(p), f"the sidecar of the input {p}"))
+    return fam
+
+
+def spec_files(*specs) -> list:
+    """The existing files named by command-line specs: a path, or ``PATH:FORM`` (a coefficient set with a form)."""
+    out = []
+    for spec in specs:
+        if spec is None:
+            continue
+        text = str(spec)
+        for cand in (text, text.rsplit(":", 1)[0] if ":" in text else None):
+            if cand and Path(cand).is_file():
+                out.append(Path(cand))
+                break
+    return out
+
+
+def _collides(out: Path, inp: Path) -> bool:
+    if out.resolve() == inp.resolve():
+        return True
+    return (out.exists() or out.is_symlink()) and (inp.exists() or inp.is_symlink()) and _same_file(out, inp)
+
+
+def _same_file(a: Path, b: Path) -> bool:
+    if a.resolve() == b.resolve():
+        return True
+    try:
+        return os.path.samefile(a, b)
+    except OSError:
+        return False
+
+
+def current_umask() -> int:
+    """The process umask, read without changing it where the OS allows (Linux /proc), else by a swap."""
+    try:
+        with open("/proc/self/status", encoding="ascii") as fh:
+            for line in fh:
+                if line.startswith("Umask:"):
+                    return int(line.split()[1], 8)
+    except (OSError, ValueError, IndexError):
+        pass
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
+def _check_folder(path: Path, option: str) -> None:
+    """The folder that will hold ``path`` exists (or can be created) and is writable."""
+    parent = path.parent if str(path.parent) else Path(".")
+    probe = parent
+    while not probe.exists():
+        if probe.is_symlink():
+            raise OutputError(f"{option} {path}: folder {probe} is a dangling symbolic link")
+        if probe.parent == probe:
+            break
+        probe = probe.parent
+    if not probe.is_dir():
+        raise OutputError(f"{option} {path}: {probe} is not a folder")
+    if not os.access(probe, os.W_OK | os.X_OK):
+        raise OutputError(f"{option} {path}: folder {probe} is not writable")
+
+
+def check_outputs(outputs, inputs=(), *, force: bool = False, option: str = "--out") -> list:
+    """Refuse outputs that would destroy an input or replace a file without ``force``; check the folders.
+
+    Parameters
+    ----------
+    outputs : iterable of str or Path (None entries ignored)
+        Every file the command will write, including sidecars (use :func:`run_files` for runs).
+    inputs : iterable of str or Path (None entries ignored)
+        Every file the command reads; a run CSV brings its sidecar along.
+    force : bool
+        Allow replacing existing outputs (never inputs).
+    option : str
+        The option naming the outputs, for messages (e.g. ``--json``).
+
+    Returns
+    -------
+    list of Path
+        The outputs, as given.
+
+    Raises
+    ------
+    OutputError
+        Naming the output and the input it would destroy, or the existing file, or the unwritable folder.
+    """
+    outs = [Path(o) for o in outputs if o is not None]
+    ins = [fam for i in inputs if i is not None for fam in _input_family(i)]
+    for o in outs:
+        for i, what in ins:
+            if _collides(o, i):
+                raise OutputError(f"{option} {o}: is {what}; refusing to overwrite input data, choose another output")
+    for a, o in enumerate(outs):
+        for b in outs[a + 1:]:
+            if o.resolve() == b.resolve():
+                raise OutputError(f"{option} {o}: given twice as an output ({b})")
+    for o in outs:
+        if o.is_dir():
+            raise OutputError(f"{option} {o}: is a folder, expected a file name")
+        if (o.exists() or o.is_symlink()) and not force:
+            raise OutputError(f"{option} {o}: exists; pass --force to replace it")
+        _check_folder(o, option)
+    return outs
+
+
+def check_output_dir(folder, inputs=(), *, force: bool = False, option: str = "--out", names=()) -> Path:
+    """Check an output folder: not a file, writable, and the listed file ``names`` in it obey :func:`check_outputs`.
+
+    Files the command writes under other (data-dependent) names are protected by :func:`atomic_write`'s
+    ``protect`` argument at write time.
+    """
+    folder = Path(folder)
+    if folder.exists() and not folder.is_dir():
+        raise OutputError(f"{option} {folder}: exists and is not a folder")
+    for i in inputs:
+        if i is not None and Path(i).resolve() == folder.resolve():
+            raise OutputError(f"{option} {folder}: is an input; choose another output folder")
+    _check_folder(folder / "x", option)
+    check_outputs([folder / n for n in names], inputs, force=force, option=option)
+    return folder
+
+
+def _protect(path: Path, protect) -> None:
+    for i in protect or ():
+        for p, what in _input_family(i):
+            if _collides(path, p):
+                raise OutputError(f"{path}: is {what}; refusing to overwrite input data")
+
+
+@contextlib.contextmanager
+def open_atomic(path, mode: str = "w", *, force: bool = True, protect=(), encoding: str = "utf-8",
+                newline: str | None = "", file_mode: int | None = None):
+    """Open a temporary file next to ``path`` for writing; on success rename it over ``path``.
+
+    Parameters
+    ----------
+    path : str or Path
+        Destination. Its folder is created if missing.
+    mode : {'w', 'wb'}
+    force : bool
+        If False, refuse to replace an existing ``path``.
+    protect : iterable of paths
+        Inputs (and their sidecars) that ``path`` must not be.
+    file_mode : int, optional
+        Final permission bits (e.g. 0o600 for private caches); default ``0o666 & ~umask``.
+
+    The temporary file has an unpredictable name, is created with ``O_EXCL`` (``mkstemp``, never following a
+    symlink), is removed if anything fails, and ends with mode ``0o666 & ~umask``.
+    """
+    if mode not in ("w", "wb"):
+        raise ValueError(f"open_atomic mode must be 'w' or 'wb', got {mode!r}")
+    path = Path(path)
+    _protect(path, protect)
+    if not force and (path.exists() or path.is_symlink()):
+        raise OutputError(f"{path}: exists; pass --force to replace it")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        os.fchmod(fd, (0o666 & ~current_umask()) if file_mode is None else file_mode)
+        if mode == "wb":
+            fh = os.fdopen(fd, "wb")
+        else:
+            fh = os.fdopen(fd, "w", encoding=encoding, newline=newline)
+        with fh:
+            yield fh
+            fh.flush()
+            os.fsync(fh.fileno())
+        if not force and (path.exists() or path.is_symlink()):
+            raise OutputError(f"{path}: appeared while writing; pass --force to replace it")
+        os.replace(tmp, path)
+    except BaseException:  # cleanup, re-raised
+        with contextlib.suppress(FileNotFoundError):
+            os.unlink(tmp)
+        raise
+
+
+def atomic_write(path, data, *, force: bool = True, protect=(), file_mode: int | None = None) -> Path:
+    """Write ``data`` (str, UTF-8, or bytes) to ``path`` atomically; see :func:`open_atomic`."""
+    with open_atomic(path, "wb" if isinstance(data, (bytes, bytearray)) else "w", force=force,
+                     protect=protect, file_mode=file_mode) as fh:
+        fh.write(data)
+    return Path(path)
+
+
+def save_figure(fig, path, *, protect=(), **kwargs) -> Path:
+    """``fig.savefig`` through :func:`open_atomic` (format from the suffix)."""
+    path = Path(path)
+    with open_atomic(path, "wb", protect=protect) as fh:
+        fig.savefig(fh, format=path.suffix.lstrip(".") or "png", **kwargs)
+    return path
+
+
+def is_private_dir(path) -> bool:
+    """True if ``path`` is a real folder (not a symlink) owned by this user, not writable by group or others."""
+    try:
+        st = os.lstat(path)
+    except OSError:
+        return False
+    return (stat.S_ISDIR(st.st_mode) and st.st_uid == os.getuid()
+            and not st.st_mode & (stat.S_IWGRP | stat.S_IWOTH))
