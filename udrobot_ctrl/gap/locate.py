@@ -1,17 +1,37 @@
 """Locate the gap: which channels, which operating regime, which time windows and frequency band hold it.
 
 Inputs are the nominal model's multiple-shooting errors (:mod:`udrobot_ctrl.gap.shrink`) and equation-error
-residuals. The *share* of a channel is its part of the sum over channels of (error / channel scale)^2. Within
-a channel, each regime family (horizontal speed, thrust level, distance to the nearest surface, depth) is
-binned and the bin whose error share most exceeds its share of the time is reported as the condition.
+residuals.
+
+Noise floor. A channel's NRMSE is never zero, even for a perfect model: its measurement noise, the error of the
+measured start state of each window and the passive modes (an unactuated roll oscillation, say) that this error
+excites in an open-loop replay all count. A channel whose motion is small against its noise (roll rate of a
+vehicle that barely rolls) shows a large NRMSE with no unmodelled effect at all. :func:`noise_floor` estimates
+that floor per channel by replaying the nominal model under the logged noise: the nominal multiple-shooting replay
+is taken as a synthetic truth, each logged channel gets white noise of its own measured level
+(:func:`udrobot_ctrl.gap.shrink.channel_noise`), the windows restart from the synthetic measurement (pose) and its
+Savitzky-Golay smoothed value (velocities) as the real replay does, and the NRMSE of that replay against the noisy
+synthetic measurement is the floor (``FLOOR_DRAWS`` seeded Monte Carlo draws).
+
+Ranking. The *excess* of a channel is ``max(NRMSE^2 - floor^2, 0)`` (independent errors add in energy); channels
+are ranked by their share of the summed excess, so a channel whose error is always large is not where the gap
+lies. Within a channel, each regime family (horizontal speed, thrust level, distance to the nearest surface,
+depth) is binned and the bin whose error share most exceeds its share of the time is reported as the condition.
 Windows are the stretches where the error energy (2 s moving average) exceeds twice its mean.
 """
 from __future__ import annotations
 
+from dataclasses import dataclass, replace
+
 import numpy as np
+from scipy.signal import savgol_coeffs
 
-from udrobot_ctrl.gap.shrink import errors
+from udrobot_ctrl.dynamics.plant import PlantParameters
+from udrobot_ctrl.gap.data import POSE, VEL, Prepared
+from udrobot_ctrl.gap.shrink import channel_noise, errors, simulate_windows, window_starts
 
+FLOOR_DRAWS = 2
+FLOOR_SEED = 0
 SPEED_BINS = (0.0, 0.1, 0.25, 0.5, 1.0, np.inf)
 THRUST_BINS = (0.0, 0.1, 0.3, 0.6, np.inf)
 DIST_BINS = (0.0, 0.3, 0.6, 1.0, 2.0, np.inf)
@@ -61,8 +81,190 @@ def frequency_shares(res, dt):
     return out
 
 
-def locate(preps, sims, scale, residuals=None, min_share=0.1):
-    """Where the nominal model disagrees with the runs.
+def _sg_kernels(prep: Prepared):
+    """Centre weights of the run's Savitzky-Golay smoother and differentiator (prep.window_s, order 2)."""
+    win = max(5, int(round(prep.window_s / prep.dt)) | 1)
+    return savgol_coeffs(win, 2, use="conv"), savgol_coeffs(win, 2, deriv=1, delta=prep.dt, use="conv")
+
+
+def _filtered(noise, kernel):
+    """Noise (n,) passed through a centred FIR kernel (nan -> 0), as the smoother does to a logged channel."""
+    return np.convolve(np.nan_to_num(noise), kernel, mode="same")
+
+
+def synthetic_replay(prep: Prepared, sim, p: PlantParameters, window_s, rng):
+    """One draw of the floor replay: the nominal replay ``sim`` as a synthetic truth, measured with the run's noise.
+
+    Parameters
+    ----------
+    prep : Prepared
+        The real run (its noise levels, logged channels, commands and windows).
+    sim : (n, 12) ndarray
+        The nominal multiple-shooting replay of ``prep`` (the synthetic truth; nan outside windows).
+    p : PlantParameters
+        Nominal plant.
+    window_s : float
+        Multiple-shooting window, s.
+    rng : numpy.random.Generator
+
+    Returns
+    -------
+    syn : Prepared
+        The synthetic run: ``meas`` = truth + white noise of each channel's measured level; the window start states
+        are the synthetic measurement (pose) and truth plus the Savitzky-Golay filtered noise (velocities; body rates
+        derived from the attitude get the differentiated attitude noise).
+    sim_syn : (n, 12) ndarray
+        The nominal replay of ``syn``.
+    """
+    starts, _ = window_starts(prep, window_s)
+    smooth, deriv = _sg_kernels(prep)
+    meas, noise = {}, {}
+    for i, c in enumerate(POSE + VEL):
+        m = prep.meas.get(c)
+        if m is None or not np.isfinite(m).any():
+            continue
+        sigma = channel_noise(m)
+        noise[c] = rng.normal(0.0, sigma if np.isfinite(sigma) else 0.0, prep.n)
+        meas[c] = np.where(np.isfinite(m), sim[:, i] + noise[c], np.nan)
+    eta, nu = prep.eta.copy(), prep.nu.copy()
+    for i, c in enumerate(POSE):
+        if c in meas:
+            eta[starts, i] = np.where(np.isfinite(meas[c][starts]), meas[c][starts], sim[starts, i])
+    for i, c in enumerate(VEL):
+        if not prep.dof_ok[i]:
+            continue
+        if c in noise:
+            d = _filtered(noise[c], smooth)
+        elif i >= 3 and POSE[i] in noise:  # body rate derived from the Euler-angle rate
+            d = _filtered(noise[POSE[i]], deriv)
+        else:
+            d = np.zeros(prep.n)
+        nu[starts, i] = sim[starts, 6 + i] + d[starts]
+    syn = replace(prep, meas={**prep.meas, **meas}, eta=eta, nu=nu)
+    return syn, simulate_windows(syn, p, (), window_s)
+
+
+def noise_floor(preps, sims, p: PlantParameters, window_s, scale, draws=FLOOR_DRAWS, seed=FLOOR_SEED) -> dict:
+    """NRMSE per channel that the nominal model shows on these runs with no unmodelled effect (module docstring).
+
+    Parameters
+    ----------
+    preps, sims : lists
+        Prepared runs and their nominal multiple-shooting replays.
+    p : PlantParameters
+    window_s : float
+        Multiple-shooting window, s.
+    scale : dict
+        Channel -> normalising scale (std of the real measurement), as in the real gap.
+    draws, seed : int
+        Monte Carlo draws (their squared errors are pooled) and the generator's seed.
+
+    Returns
+    -------
+    dict channel -> floor NRMSE (dimensionless).
+    """
+    rng = np.random.default_rng(seed)
+    se, cnt = {}, {}
+    for _ in range(draws):
+        for prep, sim in zip(preps, sims):
+            syn, sim_syn = synthetic_replay(prep, sim, p, window_s, rng)
+            for c, e in errors(syn, sim_syn).items():
+                ok = np.isfinite(e)
+                se[c] = se.get(c, 0.0) + float(np.sum(e[ok] ** 2))
+                cnt[c] = cnt.get(c, 0) + int(ok.sum())
+    return {c: float(np.sqrt(se[c] / cnt[c]) / scale[c]) for c in se
+            if cnt[c] and c in scale and scale[c] > 0}
+
+
+@dataclass(frozen=True)
+class Location:
+    """A channel holding part of the gap above its noise floor, and where/when it holds it."""
+
+    channel: str
+    share: float  # the channel's share of the summed excess over the floor
+    nrmse: float  # the channel's NRMSE on all runs
+    floor: float  # its noise floor (NRMSE with no unmodelled effect)
+    condition: str  # operating regime that concentrates the error
+    windows: list  # worst time windows [[t0, t1], ...], s, in ``run``
+    run: str
+    regimes: dict  # family -> bin -> {"error_share", "time_share"}
+
+    def to_json(self) -> dict:
+        return {"channel": self.channel, "share": round(self.share, 3), "nrmse": round(self.nrmse, 4),
+                "floor": round(self.floor, 4), "condition": self.condition, "windows": self.windows, "run": self.run,
+                "regimes": self.regimes}
+
+
+@dataclass(frozen=True)
+class Located:
+    """Where the nominal model disagrees with the runs: located channels and the per-channel figures behind them."""
+
+    locations: tuple  # Location, ranked by share of the excess
+    nrmse: dict  # channel -> NRMSE on all runs
+    floor: dict  # channel -> noise-floor NRMSE
+    excess_share: dict  # channel -> share of the summed excess max(NRMSE^2 - floor^2, 0)
+    channel_share: dict  # channel -> share of the summed normalised error energy (floor not removed)
+    residual_frequency_share: dict  # band -> DOF -> share of the equation-error residual power
+
+    def detail_json(self) -> dict:
+        """The report's ``location_detail``."""
+        out = {"channel_share": {c: round(v, 3) for c, v in self.channel_share.items()},
+               "nrmse": {c: round(v, 4) for c, v in self.nrmse.items()},
+               "floor": {c: round(v, 4) for c, v in self.floor.items()},
+               "excess_share": {c: round(v, 3) for c, v in self.excess_share.items()},
+               "floor_method": (f"nominal replay as synthetic truth, each channel's measured noise added, windows "
+                                f"restarted from the noisy/smoothed synthetic measurement; {FLOOR_DRAWS} seeded "
+                                f"draws; excess = max(NRMSE^2 - floor^2, 0)")}
+        if self.residual_frequency_share:
+            out["residual_frequency_share"] = self.residual_frequency_share
+        return out
+
+
+def excess_shares(nrmse: dict, floor: dict) -> dict:
+    """Channel -> share of the summed excess max(NRMSE^2 - floor^2, 0), ranked (all zero when none exceeds)."""
+    ex = {c: max(v ** 2 - floor.get(c, 0.0) ** 2, 0.0) for c, v in nrmse.items() if np.isfinite(v)}
+    total = sum(ex.values())
+    return {c: (v / total if total > 0 else 0.0) for c, v in sorted(ex.items(), key=lambda kv: -kv[1])}
+
+
+def _regime_condition(c, per_run):
+    """Regime shares of channel c's error and the regime that concentrates it (or None)."""
+    best_run = max(per_run, key=lambda x: x[0])
+    regimes, cond, best_excess = {}, None, 0.0
+    for fam in _regimes(best_run[1]):
+        num, den = {}, {}
+        for _s, prep, e2 in per_run:
+            vals, bins, unit = _regimes(prep)[fam]
+            ok = np.isfinite(e2) & np.isfinite(vals)
+            for lo, hi in zip(bins[:-1], bins[1:]):
+                sel = ok & (vals >= lo) & (vals < hi)
+                lab = _bin_label(lo, hi, unit)
+                num[lab] = num.get(lab, 0.0) + float(np.sum(e2[sel]))
+                den[lab] = den.get(lab, 0) + int(sel.sum())
+        tn, td = sum(num.values()) or 1.0, sum(den.values()) or 1
+        regimes[fam] = {lab: {"error_share": round(num[lab] / tn, 3), "time_share": round(den[lab] / td, 3)}
+                        for lab in num if den[lab] > 0}
+        for lab, v in regimes[fam].items():
+            excess = v["error_share"] - v["time_share"]
+            if v["error_share"] >= 0.3 and excess > best_excess:
+                best_excess = excess
+                cond = (f"{fam} {lab} (holds {100 * v['error_share']:.0f}% of the {c} error in "
+                        f"{100 * v['time_share']:.0f}% of the time)")
+    return regimes, cond
+
+
+def _frequency_detail(preps, residuals):
+    acc = {}
+    for prep, res in zip(preps, residuals):
+        for band, arr in frequency_shares(res, prep.dt).items():
+            acc.setdefault(band, []).append(arr)
+    dofs = ("X", "Y", "Z", "K", "M", "N")
+    return {band: {d: round(float(np.mean([a[i] for a in arrs])), 3) for i, d in enumerate(dofs)}
+            for band, arrs in acc.items()}
+
+
+def locate(preps, sims, scale, floor, residuals=None, min_share=0.1) -> Located:
+    """Where the nominal model disagrees with the runs, above each channel's noise floor.
 
     Parameters
     ----------
@@ -70,18 +272,14 @@ def locate(preps, sims, scale, residuals=None, min_share=0.1):
         Prepared runs and their nominal multiple-shooting simulations.
     scale : dict
         Channel -> normalising scale (std of the measurement).
+    floor : dict
+        Channel -> noise-floor NRMSE (:func:`noise_floor`); a channel missing from it has floor 0.
     residuals : list of (n, 6) arrays, optional
         Equation-error residuals per run (for the frequency bands).
-
-    Returns
-    -------
-    location : list of dict
-        ``{"channel", "share", "condition", "windows", "run", "regimes"}`` for channels with share >= min_share.
-    detail : dict
-        Channel shares, per-run shares and frequency-band shares.
+    min_share : float
+        Channels holding at least this share of the excess are located.
     """
-    energy = {}
-    per_run = {}
+    energy, count, per_run = {}, {}, {}
     for prep, sim in zip(preps, sims):
         for c, e in errors(prep, sim).items():
             if c not in scale or scale[c] <= 0:
@@ -89,49 +287,22 @@ def locate(preps, sims, scale, residuals=None, min_share=0.1):
             e2 = (e / scale[c]) ** 2
             s = float(np.nansum(e2))
             energy[c] = energy.get(c, 0.0) + s
+            count[c] = count.get(c, 0) + int(np.isfinite(e2).sum())
             per_run.setdefault(c, []).append((s, prep, e2))
     total = sum(energy.values()) or 1.0
-    shares = {c: v / total for c, v in sorted(energy.items(), key=lambda kv: -kv[1])}
-    location = []
+    channel_share = {c: v / total for c, v in sorted(energy.items(), key=lambda kv: -kv[1])}
+    nrmse = {c: float(np.sqrt(energy[c] / count[c])) for c in energy if count[c]}
+    shares = excess_shares(nrmse, floor)
+    locations = []
     for c, sh in shares.items():
         if sh < min_share:
             continue
         best_run = max(per_run[c], key=lambda x: x[0])
-        regimes = {}
-        cond = None
-        best_excess = 0.0
-        for fam in _regimes(best_run[1]):
-            num, den = {}, {}
-            for _s, prep, e2 in per_run[c]:
-                vals, bins, unit = _regimes(prep)[fam]
-                ok = np.isfinite(e2) & np.isfinite(vals)
-                for lo, hi in zip(bins[:-1], bins[1:]):
-                    sel = ok & (vals >= lo) & (vals < hi)
-                    lab = _bin_label(lo, hi, unit)
-                    num[lab] = num.get(lab, 0.0) + float(np.sum(e2[sel]))
-                    den[lab] = den.get(lab, 0) + int(sel.sum())
-            tn, td = sum(num.values()) or 1.0, sum(den.values()) or 1
-            regimes[fam] = {lab: {"error_share": round(num[lab] / tn, 3), "time_share": round(den[lab] / td, 3)}
-                            for lab in num if den[lab] > 0}
-            for lab, v in regimes[fam].items():
-                excess = v["error_share"] - v["time_share"]
-                if v["error_share"] >= 0.3 and excess > best_excess:
-                    best_excess = excess
-                    cond = (f"{fam} {lab} (holds {100 * v['error_share']:.0f}% of the {c} error in "
-                            f"{100 * v['time_share']:.0f}% of the time)")
-        location.append({"channel": c, "share": round(sh, 3),
-                         "condition": cond or "spread over all regimes (no regime concentrates it)",
-                         "windows": _windows(best_run[1].t, best_run[2], best_run[1].dt), "run": best_run[1].name,
-                         "regimes": regimes})
-    detail = {"channel_share": {c: round(v, 3) for c, v in shares.items()}}
-    if residuals:
-        dofs = ("X", "Y", "Z", "K", "M", "N")
-        acc = {}
-        for prep, res in zip(preps, residuals):
-            fs = frequency_shares(res, prep.dt)
-            for band, arr in fs.items():
-                acc.setdefault(band, []).append(arr)
-        detail["residual_frequency_share"] = {
-            band: {d: round(float(np.mean([a[i] for a in arrs])), 3) for i, d in enumerate(dofs)}
-            for band, arrs in acc.items()}
-    return location, detail
+        regimes, cond = _regime_condition(c, per_run[c])
+        locations.append(Location(channel=c, share=sh, nrmse=nrmse[c], floor=floor.get(c, 0.0),
+                                  condition=cond or "spread over all regimes (no regime concentrates it)",
+                                  windows=_windows(best_run[1].t, best_run[2], best_run[1].dt), run=best_run[1].name,
+                                  regimes=regimes))
+    return Located(locations=tuple(locations), nrmse=nrmse, floor={c: floor[c] for c in nrmse if c in floor},
+                   excess_share=shares, channel_share=channel_share,
+                   residual_frequency_share=_frequency_detail(preps, residuals) if residuals else {})
