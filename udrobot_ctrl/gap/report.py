@@ -324,7 +324,7 @@ def locate_gap(inp: Inputs) -> Where:
     scale = gap(runs, sims).scale
     floor = noise_floor(runs, sims, inp.p, inp.window_s, scale)
     residuals = [residual(pr, inp.p) for pr in runs]
-    located = locate(runs, sims, scale, floor, residuals)
+    located = locate(runs, sims, scale, floor, residuals, inp.p)
     return Where(sims, residuals, located, gap(inp.holdout, sims[len(inp.fit):]))
 
 
