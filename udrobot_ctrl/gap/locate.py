@@ -20,11 +20,11 @@ error looks large. Where the model's force balance fails is read from the equati
 generalised force of each DOF (:func:`udrobot_ctrl.gap.attribute.residual`, measured velocities, no propagation)
 against its own floor, the residual that the runs' measurement noise alone produces (:func:`force_floor`: the
 residual's change when each logged channel gets one more draw of its own noise). The *excess* of DOF i is
-``rms_i^2 - floor_i^2 (1 + 3 s_i)`` (at least 0), with ``s_i = sqrt(2 tau_i / N_i)`` the relative standard error of
-a mean square over N_i samples of integrated autocorrelation time tau_i (so noise alone stays below it), expressed
-in units of the floor (``rms_i^2 / floor_i^2 - 1 - 3 s_i``) so that forces and moments compare. DOFs are ranked by
-their share of the summed excess and named by their velocity channel (X: u, Y: v, Z: w, K: p, M: q, N: r). When no
-DOF's velocity is measured, channels are ranked by the replay excess ``max(NRMSE^2 - floor^2, 0)`` instead.
+``rms_i^2 / floor_i^2 - 1 - 3 s_i`` (at least 0; in units of the floor, so that forces and moments compare), with
+``s_i`` the relative standard error of that ratio: ``sqrt(s_rms^2 + s_floor^2)``, each ``sqrt(2 tau / N_i)`` for a
+mean square over N_i samples of integrated autocorrelation time tau (so that noise alone stays below it). DOFs are
+ranked by their share of the summed excess and named by their velocity channel (X: u, Y: v, Z: w, K: p, M: q,
+N: r). When no DOF's velocity is measured, channels are ranked by the replay excess ``max(NRMSE^2 - floor^2, 0)``.
 Within a channel, each regime family (horizontal speed, thrust level, distance to the nearest surface,
 depth) is binned and the bin whose error share most exceeds its share of the time is reported as the condition.
 Windows are the stretches where the error energy (2 s moving average) exceeds twice its mean.
@@ -227,7 +227,7 @@ class ForceFloor:
 
     rms: np.ndarray  # (6,) RMS residual force per DOF, N / N m (nan: DOF not scored)
     floor: np.ndarray  # (6,) RMS of the noise-only residual, N / N m
-    rel_se: np.ndarray  # (6,) relative standard error of a mean square over these samples, sqrt(2 tau / N)
+    rel_se: np.ndarray  # (6,) relative standard error of rms^2 / floor^2 (each mean square: sqrt(2 tau / N))
 
     def excess(self) -> np.ndarray:
         """(6,) excess in units of the floor: rms^2 / floor^2 - 1 - 3 rel_se, at least 0 (0 for unscored DOFs)."""
@@ -262,7 +262,7 @@ def force_floor(preps, p: PlantParameters, residuals, seed=FLOOR_SEED) -> ForceF
             continue
         rms[i] = float(np.sqrt(np.mean(real[k, i] ** 2)))
         floor[i] = float(np.sqrt(np.mean(noise[k, i] ** 2)))
-        rel[i] = float(np.sqrt(2.0 * tau_int(noise[k, i] ** 2) / k.sum()))
+        rel[i] = float(np.sqrt(2.0 * (tau_int(real[k, i] ** 2) + tau_int(noise[k, i] ** 2)) / k.sum()))
     return ForceFloor(rms, floor, rel)
 
 
