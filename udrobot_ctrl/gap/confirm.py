@@ -9,9 +9,15 @@ fit runs with their shapes kept), must make the holdout worse on both scores:
 * **equation error**: the holdout likelihood ratio of the set against the set without it, parameters frozen from
   the fit runs, exceeds chi^2_1(0.99) = ``HOLDOUT_CHI2`` (N_eff = N / tau_int of the holdout stack);
 * **replay**: the multiple-shooting replay of the holdout runs gets worse. Each window restarts from the measured
-  state, so windows are nearly independent samples of the squared gap; the per-window rise of the normalised
-  squared error (summed over the scored channels, so that the windows add up to gap^2) must be positive by a
-  one-sided paired t-test at level ``REPLAY_ALPHA`` (0.01, the same confidence as the likelihood ratio).
+  state, so windows are nearly independent samples of the gap; the log ratio, window by window, of the normalised
+  squared error (summed over the scored channels; the windows add up to gap^2) without and with the member must
+  be positive by a one-sided paired t-test at level ``REPLAY_ALPHA`` (0.01, the confidence of the likelihood
+  ratio). The log ratio weighs every window alike, so a few windows of large error do not decide alone.
+
+Each member must also explain part of the gap **on its own**: the holdout replay with it alone (its single-effect
+fit) must beat the nominal replay by the same paired test. An effect that helps only alongside another (a damping
+term that bends a lag template towards a lag of another form, a cross-coupled damping whose own shrink is
+negative) compensates for that other effect's template, it is not a second effect.
 
 The member that fails with the weakest replay evidence is dropped, the rest are refitted jointly (their shapes
 re-optimised, :func:`udrobot_ctrl.gap.attribute.finalize`) and the check repeats until every member passes.
@@ -86,8 +92,12 @@ def window_energy(preps, sims, score: GapScore, window_s) -> np.ndarray:
 
 
 def paired_rise(without: np.ndarray, with_: np.ndarray):
-    """One-sided paired t-test that ``without`` exceeds ``with_`` window by window: (t, p)."""
-    d = without - with_
+    """One-sided paired t-test that ``without`` exceeds ``with_`` window by window, on the log ratio: (t, p).
+
+    Windows where either is 0 (nothing scored) are left out.
+    """
+    ok = (without > 0) & (with_ > 0)
+    d = np.log(without[ok] / with_[ok])
     if d.size < 2 or not np.any(d != 0):
         return 0.0, 1.0
     sd = float(np.std(d, ddof=1))
@@ -98,14 +108,43 @@ def paired_rise(without: np.ndarray, with_: np.ndarray):
 
 
 @dataclass(frozen=True)
+class Alone:
+    """The holdout replay with one effect alone (its single-effect fit) against the nominal replay."""
+
+    shrink: float  # 1 - gap with it alone / gap_before
+    t: float  # paired log-ratio t statistic (nominal against alone)
+    p: float
+
+    @property
+    def passed(self) -> bool:
+        return self.p < REPLAY_ALPHA and self.shrink > 0
+
+    def reason(self) -> str:
+        return (f"on its own it does not shrink the holdout gap (shrink {self.shrink:+.2f}, paired t {self.t:.2f}, "
+                f"p {self.p:.2g})")
+
+
+def alone_tests(preps, nominal: Replay, singles: dict, window_s) -> dict:
+    """Name -> :class:`Alone` from the nominal holdout replay and each effect's single-effect replay."""
+    e0 = window_energy(preps, nominal.sims, nominal.gap, window_s)
+    out = {}
+    for n, r in singles.items():
+        t, pval = paired_rise(e0, window_energy(preps, r.sims, r.gap, window_s))
+        b = nominal.gap.value
+        out[n] = Alone((1 - r.gap.value / b) if b > 0 else 0.0, t, pval)
+    return out
+
+
+@dataclass(frozen=True)
 class MemberTest:
-    """What dropping one member from the set does on the holdout runs."""
+    """What dropping one member from the set does on the holdout runs, and what it does alone."""
 
     name: str
     holdout_lr: float  # equation-error likelihood ratio of the set against the set without it
     gap_contribution: float  # rise of the holdout gap when dropped, fraction of gap_before
-    replay_t: float  # paired t statistic of the per-window rise of the squared gap
+    replay_t: float  # paired t statistic of the per-window log ratio (without / with)
     replay_p: float  # its one-sided p-value
+    alone: Alone | None = None  # the effect alone against the nominal model (None: not checked)
 
     @property
     def passed_equation_error(self) -> bool:
@@ -117,7 +156,7 @@ class MemberTest:
 
     @property
     def passed(self) -> bool:
-        return self.passed_equation_error and self.passed_replay
+        return self.passed_equation_error and self.passed_replay and (self.alone is None or self.alone.passed)
 
     def reason(self) -> str:
         """Why the member fails (empty when it passes)."""
@@ -129,11 +168,16 @@ class MemberTest:
                        f"gap_before (paired t {self.replay_t:.2f}, p {self.replay_p:.2g} >= {REPLAY_ALPHA:g})"
                        if self.replay_p >= REPLAY_ALPHA else
                        f"dropping it does not raise the holdout replay gap ({100 * self.gap_contribution:+.1f}%)")
+        if self.alone is not None and not self.alone.passed:
+            why.append(self.alone.reason())
         return "; ".join(why)
 
     def to_json(self) -> dict:
-        return {"holdout_lr": self.holdout_lr, "holdout_gap_contribution": self.gap_contribution,
-                "replay_t": self.replay_t, "replay_p": self.replay_p, "passed": self.passed}
+        out = {"holdout_lr": self.holdout_lr, "holdout_gap_contribution": self.gap_contribution,
+               "replay_t": self.replay_t, "replay_p": self.replay_p, "passed": self.passed}
+        if self.alone is not None:
+            out |= {"alone_shrink": self.alone.shrink, "alone_t": self.alone.t, "alone_p": self.alone.p}
+        return out
 
 
 @dataclass(frozen=True)
@@ -176,11 +220,13 @@ class Elimination:
 
 
 def check_members(att: Attributor, att_h: Attributor, combo: Combination, full: Replay, before: GapScore,
-                 replay_rest, window_s, preps) -> tuple:
+                  replay_rest, window_s, preps, alone=None) -> tuple:
     """:class:`MemberTest` of every member of ``combo`` (see the module docstring).
 
-    ``replay_rest(fit, members)`` replays the holdout with ``members`` of ``fit``.
+    ``replay_rest(fit, members)`` replays the holdout with ``members`` of ``fit``; ``alone`` maps names to their
+    :class:`Alone` check.
     """
+    alone = alone or {}
     e_full = window_energy(preps, full.sims, full.gap, window_s)
     tests = []
     for n in combo.members:
@@ -191,12 +237,12 @@ def check_members(att: Attributor, att_h: Attributor, combo: Combination, full: 
         e_rest = window_energy(preps, r_rest.sims, r_rest.gap, window_s)
         t, pval = paired_rise(e_rest, e_full)
         contrib = (r_rest.gap.value - full.gap.value) / before.value if before.value > 0 else 0.0
-        tests.append(MemberTest(n, lr, float(contrib), t, pval))
+        tests.append(MemberTest(n, lr, float(contrib), t, pval, alone.get(n)))
     return tuple(tests)
 
 
 def backward_eliminate(att: Attributor, att_h: Attributor, candidates: Combination, names, before: GapScore,
-                       replay_fit, window_s, preps, log=None) -> Elimination:
+                       replay_fit, window_s, preps, alone=None, log=None) -> Elimination:
     """Drop members of ``candidates`` that do not make the holdout worse when removed, until all pass.
 
     Parameters
@@ -214,14 +260,17 @@ def backward_eliminate(att: Attributor, att_h: Attributor, candidates: Combinati
     window_s : float
     preps : list of Prepared
         Holdout runs.
+    alone : dict, optional
+        Name -> :class:`Alone` (each effect alone against the nominal replay); unchecked when absent.
     log : callable, optional
     """
     combo, rounds = candidates, []
     full = replay_fit(combo.fit, combo.members)
     while combo.members:
-        tests = check_members(att, att_h, combo, full, before, replay_fit, window_s, preps)
+        tests = check_members(att, att_h, combo, full, before, replay_fit, window_s, preps, alone)
         failing = [t for t in tests if not t.passed]
-        worst = min(failing, key=lambda t: (t.passed_replay, t.replay_t, t.holdout_lr)) if failing else None
+        worst = min(failing, key=lambda t: (t.passed_replay, t.alone is None or t.alone.passed, t.replay_t,
+                                            t.holdout_lr)) if failing else None
         rounds.append(EliminationRound(combo.members, tests, worst.name if worst else None))
         if log:
             for t in tests:

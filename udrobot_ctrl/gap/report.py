@@ -34,7 +34,15 @@ from udrobot_ctrl.gap.attribute import (
     forward_select,
     residual,
 )
-from udrobot_ctrl.gap.confirm import REPLAY_ALPHA, Elimination, MemberTest, backward_eliminate, replay
+from udrobot_ctrl.gap.confirm import (
+    REPLAY_ALPHA,
+    Elimination,
+    MemberTest,
+    Replay,
+    alone_tests,
+    backward_eliminate,
+    replay,
+)
 from udrobot_ctrl.gap.data import prepare
 from udrobot_ctrl.gap.effects import Actuation
 from udrobot_ctrl.gap.locate import Located, locate, noise_floor
@@ -54,19 +62,19 @@ def split_runs(runs, holdout):
     if holdout:
         return list(runs), list(holdout), "holdout runs given on the command line"
     if len(runs) >= 2:
-        return list(runs[:-1]), [runs[-1]], f"no --holdout: the last run ({_name(runs[-1])}) is held out"
+        return list(runs[:-1]), [runs[-1]], f"no --holdout: the last run ({run_label(runs[-1])}) is held out"
     r = runs[0]
     cut = r.t[0] + 2.0 / 3.0 * (r.t[-1] - r.t[0])
     a, b = r.t < cut, r.t >= cut
 
     def part(mask, tag):
-        return Run(path=f"{_name(r)}[{tag}]", t=r.t[mask], channels={c: v[mask] for c, v in r.channels.items()},
+        return Run(path=f"{run_label(r)}[{tag}]", t=r.t[mask], channels={c: v[mask] for c, v in r.channels.items()},
                    input_kind=r.input_kind, inputs=r.inputs[mask], extra={}, metadata=r.metadata)
     return [part(a, "first two thirds")], [part(b, "last third")], \
         f"no --holdout and one run: the first two thirds fit, the last third ({cut - r.t[0]:.1f} s on) is held out"
 
 
-def _name(run):
+def run_label(run):
     """File name of a run; a split part keeps its tag (``a.csv[last 1/3]``, whose '/' is not a folder)."""
     if not run.path:
         return "run"
@@ -309,8 +317,8 @@ def prepare_inputs(model, runs, holdout, effects, window_s, model_label=None) ->
         if n not in cat:
             raise ValueError(f"unknown effect {n!r}; the catalogue is {', '.join(fx.EFFECT_NAMES)}")
     fit_runs, ho_runs, split_note = split_runs(runs, holdout)
-    fit_p = [prepare(r, p, _name(r)) for r in fit_runs]
-    ho_p = [prepare(r, p, _name(r)) for r in ho_runs]
+    fit_p = [prepare(r, p, run_label(r)) for r in fit_runs]
+    ho_p = [prepare(r, p, run_label(r)) for r in ho_runs]
     label = model_label or (str(model) if not hasattr(model, "name") else model.name)
     return Inputs(label, p, cat, names, fit_p, ho_p, [split_note] + [n for pr in fit_p + ho_p for n in pr.notes],
                   window_s)
@@ -354,19 +362,20 @@ def _replayer(inp: Inputs, stacks: Stacks, scored):
 
 
 def shrink_each(inp: Inputs, stacks: Stacks, sel: Selection, before: GapScore) -> dict:
-    """Step 3, shrink: name -> 1 - holdout gap with the effect alone (its single fit) / gap_before."""
+    """Step 3, shrink: name -> holdout :class:`~udrobot_ctrl.gap.confirm.Replay` with the effect alone (its single
+    fit); its shrink is 1 - replay gap / gap_before."""
     run = _replayer(inp, stacks, before.scored)
-    out = {}
-    for n in inp.names:
-        g = run(sel.singles[n], (n,)).gap
-        out[n] = (1 - g.value / before.value) if before.value > 0 else 0.0
-    return out
+    return {n: run(sel.singles[n], (n,)) for n in inp.names}
 
 
-def confirm(inp: Inputs, stacks: Stacks, sel: Selection, before: GapScore, log=None) -> Elimination:
-    """Step 3, confirm on the holdout: backward elimination from the forward-selected candidates."""
+def confirm(inp: Inputs, stacks: Stacks, sel: Selection, where: Where, singles: dict, log=None) -> Elimination:
+    """Step 3, confirm on the holdout: backward elimination from the forward-selected candidates, each of which must
+    also shrink the holdout gap on its own (its replay in ``singles`` against the nominal one)."""
+    before = where.before
+    nominal = Replay((), before, where.nominal_sims[len(inp.fit):])
+    alone = alone_tests(inp.holdout, nominal, {n: singles[n] for n in sel.proposed}, inp.window_s)
     return backward_eliminate(stacks.fit, stacks.holdout, sel.candidates, inp.names, before,
-                              _replayer(inp, stacks, before.scored), inp.window_s, inp.holdout, log=log)
+                              _replayer(inp, stacks, before.scored), inp.window_s, inp.holdout, alone=alone, log=log)
 
 
 def _wall_entry(params, stack, p) -> dict:
@@ -438,8 +447,9 @@ def _method(window_s) -> dict:
                         f"elimination on the holdout: every significant effect, dropped from the final set (the "
                         f"rest refitted), lowers the holdout equation-error likelihood by a ratio > "
                         f"{HOLDOUT_CHI2:g} (N_eff = N / tau_int) and raises the holdout replay gap (one-sided "
-                        f"paired t-test over windows, p < {REPLAY_ALPHA:g}); the weakest failing one is dropped "
-                        f"and the rest refitted until all pass",
+                        f"paired t-test of the per-window log ratio, p < {REPLAY_ALPHA:g}), and alone it shrinks "
+                        f"the holdout replay gap (same test against the nominal replay); the weakest failing one "
+                        f"is dropped and the rest refitted until all pass",
     }
 
 
@@ -486,8 +496,10 @@ def diagnose(model, runs, holdout=None, window_s=8.0, effects=None, log=None, mo
     say(f"candidates (forward selection on the fit runs, {len(candidates)} effects tested): "
         f"{', '.join(sel.proposed) or 'none'} ({time.perf_counter() - t0:.1f} s)")
 
-    shrink = shrink_each(inp, stacks, sel, where.before)
-    elim = confirm(inp, stacks, sel, where.before, log=say)
+    singles = shrink_each(inp, stacks, sel, where.before)
+    b = where.before.value
+    shrink = {n: (1 - r.gap.value / b) if b > 0 else 0.0 for n, r in singles.items()}
+    elim = confirm(inp, stacks, sel, where, singles, log=say)
     after = elim.after.gap
     unexplained = (after.value / where.before.value) if where.before.value > 0 else float("nan")
     verdict = verdict_line(elim.kept, len(inp.names), where.before, unexplained)

@@ -8,22 +8,26 @@ from scipy import stats
 from udrobot_ctrl.dynamics.plant import plant_parameters
 from udrobot_ctrl.gap import confirm
 from udrobot_ctrl.gap.attribute import HOLDOUT_CHI2, Combination, Fit
-from udrobot_ctrl.gap.confirm import MemberTest, Replay, backward_eliminate, paired_rise, window_energy
+from udrobot_ctrl.gap.confirm import Alone, MemberTest, Replay, backward_eliminate, paired_rise, window_energy
 from udrobot_ctrl.gap.data import prepare
 from udrobot_ctrl.gap.shrink import STATE_INDEX, gap, window_starts
 from udrobot_ctrl.io.runlog import Run
 from udrobot_ctrl.vehicle import load_model
 
 
-def test_paired_rise_is_the_one_sided_paired_t_test():
+def test_paired_rise_is_the_one_sided_paired_t_test_of_the_log_ratio():
     rng = np.random.default_rng(0)
     with_ = rng.gamma(2.0, 1.0, 12)
-    without = with_ + rng.normal(0.3, 0.5, 12)
+    without = with_ * np.exp(rng.normal(0.3, 0.5, 12))
     t, p = paired_rise(without, with_)
-    ref = stats.ttest_rel(without, with_, alternative="greater")
+    ref = stats.ttest_rel(np.log(without), np.log(with_), alternative="greater")
     assert t == pytest.approx(ref.statistic) and p == pytest.approx(ref.pvalue)
     assert paired_rise(with_, with_) == (0.0, 1.0)  # no change: no evidence
-    assert paired_rise(with_ + 1.0, with_)[1] < 1e-12  # a constant rise in every window
+    assert paired_rise(2.0 * with_, with_)[1] == 0.0  # the error doubles in every window
+    # one huge window does not decide alone: the same rise in one window and none elsewhere is not significant
+    one = with_.copy()
+    one[0] *= 50.0
+    assert paired_rise(one, with_)[1] > 0.1
 
 
 def _prepared_run(n=1200, dt=0.05, seed=1):
@@ -65,19 +69,23 @@ def _test(name, lr, contrib, t):
     return MemberTest(name, lr, contrib, t, float(stats.t.sf(t, 10)))
 
 
-def test_member_must_pass_both_holdout_checks():
+def test_member_must_pass_both_holdout_checks_and_help_alone():
     assert _test("a", 50.0, 0.2, 4.0).passed
     weak_lr = _test("a", HOLDOUT_CHI2 - 0.1, 0.2, 4.0)
     assert not weak_lr.passed and "likelihood ratio" in weak_lr.reason()
     no_rise = _test("a", 50.0, -0.01, -0.5)
     assert not no_rise.passed and "replay gap" in no_rise.reason()
+    # needed in the set, but alone it makes the holdout worse: it bends another effect's template
+    helper = MemberTest("linear_damping", 80.0, 0.15, 4.5, 1e-4, Alone(-0.02, -0.4, 0.65))
+    assert not helper.passed and "on its own" in helper.reason()
+    assert MemberTest("lag", 900.0, 0.5, 9.0, 1e-6, Alone(0.56, 8.0, 1e-6)).passed
 
 
 def _scripted(monkeypatch, script):
     """backward_eliminate with the holdout checks scripted per round and the refit recorded."""
     calls = {"refit": []}
     rounds = iter(script)
-    monkeypatch.setattr(confirm, "check_members", lambda att, att_h, combo, *a, **k: tuple(
+    monkeypatch.setattr(confirm, "check_members", lambda att, att_h, combo, *a: tuple(
         t for t in next(rounds) if t.name in combo.members))
 
     def refit(att, members, names):
