@@ -402,14 +402,14 @@ def refit(att: Attributor, members, shapes=None):
     return att.fit([(n, shapes[n]) for n in members])
 
 
-def finalize(att: Attributor, selected, names, final=None) -> Combination:
-    """Final joint fit of the selected effects (``final``, or a :func:`refit`), their look-alikes and the noise
-    level per DOF."""
+def finalize(att: Attributor, selected, names, final=None, lookalikes=True) -> Combination:
+    """Final joint fit of the selected effects (``final``, or a :func:`refit`), their look-alikes (unless
+    ``lookalikes`` is False: an intermediate set) and the noise level per DOF."""
     selected = tuple(selected)
     final = final if final is not None else refit(att, selected)
     cur_bic = att.bic(final)
     indist = {}
-    for s_name in selected:
+    for s_name in selected if lookalikes else ():
         others = [(n, final.shapes[n]) for n in selected if n != s_name]
         alts = []
         for n in names:

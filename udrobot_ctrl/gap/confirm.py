@@ -280,6 +280,9 @@ def backward_eliminate(att: Attributor, att_h: Attributor, candidates: Combinati
                     f"{100 * t.gap_contribution:+.1f}% (t {t.replay_t:.1f}) -> {verdict}")
         if worst is None:
             break
-        combo = finalize(att, [m for m in combo.members if m != worst.name], names)  # refit what remains
+        # refit what remains (its parameters were shared with the dropped effect); look-alikes once at the end
+        combo = finalize(att, [m for m in combo.members if m != worst.name], names, lookalikes=False)
         full = replay_fit(combo.fit, combo.members)
+    if len(rounds) > 1:
+        combo = finalize(att, combo.members, names, final=combo.fit)
     return Elimination(kept=combo.members, combination=combo, after=full, rounds=tuple(rounds))
