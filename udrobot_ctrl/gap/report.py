@@ -453,6 +453,32 @@ def _method(window_s) -> dict:
     }
 
 
+def report_json(inp: Inputs, where: Where, stacks: Stacks, sel: Selection, elim: Elimination, verdicts, verdict,
+                elapsed_s) -> dict:
+    """The ``udrobot-diagnosis/1`` report (docs/formats/diagnosis.md) of the diagnosis' steps (not yet rounded)."""
+    before, after = where.before, elim.after.gap
+    return {
+        "format": FORMAT,
+        "model": inp.label,
+        "fit_runs": [pr.name for pr in inp.fit],
+        "holdout_runs": [pr.name for pr in inp.holdout],
+        "gap_before": before.to_json(),
+        "location": [x.to_json() for x in where.located.locations],
+        "effects": [v.to_json() for v in verdicts],
+        "gap_after": after.to_json() | {"scored": before.scored},
+        "unexplained": (after.value / before.value) if before.value > 0 else float("nan"),
+        "verdict": verdict,
+        "location_detail": where.located.detail_json(),
+        "noise": {"tau_int_samples": sel.tau_int, "n_eff": sel.n_eff, "n_samples": stacks.fit.N,
+                  "sigma_residual_per_dof": dict(zip(fx.DOF, elim.combination.noise_sigma))},
+        "method": _method(inp.window_s) | {"split": inp.notes[0]},
+        "selection_steps": [asdict(s) for s in sel.steps],
+        "backward_elimination": [r.to_json() for r in elim.rounds],
+        "notes": inp.notes,
+        "elapsed_s": elapsed_s,
+    }
+
+
 def diagnose(model, runs, holdout=None, window_s=8.0, effects=None, log=None, model_label=None):
     """Run the whole diagnosis: locate -> attribute -> shrink and confirm -> report.
 
@@ -505,28 +531,9 @@ def diagnose(model, runs, holdout=None, window_s=8.0, effects=None, log=None, mo
     verdict = verdict_line(elim.kept, len(inp.names), where.before, unexplained)
     say(f"{verdict} ({time.perf_counter() - t0:.1f} s)")
 
-    verdicts = effect_verdicts(inp, stacks, sel, elim, shrink)
     location = [x.to_json() for x in where.located.locations]
-    report = {
-        "format": FORMAT,
-        "model": inp.label,
-        "fit_runs": [pr.name for pr in inp.fit],
-        "holdout_runs": [pr.name for pr in inp.holdout],
-        "gap_before": where.before.to_json(),
-        "location": location,
-        "effects": [v.to_json() for v in verdicts],
-        "gap_after": after.to_json() | {"scored": where.before.scored},
-        "unexplained": unexplained,
-        "verdict": verdict,
-        "location_detail": where.located.detail_json(),
-        "noise": {"tau_int_samples": sel.tau_int, "n_eff": sel.n_eff, "n_samples": stacks.fit.N,
-                  "sigma_residual_per_dof": dict(zip(fx.DOF, elim.combination.noise_sigma))},
-        "method": _method(inp.window_s) | {"split": inp.notes[0]},
-        "selection_steps": [asdict(s) for s in sel.steps],
-        "backward_elimination": [r.to_json() for r in elim.rounds],
-        "notes": inp.notes,
-        "elapsed_s": time.perf_counter() - t0,
-    }
+    report = report_json(inp, where, stacks, sel, elim, effect_verdicts(inp, stacks, sel, elim, shrink), verdict,
+                         time.perf_counter() - t0)
     after_sims = elim.after.sims if elim.kept else where.nominal_sims[len(inp.fit):]
     ctx = DiagnosisContext(inp.runs, len(inp.fit), where.nominal_sims, after_sims, where.residuals, location)
     return _clean(report), ctx
