@@ -447,9 +447,9 @@ def _method(window_s) -> dict:
                         f"elimination on the holdout: every significant effect, dropped from the final set (the "
                         f"rest refitted), lowers the holdout equation-error likelihood by a ratio > "
                         f"{HOLDOUT_CHI2:g} (N_eff = N / tau_int) and raises the holdout replay gap (one-sided "
-                        f"paired t-test of the per-window log ratio, p < {REPLAY_ALPHA:g}), and alone it shrinks "
-                        f"the holdout replay gap (same test against the nominal replay); the weakest failing one "
-                        f"is dropped and the rest refitted until all pass",
+                        f"Wilcoxon signed-rank test over the windows, p < {REPLAY_ALPHA:g}), and alone it shrinks "
+                        f"the holdout replay gap; the weakest failing one is dropped and the rest refitted until "
+                        f"all pass",
     }
 
 
