@@ -6,24 +6,24 @@ and the holdout equation error one at a time; an effect added early can become r
 final set is checked member by member: each member, dropped from the set (the others' amplitudes refitted on the
 fit runs with their shapes kept), must make the holdout worse on both scores:
 
-* **equation error**: the holdout likelihood ratio of the set against the set without it, parameters frozen from
-  the fit runs, exceeds chi^2_1(0.99) = ``HOLDOUT_CHI2`` (N_eff = N / tau_int of the holdout stack);
-* **replay**: the multiple-shooting replay of the holdout runs gets worse. Each window restarts from the measured
-  state, so windows are nearly independent samples of the gap; the per-window normalised squared error (summed
-  over the scored channels; the windows add up to gap^2) must be larger without the member than with it by a
-  one-sided Wilcoxon signed-rank test at level ``REPLAY_ALPHA`` (0.05). Ranks let neither one window of huge error
-  nor many windows where the effect does not act decide alone. The level is that of a confirmation: the holdout
-  likelihood ratio already tests significance at 0.01 on thousands of samples, while a holdout run gives only
-  ten or twenty windows (the smallest p a signed-rank test can reach is 2^-n).
+* **equation error** (significance): the holdout likelihood ratio of the set against the set without it,
+  parameters frozen from the fit runs, exceeds chi^2_1(0.99) = ``HOLDOUT_CHI2`` (N_eff = N / tau_int of the
+  holdout stack);
+* **replay** (materiality): the multiple-shooting replay gap of the holdout runs rises by more than
+  ``REPLAY_MATERIAL`` (2 %) of gap_before. A template-mismatch correction (a damping term fitted alongside a lag
+  of another form) can be statistically significant in equation error yet change the simulated gap by a percent;
+  it does not explain the gap. (A significance test over windows is reported, ``replay_p``, but does not decide:
+  a holdout run gives ten or twenty windows, too few for an effect that acts in a few of them, e.g. a tether at
+  speed.)
 
 Each member must also explain part of the gap **on its own**: the holdout replay with it alone (its single-effect
-fit) must have a smaller gap than the nominal replay (positive shrink). An effect that helps only alongside
-another (a damping term that bends a lag template towards a lag of another form, a cross-coupled damping whose
-own shrink is negative) compensates for that other effect's template, it is not a second effect.
+fit) must shrink the gap by more than ``REPLAY_MATERIAL``. An effect that helps only alongside another (a damping
+term that bends a lag template towards a lag of another form, a cross-coupled damping whose own shrink is
+negative) compensates for that other effect's template, it is not a second effect.
 
 The member that fails is dropped (one that does not help alone first, then the one with the weakest replay
-evidence), the rest are refitted jointly (their shapes
-re-optimised, :func:`udrobot_ctrl.gap.attribute.finalize`) and the check repeats until every member passes.
+evidence), the rest are refitted jointly (their shapes re-optimised,
+:func:`udrobot_ctrl.gap.attribute.finalize`) and the check repeats until every member passes.
 """
 from __future__ import annotations
 
@@ -36,7 +36,7 @@ from udrobot_ctrl.gap.attribute import HOLDOUT_CHI2, Attributor, Combination, Fi
 from udrobot_ctrl.gap.effects import Actuation
 from udrobot_ctrl.gap.shrink import GapScore, errors, gap, simulate_windows, window_starts
 
-REPLAY_ALPHA = 0.05
+REPLAY_MATERIAL = 0.02  # fraction of gap_before
 
 
 @dataclass(frozen=True)
@@ -95,18 +95,20 @@ def window_energy(preps, sims, score: GapScore, window_s) -> np.ndarray:
 
 
 def paired_rise(without: np.ndarray, with_: np.ndarray):
-    """One-sided Wilcoxon signed-rank test that ``without`` exceeds ``with_`` window by window: (W+, p).
+    """One-sided paired tests that ``without`` exceeds ``with_`` window by window: (W+, p).
 
-    Ranks of the per-window differences weigh a window by how much it changes, without letting one window of
-    huge error decide alone (as a t-test on heavy-tailed differences would) and without letting many windows
-    of negligible change outvote the windows where the effect acts (as a test on log ratios would).
+    Two tests, as the per-window differences are heavy-tailed: the Wilcoxon signed-rank test (ranks: many windows
+    of consistent rise) and the paired t-test (a large rise concentrated in the windows where the effect acts);
+    p is the smaller of the two one-sided p-values, Bonferroni-corrected (x 2).
     """
     d = np.asarray(without, float) - np.asarray(with_, float)
     d = d[np.isfinite(d) & (d != 0)]
     if d.size < 2:
         return 0.0, 1.0
-    res = stats.wilcoxon(d, alternative="greater")
-    return float(res.statistic), float(res.pvalue)
+    w = stats.wilcoxon(d, alternative="greater")
+    sd = float(np.std(d, ddof=1))
+    p_t = float(stats.t.sf(d.mean() / (sd / np.sqrt(d.size)), d.size - 1)) if sd > 0 else float(d.mean() <= 0)
+    return float(w.statistic), min(1.0, 2.0 * min(float(w.pvalue), p_t))
 
 
 @dataclass(frozen=True)
@@ -119,10 +121,11 @@ class Alone:
 
     @property
     def passed(self) -> bool:
-        return self.shrink > 0
+        return self.shrink > REPLAY_MATERIAL
 
     def reason(self) -> str:
-        return f"on its own it does not shrink the holdout gap (shrink {self.shrink:+.2f})"
+        return (f"on its own it does not shrink the holdout gap by more than {100 * REPLAY_MATERIAL:g}% "
+                f"(shrink {self.shrink:+.3f})")
 
 
 def alone_tests(preps, nominal: Replay, singles: dict, window_s) -> dict:
@@ -143,8 +146,8 @@ class MemberTest:
     name: str
     holdout_lr: float  # equation-error likelihood ratio of the set against the set without it
     gap_contribution: float  # rise of the holdout gap when dropped, fraction of gap_before
-    replay_w: float  # Wilcoxon signed-rank statistic W+ of the per-window rise (without - with)
-    replay_p: float  # its one-sided p-value
+    replay_w: float  # Wilcoxon signed-rank statistic W+ of the per-window rise (without - with), information
+    replay_p: float  # one-sided p of the rise over windows (signed-rank and t, Bonferroni), information
     alone: Alone | None = None  # the effect alone against the nominal model (None: not checked)
 
     @property
@@ -153,7 +156,7 @@ class MemberTest:
 
     @property
     def passed_replay(self) -> bool:
-        return self.replay_p < REPLAY_ALPHA and self.gap_contribution > 0
+        return self.gap_contribution > REPLAY_MATERIAL
 
     @property
     def passed(self) -> bool:
@@ -166,9 +169,7 @@ class MemberTest:
             why.append(f"holdout equation-error likelihood ratio {self.holdout_lr:.1f} <= {HOLDOUT_CHI2:g}")
         if not self.passed_replay:
             why.append(f"dropping it changes the holdout replay gap by {100 * self.gap_contribution:+.1f}% of "
-                       f"gap_before (signed-rank W+ {self.replay_w:.0f}, p {self.replay_p:.2g} >= {REPLAY_ALPHA:g})"
-                       if self.replay_p >= REPLAY_ALPHA else
-                       f"dropping it does not raise the holdout replay gap ({100 * self.gap_contribution:+.1f}%)")
+                       f"gap_before (<= {100 * REPLAY_MATERIAL:g}%)")
         if self.alone is not None and not self.alone.passed:
             why.append(self.alone.reason())
         return "; ".join(why)
@@ -270,8 +271,8 @@ def backward_eliminate(att: Attributor, att_h: Attributor, candidates: Combinati
     while combo.members:
         tests = check_members(att, att_h, combo, full, before, replay_fit, window_s, preps, alone)
         failing = [t for t in tests if not t.passed]
-        worst = min(failing, key=lambda t: (t.alone is None or t.alone.passed, t.passed_replay, -t.replay_p,
-                                            t.holdout_lr)) if failing else None
+        worst = min(failing, key=lambda t: (t.alone is None or t.alone.passed, t.passed_replay,
+                                            t.gap_contribution, t.holdout_lr)) if failing else None
         rounds.append(EliminationRound(combo.members, tests, worst.name if worst else None))
         if log:
             for t in tests:

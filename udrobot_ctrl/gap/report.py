@@ -35,7 +35,7 @@ from udrobot_ctrl.gap.attribute import (
     residual,
 )
 from udrobot_ctrl.gap.confirm import (
-    REPLAY_ALPHA,
+    REPLAY_MATERIAL,
     Elimination,
     MemberTest,
     Replay,
@@ -446,10 +446,9 @@ def _method(window_s) -> dict:
                         f"and a holdout equation-error likelihood ratio > {HOLDOUT_CHI2:g}; then backward "
                         f"elimination on the holdout: every significant effect, dropped from the final set (the "
                         f"rest refitted), lowers the holdout equation-error likelihood by a ratio > "
-                        f"{HOLDOUT_CHI2:g} (N_eff = N / tau_int) and raises the holdout replay gap (one-sided "
-                        f"Wilcoxon signed-rank test over the windows, p < {REPLAY_ALPHA:g}), and alone it shrinks "
-                        f"the holdout replay gap; the weakest failing one is dropped and the rest refitted until "
-                        f"all pass",
+                        f"{HOLDOUT_CHI2:g} (N_eff = N / tau_int) and raises the holdout replay gap by more than "
+                        f"{100 * REPLAY_MATERIAL:g}% of gap_before, and alone it shrinks the holdout replay gap by "
+                        f"more than that; the weakest failing one is dropped and the rest refitted until all pass",
     }
 
 
