@@ -205,19 +205,27 @@ def noise_floor(preps, sims, p: PlantParameters, window_s, scale, draws=FLOOR_DR
 
 
 def _renoised(prep: Prepared, rng) -> Prepared:
-    """The run with one more draw of each logged channel's own noise, smoothed and differentiated again."""
+    """The run with one more draw of each logged channel's own noise, smoothed and differentiated again (body rates
+    derived from the attitude get the derivative of the attitude noise, Euler-rate transform neglected)."""
     meas, eta, nu, nu_dot = dict(prep.meas), prep.eta.copy(), prep.nu.copy(), prep.nu_dot.copy()
+    added = {}
     for i, c in enumerate(POSE + VEL):
         m = prep.meas.get(c)
         if m is None or not np.isfinite(m).any():
             continue
         sigma = channel_noise(m)
-        e = rng.normal(0.0, sigma if np.isfinite(sigma) else 0.0, prep.n)
+        added[c] = e = rng.normal(0.0, sigma if np.isfinite(sigma) else 0.0, prep.n)
         meas[c] = m + e
         if i < 6:
             eta[:, i] += e
         else:
             nu[:, i - 6], nu_dot[:, i - 6] = smooth_derivative(meas[c], prep.dt, prep.window_s)
+    for i in (3, 4, 5):  # a rate derived from the attitude carries the attitude's noise, differentiated
+        if prep.dof_ok[i] and VEL[i] not in added and POSE[i] in added:
+            _, de = smooth_derivative(added[POSE[i]], prep.dt, prep.window_s)
+            dn, dnd = smooth_derivative(de, prep.dt, prep.window_s)
+            nu[:, i] += np.nan_to_num(dn)
+            nu_dot[:, i] += np.nan_to_num(dnd)
     return replace(prep, meas=meas, eta=eta, nu=nu, nu_dot=nu_dot)
 
 

@@ -556,8 +556,8 @@ def summary(report) -> str:
              f"gap before {_num(gb['value'], '.3f', 'undefined (no channel to score)')} (NRMSE; "
              + ", ".join(per) + ")"]
     for loc in report["location"]:
-        lines.append(f"  where: {loc['channel']} holds {100 * loc['share']:.0f}% -- {loc['condition']}; windows "
-                     f"{loc['windows'][:3]} in {loc['run']}")
+        where = f"; windows {loc['windows'][:3]} in {loc['run']}" if loc.get("windows") else ""
+        lines.append(f"  where: {loc['channel']} holds {100 * loc['share']:.0f}% -- {loc['condition']}{where}")
     lines.append("effects (ranked):")
     for e in report["effects"]:
         back = e["evidence"].get("backward_elimination")
