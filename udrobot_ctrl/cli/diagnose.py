@@ -14,7 +14,7 @@ import sys
 from pathlib import Path
 
 from udrobot_ctrl.gap.plots import plot_paths, write_plots
-from udrobot_ctrl.gap.report import _name, corrected_model, diagnose, split_runs, summary, write_report
+from udrobot_ctrl.gap.report import corrected_model, diagnose, run_label, split_runs, summary, write_report
 from udrobot_ctrl.io import load_any
 from udrobot_ctrl.io.files import check_output_dir, check_outputs, spec_files
 from udrobot_ctrl.vehicle import write_model_file
@@ -59,7 +59,7 @@ def run(args) -> int:
     if args.plot:
         fit_s, hold_s, _ = split_runs(fit, hold or None)
         check_output_dir(args.plot, inputs, force=args.force, option="--plot")
-        check_outputs(plot_paths(args.plot, [_name(r) for r in fit_s], [_name(r) for r in hold_s]), inputs,
+        check_outputs(plot_paths(args.plot, [run_label(r) for r in fit_s], [run_label(r) for r in hold_s]), inputs,
                       force=args.force, option="--plot")
     effects = [e.strip() for e in args.effects.split(",")] if args.effects else None
     if args.window <= 0:

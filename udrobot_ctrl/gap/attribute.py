@@ -181,13 +181,14 @@ class Attributor:
         self._dof_cache, self._gram_cache = {}, {}  # see _dof_design, _gram
         self.n_eff = float(self.N)
 
-    def design(self, name, shape):
+    def design(self, name, shape) -> fx.Design:
+        """The effect's :class:`~udrobot_ctrl.gap.effects.Design` on this stack (non-finite entries zeroed), cached."""
         key = (name, tuple(np.round(shape, 6)))
         if key not in self._cache:
-            b0, A, names, lo, hi = self.cat[name].design(self.s, tuple(shape))
+            d = fx.Design(*self.cat[name].design(self.s, tuple(shape)))
             if len(self._cache) > 400:
                 self._cache.clear()
-            self._cache[key] = (np.nan_to_num(b0), np.nan_to_num(A), names, lo, hi)
+            self._cache[key] = d._replace(b0=np.nan_to_num(d.b0), A=np.nan_to_num(d.A))
         return self._cache[key]
 
     def _dof_design(self, name, shape):
@@ -328,28 +329,78 @@ def holdout_loglik(att_h: Attributor, fit: Fit):
     d = att_h.dofs
     pred = np.zeros_like(att_h.r)
     for name in fit.names:
-        eff = att_h.cat[name]
-        shape = fit.shapes[name]
-        b0, A, names, _, _ = att_h.design(name, shape)
-        a = np.array([fit.params[name][nm] for nm in names]) if len(names) else np.zeros(0)
-        pred += b0 + (np.einsum("nik,k->ni", A, a) if a.size else 0.0)
-        del eff
+        des = att_h.design(name, fit.shapes[name])
+        a = np.array([fit.params[name][nm] for nm in des.names])
+        pred += des.b0 + (np.einsum("nik,k->ni", des.A, a) if a.size else 0.0)
     e = (att_h.r - pred)[:, d]
     return float(np.sum(np.log(np.sum(e ** 2, axis=0) / att_h.N + 1e-300)))
 
 
-def select(att: Attributor, att_h: Attributor, names=None, max_effects=4, log=None, exclude=()):
+def holdout_lr(att_h: Attributor, without: Fit, with_: Fit) -> float:
+    """Holdout equation-error likelihood ratio 2 ln(L_with / L_without) = N_eff (ll(without) - ll(with)), with
+    both fits' parameters frozen (N_eff of the holdout stack); chi^2-distributed under 'no improvement'."""
+    return float(att_h.n_eff * (holdout_loglik(att_h, without) - holdout_loglik(att_h, with_)))
+
+
+@dataclass(frozen=True)
+class SelectionStep:
+    """One forward-selection step: the best remaining effect and whether it was added."""
+
+    effect: str
+    delta_bic: float  # BIC change on the fit runs when added to the current set
+    holdout_lr: float  # holdout equation-error likelihood ratio, parameters frozen
+    accepted: bool
+
+
+@dataclass(frozen=True)
+class Combination:
+    """A joint fit of several effects on the fit runs, with their look-alikes and the residual noise level."""
+
+    members: tuple
+    fit: Fit
+    indistinguishable: dict  # member -> effects whose swap for it changes BIC by less than BIC_STRONG
+    noise_sigma: np.ndarray  # (6,) residual std per DOF (N, N m), nan for DOFs not scored
+
+
+@dataclass(frozen=True)
+class Selection:
+    """Single fits of every candidate, the noise floor and the forward selection on the fit runs."""
+
+    nominal: Fit
+    singles: dict  # name -> Fit of that effect alone
+    delta_bic: dict  # name -> single-effect BIC change
+    steps: tuple  # SelectionStep, in order
+    tau_int: float  # integrated autocorrelation time of the residual, samples
+    n_eff: float  # N / tau_int on the fit runs
+    candidates: Combination  # the effects forward selection added, jointly fitted
+
+    @property
+    def proposed(self) -> tuple:
+        """Effects forward selection added (candidates for the holdout confirmation)."""
+        return self.candidates.members
+
+
+def forward_select(att: Attributor, att_h: Attributor, names=None, max_effects=4, log=None,
+                   exclude=()) -> Selection:
     """Single fits of every effect, noise floor, forward selection and look-alike groups.
 
-    Effects in ``exclude`` (unidentifiable on these runs, :mod:`udrobot_ctrl.gap.identifiability`) are fitted
-    alone for the record and never selected; they are still look-alikes of a selected effect whose fit they
-    match on the observed DOFs (the runs cannot tell them apart: that is what the report must say).
+    An effect is added while it lowers the fit-run BIC by more than ``BIC_STRONG`` and, with its parameters frozen,
+    raises the holdout equation-error likelihood by a ratio above ``HOLDOUT_CHI2``.
 
-    Returns
-    -------
-    dict with ``singles`` (name -> Fit), ``delta_bic`` (name -> single-effect BIC change), ``selected``
-    (list of names), ``final`` (Fit), ``steps`` (selection log), ``indistinguishable`` (name -> list),
-    ``tau_int``, ``n_eff``, ``noise_sigma`` (per DOF, N or N m).
+    Parameters
+    ----------
+    att, att_h : Attributor
+        Fit-run and holdout stacks.
+    names : sequence of str, optional
+        Candidate effects (default: the whole catalogue).
+    max_effects : int
+        At most this many effects are added.
+    log : callable, optional
+        Receives one line per step.
+    exclude : sequence of str
+        Effects the runs cannot identify (:mod:`udrobot_ctrl.gap.identifiability`): fitted alone for the record
+        and never selected; they are still look-alikes of a selected effect whose fit they match on the observed
+        DOFs (the runs cannot tell them apart: that is what the report must say).
     """
     names = list(names or att.cat)
     nominal = att.fit([])
@@ -357,36 +408,30 @@ def select(att: Attributor, att_h: Attributor, names=None, max_effects=4, log=No
     tau, _ = att.estimate_noise(singles)
     bic0 = att.bic(nominal)
     delta = {n: att.bic(f) - bic0 for n, f in singles.items()}
-    ho0 = holdout_loglik(att_h, nominal) if att_h is not None else None
-    selected, current, cur_bic, cur_ho, steps = [], nominal, bic0, ho0, []
+    selected, current, cur_bic, steps = [], nominal, bic0, []
     while len(selected) < max_effects:
         fixed = [(n, current.shapes[n]) for n in selected]
-        cands = {}
-        for n in names:
-            if n in selected or n in exclude:
-                continue
-            # the grid plus the effect's refined single-effect shape: a coarse grid must not hand the step to a
-            # many-parameter look-alike (e.g. cross-coupled damping for a current between grid points)
-            cands[n] = att.best_shape(n, fixed, refine=False, seeds=(singles[n].shapes[n],))
+        # the grid plus the effect's refined single-effect shape: a coarse grid must not hand the step to a
+        # many-parameter look-alike (e.g. cross-coupled damping for a current between grid points)
+        cands = {n: att.best_shape(n, fixed, refine=False, seeds=(singles[n].shapes[n],))
+                 for n in names if n not in selected and n not in exclude}
         if not cands:
             break
         best = min(cands, key=lambda n: att.bic(cands[n]))
         fbest = att.best_shape(best, fixed, refine=True)
         d_bic = att.bic(fbest) - cur_bic
-        ho = holdout_loglik(att_h, fbest) if att_h is not None else None
-        lr = att_h.n_eff * (cur_ho - ho) if att_h is not None else np.inf
+        lr = holdout_lr(att_h, current, fbest)
         ok = d_bic < -BIC_STRONG and lr > HOLDOUT_CHI2
-        steps.append({"effect": best, "delta_bic": float(d_bic), "holdout_lr": float(lr), "accepted": bool(ok)})
+        steps.append(SelectionStep(best, float(d_bic), float(lr), bool(ok)))
         if log:
-            log(f"  step {len(steps)}: {best} dBIC {d_bic:.1f}, holdout LR {lr:.1f} -> {'add' if ok else 'stop'}")
+            log(f"  forward step {len(steps)}: {best} dBIC {d_bic:.1f}, holdout LR {lr:.1f} -> "
+                f"{'candidate' if ok else 'stop'}")
         if not ok:
             break
         selected.append(best)
-        current, cur_bic, cur_ho = fbest, att.bic(fbest), ho
-    out = {"nominal": nominal, "singles": singles, "delta_bic": delta, "steps": steps, "tau_int": tau,
-           "n_eff": att.n_eff}
-    out.update(finalize(att, selected, names, current))
-    return out
+        current, cur_bic = fbest, att.bic(fbest)
+    return Selection(nominal=nominal, singles=singles, delta_bic=delta, steps=tuple(steps), tau_int=tau,
+                     n_eff=att.n_eff, candidates=finalize(att, selected, names, current))
 
 
 def refit(att: Attributor, members, shapes=None):
@@ -405,16 +450,14 @@ def refit(att: Attributor, members, shapes=None):
     return att.fit([(n, shapes[n]) for n in members])
 
 
-def finalize(att: Attributor, selected, names, final=None):
-    """Final joint fit of the selected effects, their look-alikes and the noise level per DOF.
-
-    Returns dict with ``selected``, ``final`` (Fit), ``indistinguishable`` (name -> list), ``noise_sigma``.
-    """
-    selected = list(selected)
+def finalize(att: Attributor, selected, names, final=None, lookalikes=True) -> Combination:
+    """Final joint fit of the selected effects (``final``, or a :func:`refit`), their look-alikes (unless
+    ``lookalikes`` is False: an intermediate set) and the noise level per DOF."""
+    selected = tuple(selected)
     final = final if final is not None else refit(att, selected)
     cur_bic = att.bic(final)
     indist = {}
-    for s_name in selected:
+    for s_name in selected if lookalikes else ():
         others = [(n, final.shapes[n]) for n in selected if n != s_name]
         alts = []
         for n in names:
@@ -426,4 +469,4 @@ def finalize(att: Attributor, selected, names, final=None):
         indist[s_name] = alts
     sigma = np.full(6, np.nan)
     sigma[att.dofs] = np.sqrt(final.rss / att.N)
-    return {"selected": selected, "final": final, "indistinguishable": indist, "noise_sigma": sigma}
+    return Combination(members=selected, fit=final, indistinguishable=indist, noise_sigma=sigma)

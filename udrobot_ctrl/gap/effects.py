@@ -38,6 +38,7 @@ Templates (the diagnoser's lumped forms; a truth generator should use different 
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
+from typing import NamedTuple
 
 import numpy as np
 
@@ -97,6 +98,49 @@ def _to_body(R, vec):
     return np.einsum("...ji,...j->...i", R, vec)
 
 
+class Design(NamedTuple):
+    """An effect's prediction of the equation-error residual for one shape: ``b0 + A a`` with bounds on ``a``.
+
+    Attributes
+    ----------
+    b0 : (n, 6) ndarray
+        Shape-only part of the predicted generalised force, N and N m.
+    A : (n, 6, k) ndarray
+        Regressors of the k amplitude parameters (N or N m per unit of each parameter).
+    names : tuple of str
+        The amplitude parameters' names (with their unit).
+    lower, upper : (k,) ndarray
+        Bounds of the amplitude parameters.
+    """
+
+    b0: np.ndarray
+    A: np.ndarray
+    names: tuple
+    lower: np.ndarray
+    upper: np.ndarray
+
+
+class Actuation(NamedTuple):
+    """How a run's commands reach the vehicle: what an effect's replay hooks need besides its parameters.
+
+    Attributes
+    ----------
+    B : (6, k) ndarray
+        Actuator matrix: nominal wrench = B f (thrusters, or six virtual wrench actuators).
+    inflow : (6, k) ndarray
+        Axial inflow speed of actuator j is ``inflow[:, j] . nu``, m/s.
+    f_ref : (k,) ndarray
+        Reference magnitude of each actuator, N (or N m).
+    M_A : (6, 6) ndarray
+        Nominal added mass.
+    """
+
+    B: np.ndarray
+    inflow: np.ndarray
+    f_ref: np.ndarray
+    M_A: np.ndarray
+
+
 @dataclass
 class Hooks:
     """How an effect enters a simulation: input filter, extra force, added-mass increment (any may be None)."""
@@ -130,13 +174,13 @@ class Effect:
         return np.where(x0 != 0, 0.3 * np.abs(x0), 0.05)
 
     # -- to be provided per effect
-    def design(self, s: Stack, shape):
-        """(b0 (n,6), A (n,6,k), names (k,), lower (k,), upper (k,)) for a shape."""
+    def design(self, s: Stack, shape) -> Design:
+        """The effect's :class:`Design` (b0 (n,6), A (n,6,k), names (k,), lower (k,), upper (k,)) for a shape."""
         raise NotImplementedError
 
-    def hooks(self, params: dict, p: PlantParameters, B, inflow, f_ref, M_A) -> Hooks:
+    def hooks(self, params: dict, p: PlantParameters, actuation: Actuation) -> Hooks:
         """How the fitted effect enters a replay: the plant's own definition of it (:func:`plant_hooks`)."""
-        return plant_hooks(PlantEffect(self.name, params), p, B, inflow, f_ref, M_A)
+        return plant_hooks(PlantEffect(self.name, params), p, actuation)
 
 
 def _comps(a):
@@ -147,7 +191,7 @@ def _stack(parts):
     return np.stack(np.broadcast_arrays(*parts), axis=-1)
 
 
-def plant_hooks(e: PlantEffect, p: PlantParameters, B, inflow, f_ref, M_A) -> Hooks:
+def plant_hooks(e: PlantEffect, p: PlantParameters, actuation: Actuation) -> Hooks:
     """Input filter, force and added-mass increment of ``e`` for a replay, from :mod:`udrobot_ctrl.dynamics.effects`
     (the physics the plant simulates; nothing is written twice).
 
@@ -156,13 +200,10 @@ def plant_hooks(e: PlantEffect, p: PlantParameters, B, inflow, f_ref, M_A) -> Ho
     e : PlantEffect
     p : PlantParameters
         Nominal plant.
-    B, inflow : (6, k) ndarray
-        Actuator matrix and axial-inflow matrix of the run's actuators (thrusters, or six virtual ones).
-    f_ref : (k,) ndarray
-        Reference magnitude of each actuator, N.
-    M_A : (6, 6) ndarray
-        Nominal added mass.
+    actuation : Actuation
+        The run's actuators (B, inflow, f_ref) and the nominal added mass.
     """
+    B, inflow, f_ref, M_A = actuation
     nominal = replace(p, M_A=np.asarray(M_A, float), effects=())
     if e.name == "thruster_lag":
         T = e.params["T_lag_s"]
@@ -216,7 +257,7 @@ class InflowLoss(Effect):
             af = np.abs(r["f"])
             return np.stack([(-(af * ua)) @ s.B.T, (-(np.sqrt(af * s.f_ref) * ua)) @ s.B.T], -1)
         A = s.full(cols)
-        return np.zeros((s.n, 6)), A, ("k1_per_mps", "k2_per_mps"), np.zeros(2), np.array([2.0, 2.0])
+        return Design(np.zeros((s.n, 6)), A, ("k1_per_mps", "k2_per_mps"), np.zeros(2), np.array([2.0, 2.0]))
 
 
 
@@ -263,9 +304,9 @@ class Deadband(Effect):
         if _per_dof(s):
             col = s.full(lambda r: (np.where(np.abs(r["f"]) < d, 0.0, -d * np.sign(r["f"])) * x)[:, :, None]
                          * np.eye(6)[None], held=True)
-            return b0, col, tuple(f"shift_{k}" for k in DOF), np.zeros(6), np.ones(6)
+            return Design(b0, col, tuple(f"shift_{k}" for k in DOF), np.zeros(6), np.ones(6))
         col = s.full(lambda r: (np.where(np.abs(r["f"]) < d, 0.0, -d * np.sign(r["f"])) * x) @ s.B.T, held=True)
-        return b0, col[..., None], ("shift",), np.zeros(1), np.ones(1)
+        return Design(b0, col[..., None], ("shift",), np.zeros(1), np.ones(1))
 
 
 
@@ -277,10 +318,10 @@ class Asymmetry(Effect):
         x = crossing(s)
         if _per_dof(s):
             col = s.full(lambda r: (-np.minimum(r["f"], 0.0) * x)[:, :, None] * np.eye(6)[None], held=True)
-            return np.zeros((s.n, 6)), col, tuple(f"reverse_loss_{k}" for k in DOF), np.full(6, -0.5), \
-                np.full(6, 0.7)
+            return Design(np.zeros((s.n, 6)), col, tuple(f"reverse_loss_{k}" for k in DOF), np.full(6, -0.5),
+                          np.full(6, 0.7))
         col = s.full(lambda r: (-np.minimum(r["f"], 0.0) * x) @ s.B.T, held=True)
-        return np.zeros((s.n, 6)), col[..., None], ("reverse_loss",), np.array([-0.5]), np.array([0.7])
+        return Design(np.zeros((s.n, 6)), col[..., None], ("reverse_loss",), np.array([-0.5]), np.array([0.7]))
 
 
 
@@ -288,7 +329,7 @@ class Lag(Effect):
     def design(self, s, shape):
         (T,) = shape
         b0 = s.full(lambda r: (pfx.first_order_lag(r["f"], r["dt"], T) - r["f"]) @ s.B.T, held=True)
-        return b0, np.zeros((s.n, 6, 0)), (), np.zeros(0), np.zeros(0)
+        return Design(b0, np.zeros((s.n, 6, 0)), (), np.zeros(0), np.zeros(0))
 
 
 
@@ -383,8 +424,8 @@ class WallEffect(Effect):
                     out[:, :3] += -(e * vt2)[:, None] * nb
             return out
         A = np.stack([s.full(lambda r: col(r, 0), filt=False), s.full(lambda r: col(r, 1))], -1)
-        return np.zeros((s.n, 6)), A, ("added_mass_at_contact_kg", "suction_N_s2_per_m2"), np.zeros(2), \
-            np.array([1e4, 1e5])
+        return Design(np.zeros((s.n, 6)), A, ("added_mass_at_contact_kg", "suction_N_s2_per_m2"), np.zeros(2),
+                      np.array([1e4, 1e5]))
 
 
 
@@ -404,7 +445,7 @@ class Current(Effect):
     def design(self, s, shape):
         c = np.array(shape, float)
         b0 = s.full(lambda r: _current_force(r["eta"], r["nu"], c, s.p, s.M_A))
-        return b0, np.zeros((s.n, 6, 0)), (), np.zeros(0), np.zeros(0)
+        return Design(b0, np.zeros((s.n, 6, 0)), (), np.zeros(0), np.zeros(0))
 
 
 
@@ -413,7 +454,7 @@ class LinearDamping(Effect):
     def design(self, s, shape):
         A = s.full(lambda r: -r["nu"][:, :, None] * np.eye(6)[None])
         lo = -np.diag(s.p.D_L).copy()
-        return np.zeros((s.n, 6)), A, tuple(f"d_{d}{v}" for d, v in zip(DOF, VEL)), lo, np.full(6, 1e4)
+        return Design(np.zeros((s.n, 6)), A, tuple(f"d_{d}{v}" for d, v in zip(DOF, VEL)), lo, np.full(6, 1e4))
 
 
 
@@ -421,8 +462,8 @@ class QuadDampingError(Effect):
     def design(self, s, shape):
         q = np.diag(s.p.Q)
         A = s.full(lambda r: -(q * np.abs(r["nu"]) * r["nu"])[:, :, None] * np.eye(6)[None])
-        return np.zeros((s.n, 6)), A, tuple(f"scale_{d}{v}|{v}|" for d, v in zip(DOF, VEL)), np.full(6, -0.95), \
-            np.full(6, 10.0)
+        return Design(np.zeros((s.n, 6)), A, tuple(f"scale_{d}{v}|{v}|" for d, v in zip(DOF, VEL)),
+                      np.full(6, -0.95), np.full(6, 10.0))
 
 
 
@@ -439,8 +480,8 @@ class AddedMassError(Effect):
                 out[:, :, i] = coriolis_centripetal(Mi, r["nu"])
             return out
         A = A - s.full(cor)
-        return np.zeros((s.n, 6)), A, tuple(f"scale_{d}d{v}" for d, v in zip(DOF, VEL)), np.full(6, -0.9), \
-            np.full(6, 10.0)
+        return Design(np.zeros((s.n, 6)), A, tuple(f"scale_{d}d{v}" for d, v in zip(DOF, VEL)), np.full(6, -0.9),
+                      np.full(6, 10.0))
 
 
 
@@ -461,14 +502,14 @@ class CrossDamping(Effect):
             return A
         A = s.full(cols)
         k = A.shape[-1]
-        return np.zeros((s.n, 6)), A, tuple(names), np.full(k, -1e4), np.full(k, 1e4)
+        return Design(np.zeros((s.n, 6)), A, tuple(names), np.full(k, -1e4), np.full(k, 1e4))
 
 
 
 class BuoyancyOffset(Effect):
     def design(self, s, shape):
         A = -s.full(lambda r: restoring_gradient(r["eta"], s.p, "B"))[..., None]
-        return np.zeros((s.n, 6)), A, ("dB_N",), np.array([-0.5 * s.p.weight]), np.array([0.5 * s.p.weight])
+        return Design(np.zeros((s.n, 6)), A, ("dB_N",), np.array([-0.5 * s.p.weight]), np.array([0.5 * s.p.weight]))
 
 
 
@@ -482,7 +523,7 @@ class CgCbOffset(Effect):
         bgz = float(s.p.r_g[2] * s.p.weight - s.p.r_b[2] * s.p.buoyancy)
         if bgz > 0:  # a vehicle that floats upright keeps a righting moment: at least 10 % of the modelled one
             lo[2] = -0.9 * bgz
-        return np.zeros((s.n, 6)), A, ("dBG_x_Nm", "dBG_y_Nm", "dBG_z_Nm"), lo, hi
+        return Design(np.zeros((s.n, 6)), A, ("dBG_x_Nm", "dBG_y_Nm", "dBG_z_Nm"), lo, hi)
 
 
 

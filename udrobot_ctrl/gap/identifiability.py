@@ -117,6 +117,10 @@ class Identifiability:
     observed: np.ndarray
     reconstructed: np.ndarray
 
+    def observed_dofs(self) -> list:
+        """Names of the observed (scored) DOFs."""
+        return [d for d, ok in zip(fx.DOF, self.observed) if ok]
+
     @property
     def names(self) -> list:
         """Names of the unidentifiable effects."""
@@ -163,8 +167,8 @@ class Restricted(fx.Effect):
     def refine_step(self, s, x0):
         return self.inner.refine_step(s, x0)
 
-    def hooks(self, params, p, B, inflow, f_ref, M_A):
-        return self.inner.hooks(params, p, B, inflow, f_ref, M_A)
+    def hooks(self, params, p, actuation):
+        return self.inner.hooks(params, p, actuation)
 
 
 def _shapes(eff: fx.Effect, stack):

@@ -37,7 +37,7 @@ def write_plots(ctx, report, outdir, protect=()):
     windows = {}
     for loc in report["location"]:
         windows.setdefault(loc["run"], []).extend(loc["windows"])
-    for prep, sim in zip(ctx["preps"], ctx["nominal_sims"]):
+    for prep, sim in zip(ctx.preps, ctx.nominal_sims):
         err = errors(prep, sim)
         chans = list(err)
         fig = Figure(figsize=(10, 1.6 * len(chans) + 1))
@@ -51,8 +51,8 @@ def write_plots(ctx, report, outdir, protect=()):
         fig.suptitle(f"nominal model residuals, {prep.name} (located windows shaded)")
         p = save_figure(fig, out / f"residuals_{file_label(prep.name)}.png", protect=protect, dpi=90)
         paths.append(p)
-    n_fit = ctx["n_fit"]
-    for prep, s0, s1 in zip(ctx["preps"][n_fit:], ctx["nominal_sims"][n_fit:], ctx["after_sims"]):
+    n_fit = ctx.n_fit
+    for prep, s0, s1 in zip(ctx.preps[n_fit:], ctx.nominal_sims[n_fit:], ctx.after_sims):
         chans = [c for c in report["gap_before"]["scored"] if c in prep.meas]
         if not chans:
             continue

@@ -25,7 +25,7 @@ import numpy as np
 from udrobot_ctrl.dynamics.effects import wall_planes
 from udrobot_ctrl.dynamics.plant import plant_parameters
 from udrobot_ctrl.gap.data import Prepared, prepare
-from udrobot_ctrl.gap.effects import plant_hooks
+from udrobot_ctrl.gap.effects import Actuation, plant_hooks
 from udrobot_ctrl.gap.shrink import gap, simulate_windows
 from udrobot_ctrl.vehicle import load_model
 
@@ -127,11 +127,11 @@ def windowed_gap(model, runs, window_s: float = 8.0, names=None, scored=None) ->
         planes = model_surfaces(vehicle.effects, prep)
         if planes:
             prep = replace(prep, surfaces=planes)
-        hooks = [plant_hooks(e, p, prep.B, prep.inflow, prep.f_ref, p.M_A) for e in vehicle.effects]
+        hooks = [plant_hooks(e, p, Actuation(prep.B, prep.inflow, prep.f_ref, p.M_A)) for e in vehicle.effects]
         preps.append(prep)
         sims.append(simulate_windows(prep, p, hooks, window_s))
     g = gap(preps, sims, scored)
     return WindowedGap(model=vehicle.name, effects=tuple(e.name for e in vehicle.effects), runs=tuple(labels),
-                       window_s=float(window_s), value=g["value"], per_channel=g["per_channel"],
-                       scored=tuple(g["scored"]), undefined=dict(g.get("undefined", {})), preps=tuple(preps),
+                       window_s=float(window_s), value=g.value, per_channel=g.per_channel,
+                       scored=tuple(g.scored), undefined=dict(g.undefined), preps=tuple(preps),
                        sims=tuple(sims))

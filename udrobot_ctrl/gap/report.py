@@ -1,34 +1,54 @@
 """The diagnosis end to end and its ``udrobot-diagnosis/1`` report (docs/formats/diagnosis.md).
 
-:func:`diagnose` prepares the runs, locates the gap with the nominal model, fits and selects effects on the
-fit runs (:mod:`udrobot_ctrl.gap.attribute`) and scores every effect, and the combination of the significant
-ones, on the holdout runs only (:mod:`udrobot_ctrl.gap.shrink`).
+:func:`diagnose` reads as its steps, each a small function over named results:
+
+1. :func:`prepare_inputs` -> :class:`Inputs` (nominal plant, effects tested, prepared fit and holdout runs);
+2. locate, :func:`locate_gap` -> :class:`Where`: nominal multiple-shooting replays of every run, each channel's
+   noise floor and where the gap lies above it (:mod:`udrobot_ctrl.gap.locate`), the nominal holdout gap;
+3. attribute, :func:`build_stacks` -> :class:`Stacks` and :func:`attribute` -> :class:`~udrobot_ctrl.gap.attribute.
+   Selection`: equation-error fits of every effect on the fit runs and forward selection of candidates;
+4. shrink and confirm on the holdout runs only: :func:`shrink_each` (each effect alone) and :func:`confirm`
+   -> :class:`~udrobot_ctrl.gap.confirm.Elimination` (backward elimination: the significant set);
+5. report: :func:`effect_verdicts` -> :class:`EffectVerdict` per effect, :func:`verdict_line`, the JSON report.
 """
 from __future__ import annotations
 
 import json
 import math
 import time
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
 
 from udrobot_ctrl.dynamics.effects import plant_effect, wall_parameters
-from udrobot_ctrl.dynamics.plant import plant_parameters, require_nominal, rotation_zyx
+from udrobot_ctrl.dynamics.plant import PlantParameters, plant_parameters, require_nominal, rotation_zyx
 from udrobot_ctrl.gap import effects as fx
 from udrobot_ctrl.gap import identifiability
 from udrobot_ctrl.gap.attribute import (
     BIC_STRONG,
     HOLDOUT_CHI2,
     Attributor,
+    Selection,
+    SelectionStep,
     build_stack,
-    finalize,
+    forward_select,
     residual,
-    select,
+)
+from udrobot_ctrl.gap.confirm import (
+    REPLAY_MATERIAL,
+    Elimination,
+    MemberTest,
+    Replay,
+    alone_tests,
+    backward_eliminate,
+    replay,
 )
 from udrobot_ctrl.gap.data import prepare
-from udrobot_ctrl.gap.locate import locate
-from udrobot_ctrl.gap.shrink import gap, simulate_windows
+from udrobot_ctrl.gap.effects import Actuation
+from udrobot_ctrl.gap.identifiability import Identifiability
+from udrobot_ctrl.gap.locate import Located, locate, noise_floor
+from udrobot_ctrl.gap.shrink import GapScore, gap, simulate_windows
 from udrobot_ctrl.io.files import atomic_write
 from udrobot_ctrl.io.runlog import Run
 from udrobot_ctrl.vehicle import load_model
@@ -39,24 +59,24 @@ FORMAT = "udrobot-diagnosis/1"
 def split_runs(runs, holdout):
     """Fit and holdout runs; without holdout runs, the last run is held out (one run: its last third).
 
-    Returns (fit, holdout, note).
+    Returns (fit runs, holdout runs, note saying which split was made).
     """
     if holdout:
         return list(runs), list(holdout), "holdout runs given on the command line"
     if len(runs) >= 2:
-        return list(runs[:-1]), [runs[-1]], f"no --holdout: the last run ({_name(runs[-1])}) is held out"
+        return list(runs[:-1]), [runs[-1]], f"no --holdout: the last run ({run_label(runs[-1])}) is held out"
     r = runs[0]
     cut = r.t[0] + 2.0 / 3.0 * (r.t[-1] - r.t[0])
     a, b = r.t < cut, r.t >= cut
 
     def part(mask, tag):
-        return Run(path=f"{_name(r)}[{tag}]", t=r.t[mask], channels={c: v[mask] for c, v in r.channels.items()},
+        return Run(path=f"{run_label(r)}[{tag}]", t=r.t[mask], channels={c: v[mask] for c, v in r.channels.items()},
                    input_kind=r.input_kind, inputs=r.inputs[mask], extra={}, metadata=r.metadata)
     return [part(a, "first two thirds")], [part(b, "last third")], \
         f"no --holdout and one run: the first two thirds fit, the last third ({cut - r.t[0]:.1f} s on) is held out"
 
 
-def _name(run):
+def run_label(run):
     """File name of a run; a split part keeps its tag (``a.csv[last 1/3]``, whose '/' is not a folder)."""
     if not run.path:
         return "run"
@@ -212,8 +232,289 @@ def corrected_model(model, report, runs=()):
                                 name=f"{vehicle.name}+{names}" if added else vehicle.name), not_placed
 
 
+@dataclass(frozen=True)
+class Inputs:
+    """What is diagnosed: the nominal plant, the effects to test and the prepared fit and holdout runs."""
+
+    label: str  # the model as the report names it
+    p: PlantParameters
+    catalogue: dict  # name -> Effect
+    names: tuple  # effects tested
+    fit: list  # Prepared fit runs
+    holdout: list  # Prepared holdout runs
+    notes: list  # what preparing the runs did, the split first
+    window_s: float  # multiple-shooting window, s
+
+    @property
+    def runs(self) -> list:
+        return self.fit + self.holdout
+
+
+@dataclass(frozen=True)
+class Where:
+    """Step 1, locate: the nominal model's replays of every run, where they disagree, and the holdout gap."""
+
+    nominal_sims: list  # (n, 12) per run, fit runs then holdout runs
+    residuals: list  # equation-error residuals (n, 6) per run
+    located: Located
+    before: GapScore  # nominal gap on the holdout runs
+
+
+@dataclass(frozen=True)
+class Stacks:
+    """The equation-error stacks of the fit and holdout runs and the actuation the replays use."""
+
+    fit: Attributor
+    holdout: Attributor
+    actuation: Actuation
+    identifiability: Identifiability  # what the observed channels can identify (all of it with every DOF measured)
+
+
+@dataclass(frozen=True)
+class Evidence:
+    """Why an effect is (not) significant: fit-run BIC, forward step, holdout backward check."""
+
+    delta_bic: float  # single-effect BIC change on the fit runs
+    selection: SelectionStep | None = None  # its forward-selection step, if it reached one
+    backward: MemberTest | None = None  # its last backward check, if it was a candidate
+    note: str | None = None
+
+    def to_json(self) -> dict:
+        out = {"delta_bic": self.delta_bic}
+        if self.backward is not None:  # rise of the holdout gap (fraction of gap_before) when removed from the set
+            out["holdout_gap_contribution"] = self.backward.gap_contribution
+            out["backward_elimination"] = self.backward.to_json()
+        if self.note:
+            out["note"] = self.note
+        if self.selection is not None:
+            out["selection_delta_bic"] = self.selection.delta_bic
+            out["holdout_likelihood_ratio"] = self.selection.holdout_lr
+        return out
+
+
+@dataclass(frozen=True)
+class EffectVerdict:
+    """One tested effect in the report."""
+
+    name: str
+    significant: bool
+    params: dict  # fitted parameters (significant effects; empty otherwise)
+    shrink: float  # 1 - holdout gap with the effect alone / gap_before
+    evidence: Evidence
+    meaning: str
+    fitted_params_if_added: dict | None = None
+    indistinguishable_from: tuple = ()  # (name, manoeuvre that separates them)
+    wall: dict | None = None  # wall_effect only: {"matters_below_m", "matters_below"}
+    not_identified: dict | None = None  # partly identified effects: {"params": [...], "reason": ...}
+
+    def to_json(self) -> dict:
+        out = {"name": self.name, "significant": self.significant, "params": self.params, "shrink": self.shrink,
+               "evidence": self.evidence.to_json(), "meaning": self.meaning}
+        if self.fitted_params_if_added is not None:
+            out["fitted_params_if_added"] = self.fitted_params_if_added
+        if self.indistinguishable_from:
+            out["indistinguishable_from"] = [{"name": a, "manoeuvre": m} for a, m in self.indistinguishable_from]
+        if self.wall:
+            out.update(self.wall)
+        if self.not_identified:
+            out["not_identified"] = self.not_identified
+        return out
+
+
+@dataclass(frozen=True)
+class DiagnosisContext:
+    """What the figures need besides the report (:func:`udrobot_ctrl.gap.plots.write_plots`)."""
+
+    preps: list  # Prepared runs, fit then holdout
+    n_fit: int
+    nominal_sims: list
+    after_sims: list  # holdout replays with the significant effects
+    residuals: list
+    location: list  # the report's location entries
+
+
+def prepare_inputs(model, runs, holdout, effects, window_s, model_label=None) -> Inputs:
+    """Load the nominal model, check the effect names, split and prepare the runs."""
+    vehicle = load_model(model)
+    p = plant_parameters(vehicle)
+    require_nominal(p, "the diagnoser (it fits effects on top of the plant; a model's parameter effects are "
+                       "folded in, its thrust, lag and force effects are not), so diagnose the model without them")
+    cat = fx.catalogue()
+    names = tuple(effects or fx.EFFECT_NAMES)
+    for n in names:
+        if n not in cat:
+            raise ValueError(f"unknown effect {n!r}; the catalogue is {', '.join(fx.EFFECT_NAMES)}")
+    fit_runs, ho_runs, split_note = split_runs(runs, holdout)
+    fit_p = [prepare(r, p, run_label(r)) for r in fit_runs]
+    ho_p = [prepare(r, p, run_label(r)) for r in ho_runs]
+    label = model_label or (str(model) if not hasattr(model, "name") else model.name)
+    return Inputs(label, p, cat, names, fit_p, ho_p, [split_note] + [n for pr in fit_p + ho_p for n in pr.notes],
+                  window_s)
+
+
+def locate_gap(inp: Inputs) -> Where:
+    """Nominal multiple-shooting replays of every run (the nominal model is fitted to nothing), their noise floor,
+    where the gap lies above it, and the nominal holdout gap."""
+    runs = inp.runs
+    sims = [simulate_windows(pr, inp.p, (), inp.window_s) for pr in runs]
+    scale = gap(runs, sims).scale
+    floor = noise_floor(runs, sims, inp.p, inp.window_s, scale)
+    residuals = [residual(pr, inp.p) for pr in runs]
+    located = locate(runs, sims, scale, floor, residuals, inp.p)
+    return Where(sims, residuals, located, gap(inp.holdout, sims[len(inp.fit):]))
+
+
+def build_stacks(inp: Inputs) -> Stacks:
+    """Equation-error stacks of the fit and holdout runs, scored on the DOFs both observe, and what those observed
+    channels can identify (:func:`udrobot_ctrl.gap.identifiability.assess`): the fits use the catalogue with each
+    partly identified effect's unidentified parameters frozen."""
+    M_A = np.asarray(inp.p.M_A, float)
+    st, r, dofs = build_stack(inp.fit, inp.p, M_A)
+    st_h, r_h, dofs_h = build_stack(inp.holdout, inp.p, M_A)
+    ident = identifiability.assess(st, r, dofs & dofs_h, inp.fit, inp.catalogue, inp.names)
+    cat = ident.restrict(inp.catalogue)
+    att = Attributor(st, r, dofs & dofs_h, cat)
+    att_h = Attributor(st_h, r_h, dofs & dofs_h, cat)
+    h0 = inp.holdout[0]
+    return Stacks(att, att_h, Actuation(h0.B, h0.inflow, st.f_ref, M_A), ident)
+
+
+def attribute(stacks: Stacks, names, log=None) -> Selection:
+    """Step 2, attribute: fit every tested effect on the fit runs and select forward among the identifiable ones
+    (fit-run BIC, holdout equation error); then set the holdout stack's N_eff from the fit runs' noise whiteness
+    for the backward check. Unidentifiable effects are fitted for the record and still count as look-alikes."""
+    sel = forward_select(stacks.fit, stacks.holdout, names, log=log, exclude=stacks.identifiability.names)
+    stacks.holdout.n_eff = max(10.0, stacks.holdout.N / max(sel.tau_int, 1.0))
+    return sel
+
+
+def _replayer(inp: Inputs, stacks: Stacks, scored):
+    """(fit, members) -> holdout :class:`Replay` with those members of the fit added."""
+    return lambda fit, members: replay(inp.holdout, inp.p, fit, members, inp.catalogue, stacks.actuation,
+                                       inp.window_s, scored)
+
+
+def shrink_each(inp: Inputs, stacks: Stacks, sel: Selection, before: GapScore) -> dict:
+    """Step 3, shrink: name -> holdout :class:`~udrobot_ctrl.gap.confirm.Replay` with the effect alone (its single
+    fit); its shrink is 1 - replay gap / gap_before."""
+    run = _replayer(inp, stacks, before.scored)
+    return {n: run(sel.singles[n], (n,)) for n in inp.names}
+
+
+def confirm(inp: Inputs, stacks: Stacks, sel: Selection, where: Where, singles: dict, log=None) -> Elimination:
+    """Step 3, confirm on the holdout: backward elimination from the forward-selected candidates, each of which must
+    also shrink the holdout gap on its own (its replay in ``singles`` against the nominal one)."""
+    before = where.before
+    nominal = Replay((), before, where.nominal_sims[len(inp.fit):])
+    alone = alone_tests(inp.holdout, nominal, {n: singles[n] for n in sel.proposed}, inp.window_s)
+    return backward_eliminate(stacks.fit, stacks.holdout, sel.candidates, inp.names, before,
+                              _replayer(inp, stacks, before.scored), inp.window_s, inp.holdout, alone=alone, log=log)
+
+
+def _wall_entry(params, stack, p) -> dict:
+    """``matters_below_m`` and ``matters_below`` of a significant wall effect (see :func:`wall_distances`)."""
+    speed95 = float(np.nanpercentile(np.hypot(stack.nu[:, 0], stack.nu[:, 1]), 95))
+    per = wall_distances(params, stack.surfaces, stack.eta, p, speed95)
+    return {"matters_below_m": max([v["matters_below_m"] for v in per.values()], default=0.0),
+            "matters_below": {
+                "criterion": f"extra added mass along the normal > {100 * WALL_FRACTION:g}% of the vehicle's "
+                             f"mass along it, or suction at {speed95:.2f} m/s (95th percentile horizontal "
+                             f"speed) > {100 * WALL_FRACTION:g}% of the nominal surge drag at that speed",
+                "distance": "from the body origin to the surface, m",
+                "per_surface": per}}
+
+
+def effect_verdicts(inp: Inputs, stacks: Stacks, sel: Selection, elim: Elimination, shrink: dict) -> list:
+    """Step 4, report: one :class:`EffectVerdict` per tested effect, the significant ones first (by shrink), then
+    the candidates the holdout dropped, then the rest."""
+    kept, dropped, combo = elim.kept, elim.dropped, elim.combination
+    steps = {s.effect: s for s in sel.steps}
+    order = sorted(kept, key=lambda n: -shrink[n]) + sorted(
+        [n for n in inp.names if n not in kept], key=lambda n: (n not in dropped, -shrink[n]))
+    out = []
+    for n in order:
+        significant = n in kept
+        note = None
+        if n in dropped:
+            note = ("a forward-selection candidate, dropped by the backward check on the holdout: "
+                    + dropped[n].reason() + "; not significant")
+        ev = Evidence(sel.delta_bic[n], steps.get(n), elim.last_test(n), note)
+        alts = tuple((a, fx.discriminating_manoeuvre(n, a)) for a in combo.indistinguishable.get(n, ())) \
+            if significant else ()
+        out.append(EffectVerdict(
+            name=n, significant=significant, params=combo.fit.params[n] if significant else {}, shrink=shrink[n],
+            evidence=ev, meaning=inp.catalogue[n].meaning,
+            fitted_params_if_added=None if significant else sel.singles[n].params[n], indistinguishable_from=alts,
+            wall=_wall_entry(combo.fit.params[n], stacks.fit.s, inp.p) if significant and n == "wall_effect"
+            else None, not_identified=stacks.identifiability.entry(n).get("not_identified")))
+    return out
+
+
+def verdict_line(kept, n_tested, before: GapScore, unexplained) -> str:
+    """The report's one-line verdict (also the console's last word on significance)."""
+    if not before.scored:
+        const = ", ".join(before.undefined) or "none"
+        line = (f"gap undefined: no measured channel varies above its noise (constant channels: {const}), so "
+                f"there is nothing to score; fly a manoeuvre that excites the channels")
+    elif kept:
+        line = f"significant: {len(kept)} of {n_tested} effects tested ({', '.join(kept)})"
+    else:
+        line = f"no catalogue effect explains the gap significantly ({n_tested} effects tested)"
+    if kept and unexplained > 0.5:
+        line += f"; {100 * unexplained:.0f}% of the gap remains unexplained"
+    elif not kept and before.value > 0:
+        line += f" (gap {before.value:.3f} stays unexplained)"
+    return line
+
+
+def _method(window_s) -> dict:
+    return {
+        "gap": f"NRMSE of multiple-shooting replays ({window_s:g} s windows from the measured state, logged "
+               f"commands held), RMS over the scored channels; channel scale = std of the measurement",
+        "location": "channels ranked by their share of the excess of NRMSE^2 over the channel's noise floor "
+                    "(the nominal replay re-measured with each channel's noise and replayed from noisy starts)",
+        "fit": "equation error on residual generalised forces from Savitzky-Golay velocities, "
+               "per-DOF noise variances estimated from the data",
+        "significance": f"forward selection: BIC (N_eff = N / tau_int) drop > {BIC_STRONG:g} on the fit runs "
+                        f"and a holdout equation-error likelihood ratio > {HOLDOUT_CHI2:g}; then backward "
+                        f"elimination on the holdout: every significant effect, dropped from the final set (the "
+                        f"rest refitted), lowers the holdout equation-error likelihood by a ratio > "
+                        f"{HOLDOUT_CHI2:g} (N_eff = N / tau_int) and raises the holdout replay gap by more than "
+                        f"{100 * REPLAY_MATERIAL:g}% of gap_before, and alone it shrinks the holdout replay gap by "
+                        f"more than that; the weakest failing one is dropped and the rest refitted until all pass",
+    }
+
+
+def report_json(inp: Inputs, where: Where, stacks: Stacks, sel: Selection, elim: Elimination, verdicts, verdict,
+                elapsed_s) -> dict:
+    """The ``udrobot-diagnosis/1`` report (docs/formats/diagnosis.md) of the diagnosis' steps (not yet rounded)."""
+    before, after = where.before, elim.after.gap
+    return {
+        "format": FORMAT,
+        "model": inp.label,
+        "fit_runs": [pr.name for pr in inp.fit],
+        "holdout_runs": [pr.name for pr in inp.holdout],
+        "gap_before": before.to_json(),
+        "location": [x.to_json() for x in where.located.locations],
+        "effects": [v.to_json() for v in verdicts],
+        "unidentifiable": stacks.identifiability.report(),
+        "sensors": identifiability.sensors(inp.runs),
+        "gap_after": after.to_json() | {"scored": before.scored},
+        "unexplained": (after.value / before.value) if before.value > 0 else float("nan"),
+        "verdict": verdict,
+        "location_detail": where.located.detail_json(),
+        "noise": {"tau_int_samples": sel.tau_int, "n_eff": sel.n_eff, "n_samples": stacks.fit.N,
+                  "sigma_residual_per_dof": dict(zip(fx.DOF, elim.combination.noise_sigma))},
+        "method": _method(inp.window_s) | {"split": inp.notes[0]},
+        "selection_steps": [asdict(s) for s in sel.steps],
+        "backward_elimination": [r.to_json() for r in elim.rounds],
+        "notes": inp.notes,
+        "elapsed_s": elapsed_s,
+    }
+
+
 def diagnose(model, runs, holdout=None, window_s=8.0, effects=None, log=None, model_label=None):
-    """Run the whole diagnosis; returns (report dict, context dict for plots).
+    """Run the whole diagnosis: locate -> attribute -> shrink and confirm -> report.
 
     Parameters
     ----------
@@ -227,166 +528,51 @@ def diagnose(model, runs, holdout=None, window_s=8.0, effects=None, log=None, mo
         Multiple-shooting window, s.
     effects : list of str, optional
         Catalogue subset to test (default: all).
+    log : callable, optional
+        Receives the progress lines (the console story: candidates, holdout check, significant set).
+    model_label : str, optional
+        The model's name in the report.
+
+    Returns
+    -------
+    report : dict
+        The ``udrobot-diagnosis/1`` report (JSON-ready).
+    ctx : DiagnosisContext
+        What the figures need.
     """
     t0 = time.perf_counter()
     say = log or (lambda s: None)
-    vehicle = load_model(model)
-    p = plant_parameters(vehicle)
-    require_nominal(p, "the diagnoser (it fits effects on top of the plant; a model's parameter effects are "
-                       "folded in, its thrust, lag and force effects are not), so diagnose the model without them")
-    M_A = np.asarray(p.M_A, float)
-    fit_runs, ho_runs, split_note = split_runs(runs, holdout)
-    cat = fx.catalogue()
-    names = list(effects or fx.EFFECT_NAMES)
-    for n in names:
-        if n not in cat:
-            raise ValueError(f"unknown effect {n!r}; the catalogue is {', '.join(fx.EFFECT_NAMES)}")
-    fit_p = [prepare(r, p, _name(r)) for r in fit_runs]
-    ho_p = [prepare(r, p, _name(r)) for r in ho_runs]
-    notes = [split_note] + [n for pr in fit_p + ho_p for n in pr.notes]
-    say(f"prepared {len(fit_p)} fit and {len(ho_p)} holdout runs ({time.perf_counter() - t0:.1f} s)")
+    inp = prepare_inputs(model, runs, holdout, effects, window_s, model_label)
+    say(f"prepared {len(inp.fit)} fit and {len(inp.holdout)} holdout runs ({time.perf_counter() - t0:.1f} s)")
 
-    # -- where: nominal multiple-shooting errors on every run (the nominal model is fitted to nothing)
-    all_p = fit_p + ho_p
-    nominal_sims = [simulate_windows(pr, p, (), window_s) for pr in all_p]
-    g_all = gap(all_p, nominal_sims)
-    location, detail = locate(all_p, nominal_sims, g_all["scale"], [residual(pr, p) for pr in all_p])
+    where = locate_gap(inp)
+    say("where: " + (", ".join(f"{x.channel} ({100 * x.share:.0f}% of the excess over the noise floor; NRMSE "
+                               f"{x.nrmse:.2f}, floor {x.floor:.2f})" for x in where.located.locations)
+                     or "no channel above its noise floor"))
 
-    # -- which: equation-error fits on the fit runs, holdout confirmation
-    st, r, dofs = build_stack(fit_p, p, M_A)
-    st_h, r_h, dofs_h = build_stack(ho_p, p, M_A)
-    ident = identifiability.assess(st, r, dofs & dofs_h, fit_p, cat, names)  # what the observed channels can tell
-    cat = ident.restrict(cat)
-    att = Attributor(st, r, dofs, cat)
-    att_h = Attributor(st_h, r_h, dofs & dofs_h, cat)
-    att.dofs = dofs & dofs_h
-    sel = select(att, att_h, names, log=say, exclude=ident.names)
-    att_h.n_eff = max(10.0, att_h.N / max(sel["tau_int"], 1.0))
-    say(f"fitted {len(names)} candidate effects; {len(sel['selected'])} pass the fit-run tests"
-        + (f" ({', '.join(sel['selected'])}), to be confirmed on the holdout" if sel["selected"] else "")
-        + f" ({time.perf_counter() - t0:.1f} s)")
+    stacks = build_stacks(inp)
+    unidentifiable = stacks.identifiability.names
+    if unidentifiable:
+        say(f"not identifiable from the observed channels ({', '.join(stacks.identifiability.observed_dofs())}): "
+            f"{', '.join(unidentifiable)} (never significant; see the report's unidentifiable list)")
+    sel = attribute(stacks, inp.names, log=say)
+    say(f"candidates (forward selection on the fit runs, {len(inp.names) - len(unidentifiable)} identifiable "
+        f"effects tested): {', '.join(sel.proposed) or 'none'} ({time.perf_counter() - t0:.1f} s)")
 
-    # -- how far: simulate the holdout runs with each effect alone and with the selected ones together
-    ho_sims0 = nominal_sims[len(fit_p):]
-    g_before = gap(ho_p, ho_sims0)
-    scored = g_before["scored"]
+    singles = shrink_each(inp, stacks, sel, where.before)
+    b = where.before.value
+    shrink = {n: (1 - r.gap.value / b) if b > 0 else 0.0 for n, r in singles.items()}
+    elim = confirm(inp, stacks, sel, where, singles, log=say)
+    after = elim.after.gap
+    unexplained = (after.value / where.before.value) if where.before.value > 0 else float("nan")
+    verdict = verdict_line(elim.kept, len(inp.names), where.before, unexplained)
+    say(f"{verdict} ({time.perf_counter() - t0:.1f} s)")
 
-    def hooks_for(fit, only=None):
-        out = []
-        for n in (only or fit.names):
-            out.append(cat[n].hooks(fit.params[n], p, ho_p[0].B, ho_p[0].inflow, st.f_ref, M_A))
-        return out
-
-    shrink = {}
-    for n in names:
-        g = gap(ho_p, [simulate_windows(pr, p, hooks_for(sel["singles"][n]), window_s) for pr in ho_p], scored)
-        shrink[n] = (1 - g["value"] / g_before["value"]) if g_before["value"] > 0 else 0.0
-    def combo_gap(members):
-        if not members:
-            return g_before, ho_sims0
-        sims = [simulate_windows(pr, p, hooks_for(sel["final"], members), window_s) for pr in ho_p]
-        return gap(ho_p, sims, scored), sims
-
-    # backward check on the holdout simulation: an effect whose removal changes the holdout gap by less than
-    # 2% of the gap before does not explain the gap (a fit to structure the template does not describe)
-    members = list(sel["selected"])
-    g_after, after_sims = combo_gap(members)
-    pruned, contribution = {}, {}
-    for n in list(reversed(members)):
-        if len(members) == 1 and shrink[n] > 0.02:
-            break
-        rest = [m for m in members if m != n]
-        g_rest, sims_rest = combo_gap(rest)
-        contrib = (g_rest["value"] - g_after["value"]) / g_before["value"] if g_before["value"] > 0 else 0.0
-        contribution[n] = contrib
-        if contrib < 0.02:
-            pruned[n] = contrib
-            members, g_after, after_sims = rest, g_rest, sims_rest
-    if pruned:  # refit what remains (its parameters were shared with the dropped effects) and re-score
-        sel.update(finalize(att, [m for m in sel["selected"] if m in members], names))
-        g_after, after_sims = combo_gap(members)
-    say(f"scored on holdout ({time.perf_counter() - t0:.1f} s)")
-
-    sigma = sel["noise_sigma"]
-    speed95 = float(np.nanpercentile(np.hypot(st.nu[:, 0], st.nu[:, 1]), 95))
-    entries = []
-    order = sorted(sel["selected"], key=lambda n: -shrink[n]) + sorted(
-        [n for n in names if n not in sel["selected"]], key=lambda n: (n not in pruned, -shrink[n]))
-    steps = {s["effect"]: s for s in sel["steps"]}
-    for n in order:
-        significant = n in sel["selected"]
-        fit = sel["final"] if n in sel["final"].names else sel["singles"][n]
-        ev = {"delta_bic": sel["delta_bic"][n]}
-        if n in contribution:  # rise of the holdout gap (fraction of gap_before) when removed from the combination
-            ev["holdout_gap_contribution"] = contribution[n]
-        if n in pruned:
-            ev["note"] = "passed the fit-run tests but does not reduce the holdout gap (< 2% of it); not significant"
-        if n in steps:
-            ev["selection_delta_bic"] = steps[n]["delta_bic"]
-            ev["holdout_likelihood_ratio"] = steps[n]["holdout_lr"]
-        entry = {"name": n, "significant": significant, "params": fit.params[n] if significant else {},
-                 "shrink": shrink[n], "evidence": ev, "meaning": cat[n].meaning}
-        if not significant:
-            entry["fitted_params_if_added"] = sel["singles"][n].params[n]
-        entry.update(ident.entry(n))
-        if significant:
-            alts = sel["indistinguishable"].get(n, [])
-            if alts:
-                entry["indistinguishable_from"] = [{"name": a, "manoeuvre": fx.discriminating_manoeuvre(n, a)}
-                                                   for a in alts]
-            if n == "wall_effect":
-                per = wall_distances(fit.params[n], st.surfaces, st.eta, p, speed95)
-                entry["matters_below_m"] = max([v["matters_below_m"] for v in per.values()], default=0.0)
-                entry["matters_below"] = {
-                    "criterion": f"extra added mass along the normal > {100 * WALL_FRACTION:g}% of the vehicle's "
-                                 f"mass along it, or suction at {speed95:.2f} m/s (95th percentile horizontal "
-                                 f"speed) > {100 * WALL_FRACTION:g}% of the nominal surge drag at that speed",
-                    "distance": "from the body origin to the surface, m",
-                    "per_surface": per}
-        entries.append(entry)
-    unexplained = (g_after["value"] / g_before["value"]) if g_before["value"] > 0 else float("nan")
-    verdict = (f"significant: {len(sel['selected'])} of {len(names)} effects tested ({', '.join(sel['selected'])})"
-               if sel["selected"] else
-               f"no catalogue effect explains the gap significantly ({len(names)} effects tested)")
-    if not scored:
-        const = ", ".join(g_before.get("undefined", {})) or "none"
-        verdict = (f"gap undefined: no measured channel varies above its noise (constant channels: {const}), so "
-                   f"there is nothing to score; fly a manoeuvre that excites the channels")
-    if sel["selected"] and unexplained > 0.5:
-        verdict += f"; {100 * unexplained:.0f}% of the gap remains unexplained"
-    elif not sel["selected"] and g_before["value"] > 0:
-        verdict += f" (gap {g_before['value']:.3f} stays unexplained)"
-    report = {
-        "format": FORMAT,
-        "model": model_label or (str(model) if not hasattr(model, "name") else model.name),
-        "fit_runs": [pr.name for pr in fit_p],
-        "holdout_runs": [pr.name for pr in ho_p],
-        "gap_before": {k: g_before[k] for k in ("metric", "value", "per_channel", "undefined")} | {"scored": scored},
-        "location": location,
-        "effects": entries,
-        "unidentifiable": ident.report(),
-        "sensors": identifiability.sensors(fit_p + ho_p),
-        "gap_after": {k: g_after[k] for k in ("metric", "value", "per_channel", "undefined")} | {"scored": scored},
-        "unexplained": unexplained,
-        "verdict": verdict,
-        "location_detail": detail,
-        "noise": {"tau_int_samples": sel["tau_int"], "n_eff": sel["n_eff"], "n_samples": att.N,
-                  "sigma_residual_per_dof": dict(zip(fx.DOF, sigma))},
-        "method": {
-            "gap": f"NRMSE of multiple-shooting replays ({window_s:g} s windows from the measured state, logged "
-                   f"commands held), RMS over the scored channels; channel scale = std of the measurement",
-            "fit": "equation error on residual generalised forces from Savitzky-Golay velocities, "
-                   "per-DOF noise variances estimated from the data",
-            "significance": f"forward selection: BIC (N_eff = N / tau_int) drop > {BIC_STRONG:g} on the fit runs "
-                            f"and a holdout equation-error likelihood ratio > {HOLDOUT_CHI2:g}",
-            "split": split_note,
-        },
-        "selection_steps": sel["steps"],
-        "notes": notes,
-        "elapsed_s": time.perf_counter() - t0,
-    }
-    ctx = {"preps": all_p, "n_fit": len(fit_p), "nominal_sims": nominal_sims, "after_sims": after_sims,
-           "residuals": [residual(pr, p) for pr in all_p], "location": location}
+    location = [x.to_json() for x in where.located.locations]
+    report = report_json(inp, where, stacks, sel, elim, effect_verdicts(inp, stacks, sel, elim, shrink), verdict,
+                         time.perf_counter() - t0)
+    after_sims = elim.after.sims if elim.kept else where.nominal_sims[len(inp.fit):]
+    ctx = DiagnosisContext(inp.runs, len(inp.fit), where.nominal_sims, after_sims, where.residuals, location)
     return _clean(report), ctx
 
 
@@ -408,11 +594,12 @@ def summary(report) -> str:
              f"gap before {_num(gb['value'], '.3f', 'undefined (no channel to score)')} (NRMSE; "
              + ", ".join(per) + ")"]
     for loc in report["location"]:
-        lines.append(f"  where: {loc['channel']} holds {100 * loc['share']:.0f}% -- {loc['condition']}; windows "
-                     f"{loc['windows'][:3]} in {loc['run']}")
+        where = f"; windows {loc['windows'][:3]} in {loc['run']}" if loc.get("windows") else ""
+        lines.append(f"  where: {loc['channel']} holds {100 * loc['share']:.0f}% -- {loc['condition']}{where}")
     lines.append("effects (ranked):")
     for e in report["effects"]:
-        tag = "SIGNIFICANT" if e["significant"] else "-"
+        back = e["evidence"].get("backward_elimination")
+        tag = "SIGNIFICANT" if e["significant"] else ("dropped" if back else "-")
         extra = ""
         if e.get("indistinguishable_from"):
             extra = "; indistinguishable from " + ", ".join(a["name"] for a in e["indistinguishable_from"])
@@ -422,6 +609,8 @@ def summary(report) -> str:
                      f"dBIC {_num(e['evidence']['delta_bic'], '.0f')}{extra}")
         if e["significant"]:
             lines.append("      params " + ", ".join(f"{k}={_num(v, '.4g')}" for k, v in e["params"].items()))
+        elif back:
+            lines.append("      " + e["evidence"].get("note", "dropped on the holdout"))
     for u in report.get("unidentifiable", []):
         lines.append(f"  unidentifiable with these sensors: {u['name']} ({u['reason']})")
     lines.append(f"gap after {_num(ga['value'], '.3f')}; unexplained {_num(report['unexplained'], '.2f')}")

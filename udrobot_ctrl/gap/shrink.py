@@ -16,6 +16,8 @@ Definition used by the report (``metric: "nrmse"``):
 """
 from __future__ import annotations
 
+from dataclasses import dataclass, field
+
 import numpy as np
 
 from udrobot_ctrl.dynamics.integrators import rk4_step
@@ -120,14 +122,39 @@ def errors(prep: Prepared, sim):
     return out
 
 
-def gap(preps, sims, scored=None):
-    """NRMSE gap over runs (see the module docstring).
+@dataclass(frozen=True)
+class GapScore:
+    """The NRMSE gap of replays against runs (see the module docstring).
 
-    Returns
-    -------
-    dict with ``value``, ``per_channel``, ``scored`` (channel list), ``scale`` (channel -> std of meas),
-    ``undefined`` (channel -> why its NRMSE is undefined, e.g. a constant channel; its per_channel is nan).
+    Attributes
+    ----------
+    value : float
+        RMS over the scored channels of their NRMSE (nan when no channel is scored).
+    per_channel : dict
+        Channel -> NRMSE (nan for a constant channel).
+    scored : list of str
+        Channels in ``value``.
+    scale : dict
+        Channel -> std of its measurement (the NRMSE's denominator, channel units).
+    undefined : dict
+        Channel -> why its NRMSE is undefined (e.g. a constant channel).
     """
+
+    value: float
+    per_channel: dict
+    scored: list
+    scale: dict
+    undefined: dict = field(default_factory=dict)
+    metric: str = "nrmse"
+
+    def to_json(self) -> dict:
+        """The report's ``gap_before`` / ``gap_after`` object."""
+        return {"metric": self.metric, "value": self.value, "per_channel": self.per_channel,
+                "undefined": self.undefined, "scored": self.scored}
+
+
+def gap(preps, sims, scored=None) -> GapScore:
+    """NRMSE gap over runs (see the module docstring); ``scored`` fixes the channels (default: those that move)."""
     acc = {}
     for prep, sim in zip(preps, sims):
         for c, e in errors(prep, sim).items():
@@ -153,5 +180,4 @@ def gap(preps, sims, scored=None):
             auto.append(c)
     use = [c for c in (scored if scored is not None else auto) if c in per and np.isfinite(per[c])]
     value = float(np.sqrt(np.mean([per[c] ** 2 for c in use]))) if use else float("nan")
-    return {"metric": "nrmse", "value": value, "per_channel": per, "scored": use, "scale": scale,
-            "undefined": undefined}
+    return GapScore(value=value, per_channel=per, scored=use, scale=scale, undefined=undefined)

@@ -5,7 +5,7 @@ import pytest
 from udrobot_ctrl.dynamics.effects import TETHER_SPEED_FLOOR, PlantEffect
 from udrobot_ctrl.dynamics.effects import cable_direction as _cable_direction
 from udrobot_ctrl.dynamics.plant import generalized_forces, plant_parameters, rotation_zyx
-from udrobot_ctrl.gap.effects import FAR_ANCHOR_M, Stack, _tether_columns, catalogue
+from udrobot_ctrl.gap.effects import FAR_ANCHOR_M, Actuation, Stack, _tether_columns, catalogue
 from udrobot_ctrl.vehicle import load_model
 
 
@@ -13,7 +13,7 @@ def _tether_force(az, el, x, kq=10.0, kl=2.0):
     p = plant_parameters(load_model("pendulum:chin"))
     params = {"cable_azimuth_rad": az, "cable_elevation_rad": el, "k_quadratic_N_s2_per_m2": kq,
               "k_linear_N_s_per_m": kl}
-    hooks = catalogue()["tether_drag"].hooks(params, p, None, None, None, None)
+    hooks = catalogue()["tether_drag"].hooks(params, p, Actuation(None, None, None, None))
     return hooks.force(x, None, {})
 
 

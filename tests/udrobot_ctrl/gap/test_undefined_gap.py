@@ -25,8 +25,8 @@ def test_constant_channel_has_undefined_nrmse_not_a_number(monkeypatch):
     monkeypatch.setattr("udrobot_ctrl.gap.shrink.errors", lambda prep, s: {"z": s[:, 2] - prep.meas["z"],
                                                                           "u": s[:, 6] - prep.meas["u"]})
     g = gap([_Prep(t, meas)], [sim])
-    assert np.isnan(g["per_channel"]["z"]) and "constant" in g["undefined"]["z"]
-    assert g["scored"] == ["u"] and g["per_channel"]["u"] == pytest.approx(0.01 / np.std(meas["u"]), rel=1e-9)
+    assert np.isnan(g.per_channel["z"]) and "constant" in g.undefined["z"]
+    assert g.scored == ["u"] and g.per_channel["u"] == pytest.approx(0.01 / np.std(meas["u"]), rel=1e-9)
 
 
 def test_summary_prints_undefined_values():

@@ -1,0 +1,140 @@
+"""Backward elimination on the holdout: the paired replay test, the window decomposition of the gap, the loop."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy import stats
+
+from udrobot_ctrl.dynamics.plant import plant_parameters
+from udrobot_ctrl.gap import confirm
+from udrobot_ctrl.gap.attribute import HOLDOUT_CHI2, Combination, Fit
+from udrobot_ctrl.gap.confirm import (
+    REPLAY_MATERIAL,
+    Alone,
+    MemberTest,
+    Replay,
+    backward_eliminate,
+    paired_rise,
+    window_energy,
+)
+from udrobot_ctrl.gap.data import prepare
+from udrobot_ctrl.gap.shrink import STATE_INDEX, gap, window_starts
+from udrobot_ctrl.io.runlog import Run
+from udrobot_ctrl.vehicle import load_model
+
+
+def test_paired_rise_is_the_smaller_of_signed_rank_and_t_bonferroni():
+    rng = np.random.default_rng(0)
+    with_ = rng.gamma(2.0, 1.0, 12)
+    without = with_ + rng.normal(0.3, 0.5, 12)
+    w, p = paired_rise(without, with_)
+    ref_w = stats.wilcoxon(without - with_, alternative="greater")
+    ref_t = stats.ttest_rel(without, with_, alternative="greater")
+    assert w == pytest.approx(ref_w.statistic)
+    assert p == pytest.approx(min(1.0, 2 * min(ref_w.pvalue, ref_t.pvalue)))
+    assert paired_rise(with_, with_) == (0.0, 1.0)  # no change: no evidence
+    assert paired_rise(with_ + 1.0, with_)[1] < 1e-3  # worse in every window
+
+
+def _prepared_run(n=1200, dt=0.05, seed=1):
+    rng = np.random.default_rng(seed)
+    t = np.arange(n) * dt
+    ch = {c: 0.2 * np.sin(0.3 * t + k) + rng.normal(0, 0.01, n)
+          for k, c in enumerate(("u", "v", "w", "p", "q", "r", "z", "phi", "theta", "psi"))}
+    run = Run(path="r.csv", t=t, channels=ch, input_kind="thrust", inputs=np.zeros((n, 4)), extra={}, metadata={})
+    return prepare(run, plant_parameters(load_model("pendulum:chin")), "r.csv")
+
+
+def test_windows_add_up_to_the_squared_gap():
+    """The per-window parts are a decomposition of gap^2 (so the paired test is on the quantity the gap reports)."""
+    prep = _prepared_run()
+    window_s = 6.0
+    starts, w = window_starts(prep, window_s)
+    rng = np.random.default_rng(2)
+    sim = np.full((prep.n, 12), np.nan)
+    for s in starts:
+        for c, i in STATE_INDEX.items():
+            if c in prep.meas:
+                sim[s:s + w, i] = prep.meas[c][s:s + w] + rng.normal(0, 0.03 * (1 + s / prep.n), min(w, prep.n - s))
+    score = gap([prep], [sim])
+    parts = window_energy([prep], [sim], score, window_s)
+    assert parts.size == starts.size
+    assert parts.sum() == pytest.approx(score.value ** 2, rel=1e-9)
+    assert np.all(parts >= 0)
+
+
+def _fit(members):
+    return Fit(tuple(members), {m: () for m in members}, {m: {} for m in members}, np.ones(1), 0, 0.0)
+
+
+def _combo(members):
+    return Combination(tuple(members), _fit(members), {m: [] for m in members}, np.zeros(6))
+
+
+def _test(name, lr, contrib, t=2.0):
+    """A member test (replay statistics for information only)."""
+    return MemberTest(name, lr, contrib, 10 * t, float(stats.norm.sf(t)))
+
+
+def test_member_must_pass_both_holdout_checks_and_help_alone():
+    assert _test("a", 50.0, 0.2, 4.0).passed
+    weak_lr = _test("a", HOLDOUT_CHI2 - 0.1, 0.2, 4.0)
+    assert not weak_lr.passed and "likelihood ratio" in weak_lr.reason()
+    no_rise = _test("a", 50.0, -0.01, -0.5)
+    assert not no_rise.passed and "replay gap" in no_rise.reason()
+    immaterial = _test("a", 90.0, 0.5 * REPLAY_MATERIAL, 3.0)  # significant in equation error, 1 % of the gap
+    assert not immaterial.passed and not immaterial.passed_replay
+    # needed in the set, but alone it makes the holdout worse: it bends another effect's template
+    helper = MemberTest("linear_damping", 80.0, 0.15, 60.0, 1e-4, Alone(-0.02, 20.0, 0.65))  # alone: worse
+    assert not helper.passed and "on its own" in helper.reason()
+    assert MemberTest("lag", 900.0, 0.5, 66.0, 1e-4, Alone(0.56, 66.0, 1e-4)).passed
+    assert not MemberTest("asymmetry", 15.9, 0.047, 52.0, 0.1, Alone(0.01, 40.0, 0.3)).passed  # alone: 1 %
+
+
+def _scripted(monkeypatch, script):
+    """backward_eliminate with the holdout checks scripted per round and the refit recorded."""
+    calls = {"refit": []}
+    rounds = iter(script)
+    monkeypatch.setattr(confirm, "check_members", lambda att, att_h, combo, *a: tuple(
+        t for t in next(rounds) if t.name in combo.members))
+
+    def refit(att, members, names, final=None, lookalikes=True):
+        if final is None:
+            calls["refit"].append(tuple(members))
+        return _combo(members)
+    monkeypatch.setattr(confirm, "finalize", refit)
+    return calls
+
+
+def _eliminate(members):
+    return backward_eliminate(None, None, _combo(members), members, None,
+                              lambda fit, m: Replay(tuple(m), None, []), 8.0, [])
+
+
+def test_compensator_goes_first_then_the_rest_is_refitted_and_rechecked(monkeypatch):
+    calls = _scripted(monkeypatch, [
+        # the damping term is needed next to the lag (15 % of the gap) but alone makes the holdout worse: it bends
+        # the lag template; it goes before the deadband, whose equation-error evidence fails
+        [_test("lag", 900.0, 0.7), MemberTest("damping", 70.0, 0.15, 60.0, 0.01, Alone(-0.02, 5.0, 0.9)),
+         _test("deadband", 3.0, 0.03)],
+        [_test("lag", 900.0, 0.7), _test("deadband", 2.0, 0.03)],
+        [_test("lag", 950.0, 0.7)],
+    ])
+    out = _eliminate(["lag", "damping", "deadband"])
+    assert out.kept == ("lag",)
+    assert calls["refit"] == [("lag", "deadband"), ("lag",)]  # one drop per round, each followed by a refit
+    assert [r.dropped for r in out.rounds] == ["damping", "deadband", None]
+    assert set(out.dropped) == {"damping", "deadband"}
+    assert out.last_test("lag").passed and not out.last_test("deadband").passed
+
+
+def test_a_lone_member_that_does_not_help_the_holdout_is_dropped(monkeypatch):
+    _scripted(monkeypatch, [[_test("cross_coupled_damping", 20.0, -0.03)]])
+    out = _eliminate(["cross_coupled_damping"])
+    assert out.kept == () and out.rounds[0].dropped == "cross_coupled_damping"
+
+
+def test_nothing_dropped_when_all_pass(monkeypatch):
+    calls = _scripted(monkeypatch, [[_test("a", 30.0, 0.3), _test("b", 12.0, 0.1)]])
+    out = _eliminate(["a", "b"])
+    assert out.kept == ("a", "b") and calls["refit"] == [] and len(out.rounds) == 1

@@ -1,0 +1,290 @@
+"""Confirm the candidates on the holdout runs: backward elimination from the forward-selected set.
+
+Forward selection (:func:`udrobot_ctrl.gap.attribute.forward_select`) proposes effects that lower the fit-run BIC
+and the holdout equation error one at a time; an effect added early can become redundant once later ones are in
+(a thruster lag proposed with a deadband, an added-mass and a damping error that only shared its residual). So the
+final set is checked member by member: each member, dropped from the set (the others' amplitudes refitted on the
+fit runs with their shapes kept), must make the holdout worse on both scores:
+
+* **equation error** (significance): the holdout likelihood ratio of the set against the set without it,
+  parameters frozen from the fit runs, exceeds chi^2_1(0.99) = ``HOLDOUT_CHI2`` (N_eff = N / tau_int of the
+  holdout stack);
+* **replay** (materiality): the multiple-shooting replay gap of the holdout runs rises by more than
+  ``REPLAY_MATERIAL`` (2 %) of gap_before. A template-mismatch correction (a damping term fitted alongside a lag
+  of another form) can be statistically significant in equation error yet change the simulated gap by a percent;
+  it does not explain the gap. (A significance test over windows is reported, ``replay_p``, but does not decide:
+  a holdout run gives ten or twenty windows, too few for an effect that acts in a few of them, e.g. a tether at
+  speed.)
+
+Each member must also explain part of the gap **on its own**: the holdout replay with it alone (its single-effect
+fit) must shrink the gap by more than ``REPLAY_MATERIAL``. An effect that helps only alongside another (a damping
+term that bends a lag template towards a lag of another form, a cross-coupled damping whose own shrink is
+negative) compensates for that other effect's template, it is not a second effect.
+
+The member that fails is dropped (one that does not help alone first, then the one with the weakest replay
+evidence), the rest are refitted jointly (their shapes re-optimised,
+:func:`udrobot_ctrl.gap.attribute.finalize`) and the check repeats until every member passes.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import stats
+
+from udrobot_ctrl.gap.attribute import HOLDOUT_CHI2, Attributor, Combination, Fit, finalize, holdout_lr
+from udrobot_ctrl.gap.effects import Actuation
+from udrobot_ctrl.gap.shrink import GapScore, errors, gap, simulate_windows, window_starts
+
+REPLAY_MATERIAL = 0.02  # fraction of gap_before
+
+
+@dataclass(frozen=True)
+class Replay:
+    """Holdout multiple-shooting replay of the nominal model plus some fitted effects."""
+
+    members: tuple
+    gap: GapScore
+    sims: list  # (n, 12) per holdout run
+
+
+def replay(preps, p, fit: Fit | None, members, catalogue, actuation: Actuation, window_s, scored) -> Replay:
+    """Replay the holdout runs with ``members`` of ``fit`` added to the nominal plant (no member: nominal).
+
+    Parameters
+    ----------
+    preps : list of Prepared
+        Holdout runs.
+    p : PlantParameters
+        Nominal plant.
+    fit : Fit or None
+        Fitted parameters of the members.
+    members : sequence of str
+    catalogue : dict
+        Name -> Effect.
+    actuation : Actuation
+    window_s : float
+        Multiple-shooting window, s.
+    scored : list of str
+        Channels scored (those of the nominal gap).
+    """
+    hooks = [catalogue[n].hooks(fit.params[n], p, actuation) for n in members]
+    sims = [simulate_windows(pr, p, hooks, window_s) for pr in preps]
+    return Replay(tuple(members), gap(preps, sims, scored), sims)
+
+
+def window_energy(preps, sims, score: GapScore, window_s) -> np.ndarray:
+    """Each window's part of the squared gap: sum over the scored channels c of SE_c,window / (N_c scale_c^2 C),
+    windows of all runs concatenated, so that they sum to ``score.value ** 2`` (N_c: the channel's scored samples,
+    C: the number of scored channels)."""
+    chans = score.scored
+    se = {c: [] for c in chans}
+    count = dict.fromkeys(chans, 0)
+    for prep, sim in zip(preps, sims):
+        starts, w = window_starts(prep, window_s)
+        err = errors(prep, sim)
+        for c in chans:
+            e = err.get(c, np.full(prep.n, np.nan))
+            ok = np.isfinite(e)
+            count[c] += int(ok.sum())
+            e2 = np.where(ok, e, 0.0) ** 2 / score.scale[c] ** 2
+            se[c].append(np.array([e2[s: s + w].sum() for s in starts]))
+    if not chans:
+        return np.zeros(0)
+    return sum(np.concatenate(se[c]) / max(count[c], 1) for c in chans) / len(chans)
+
+
+def paired_rise(without: np.ndarray, with_: np.ndarray):
+    """One-sided paired tests that ``without`` exceeds ``with_`` window by window: (W+, p).
+
+    Two tests, as the per-window differences are heavy-tailed: the Wilcoxon signed-rank test (ranks: many windows
+    of consistent rise) and the paired t-test (a large rise concentrated in the windows where the effect acts);
+    p is the smaller of the two one-sided p-values, Bonferroni-corrected (x 2).
+    """
+    d = np.asarray(without, float) - np.asarray(with_, float)
+    d = d[np.isfinite(d) & (d != 0)]
+    if d.size < 2:
+        return 0.0, 1.0
+    w = stats.wilcoxon(d, alternative="greater")
+    sd = float(np.std(d, ddof=1))
+    p_t = float(stats.t.sf(d.mean() / (sd / np.sqrt(d.size)), d.size - 1)) if sd > 0 else float(d.mean() <= 0)
+    return float(w.statistic), min(1.0, 2.0 * min(float(w.pvalue), p_t))
+
+
+@dataclass(frozen=True)
+class Alone:
+    """The holdout replay with one effect alone (its single-effect fit) against the nominal replay."""
+
+    shrink: float  # 1 - gap with it alone / gap_before
+    w: float  # Wilcoxon signed-rank statistic W+ (nominal against alone)
+    p: float
+
+    @property
+    def passed(self) -> bool:
+        return self.shrink > REPLAY_MATERIAL
+
+    def reason(self) -> str:
+        return (f"on its own it does not shrink the holdout gap by more than {100 * REPLAY_MATERIAL:g}% "
+                f"(shrink {self.shrink:+.3f})")
+
+
+def alone_tests(preps, nominal: Replay, singles: dict, window_s) -> dict:
+    """Name -> :class:`Alone` from the nominal holdout replay and each effect's single-effect replay."""
+    e0 = window_energy(preps, nominal.sims, nominal.gap, window_s)
+    out = {}
+    for n, r in singles.items():
+        t, pval = paired_rise(e0, window_energy(preps, r.sims, r.gap, window_s))
+        b = nominal.gap.value
+        out[n] = Alone((1 - r.gap.value / b) if b > 0 else 0.0, t, pval)
+    return out
+
+
+@dataclass(frozen=True)
+class MemberTest:
+    """What dropping one member from the set does on the holdout runs, and what it does alone."""
+
+    name: str
+    holdout_lr: float  # equation-error likelihood ratio of the set against the set without it
+    gap_contribution: float  # rise of the holdout gap when dropped, fraction of gap_before
+    replay_w: float  # Wilcoxon signed-rank statistic W+ of the per-window rise (without - with), information
+    replay_p: float  # one-sided p of the rise over windows (signed-rank and t, Bonferroni), information
+    alone: Alone | None = None  # the effect alone against the nominal model (None: not checked)
+
+    @property
+    def passed_equation_error(self) -> bool:
+        return self.holdout_lr > HOLDOUT_CHI2
+
+    @property
+    def passed_replay(self) -> bool:
+        return self.gap_contribution > REPLAY_MATERIAL
+
+    @property
+    def passed(self) -> bool:
+        return self.passed_equation_error and self.passed_replay and (self.alone is None or self.alone.passed)
+
+    def reason(self) -> str:
+        """Why the member fails (empty when it passes)."""
+        why = []
+        if not self.passed_equation_error:
+            why.append(f"holdout equation-error likelihood ratio {self.holdout_lr:.1f} <= {HOLDOUT_CHI2:g}")
+        if not self.passed_replay:
+            why.append(f"dropping it changes the holdout replay gap by {100 * self.gap_contribution:+.1f}% of "
+                       f"gap_before (<= {100 * REPLAY_MATERIAL:g}%)")
+        if self.alone is not None and not self.alone.passed:
+            why.append(self.alone.reason())
+        return "; ".join(why)
+
+    def to_json(self) -> dict:
+        out = {"holdout_lr": self.holdout_lr, "holdout_gap_contribution": self.gap_contribution,
+               "replay_w": self.replay_w, "replay_p": self.replay_p, "passed": self.passed}
+        if self.alone is not None:
+            out |= {"alone_shrink": self.alone.shrink, "alone_w": self.alone.w, "alone_p": self.alone.p}
+        return out
+
+
+@dataclass(frozen=True)
+class EliminationRound:
+    """One pass of the backward check over the current set."""
+
+    members: tuple
+    tests: tuple  # MemberTest per member
+    dropped: str | None
+
+    def to_json(self) -> dict:
+        out = {"members": list(self.members), "tests": {t.name: t.to_json() for t in self.tests},
+               "dropped": self.dropped}
+        if self.dropped:
+            out["reason"] = next(t.reason() for t in self.tests if t.name == self.dropped)
+        return out
+
+
+@dataclass(frozen=True)
+class Elimination:
+    """Outcome of the backward check: the confirmed set, its joint fit and holdout replay, and the rounds."""
+
+    kept: tuple
+    combination: Combination
+    after: Replay
+    rounds: tuple  # EliminationRound
+
+    @property
+    def dropped(self) -> dict:
+        """Name -> the test that dropped it."""
+        return {r.dropped: next(t for t in r.tests if t.name == r.dropped) for r in self.rounds if r.dropped}
+
+    def last_test(self, name) -> MemberTest | None:
+        """The member's test in the last round it took part in."""
+        for r in reversed(self.rounds):
+            for t in r.tests:
+                if t.name == name:
+                    return t
+        return None
+
+
+def check_members(att: Attributor, att_h: Attributor, combo: Combination, full: Replay, before: GapScore,
+                  replay_rest, window_s, preps, alone=None) -> tuple:
+    """:class:`MemberTest` of every member of ``combo`` (see the module docstring).
+
+    ``replay_rest(fit, members)`` replays the holdout with ``members`` of ``fit``; ``alone`` maps names to their
+    :class:`Alone` check.
+    """
+    alone = alone or {}
+    e_full = window_energy(preps, full.sims, full.gap, window_s)
+    tests = []
+    for n in combo.members:
+        rest = [m for m in combo.members if m != n]
+        fit_rest = att.fit([(m, combo.fit.shapes[m]) for m in rest])  # amplitudes refitted, shapes kept
+        lr = holdout_lr(att_h, fit_rest, combo.fit)
+        r_rest = replay_rest(fit_rest, rest)
+        e_rest = window_energy(preps, r_rest.sims, r_rest.gap, window_s)
+        t, pval = paired_rise(e_rest, e_full)
+        contrib = (r_rest.gap.value - full.gap.value) / before.value if before.value > 0 else 0.0
+        tests.append(MemberTest(n, lr, float(contrib), t, pval, alone.get(n)))
+    return tuple(tests)
+
+
+def backward_eliminate(att: Attributor, att_h: Attributor, candidates: Combination, names, before: GapScore,
+                       replay_fit, window_s, preps, alone=None, log=None) -> Elimination:
+    """Drop members of ``candidates`` that do not make the holdout worse when removed, until all pass.
+
+    Parameters
+    ----------
+    att, att_h : Attributor
+        Fit-run and holdout stacks (``att_h.n_eff`` set from the noise floor).
+    candidates : Combination
+        The forward-selected set and its joint fit.
+    names : sequence of str
+        Effects tested (for the refitted set's look-alikes).
+    before : GapScore
+        Nominal holdout gap.
+    replay_fit : callable (fit, members) -> Replay
+        Holdout replay with members of a fit added.
+    window_s : float
+    preps : list of Prepared
+        Holdout runs.
+    alone : dict, optional
+        Name -> :class:`Alone` (each effect alone against the nominal replay); unchecked when absent.
+    log : callable, optional
+    """
+    combo, rounds = candidates, []
+    full = replay_fit(combo.fit, combo.members)
+    while combo.members:
+        tests = check_members(att, att_h, combo, full, before, replay_fit, window_s, preps, alone)
+        failing = [t for t in tests if not t.passed]
+        worst = min(failing, key=lambda t: (t.alone is None or t.alone.passed, t.passed_replay,
+                                            t.gap_contribution, t.holdout_lr)) if failing else None
+        rounds.append(EliminationRound(combo.members, tests, worst.name if worst else None))
+        if log:
+            for t in tests:
+                verdict = "dropped: " + t.reason() if worst and t.name == worst.name else (
+                    "kept" if t.passed else "fails (" + t.reason() + "); weaker ones first")
+                log(f"  holdout check {len(rounds)}: {t.name}: LR {t.holdout_lr:.1f}, replay gap "
+                    f"{100 * t.gap_contribution:+.1f}% (p {t.replay_p:.2g}) -> {verdict}")
+        if worst is None:
+            break
+        # refit what remains (its parameters were shared with the dropped effect); look-alikes once at the end
+        combo = finalize(att, [m for m in combo.members if m != worst.name], names, lookalikes=False)
+        full = replay_fit(combo.fit, combo.members)
+    if len(rounds) > 1:
+        combo = finalize(att, combo.members, names, final=combo.fit)
+    return Elimination(kept=combo.members, combination=combo, after=full, rounds=tuple(rounds))
