@@ -101,7 +101,7 @@ def test_tether_regressor_is_the_derivative_of_the_plant_force(geometry):
         effects=(PlantEffect("tether_drag", params),)))
     plant_force = generalized_forces(x, p0) - generalized_forces(x, corrected)  # what the effect adds to the plant
     np.testing.assert_allclose(b0 + A @ a, plant_force, rtol=1e-10, atol=1e-12)
-    hooks = eff.hooks(params, p0, None, None, None, None)  # the replay's force is the same function
+    hooks = eff.hooks(params, p0, Actuation(None, None, None, None))  # the replay's force is the same function
     np.testing.assert_allclose(hooks.force(x, None, {}), plant_force, rtol=1e-10, atol=1e-12)
 
 
