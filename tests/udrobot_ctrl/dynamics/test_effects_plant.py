@@ -14,6 +14,7 @@ from udrobot_ctrl.dynamics.plant import (
     state_derivative,
 )
 from udrobot_ctrl.dynamics.sim import simulate
+from udrobot_ctrl.gap.effects import Actuation, plant_hooks
 from udrobot_ctrl.vehicle import load_model, read_model_file, to_model_dict
 
 NOMINAL = load_model("pendulum:chin")
@@ -210,7 +211,6 @@ def test_deadband_and_asymmetry_shape_the_delivered_thrust():
 def test_deadband_acts_before_the_reverse_loss_whatever_the_list_order():
     """-4 N with a 3 N shifted deadband and a 50 % reverse loss: (-4 + 3) x 0.5 = -0.5 N (deadband first); the other
     order would give -4 x 0.5 = -2 -> inside the deadband -> 0. The plant and the diagnoser's replay hooks agree."""
-    from udrobot_ctrl.gap.effects import plant_hooks
 
     db = fx.PlantEffect("thruster_deadband", EXAMPLES["thruster_deadband"])
     asym = fx.PlantEffect("thruster_asymmetry", {"reverse_loss": 0.5})
@@ -218,7 +218,7 @@ def test_deadband_acts_before_the_reverse_loss_whatever_the_list_order():
     for effects in ((db, asym), (asym, db)):
         assert float(fx.static_thrust(fx.NUMPY, [np.array(-4.0)], effects, ref)[0]) == pytest.approx(-0.5)
         p = plant_parameters(NOMINAL)
-        hooks = sorted((plant_hooks(e, p, np.eye(6)[:, :1], np.eye(6)[:, :1], ref, p.M_A) for e in effects),
+        hooks = sorted((plant_hooks(e, p, Actuation(np.eye(6)[:, :1], np.eye(6)[:, :1], ref, p.M_A)) for e in effects),
                        key=lambda h: h.order)
         f = np.array([[-4.0]])
         for h in hooks:
