@@ -116,6 +116,9 @@ class Identifiability:
     effects: dict
     observed: np.ndarray
     reconstructed: np.ndarray
+    #: effects the channels identify alone, but whose fit an unidentifiable effect matches as well on the observed
+    #: DOFs (name -> those look-alikes): the data cannot say which of them acts (:meth:`with_ambiguous`)
+    ambiguous: dict = field(default_factory=dict)
 
     def observed_dofs(self) -> list:
         """Names of the observed (scored) DOFs."""
@@ -123,17 +126,30 @@ class Identifiability:
 
     @property
     def names(self) -> list:
-        """Names of the unidentifiable effects."""
-        return [n for n, e in self.effects.items() if not e.identified]
+        """Names of the unidentifiable effects (the ambiguous ones included)."""
+        return [n for n, e in self.effects.items() if not e.identified or n in self.ambiguous]
+
+    def with_ambiguous(self, ambiguous: dict) -> Identifiability:
+        """A copy that also lists ``ambiguous`` (name -> unidentifiable look-alikes) as unidentifiable."""
+        return replace(self, ambiguous={**self.ambiguous, **{k: tuple(v) for k, v in ambiguous.items() if v}})
+
+    def reason(self, name) -> str:
+        """Why ``name`` is unidentifiable, with the measurement that would fix it."""
+        if name in self.ambiguous:
+            alts = self.ambiguous[name]
+            return (f"on the observed DOFs ({', '.join(self.observed_dofs())}) its fit is matched as well by "
+                    f"{', '.join(alts)}, which these channels cannot identify, so the runs cannot say which acts; "
+                    + self.effects[alts[0]].reason())
+        return self.effects[name].reason()
 
     def report(self) -> list:
         """The report's ``unidentifiable`` list: ``[{"name", "reason"}]``."""
-        return [{"name": n, "reason": self.effects[n].reason()} for n in self.names]
+        return [{"name": n, "reason": self.reason(n)} for n in self.names]
 
     def entry(self, name) -> dict:
         """Extra fields of an effect's report entry: the parameters not identified (partial effects only)."""
         e = self.effects.get(name)
-        if e is None or not e.identified or not e.not_identified:
+        if e is None or not e.identified or not e.not_identified or name in self.ambiguous:
             return {}
         return {"not_identified": {"params": e.not_identified, "reason": e.reason()}}
 

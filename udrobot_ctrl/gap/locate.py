@@ -83,7 +83,10 @@ def _windows(t, e2, dt, max_windows=5):
 def frequency_shares(res, dt):
     """Share of the residual power (per DOF column) in the bands of FREQ_BANDS (Hz)."""
     out = {}
-    r = np.nan_to_num(res - np.nanmean(res, axis=0))
+    seen = np.isfinite(res).any(axis=0)  # a DOF no sensor observes has no residual (all nan): zero power
+    mean = np.zeros(res.shape[1])
+    mean[seen] = np.nanmean(res[:, seen], axis=0)
+    r = np.nan_to_num(res - mean)
     P = np.abs(np.fft.rfft(r, axis=0)) ** 2
     fr = np.fft.rfftfreq(r.shape[0], dt)
     tot = P.sum(axis=0) + 1e-300

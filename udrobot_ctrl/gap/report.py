@@ -16,7 +16,7 @@ from __future__ import annotations
 import json
 import math
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -32,6 +32,7 @@ from udrobot_ctrl.gap.attribute import (
     Selection,
     SelectionStep,
     build_stack,
+    finalize,
     forward_select,
     residual,
 )
@@ -411,6 +412,36 @@ def confirm(inp: Inputs, stacks: Stacks, sel: Selection, where: Where, singles: 
                               _replayer(inp, stacks, before.scored), inp.window_s, inp.holdout, alone=alone, log=log)
 
 
+def set_aside_ambiguous(inp: Inputs, stacks: Stacks, where: Where, elim: Elimination, log=None):
+    """Step 3b: a confirmed effect whose fit an effect the channels cannot identify matches as well (a look-alike
+    within ``BIC_STRONG`` on the observed DOFs) is not significant: the runs cannot say which of the two acts (e.g.
+    without a DVL, a heave-side thrust loss and a tether whose drag needs the unobserved surge speed). It is listed
+    as unidentifiable with that reason; the rest is refitted and replayed.
+
+    Returns
+    -------
+    elim : Elimination
+        With the ambiguous effects removed from the confirmed set (unchanged when there are none).
+    stacks : Stacks
+        With the ambiguous effects added to its identifiability.
+    """
+    hidden = set(stacks.identifiability.names)
+    amb = {k: [a for a in elim.combination.indistinguishable.get(k, ()) if a in hidden] for k in elim.kept}
+    amb = {k: v for k, v in amb.items() if v}
+    if not amb:
+        return elim, stacks
+    rest = [k for k in elim.kept if k not in amb]
+    combo = finalize(stacks.fit, rest, inp.names)
+    after = (_replayer(inp, stacks, where.before.scored)(combo.fit, combo.members) if rest else
+             Replay((), where.before, where.nominal_sims[len(inp.fit):]))
+    if log:
+        for k, v in amb.items():
+            log(f"  set aside: {k} (its fit is matched as well by {', '.join(v)}, which these channels cannot "
+                f"identify)")
+    return (replace(elim, kept=tuple(rest), combination=combo, after=after),
+            replace(stacks, identifiability=stacks.identifiability.with_ambiguous(amb)))
+
+
 def _wall_entry(params, stack, p) -> dict:
     """``matters_below_m`` and ``matters_below`` of a significant wall effect (see :func:`wall_distances`)."""
     speed95 = float(np.nanpercentile(np.hypot(stack.nu[:, 0], stack.nu[:, 1]), 95))
@@ -438,6 +469,9 @@ def effect_verdicts(inp: Inputs, stacks: Stacks, sel: Selection, elim: Eliminati
         if n in dropped:
             note = ("a forward-selection candidate, dropped by the backward check on the holdout: "
                     + dropped[n].reason() + "; not significant")
+        elif n in stacks.identifiability.ambiguous:
+            note = ("confirmed on the holdout, but " + stacks.identifiability.reason(n).split("; ")[0]
+                    + "; listed under unidentifiable, not significant")
         ev = Evidence(sel.delta_bic[n], steps.get(n), elim.last_test(n), note)
         alts = tuple((a, fx.discriminating_manoeuvre(n, a)) for a in combo.indistinguishable.get(n, ())) \
             if significant else ()
@@ -563,6 +597,7 @@ def diagnose(model, runs, holdout=None, window_s=8.0, effects=None, log=None, mo
     b = where.before.value
     shrink = {n: (1 - r.gap.value / b) if b > 0 else 0.0 for n, r in singles.items()}
     elim = confirm(inp, stacks, sel, where, singles, log=say)
+    elim, stacks = set_aside_ambiguous(inp, stacks, where, elim, log=say)
     after = elim.after.gap
     unexplained = (after.value / where.before.value) if where.before.value > 0 else float("nan")
     verdict = verdict_line(elim.kept, len(inp.names), where.before, unexplained)

@@ -61,7 +61,12 @@ def test_diagnosis_of_the_tank_runs_gives_a_plant_with_the_tanks_top_speed(case)
     # ~500 N/(m/s) (2 x 107 kg/m x 2.1 m/s of hull and cable drag plus the thrust loss), so 0.1 m/s allows a 25 %
     # error of the fitted force at top speed from 60 s of noisy runs
     assert s["corrected plant, steady"] == pytest.approx(2.1, abs=0.1)
-    assert {"thrust_inflow_loss", "tether_drag"} <= set(case.corrected_effects)
+    # the thrust loss is named; on straight tank runs a cable straight up and a surge quadratic-drag error are
+    # look-alikes (both -k u|u| in surge), so the tether is named or listed as indistinguishable from what is named
+    assert "thrust_inflow_loss" in case.corrected_effects
+    named = {e["name"]: e for e in case.report["effects"] if e["significant"]}
+    assert "tether_drag" in named or any("tether_drag" in [a["name"] for a in e.get("indistinguishable_from", [])]
+                                         for e in named.values())
 
 
 @pytest.mark.slow

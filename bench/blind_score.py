@@ -1,0 +1,106 @@
+"""Blind score of the diagnoser on the test suite's withheld-effect truth generator.
+
+Each case draws truth magnitudes for one or two catalogue effects (or none, or a disturbance outside the
+catalogue), simulates closed-loop pool runs with the independent truth plant (tests/udrobot_ctrl/gap/truth.py:
+forms that differ from the diagnoser's templates), fits on three runs and holds out two, like the withheld cases
+of issue 13. A case is right when:
+
+* full sensors: the set of significant effects equals the truth set (outside the catalogue: no effect, or
+  more than half of the gap left unexplained);
+* stock sensors (depth, attitude, rates, accelerometer; no DVL, no positioning): no significant effect is
+  outside the truth set, and every truth effect is either significant or listed under ``unidentifiable``.
+
+Usage: ``python bench/blind_score.py [--sensors full|stock] [--pairs N] [--draws K] [--jobs J] [--json]``.
+Prints one line per case and the score; with ``--json`` ends with one JSON line.
+"""
+from __future__ import annotations
+
+import argparse
+import itertools
+import json
+import sys
+import time
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "udrobot_ctrl" / "gap"))
+
+from truth import generate, random_magnitudes  # noqa: E402
+
+from udrobot_ctrl.gap.effects import EFFECT_NAMES  # noqa: E402
+from udrobot_ctrl.gap.report import diagnose  # noqa: E402
+
+OUTSIDE = ("periodic_disturbance",)
+HARD = ("wall_effect",)  # the truth's image-law wall pulls the unactuated vehicle through the wall (see tests)
+
+
+def cases(n_pairs: int, draws: int, seed: int):
+    """(label, effect names) of every case: none, each effect alone, n_pairs pairs, outside-catalogue."""
+    singles = [e for e in EFFECT_NAMES if e not in HARD]
+    pairs = list(itertools.combinations(singles, 2))
+    rng = np.random.default_rng(seed)
+    chosen = [pairs[i] for i in rng.choice(len(pairs), size=min(n_pairs, len(pairs)), replace=False)]
+    out = []
+    for d in range(draws):
+        out += [(d, ())] + [(d, (e,)) for e in singles] + [(d, p) for p in chosen] + [(d, (o,)) for o in OUTSIDE]
+    return out
+
+
+def run_case(case, sensors: str, duration: float, rate: float):
+    """Diagnose one case; returns a dict with the truth, the verdict and whether it is right."""
+    draw, names = case
+    seed = 1000 * draw + sum(EFFECT_NAMES.index(n) + 1 if n in EFFECT_NAMES else 50 for n in names) * 7
+    rng = np.random.default_rng(seed)
+    truth = {n: random_magnitudes(n, rng) for n in names}
+    kw = {"sensors": sensors} if sensors != "full" else {}
+    runs = generate(truth, n_runs=5, duration=duration, rate=rate, seed=seed, **kw)
+    t0 = time.perf_counter()
+    report, _ = diagnose("pendulum:chin", runs[:3], runs[3:])
+    elapsed = time.perf_counter() - t0
+    sig = {e["name"] for e in report["effects"] if e["significant"]}
+    unid = {u["name"] for u in report.get("unidentifiable", [])}
+    in_cat = {n for n in names if n in EFFECT_NAMES}
+    if set(names) - in_cat:  # outside the catalogue
+        right = not sig or report["unexplained"] > 0.5
+    elif sensors == "full":
+        right = sig == in_cat
+    else:
+        right = sig <= in_cat and all(n in sig or n in unid for n in in_cat)
+    shrink = {e["name"]: e["shrink"] for e in report["effects"] if e["name"] in in_cat}
+    return {"draw": draw, "truth": list(names), "significant": sorted(sig), "unidentifiable": sorted(unid),
+            "right": bool(right), "shrink": shrink, "unexplained": report["unexplained"], "elapsed_s": elapsed}
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--sensors", choices=("full", "stock"), default="full")
+    ap.add_argument("--pairs", type=int, default=10, help="number of effect pairs per draw (random, seeded)")
+    ap.add_argument("--draws", type=int, default=1)
+    ap.add_argument("--duration", type=float, default=60.0, help="seconds per run (5 runs: 3 fit, 2 holdout)")
+    ap.add_argument("--rate", type=float, default=50.0, help="log rate, Hz")
+    ap.add_argument("--jobs", type=int, default=2)
+    ap.add_argument("--seed", type=int, default=13)
+    ap.add_argument("--json", action="store_true")
+    args = ap.parse_args(argv)
+    todo = cases(args.pairs, args.draws, args.seed)
+    t0 = time.perf_counter()
+    with ProcessPoolExecutor(max_workers=args.jobs) as ex:
+        results = list(ex.map(run_case, todo, *zip(*[(args.sensors, args.duration, args.rate)] * len(todo))))
+    for r in results:
+        truth = "+".join(r["truth"]) or "none"
+        shr = ", ".join(f"{k} {v:+.2f}" for k, v in r["shrink"].items() if v is not None)
+        print(f"{'ok ' if r['right'] else 'BAD'} d{r['draw']} {truth:<52s} significant: "
+              f"{', '.join(r['significant']) or '-'}; unidentifiable: {len(r['unidentifiable'])}"
+              f"{'; shrink ' + shr if shr else ''} ({r['elapsed_s']:.1f} s)")
+    n_right = sum(r["right"] for r in results)
+    print(f"{args.sensors} sensors: {n_right} of {len(results)} cases right "
+          f"({time.perf_counter() - t0:.0f} s wall, {args.jobs} jobs)")
+    if args.json:
+        print(json.dumps({"sensors": args.sensors, "right": n_right, "cases": len(results), "results": results}))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
