@@ -1,7 +1,7 @@
 """Diagnosis with the sensors of a stock small ROV: depth, attitude, gyro rates, accelerometer, thrusts (no DVL,
 no positioning). Every withheld effect must be named correctly or listed as unidentifiable, never a wrong one.
 
-Lean runs (3 x 60 s at 20 Hz, one seed); bench/stock_score.py runs every catalogue effect the same way.
+Lean runs (3 x 60 s at 20 Hz, one seed); bench/blind_score.py --sensors stock runs every catalogue effect (and pairs).
 """
 from __future__ import annotations
 
