@@ -58,43 +58,73 @@ def tartan_model() -> dict:
     }
 
 
-def reading(report, mean_tau) -> list:
-    """What the report says about the steady commands, in words (computed from the report, not hard-coded)."""
+def _fitted(effect: dict) -> dict:
+    """An effect's fitted parameters: ``params`` when significant, else ``fitted_params_if_added``."""
+    return effect["params"] or effect.get("fitted_params_if_added", {})
+
+
+def _status(effect: dict) -> str:
+    """``significant``, or why not (the report's note), in words."""
+    if effect["significant"]:
+        return "significant"
+    note = effect.get("evidence", {}).get("note", "")
+    return "not significant" + (f" ({note.split(': ', 1)[-1].removesuffix('; not significant')})" if note else "")
+
+
+def reading(report, mean_tau, model: dict) -> list:
+    """What the report says, in words: every figure and verdict is read from the report (nothing hard-coded)."""
     eff = {e["name"]: e for e in report["effects"]}
     b, c = eff["buoyancy_offset"], eff["cg_cb_offset"]
-    dB = (b["params"] or b.get("fitted_params_if_added", {})).get("dB_N", float("nan"))
-    cp = c["params"] or c.get("fitted_params_if_added", {})
+    dB = _fitted(b).get("dB_N", float("nan"))
+    cp = _fitted(c)
+    righting = model["r_g"][2] * model["weight"] - model["r_b"][2] * model["buoyancy"]  # N m, guessed BG_z W
+    left = (righting + cp.get("dBG_z_Nm", float("nan"))) / righting
+    before, after = report["gap_before"], report["gap_after"]
+    detail = report["location_detail"]
+    top = sorted(detail["channel_share"].items(), key=lambda kv: -kv[1])[:2]
+    where = ", ".join(f"{loc['dof']} ({loc['share']:.0%})" for loc in report["location"])
     out = ["## Reading", "",
+           f"* Where: ranked by the residual force over its noise floor (`location_detail.ranked_by` = "
+           f"{detail['ranked_by']}), the excess lies in {where} of the equations of motion; in the replay the "
+           f"error is mostly {top[0][0]} ({top[0][1]:.0%}) and {top[1][0]} ({top[1][1]:.0%}).",
            f"* Heave: the vehicle holds depth with a steady downward (+Z) command of {mean_tau[2]:+.1f} N, so it is "
-           f"positively buoyant by about that much. `buoyancy_offset` is "
-           f"{'significant' if b['significant'] else 'not significant'} with dB = B - W = {dB:+.1f} N "
-           f"(positive: buoyant), {dB / mean_tau[2]:.0%} of the mean heave command.",
+           f"positively buoyant by about that much. `buoyancy_offset` fits dB = B - W = {dB:+.1f} N (positive: "
+           f"buoyant), {dB / mean_tau[2]:.0%} of the mean heave command, and is {_status(b)}.",
            f"* Pitch and roll: the commanded moments sit at the controller's limits (M {mean_tau[4]:+.1f} N m, "
-           f"K {mean_tau[3]:+.1f} N m) while the vehicle stays level, so CG and CB are offset: `cg_cb_offset` "
-           f"{'is significant' if c['significant'] else 'is not significant'} with dBG_x = "
-           f"{cp.get('dBG_x_Nm', float('nan')):+.2f} N m (x_g W - x_b B, balances M), dBG_y = "
-           f"{cp.get('dBG_y_Nm', float('nan')):+.2f} N m (balances K); dBG_z = "
-           f"{cp.get('dBG_z_Nm', float('nan')):+.2f} N m "
-           f"leaves the righting moment near its physical bound (10 % of the guessed 2 cm CG drop): the logged "
-           f"roll/pitch move with little visible restoring moment.",
-           "* Why not a thruster effect: with a commanded wrench (tau_* inputs) the thrusters are unknown, so the "
-           "static thruster maps get one parameter per DOF, bounded to physical values (deadband <= 25 % of the "
-           "command range, reverse loss -0.5..0.7), and DOFs whose command keeps one sign (K and M pinned at their "
-           "limits) are left out of them: there a deadband shift or a reverse-thrust loss adds the same constant "
-           "as a restoring offset. Before these fixes one shared 'deadband' of half the command range (shift 1) "
-           "removed the steady command of every DOF at once and took the place of the buoyancy.",
-           *([f"* Look-alikes: buoyancy_offset is reported indistinguishable (BIC within 10) from "
-              f"{', '.join(a['name'] for a in b['indistinguishable_from'])}: a deadband shift on Z up to 25 % of the "
-              f"Z command range also removes most of a steady downward command; only the episodes with upward "
-              f"commands (5-13 % of the time) tell them apart. Manoeuvre that would: "
-              f"{b['indistinguishable_from'][0]['manoeuvre']}."] if b.get("indistinguishable_from") else []),
-           "* `shrink` of an effect alone is scored in simulation on the holdout chunks: buoyancy alone is "
-           "negative because the nominal model's roll/pitch diverge under the pinned trim moments and dominate "
-           "the gap; `holdout_gap_contribution` (gap rise when the effect is removed from the significant set) is "
-           "the figure that shows each one's share.",
-           "* Remaining gap: the guessed model's horizontal response (X/Y commands realise less motion than "
-           "modelled; the catalogue has no wrench gain error) and roll/pitch driven by motions the model does not "
-           "couple. The reported parameters are conditional on the guessed mass and damping."]
+           f"K {mean_tau[3]:+.1f} N m) while the vehicle stays level, so CG and CB are offset: `cg_cb_offset` is "
+           f"{_status(c)} with dBG_x = {cp.get('dBG_x_Nm', float('nan')):+.2f} N m (x_g W - x_b B, balances M), "
+           f"dBG_y = {cp.get('dBG_y_Nm', float('nan')):+.2f} N m (balances K); dBG_z = "
+           f"{cp.get('dBG_z_Nm', float('nan')):+.2f} N m leaves {left:.0%} of the guessed righting moment "
+           f"(z_g W = {righting:.2f} N m): the logged roll/pitch move with little visible restoring moment."]
+    for name in ("thruster_lag", "thruster_deadband", "thruster_asymmetry"):
+        e = eff.get(name)
+        if e is None or not (e["significant"] or e.get("evidence", {}).get("note")):
+            continue
+        line = f"* `{name}` ({_params(_fitted(e))}) is {_status(e)}."
+        if name == "thruster_lag" and _fitted(e).get("T_lag_s", 0.0) >= 0.5:
+            line += (" A thruster time constant of this size is not physical (a T200 spins up in about 0.1 s, "
+                     "assumed): with a commanded wrench the lag stands for any slow response between command "
+                     "and motion the model lacks (for instance the controller's output shaping, the ~0.2 s navigation delay, "
+                     "unmodelled dynamics), not for the thrusters.")
+        if name == "thruster_deadband":
+            line += (" With a commanded wrench the static maps act per DOF, bounded to physical values (deadband "
+                     "<= 25 % of the command range), and leave out DOFs whose command keeps one sign (K and M "
+                     "pinned at their limits), where a shift would add the same constant as a restoring offset.")
+        out.append(line)
+    for e in report["effects"]:
+        if e["significant"] and e.get("indistinguishable_from"):
+            out.append(f"* Look-alikes: `{e['name']}` is reported indistinguishable (BIC within 10) from "
+                       f"{', '.join(a['name'] for a in e['indistinguishable_from'])}: the runs cannot tell which "
+                       f"acts; a manoeuvre that would: {e['indistinguishable_from'][0]['manoeuvre']}.")
+    sig = [e for e in report["effects"] if e["significant"]]
+    out.append("* `shrink` (an effect alone against the nominal replay on the holdout chunks) and "
+               "`holdout_gap_contribution` (gap rise when the effect is removed from the significant set): "
+               + "; ".join(f"{e['name']} {e['shrink']:+.2f} / {e['evidence'].get('holdout_gap_contribution', 0):+.2f}"
+                           for e in sig) + ".")
+    worst = sorted(after["per_channel"].items(), key=lambda kv: -(kv[1] or 0))[:3]
+    out.append("* Remaining gap (holdout NRMSE per channel, before -> after): "
+               + ", ".join(f"{ch} {before['per_channel'][ch]:.2f} -> {v:.2f}" for ch, v in worst)
+               + ". The reported parameters are conditional on the guessed mass and damping.")
     return out
 
 
@@ -146,7 +176,7 @@ def main(argv=None) -> int:
         "",
         "Significant effects: " + (", ".join(f"`{e['name']}` ({_params(e['params'])})" for e in sig) or "none") + ".",
         "",
-        *reading(report, mean_tau),
+        *reading(report, mean_tau, tartan_model()),
         "",
         "```", text, "```",
     ]
