@@ -104,8 +104,9 @@ def reading(report, mean_tau, model: dict) -> list:
         if name == "thruster_lag" and _fitted(e).get("T_lag_s", 0.0) >= 0.5:
             line += (" A thruster time constant of this size is not physical (a T200 spins up in about 0.1 s, "
                      "assumed): with a commanded wrench the lag stands for any slow response between command "
-                     "and motion the model lacks (for instance the controller's output shaping, the ~0.2 s navigation delay, "
-                     "unmodelled dynamics), not for the thrusters.")
+                     "and motion the model lacks (for instance the controller's output shaping, the navigation "
+                     "delay of 130-205 ms that the conversion measured, unmodelled dynamics), not for the "
+                     "thrusters.")
         if name == "thruster_deadband":
             line += (" With a commanded wrench the static maps act per DOF, bounded to physical values (deadband "
                      "<= 25 % of the command range), and leave out DOFs whose command keeps one sign (K and M "
