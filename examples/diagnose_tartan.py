@@ -71,7 +71,55 @@ def _status(effect: dict) -> str:
     return "not significant" + (f" ({note.split(': ', 1)[-1].removesuffix('; not significant')})" if note else "")
 
 
-def reading(report, mean_tau, model: dict) -> list:
+def buoyancy_check(report, hold, names, window_s: float = 8.0):
+    """Holdout gap of the significant set plus the fitted, non-significant ``buoyancy_offset`` (or None).
+
+    The steady heave command is the plainest evidence in this log; when the backward check leaves the buoyancy
+    offset out, this replays the report's final set with it added (its fitted ``dB_N``, nothing refitted) on the
+    holdout runs, with the diagnoser's own windowed replay, so the reading can say what leaving it out costs.
+    """
+    from tempfile import TemporaryDirectory
+
+    from udrobot_ctrl.gap.replay import windowed_gap
+
+    b = next(e for e in report["effects"] if e["name"] == "buoyancy_offset")
+    if b["significant"] or "dB_N" not in _fitted(b):
+        return None
+    effects = [{"name": e["name"], "params": e["params"]} for e in report["effects"] if e["significant"]]
+    model = tartan_model() | {"effects": effects + [{"name": "buoyancy_offset", "params": _fitted(b)}]}
+    with TemporaryDirectory() as tmp:
+        path = Path(tmp) / "tartan_model_plus_buoyancy.json"
+        path.write_text(json.dumps(model))
+        return windowed_gap(str(path), hold, window_s, names=names)
+
+
+def _buoyancy_cost(report, with_buoyancy) -> str:
+    """One sentence: the holdout gap with the dropped buoyancy offset added back, and when it was dropped."""
+    if with_buoyancy is None:
+        return ""
+    after = report["gap_after"]
+    text = (f" Added to the significant set with that dB (nothing refitted), the holdout gap is "
+            f"{with_buoyancy.value:.3f} instead of {after['value']:.3f} (w {after['per_channel']['w']:.2f} -> "
+            f"{with_buoyancy.per_channel['w']:.2f}, z {after['per_channel']['z']:.2f} -> "
+            f"{with_buoyancy.per_channel['z']:.2f})")
+    if with_buoyancy.value >= after["value"]:
+        return text + ": leaving it out costs nothing on the holdout."
+    rounds = report.get("backward_elimination", [])
+    k = next((i for i, r in enumerate(rounds) if r.get("dropped") == "buoyancy_offset"), None)
+    later = [r["dropped"] for r in rounds[k + 1:] if r.get("dropped")] if k is not None else []
+    b = next(e for e in report["effects"] if e["name"] == "buoyancy_offset")
+    if later:
+        why = (f" in round {k + 1}, while {', '.join(later)} (dropped later) was still in the set, and did not test "
+               f"it again")
+    else:
+        why = (f" by its test on its own against the nominal replay (shrink {b['shrink']:+.2f}), where the "
+               f"nominal model's roll and pitch run away (phi {report['gap_before']['per_channel']['phi']:.1f}, "
+               f"theta {report['gap_before']['per_channel']['theta']:.1f})")
+    return (text + ": the backward check dropped it" + why
+            + ". The steady heave command and this replay say the vehicle is buoyant; the verdict leaves it out.")
+
+
+def reading(report, mean_tau, model: dict, with_buoyancy=None) -> list:
     """What the report says, in words: every figure and verdict is read from the report (nothing hard-coded)."""
     eff = {e["name"]: e for e in report["effects"]}
     b, c = eff["buoyancy_offset"], eff["cg_cb_offset"]
@@ -89,7 +137,8 @@ def reading(report, mean_tau, model: dict) -> list:
            f"error is mostly {top[0][0]} ({top[0][1]:.0%}) and {top[1][0]} ({top[1][1]:.0%}).",
            f"* Heave: the vehicle holds depth with a steady downward (+Z) command of {mean_tau[2]:+.1f} N, so it is "
            f"positively buoyant by about that much. `buoyancy_offset` fits dB = B - W = {dB:+.1f} N (positive: "
-           f"buoyant), {dB / mean_tau[2]:.0%} of the mean heave command, and is {_status(b)}.",
+           f"buoyant), {dB / mean_tau[2]:.0%} of the mean heave command, and is {_status(b)}."
+           + _buoyancy_cost(report, with_buoyancy),
            f"* Pitch and roll: the commanded moments sit at the controller's limits (M {mean_tau[4]:+.1f} N m, "
            f"K {mean_tau[3]:+.1f} N m) while the vehicle stays level, so CG and CB are offset: `cg_cb_offset` is "
            f"{_status(c)} with dBG_x = {cp.get('dBG_x_Nm', float('nan')):+.2f} N m (x_g W - x_b B, balances M), "
@@ -160,6 +209,7 @@ def main(argv=None) -> int:
     report, _ = diagnose(str(model_path), fit, hold, window_s=8.0, log=None, model_label=str(model_path.name))
     elapsed = time.perf_counter() - t0
     write_report(report, out / "tartan_report.json")
+    with_buoyancy = buoyancy_check(report, hold, [f"navigation_state_{i}.csv" for i in args.holdout])
     text = summary(report)
     sig = [e for e in report["effects"] if e["significant"]]
     lines = [
@@ -177,7 +227,7 @@ def main(argv=None) -> int:
         "",
         "Significant effects: " + (", ".join(f"`{e['name']}` ({_params(e['params'])})" for e in sig) or "none") + ".",
         "",
-        *reading(report, mean_tau, tartan_model()),
+        *reading(report, mean_tau, tartan_model(), with_buoyancy),
         "",
         "```", text, "```",
     ]
