@@ -162,6 +162,8 @@ class Effect:
     shape_bounds: tuple = ()
     refine: bool = False
     mimics: tuple = field(default_factory=tuple)
+    #: what the runs must contain for its regressors not to vanish (the identifiability report's fix)
+    excited_by: str = "manoeuvres in which it acts"
 
     def search_space(self, s: Stack):
         """(grid, bounds) of the shape search on stack ``s``: the fixed ``shape_grid`` and ``shape_bounds`` unless
@@ -527,6 +529,9 @@ class CgCbOffset(Effect):
 
 
 
+THRUSTERS_MOVING = "thruster commands that vary (armed thrusters driven through a range of commands)"
+
+
 def catalogue() -> dict:
     """Name -> :class:`Effect`, in the spec's order."""
     lag_grid = tuple((T,) for T in (0.03, 0.06, 0.1, 0.15, 0.2, 0.3, 0.45, 0.7, 1.0))
@@ -535,16 +540,20 @@ def catalogue() -> dict:
     cur = tuple((cn, ce, 0.0) for cn in (-0.1, 0.0, 0.1) for ce in (-0.1, 0.0, 0.1))
     effects = [
         InflowLoss("thrust_inflow_loss", "thrust falls with the axial inflow speed through the thruster",
-                   mimics=("quadratic_damping_error", "linear_damping", "tether_drag")),
+                   mimics=("quadratic_damping_error", "linear_damping", "tether_drag"),
+                   excited_by="thrust while the vehicle moves along a thruster's axis"),
         Deadband("thruster_deadband", "small commands produce no thrust", ("width_fraction",), db_grid,
-                 ((0.005, 0.25),), refine=True),
-        Asymmetry("thruster_asymmetry", "reverse thrust weaker than modelled, relative to forward"),
+                 ((0.005, 0.25),), refine=True, excited_by=THRUSTERS_MOVING),
+        Asymmetry("thruster_asymmetry", "reverse thrust weaker than modelled, relative to forward",
+                  excited_by="thruster commands of both signs (reverse thrust on an armed thruster)"),
         Lag("thruster_lag", "thrust follows the command with a first-order lag", ("T_lag_s",), lag_grid,
-            ((0.005, 1.0),), refine=True, mimics=("added_mass_error",)),
+            ((0.005, 1.0),), refine=True, mimics=("added_mass_error",), excited_by=THRUSTERS_MOVING),
         TetherDrag("tether_drag", "umbilical cross-flow drag, normal to the cable", pfx.TETHER_ANCHOR, (), (),
                    refine=True, mimics=("quadratic_damping_error", "linear_damping", "thrust_inflow_loss")),
         WallEffect("wall_effect", "extra added mass and suction near the seabed or a wall", ("decay_length_m",),
-                   wall_grid, ((0.01, 2.0),), refine=True),
+                   wall_grid, ((0.01, 2.0),), refine=True,
+                   excited_by="a known distance to a surface: log altitude, or give seabed_depth, or walls with "
+                              "logged x, y, in the sidecar"),
         Current("water_current", "steady current; damping on the velocity relative to the water",
                 ("current_north_mps", "current_east_mps", "current_down_mps"), cur,
                 ((-1.0, 1.0), (-1.0, 1.0), (-0.3, 0.3)), refine=True, mimics=("buoyancy_offset",)),

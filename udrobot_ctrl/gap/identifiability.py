@@ -88,6 +88,7 @@ class EffectCheck:
 
     name: str
     params: list = field(default_factory=list)
+    excited_by: str = "manoeuvres in which it acts"  # what the runs lack when its regressors vanish
 
     @property
     def identified(self) -> bool:
@@ -104,8 +105,7 @@ class EffectCheck:
             if not c.identified:
                 causes += [k for k in c.causes if k not in causes]
         if "vanishes" in causes:
-            return ("its regressors are zero on these runs: nothing it acts on is present (a surface effect needs a "
-                    "known distance: log altitude, or give seabed_depth, or walls with logged x, y, in the sidecar)")
+            return f"its regressors are zero on these runs: nothing it acts on is present; it needs {self.excited_by}"
         return "; ".join(f"{MISSING[k][0]}; {MISSING[k][1]}" for k in causes)
 
 
@@ -168,7 +168,7 @@ class Restricted(fx.Effect):
 
     def __init__(self, inner: fx.Effect, frozen):
         super().__init__(inner.name, inner.meaning, inner.shape_names, inner.shape_grid, inner.shape_bounds,
-                         inner.refine, inner.mimics)
+                         inner.refine, inner.mimics, inner.excited_by)
         self.inner = inner
         self.frozen = tuple(frozen)
 
@@ -331,7 +331,7 @@ def assess(stack, r, dofs, preps, catalogue: dict, names=None) -> Identifiabilit
         if not checks:  # no amplitude column and a shape term that is zero at every probed shape
             checks.append(ParameterCheck(",".join(catalogue[n].shape_names) or n, float("nan"), float("nan"), False,
                                          ("vanishes",)))
-        out[n] = EffectCheck(n, checks)
+        out[n] = EffectCheck(n, checks, catalogue[n].excited_by)
     return Identifiability(out, observed, reconstructed)
 
 

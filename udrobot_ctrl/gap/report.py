@@ -547,6 +547,14 @@ def report_json(inp: Inputs, where: Where, stacks: Stacks, sel: Selection, elim:
     }
 
 
+def _where_line(x) -> str:
+    """One located channel for the console: its share of the excess, and its replay NRMSE against the floor when
+    the channel is logged (a DOF ranked by its residual force may have no logged velocity channel)."""
+    replay = (f"; replay NRMSE {_num(x.nrmse, '.3g')}, floor {_num(x.floor, '.3g')}"
+              if x.nrmse is not None and math.isfinite(x.nrmse) else "; channel not logged: ranked by its force")
+    return f"{x.channel} ({100 * x.share:.0f}% of the excess over the noise floor{replay})"
+
+
 def diagnose(model, runs, holdout=None, window_s=8.0, effects=None, log=None, model_label=None):
     """Run the whole diagnosis: locate -> attribute -> shrink and confirm -> report.
 
@@ -580,9 +588,7 @@ def diagnose(model, runs, holdout=None, window_s=8.0, effects=None, log=None, mo
     say(f"prepared {len(inp.fit)} fit and {len(inp.holdout)} holdout runs ({time.perf_counter() - t0:.1f} s)")
 
     where = locate_gap(inp)
-    say("where: " + (", ".join(f"{x.channel} ({100 * x.share:.0f}% of the excess over the noise floor; NRMSE "
-                               f"{x.nrmse:.2f}, floor {x.floor:.2f})" for x in where.located.locations)
-                     or "no channel above its noise floor"))
+    say("where: " + (", ".join(_where_line(x) for x in where.located.locations) or "no channel above its noise floor"))
 
     stacks = build_stacks(inp)
     unidentifiable = stacks.identifiability.names
