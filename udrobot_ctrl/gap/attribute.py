@@ -191,6 +191,32 @@ class Attributor:
             self._cache[key] = d._replace(b0=np.nan_to_num(d.b0), A=np.nan_to_num(d.A))
         return self._cache[key]
 
+    def at_bounds(self, fit: Fit, name, rel=1e-3) -> dict:
+        """Parameters of ``name`` in ``fit`` that ended on a bound of their search: name -> (value, bound).
+
+        A fit at its bound has not found an optimum inside the physical range the catalogue allows (e.g. a thruster
+        lag at the 1 s top of its range): the effect is then likely standing in for something else. Shape
+        parameters are checked against the effect's search bounds, amplitudes against their design bounds, within
+        ``rel`` of the range (or of the bound's magnitude for a one-sided range).
+        """
+        eff = self.cat[name]
+        shape = fit.shapes[name]
+        out = {}
+        _, bounds = eff.search_space(self.s)
+        checks = [(sn, fit.params[name].get(sn), lo, hi) for sn, (lo, hi) in zip(eff.shape_names, bounds)]
+        d = self.design(name, shape)
+        active = np.einsum("nik,nik->k", d.A[:, self.dofs], d.A[:, self.dofs]) > 0
+        checks += [(an, fit.params[name].get(an), lo, hi)
+                   for an, lo, hi, on in zip(d.names, d.lower, d.upper, active) if on]
+        for pname, value, lo, hi in checks:
+            if value is None or not np.isfinite(value):
+                continue
+            tol = rel * max(abs(hi - lo) if np.isfinite(hi - lo) else 0.0, abs(lo), abs(hi), 1e-12)
+            for bound in (lo, hi):
+                if np.isfinite(bound) and abs(value - bound) <= tol and bound != 0.0:
+                    out[pname] = (float(value), float(bound))
+        return out
+
     def _dof_design(self, name, shape):
         """Regressors of a design on the scored DOFs, (nd, k, n) C-contiguous (kept with the design cache)."""
         key = (name, tuple(np.round(shape, 6)), self.dofs.tobytes())

@@ -307,6 +307,7 @@ class EffectVerdict:
     indistinguishable_from: tuple = ()  # (name, manoeuvre that separates them)
     wall: dict | None = None  # wall_effect only: {"matters_below_m", "matters_below"}
     not_identified: dict | None = None  # partly identified effects: {"params": [...], "reason": ...}
+    at_bound: dict | None = None  # significant effects: parameter -> (value, bound) of fits that ended on a bound
 
     def to_json(self) -> dict:
         out = {"name": self.name, "significant": self.significant, "params": self.params, "shrink": self.shrink,
@@ -319,6 +320,8 @@ class EffectVerdict:
             out.update(self.wall)
         if self.not_identified:
             out["not_identified"] = self.not_identified
+        if self.at_bound:
+            out["at_bound"] = {k: {"value": v, "bound": b} for k, (v, b) in self.at_bound.items()}
         return out
 
 
@@ -480,7 +483,8 @@ def effect_verdicts(inp: Inputs, stacks: Stacks, sel: Selection, elim: Eliminati
             evidence=ev, meaning=inp.catalogue[n].meaning,
             fitted_params_if_added=None if significant else sel.singles[n].params[n], indistinguishable_from=alts,
             wall=_wall_entry(combo.fit.params[n], stacks.fit.s, inp.p) if significant and n == "wall_effect"
-            else None, not_identified=stacks.identifiability.entry(n).get("not_identified")))
+            else None, not_identified=stacks.identifiability.entry(n).get("not_identified"),
+            at_bound=stacks.fit.at_bounds(combo.fit, n) if significant else None))
     return out
 
 
@@ -646,6 +650,9 @@ def summary(report) -> str:
             extra = "; indistinguishable from " + ", ".join(a["name"] for a in e["indistinguishable_from"])
         if e.get("matters_below_m") is not None:
             extra += f"; matters below {e['matters_below_m']:.2f} m"
+        if e.get("at_bound"):
+            extra += "; at the edge of its range: " + ", ".join(f"{k}={_num(v['value'], '.4g')}"
+                                                                for k, v in e["at_bound"].items())
         lines.append(f"  {e['name']:<26s} {tag:<11s} shrink {_num(e['shrink'], '+.2f')}  "
                      f"dBIC {_num(e['evidence']['delta_bic'], '.0f')}{extra}")
         if e["significant"]:

@@ -1,0 +1,36 @@
+"""Fits that end on the edge of the catalogue's range are flagged (Attributor.at_bounds)."""
+from __future__ import annotations
+
+import pytest
+
+from udrobot_ctrl.dynamics.plant import plant_parameters
+from udrobot_ctrl.gap import effects as fx
+from udrobot_ctrl.gap.attribute import Attributor, build_stack
+from udrobot_ctrl.gap.data import prepare
+from udrobot_ctrl.vehicle import load_model
+
+from .stock_sim import STATE, simulate
+
+P = plant_parameters(load_model("pendulum:chin"))
+
+
+@pytest.fixture(scope="module")
+def attributor():
+    preps = [prepare(simulate(duration=30.0, seed=3, sensors=STATE)[0], P)]
+    st, r, dofs = build_stack(preps, P, P.M_A)
+    return Attributor(st, r, dofs, fx.catalogue())
+
+
+def test_a_lag_at_the_top_of_its_range_is_flagged_and_one_inside_is_not(attributor):
+    (lo, hi), = fx.catalogue()["thruster_lag"].shape_bounds
+    at_top = attributor.fit([("thruster_lag", (hi,))])
+    assert attributor.at_bounds(at_top, "thruster_lag") == {"T_lag_s": (hi, hi)}
+    inside = attributor.fit([("thruster_lag", (0.3,))])
+    assert attributor.at_bounds(inside, "thruster_lag") == {}
+
+
+def test_an_amplitude_fitted_to_zero_on_a_zero_bound_is_not_flagged(attributor):
+    # a fitted zero on a one-sided bound (k >= 0) means "absent", not a fit pushed against the physical range
+    fit = attributor.fit([("thrust_inflow_loss", ())])
+    flagged = attributor.at_bounds(fit, "thrust_inflow_loss")
+    assert all(v[1] != 0.0 for v in flagged.values())
