@@ -218,8 +218,7 @@ def reconstruction_error(pr, p) -> np.ndarray:
     sm = pr.smoothed
     if sm is None:
         return out
-    s = SmootherSettings()
-    prior = np.array([s.sigma_d_lin] * 3 + [s.sigma_d_ang] * 3)
+    prior = SmootherSettings().sigma_d
     for i in np.flatnonzero(pr.reconstructed):
         err = np.nan_to_num(sm.sigma_nu[:, i])
         if not pr.observed[i]:
@@ -252,8 +251,7 @@ def noise_scale(stack, preps) -> np.ndarray:
     unmodelled acceleration over the runs (how well the data pin that DOF's acceleration), or its prior std when
     no smoother ran. The same definition for every DOF, and independent of the gap itself (a residual's std would
     grow with the very effect under test)."""
-    s = SmootherSettings()
-    prior = np.array([s.sigma_d_lin] * 3 + [s.sigma_d_ang] * 3)
+    prior = SmootherSettings().sigma_d
     smoothed = [pr.smoothed for pr in preps if pr.smoothed is not None]
     sig = np.array([np.nanmedian(np.concatenate([sm.sigma_d[:, i] for sm in smoothed])) if smoothed else prior[i]
                     for i in range(6)])

@@ -100,6 +100,11 @@ class SmootherSettings:
     nu_walk: float = 1e-3
     g: float = GRAVITY
 
+    @property
+    def sigma_d(self) -> np.ndarray:
+        """(6,) std of the unmodelled acceleration per DOF: linear (m/s^2) for X Y Z, angular (rad/s^2) for K M N."""
+        return np.array([self.sigma_d_lin] * 3 + [self.sigma_d_ang] * 3)
+
 
 @dataclass
 class SmoothedRun:
@@ -298,10 +303,10 @@ def smooth_run(t, meas: dict, tau, p: PlantParameters, settings: SmootherSetting
             x0[i] = y[np.flatnonzero(np.isfinite(y))[0]]
     # assumed initial std (m, rad, m/s, rad/s): wide, so that the first measurements set the state, not the prior
     sig0 = np.array([1.0, 1.0, 0.5, 0.2, 0.2, 0.5, 0.5, 0.5, 0.5, 0.3, 0.3, 0.3]
-                    + [s.sigma_d_lin] * 3 + [s.sigma_d_ang] * 3 + [s.sigma_bias] * 3)
+                    + list(s.sigma_d) + [s.sigma_bias] * 3)
     P = np.diag(sig0[keep] ** 2)
     a = np.exp(-dt / s.T_d)
-    qd = np.array([s.sigma_d_lin] * 3 + [s.sigma_d_ang] * 3) ** 2 * (1 - a ** 2)
+    qd = s.sigma_d ** 2 * (1 - a ** 2)
     Qfull = np.diag(np.concatenate([np.full(6, s.pose_walk ** 2 * dt), np.full(6, s.nu_walk ** 2 * dt), qd,
                                     np.full(3, s.bias_walk ** 2 * dt)]))
     Q = Qfull[np.ix_(keep, keep)]
