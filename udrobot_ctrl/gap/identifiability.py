@@ -56,6 +56,14 @@ MISSING = {
     "position": ("the horizontal position is not observed (only dead-reckoned)", "log x, y (USBL)"),
 }
 DOF_GROUP = ("horizontal", "horizontal", "heave", "roll", "pitch", "yaw")
+#: a DOF observed through an integral only (depth for heave, x/y for the horizontal) still has its velocity
+#: reconstructed by the smoother: a regressor that hinges on that reconstruction gets this cause, not "not observed"
+VELOCITY_SENSOR = {"horizontal": "u, v (DVL)", "heave": "w (DVL)", "roll": "p (gyro)", "pitch": "q (gyro)",
+                   "yaw": "r (gyro)"}
+RECONSTRUCTED = {g: f"{g} (reconstructed)" for g in VELOCITY_SENSOR}
+MISSING.update({RECONSTRUCTED[g]: (f"its force in the observed DOFs hinges on the {g} velocity, which the smoother "
+                                   f"reconstructs from its integral with too large an error", f"log {v} directly")
+                for g, v in VELOCITY_SENSOR.items()})
 
 
 @dataclass
@@ -322,7 +330,8 @@ def assess(stack, r, dofs, preps, catalogue: dict, names=None) -> Identifiabilit
             if share < SHARE_MIN:
                 causes += [DOF_GROUP[i] for i in np.argsort(-a["per_dof"]) if not observed[i]
                            and a["per_dof"][i] > 0.1 * a["all"]]
-            causes += ["position" if m == "xy" else DOF_GROUP[m] for m, v in sens.items() if v > SENSITIVITY_MAX]
+            causes += ["position" if m == "xy" else DOF_GROUP[m] if not observed[m] else RECONSTRUCTED[DOF_GROUP[m]]
+                       for m, v in sens.items() if v > SENSITIVITY_MAX]
             causes = list(dict.fromkeys(causes))
             ok = share >= SHARE_MIN and worst <= SENSITIVITY_MAX
             checks.append(ParameterCheck(pname, float(share), float(worst), ok, () if ok else tuple(causes)))
