@@ -48,8 +48,9 @@ def cases(n_pairs: int, draws: int, seed: int):
     return out
 
 
-def run_case(case, sensors: str, duration: float, rate: float):
-    """Diagnose one case; returns a dict with the truth, the verdict and whether it is right."""
+def run_case(case, sensors: str, duration: float, rate: float, log_dir: str | None = None):
+    """Diagnose one case; returns a dict with the truth, the verdict and whether it is right (``log_dir``: write
+    the diagnoser's console story of each case there)."""
     draw, names = case
     seed = 1000 * draw + sum(EFFECT_NAMES.index(n) + 1 if n in EFFECT_NAMES else 50 for n in names) * 7
     rng = np.random.default_rng(seed)
@@ -57,7 +58,12 @@ def run_case(case, sensors: str, duration: float, rate: float):
     kw = {"sensors": sensors} if sensors != "full" else {}
     runs = generate(truth, n_runs=5, duration=duration, rate=rate, seed=seed, **kw)
     t0 = time.perf_counter()
-    report, _ = diagnose("pendulum:chin", runs[:3], runs[3:])
+    lines = []
+    report, _ = diagnose("pendulum:chin", runs[:3], runs[3:], log=lines.append)
+    if log_dir:
+        label = f"{sensors}_d{draw}_{'+'.join(names) or 'none'}"
+        (Path(log_dir) / f"{label}.log").write_text("\n".join(lines) + "\n")
+        (Path(log_dir) / f"{label}.json").write_text(json.dumps(report, indent=1))
     elapsed = time.perf_counter() - t0
     sig = {e["name"] for e in report["effects"] if e["significant"]}
     unid = {u["name"] for u in report.get("unidentifiable", [])}
@@ -83,11 +89,19 @@ def main(argv=None) -> int:
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--seed", type=int, default=13)
     ap.add_argument("--json", action="store_true")
+    ap.add_argument("--only", action="append", default=[],
+                    help="run only the cases whose truth label (e.g. 'thruster_lag' or 'none') is given (repeatable)")
+    ap.add_argument("--log-dir", default=None, help="write each case's console story and report to this folder")
     args = ap.parse_args(argv)
     todo = cases(args.pairs, args.draws, args.seed)
+    if args.only:
+        todo = [c for c in todo if ("+".join(c[1]) or "none") in args.only]
+    if args.log_dir:
+        Path(args.log_dir).mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
     with ProcessPoolExecutor(max_workers=args.jobs) as ex:
-        results = list(ex.map(run_case, todo, *zip(*[(args.sensors, args.duration, args.rate)] * len(todo))))
+        extra = [(args.sensors, args.duration, args.rate, args.log_dir)] * len(todo)
+        results = list(ex.map(run_case, todo, *zip(*extra)))
     for r in results:
         truth = "+".join(r["truth"]) or "none"
         shr = ", ".join(f"{k} {v:+.2f}" for k, v in r["shrink"].items() if v is not None)

@@ -194,11 +194,27 @@ def actuators(run: Run, p: PlantParameters, f_raw=None):
     return f, np.eye(6), inflow, ref
 
 
-def _surfaces(run: Run, meas, n):
+ALTITUDE_VALID_MIN = 0.5  # fraction of samples with a valid altitude for it to place the seabed
+
+
+def _surfaces(run: Run, meas, n, label="run", notes=None):
+    """(distance (n,) m, unit normal into the water (NED), label) of each surface the run knows the distance to:
+    the seabed from the logged ``altitude`` (valid in more than ``ALTITUDE_VALID_MIN`` of the samples) or from the
+    sidecar's ``seabed_depth`` and the depth, and the sidecar's walls from the logged position. A logged altitude
+    that is mostly invalid (a DVL or echo sounder out of range) is reported in ``notes``."""
     out = []
     meta = run.metadata or {}
     z = meas.get("z")
-    if "altitude" in meas and np.isfinite(meas["altitude"]).sum() > 0.5 * n:
+    n_alt = int(np.isfinite(meas["altitude"]).sum()) if "altitude" in meas else 0
+    if "altitude" in meas and n_alt <= ALTITUDE_VALID_MIN * n and notes is not None:
+        alt = meas["altitude"][np.isfinite(meas["altitude"])]
+        rng = f", {np.min(alt):.3g}-{np.max(alt):.3g} m where valid" if alt.size else ""
+        notes.append(f"{label}: altitude logged but valid in only {n_alt} of {n} samples ({100 * n_alt / n:.0f}%"
+                     f"{rng}; more than {100 * ALTITUDE_VALID_MIN:g}% needed), so it does not place the seabed"
+                     + ("; the sidecar's seabed_depth is used instead" if meta.get("seabed_depth") is not None else
+                        "; wall_effect cannot be tested near the seabed (give seabed_depth in the sidecar, or fly "
+                        "within the altimeter's range)"))
+    if "altitude" in meas and n_alt > ALTITUDE_VALID_MIN * n:
         out.append((_fill(meas["altitude"], np.nan), np.array([0.0, 0.0, -1.0]), "seabed (altitude)"))
     elif meta.get("seabed_depth") is not None and z is not None and np.isfinite(z).any():
         out.append((float(meta["seabed_depth"]) - _fill(z), np.array([0.0, 0.0, -1.0]), "seabed"))
@@ -292,7 +308,7 @@ def prepare(run: Run, p: PlantParameters, name=None, window_s=0.8, dt=None) -> P
                                        else ""))
     dof_ok = observed & np.isfinite(nu).any(axis=0)
     return Prepared(name=label, t=t, dt=dt, meas=meas, eta=eta, nu=nu, nu_dot=nu_dot, f=f, B=B, inflow=inflow,
-                    f_ref=ref, input_kind=run.input_kind, surfaces=_surfaces(run, meas, n), dof_ok=dof_ok,
+                    f_ref=ref, input_kind=run.input_kind, surfaces=_surfaces(run, meas, n, label, notes), dof_ok=dof_ok,
                     notes=notes, window_s=window_s, observed=observed, reconstructed=reconstructed,
                     smoothed=smoothed)
 

@@ -37,7 +37,10 @@ from udrobot_ctrl.gap.attribute import (
     residual,
 )
 from udrobot_ctrl.gap.confirm import (
+    CONSISTENT_WINDOWS,
+    REPLAY_LARGE,
     REPLAY_MATERIAL,
+    REPLAY_P,
     Elimination,
     MemberTest,
     Replay,
@@ -518,8 +521,12 @@ def _method(window_s) -> dict:
                         f"elimination on the holdout: every significant effect, dropped from the final set (the "
                         f"rest refitted), lowers the holdout equation-error likelihood by a ratio > "
                         f"{HOLDOUT_CHI2:g} (N_eff = N / tau_int) and raises the holdout replay gap by more than "
-                        f"{100 * REPLAY_MATERIAL:g}% of gap_before, and alone it shrinks the holdout replay gap by "
-                        f"more than that; the weakest failing one is dropped and the rest refitted until all pass",
+                        f"{100 * REPLAY_MATERIAL:g}% of gap_before (below {100 * REPLAY_LARGE:g}%: consistently "
+                        f"over the windows, one-sided p < {REPLAY_P:g}), and alone it shrinks the holdout replay "
+                        f"gap by more than {100 * REPLAY_MATERIAL:g}% (or, interacting with a partner, dropping it "
+                        f"worsens at least {100 * CONSISTENT_WINDOWS:g}% of the windows); the weakest failing one "
+                        f"is dropped and the rest refitted until all pass, then each dropped effect is re-admitted "
+                        f"once if, added back, every member passes",
     }
 
 
