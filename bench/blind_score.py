@@ -84,6 +84,7 @@ def main(argv=None) -> int:
     ap.add_argument("--sensors", choices=("full", "stock"), default="full")
     ap.add_argument("--pairs", type=int, default=10, help="number of effect pairs per draw (random, seeded)")
     ap.add_argument("--draws", type=int, default=1)
+    ap.add_argument("--first-draw", type=int, default=0, help="skip the draws before this one")
     ap.add_argument("--duration", type=float, default=60.0, help="seconds per run (5 runs: 3 fit, 2 holdout)")
     ap.add_argument("--rate", type=float, default=50.0, help="log rate, Hz")
     ap.add_argument("--jobs", type=int, default=2)
@@ -94,6 +95,7 @@ def main(argv=None) -> int:
     ap.add_argument("--log-dir", default=None, help="write each case's console story and report to this folder")
     args = ap.parse_args(argv)
     todo = cases(args.pairs, args.draws, args.seed)
+    todo = [c for c in todo if c[0] >= args.first_draw]
     if args.only:
         todo = [c for c in todo if ("+".join(c[1]) or "none") in args.only]
     if args.log_dir:
