@@ -29,13 +29,14 @@ trades error between windows.
 The member that fails is dropped (one that does not help alone first, then the one with the weakest replay
 evidence), the rest are refitted jointly (their shapes re-optimised,
 :func:`udrobot_ctrl.gap.attribute.finalize`) and the check repeats until every member passes. Then each dropped
-effect is **re-admitted** once if, added back to the confirmed set and refitted, it and every other member pass:
-an effect dropped while a look-alike took its share (a quadratic damping error next to a tether that leaves
-later) gets its second chance once the set has changed.
+effect is tried back once, if the set has changed since it was dropped: added to the confirmed set, refitted and
+checked again by the same elimination, which may drop a member it displaces. It is **re-admitted** when it
+survives and the holdout replay gap is lower than with the set without it. An effect dropped while a look-alike
+took its share (a quadratic damping error next to a tether that is kept for want of it) gets its second chance.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy import stats
@@ -308,13 +309,13 @@ def backward_eliminate(att: Attributor, att_h: Attributor, candidates: Combinati
     rounds, readmitted = [], set()
     combo, full = _eliminate(att, att_h, candidates, replay_fit(candidates.fit, candidates.members), names, before,
                              replay_fit, window_s, preps, alone, rounds, log)
-    while (back := _readmit(att, att_h, combo, names, before, replay_fit, window_s, preps, alone, rounds,
+    while (back := _readmit(att, att_h, combo, full, names, before, replay_fit, window_s, preps, alone, rounds,
                             readmitted, log)) is not None:
-        combo, full, r = back  # every member of the new set passes: no further elimination round
-        readmitted.add(r.readmitted)
-        rounds.append(r)
+        combo, full, trial_rounds = back
+        readmitted.add(trial_rounds[0].readmitted)
+        rounds.extend(trial_rounds)
         if log:
-            log(f"  holdout re-check: {r.readmitted} re-admitted")
+            log(f"  holdout re-check: {trial_rounds[0].readmitted} re-admitted; confirmed: {', '.join(combo.members)}")
     if len(rounds) > 1:
         combo = finalize(att, combo.members, names, final=combo.fit)
     return Elimination(kept=combo.members, combination=combo, after=full, rounds=tuple(rounds))
@@ -344,14 +345,19 @@ def _eliminate(att, att_h, combo, full, names, before, replay_fit, window_s, pre
     return combo, full
 
 
-def _readmit(att, att_h, combo, names, before, replay_fit, window_s, preps, alone, rounds, readmitted, log=None):
-    """The dropped effect (not yet re-admitted) that, added back to ``combo`` and refitted, passes with every
-    member, the one whose drop would raise the holdout gap most; None when there is none. An effect is tried back
-    only when the set has changed since it was dropped (its partners then are not exactly the members now).
+def _readmit(att, att_h, combo, full, names, before, replay_fit, window_s, preps, alone, rounds, readmitted,
+             log=None):
+    """Try each dropped effect (not yet re-admitted) back in ``combo``: added, refitted and checked again by the
+    elimination (which may now drop a member the effect displaces). The effect is re-admitted when it survives and
+    the resulting set lowers the holdout replay gap of ``full``; of several, the one that lowers it most. An effect
+    is tried back only when the set has changed since it was dropped (its partners then are not exactly the members
+    now).
 
     Returns
     -------
-    (combination, replay, round) or None
+    (combination, replay, rounds) or None
+        The new confirmed set, its replay and the elimination rounds of the trial (the first one marked
+        ``readmitted``).
     """
     last_drop = {r.dropped: frozenset(r.members) - {r.dropped} for r in rounds if r.dropped}
     best = None
@@ -359,15 +365,28 @@ def _readmit(att, att_h, combo, names, before, replay_fit, window_s, preps, alon
         if last_drop[n] == frozenset(combo.members):
             continue
         trial = finalize(att, combo.members + (n,), names, lookalikes=False)
-        full = replay_fit(trial.fit, trial.members)
-        tests = check_members(att, att_h, trial, full, before, replay_fit, window_s, preps, alone)
-        failing = [t for t in tests if not t.passed]
+        trial_rounds = []
+        got, got_full = _eliminate(att, att_h, trial, replay_fit(trial.fit, trial.members), names, before,
+                                   replay_fit, window_s, preps, alone, trial_rounds, None)
+        gain = (full.gap.value - got_full.gap.value) / before.value if before.value > 0 else 0.0
+        survives = n in got.members and gain > 0
         if log:
             log(f"  holdout re-check: {n} back with {', '.join(combo.members) or 'nothing'} -> "
-                + ("every member passes" if not failing else
-                   "; ".join(f"{t.name} fails ({t.reason()})" for t in failing)))
-        if not failing:
-            gain = next(t.gap_contribution for t in tests if t.name == n)
-            if best is None or gain > best[0]:
-                best = (gain, trial, full, EliminationRound(trial.members, tests, None, readmitted=n))
+                + _trial_outcome(n, got.members, trial_rounds, gain))
+        if survives and (best is None or gain > best[0]):
+            trial_rounds[0] = replace(trial_rounds[0], readmitted=n)
+            best = (gain, got, got_full, trial_rounds)
     return None if best is None else best[1:]
+
+
+def _trial_outcome(n, members, trial_rounds, gain) -> str:
+    """One console phrase on a re-admission trial of ``n``."""
+    if n not in members:
+        return "dropped again: " + next(t.reason() for r in trial_rounds if r.dropped == n for t in r.tests
+                                        if t.name == n)
+    gone = [r.dropped for r in trial_rounds if r.dropped]
+    if gain <= 0:
+        return f"the holdout gap would not be lower ({100 * gain:+.1f}% of gap_before)"
+    return (f"kept with {', '.join(m for m in members if m != n) or 'nothing'}"
+            + (f" (dropped: {', '.join(gone)})" if gone else "")
+            + f"; holdout gap {100 * gain:.1f}% of gap_before lower")

@@ -1,6 +1,8 @@
 """Backward elimination on the holdout: the paired replay test, the window decomposition of the gap, the loop."""
 from __future__ import annotations
 
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 from scipy import stats
@@ -122,15 +124,16 @@ def test_rise_fraction_counts_the_windows_that_change():
     assert rise_fraction([1.0], [1.0]) == 0.0
 
 
-def _scripted(monkeypatch, script):
-    """backward_eliminate with the holdout checks scripted per round and the refit recorded."""
+def _scripted(monkeypatch, script, stays_out=()):
+    """backward_eliminate with the holdout checks scripted per round and the refit recorded; past the script, the
+    members in ``stays_out`` fail and the others pass."""
     calls = {"refit": []}
     rounds = iter(script)
 
-    def check(att, att_h, combo, *a):  # past the script, every member fails (nothing is re-admitted)
+    def check(att, att_h, combo, *a):
         tests = next(rounds, None)
         if tests is None:
-            return tuple(_test(m, 0.0, -1.0) for m in combo.members)
+            return tuple(_test(m, 0.0, -0.01) if m in stays_out else _test(m, 100.0, 0.5) for m in combo.members)
         return tuple(t for t in tests if t.name in combo.members)
     monkeypatch.setattr(confirm, "check_members", check)
 
@@ -142,9 +145,14 @@ def _scripted(monkeypatch, script):
     return calls
 
 
-def _eliminate(members):
-    return backward_eliminate(None, None, _combo(members), members, None,
-                              lambda fit, m: Replay(tuple(m), None, []), 8.0, [])
+def _eliminate(members, explains=None):
+    """backward_eliminate on scripted checks; the holdout gap is 1 minus what each member explains (0.1 each by
+    default, ``explains`` maps names to their share)."""
+    explains = explains or {}
+
+    def replay(fit, m):
+        return Replay(tuple(m), SimpleNamespace(value=1.0 - sum(explains.get(k, 0.1) for k in m)), [])
+    return backward_eliminate(None, None, _combo(members), members, SimpleNamespace(value=1.0), replay, 8.0, [])
 
 
 def test_compensator_goes_first_then_the_rest_is_refitted_and_rechecked(monkeypatch):
@@ -155,12 +163,12 @@ def test_compensator_goes_first_then_the_rest_is_refitted_and_rechecked(monkeypa
          _test("deadband", 3.0, 0.03)],
         [_test("lag", 900.0, 0.7), _test("deadband", 2.0, 0.03)],
         [_test("lag", 950.0, 0.7)],
-    ])
+    ], stays_out={"damping"})
     out = _eliminate(["lag", "damping", "deadband"])
     assert out.kept == ("lag",)
-    # one drop per round, each followed by a refit; then the damping is tried back once (and fails); the deadband
-    # is not: it was dropped from the very set that remains
-    assert calls["refit"] == [("lag", "deadband"), ("lag",), ("lag", "damping")]
+    # one drop per round, each followed by a refit; then the damping is tried back once (dropped again, the lag
+    # refitted alone); the deadband is not: it was dropped from the very set that remains
+    assert calls["refit"] == [("lag", "deadband"), ("lag",), ("lag", "damping"), ("lag",)]
     assert [r.dropped for r in out.rounds] == ["damping", "deadband", None]
     assert set(out.dropped) == {"damping", "deadband"}
     assert out.last_test("lag").passed and not out.last_test("deadband").passed
@@ -186,8 +194,7 @@ def test_a_member_dropped_while_a_look_alike_was_in_the_set_is_readmitted(monkey
         [_test("linear", 2000.0, 0.57), _test("tether", 160.0, -0.011)],
         [_test("linear", 2300.0, 0.85)],
         [_test("linear", 1400.0, 0.07), _test("quadratic", 1400.0, 0.05)],  # trial: the quadratic error back
-        [_test("linear", 1400.0, 0.07), _test("quadratic", 1400.0, 0.05), _test("tether", 50.0, -0.01)],
-    ])
+    ], stays_out={"tether"})
     out = _eliminate(["linear", "quadratic", "tether"])
     assert out.kept == ("linear", "quadratic")
     assert [r.dropped for r in out.rounds] == ["quadratic", "tether", None, None]
@@ -196,4 +203,38 @@ def test_a_member_dropped_while_a_look_alike_was_in_the_set_is_readmitted(monkey
     # the tether is not tried back with the linear damping alone (the set it was dropped from), only once the
     # quadratic error is back
     assert calls["refit"] == [("linear", "tether"), ("linear",), ("linear", "quadratic"),
-                              ("linear", "quadratic", "tether")]
+                              ("linear", "quadratic", "tether"), ("linear", "quadratic")]
+
+
+def test_a_readmitted_effect_displaces_the_look_alike_that_held_its_share(monkeypatch):
+    # deadband + quadratic damping in the truth: the quadratic error is dropped while an added mass and a tether
+    # share its part; the tether stays (+3.8 %). Back in the set, the quadratic error passes, the tether no longer
+    # does (+0.3 %) and the holdout gap is lower with the quadratic error than with the tether
+    calls = _scripted(monkeypatch, [
+        [_test("deadband", 1400.0, 0.18), _test("quadratic", 450.0, -0.02), _test("added_mass", 230.0, -0.003),
+         _test("tether", 120.0, -0.005)],
+        [_test("deadband", 1700.0, 0.40), _test("added_mass", 200.0, -0.0), _test("tether", 530.0, 0.038)],
+        [_test("deadband", 1700.0, 0.66), _test("tether", 620.0, 0.037)],
+        [_test("deadband", 1700.0, 0.5), _test("tether", 60.0, 0.003), _test("quadratic", 900.0, 0.16)],
+        [_test("deadband", 1700.0, 0.5), _test("quadratic", 900.0, 0.16)],
+    ], stays_out={"added_mass", "tether"})
+    out = _eliminate(["deadband", "quadratic", "added_mass", "tether"],
+                     explains={"deadband": 0.6, "quadratic": 0.16, "tether": 0.037, "added_mass": 0.0})
+    assert out.kept == ("deadband", "quadratic")
+    assert out.rounds[3].readmitted == "quadratic" and out.rounds[3].dropped == "tether"
+    assert set(out.dropped) == {"added_mass", "tether"}
+    assert "tether" in out.dropped and out.dropped["tether"].gap_contribution == pytest.approx(0.003)
+    assert calls["refit"] == [("deadband", "added_mass", "tether"), ("deadband", "tether"),
+                              ("deadband", "tether", "quadratic"), ("deadband", "quadratic"),
+                              ("deadband", "quadratic", "added_mass"), ("deadband", "quadratic")]
+
+
+def test_an_effect_tried_back_is_not_readmitted_when_the_gap_is_not_lower(monkeypatch):
+    _scripted(monkeypatch, [
+        [_test("a", 900.0, 0.5), _test("b", 50.0, 0.01), _test("c", 3.0, 0.05)],
+        [_test("a", 900.0, 0.5), _test("c", 3.0, 0.05)],
+        [_test("a", 900.0, 0.5)],
+        [_test("a", 900.0, 0.5), _test("b", 60.0, 0.03)],  # b back: it passes, but the gap is not lower
+    ], stays_out={"c"})
+    out = _eliminate(["a", "b", "c"], explains={"a": 0.5, "b": 0.0, "c": 0.0})
+    assert out.kept == ("a",) and all(r.readmitted is None for r in out.rounds)
