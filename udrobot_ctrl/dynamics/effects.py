@@ -14,14 +14,17 @@ the plant in one of three ways:
   ``buoyancy_offset``           B += dB  (``dB_N``; acting at the centre of buoyancy)
   ``cg_cb_offset``              (r_g W - r_b B) += dBG  (``dBG_x_Nm`` ...; the centre of buoyancy moves)
 
-* **thrust** -- it changes the thrust each actuator delivers (:func:`delivered_thrust`, :class:`ThrusterLag`):
+* **thrust** -- it changes the thrust each actuator delivers (:func:`static_thrust`, :func:`inflow_loss`,
+  :func:`first_order_lag`):
 
   ``thruster_deadband``   f -> 0 for |f| < d, f - c d sign(f) beyond; d = ``width_fraction`` * f_ref
   ``thruster_asymmetry``  f -> (1 - ``reverse_loss``) f for f < 0
   ``thrust_inflow_loss``  f -> f - (k1 |f| + k2 sqrt(|f| f_ref)) u_a, never reversing f; u_a the actuator's axial
                           advance speed (``k1_per_mps``, ``k2_per_mps``)
-  ``thruster_lag``        first-order lag of time constant ``T_lag_s`` (a state of the actuator: simulated
-                          by the simulator, refused by tools that need a static plant)
+  ``thruster_lag``        first-order lag of time constant ``T_lag_s`` of s = sign(f) |f|^(1/k), the thrust
+                          sign(s) |s|^k; k = ``thrust_exponent`` in [1, 2] (optional, default 1: a lag of the
+                          thrust; 2: of the rotor speed, thrust ~ n|n|). A state of the actuator: simulated by
+                          the simulator, refused by tools that need a static plant
 
   f_ref is each thruster's capacity (max(max_forward_N, max_reverse_N)); for a commanded wrench (``tau_*``
   runs: six virtual actuators) the maps act per DOF, with per-DOF parameters (``shift_X`` ...) allowed.
@@ -76,7 +79,8 @@ class EffectKind:
     alternatives : tuple of tuple of str
         Other accepted parameter sets (per-DOF thruster maps of a commanded wrench).
     optional : tuple of str
-        Parameters that may be absent (defaults in :data:`OPTIONAL_DEFAULTS`).
+        Parameters that may be absent: an exponent then takes its default (:data:`OPTIONAL_DEFAULTS`), an absent
+        plane of a wall_effect is no plane.
     """
 
     name: str
@@ -102,7 +106,8 @@ CATALOGUE = {k.name: k for k in (
                alternatives=(("width_fraction",) + _per_dof("shift"),)),
     EffectKind("thruster_asymmetry", "reverse thrust weaker than modelled, relative to forward", "thrust",
                ("reverse_loss",), alternatives=(_per_dof("reverse_loss"),)),
-    EffectKind("thruster_lag", "thrust follows the command with a first-order lag", "lag", ("T_lag_s",)),
+    EffectKind("thruster_lag", "thrust follows the command with a first-order lag", "lag", ("T_lag_s",),
+               optional=("thrust_exponent",)),
     EffectKind("tether_drag", "umbilical cross-flow drag, normal to the cable", "force",
                ("k_quadratic_N_s2_per_m2", "k_linear_N_s_per_m") + TETHER_ANCHOR,
                alternatives=(("k_quadratic_N_s2_per_m2", "k_linear_N_s_per_m") + TETHER_FIXED_DIRECTION,)),
@@ -125,6 +130,11 @@ CATALOGUE = {k.name: k for k in (
                ("dBG_x_Nm", "dBG_y_Nm", "dBG_z_Nm")),
 )}
 EFFECT_NAMES = tuple(CATALOGUE)
+#: optional shape exponents of the thruster effects and their value when a model file leaves them out (today's forms)
+OPTIONAL_DEFAULTS = {"thrust_exponent": 1.0}
+#: the range of the shape exponents: 1 (the form linear in the thrust) to 2 (thrust ~ rotor speed n|n| ~ command^2)
+EXPONENT_RANGE = (1.0, 2.0)
+EXPONENT_MEANING = {"thrust_exponent": "1: a lag of the thrust, 2: of the rotor speed, thrust ~ n|n|"}
 
 
 @dataclass(frozen=True)
@@ -187,6 +197,10 @@ def plant_effect(doc, where: str = "effects[0]") -> PlantEffect:
         raise ValueError(f"{where}: effect {name!r} misses parameter(s) {', '.join(missing)}")
     if name == "thruster_lag" and params["T_lag_s"] <= 0:
         raise ValueError(f"{where}.params.T_lag_s: must be > 0 s, got {params['T_lag_s']}")
+    for key, meaning in EXPONENT_MEANING.items():
+        if key in params and not EXPONENT_RANGE[0] <= params[key] <= EXPONENT_RANGE[1]:
+            raise ValueError(f"{where}.params.{key}: must be within [{EXPONENT_RANGE[0]:g}, {EXPONENT_RANGE[1]:g}] "
+                             f"({meaning}), got {params[key]:g}")
     if name == "wall_effect" and params["decay_length_m"] <= 0:
         raise ValueError(f"{where}.params.decay_length_m: must be > 0 m, got {params['decay_length_m']}")
     if name == "wall_effect":
@@ -402,12 +416,27 @@ def thrust_effects(effects) -> tuple:
     return tuple(e for e in effects if CATALOGUE[e.name].enters == "thrust")
 
 
-def lag_time_constant(effects) -> float | None:
-    """T_lag_s of a ``thruster_lag`` effect, or None."""
+@dataclass(frozen=True)
+class ThrusterLag:
+    """The ``thruster_lag`` of a model: time constant ``T_s`` (s) and ``thrust_exponent`` k (1 to 2)."""
+
+    T_s: float
+    thrust_exponent: float = OPTIONAL_DEFAULTS["thrust_exponent"]
+
+
+def thruster_lag(effects) -> ThrusterLag | None:
+    """The :class:`ThrusterLag` of a ``thruster_lag`` effect in ``effects`` (an absent exponent is 1), or None."""
     for e in effects:
         if e.name == "thruster_lag":
-            return float(e.params["T_lag_s"])
+            return ThrusterLag(float(e.params["T_lag_s"]),
+                               float(e.params.get("thrust_exponent", OPTIONAL_DEFAULTS["thrust_exponent"])))
     return None
+
+
+def lag_time_constant(effects) -> float | None:
+    """T_lag_s of a ``thruster_lag`` effect, or None."""
+    lag = thruster_lag(effects)
+    return None if lag is None else lag.T_s
 
 
 def lag_pole(dt, T) -> float:
@@ -415,20 +444,43 @@ def lag_pole(dt, T) -> float:
     return math.exp(-dt / max(T, 1e-9))
 
 
-def first_order_lag_step(f_prev, f_cmd, dt, T):
-    """One step of the lag from ``f_prev`` with the command ``f_cmd`` held over ``dt`` s (arrays or scalars)."""
-    a = lag_pole(dt, T)
-    return a * np.asarray(f_prev, float) + (1.0 - a) * np.asarray(f_cmd, float)
-
-
-def first_order_lag(f, dt, T, f0=None):
-    """The lag over a whole uniform command sequence f (n, k) held per step of ``dt`` s, from ``f0`` (default the
-    first command): the same recursion as :func:`first_order_lag_step`, run by ``scipy.signal.lfilter``."""
-    a = lag_pole(dt, T)
+def lag_state(f, thrust_exponent=1.0):
+    """The lagged state s = sign(f) |f|^(1/k) of a thrust ``f`` (N) for the thrust exponent k: the thrust itself for
+    k = 1, a quantity proportional to the rotor speed for k = 2 (thrust ~ n|n|)."""
     f = np.asarray(f, float)
-    zi = ((f[0] if f0 is None else np.asarray(f0, float)) * a)[None, :]
-    y, _ = lfilter([1 - a], [1, -a], f, axis=0, zi=zi)
-    return y
+    if thrust_exponent == 1.0:
+        return f
+    return np.sign(f) * np.abs(f) ** (1.0 / thrust_exponent)
+
+
+def lag_thrust(s, thrust_exponent=1.0):
+    """The thrust sign(s) |s|^k (N) of a lagged state ``s``: the inverse of :func:`lag_state`."""
+    s = np.asarray(s, float)
+    if thrust_exponent == 1.0:
+        return s
+    return np.sign(s) * np.abs(s) ** thrust_exponent
+
+
+def first_order_lag_step(f_prev, f_cmd, dt, T, thrust_exponent=1.0):
+    """One step of the lag from the delivered thrust ``f_prev`` with the command ``f_cmd`` held over ``dt`` s (arrays
+    or scalars, N): T s' + s = sign(f_cmd) |f_cmd|^(1/k) on the state s of :func:`lag_state`, the thrust
+    :func:`lag_thrust` of it. The state is a one-to-one function of the thrust, so the thrust is all a simulator
+    keeps; k = 1 (the default) is the lag of the thrust itself."""
+    a = lag_pole(dt, T)
+    k = thrust_exponent
+    return lag_thrust(a * lag_state(f_prev, k) + (1.0 - a) * lag_state(f_cmd, k), k)
+
+
+def first_order_lag(f, dt, T, f0=None, thrust_exponent=1.0):
+    """The lag over a whole uniform command sequence f (n, k) held per step of ``dt`` s, from the delivered thrust
+    ``f0`` (default the first command): the same recursion as :func:`first_order_lag_step`, on the state of
+    :func:`lag_state`, run by ``scipy.signal.lfilter``."""
+    a = lag_pole(dt, T)
+    k = thrust_exponent
+    s = lag_state(f, k)
+    zi = ((s[0] if f0 is None else lag_state(f0, k)) * a)[None, :]
+    y, _ = lfilter([1 - a], [1, -a], s, axis=0, zi=zi)
+    return lag_thrust(y, k)
 
 
 # ----------------------------------------------------------------------------------------- forces

@@ -20,7 +20,8 @@ Templates (the diagnoser's lumped forms; a truth generator should use different 
                         actuator (linear K_T(J) gives the sqrt term, fixed-rpm curves the |f| term).
 ``thruster_deadband``   f_act = 0 for |f| < d, f - c d sign(f) beyond (hard, c=0, or shifted, c=1).
 ``thruster_asymmetry``  reverse thrust (1 - a) f for f < 0.
-``thruster_lag``        first-order lag of time constant T_lag on every actuator.
+``thruster_lag``        first-order lag of time constant T_lag on every actuator, of the thrust (k = 1) or of the
+                        rotor speed (k = 2, thrust ~ n|n|), k the shape ``thrust_exponent``.
 ``tether_drag``         cross-flow drag of a cable from the vehicle to an anchor fixed in the pool (a deck, a boat;
                         shape: its NED position), e the unit vector towards it: F_ned = -(k_q |V_n| + k_l) V_n,
                         V_n = V - (V.e) e. The direction turns as the vehicle moves; a far anchor is a fixed
@@ -164,6 +165,9 @@ class Effect:
     mimics: tuple = field(default_factory=tuple)
     #: what the runs must contain for its regressors not to vanish (the identifiability report's fix)
     excited_by: str = "manoeuvres in which it acts"
+    #: shape parameters whose range ends are physical forms (an exponent 1 or 2), not limits of the search: a fit
+    #: there is not "at the edge of the catalogue's range"
+    physical_ends: tuple = ()
 
     def search_space(self, s: Stack):
         """(grid, bounds) of the shape search on stack ``s``: the fixed ``shape_grid`` and ``shape_bounds`` unless
@@ -208,8 +212,9 @@ def plant_hooks(e: PlantEffect, p: PlantParameters, actuation: Actuation) -> Hoo
     B, inflow, f_ref, M_A = actuation
     nominal = replace(p, M_A=np.asarray(M_A, float), effects=())
     if e.name == "thruster_lag":
-        T = e.params["T_lag_s"]
-        return Hooks(input_filter=lambda f, dt: pfx.first_order_lag(f, dt, T), order=1)
+        lag = pfx.thruster_lag((e,))
+        return Hooks(input_filter=lambda f, dt: pfx.first_order_lag(f, dt, lag.T_s,
+                                                                   thrust_exponent=lag.thrust_exponent), order=1)
     if e.name in ("thruster_deadband", "thruster_asymmetry"):  # in the plant's order (pfx.STATIC_MAP_ORDER)
         return Hooks(input_filter=lambda f, dt: _stack(pfx.static_thrust(pfx.NUMPY, _comps(f), (e,), f_ref)),
                      order=pfx.STATIC_MAP_ORDER[e.name] / len(pfx.STATIC_MAP_ORDER))
@@ -328,9 +333,18 @@ class Asymmetry(Effect):
 
 
 class Lag(Effect):
+    """First-order lag of every actuator: the plant's :func:`~udrobot_ctrl.dynamics.effects.first_order_lag` of
+    time constant ``T_lag_s`` on the state s = sign(f) |f|^(1/k), thrust sign(s) |s|^k, k = ``thrust_exponent``
+    in [1, 2]: k = 1 lags the thrust, k = 2 the rotor speed (a propeller's thrust ~ n|n|, and the motor's
+    first-order dynamics act on n: Yoerger, Cooke & Slotine 1990; Healey et al. 1995). The larger k, the slower
+    the thrust's rise from rest for the same T (63 % at 1.59 T for k = 2) and the faster its fall. Shape only
+    (both parameters), no amplitude.
+    """
+
     def design(self, s, shape):
-        (T,) = shape
-        b0 = s.full(lambda r: (pfx.first_order_lag(r["f"], r["dt"], T) - r["f"]) @ s.B.T, held=True)
+        T, k = shape
+        b0 = s.full(lambda r: (pfx.first_order_lag(r["f"], r["dt"], T, thrust_exponent=k) - r["f"]) @ s.B.T,
+                    held=True)
         return Design(b0, np.zeros((s.n, 6, 0)), (), np.zeros(0), np.zeros(0))
 
 
@@ -534,7 +548,7 @@ THRUSTERS_MOVING = "thruster commands that vary (armed thrusters driven through 
 
 def catalogue() -> dict:
     """Name -> :class:`Effect`, in the spec's order."""
-    lag_grid = tuple((T,) for T in (0.03, 0.06, 0.1, 0.15, 0.2, 0.3, 0.45, 0.7, 1.0))
+    lag_grid = tuple((T, k) for T in (0.03, 0.06, 0.1, 0.15, 0.2, 0.3, 0.45, 0.7, 1.0) for k in (1.0, 1.5, 2.0))
     db_grid = tuple((d,) for d in (0.02, 0.04, 0.07, 0.1, 0.15, 0.2, 0.25))
     wall_grid = tuple((lam,) for lam in (0.03, 0.06, 0.1, 0.15, 0.22, 0.33, 0.5, 0.8))
     cur = tuple((cn, ce, 0.0) for cn in (-0.1, 0.0, 0.1) for ce in (-0.1, 0.0, 0.1))
@@ -546,8 +560,9 @@ def catalogue() -> dict:
                  ((0.005, 0.25),), refine=True, excited_by=THRUSTERS_MOVING),
         Asymmetry("thruster_asymmetry", "reverse thrust weaker than modelled, relative to forward",
                   excited_by="thruster commands of both signs (reverse thrust on an armed thruster)"),
-        Lag("thruster_lag", "thrust follows the command with a first-order lag", ("T_lag_s",), lag_grid,
-            ((0.005, 1.0),), refine=True, mimics=("added_mass_error",), excited_by=THRUSTERS_MOVING),
+        Lag("thruster_lag", "thrust follows the command with a first-order lag", ("T_lag_s", "thrust_exponent"),
+            lag_grid, ((0.005, 1.0), pfx.EXPONENT_RANGE), refine=True, mimics=("added_mass_error",),
+            excited_by=THRUSTERS_MOVING, physical_ends=("thrust_exponent",)),
         TetherDrag("tether_drag", "umbilical cross-flow drag, normal to the cable", pfx.TETHER_ANCHOR, (), (),
                    refine=True, mimics=("quadratic_damping_error", "linear_damping", "thrust_inflow_loss")),
         WallEffect("wall_effect", "extra added mass and suction near the seabed or a wall", ("decay_length_m",),

@@ -13,7 +13,7 @@ from udrobot_ctrl.dynamics.plant import (
     rotation_zyx,
     state_derivative,
 )
-from udrobot_ctrl.dynamics.sim import simulate
+from udrobot_ctrl.dynamics.sim import Actuators, simulate
 from udrobot_ctrl.gap.effects import Actuation, plant_hooks
 from udrobot_ctrl.vehicle import load_model, read_model_file, to_model_dict
 
@@ -238,6 +238,78 @@ def test_thruster_lag_delays_the_response_by_its_time_constant():
     assert slow.x[-1, 6] == pytest.approx(fast.x[-1, 6], rel=0.25)
 
 
+def _step_thrust(T, k, F=20.0, dt=0.002, n=1500):
+    """Delivered thrust of a lagged thruster after a step from rest to ``F`` N held from the second step, as the
+    plant simulator delivers it (:class:`Actuators`), and the replay's input filter over the same commands."""
+    lag = fx.PlantEffect("thruster_lag", {"T_lag_s": T, "thrust_exponent": k})
+    p = plant_parameters(NOMINAL.with_changes(effects=(lag,)))
+    u = np.zeros((n, 4))
+    u[1:, 0] = F
+    act = Actuators(p, dt)
+    sim = np.array([act.delivered(row) for row in u])
+    hooks = plant_hooks(lag, p, Actuation(p.T, p.T, p.f_ref, p.M_A))
+    return sim, hooks.input_filter(u, dt)
+
+
+@pytest.mark.parametrize("k", [1.0, 1.5, 2.0])
+def test_rotor_speed_lag_step_response_is_the_closed_form(k):
+    """A step F from rest: the lagged state sign(f)|f|^(1/k) rises as F^(1/k) (1 - e^(-t/T)), so the thrust is
+    F (1 - e^(-t/T))^k, exactly at the samples (zero-order hold). It reaches 63 % (1 - 1/e) of F at
+    t63 = -T ln(1 - (1 - 1/e)^(1/k)): T for the thrust lag (k = 1), 1.585 T for the rotor-speed lag (k = 2)."""
+    T, F, dt = 0.3, 20.0, 0.002
+    sim, replay = _step_thrust(T, k, F, dt)
+    t = np.arange(1, sim.shape[0]) * dt  # the thrust of step j is the lag's value at its end: j dt after the step
+    np.testing.assert_allclose(sim[1:, 0], F * (1.0 - np.exp(-t / T)) ** k, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(replay, sim, rtol=1e-12, atol=1e-12)  # the replay filters with the same function
+    assert np.all(sim[:, 1:] == 0.0)
+    t63 = t[np.argmax(sim[1:, 0] >= (1.0 - np.exp(-1.0)) * F)]
+    expected = -T * np.log(1.0 - (1.0 - np.exp(-1.0)) ** (1.0 / k))
+    assert t63 == pytest.approx(expected, abs=1.5 * dt)  # the first sample at or past it
+    if k == 2.0:
+        assert expected == pytest.approx(1.5850 * T, rel=1e-4)
+
+
+def test_rotor_speed_lag_falls_faster_than_it_rises():
+    """Thrust ~ s|s| with s lagged: from full thrust to zero the thrust is F e^(-2t/T) (k = 2), twice as fast a
+    decay as the thrust lag's F e^(-t/T); a reversal passes through zero thrust when s does, at T ln 2."""
+    T, F, dt = 0.3, 20.0, 0.002
+    f = np.full((800, 1), F)
+    f[1:] = 0.0
+    t = np.arange(1, 800) * dt
+    np.testing.assert_allclose(fx.first_order_lag(f, dt, T, thrust_exponent=2.0)[1:, 0], F * np.exp(-2 * t / T),
+                               rtol=1e-12)
+    f[1:] = -F
+    y = fx.first_order_lag(f, dt, T, thrust_exponent=2.0)[1:, 0]
+    assert t[np.argmax(y <= 0.0)] == pytest.approx(T * np.log(2.0), abs=dt)
+
+
+def test_thrust_exponent_one_is_the_old_thrust_lag_bit_for_bit():
+    rng = np.random.default_rng(3)
+    f = np.repeat(rng.uniform(-30, 30, (40, 4)), 10, axis=0)
+    dt, T = 0.02, 0.25
+    a = np.exp(-dt / T)
+    old = [f[0]]
+    for row in f[1:]:  # the recursion the lag had before the exponent: a f_prev + (1 - a) f_cmd
+        old.append(a * old[-1] + (1.0 - a) * row)
+    np.testing.assert_array_equal(fx.first_order_lag_step(old[-2], f[-1], dt, T), old[-1])
+    np.testing.assert_allclose(fx.first_order_lag(f, dt, T), np.array(old), rtol=1e-13, atol=1e-12)
+    # a model file without the exponent is the thrust lag
+    assert fx.thruster_lag((fx.PlantEffect("thruster_lag", {"T_lag_s": T}),)) == fx.ThrusterLag(T, 1.0)
+    u = np.zeros((200, 4))
+    u[1:, 0] = 15.0
+    x0 = np.r_[0, 0, 1.0, np.zeros(9)]
+    runs = [simulate(NOMINAL.with_changes(effects=(fx.PlantEffect("thruster_lag", q),)), x0, 2.0, inputs=u, dt=0.01)
+            for q in ({"T_lag_s": T}, {"T_lag_s": T, "thrust_exponent": 1.0})]
+    np.testing.assert_array_equal(runs[0].x, runs[1].x)
+
+
+def test_a_lag_of_any_exponent_is_refused_by_the_static_plant():
+    p = plant_parameters(NOMINAL.with_changes(effects=(fx.PlantEffect("thruster_lag", {"T_lag_s": 0.3,
+                                                                                       "thrust_exponent": 2.0}),)))
+    with pytest.raises(ValueError, match="thruster_lag"):
+        plant_casadi.dynamics_function(p, "thrust")
+
+
 @pytest.mark.parametrize("tether", [EXAMPLES["tether_drag"], FIXED_TETHER], ids=["anchor", "fixed-direction"])
 def test_model_file_round_trips_effects(tmp_path, tether):
     v = NOMINAL.with_changes(effects=(fx.PlantEffect("tether_drag", tether),
@@ -254,6 +326,9 @@ def test_model_file_round_trips_effects(tmp_path, tether):
     ({"name": "buoyancy_offset", "params": {}}, "misses parameter"),
     ({"name": "buoyancy_offset", "params": {"dB_N": "3"}}, "finite number"),
     ({"name": "thruster_lag", "params": {"T_lag_s": -1.0}}, "must be > 0"),
+    ({"name": "thruster_lag", "params": {"T_lag_s": 0.3, "thrust_exponent": 2.5}},
+     r"params.thrust_exponent: must be within \[1, 2\].*rotor speed.*got 2.5"),
+    ({"name": "thruster_lag", "params": {"T_lag_s": 0.3, "thrust_exponent": 0.5}}, "thrust_exponent: must be within"),
     ({"name": "wall_effect", "params": {"decay_length_m": 0.2, "added_mass_at_contact_kg": 1.0,
                                         "suction_N_s2_per_m2": 1.0}}, "needs a plane"),
     ({"name": "wall_effect", "params": {"decay_length_m": 0.2, "added_mass_at_contact_kg": 1.0,
