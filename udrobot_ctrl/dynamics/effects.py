@@ -17,7 +17,11 @@ the plant in one of three ways:
 * **thrust** -- it changes the thrust each actuator delivers (:func:`static_thrust`, :func:`inflow_loss`,
   :func:`first_order_lag`):
 
-  ``thruster_deadband``   f -> 0 for |f| < d, f - c d sign(f) beyond; d = ``width_fraction`` * f_ref
+  ``thruster_deadband``   a deadband of ``width_fraction`` w in the normalised command u = (|f|/f_ref)^(1/p),
+                          p = ``command_exponent`` in [1, 2] (optional, default 1): f -> 0 for u < w; beyond,
+                          f -> f - c sign(f) (|f| - f_ref (u - w)^p / (1 - w)^(2(p-1))), c = ``shift`` (0 hard, 1
+                          continuous). p = 1: f - c d sign(f), d = w f_ref; p = 2, c = 1: an ESC deadband in the
+                          PWM domain with thrust ~ PWM offset^2, full thrust at full command (:func:`deadband_terms`)
   ``thruster_asymmetry``  f -> (1 - ``reverse_loss``) f for f < 0
   ``thrust_inflow_loss``  f -> f - (k1 |f| + k2 sqrt(|f| f_ref)) u_a, never reversing f; u_a the actuator's axial
                           advance speed (``k1_per_mps``, ``k2_per_mps``)
@@ -103,7 +107,7 @@ CATALOGUE = {k.name: k for k in (
     EffectKind("thrust_inflow_loss", "thrust falls with the axial inflow speed through the thruster", "thrust",
                ("k1_per_mps", "k2_per_mps")),
     EffectKind("thruster_deadband", "small commands produce no thrust", "thrust", ("width_fraction", "shift"),
-               alternatives=(("width_fraction",) + _per_dof("shift"),)),
+               alternatives=(("width_fraction",) + _per_dof("shift"),), optional=("command_exponent",)),
     EffectKind("thruster_asymmetry", "reverse thrust weaker than modelled, relative to forward", "thrust",
                ("reverse_loss",), alternatives=(_per_dof("reverse_loss"),)),
     EffectKind("thruster_lag", "thrust follows the command with a first-order lag", "lag", ("T_lag_s",),
@@ -131,10 +135,11 @@ CATALOGUE = {k.name: k for k in (
 )}
 EFFECT_NAMES = tuple(CATALOGUE)
 #: optional shape exponents of the thruster effects and their value when a model file leaves them out (today's forms)
-OPTIONAL_DEFAULTS = {"thrust_exponent": 1.0}
+OPTIONAL_DEFAULTS = {"thrust_exponent": 1.0, "command_exponent": 1.0}
 #: the range of the shape exponents: 1 (the form linear in the thrust) to 2 (thrust ~ rotor speed n|n| ~ command^2)
 EXPONENT_RANGE = (1.0, 2.0)
-EXPONENT_MEANING = {"thrust_exponent": "1: a lag of the thrust, 2: of the rotor speed, thrust ~ n|n|"}
+EXPONENT_MEANING = {"thrust_exponent": "1: a lag of the thrust, 2: of the rotor speed, thrust ~ n|n|",
+                    "command_exponent": "thrust ~ command^p beyond the deadband: 1 linear, 2 quadratic"}
 
 
 @dataclass(frozen=True)
@@ -360,6 +365,52 @@ def _per_actuator(params, key, n_actuators):
 STATIC_MAP_ORDER = {"thruster_deadband": 0, "thruster_asymmetry": 1}  # the order the static maps act in
 
 
+def deadband_terms(be, f, f_ref, width_fraction, command_exponent=1.0):
+    """The deadband's threshold and the thrust its shift removes, per unit of ``shift``, beyond it.
+
+    A deadband sits in the ESC's command (PWM) domain: with the normalised command u = (|f| / f_ref)^(1/p) (p the
+    ``command_exponent``: the nominal thrust curve is f_ref u^p), commands u < w = ``width_fraction`` produce no
+    thrust, i.e. |f| < d = w^p f_ref. Beyond it the delivered thrust is
+    f - c ``unit`` = sign(f) f_ref [(1 - c) u^p + c g(u)], a blend, linear in the shift c, of the hard deadband
+    (c = 0: the nominal curve, cut below w) and the continuous one (c = 1) that starts from zero at w:
+
+        g(u) = (u - w)^p / (1 - w)^(2(p - 1)),    unit = sign(f) (|f| - f_ref g(u)).
+
+    * p = 1: g = u - w, unit = d sign(f): today's shifted deadband f - c d sign(f), exactly (computed as d sign(f)).
+    * p = 2: g = ((u - w) / (1 - w))^2: the ESC deadband of the PWM domain with thrust ~ (PWM offset beyond it)^2,
+      rescaled to full thrust at full command (u = 1) -- a thrust curve measured with the deadband in it, as a
+      vendor's chart is.
+    * in between the continuous curve's full-command thrust f_ref (1 - w)^(2 - p) moves geometrically from the
+      shifted p = 1 curve to the rescaled p = 2 one. The shift stays a linear amplitude (the diagnoser fits it by
+      least squares), which rules out the u-domain shift u - c w inside the power.
+
+    Parameters
+    ----------
+    be : Backend
+    f : array_like or casadi expression
+        Commanded thrust of one actuator, N (or N m).
+    f_ref : float
+        The actuator's capacity, N.
+    width_fraction, command_exponent : float
+        w (of the normalised command) and p (1 to 2).
+
+    Returns
+    -------
+    d : float
+        Threshold on |f|, N: w^p f_ref.
+    unit : like ``f``
+        Thrust removed per unit shift where |f| >= d, N (meaningless inside the deadband).
+    """
+    w, p = float(width_fraction), float(command_exponent)
+    d = w ** p * f_ref
+    if p == 1.0:
+        return d, d * be.sign(f)
+    # |f| floored at the threshold: the same value beyond it, a finite slope at f = 0 (casadi's Jacobians)
+    u = (be.fmax(abs(f), np.maximum(d, 1e-12 * f_ref)) / f_ref) ** (1.0 / p)
+    g = be.fmax(u - w, 0.0) ** p / (1.0 - w) ** (2.0 * (p - 1.0))
+    return d, be.sign(f) * (abs(f) - f_ref * g)
+
+
 def static_thrust(be, f, effects, f_ref):
     """Thrust after the static maps (deadband, then reverse loss) of the commanded, clipped thrusts ``f``.
 
@@ -378,9 +429,11 @@ def static_thrust(be, f, effects, f_ref):
     for e in sorted((e for e in effects if e.name in STATIC_MAP_ORDER), key=lambda e: STATIC_MAP_ORDER[e.name]):
         if e.name == "thruster_deadband":
             shift = _per_actuator(e.params, "shift", n)
+            w = e.params["width_fraction"]
+            p = e.params.get("command_exponent", OPTIONAL_DEFAULTS["command_exponent"])
             for i in range(n):
-                d = e.params["width_fraction"] * float(f_ref[i])
-                out[i] = be.where(abs(out[i]) < d, 0.0 * out[i], out[i] - shift[i] * d * be.sign(out[i]))
+                d, unit = deadband_terms(be, out[i], float(f_ref[i]), w, p)
+                out[i] = be.where(abs(out[i]) < d, 0.0 * out[i], out[i] - shift[i] * unit)
         elif e.name == "thruster_asymmetry":
             loss = _per_actuator(e.params, "reverse_loss", n)
             for i in range(n):

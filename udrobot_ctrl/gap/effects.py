@@ -18,7 +18,10 @@ Templates (the diagnoser's lumped forms; a truth generator should use different 
 
 ``thrust_inflow_loss``  f_act = f - (k1 |f| + k2 sqrt(|f| f_ref)) u_a, u_a the axial advance speed of the
                         actuator (linear K_T(J) gives the sqrt term, fixed-rpm curves the |f| term).
-``thruster_deadband``   f_act = 0 for |f| < d, f - c d sign(f) beyond (hard, c=0, or shifted, c=1).
+``thruster_deadband``   a deadband of width w in the normalised command u = (|f|/f_ref)^(1/p), p the shape
+                        ``command_exponent``: f_act = 0 for u < w; beyond, a blend (amplitude c) of the hard cut
+                        and the continuous curve from zero at w (p = 1: f - c w f_ref sign(f); p = 2, c = 1: thrust
+                        ~ (u - w)^2 rescaled to full thrust at full command, an ESC's PWM-domain deadband).
 ``thruster_asymmetry``  reverse thrust (1 - a) f for f < 0.
 ``thruster_lag``        first-order lag of time constant T_lag on every actuator, of the thrust (k = 1) or of the
                         rotor speed (k = 2, thrust ~ n|n|), k the shape ``thrust_exponent``.
@@ -295,24 +298,33 @@ def crossing(s) -> np.ndarray:
 
 
 class Deadband(Effect):
-    """Deadband of width ``width_fraction * f_ref`` (f_ref: the thruster's capacity, or for a commanded wrench the
-    99th percentile of the command); beyond it the thrust is shifted down by ``shift * d`` (0: hard, 1: continuous).
+    """A deadband in the command (ESC, PWM) domain: the plant's :func:`~udrobot_ctrl.dynamics.effects.deadband_terms`.
 
-    The width is bounded by 0.25 f_ref: an ESC deadband (T200: +-25 us of +-400 us PWM, i.e. 6 % of the command
-    range, thrust ~ command^2) stays well below that; a wider "deadband" would be a thrust gain error or a
-    constant offset in disguise. For a commanded wrench the shift is per DOF (see ``WRENCH_DOF_NOTE``).
+    Shape: ``width_fraction`` w of the normalised command u = (|f| / f_ref)^(1/p) and ``command_exponent`` p in
+    [1, 2] (the thrust curve's power of the command beyond the deadband; f_ref the thruster's capacity, or for a
+    commanded wrench the 99th percentile of the command). Commands u < w give no thrust (``b0``); beyond, the
+    amplitude ``shift`` c in [0, 1] blends the hard deadband (c = 0, the nominal curve) and the continuous one
+    (c = 1, starting from zero at w: f - w f_ref sign(f) for p = 1, today's form; for p = 2 the PWM-domain
+    deadband with thrust ~ offset^2 rescaled to full thrust at full command).
+
+    The width is bounded by 0.35 of the command range: the T200's ESC deadband is +-25 us of +-400 us PWM (6 %),
+    and its bollard thrust beyond it grows as the offset^1.1-1.55 (Blue Robotics' 2019 data, 10-20 V); at p = 2 a
+    0.35 deadband is 12 % of the thrust range, at p = 1 35 %, beyond which a "deadband" would be a thrust gain
+    error or a constant offset in disguise. For a commanded wrench the shift is per DOF (see ``WRENCH_DOF_NOTE``).
     """
 
     def design(self, s, shape):
-        (frac,) = shape
-        d = frac * s.f_ref
-        b0 = s.full(lambda r: np.where(np.abs(r["f"]) < d, -r["f"], 0.0) @ s.B.T, held=True)
-        x = crossing(s)
+        w, p = shape
+
+        def cut(r):  # inside the deadband (n, k) and the thrust removed per unit shift beyond it, scaled by crossing
+            d, unit = pfx.deadband_terms(pfx.NUMPY, r["f"], s.f_ref, w, p)
+            inside = np.abs(r["f"]) < d
+            return inside, np.where(inside, 0.0, -unit) * crossing(s)
+        b0 = s.full(lambda r: np.where(cut(r)[0], -r["f"], 0.0) @ s.B.T, held=True)
         if _per_dof(s):
-            col = s.full(lambda r: (np.where(np.abs(r["f"]) < d, 0.0, -d * np.sign(r["f"])) * x)[:, :, None]
-                         * np.eye(6)[None], held=True)
+            col = s.full(lambda r: cut(r)[1][:, :, None] * np.eye(6)[None], held=True)
             return Design(b0, col, tuple(f"shift_{k}" for k in DOF), np.zeros(6), np.ones(6))
-        col = s.full(lambda r: (np.where(np.abs(r["f"]) < d, 0.0, -d * np.sign(r["f"])) * x) @ s.B.T, held=True)
+        col = s.full(lambda r: cut(r)[1] @ s.B.T, held=True)
         return Design(b0, col[..., None], ("shift",), np.zeros(1), np.ones(1))
 
 
@@ -549,15 +561,16 @@ THRUSTERS_MOVING = "thruster commands that vary (armed thrusters driven through 
 def catalogue() -> dict:
     """Name -> :class:`Effect`, in the spec's order."""
     lag_grid = tuple((T, k) for T in (0.03, 0.06, 0.1, 0.15, 0.2, 0.3, 0.45, 0.7, 1.0) for k in (1.0, 1.5, 2.0))
-    db_grid = tuple((d,) for d in (0.02, 0.04, 0.07, 0.1, 0.15, 0.2, 0.25))
+    db_grid = tuple((w, p) for w in (0.02, 0.04, 0.07, 0.1, 0.15, 0.2, 0.25, 0.3) for p in (1.0, 1.5, 2.0))
     wall_grid = tuple((lam,) for lam in (0.03, 0.06, 0.1, 0.15, 0.22, 0.33, 0.5, 0.8))
     cur = tuple((cn, ce, 0.0) for cn in (-0.1, 0.0, 0.1) for ce in (-0.1, 0.0, 0.1))
     effects = [
         InflowLoss("thrust_inflow_loss", "thrust falls with the axial inflow speed through the thruster",
                    mimics=("quadratic_damping_error", "linear_damping", "tether_drag"),
                    excited_by="thrust while the vehicle moves along a thruster's axis"),
-        Deadband("thruster_deadband", "small commands produce no thrust", ("width_fraction",), db_grid,
-                 ((0.005, 0.25),), refine=True, excited_by=THRUSTERS_MOVING),
+        Deadband("thruster_deadband", "small commands produce no thrust", ("width_fraction", "command_exponent"),
+                 db_grid, ((0.005, 0.35), pfx.EXPONENT_RANGE), refine=True, excited_by=THRUSTERS_MOVING,
+                 physical_ends=("command_exponent",)),
         Asymmetry("thruster_asymmetry", "reverse thrust weaker than modelled, relative to forward",
                   excited_by="thruster commands of both signs (reverse thrust on an armed thruster)"),
         Lag("thruster_lag", "thrust follows the command with a first-order lag", ("T_lag_s", "thrust_exponent"),

@@ -1,6 +1,7 @@
 """Catalogue effects as parts of the plant: twins agree, each effect has its physics, model files carry them."""
 import json
 
+import casadi as ca
 import numpy as np
 import pytest
 
@@ -226,6 +227,57 @@ def test_deadband_acts_before_the_reverse_loss_whatever_the_list_order():
         assert float(f[0, 0]) == pytest.approx(-0.5)
 
 
+def _deadband(w, p, shift, **more):
+    return (fx.PlantEffect("thruster_deadband", {"width_fraction": w, "shift": shift, "command_exponent": p,
+                                                 **more}),)
+
+
+def test_command_domain_deadband_at_p2_is_the_rescaled_pwm_deadband():
+    """p = 2: thrust f_ref u^2 of the normalised command u; the ESC cuts u < w and, continuous (shift 1), delivers
+    f_ref ((u - w) / (1 - w))^2 beyond: zero at the edge, full thrust at full command. A shift c blends it
+    linearly with the hard cut (the nominal curve beyond w)."""
+    ref, w = 30.0, 0.25
+    f = np.linspace(-ref, ref, 241)
+    u = np.sqrt(np.abs(f) / ref)
+    rescaled = np.sign(f) * ref * (np.clip(u - w, 0.0, None) / (1.0 - w)) ** 2
+    hard = np.where(u < w, 0.0, f)
+    for c in (0.0, 0.4, 1.0):
+        out = fx.static_thrust(fx.NUMPY, [f], _deadband(w, 2.0, c), [ref])[0]
+        np.testing.assert_allclose(out, (1.0 - c) * hard + c * rescaled, rtol=1e-12, atol=1e-12)
+    out = fx.static_thrust(fx.NUMPY, [np.array([ref, -ref, w ** 2 * ref * 0.999])], _deadband(w, 2.0, 1.0), [ref])[0]
+    np.testing.assert_allclose(out, [ref, -ref, 0.0], atol=1e-12)  # full at full command, nothing inside
+
+
+def test_command_exponent_one_is_the_old_deadband_exactly():
+    """p = 1 (or no command_exponent in the model file): f -> 0 for |f| < d, f - shift d sign(f) beyond."""
+    ref, w, c = 30.0, 0.1, 0.7
+    f = np.linspace(-ref, ref, 301)
+    old = np.where(np.abs(f) < w * ref, 0.0 * f, f - c * w * ref * np.sign(f))
+    for effects in (_deadband(w, 1.0, c), (fx.PlantEffect("thruster_deadband", {"width_fraction": w, "shift": c}),)):
+        np.testing.assert_array_equal(fx.static_thrust(fx.NUMPY, [f], effects, [ref])[0], old)
+
+
+def test_command_domain_deadband_is_the_same_in_numpy_casadi_and_the_replay():
+    """The casadi twin evaluates the same map (with a finite slope everywhere, also at f = 0) and the replay's input
+    filter is the plant's function."""
+    p = plant_parameters(NOMINAL.with_changes(effects=_deadband(0.2, 1.6, 0.8)))
+    f_cas = plant_casadi.dynamics_function(p, "thrust")
+    x, f = _states()
+    f[1] = 0.0
+    for xi, fi in zip(x, f):
+        fd = np.array(fx.static_thrust(fx.NUMPY, list(fi), p.effects, p.f_ref), float)
+        ref = state_derivative(xi, delivered_wrench(xi, fd, p), p)
+        np.testing.assert_allclose(np.asarray(f_cas(xi, fi)).ravel(), ref, rtol=1e-9, atol=1e-9)
+    sym = ca.SX.sym("f")
+    out = fx.static_thrust(fx.CASADI, [sym], p.effects, p.f_ref[:1])[0]
+    slope = ca.Function("slope", [sym], [ca.jacobian(out, sym)])
+    assert [float(slope(v)) for v in (0.0, 1e-9, -1e-9)] == [0.0, 0.0, 0.0]  # inside the deadband, no NaN
+    assert 0.0 < float(slope(0.9 * p.f_ref[0])) < np.inf
+    hooks = plant_hooks(p.effects[0], p, Actuation(p.T, p.T, p.f_ref, p.M_A))
+    np.testing.assert_array_equal(hooks.input_filter(f, 0.02),
+                                  np.stack(fx.static_thrust(fx.NUMPY, list(f.T), p.effects, p.f_ref), -1))
+
+
 def test_thruster_lag_delays_the_response_by_its_time_constant():
     T = 0.5
     lagged = _with("thruster_lag").with_changes(effects=(fx.PlantEffect("thruster_lag", {"T_lag_s": T}),))
@@ -329,6 +381,10 @@ def test_model_file_round_trips_effects(tmp_path, tether):
     ({"name": "thruster_lag", "params": {"T_lag_s": 0.3, "thrust_exponent": 2.5}},
      r"params.thrust_exponent: must be within \[1, 2\].*rotor speed.*got 2.5"),
     ({"name": "thruster_lag", "params": {"T_lag_s": 0.3, "thrust_exponent": 0.5}}, "thrust_exponent: must be within"),
+    ({"name": "thruster_deadband", "params": {"width_fraction": 0.1, "shift": 1.0, "command_exponent": 3.0}},
+     r"params.command_exponent: must be within \[1, 2\].*command\^p.*got 3"),
+    ({"name": "thruster_lag", "params": {"T_lag_s": 0.3, "command_exponent": 2.0}},
+     "has no parameter 'command_exponent'"),
     ({"name": "wall_effect", "params": {"decay_length_m": 0.2, "added_mass_at_contact_kg": 1.0,
                                         "suction_N_s2_per_m2": 1.0}}, "needs a plane"),
     ({"name": "wall_effect", "params": {"decay_length_m": 0.2, "added_mass_at_contact_kg": 1.0,

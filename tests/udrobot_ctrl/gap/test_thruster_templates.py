@@ -1,14 +1,20 @@
 """The thruster templates' shape exponents are recovered by the equation-error fit (search grid and refinement)."""
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
+from scipy.optimize import curve_fit
 
 from udrobot_ctrl.dynamics import effects as pfx
 from udrobot_ctrl.dynamics.plant import plant_parameters
+from udrobot_ctrl.dynamics.thrusters import read_t200_csv
 from udrobot_ctrl.gap import effects as fx
 from udrobot_ctrl.gap.attribute import Attributor
 from udrobot_ctrl.vehicle import load_model
+
+from .truth import Truth
 
 P = plant_parameters(load_model("pendulum:chin"))
 DT = 0.02  # s, a 50 Hz log
@@ -62,3 +68,80 @@ def test_lag_template_recovers_the_rotor_speed_lag(k):
     assert abs(T_fit - T) <= 4 * sd[0] + 1e-3
     assert abs(k_fit - k) <= 4 * sd[1] + 1e-3
     assert fit.params["thruster_lag"] == {"T_lag_s": T_fit, "thrust_exponent": k_fit}  # as a model file names them
+
+
+def _deadband_residual(f, w, p, c):
+    effect = (pfx.PlantEffect("thruster_deadband", {"width_fraction": w, "shift": c, "command_exponent": p}),)
+    f_act = np.stack(pfx.static_thrust(pfx.NUMPY, list(f.T), effect, np.full(f.shape[1], F_REF)), -1)
+    return (f_act - f) @ P.T.T
+
+
+def test_deadband_design_is_the_plant_map():
+    """b0 + A shift of the template is what the plant's deadband does to the wrench, for any exponent."""
+    f = _commands(600)
+    for w, p, c in ((0.1, 1.0, 1.0), (0.25, 2.0, 0.6), (0.3, 1.4, 0.2)):
+        d = fx.catalogue()["thruster_deadband"].design(_stack(f), (w, p))
+        assert d.names == ("shift",)
+        np.testing.assert_allclose(d.b0 + d.A[..., 0] * c, _deadband_residual(f, w, p, c), rtol=1e-12, atol=1e-9)
+
+
+def test_deadband_template_at_p2_is_the_truth_generators_pwm_deadband():
+    """The truth generator's deadband (tests/udrobot_ctrl/gap/truth.py: a PWM-domain deadband delta with thrust ~
+    command^2 rescaled to full thrust at full command) is the template at p = 2, shift 1, for forward thrust
+    (the truth normalises reverse thrust by the reverse capacity, the template by the larger one)."""
+    delta = 0.22
+    truth = Truth(effects={"thruster_deadband": {"delta": delta}})
+    f_ref = np.maximum(truth.fmax, truth.frev)
+    fc = np.linspace(0.0, 1.0, 101)[:, None] * truth.fmax[None, :]
+    true, _ = truth.thrust(fc, np.zeros_like(fc), np.zeros((fc.shape[0], 12)), DT)
+    effect = (pfx.PlantEffect("thruster_deadband", {"width_fraction": delta, "shift": 1.0, "command_exponent": 2.0}),)
+    ours = np.stack(pfx.static_thrust(pfx.NUMPY, list(fc.T), effect, f_ref), -1)
+    assert np.all(truth.fmax == f_ref)  # forward capacity is the larger one on this vehicle
+    np.testing.assert_allclose(ours, true, rtol=1e-12, atol=1e-12)
+
+
+@pytest.mark.parametrize("w, p, c", [(0.25, 2.0, 1.0), (0.15, 1.5, 0.7)])
+def test_deadband_template_recovers_the_command_domain_deadband(w, p, c):
+    """Equation-error data of a command-domain deadband: grid and refinement recover the width and exponent, and
+    the least-squares shift, within 4 Cramer-Rao standard deviations plus the refinement's tolerance (1e-3)."""
+    f = _commands()
+    r = _deadband_residual(f, w, p, c) + SIGMA * np.random.default_rng(2).standard_normal((f.shape[0], 6))
+    fit = Attributor(_stack(f), r, DOFS, fx.catalogue()).best_shape("thruster_deadband")
+    got = fit.params["thruster_deadband"]
+
+    def b0(theta):
+        return _deadband_residual(f, theta[0], theta[1], theta[2])[:, DOFS].ravel()
+    sd = _crb(b0, (w, p, c))
+    assert abs(got["width_fraction"] - w) <= 4 * sd[0] + 1e-3
+    assert abs(got["command_exponent"] - p) <= 4 * sd[1] + 1e-3
+    assert abs(got["shift"] - c) <= 4 * sd[2] + 1e-3
+
+
+T200 = Path(__file__).resolve().parents[3] / ".." / "shared" / "data" / "t200" / "t200_performance_tidy.csv"
+
+
+def _power_law_beyond_deadband(offset_us, thrust_N, span_us=150.0):
+    """(d, p) of |thrust| = a (offset - d)^p fitted over the measured nonzero thrust up to ``span_us`` of PWM offset."""
+    keep = (offset_us > 0) & (thrust_N > 0) & (offset_us <= span_us)
+    o, t = offset_us[keep], thrust_N[keep]
+    (_, d, p), _ = curve_fit(lambda x, a, d, p: a * np.clip(x - d, 0.0, None) ** p, o, t, p0=(1e-3, 20.0, 2.0),
+                             maxfev=20000)
+    return d, p
+
+
+@pytest.mark.skipif(not T200.exists(), reason="../shared/data/t200 not available")
+def test_t200_deadband_and_thrust_exponent_lie_inside_the_templates_range():
+    """Blue Robotics' T200 bollard data (10-20 V, both directions; ../shared/data/t200/PROVENANCE.md): beyond the
+    ESC's deadband (fitted: 20-27 us of the +-400 us PWM range) the thrust grows as the offset^p with p = 1.1-1.6
+    near it -- inside the command exponent's range [1, 2] and the width's bound 0.35."""
+    volts, pwm, thrust = read_t200_csv(T200)
+    (_, w_hi), (p_lo, p_hi) = fx.catalogue()["thruster_deadband"].shape_bounds
+    exponents = []
+    for v in np.unique(volts):
+        for sign in (1.0, -1.0):
+            at = volts == v
+            d, p = _power_law_beyond_deadband(sign * (pwm[at] - 1500.0), sign * thrust[at])
+            assert 15.0 < d < 30.0 and d / 400.0 < w_hi, (v, sign, d)
+            exponents.append(p)
+    assert p_lo <= min(exponents) and max(exponents) <= p_hi, exponents
+    assert max(exponents) < 1.8  # not the square law often assumed: the data pick the exponent, not the template
