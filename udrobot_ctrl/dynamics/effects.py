@@ -17,11 +17,12 @@ the plant in one of three ways:
 * **thrust** -- it changes the thrust each actuator delivers (:func:`static_thrust`, :func:`inflow_loss`,
   :func:`first_order_lag`):
 
-  ``thruster_deadband``   a deadband of ``width_fraction`` w in the normalised command u = (|f|/f_ref)^(1/p),
+  ``thruster_deadband``   a deadband of ``width_fraction`` w in the normalised command u = (|f|/F)^(1/p),
                           p = ``command_exponent`` in [1, 2] (optional, default 1): f -> 0 for u < w; beyond,
-                          f -> f - c sign(f) (|f| - f_ref (u - w)^p / (1 - w)^(2(p-1))), c = ``shift`` (0 hard, 1
-                          continuous). p = 1: f - c d sign(f), d = w f_ref; p = 2, c = 1: an ESC deadband in the
-                          PWM domain with thrust ~ PWM offset^2, full thrust at full command (:func:`deadband_terms`)
+                          f -> f - c sign(f) (|f| - F (u - w)^p / (1 - w)^(2(p-1))), c = ``shift`` (0 hard, 1
+                          continuous), F = f_ref^(2-p) C^(p-1), C the capacity in f's direction. p = 1:
+                          f - c d sign(f), d = w f_ref; p = 2, c = 1: an ESC deadband in the PWM domain with thrust
+                          ~ PWM offset^2, each direction's full thrust at full command (:func:`deadband_terms`)
   ``thruster_asymmetry``  f -> (1 - ``reverse_loss``) f for f < 0
   ``thrust_inflow_loss``  f -> f - (k1 |f| + k2 sqrt(|f| f_ref)) u_a, never reversing f; u_a the actuator's axial
                           advance speed (``k1_per_mps``, ``k2_per_mps``)
@@ -362,56 +363,64 @@ def _per_actuator(params, key, n_actuators):
     return [params.get(key, 0.0)] * n_actuators
 
 
-STATIC_MAP_ORDER = {"thruster_deadband": 0, "thruster_asymmetry": 1}  # the order the static maps act in
-
-
-def deadband_terms(be, f, f_ref, width_fraction, command_exponent=1.0):
+def deadband_terms(be, f, f_ref, width_fraction, command_exponent=1.0, capacities=None):
     """The deadband's threshold and the thrust its shift removes, per unit of ``shift``, beyond it.
 
-    A deadband sits in the ESC's command (PWM) domain: with the normalised command u = (|f| / f_ref)^(1/p) (p the
-    ``command_exponent``: the nominal thrust curve is f_ref u^p), commands u < w = ``width_fraction`` produce no
-    thrust, i.e. |f| < d = w^p f_ref. Beyond it the delivered thrust is
-    f - c ``unit`` = sign(f) f_ref [(1 - c) u^p + c g(u)], a blend, linear in the shift c, of the hard deadband
+    A deadband sits in the ESC's command (PWM) domain: with the normalised command u = (|f| / F)^(1/p) (p the
+    ``command_exponent``: the nominal thrust curve is F u^p), commands u < w = ``width_fraction`` produce no
+    thrust, i.e. |f| < d = w^p F. Beyond it the delivered thrust is
+    f - c ``unit`` = sign(f) F [(1 - c) u^p + c g(u)], a blend, linear in the shift c, of the hard deadband
     (c = 0: the nominal curve, cut below w) and the continuous one (c = 1) that starts from zero at w:
 
-        g(u) = (u - w)^p / (1 - w)^(2(p - 1)),    unit = sign(f) (|f| - f_ref g(u)).
+        g(u) = (u - w)^p / (1 - w)^(2(p - 1)),    unit = sign(f) (|f| - F g(u)),
+        F = f_ref^(2 - p) C^(p - 1),  C the capacity in the direction of f (forward or reverse).
 
-    * p = 1: g = u - w, unit = d sign(f): today's shifted deadband f - c d sign(f), exactly (computed as d sign(f)).
-    * p = 2: g = ((u - w) / (1 - w))^2: the ESC deadband of the PWM domain with thrust ~ (PWM offset beyond it)^2,
-      rescaled to full thrust at full command (u = 1) -- a thrust curve measured with the deadband in it, as a
-      vendor's chart is.
-    * in between the continuous curve's full-command thrust f_ref (1 - w)^(2 - p) moves geometrically from the
-      shifted p = 1 curve to the rescaled p = 2 one. The shift stays a linear amplitude (the diagnoser fits it by
-      least squares), which rules out the u-domain shift u - c w inside the power.
+    * p = 1: a deadband of the thrust, symmetric in thrust: F = f_ref, g = u - w, unit = d sign(f) -- today's
+      shifted deadband f - c d sign(f), d = w f_ref, exactly (computed as such).
+    * p = 2: the ESC's deadband of the PWM domain, symmetric in PWM, with thrust ~ (PWM offset beyond it)^2 in
+      each direction up to that direction's capacity C at full command (u = 1): g = ((u - w) / (1 - w))^2 -- a
+      thrust curve measured with the deadband in it, as a vendor's chart is; reverse commands are normalised by
+      the reverse capacity, as the thrust-to-PWM conversion of an asymmetric thruster does.
+    * in between, the normaliser and the full-command thrust F (1 - w)^(2 - p) move geometrically from the p = 1
+      form to the p = 2 one. The shift stays a linear amplitude (the diagnoser fits it by least squares), which
+      rules out the u-domain shift u - c w inside the power.
 
     Parameters
     ----------
     be : Backend
     f : array_like or casadi expression
-        Commanded thrust of one actuator, N (or N m).
-    f_ref : float
-        The actuator's capacity, N.
+        Commanded thrust of one actuator (or of several, numpy), N (or N m).
+    f_ref : float or array_like
+        The actuator's reference capacity max(forward, reverse), N.
     width_fraction, command_exponent : float
         w (of the normalised command) and p (1 to 2).
+    capacities : (forward, reverse) of floats or arrays, optional
+        The actuator's capacity in each direction, N (positive); default f_ref both ways (a commanded wrench).
 
     Returns
     -------
-    d : float
-        Threshold on |f|, N: w^p f_ref.
+    d : float or like ``f``
+        Threshold on |f|, N: w^p F.
     unit : like ``f``
         Thrust removed per unit shift where |f| >= d, N (meaningless inside the deadband).
     """
     w, p = float(width_fraction), float(command_exponent)
-    d = w ** p * f_ref
     if p == 1.0:
+        d = w * f_ref
         return d, d * be.sign(f)
+    fwd, rev = (f_ref, f_ref) if capacities is None else capacities
+    F = be.where(f < 0, f_ref ** (2.0 - p) * rev ** (p - 1.0), f_ref ** (2.0 - p) * fwd ** (p - 1.0))
+    d = w ** p * F
     # |f| floored at the threshold: the same value beyond it, a finite slope at f = 0 (casadi's Jacobians)
-    u = (be.fmax(abs(f), np.maximum(d, 1e-12 * f_ref)) / f_ref) ** (1.0 / p)
+    u = (be.fmax(abs(f), be.fmax(d, 1e-12 * f_ref)) / F) ** (1.0 / p)
     g = be.fmax(u - w, 0.0) ** p / (1.0 - w) ** (2.0 * (p - 1.0))
-    return d, be.sign(f) * (abs(f) - f_ref * g)
+    return d, be.sign(f) * (abs(f) - F * g)
 
 
-def static_thrust(be, f, effects, f_ref):
+STATIC_MAP_ORDER = {"thruster_deadband": 0, "thruster_asymmetry": 1}  # the order the static maps act in
+
+
+def static_thrust(be, f, effects, f_ref, capacities=None):
     """Thrust after the static maps (deadband, then reverse loss) of the commanded, clipped thrusts ``f``.
 
     Parameters
@@ -420,7 +429,10 @@ def static_thrust(be, f, effects, f_ref):
     f : sequence of n components (N; or N, N m for a commanded wrench)
     effects : sequence of PlantEffect
     f_ref : (n,) array_like
-        Reference magnitude of each actuator (its capacity), N.
+        Reference magnitude of each actuator (its capacity max(forward, reverse)), N.
+    capacities : ((n,), (n,)) array_like, optional
+        Forward and reverse capacity of each thruster, N (positive: ``f_max``, ``-f_min``); default f_ref both ways
+        (a commanded wrench). The deadband's normalised command uses them (:func:`deadband_terms`).
     """
     out = list(f)
     n = len(out)
@@ -432,7 +444,8 @@ def static_thrust(be, f, effects, f_ref):
             w = e.params["width_fraction"]
             p = e.params.get("command_exponent", OPTIONAL_DEFAULTS["command_exponent"])
             for i in range(n):
-                d, unit = deadband_terms(be, out[i], float(f_ref[i]), w, p)
+                cap = None if capacities is None else (float(capacities[0][i]), float(capacities[1][i]))
+                d, unit = deadband_terms(be, out[i], float(f_ref[i]), w, p, cap)
                 out[i] = be.where(abs(out[i]) < d, 0.0 * out[i], out[i] - shift[i] * unit)
         elif e.name == "thruster_asymmetry":
             loss = _per_actuator(e.params, "reverse_loss", n)

@@ -136,7 +136,7 @@ class Actuators:
         p = self.p
         f = np.clip(np.asarray(u, float), p.f_min, p.f_max)
         f = np.stack(np.broadcast_arrays(*fx.static_thrust(fx.NUMPY, list(np.moveaxis(f, -1, 0)), self.maps,
-                                                           p.f_ref)), axis=-1)
+                                                           p.f_ref, p.capacities)), axis=-1)
         if self.lag is not None:
             self.f = f if self.f is None else fx.first_order_lag_step(self.f, f, self.dt, self.lag.T_s,
                                                                       self.lag.thrust_exponent)

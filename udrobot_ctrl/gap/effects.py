@@ -200,6 +200,14 @@ def _stack(parts):
     return np.stack(np.broadcast_arrays(*parts), axis=-1)
 
 
+def thruster_capacities(p: PlantParameters, B):
+    """Forward and reverse capacity of each actuator (``p.capacities``) when the actuators are the model's thrusters
+    (B is its thruster matrix), else None: six virtual wrench actuators of a commanded wrench, symmetric."""
+    B = np.asarray(B, float)
+    T = np.asarray(p.T, float)
+    return p.capacities if B.shape == T.shape and np.array_equal(B, T) else None
+
+
 def plant_hooks(e: PlantEffect, p: PlantParameters, actuation: Actuation) -> Hooks:
     """Input filter, force and added-mass increment of ``e`` for a replay, from :mod:`udrobot_ctrl.dynamics.effects`
     (the physics the plant simulates; nothing is written twice).
@@ -219,7 +227,8 @@ def plant_hooks(e: PlantEffect, p: PlantParameters, actuation: Actuation) -> Hoo
         return Hooks(input_filter=lambda f, dt: pfx.first_order_lag(f, dt, lag.T_s,
                                                                    thrust_exponent=lag.thrust_exponent), order=1)
     if e.name in ("thruster_deadband", "thruster_asymmetry"):  # in the plant's order (pfx.STATIC_MAP_ORDER)
-        return Hooks(input_filter=lambda f, dt: _stack(pfx.static_thrust(pfx.NUMPY, _comps(f), (e,), f_ref)),
+        caps = thruster_capacities(p, B)
+        return Hooks(input_filter=lambda f, dt: _stack(pfx.static_thrust(pfx.NUMPY, _comps(f), (e,), f_ref, caps)),
                      order=pfx.STATIC_MAP_ORDER[e.name] / len(pfx.STATIC_MAP_ORDER))
     if e.name == "thrust_inflow_loss":
         def inflow_force(x, f, ctx):
@@ -305,7 +314,8 @@ class Deadband(Effect):
     commanded wrench the 99th percentile of the command). Commands u < w give no thrust (``b0``); beyond, the
     amplitude ``shift`` c in [0, 1] blends the hard deadband (c = 0, the nominal curve) and the continuous one
     (c = 1, starting from zero at w: f - w f_ref sign(f) for p = 1, today's form; for p = 2 the PWM-domain
-    deadband with thrust ~ offset^2 rescaled to full thrust at full command).
+    deadband with thrust ~ offset^2 rescaled to full thrust at full command, reverse commands normalised by the
+    reverse capacity).
 
     The width is bounded by 0.35 of the command range: the T200's ESC deadband is +-25 us of +-400 us PWM (6 %),
     and its bollard thrust beyond it grows as the offset^1.1-1.55 (Blue Robotics' 2019 data, 10-20 V); at p = 2 a
@@ -316,8 +326,10 @@ class Deadband(Effect):
     def design(self, s, shape):
         w, p = shape
 
+        caps = None if _per_dof(s) else thruster_capacities(s.p, s.B)
+
         def cut(r):  # inside the deadband (n, k) and the thrust removed per unit shift beyond it, scaled by crossing
-            d, unit = pfx.deadband_terms(pfx.NUMPY, r["f"], s.f_ref, w, p)
+            d, unit = pfx.deadband_terms(pfx.NUMPY, r["f"], s.f_ref, w, p, caps)
             inside = np.abs(r["f"]) < d
             return inside, np.where(inside, 0.0, -unit) * crossing(s)
         b0 = s.full(lambda r: np.where(cut(r)[0], -r["f"], 0.0) @ s.B.T, held=True)

@@ -265,17 +265,25 @@ def test_command_domain_deadband_is_the_same_in_numpy_casadi_and_the_replay():
     x, f = _states()
     f[1] = 0.0
     for xi, fi in zip(x, f):
-        fd = np.array(fx.static_thrust(fx.NUMPY, list(fi), p.effects, p.f_ref), float)
+        fd = np.array(fx.static_thrust(fx.NUMPY, list(fi), p.effects, p.f_ref, p.capacities), float)
         ref = state_derivative(xi, delivered_wrench(xi, fd, p), p)
         np.testing.assert_allclose(np.asarray(f_cas(xi, fi)).ravel(), ref, rtol=1e-9, atol=1e-9)
     sym = ca.SX.sym("f")
-    out = fx.static_thrust(fx.CASADI, [sym], p.effects, p.f_ref[:1])[0]
+    out = fx.static_thrust(fx.CASADI, [sym], p.effects, p.f_ref[:1], (p.f_max[:1], -p.f_min[:1]))[0]
     slope = ca.Function("slope", [sym], [ca.jacobian(out, sym)])
     assert [float(slope(v)) for v in (0.0, 1e-9, -1e-9)] == [0.0, 0.0, 0.0]  # inside the deadband, no NaN
-    assert 0.0 < float(slope(0.9 * p.f_ref[0])) < np.inf
+    assert 0.0 < float(slope(0.9 * p.f_ref[0])) < np.inf and 0.0 < float(slope(-0.9 * p.f_ref[0])) < np.inf
     hooks = plant_hooks(p.effects[0], p, Actuation(p.T, p.T, p.f_ref, p.M_A))
-    np.testing.assert_array_equal(hooks.input_filter(f, 0.02),
-                                  np.stack(fx.static_thrust(fx.NUMPY, list(f.T), p.effects, p.f_ref), -1))
+    np.testing.assert_array_equal(hooks.input_filter(f, 0.02), np.stack(
+        fx.static_thrust(fx.NUMPY, list(f.T), p.effects, p.f_ref, p.capacities), -1))
+    # p = 2, continuous: the simulator delivers each direction's capacity at full command (an asymmetric thruster's
+    # reverse command is normalised by its reverse capacity), nothing inside w^2 of it
+    p2 = plant_parameters(NOMINAL.with_changes(effects=_deadband(0.2, 2.0, 1.0)))
+    assert p2.f_max[0] != -p2.f_min[0]
+    u = np.zeros((4, 4))
+    u[:, 0] = [p2.f_max[0], p2.f_min[0], 0.039 * p2.f_max[0], 0.039 * p2.f_min[0]]
+    np.testing.assert_allclose(Actuators(p2, 0.02).delivered(u)[:, 0], [p2.f_max[0], p2.f_min[0], 0.0, 0.0],
+                               rtol=1e-12)
 
 
 def test_thruster_lag_delays_the_response_by_its_time_constant():

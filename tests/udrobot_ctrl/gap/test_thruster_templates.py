@@ -18,18 +18,17 @@ from .truth import Truth
 
 P = plant_parameters(load_model("pendulum:chin"))
 DT = 0.02  # s, a 50 Hz log
-F_REF = 30.0  # N, the thrusters' capacity
 #: equation-error residual noise per DOF (assumed: N and N m, of the order of a smoothed 50 Hz fit's residual)
 SIGMA = 2.0
 DOFS = np.array([True, False, True, True, False, True])  # X Z K N: the DOFs UDrobot actuates
 
 
 def _commands(n=3000, seed=0):
-    """Thrust commands held for 1 s each, uniform in the normalised command (u^1.5 f_ref): both signs, small and
-    large, like a closed-loop pool run's."""
+    """Thrust commands held for 1 s each, uniform in the normalised command (u^1.5 times each direction's capacity):
+    both signs, small and large, like a closed-loop pool run's."""
     rng = np.random.default_rng(seed)
     u = np.repeat(rng.uniform(-1, 1, (n // 50 + 1, 4)), 50, axis=0)[:n]
-    return F_REF * np.sign(u) * np.abs(u) ** 1.5
+    return np.where(u >= 0, P.f_max, -P.f_min) * np.sign(u) * np.abs(u) ** 1.5
 
 
 def _stack(f):
@@ -37,7 +36,7 @@ def _stack(f):
     n = f.shape[0]
     run = {"f": f, "dt": DT, "idx": np.arange(n), "rows": np.arange(n), "smooth": lambda y, held=False: y}
     z = np.zeros((n, 6))
-    return fx.Stack(nu=z, nu_dot=z, eta=z, f=f, B=P.T, inflow=P.T, f_ref=np.full(f.shape[1], F_REF), surfaces={},
+    return fx.Stack(nu=z, nu_dot=z, eta=z, f=f, B=P.T, inflow=P.T, f_ref=P.f_ref, surfaces={},
                     runs=[run], p=P, M_A=P.M_A)
 
 
@@ -72,7 +71,7 @@ def test_lag_template_recovers_the_rotor_speed_lag(k):
 
 def _deadband_residual(f, w, p, c):
     effect = (pfx.PlantEffect("thruster_deadband", {"width_fraction": w, "shift": c, "command_exponent": p}),)
-    f_act = np.stack(pfx.static_thrust(pfx.NUMPY, list(f.T), effect, np.full(f.shape[1], F_REF)), -1)
+    f_act = np.stack(pfx.static_thrust(pfx.NUMPY, list(f.T), effect, P.f_ref, P.capacities), -1)
     return (f_act - f) @ P.T.T
 
 
@@ -86,17 +85,17 @@ def test_deadband_design_is_the_plant_map():
 
 
 def test_deadband_template_at_p2_is_the_truth_generators_pwm_deadband():
-    """The truth generator's deadband (tests/udrobot_ctrl/gap/truth.py: a PWM-domain deadband delta with thrust ~
-    command^2 rescaled to full thrust at full command) is the template at p = 2, shift 1, for forward thrust
-    (the truth normalises reverse thrust by the reverse capacity, the template by the larger one)."""
+    """The truth generator's deadband (tests/udrobot_ctrl/gap/truth.py: a deadband delta of the PWM-like command,
+    each direction's command normalised by its capacity, thrust ~ command^2 rescaled to full thrust at full
+    command) is the plant's deadband at p = 2, shift 1, in both directions."""
     delta = 0.22
     truth = Truth(effects={"thruster_deadband": {"delta": delta}})
-    f_ref = np.maximum(truth.fmax, truth.frev)
-    fc = np.linspace(0.0, 1.0, 101)[:, None] * truth.fmax[None, :]
+    assert np.all(truth.fmax != truth.frev)  # an asymmetric thruster: the reverse normalisation matters
+    fc = np.linspace(-1.0, 1.0, 201)[:, None] * np.where(np.linspace(-1.0, 1.0, 201)[:, None] >= 0, truth.fmax,
+                                                          truth.frev)
     true, _ = truth.thrust(fc, np.zeros_like(fc), np.zeros((fc.shape[0], 12)), DT)
     effect = (pfx.PlantEffect("thruster_deadband", {"width_fraction": delta, "shift": 1.0, "command_exponent": 2.0}),)
-    ours = np.stack(pfx.static_thrust(pfx.NUMPY, list(fc.T), effect, f_ref), -1)
-    assert np.all(truth.fmax == f_ref)  # forward capacity is the larger one on this vehicle
+    ours = np.stack(pfx.static_thrust(pfx.NUMPY, list(fc.T), effect, P.f_ref, P.capacities), -1)
     np.testing.assert_allclose(ours, true, rtol=1e-12, atol=1e-12)
 
 
