@@ -64,7 +64,7 @@ def test_numpy_and_casadi_plants_agree_with_the_effect(name):
     x, f = _states()
     maps = fx.thrust_effects(p.effects)
     for xi, fi in zip(x, f):
-        fd = np.array(fx.static_thrust(fx.NUMPY, list(fi), maps, p.f_ref), float)
+        fd = np.array(fx.static_thrust(fx.NUMPY, list(fi), maps, p.f_ref, p.capacities), float)
         ref = state_derivative(xi, delivered_wrench(xi, fd, p), p)
         np.testing.assert_allclose(np.asarray(f_cas(xi, fi)).ravel(), ref, rtol=1e-9, atol=1e-9)
 
@@ -255,6 +255,8 @@ def test_command_exponent_one_is_the_old_deadband_exactly():
     old = np.where(np.abs(f) < w * ref, 0.0 * f, f - c * w * ref * np.sign(f))
     for effects in (_deadband(w, 1.0, c), (fx.PlantEffect("thruster_deadband", {"width_fraction": w, "shift": c}),)):
         np.testing.assert_array_equal(fx.static_thrust(fx.NUMPY, [f], effects, [ref])[0], old)
+        # symmetric in thrust at p = 1 whatever the thruster's reverse capacity
+        np.testing.assert_array_equal(fx.static_thrust(fx.NUMPY, [f], effects, [ref], ([ref], [0.7 * ref]))[0], old)
 
 
 def test_command_domain_deadband_is_the_same_in_numpy_casadi_and_the_replay():
