@@ -10,7 +10,8 @@ of issue 13. A case is right when:
 * stock sensors (depth, attitude, rates, accelerometer; no DVL, no positioning): no significant effect is
   outside the truth set, and every truth effect is either significant or listed under ``unidentifiable``.
 
-Usage: ``python bench/blind_score.py [--sensors full|stock] [--pairs N] [--draws K] [--jobs J] [--json]``.
+Usage: ``python bench/blind_score.py [--sensors full|stock] [--pairs N] [--draws K] [--jobs J] [--only CASE]
+[--json]``.
 Prints one line per case and the score; with ``--json`` ends with one JSON line.
 """
 from __future__ import annotations
@@ -90,14 +91,17 @@ def main(argv=None) -> int:
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--seed", type=int, default=13)
     ap.add_argument("--json", action="store_true")
-    ap.add_argument("--only", action="append", default=[],
-                    help="run only the cases whose truth label (e.g. 'thruster_lag' or 'none') is given (repeatable)")
+    ap.add_argument("--only", action="append", default=[], metavar="CASE",
+                    help="run only this case, named like its printed label (e.g. thruster_lag, "
+                         "thruster_deadband+thruster_asymmetry, none); repeatable")
     ap.add_argument("--log-dir", default=None, help="write each case's console story and report to this folder")
     args = ap.parse_args(argv)
     todo = cases(args.pairs, args.draws, args.seed)
     todo = [c for c in todo if c[0] >= args.first_draw]
     if args.only:
         todo = [c for c in todo if ("+".join(c[1]) or "none") in args.only]
+        if not todo:
+            ap.error(f"--only matched no case: {', '.join(args.only)}")
     if args.log_dir:
         Path(args.log_dir).mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()

@@ -14,14 +14,22 @@ the plant in one of three ways:
   ``buoyancy_offset``           B += dB  (``dB_N``; acting at the centre of buoyancy)
   ``cg_cb_offset``              (r_g W - r_b B) += dBG  (``dBG_x_Nm`` ...; the centre of buoyancy moves)
 
-* **thrust** -- it changes the thrust each actuator delivers (:func:`delivered_thrust`, :class:`ThrusterLag`):
+* **thrust** -- it changes the thrust each actuator delivers (:func:`static_thrust`, :func:`inflow_loss`,
+  :func:`first_order_lag`):
 
-  ``thruster_deadband``   f -> 0 for |f| < d, f - c d sign(f) beyond; d = ``width_fraction`` * f_ref
+  ``thruster_deadband``   a deadband of ``width_fraction`` w in the normalised command u = (|f|/F)^(1/p),
+                          p = ``command_exponent`` in [1, 2] (optional, default 1): f -> 0 for u < w; beyond,
+                          f -> f - c sign(f) (|f| - F (u - w)^p / (1 - w)^(2(p-1))), c = ``shift`` (0 hard, 1
+                          continuous), F = f_ref^(2-p) C^(p-1), C the capacity in f's direction. p = 1:
+                          f - c d sign(f), d = w f_ref; p = 2, c = 1: an ESC deadband in the PWM domain with thrust
+                          ~ PWM offset^2, each direction's full thrust at full command (:func:`deadband_terms`)
   ``thruster_asymmetry``  f -> (1 - ``reverse_loss``) f for f < 0
   ``thrust_inflow_loss``  f -> f - (k1 |f| + k2 sqrt(|f| f_ref)) u_a, never reversing f; u_a the actuator's axial
                           advance speed (``k1_per_mps``, ``k2_per_mps``)
-  ``thruster_lag``        first-order lag of time constant ``T_lag_s`` (a state of the actuator: simulated
-                          by the simulator, refused by tools that need a static plant)
+  ``thruster_lag``        first-order lag of time constant ``T_lag_s`` of s = sign(f) |f|^(1/k), the thrust
+                          sign(s) |s|^k; k = ``thrust_exponent`` in [1, 2] (optional, default 1: a lag of the
+                          thrust; 2: of the rotor speed, thrust ~ n|n|). A state of the actuator: simulated by
+                          the simulator, refused by tools that need a static plant
 
   f_ref is each thruster's capacity (max(max_forward_N, max_reverse_N)); for a commanded wrench (``tau_*``
   runs: six virtual actuators) the maps act per DOF, with per-DOF parameters (``shift_X`` ...) allowed.
@@ -76,7 +84,8 @@ class EffectKind:
     alternatives : tuple of tuple of str
         Other accepted parameter sets (per-DOF thruster maps of a commanded wrench).
     optional : tuple of str
-        Parameters that may be absent (defaults in :data:`OPTIONAL_DEFAULTS`).
+        Parameters that may be absent: an exponent then takes its default (:data:`OPTIONAL_DEFAULTS`), an absent
+        plane of a wall_effect is no plane.
     """
 
     name: str
@@ -99,10 +108,11 @@ CATALOGUE = {k.name: k for k in (
     EffectKind("thrust_inflow_loss", "thrust falls with the axial inflow speed through the thruster", "thrust",
                ("k1_per_mps", "k2_per_mps")),
     EffectKind("thruster_deadband", "small commands produce no thrust", "thrust", ("width_fraction", "shift"),
-               alternatives=(("width_fraction",) + _per_dof("shift"),)),
+               alternatives=(("width_fraction",) + _per_dof("shift"),), optional=("command_exponent",)),
     EffectKind("thruster_asymmetry", "reverse thrust weaker than modelled, relative to forward", "thrust",
                ("reverse_loss",), alternatives=(_per_dof("reverse_loss"),)),
-    EffectKind("thruster_lag", "thrust follows the command with a first-order lag", "lag", ("T_lag_s",)),
+    EffectKind("thruster_lag", "thrust follows the command with a first-order lag", "lag", ("T_lag_s",),
+               optional=("thrust_exponent",)),
     EffectKind("tether_drag", "umbilical cross-flow drag, normal to the cable", "force",
                ("k_quadratic_N_s2_per_m2", "k_linear_N_s_per_m") + TETHER_ANCHOR,
                alternatives=(("k_quadratic_N_s2_per_m2", "k_linear_N_s_per_m") + TETHER_FIXED_DIRECTION,)),
@@ -125,6 +135,12 @@ CATALOGUE = {k.name: k for k in (
                ("dBG_x_Nm", "dBG_y_Nm", "dBG_z_Nm")),
 )}
 EFFECT_NAMES = tuple(CATALOGUE)
+#: optional shape exponents of the thruster effects and their value when a model file leaves them out (today's forms)
+OPTIONAL_DEFAULTS = {"thrust_exponent": 1.0, "command_exponent": 1.0}
+#: the range of the shape exponents: 1 (the form linear in the thrust) to 2 (thrust ~ rotor speed n|n| ~ command^2)
+EXPONENT_RANGE = (1.0, 2.0)
+EXPONENT_MEANING = {"thrust_exponent": "1: a lag of the thrust, 2: of the rotor speed, thrust ~ n|n|",
+                    "command_exponent": "thrust ~ command^p beyond the deadband: 1 linear, 2 quadratic"}
 
 
 @dataclass(frozen=True)
@@ -187,6 +203,10 @@ def plant_effect(doc, where: str = "effects[0]") -> PlantEffect:
         raise ValueError(f"{where}: effect {name!r} misses parameter(s) {', '.join(missing)}")
     if name == "thruster_lag" and params["T_lag_s"] <= 0:
         raise ValueError(f"{where}.params.T_lag_s: must be > 0 s, got {params['T_lag_s']}")
+    for key, meaning in EXPONENT_MEANING.items():
+        if key in params and not EXPONENT_RANGE[0] <= params[key] <= EXPONENT_RANGE[1]:
+            raise ValueError(f"{where}.params.{key}: must be within [{EXPONENT_RANGE[0]:g}, {EXPONENT_RANGE[1]:g}] "
+                             f"({meaning}), got {params[key]:g}")
     if name == "wall_effect" and params["decay_length_m"] <= 0:
         raise ValueError(f"{where}.params.decay_length_m: must be > 0 m, got {params['decay_length_m']}")
     if name == "wall_effect":
@@ -343,10 +363,64 @@ def _per_actuator(params, key, n_actuators):
     return [params.get(key, 0.0)] * n_actuators
 
 
+def deadband_terms(be, f, f_ref, width_fraction, command_exponent=1.0, capacities=None):
+    """The deadband's threshold and the thrust its shift removes, per unit of ``shift``, beyond it.
+
+    A deadband sits in the ESC's command (PWM) domain: with the normalised command u = (|f| / F)^(1/p) (p the
+    ``command_exponent``: the nominal thrust curve is F u^p), commands u < w = ``width_fraction`` produce no
+    thrust, i.e. |f| < d = w^p F. Beyond it the delivered thrust is
+    f - c ``unit`` = sign(f) F [(1 - c) u^p + c g(u)], a blend, linear in the shift c, of the hard deadband
+    (c = 0: the nominal curve, cut below w) and the continuous one (c = 1) that starts from zero at w:
+
+        g(u) = (u - w)^p / (1 - w)^(2(p - 1)),    unit = sign(f) (|f| - F g(u)),
+        F = f_ref^(2 - p) C^(p - 1),  C the capacity in the direction of f (forward or reverse).
+
+    * p = 1: a deadband of the thrust, symmetric in thrust: F = f_ref, g = u - w, unit = d sign(f) -- today's
+      shifted deadband f - c d sign(f), d = w f_ref, exactly (computed as such).
+    * p = 2: the ESC's deadband of the PWM domain, symmetric in PWM, with thrust ~ (PWM offset beyond it)^2 in
+      each direction up to that direction's capacity C at full command (u = 1): g = ((u - w) / (1 - w))^2 -- a
+      thrust curve measured with the deadband in it, as a vendor's chart is; reverse commands are normalised by
+      the reverse capacity, as the thrust-to-PWM conversion of an asymmetric thruster does.
+    * in between, the normaliser and the full-command thrust F (1 - w)^(2 - p) move geometrically from the p = 1
+      form to the p = 2 one. The shift stays a linear amplitude (the diagnoser fits it by least squares), which
+      rules out the u-domain shift u - c w inside the power.
+
+    Parameters
+    ----------
+    be : Backend
+    f : array_like or casadi expression
+        Commanded thrust of one actuator (or of several, numpy), N (or N m).
+    f_ref : float or array_like
+        The actuator's reference capacity max(forward, reverse), N.
+    width_fraction, command_exponent : float
+        w (of the normalised command) and p (1 to 2).
+    capacities : (forward, reverse) of floats or arrays, optional
+        The actuator's capacity in each direction, N (positive); default f_ref both ways (a commanded wrench).
+
+    Returns
+    -------
+    d : float or like ``f``
+        Threshold on |f|, N: w^p F.
+    unit : like ``f``
+        Thrust removed per unit shift where |f| >= d, N (meaningless inside the deadband).
+    """
+    w, p = float(width_fraction), float(command_exponent)
+    if p == 1.0:
+        d = w * f_ref
+        return d, d * be.sign(f)
+    fwd, rev = (f_ref, f_ref) if capacities is None else capacities
+    F = be.where(f < 0, f_ref ** (2.0 - p) * rev ** (p - 1.0), f_ref ** (2.0 - p) * fwd ** (p - 1.0))
+    d = w ** p * F
+    # |f| floored at the threshold: the same value beyond it, a finite slope at f = 0 (casadi's Jacobians)
+    u = (be.fmax(abs(f), be.fmax(d, 1e-12 * f_ref)) / F) ** (1.0 / p)
+    g = be.fmax(u - w, 0.0) ** p / (1.0 - w) ** (2.0 * (p - 1.0))
+    return d, be.sign(f) * (abs(f) - F * g)
+
+
 STATIC_MAP_ORDER = {"thruster_deadband": 0, "thruster_asymmetry": 1}  # the order the static maps act in
 
 
-def static_thrust(be, f, effects, f_ref):
+def static_thrust(be, f, effects, f_ref, capacities=None):
     """Thrust after the static maps (deadband, then reverse loss) of the commanded, clipped thrusts ``f``.
 
     Parameters
@@ -355,7 +429,10 @@ def static_thrust(be, f, effects, f_ref):
     f : sequence of n components (N; or N, N m for a commanded wrench)
     effects : sequence of PlantEffect
     f_ref : (n,) array_like
-        Reference magnitude of each actuator (its capacity), N.
+        Reference magnitude of each actuator (its capacity max(forward, reverse)), N.
+    capacities : ((n,), (n,)) array_like, optional
+        Forward and reverse capacity of each thruster, N (positive: ``f_max``, ``-f_min``); default f_ref both ways
+        (a commanded wrench). The deadband's normalised command uses them (:func:`deadband_terms`).
     """
     out = list(f)
     n = len(out)
@@ -364,9 +441,12 @@ def static_thrust(be, f, effects, f_ref):
     for e in sorted((e for e in effects if e.name in STATIC_MAP_ORDER), key=lambda e: STATIC_MAP_ORDER[e.name]):
         if e.name == "thruster_deadband":
             shift = _per_actuator(e.params, "shift", n)
+            w = e.params["width_fraction"]
+            p = e.params.get("command_exponent", OPTIONAL_DEFAULTS["command_exponent"])
             for i in range(n):
-                d = e.params["width_fraction"] * float(f_ref[i])
-                out[i] = be.where(abs(out[i]) < d, 0.0 * out[i], out[i] - shift[i] * d * be.sign(out[i]))
+                cap = None if capacities is None else (float(capacities[0][i]), float(capacities[1][i]))
+                d, unit = deadband_terms(be, out[i], float(f_ref[i]), w, p, cap)
+                out[i] = be.where(abs(out[i]) < d, 0.0 * out[i], out[i] - shift[i] * unit)
         elif e.name == "thruster_asymmetry":
             loss = _per_actuator(e.params, "reverse_loss", n)
             for i in range(n):
@@ -402,12 +482,27 @@ def thrust_effects(effects) -> tuple:
     return tuple(e for e in effects if CATALOGUE[e.name].enters == "thrust")
 
 
-def lag_time_constant(effects) -> float | None:
-    """T_lag_s of a ``thruster_lag`` effect, or None."""
+@dataclass(frozen=True)
+class ThrusterLag:
+    """The ``thruster_lag`` of a model: time constant ``T_s`` (s) and ``thrust_exponent`` k (1 to 2)."""
+
+    T_s: float
+    thrust_exponent: float = OPTIONAL_DEFAULTS["thrust_exponent"]
+
+
+def thruster_lag(effects) -> ThrusterLag | None:
+    """The :class:`ThrusterLag` of a ``thruster_lag`` effect in ``effects`` (an absent exponent is 1), or None."""
     for e in effects:
         if e.name == "thruster_lag":
-            return float(e.params["T_lag_s"])
+            return ThrusterLag(float(e.params["T_lag_s"]),
+                               float(e.params.get("thrust_exponent", OPTIONAL_DEFAULTS["thrust_exponent"])))
     return None
+
+
+def lag_time_constant(effects) -> float | None:
+    """T_lag_s of a ``thruster_lag`` effect, or None."""
+    lag = thruster_lag(effects)
+    return None if lag is None else lag.T_s
 
 
 def lag_pole(dt, T) -> float:
@@ -415,20 +510,43 @@ def lag_pole(dt, T) -> float:
     return math.exp(-dt / max(T, 1e-9))
 
 
-def first_order_lag_step(f_prev, f_cmd, dt, T):
-    """One step of the lag from ``f_prev`` with the command ``f_cmd`` held over ``dt`` s (arrays or scalars)."""
-    a = lag_pole(dt, T)
-    return a * np.asarray(f_prev, float) + (1.0 - a) * np.asarray(f_cmd, float)
-
-
-def first_order_lag(f, dt, T, f0=None):
-    """The lag over a whole uniform command sequence f (n, k) held per step of ``dt`` s, from ``f0`` (default the
-    first command): the same recursion as :func:`first_order_lag_step`, run by ``scipy.signal.lfilter``."""
-    a = lag_pole(dt, T)
+def lag_state(f, thrust_exponent=1.0):
+    """The lagged state s = sign(f) |f|^(1/k) of a thrust ``f`` (N) for the thrust exponent k: the thrust itself for
+    k = 1, a quantity proportional to the rotor speed for k = 2 (thrust ~ n|n|)."""
     f = np.asarray(f, float)
-    zi = ((f[0] if f0 is None else np.asarray(f0, float)) * a)[None, :]
-    y, _ = lfilter([1 - a], [1, -a], f, axis=0, zi=zi)
-    return y
+    if thrust_exponent == 1.0:
+        return f
+    return np.sign(f) * np.abs(f) ** (1.0 / thrust_exponent)
+
+
+def lag_thrust(s, thrust_exponent=1.0):
+    """The thrust sign(s) |s|^k (N) of a lagged state ``s``: the inverse of :func:`lag_state`."""
+    s = np.asarray(s, float)
+    if thrust_exponent == 1.0:
+        return s
+    return np.sign(s) * np.abs(s) ** thrust_exponent
+
+
+def first_order_lag_step(f_prev, f_cmd, dt, T, thrust_exponent=1.0):
+    """One step of the lag from the delivered thrust ``f_prev`` with the command ``f_cmd`` held over ``dt`` s (arrays
+    or scalars, N): T s' + s = sign(f_cmd) |f_cmd|^(1/k) on the state s of :func:`lag_state`, the thrust
+    :func:`lag_thrust` of it. The state is a one-to-one function of the thrust, so the thrust is all a simulator
+    keeps; k = 1 (the default) is the lag of the thrust itself."""
+    a = lag_pole(dt, T)
+    k = thrust_exponent
+    return lag_thrust(a * lag_state(f_prev, k) + (1.0 - a) * lag_state(f_cmd, k), k)
+
+
+def first_order_lag(f, dt, T, f0=None, thrust_exponent=1.0):
+    """The lag over a whole uniform command sequence f (n, k) held per step of ``dt`` s, from the delivered thrust
+    ``f0`` (default the first command): the same recursion as :func:`first_order_lag_step`, on the state of
+    :func:`lag_state`, run by ``scipy.signal.lfilter``."""
+    a = lag_pole(dt, T)
+    k = thrust_exponent
+    s = lag_state(f, k)
+    zi = ((s[0] if f0 is None else lag_state(f0, k)) * a)[None, :]
+    y, _ = lfilter([1 - a], [1, -a], s, axis=0, zi=zi)
+    return lag_thrust(y, k)
 
 
 # ----------------------------------------------------------------------------------------- forces

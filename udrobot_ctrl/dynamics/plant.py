@@ -168,6 +168,11 @@ class PlantParameters:
     def f_ref(self) -> np.ndarray:
         """Each thruster's capacity max(max_forward_N, max_reverse_N), N (reference of the thrust maps)."""
         return np.maximum(np.asarray(self.f_max, float), -np.asarray(self.f_min, float))
+
+    @property
+    def capacities(self) -> tuple:
+        """Each thruster's forward and reverse capacity (max_forward_N, max_reverse_N), N, both positive."""
+        return np.asarray(self.f_max, float), -np.asarray(self.f_min, float)
     supply_voltage: float = DEFAULT_SUPPLY_VOLTAGE  # V, thruster supply for pwm -> thrust (the vehicle's own)
 
 

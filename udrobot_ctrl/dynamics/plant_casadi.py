@@ -71,7 +71,7 @@ def delivered_wrench(x, f, p: PlantParameters, static_maps: bool = True):
     fe = fx.thrust_effects(p.effects)
     comps = [f[i] for i in range(f.shape[0])]
     if static_maps:
-        comps = fx.static_thrust(fx.CASADI, comps, fe, p.f_ref)
+        comps = fx.static_thrust(fx.CASADI, comps, fe, p.f_ref, p.capacities)
     comps = fx.inflow_loss(fx.CASADI, comps, x[6:12], fe, p.T, p.f_ref)
     return _dm(p.T) @ ca.vertcat(*comps)
 

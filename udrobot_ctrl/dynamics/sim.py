@@ -127,7 +127,7 @@ class Actuators:
     def __init__(self, p: PlantParameters, dt: float):
         self.p, self.dt = p, float(dt)
         self.maps = fx.thrust_effects(p.effects)
-        self.T_lag = fx.lag_time_constant(p.effects)
+        self.lag = fx.thruster_lag(p.effects)
         self.inflow = any(e.name == "thrust_inflow_loss" for e in self.maps)
         self.f = None
 
@@ -136,9 +136,10 @@ class Actuators:
         p = self.p
         f = np.clip(np.asarray(u, float), p.f_min, p.f_max)
         f = np.stack(np.broadcast_arrays(*fx.static_thrust(fx.NUMPY, list(np.moveaxis(f, -1, 0)), self.maps,
-                                                           p.f_ref)), axis=-1)
-        if self.T_lag is not None:
-            self.f = f if self.f is None else fx.first_order_lag_step(self.f, f, self.dt, self.T_lag)
+                                                           p.f_ref, p.capacities)), axis=-1)
+        if self.lag is not None:
+            self.f = f if self.f is None else fx.first_order_lag_step(self.f, f, self.dt, self.lag.T_s,
+                                                                      self.lag.thrust_exponent)
             f = self.f
         return f
 

@@ -196,6 +196,8 @@ class Attributor:
 
         A fit at its bound has not found an optimum inside the physical range the catalogue allows (e.g. a thruster
         lag at the 1 s top of its range): the effect is then likely standing in for something else. Shape
+        parameters whose ends are physical forms (``Effect.physical_ends``: a thrust exponent of 1 or 2) are not
+        checked. Shape
         parameters are checked against the effect's search bounds, amplitudes against their design bounds, within
         ``rel`` of the range (or of the bound's magnitude for a one-sided range).
         """
@@ -203,7 +205,8 @@ class Attributor:
         shape = fit.shapes[name]
         out = {}
         _, bounds = eff.search_space(self.s)
-        checks = [(sn, fit.params[name].get(sn), lo, hi) for sn, (lo, hi) in zip(eff.shape_names, bounds)]
+        checks = [(sn, fit.params[name].get(sn), lo, hi) for sn, (lo, hi) in zip(eff.shape_names, bounds)
+                  if sn not in eff.physical_ends]
         d = self.design(name, shape)
         active = np.einsum("nik,nik->k", d.A[:, self.dofs], d.A[:, self.dofs]) > 0
         checks += [(an, fit.params[name].get(an), lo, hi)

@@ -18,9 +18,13 @@ Templates (the diagnoser's lumped forms; a truth generator should use different 
 
 ``thrust_inflow_loss``  f_act = f - (k1 |f| + k2 sqrt(|f| f_ref)) u_a, u_a the axial advance speed of the
                         actuator (linear K_T(J) gives the sqrt term, fixed-rpm curves the |f| term).
-``thruster_deadband``   f_act = 0 for |f| < d, f - c d sign(f) beyond (hard, c=0, or shifted, c=1).
+``thruster_deadband``   a deadband of width w in the normalised command u = (|f|/f_ref)^(1/p), p the shape
+                        ``command_exponent``: f_act = 0 for u < w; beyond, a blend (amplitude c) of the hard cut
+                        and the continuous curve from zero at w (p = 1: f - c w f_ref sign(f); p = 2, c = 1: thrust
+                        ~ (u - w)^2 rescaled to full thrust at full command, an ESC's PWM-domain deadband).
 ``thruster_asymmetry``  reverse thrust (1 - a) f for f < 0.
-``thruster_lag``        first-order lag of time constant T_lag on every actuator.
+``thruster_lag``        first-order lag of time constant T_lag on every actuator, of the thrust (k = 1) or of the
+                        rotor speed (k = 2, thrust ~ n|n|), k the shape ``thrust_exponent``.
 ``tether_drag``         cross-flow drag of a cable from the vehicle to an anchor fixed in the pool (a deck, a boat;
                         shape: its NED position), e the unit vector towards it: F_ned = -(k_q |V_n| + k_l) V_n,
                         V_n = V - (V.e) e. The direction turns as the vehicle moves; a far anchor is a fixed
@@ -164,6 +168,9 @@ class Effect:
     mimics: tuple = field(default_factory=tuple)
     #: what the runs must contain for its regressors not to vanish (the identifiability report's fix)
     excited_by: str = "manoeuvres in which it acts"
+    #: shape parameters whose range ends are physical forms (an exponent 1 or 2), not limits of the search: a fit
+    #: there is not "at the edge of the catalogue's range"
+    physical_ends: tuple = ()
 
     def search_space(self, s: Stack):
         """(grid, bounds) of the shape search on stack ``s``: the fixed ``shape_grid`` and ``shape_bounds`` unless
@@ -193,6 +200,14 @@ def _stack(parts):
     return np.stack(np.broadcast_arrays(*parts), axis=-1)
 
 
+def thruster_capacities(p: PlantParameters, B):
+    """Forward and reverse capacity of each actuator (``p.capacities``) when the actuators are the model's thrusters
+    (B is its thruster matrix), else None: six virtual wrench actuators of a commanded wrench, symmetric."""
+    B = np.asarray(B, float)
+    T = np.asarray(p.T, float)
+    return p.capacities if B.shape == T.shape and np.array_equal(B, T) else None
+
+
 def plant_hooks(e: PlantEffect, p: PlantParameters, actuation: Actuation) -> Hooks:
     """Input filter, force and added-mass increment of ``e`` for a replay, from :mod:`udrobot_ctrl.dynamics.effects`
     (the physics the plant simulates; nothing is written twice).
@@ -208,10 +223,12 @@ def plant_hooks(e: PlantEffect, p: PlantParameters, actuation: Actuation) -> Hoo
     B, inflow, f_ref, M_A = actuation
     nominal = replace(p, M_A=np.asarray(M_A, float), effects=())
     if e.name == "thruster_lag":
-        T = e.params["T_lag_s"]
-        return Hooks(input_filter=lambda f, dt: pfx.first_order_lag(f, dt, T), order=1)
+        lag = pfx.thruster_lag((e,))
+        return Hooks(input_filter=lambda f, dt: pfx.first_order_lag(f, dt, lag.T_s,
+                                                                   thrust_exponent=lag.thrust_exponent), order=1)
     if e.name in ("thruster_deadband", "thruster_asymmetry"):  # in the plant's order (pfx.STATIC_MAP_ORDER)
-        return Hooks(input_filter=lambda f, dt: _stack(pfx.static_thrust(pfx.NUMPY, _comps(f), (e,), f_ref)),
+        caps = thruster_capacities(p, B)
+        return Hooks(input_filter=lambda f, dt: _stack(pfx.static_thrust(pfx.NUMPY, _comps(f), (e,), f_ref, caps)),
                      order=pfx.STATIC_MAP_ORDER[e.name] / len(pfx.STATIC_MAP_ORDER))
     if e.name == "thrust_inflow_loss":
         def inflow_force(x, f, ctx):
@@ -290,24 +307,36 @@ def crossing(s) -> np.ndarray:
 
 
 class Deadband(Effect):
-    """Deadband of width ``width_fraction * f_ref`` (f_ref: the thruster's capacity, or for a commanded wrench the
-    99th percentile of the command); beyond it the thrust is shifted down by ``shift * d`` (0: hard, 1: continuous).
+    """A deadband in the command (ESC, PWM) domain: the plant's :func:`~udrobot_ctrl.dynamics.effects.deadband_terms`.
 
-    The width is bounded by 0.25 f_ref: an ESC deadband (T200: +-25 us of +-400 us PWM, i.e. 6 % of the command
-    range, thrust ~ command^2) stays well below that; a wider "deadband" would be a thrust gain error or a
-    constant offset in disguise. For a commanded wrench the shift is per DOF (see ``WRENCH_DOF_NOTE``).
+    Shape: ``width_fraction`` w of the normalised command u = (|f| / f_ref)^(1/p) and ``command_exponent`` p in
+    [1, 2] (the thrust curve's power of the command beyond the deadband; f_ref the thruster's capacity, or for a
+    commanded wrench the 99th percentile of the command). Commands u < w give no thrust (``b0``); beyond, the
+    amplitude ``shift`` c in [0, 1] blends the hard deadband (c = 0, the nominal curve) and the continuous one
+    (c = 1, starting from zero at w: f - w f_ref sign(f) for p = 1, today's form; for p = 2 the PWM-domain
+    deadband with thrust ~ offset^2 rescaled to full thrust at full command, reverse commands normalised by the
+    reverse capacity).
+
+    The width is bounded by 0.35 of the command range: the T200's ESC deadband is +-25 us of +-400 us PWM (6 %),
+    and its bollard thrust beyond it grows as the offset^1.1-1.55 (Blue Robotics' 2019 data, 10-20 V); at p = 2 a
+    0.35 deadband is 12 % of the thrust range, at p = 1 35 %, beyond which a "deadband" would be a thrust gain
+    error or a constant offset in disguise. For a commanded wrench the shift is per DOF (see ``WRENCH_DOF_NOTE``).
     """
 
     def design(self, s, shape):
-        (frac,) = shape
-        d = frac * s.f_ref
-        b0 = s.full(lambda r: np.where(np.abs(r["f"]) < d, -r["f"], 0.0) @ s.B.T, held=True)
-        x = crossing(s)
+        w, p = shape
+
+        caps = None if _per_dof(s) else thruster_capacities(s.p, s.B)
+
+        def cut(r):  # inside the deadband (n, k) and the thrust removed per unit shift beyond it, scaled by crossing
+            d, unit = pfx.deadband_terms(pfx.NUMPY, r["f"], s.f_ref, w, p, caps)
+            inside = np.abs(r["f"]) < d
+            return inside, np.where(inside, 0.0, -unit) * crossing(s)
+        b0 = s.full(lambda r: np.where(cut(r)[0], -r["f"], 0.0) @ s.B.T, held=True)
         if _per_dof(s):
-            col = s.full(lambda r: (np.where(np.abs(r["f"]) < d, 0.0, -d * np.sign(r["f"])) * x)[:, :, None]
-                         * np.eye(6)[None], held=True)
+            col = s.full(lambda r: cut(r)[1][:, :, None] * np.eye(6)[None], held=True)
             return Design(b0, col, tuple(f"shift_{k}" for k in DOF), np.zeros(6), np.ones(6))
-        col = s.full(lambda r: (np.where(np.abs(r["f"]) < d, 0.0, -d * np.sign(r["f"])) * x) @ s.B.T, held=True)
+        col = s.full(lambda r: cut(r)[1] @ s.B.T, held=True)
         return Design(b0, col[..., None], ("shift",), np.zeros(1), np.ones(1))
 
 
@@ -328,9 +357,18 @@ class Asymmetry(Effect):
 
 
 class Lag(Effect):
+    """First-order lag of every actuator: the plant's :func:`~udrobot_ctrl.dynamics.effects.first_order_lag` of
+    time constant ``T_lag_s`` on the state s = sign(f) |f|^(1/k), thrust sign(s) |s|^k, k = ``thrust_exponent``
+    in [1, 2]: k = 1 lags the thrust, k = 2 the rotor speed (a propeller's thrust ~ n|n|, and the motor's
+    first-order dynamics act on n: Yoerger, Cooke & Slotine 1990; Healey et al. 1995). The larger k, the slower
+    the thrust's rise from rest for the same T (63 % at 1.59 T for k = 2) and the faster its fall. Shape only
+    (both parameters), no amplitude.
+    """
+
     def design(self, s, shape):
-        (T,) = shape
-        b0 = s.full(lambda r: (pfx.first_order_lag(r["f"], r["dt"], T) - r["f"]) @ s.B.T, held=True)
+        T, k = shape
+        b0 = s.full(lambda r: (pfx.first_order_lag(r["f"], r["dt"], T, thrust_exponent=k) - r["f"]) @ s.B.T,
+                    held=True)
         return Design(b0, np.zeros((s.n, 6, 0)), (), np.zeros(0), np.zeros(0))
 
 
@@ -534,20 +572,22 @@ THRUSTERS_MOVING = "thruster commands that vary (armed thrusters driven through 
 
 def catalogue() -> dict:
     """Name -> :class:`Effect`, in the spec's order."""
-    lag_grid = tuple((T,) for T in (0.03, 0.06, 0.1, 0.15, 0.2, 0.3, 0.45, 0.7, 1.0))
-    db_grid = tuple((d,) for d in (0.02, 0.04, 0.07, 0.1, 0.15, 0.2, 0.25))
+    lag_grid = tuple((T, k) for T in (0.03, 0.06, 0.1, 0.15, 0.2, 0.3, 0.45, 0.7, 1.0) for k in (1.0, 1.5, 2.0))
+    db_grid = tuple((w, p) for w in (0.02, 0.04, 0.07, 0.1, 0.15, 0.2, 0.25, 0.3) for p in (1.0, 1.5, 2.0))
     wall_grid = tuple((lam,) for lam in (0.03, 0.06, 0.1, 0.15, 0.22, 0.33, 0.5, 0.8))
     cur = tuple((cn, ce, 0.0) for cn in (-0.1, 0.0, 0.1) for ce in (-0.1, 0.0, 0.1))
     effects = [
         InflowLoss("thrust_inflow_loss", "thrust falls with the axial inflow speed through the thruster",
                    mimics=("quadratic_damping_error", "linear_damping", "tether_drag"),
                    excited_by="thrust while the vehicle moves along a thruster's axis"),
-        Deadband("thruster_deadband", "small commands produce no thrust", ("width_fraction",), db_grid,
-                 ((0.005, 0.25),), refine=True, excited_by=THRUSTERS_MOVING),
+        Deadband("thruster_deadband", "small commands produce no thrust", ("width_fraction", "command_exponent"),
+                 db_grid, ((0.005, 0.35), pfx.EXPONENT_RANGE), refine=True, excited_by=THRUSTERS_MOVING,
+                 physical_ends=("command_exponent",)),
         Asymmetry("thruster_asymmetry", "reverse thrust weaker than modelled, relative to forward",
                   excited_by="thruster commands of both signs (reverse thrust on an armed thruster)"),
-        Lag("thruster_lag", "thrust follows the command with a first-order lag", ("T_lag_s",), lag_grid,
-            ((0.005, 1.0),), refine=True, mimics=("added_mass_error",), excited_by=THRUSTERS_MOVING),
+        Lag("thruster_lag", "thrust follows the command with a first-order lag", ("T_lag_s", "thrust_exponent"),
+            lag_grid, ((0.005, 1.0), pfx.EXPONENT_RANGE), refine=True, mimics=("added_mass_error",),
+            excited_by=THRUSTERS_MOVING, physical_ends=("thrust_exponent",)),
         TetherDrag("tether_drag", "umbilical cross-flow drag, normal to the cable", pfx.TETHER_ANCHOR, (), (),
                    refine=True, mimics=("quadratic_damping_error", "linear_damping", "thrust_inflow_loss")),
         WallEffect("wall_effect", "extra added mass and suction near the seabed or a wall", ("decay_length_m",),

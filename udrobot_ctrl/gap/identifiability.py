@@ -176,7 +176,7 @@ class Restricted(fx.Effect):
 
     def __init__(self, inner: fx.Effect, frozen):
         super().__init__(inner.name, inner.meaning, inner.shape_names, inner.shape_grid, inner.shape_bounds,
-                         inner.refine, inner.mimics, inner.excited_by)
+                         inner.refine, inner.mimics, inner.excited_by, inner.physical_ends)
         self.inner = inner
         self.frozen = tuple(frozen)
 

@@ -1,6 +1,7 @@
 """Catalogue effects as parts of the plant: twins agree, each effect has its physics, model files carry them."""
 import json
 
+import casadi as ca
 import numpy as np
 import pytest
 
@@ -13,7 +14,7 @@ from udrobot_ctrl.dynamics.plant import (
     rotation_zyx,
     state_derivative,
 )
-from udrobot_ctrl.dynamics.sim import simulate
+from udrobot_ctrl.dynamics.sim import Actuators, simulate
 from udrobot_ctrl.gap.effects import Actuation, plant_hooks
 from udrobot_ctrl.vehicle import load_model, read_model_file, to_model_dict
 
@@ -63,7 +64,7 @@ def test_numpy_and_casadi_plants_agree_with_the_effect(name):
     x, f = _states()
     maps = fx.thrust_effects(p.effects)
     for xi, fi in zip(x, f):
-        fd = np.array(fx.static_thrust(fx.NUMPY, list(fi), maps, p.f_ref), float)
+        fd = np.array(fx.static_thrust(fx.NUMPY, list(fi), maps, p.f_ref, p.capacities), float)
         ref = state_derivative(xi, delivered_wrench(xi, fd, p), p)
         np.testing.assert_allclose(np.asarray(f_cas(xi, fi)).ravel(), ref, rtol=1e-9, atol=1e-9)
 
@@ -226,6 +227,67 @@ def test_deadband_acts_before_the_reverse_loss_whatever_the_list_order():
         assert float(f[0, 0]) == pytest.approx(-0.5)
 
 
+def _deadband(w, p, shift, **more):
+    return (fx.PlantEffect("thruster_deadband", {"width_fraction": w, "shift": shift, "command_exponent": p,
+                                                 **more}),)
+
+
+def test_command_domain_deadband_at_p2_is_the_rescaled_pwm_deadband():
+    """p = 2: thrust f_ref u^2 of the normalised command u; the ESC cuts u < w and, continuous (shift 1), delivers
+    f_ref ((u - w) / (1 - w))^2 beyond: zero at the edge, full thrust at full command. A shift c blends it
+    linearly with the hard cut (the nominal curve beyond w)."""
+    ref, w = 30.0, 0.25
+    f = np.linspace(-ref, ref, 241)
+    u = np.sqrt(np.abs(f) / ref)
+    rescaled = np.sign(f) * ref * (np.clip(u - w, 0.0, None) / (1.0 - w)) ** 2
+    hard = np.where(u < w, 0.0, f)
+    for c in (0.0, 0.4, 1.0):
+        out = fx.static_thrust(fx.NUMPY, [f], _deadband(w, 2.0, c), [ref])[0]
+        np.testing.assert_allclose(out, (1.0 - c) * hard + c * rescaled, rtol=1e-12, atol=1e-12)
+    out = fx.static_thrust(fx.NUMPY, [np.array([ref, -ref, w ** 2 * ref * 0.999])], _deadband(w, 2.0, 1.0), [ref])[0]
+    np.testing.assert_allclose(out, [ref, -ref, 0.0], atol=1e-12)  # full at full command, nothing inside
+
+
+def test_command_exponent_one_is_the_old_deadband_exactly():
+    """p = 1 (or no command_exponent in the model file): f -> 0 for |f| < d, f - shift d sign(f) beyond."""
+    ref, w, c = 30.0, 0.1, 0.7
+    f = np.linspace(-ref, ref, 301)
+    old = np.where(np.abs(f) < w * ref, 0.0 * f, f - c * w * ref * np.sign(f))
+    for effects in (_deadband(w, 1.0, c), (fx.PlantEffect("thruster_deadband", {"width_fraction": w, "shift": c}),)):
+        np.testing.assert_array_equal(fx.static_thrust(fx.NUMPY, [f], effects, [ref])[0], old)
+        # symmetric in thrust at p = 1 whatever the thruster's reverse capacity
+        np.testing.assert_array_equal(fx.static_thrust(fx.NUMPY, [f], effects, [ref], ([ref], [0.7 * ref]))[0], old)
+
+
+def test_command_domain_deadband_is_the_same_in_numpy_casadi_and_the_replay():
+    """The casadi twin evaluates the same map (with a finite slope everywhere, also at f = 0) and the replay's input
+    filter is the plant's function."""
+    p = plant_parameters(NOMINAL.with_changes(effects=_deadband(0.2, 1.6, 0.8)))
+    f_cas = plant_casadi.dynamics_function(p, "thrust")
+    x, f = _states()
+    f[1] = 0.0
+    for xi, fi in zip(x, f):
+        fd = np.array(fx.static_thrust(fx.NUMPY, list(fi), p.effects, p.f_ref, p.capacities), float)
+        ref = state_derivative(xi, delivered_wrench(xi, fd, p), p)
+        np.testing.assert_allclose(np.asarray(f_cas(xi, fi)).ravel(), ref, rtol=1e-9, atol=1e-9)
+    sym = ca.SX.sym("f")
+    out = fx.static_thrust(fx.CASADI, [sym], p.effects, p.f_ref[:1], (p.f_max[:1], -p.f_min[:1]))[0]
+    slope = ca.Function("slope", [sym], [ca.jacobian(out, sym)])
+    assert [float(slope(v)) for v in (0.0, 1e-9, -1e-9)] == [0.0, 0.0, 0.0]  # inside the deadband, no NaN
+    assert 0.0 < float(slope(0.9 * p.f_ref[0])) < np.inf and 0.0 < float(slope(-0.9 * p.f_ref[0])) < np.inf
+    hooks = plant_hooks(p.effects[0], p, Actuation(p.T, p.T, p.f_ref, p.M_A))
+    np.testing.assert_array_equal(hooks.input_filter(f, 0.02), np.stack(
+        fx.static_thrust(fx.NUMPY, list(f.T), p.effects, p.f_ref, p.capacities), -1))
+    # p = 2, continuous: the simulator delivers each direction's capacity at full command (an asymmetric thruster's
+    # reverse command is normalised by its reverse capacity), nothing inside w^2 of it
+    p2 = plant_parameters(NOMINAL.with_changes(effects=_deadband(0.2, 2.0, 1.0)))
+    assert p2.f_max[0] != -p2.f_min[0]
+    u = np.zeros((4, 4))
+    u[:, 0] = [p2.f_max[0], p2.f_min[0], 0.039 * p2.f_max[0], 0.039 * p2.f_min[0]]
+    np.testing.assert_allclose(Actuators(p2, 0.02).delivered(u)[:, 0], [p2.f_max[0], p2.f_min[0], 0.0, 0.0],
+                               rtol=1e-12)
+
+
 def test_thruster_lag_delays_the_response_by_its_time_constant():
     T = 0.5
     lagged = _with("thruster_lag").with_changes(effects=(fx.PlantEffect("thruster_lag", {"T_lag_s": T}),))
@@ -236,6 +298,78 @@ def test_thruster_lag_delays_the_response_by_its_time_constant():
     k = int(T / 0.01)
     assert slow.x[k, 6] < 0.5 * fast.x[k, 6]  # the lagged thrust has reached 63 %: less impulse so far
     assert slow.x[-1, 6] == pytest.approx(fast.x[-1, 6], rel=0.25)
+
+
+def _step_thrust(T, k, F=20.0, dt=0.002, n=1500):
+    """Delivered thrust of a lagged thruster after a step from rest to ``F`` N held from the second step, as the
+    plant simulator delivers it (:class:`Actuators`), and the replay's input filter over the same commands."""
+    lag = fx.PlantEffect("thruster_lag", {"T_lag_s": T, "thrust_exponent": k})
+    p = plant_parameters(NOMINAL.with_changes(effects=(lag,)))
+    u = np.zeros((n, 4))
+    u[1:, 0] = F
+    act = Actuators(p, dt)
+    sim = np.array([act.delivered(row) for row in u])
+    hooks = plant_hooks(lag, p, Actuation(p.T, p.T, p.f_ref, p.M_A))
+    return sim, hooks.input_filter(u, dt)
+
+
+@pytest.mark.parametrize("k", [1.0, 1.5, 2.0])
+def test_rotor_speed_lag_step_response_is_the_closed_form(k):
+    """A step F from rest: the lagged state sign(f)|f|^(1/k) rises as F^(1/k) (1 - e^(-t/T)), so the thrust is
+    F (1 - e^(-t/T))^k, exactly at the samples (zero-order hold). It reaches 63 % (1 - 1/e) of F at
+    t63 = -T ln(1 - (1 - 1/e)^(1/k)): T for the thrust lag (k = 1), 1.585 T for the rotor-speed lag (k = 2)."""
+    T, F, dt = 0.3, 20.0, 0.002
+    sim, replay = _step_thrust(T, k, F, dt)
+    t = np.arange(1, sim.shape[0]) * dt  # the thrust of step j is the lag's value at its end: j dt after the step
+    np.testing.assert_allclose(sim[1:, 0], F * (1.0 - np.exp(-t / T)) ** k, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(replay, sim, rtol=1e-12, atol=1e-12)  # the replay filters with the same function
+    assert np.all(sim[:, 1:] == 0.0)
+    t63 = t[np.argmax(sim[1:, 0] >= (1.0 - np.exp(-1.0)) * F)]
+    expected = -T * np.log(1.0 - (1.0 - np.exp(-1.0)) ** (1.0 / k))
+    assert t63 == pytest.approx(expected, abs=1.5 * dt)  # the first sample at or past it
+    if k == 2.0:
+        assert expected == pytest.approx(1.5850 * T, rel=1e-4)
+
+
+def test_rotor_speed_lag_falls_faster_than_it_rises():
+    """Thrust ~ s|s| with s lagged: from full thrust to zero the thrust is F e^(-2t/T) (k = 2), twice as fast a
+    decay as the thrust lag's F e^(-t/T); a reversal passes through zero thrust when s does, at T ln 2."""
+    T, F, dt = 0.3, 20.0, 0.002
+    f = np.full((800, 1), F)
+    f[1:] = 0.0
+    t = np.arange(1, 800) * dt
+    np.testing.assert_allclose(fx.first_order_lag(f, dt, T, thrust_exponent=2.0)[1:, 0], F * np.exp(-2 * t / T),
+                               rtol=1e-12)
+    f[1:] = -F
+    y = fx.first_order_lag(f, dt, T, thrust_exponent=2.0)[1:, 0]
+    assert t[np.argmax(y <= 0.0)] == pytest.approx(T * np.log(2.0), abs=dt)
+
+
+def test_thrust_exponent_one_is_the_old_thrust_lag_bit_for_bit():
+    rng = np.random.default_rng(3)
+    f = np.repeat(rng.uniform(-30, 30, (40, 4)), 10, axis=0)
+    dt, T = 0.02, 0.25
+    a = np.exp(-dt / T)
+    old = [f[0]]
+    for row in f[1:]:  # the recursion the lag had before the exponent: a f_prev + (1 - a) f_cmd
+        old.append(a * old[-1] + (1.0 - a) * row)
+    np.testing.assert_array_equal(fx.first_order_lag_step(old[-2], f[-1], dt, T), old[-1])
+    np.testing.assert_allclose(fx.first_order_lag(f, dt, T), np.array(old), rtol=1e-13, atol=1e-12)
+    # a model file without the exponent is the thrust lag
+    assert fx.thruster_lag((fx.PlantEffect("thruster_lag", {"T_lag_s": T}),)) == fx.ThrusterLag(T, 1.0)
+    u = np.zeros((200, 4))
+    u[1:, 0] = 15.0
+    x0 = np.r_[0, 0, 1.0, np.zeros(9)]
+    runs = [simulate(NOMINAL.with_changes(effects=(fx.PlantEffect("thruster_lag", q),)), x0, 2.0, inputs=u, dt=0.01)
+            for q in ({"T_lag_s": T}, {"T_lag_s": T, "thrust_exponent": 1.0})]
+    np.testing.assert_array_equal(runs[0].x, runs[1].x)
+
+
+def test_a_lag_of_any_exponent_is_refused_by_the_static_plant():
+    p = plant_parameters(NOMINAL.with_changes(effects=(fx.PlantEffect("thruster_lag", {"T_lag_s": 0.3,
+                                                                                       "thrust_exponent": 2.0}),)))
+    with pytest.raises(ValueError, match="thruster_lag"):
+        plant_casadi.dynamics_function(p, "thrust")
 
 
 @pytest.mark.parametrize("tether", [EXAMPLES["tether_drag"], FIXED_TETHER], ids=["anchor", "fixed-direction"])
@@ -254,6 +388,13 @@ def test_model_file_round_trips_effects(tmp_path, tether):
     ({"name": "buoyancy_offset", "params": {}}, "misses parameter"),
     ({"name": "buoyancy_offset", "params": {"dB_N": "3"}}, "finite number"),
     ({"name": "thruster_lag", "params": {"T_lag_s": -1.0}}, "must be > 0"),
+    ({"name": "thruster_lag", "params": {"T_lag_s": 0.3, "thrust_exponent": 2.5}},
+     r"params.thrust_exponent: must be within \[1, 2\].*rotor speed.*got 2.5"),
+    ({"name": "thruster_lag", "params": {"T_lag_s": 0.3, "thrust_exponent": 0.5}}, "thrust_exponent: must be within"),
+    ({"name": "thruster_deadband", "params": {"width_fraction": 0.1, "shift": 1.0, "command_exponent": 3.0}},
+     r"params.command_exponent: must be within \[1, 2\].*command\^p.*got 3"),
+    ({"name": "thruster_lag", "params": {"T_lag_s": 0.3, "command_exponent": 2.0}},
+     "has no parameter 'command_exponent'"),
     ({"name": "wall_effect", "params": {"decay_length_m": 0.2, "added_mass_at_contact_kg": 1.0,
                                         "suction_N_s2_per_m2": 1.0}}, "needs a plane"),
     ({"name": "wall_effect", "params": {"decay_length_m": 0.2, "added_mass_at_contact_kg": 1.0,

@@ -22,11 +22,13 @@ def attributor():
 
 
 def test_a_lag_at_the_top_of_its_range_is_flagged_and_one_inside_is_not(attributor):
-    (lo, hi), = fx.catalogue()["thruster_lag"].shape_bounds
-    at_top = attributor.fit([("thruster_lag", (hi,))])
+    (lo, hi), (k_lo, k_hi) = fx.catalogue()["thruster_lag"].shape_bounds
+    at_top = attributor.fit([("thruster_lag", (hi, 1.5))])
     assert attributor.at_bounds(at_top, "thruster_lag") == {"T_lag_s": (hi, hi)}
-    inside = attributor.fit([("thruster_lag", (0.3,))])
-    assert attributor.at_bounds(inside, "thruster_lag") == {}
+    # a thrust exponent of 1 or 2 is a physical form (a lag of the thrust, of the rotor speed), not a search limit
+    for k in (k_lo, k_hi):
+        inside = attributor.fit([("thruster_lag", (0.3, k))])
+        assert attributor.at_bounds(inside, "thruster_lag") == {}
 
 
 def test_an_amplitude_fitted_to_zero_on_a_zero_bound_is_not_flagged(attributor):
