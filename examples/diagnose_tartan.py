@@ -23,6 +23,8 @@ from pathlib import Path
 
 import numpy as np
 
+from udrobot_ctrl.gap.effects import catalogue
+
 DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "tartan_auv_2022-12-01"
 
 A = "assumed: Tartan AUV parameters are unpublished; "
@@ -157,9 +159,11 @@ def reading(report, mean_tau, model: dict, with_buoyancy=None) -> list:
                      "delay of 130-205 ms that the conversion measured, unmodelled dynamics), not for the "
                      "thrusters.")
         if name == "thruster_deadband":
-            line += (" With a commanded wrench the static maps act per DOF, bounded to physical values (deadband "
-                     "<= 25 % of the command range), and leave out DOFs whose command keeps one sign (K and M "
-                     "pinned at their limits), where a shift would add the same constant as a restoring offset.")
+            width_max = catalogue()["thruster_deadband"].shape_bounds[0][1]
+            line += (f" With a commanded wrench the static maps act per DOF, bounded to physical values (deadband "
+                     f"<= {100 * width_max:g} % of the command range), and leave out DOFs whose command keeps one "
+                     f"sign (K and M pinned at their limits), where a shift would add the same constant as a "
+                     f"restoring offset.")
         out.append(line)
     for e in report["effects"]:
         if e["significant"] and e.get("indistinguishable_from"):
