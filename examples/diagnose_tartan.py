@@ -110,14 +110,20 @@ def _buoyancy_cost(report, with_buoyancy) -> str:
     k = next((i for i, r in enumerate(rounds) if r.get("dropped") == "buoyancy_offset"), None)
     later = [r["dropped"] for r in rounds[k + 1:] if r.get("dropped")] if k is not None else []
     b = next(e for e in report["effects"] if e["name"] == "buoyancy_offset")
-    if later:
-        why = (f" in round {k + 1}, while {', '.join(later)} (dropped later) was still in the set, and did not test "
-               f"it again")
+    before = report["gap_before"]["per_channel"]
+    alone = (f"on its own against the nominal replay it does not shrink the holdout gap (shrink {b['shrink']:+.2f}), "
+             f"because that replay's roll and pitch run away (phi {before['phi']:.1f}, theta {before['theta']:.1f})")
+    steps = report.get("selection_steps", [])
+    if not any(step["effect"] == "buoyancy_offset" and step.get("accepted") for step in steps):
+        chosen = [step["effect"] for step in steps if step.get("accepted")]
+        why = (f": forward selection on the fit runs did not propose it (dBIC {b['evidence']['delta_bic']:.0f} "
+               f"alone, but not chosen after {', '.join(chosen) or 'the nominal'}), and " + alone)
+    elif later:
+        why = (f": the backward check dropped it in round {k + 1}, while {', '.join(later)} (dropped later) was "
+               f"still in the set, and did not test it again")
     else:
-        why = (f" by its test on its own against the nominal replay (shrink {b['shrink']:+.2f}), where the "
-               f"nominal model's roll and pitch run away (phi {report['gap_before']['per_channel']['phi']:.1f}, "
-               f"theta {report['gap_before']['per_channel']['theta']:.1f})")
-    return (text + ": the backward check dropped it" + why
+        why = ": the backward check dropped it; " + alone
+    return (text + why
             + ". The steady heave command and this replay say the vehicle is buoyant; the verdict leaves it out.")
 
 
@@ -146,18 +152,21 @@ def reading(report, mean_tau, model: dict, with_buoyancy=None) -> list:
            f"{_status(c)} with dBG_x = {cp.get('dBG_x_Nm', float('nan')):+.2f} N m (x_g W - x_b B, balances M), "
            f"dBG_y = {cp.get('dBG_y_Nm', float('nan')):+.2f} N m (balances K); dBG_z = "
            f"{cp.get('dBG_z_Nm', float('nan')):+.2f} N m leaves {left:.0%} of the guessed righting moment "
-           f"(z_g W = {righting:.2f} N m): the logged roll/pitch move with little visible restoring moment."]
+           f"(z_g W = {righting:.2f} N m): the logged roll/pitch move with little visible restoring moment."
+           + _at_bound(c)]
     for name in ("thruster_lag", "thruster_deadband", "thruster_asymmetry"):
         e = eff.get(name)
         if e is None or not (e["significant"] or e.get("evidence", {}).get("note")):
             continue
         line = f"* `{name}` ({_params(_fitted(e))}) is {_status(e)}."
         if name == "thruster_lag" and _fitted(e).get("T_lag_s", 0.0) >= 0.5:
-            line += (" A thruster time constant of this size is not physical (a T200 spins up in about 0.1 s, "
-                     "assumed): with a commanded wrench the lag stands for any slow response between command "
-                     "and motion the model lacks (for instance the controller's output shaping, the navigation "
-                     "delay of 130-205 ms that the conversion measured, unmodelled dynamics), not for the "
-                     "thrusters.")
+            line += " A thruster time constant of this size is not physical (a T200 spins up in about 0.1 s, assumed)"
+            if e["significant"]:
+                line += (": with a commanded wrench the lag stands for any slow response between command and motion "
+                         "the model lacks (for instance the controller's output shaping, the navigation delay of "
+                         "130-205 ms that the conversion measured, unmodelled dynamics), not for the thrusters.")
+            else:
+                line += "; the holdout does not support it either, so the verdict leaves it out."
         if name == "thruster_deadband":
             width_max = catalogue()["thruster_deadband"].shape_bounds[0][1]
             line += (f" With a commanded wrench the static maps act per DOF, bounded to physical values (deadband "
@@ -180,6 +189,16 @@ def reading(report, mean_tau, model: dict, with_buoyancy=None) -> list:
                + ", ".join(f"{ch} {before['per_channel'][ch]:.2f} -> {v:.2f}" for ch, v in worst)
                + ". The reported parameters are conditional on the guessed mass and damping.")
     return out
+
+
+def _at_bound(effect: dict) -> str:
+    """One sentence naming the parameters fitted at the edge of their range (the report's ``at_bound``), or ''."""
+    edge = effect.get("at_bound") or {}
+    if not edge:
+        return ""
+    names = ", ".join(f"{k} = {v['value']:+.2f}" for k, v in edge.items())
+    return (f" {names} sits at the edge of the range the diagnoser tries, so the data only say it is at least that "
+            f"large; the true value may lie beyond it.")
 
 
 def _params(params: dict) -> str:
