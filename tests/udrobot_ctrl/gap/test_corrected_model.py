@@ -8,9 +8,9 @@ import pytest
 
 from udrobot_ctrl.cli.main import main
 from udrobot_ctrl.dynamics.plant import plant_parameters
-from udrobot_ctrl.dynamics.sim import simulate
+from udrobot_ctrl.dynamics.sim import Actuators, simulate
 from udrobot_ctrl.gap.report import corrected_model
-from udrobot_ctrl.io.runlog import write_run
+from udrobot_ctrl.io.runlog import Run, write_run
 from udrobot_ctrl.vehicle import load_model, read_model_file, to_model_dict
 
 from .truth import generate, random_magnitudes
@@ -97,8 +97,6 @@ def test_corrected_plant_settles_at_the_heave_speed_of_its_fitted_net_buoyancy(b
 
 
 def test_thrust_maps_fitted_on_a_commanded_wrench_are_not_placed_and_said_so():
-    from udrobot_ctrl.io.runlog import Run
-
     runs = [Run(path="w.csv", t=np.arange(3.0), channels={}, input_kind="tau", inputs=np.zeros((3, 6)), extra={},
                 metadata={})]
     report = {"fit_runs": ["w.csv"], "holdout_runs": ["w.csv"], "effects": [
@@ -110,3 +108,32 @@ def test_thrust_maps_fitted_on_a_commanded_wrench_are_not_placed_and_said_so():
     assert [e.name for e in v.effects] == ["cg_cb_offset"]
     assert set(not_placed) == {"thruster_deadband"} and "commanded wrench" in not_placed["thruster_deadband"]
     assert v.provenance["effects.thruster_deadband"].startswith("not placed")
+
+
+def test_fitted_thruster_exponents_reach_the_model_file_and_the_simulator(tmp_path):
+    """A fitted rotor-speed lag (thrust_exponent) and command-domain deadband (command_exponent) are written with their
+    exponents, read back, and simulated with them: the model file's thrust at the step's T differs from a thrust
+    lag's (F (1 - 1/e)^2 against F (1 - 1/e))."""
+    runs = [Run(path="r.csv", t=np.arange(3.0), channels={}, input_kind="thrust", inputs=np.zeros((3, 4)), extra={},
+                metadata={})]
+    lag = {"T_lag_s": 0.4, "thrust_exponent": 2.0}
+    deadband = {"width_fraction": 0.2, "command_exponent": 1.8, "shift": 0.9}
+    report = {"fit_runs": ["r.csv"], "holdout_runs": ["r.csv"], "effects": [
+        {"name": "thruster_lag", "significant": True, "shrink": 0.9, "params": lag},
+        {"name": "thruster_deadband", "significant": True, "shrink": 0.9, "params": deadband}]}
+    v, not_placed = corrected_model("pendulum:chin", report, runs)
+    assert not not_placed
+    path = tmp_path / "corrected.json"
+    path.write_text(json.dumps(to_model_dict(v)))
+    back = {e.name: dict(e.params) for e in read_model_file(path).effects}
+    assert back == {"thruster_lag": lag, "thruster_deadband": deadband}
+    p = plant_parameters(read_model_file(path).with_changes(
+        effects=tuple(e for e in read_model_file(path).effects if e.name == "thruster_lag")))
+    dt, F = 0.001, 20.0
+    act = Actuators(p, dt)
+    u = np.zeros(4)
+    act.delivered(u)
+    u[0] = F
+    for _ in range(400):  # 0.4 s = T
+        f = act.delivered(u)
+    assert f[0] == pytest.approx(F * (1 - np.exp(-1.0)) ** 2, rel=1e-9)
