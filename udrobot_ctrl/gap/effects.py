@@ -325,19 +325,21 @@ class Deadband(Effect):
 
     def design(self, s, shape):
         w, p = shape
-
         caps = None if _per_dof(s) else thruster_capacities(s.p, s.B)
+        x = crossing(s)
 
-        def cut(r):  # inside the deadband (n, k) and the thrust removed per unit shift beyond it, scaled by crossing
+        def terms(r):  # b0 and the shift's regressor of one run, in one evaluation of the plant's deadband
             d, unit = pfx.deadband_terms(pfx.NUMPY, r["f"], s.f_ref, w, p, caps)
             inside = np.abs(r["f"]) < d
-            return inside, np.where(inside, 0.0, -unit) * crossing(s)
-        b0 = s.full(lambda r: np.where(cut(r)[0], -r["f"], 0.0) @ s.B.T, held=True)
+            b0 = np.where(inside, -r["f"], 0.0) @ s.B.T
+            shift = np.where(inside, 0.0, -unit) * x
+            col = shift[:, :, None] * np.eye(6)[None] if _per_dof(s) else (shift @ s.B.T)[..., None]
+            return np.concatenate([b0[..., None], col], axis=-1)
+        both = s.full(terms, held=True)
+        b0, col = both[..., 0], both[..., 1:]
         if _per_dof(s):
-            col = s.full(lambda r: cut(r)[1][:, :, None] * np.eye(6)[None], held=True)
             return Design(b0, col, tuple(f"shift_{k}" for k in DOF), np.zeros(6), np.ones(6))
-        col = s.full(lambda r: cut(r)[1] @ s.B.T, held=True)
-        return Design(b0, col[..., None], ("shift",), np.zeros(1), np.ones(1))
+        return Design(b0, col, ("shift",), np.zeros(1), np.ones(1))
 
 
 
@@ -435,8 +437,8 @@ class TetherDrag(Effect):
     def design(self, s, shape):
         geometry = dict(zip(self.shape_names, shape))
         A = s.full(lambda r: _tether_columns(r["eta"], r["nu"], geometry))
-        return np.zeros((s.n, 6)), A, ("k_quadratic_N_s2_per_m2", "k_linear_N_s_per_m"), np.zeros(2), \
-            np.array([1e4, 1e4])
+        return Design(np.zeros((s.n, 6)), A, ("k_quadratic_N_s2_per_m2", "k_linear_N_s_per_m"), np.zeros(2),
+                      np.array([1e4, 1e4]))
 
 
 
