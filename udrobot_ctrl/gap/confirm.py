@@ -106,10 +106,15 @@ def window_energy(preps, sims, score: GapScore, window_s) -> np.ndarray:
     return sum(np.concatenate(se[c]) / max(count[c], 1) for c in chans) / len(chans)
 
 
+def window_changes(without: np.ndarray, with_: np.ndarray) -> np.ndarray:
+    """Per-window differences ``without - with_`` of the windows that change (finite, non-zero)."""
+    d = np.asarray(without, float) - np.asarray(with_, float)
+    return d[np.isfinite(d) & (d != 0)]
+
+
 def rise_fraction(without: np.ndarray, with_: np.ndarray) -> float:
     """Fraction of the windows (those that change) whose error is larger ``without`` than ``with_``."""
-    d = np.asarray(without, float) - np.asarray(with_, float)
-    d = d[np.isfinite(d) & (d != 0)]
+    d = window_changes(without, with_)
     return float(np.mean(d > 0)) if d.size else 0.0
 
 
@@ -120,8 +125,7 @@ def paired_rise(without: np.ndarray, with_: np.ndarray):
     of consistent rise) and the paired t-test (a large rise concentrated in the windows where the effect acts);
     p is the smaller of the two one-sided p-values, Bonferroni-corrected (x 2).
     """
-    d = np.asarray(without, float) - np.asarray(with_, float)
-    d = d[np.isfinite(d) & (d != 0)]
+    d = window_changes(without, with_)
     if d.size < 2:
         return 0.0, 1.0
     w = stats.wilcoxon(d, alternative="greater")
@@ -285,7 +289,8 @@ def check_members(att: Attributor, att_h: Attributor, combo: Combination, full: 
 
 def backward_eliminate(att: Attributor, att_h: Attributor, candidates: Combination, names, before: GapScore,
                        replay_fit, window_s, preps, alone=None, log=None) -> Elimination:
-    """Drop members of ``candidates`` that do not make the holdout worse when removed, until all pass.
+    """Drop members of ``candidates`` that do not make the holdout worse when removed, until all pass; then try
+    each dropped effect back once the set has changed (re-admission, see the module docstring).
 
     Parameters
     ----------
@@ -306,13 +311,12 @@ def backward_eliminate(att: Attributor, att_h: Attributor, candidates: Combinati
         Name -> :class:`Alone` (each effect alone against the nominal replay); unchecked when absent.
     log : callable, optional
     """
-    rounds, readmitted = [], set()
+    rounds = []
     combo, full = _eliminate(att, att_h, candidates, replay_fit(candidates.fit, candidates.members), names, before,
                              replay_fit, window_s, preps, alone, rounds, log)
     while (back := _readmit(att, att_h, combo, full, names, before, replay_fit, window_s, preps, alone, rounds,
-                            readmitted, log)) is not None:
+                            log)) is not None:
         combo, full, trial_rounds = back
-        readmitted.add(trial_rounds[0].readmitted)
         rounds.extend(trial_rounds)
         if log:
             log(f"  holdout re-check: {trial_rounds[0].readmitted} re-admitted; confirmed: {', '.join(combo.members)}")
@@ -345,8 +349,7 @@ def _eliminate(att, att_h, combo, full, names, before, replay_fit, window_s, pre
     return combo, full
 
 
-def _readmit(att, att_h, combo, full, names, before, replay_fit, window_s, preps, alone, rounds, readmitted,
-             log=None):
+def _readmit(att, att_h, combo, full, names, before, replay_fit, window_s, preps, alone, rounds, log=None):
     """Try each dropped effect (not yet re-admitted) back in ``combo``: added, refitted and checked again by the
     elimination (which may now drop a member the effect displaces). The effect is re-admitted when it survives and
     the resulting set lowers the holdout replay gap of ``full``; of several, the one that lowers it most. An effect
@@ -360,6 +363,7 @@ def _readmit(att, att_h, combo, full, names, before, replay_fit, window_s, preps
         ``readmitted``).
     """
     last_drop = {r.dropped: frozenset(r.members) - {r.dropped} for r in rounds if r.dropped}
+    readmitted = {r.readmitted for r in rounds if r.readmitted}
     best = None
     for n in sorted(set(last_drop) - set(combo.members) - readmitted):
         if last_drop[n] == frozenset(combo.members):
