@@ -23,7 +23,7 @@ from udrobot_ctrl.vehicle import Vehicle
 DEFAULT_SUPPLY_VOLTAGE = 12.0
 
 _EQ = equations(np.sin, np.cos, np.tan)
-_KERNELS = None  # udrobot_ctrl.dynamics.sim_kernels once loaded (see _kernels)
+_KERNELS = None  # udrobot_ctrl.dynamics.sim_kernels once loaded (see compiled_kernels)
 _KERNEL_PARAMETERS: dict = {}  # id(p) -> (p, kernel arguments), see _kernel_parameters
 
 
@@ -123,7 +123,7 @@ def kinematics(eta, nu):
     if eta.shape == nu.shape and eta.ndim <= 2 and eta.shape[-1:] == (6,):  # the compiled twin, row by row
         rows = eta.reshape(-1, 6)
         out = np.empty(rows.shape)
-        _kernels().kinematics_rows(np.ascontiguousarray(rows), np.ascontiguousarray(nu.reshape(-1, 6)), out)
+        compiled_kernels().kinematics_rows(np.ascontiguousarray(rows), np.ascontiguousarray(nu.reshape(-1, 6)), out)
         return out.reshape(eta.shape)
     return _assemble(_EQ.kinematics(_components(eta), _components(nu)))
 
@@ -204,8 +204,9 @@ def plant_parameters(vehicle: Vehicle) -> PlantParameters:
     return fx.fold_parameters(nominal, vehicle.effects) if vehicle.effects else nominal
 
 
-def _kernels():
-    """:mod:`udrobot_ctrl.dynamics.sim_kernels`, loaded on first use."""
+def compiled_kernels():
+    """:mod:`udrobot_ctrl.dynamics.sim_kernels` (the numba twins of the equations), loaded on first use: the one
+    loader of the plant's row kernels and the simulator's integration kernels."""
     global _KERNELS
     if _KERNELS is None:
         # local import: loading the numba kernels takes ~1.5 s, paid only by the calls that run them
@@ -267,7 +268,7 @@ def generalized_forces(x, p: PlantParameters):
     _check_last_axis("x", x, 12)
     if x.ndim <= 2 and np.ndim(p.M) == 2:  # one vehicle: the compiled twin of the equations, row by row
         out = np.empty((x.size // 12, 6))
-        _kernels().generalized_forces_rows(np.ascontiguousarray(x.reshape(-1, 12)), *_kernel_parameters(p), out)
+        compiled_kernels().generalized_forces_rows(np.ascontiguousarray(x.reshape(-1, 12)), *_kernel_parameters(p), out)
         F = out.reshape(x.shape[:-1] + (6,))
         return F - _assemble(effect_forces(_components(x), p)) if p.effects else F
     M, _, D_L, Q, W, B, r_g, r_b = _parameters(p)

@@ -40,6 +40,7 @@ from udrobot_ctrl.dynamics import effects as fx
 from udrobot_ctrl.dynamics import integrators, plant_casadi
 from udrobot_ctrl.dynamics.plant import (
     PlantParameters,
+    compiled_kernels,
     delivered_wrench,
     plant_parameters,
     require_nominal,
@@ -170,19 +171,7 @@ def rk4_step(p: PlantParameters, x, tau, dt, disturbance=None, t=0.0):
 
 
 # ----------------------------------------------------------------------------- numba kernels
-_KERNELS = None
 PARALLEL_MIN_VEHICLES = 16  # below this the thread start-up costs more than it saves
-
-
-def _kernels():
-    """(serial, parallel) numba kernels of :mod:`udrobot_ctrl.dynamics.sim_kernels`, imported on first use."""
-    global _KERNELS
-    if _KERNELS is None:
-        # local import: loading the numba kernels takes ~1.5 s, paid only by the calls that run them
-        from udrobot_ctrl.dynamics import sim_kernels
-
-        _KERNELS = (sim_kernels.run_serial, sim_kernels.run_parallel)
-    return _KERNELS
 
 
 def _kernel_arrays(p: PlantParameters):
@@ -240,7 +229,8 @@ def integrate_rk4(p: PlantParameters, x0, taus, dt, nsteps, tau_every=1, record_
         out = np.empty((nsteps // record_every + 1, n, 12))
     out[0] = x0
     status = np.empty(n, dtype=np.int64)
-    serial, threaded = _kernels()
+    kernels = compiled_kernels()
+    serial, threaded = kernels.run_serial, kernels.run_parallel
     run = threaded if (n >= PARALLEL_MIN_VEHICLES if parallel is None else parallel) else serial
     run(x0, taus, int(tau_every), int(nsteps), float(dt), int(record_every), *arrays, out, status)
     return out, status
@@ -284,11 +274,9 @@ def integrate_intervals(p: PlantParameters, x0, t, taus, max_step: float, out=No
         raise ValueError(f"max_step must be > 0, got {max_step}")
     if taus.shape[0] < t.shape[0] - 1 or taus.shape[1:] != (6,):
         raise ValueError(f"taus must be ({t.shape[0] - 1} or more, 6), got {taus.shape}")
-    # local import: loading the numba kernels takes ~1.5 s, paid only by the calls that run them
-    from udrobot_ctrl.dynamics import sim_kernels
-
     M, Minv, DL, Q, W, B, rg, rb = (a[0] for a in _kernel_arrays(p))
-    bad = sim_kernels.replay_intervals(x0, taus, t, float(max_step), M, Minv, DL, Q, float(W), float(B), rg, rb, out)
+    bad = compiled_kernels().replay_intervals(x0, taus, t, float(max_step), M, Minv, DL, Q, float(W), float(B), rg,
+                                              rb, out)
     return out, int(bad)
 
 
