@@ -205,17 +205,18 @@ def _surfaces(run: Run, meas, n, label="run", notes=None):
     out = []
     meta = run.metadata or {}
     z = meas.get("z")
-    n_alt = int(np.isfinite(meas["altitude"]).sum()) if "altitude" in meas else 0
-    if "altitude" in meas and n_alt <= ALTITUDE_VALID_MIN * n and notes is not None:
-        alt = meas["altitude"][np.isfinite(meas["altitude"])]
-        rng = f", {np.min(alt):.3g}-{np.max(alt):.3g} m where valid" if alt.size else ""
+    altitude = meas.get("altitude")
+    valid = np.isfinite(altitude) if altitude is not None else np.zeros(n, bool)
+    n_alt = int(valid.sum())
+    if altitude is not None and n_alt <= ALTITUDE_VALID_MIN * n and notes is not None:
+        rng = f", {np.min(altitude[valid]):.3g}-{np.max(altitude[valid]):.3g} m where valid" if n_alt else ""
         notes.append(f"{label}: altitude logged but valid in only {n_alt} of {n} samples ({100 * n_alt / n:.0f}%"
                      f"{rng}; more than {100 * ALTITUDE_VALID_MIN:g}% needed), so it does not place the seabed"
                      + ("; the sidecar's seabed_depth is used instead" if meta.get("seabed_depth") is not None else
                         "; wall_effect cannot be tested near the seabed (give seabed_depth in the sidecar, or fly "
                         "within the altimeter's range)"))
-    if "altitude" in meas and n_alt > ALTITUDE_VALID_MIN * n:
-        out.append((_fill(meas["altitude"], np.nan), np.array([0.0, 0.0, -1.0]), "seabed (altitude)"))
+    if n_alt > ALTITUDE_VALID_MIN * n:
+        out.append((_fill(altitude, np.nan), np.array([0.0, 0.0, -1.0]), "seabed (altitude)"))
     elif meta.get("seabed_depth") is not None and z is not None and np.isfinite(z).any():
         out.append((float(meta["seabed_depth"]) - _fill(z), np.array([0.0, 0.0, -1.0]), "seabed"))
     x, y = meas.get("x"), meas.get("y")
