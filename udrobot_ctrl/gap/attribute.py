@@ -197,9 +197,8 @@ class Attributor:
         A fit at its bound has not found an optimum inside the physical range the catalogue allows (e.g. a thruster
         lag at the 1 s top of its range): the effect is then likely standing in for something else. Shape
         parameters whose ends are physical forms (``Effect.physical_ends``: a thrust exponent of 1 or 2) are not
-        checked. Shape
-        parameters are checked against the effect's search bounds, amplitudes against their design bounds, within
-        ``rel`` of the range (or of the bound's magnitude for a one-sided range).
+        checked. The other shape parameters are checked against the effect's search bounds, amplitudes against
+        their design bounds, within ``rel`` of the range (or of the bound's magnitude for a one-sided range).
         """
         eff = self.cat[name]
         shape = fit.shapes[name]
