@@ -230,7 +230,8 @@ def _surfaces(run: Run, meas, n, label="run", notes=None):
     return out
 
 
-def prepare(run: Run, p: PlantParameters, name=None, window_s=0.8, dt=None) -> Prepared:
+def prepare(run: Run, p: PlantParameters, name=None, window_s=0.8, dt=None, known_wrench=None,
+            known_as: str = "") -> Prepared:
     """Resample, smooth and differentiate one run (see the module docstring).
 
     Parameters
@@ -242,6 +243,13 @@ def prepare(run: Run, p: PlantParameters, name=None, window_s=0.8, dt=None) -> P
         Savitzky-Golay window for velocities, s.
     dt : float, optional
         Grid interval, s; the run's median interval by default.
+    known_wrench : (n, 6) ndarray, optional
+        Generalised force (N, N m) on the run's grid that the smoother adds to the logged actuator wrench: what
+        effects already attributed to the run contribute (:func:`udrobot_ctrl.gap.shrink.effect_wrench`), so that
+        the unlogged velocities are reconstructed with the corrected plant, not the nominal one. Ignored when
+        nothing is reconstructed.
+    known_as : str
+        What ``known_wrench`` is, for the run's note (e.g. the effects' names).
     """
     label = name or (run.path.split("/")[-1] if run.path else "run")
     notes = []
@@ -292,7 +300,14 @@ def prepare(run: Run, p: PlantParameters, name=None, window_s=0.8, dt=None) -> P
     smoothed = None
     if not all(_logged(meas, c) for c in ("u", "v", "w")):
         try:
-            smoothed = smooth_run(t, meas, f @ B.T, p, label=label)
+            tau = f @ B.T
+            if known_wrench is not None:
+                known_wrench = np.asarray(known_wrench, float)
+                if known_wrench.shape != tau.shape:
+                    raise ValueError(f"{label}: known_wrench has shape {known_wrench.shape}, expected {tau.shape} "
+                                     f"(one generalised force per sample of the run's grid)")
+                tau = tau + np.nan_to_num(known_wrench)
+            smoothed = smooth_run(t, meas, tau, p, label=label)
         except SmootherError as exc:
             notes.append(f"{label}: {exc}; the unlogged velocities are not reconstructed (only DOFs whose velocity "
                          f"is logged or derived from the attitude are scored)")
@@ -305,8 +320,8 @@ def prepare(run: Run, p: PlantParameters, name=None, window_s=0.8, dt=None) -> P
                     eta[:, i] = smoothed.eta[:, i]
             notes.append(f"{label}: {', '.join(VEL[i] for i in np.flatnonzero(reconstructed))} not logged; "
                          f"reconstructed by the model-based smoother from {', '.join(smoothed.channels)} and the "
-                         f"thrusts" + ("; x, y dead-reckoned" if not (_logged(meas, "x") or _logged(meas, "y"))
-                                       else ""))
+                         f"thrusts" + (f" plus the force of {known_as}" if known_wrench is not None else "")
+                         + ("; x, y dead-reckoned" if not (_logged(meas, "x") or _logged(meas, "y")) else ""))
     dof_ok = observed & np.isfinite(nu).any(axis=0)
     return Prepared(name=label, t=t, dt=dt, meas=meas, eta=eta, nu=nu, nu_dot=nu_dot, f=f, B=B, inflow=inflow,
                     f_ref=ref, input_kind=run.input_kind, surfaces=_surfaces(run, meas, n, label, notes), dof_ok=dof_ok,

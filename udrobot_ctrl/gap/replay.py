@@ -9,6 +9,13 @@ the same two functions on the same prepared runs (:func:`udrobot_ctrl.gap.data.p
 runs of a report with the corrected model its ``--out-model`` wrote gives the report's ``gap_after`` (up to the
 6-decimal rounding of the parameters in the files), and with the nominal model its ``gap_before``.
 
+Runs without a DVL (velocities reconstructed by the model-based smoother) are reconstructed with the model that is
+replayed: its effects' force, along the nominal reconstruction, is added to the smoother's input
+(:func:`udrobot_ctrl.gap.shrink.prepare_with_effects`), as the diagnoser does for its ``gap_after``. The report's
+``gap_before`` of such runs comes from the diagnoser's second pass, whose windows start from states reconstructed
+with the first pass's effects; the nominal model's windowed gap here starts from the nominal reconstruction and
+differs from it by the reconstruction's change (the report's notes name both passes).
+
 One difference is deliberate: a ``wall_effect`` acts on the planes the *model* defines (the seabed at
 ``seabed_depth_m`` and its walls, the distance moving with the simulated position), as the plant simulates them,
 where the diagnoser uses the run's measured surfaces (logged altitude, sidecar walls). A corrected model holds the
@@ -26,7 +33,7 @@ from udrobot_ctrl.dynamics.effects import wall_planes
 from udrobot_ctrl.dynamics.plant import plant_parameters
 from udrobot_ctrl.gap.data import Prepared, prepare
 from udrobot_ctrl.gap.effects import Actuation, plant_hooks
-from udrobot_ctrl.gap.shrink import gap, simulate_windows
+from udrobot_ctrl.gap.shrink import gap, prepare_with_effects, simulate_windows
 from udrobot_ctrl.vehicle import load_model
 
 
@@ -128,6 +135,10 @@ def windowed_gap(model, runs, window_s: float = 8.0, names=None, scored=None) ->
         if planes:
             prep = replace(prep, surfaces=planes)
         hooks = [plant_hooks(e, p, Actuation(prep.B, prep.inflow, prep.f_ref, p.M_A)) for e in vehicle.effects]
+        if hooks and prep.smoothed is not None:  # unlogged velocities: reconstructed with this model, as diagnose
+            prep = prepare_with_effects(run, p, prep, hooks, " + ".join(e.name for e in vehicle.effects))
+            if planes:
+                prep = replace(prep, surfaces=planes)
         preps.append(prep)
         sims.append(simulate_windows(prep, p, hooks, window_s))
     g = gap(preps, sims, scored)

@@ -52,7 +52,7 @@ from udrobot_ctrl.gap.data import prepare
 from udrobot_ctrl.gap.effects import Actuation
 from udrobot_ctrl.gap.identifiability import Identifiability
 from udrobot_ctrl.gap.locate import Located, locate, noise_floor
-from udrobot_ctrl.gap.shrink import GapScore, gap, simulate_windows
+from udrobot_ctrl.gap.shrink import GapScore, gap, prepare_with_effects, simulate_windows
 from udrobot_ctrl.io.files import atomic_write
 from udrobot_ctrl.io.runlog import Run
 from udrobot_ctrl.vehicle import load_model
@@ -248,6 +248,7 @@ class Inputs:
     holdout: list  # Prepared holdout runs
     notes: list  # what preparing the runs did, the split first
     window_s: float  # multiple-shooting window, s
+    sources: tuple = ()  # the Run of each prepared run, fit then holdout (to prepare them again)
 
     @property
     def runs(self) -> list:
@@ -356,7 +357,30 @@ def prepare_inputs(model, runs, holdout, effects, window_s, model_label=None) ->
     ho_p = [prepare(r, p, run_label(r)) for r in ho_runs]
     label = model_label or (str(model) if not hasattr(model, "name") else model.name)
     return Inputs(label, p, cat, names, fit_p, ho_p, [split_note] + [n for pr in fit_p + ho_p for n in pr.notes],
-                  window_s)
+                  window_s, tuple(fit_runs) + tuple(ho_runs))
+
+
+def reconstructed(inp: Inputs) -> bool:
+    """True when the smoother reconstructed some velocity of some run (a run without DVL)."""
+    return any(pr.smoothed is not None for pr in inp.runs)
+
+
+def hooks_of(inp: Inputs, actuation: Actuation, fit, members) -> list:
+    """Replay hooks of ``members`` of ``fit``."""
+    return [inp.catalogue[n].hooks(fit.params[n], inp.p, actuation) for n in members]
+
+
+def reconstruct_with(inp: Inputs, actuation: Actuation, fit, members, which: str = "all") -> Inputs:
+    """``inp`` with its runs prepared again, the unlogged velocities reconstructed by the nominal plant plus the
+    ``members`` of ``fit`` (:func:`udrobot_ctrl.gap.shrink.prepare_with_effects`, along the nominal
+    reconstruction); ``which``: ``"all"`` runs or only the ``"holdout"`` runs."""
+    hooks = hooks_of(inp, actuation, fit, members)
+    known = " + ".join(members)
+    n_fit = len(inp.fit)
+    preps = [prepare_with_effects(run, inp.p, pr, hooks, known) if (which == "all" or i >= n_fit) else pr
+             for i, (run, pr) in enumerate(zip(inp.sources, inp.runs))]
+    return replace(inp, fit=preps[:n_fit], holdout=preps[n_fit:],
+                   notes=inp.notes[:1] + [n for pr in preps for n in pr.notes])
 
 
 def locate_gap(inp: Inputs) -> Where:
@@ -566,6 +590,39 @@ def _where_line(x) -> str:
     return f"{x.channel} ({100 * x.share:.0f}% of the excess over the noise floor{replay})"
 
 
+@dataclass(frozen=True)
+class Pass:
+    """One pass of locate -> attribute -> shrink and confirm over prepared runs."""
+
+    where: Where
+    stacks: Stacks
+    sel: Selection
+    shrink: dict  # name -> shrink of the effect alone
+    elim: Elimination
+
+
+def diagnosis_pass(inp: Inputs, say, t0) -> Pass:
+    """Steps 1-3 of :func:`diagnose` on ``inp``'s prepared runs."""
+    where = locate_gap(inp)
+    say("where: " + (", ".join(_where_line(x) for x in where.located.locations) or "no channel above its noise floor"))
+
+    stacks = build_stacks(inp)
+    unidentifiable = stacks.identifiability.names
+    if unidentifiable:
+        say(f"not identifiable from the observed channels ({', '.join(stacks.identifiability.observed_dofs())}): "
+            f"{', '.join(unidentifiable)} (never significant; see the report's unidentifiable list)")
+    sel = attribute(stacks, inp.names, log=say)
+    say(f"candidates (forward selection on the fit runs, {len(inp.names) - len(unidentifiable)} identifiable "
+        f"effects tested): {', '.join(sel.proposed) or 'none'} ({time.perf_counter() - t0:.1f} s)")
+
+    singles = shrink_each(inp, stacks, sel, where.before)
+    b = where.before.value
+    shrink = {n: (1 - r.gap.value / b) if b > 0 else 0.0 for n, r in singles.items()}
+    elim = confirm(inp, stacks, sel, where, singles, log=say)
+    elim, stacks = set_aside_ambiguous(inp, stacks, where, elim, log=say)
+    return Pass(where, stacks, sel, shrink, elim)
+
+
 def diagnose(model, runs, holdout=None, window_s=8.0, effects=None, log=None, model_label=None):
     """Run the whole diagnosis: locate -> attribute -> shrink and confirm -> report.
 
@@ -598,23 +655,22 @@ def diagnose(model, runs, holdout=None, window_s=8.0, effects=None, log=None, mo
     inp = prepare_inputs(model, runs, holdout, effects, window_s, model_label)
     say(f"prepared {len(inp.fit)} fit and {len(inp.holdout)} holdout runs ({time.perf_counter() - t0:.1f} s)")
 
-    where = locate_gap(inp)
-    say("where: " + (", ".join(_where_line(x) for x in where.located.locations) or "no channel above its noise floor"))
-
-    stacks = build_stacks(inp)
-    unidentifiable = stacks.identifiability.names
-    if unidentifiable:
-        say(f"not identifiable from the observed channels ({', '.join(stacks.identifiability.observed_dofs())}): "
-            f"{', '.join(unidentifiable)} (never significant; see the report's unidentifiable list)")
-    sel = attribute(stacks, inp.names, log=say)
-    say(f"candidates (forward selection on the fit runs, {len(inp.names) - len(unidentifiable)} identifiable "
-        f"effects tested): {', '.join(sel.proposed) or 'none'} ({time.perf_counter() - t0:.1f} s)")
-
-    singles = shrink_each(inp, stacks, sel, where.before)
-    b = where.before.value
-    shrink = {n: (1 - r.gap.value / b) if b > 0 else 0.0 for n, r in singles.items()}
-    elim = confirm(inp, stacks, sel, where, singles, log=say)
-    elim, stacks = set_aside_ambiguous(inp, stacks, where, elim, log=say)
+    res = diagnosis_pass(inp, say, t0)
+    if reconstructed(inp) and res.elim.kept:
+        first, nominal = res, inp
+        say(f"reconstruction, pass 2: the unlogged velocities smoothed again with the force of "
+            f"{', '.join(first.elim.kept)} added to the nominal plant; the diagnosis repeated on them")
+        inp = reconstruct_with(inp, first.stacks.actuation, first.elim.combination.fit, first.elim.kept)
+        res = diagnosis_pass(inp, say, t0)
+        inp = replace(inp, notes=inp.notes + [
+            f"reconstruction: the unlogged velocities were smoothed twice, first with the nominal plant (significant "
+            f"then: {', '.join(first.elim.kept)}), then with those effects' force added (significant: "
+            f"{', '.join(res.elim.kept) or 'none'}); the report is that of the second pass"])
+        if res.elim.kept:  # gap_after as `simulate --windows` replays the corrected model: reconstructed with it
+            final = reconstruct_with(nominal, res.stacks.actuation, res.elim.combination.fit, res.elim.kept, "holdout")
+            res = replace(res, elim=replace(res.elim, after=_replayer(final, res.stacks, res.where.before.scored)(
+                res.elim.combination.fit, res.elim.kept)))
+    where, stacks, sel, elim, shrink = res.where, res.stacks, res.sel, res.elim, res.shrink
     after = elim.after.gap
     unexplained = (after.value / where.before.value) if where.before.value > 0 else float("nan")
     verdict = verdict_line(elim.kept, len(inp.names), where.before, unexplained)

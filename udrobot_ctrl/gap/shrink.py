@@ -22,8 +22,9 @@ import numpy as np
 
 from udrobot_ctrl.dynamics.integrators import rk4_step
 from udrobot_ctrl.dynamics.plant import PlantParameters, generalized_forces, kinematics, wrap_angle
-from udrobot_ctrl.gap.data import Prepared
+from udrobot_ctrl.gap.data import Prepared, prepare
 from udrobot_ctrl.gap.smoother import channel_noise
+from udrobot_ctrl.io.runlog import Run
 from udrobot_ctrl.vehicle import STATE_INDEX
 
 CHANNELS = ("u", "v", "w", "p", "q", "r", "z", "phi", "theta", "psi")
@@ -55,6 +56,50 @@ def _surfaces_at(prep: Prepared, k):
     return [(dist[k], pos) for dist, _, _ in prep.surfaces]
 
 
+def delivered_commands(prep: Prepared, hooks=()) -> np.ndarray:
+    """(n, k) actuator commands after the effects' input filters (static nonlinearities first, then the lag)."""
+    f = prep.f.copy()
+    for h in sorted(hooks, key=lambda h: h.order):
+        if h.input_filter is not None:
+            f = h.input_filter(f, prep.dt)
+    return f
+
+
+def effect_wrench(prep: Prepared, hooks) -> np.ndarray:
+    """(n, 6) generalised force (N, N m) that ``hooks`` add to the nominal plant along a prepared run's own state.
+
+    The thrust the filters take away or add, ``B (f_delivered - f)``, plus the effects' forces, minus their added
+    mass times the run's acceleration: the same terms :func:`simulate_windows` integrates, evaluated on the
+    prepared (measured or reconstructed) trajectory instead of a simulated one. Non-finite states count as zero.
+    """
+    f = delivered_commands(prep, hooks)
+    x = np.nan_to_num(prep.state())
+    nu_dot = np.nan_to_num(prep.nu_dot)
+    ctx = {"surfaces": [(dist, normal) for dist, normal, _ in prep.surfaces]}
+    out = (f - prep.f) @ prep.B.T
+    for h in hooks:
+        if h.force is not None:
+            out = out + h.force(x, f, ctx)
+        if h.mass is not None:
+            out = out - np.einsum("nij,nj->ni", h.mass(x, ctx), nu_dot)
+    return np.nan_to_num(out)
+
+
+def prepare_with_effects(run: Run, p: PlantParameters, prep: Prepared, hooks, known_as: str) -> Prepared:
+    """``run`` prepared again with its unlogged velocities reconstructed by the nominal plant *plus* ``hooks``.
+
+    A stock run's velocities come from the model-based smoother, whose process model is the nominal plant: where
+    an effect acts, the reconstruction leans towards the nominal dynamics. Given effects (a corrected model, or
+    the effects a diagnosis attributed), their generalised force along ``prep``'s trajectory
+    (:func:`effect_wrench`) is added to the smoother's input, so that the reconstruction follows the corrected
+    plant. ``prep`` itself is returned when nothing was reconstructed or there is no effect.
+    """
+    if prep.smoothed is None or not hooks:
+        return prep
+    return prepare(run, p, prep.name, prep.window_s, prep.dt, known_wrench=effect_wrench(prep, hooks),
+                   known_as=known_as)
+
+
 def simulate_windows(prep: Prepared, p: PlantParameters, hooks=(), window_s=8.0, M_A=None):
     """Multiple-shooting replay of one run; returns the simulated state (n, 12), nan outside windows.
 
@@ -67,10 +112,7 @@ def simulate_windows(prep: Prepared, p: PlantParameters, hooks=(), window_s=8.0,
     sim = np.full((prep.n, 12), np.nan)
     if starts.size == 0:
         return sim
-    f = prep.f.copy()
-    for h in sorted(hooks, key=lambda h: h.order):  # static nonlinearities first, then the lag
-        if h.input_filter is not None:
-            f = h.input_filter(f, prep.dt)
+    f = delivered_commands(prep, hooks)
     forces = [h.force for h in hooks if h.force is not None]
     masses = [h.mass for h in hooks if h.mass is not None]
     nu0 = np.where(np.isfinite(prep.nu), prep.nu, 0.0)
