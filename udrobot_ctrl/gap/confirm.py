@@ -60,6 +60,11 @@ class Replay:
     sims: list  # (n, 12) per holdout run
 
 
+def fitted_hooks(catalogue, p, actuation: Actuation, fit: Fit | None, members) -> list:
+    """Replay hooks (:class:`udrobot_ctrl.gap.effects.Hooks`) of ``members`` with their parameters in ``fit``."""
+    return [catalogue[n].hooks(fit.params[n], p, actuation) for n in members]
+
+
 def replay(preps, p, fit: Fit | None, members, catalogue, actuation: Actuation, window_s, scored) -> Replay:
     """Replay the holdout runs with ``members`` of ``fit`` added to the nominal plant (no member: nominal).
 
@@ -80,7 +85,7 @@ def replay(preps, p, fit: Fit | None, members, catalogue, actuation: Actuation, 
     scored : list of str
         Channels scored (those of the nominal gap).
     """
-    hooks = [catalogue[n].hooks(fit.params[n], p, actuation) for n in members]
+    hooks = fitted_hooks(catalogue, p, actuation, fit, members)
     sims = [simulate_windows(pr, p, hooks, window_s) for pr in preps]
     return Replay(tuple(members), gap(preps, sims, scored), sims)
 

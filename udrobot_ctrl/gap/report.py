@@ -46,6 +46,7 @@ from udrobot_ctrl.gap.confirm import (
     Replay,
     alone_tests,
     backward_eliminate,
+    fitted_hooks,
     replay,
 )
 from udrobot_ctrl.gap.data import prepare
@@ -365,16 +366,11 @@ def reconstructed(inp: Inputs) -> bool:
     return any(pr.smoothed is not None for pr in inp.runs)
 
 
-def hooks_of(inp: Inputs, actuation: Actuation, fit, members) -> list:
-    """Replay hooks of ``members`` of ``fit``."""
-    return [inp.catalogue[n].hooks(fit.params[n], inp.p, actuation) for n in members]
-
-
 def reconstruct_with(inp: Inputs, actuation: Actuation, fit, members, which: str = "all") -> Inputs:
     """``inp`` with its runs prepared again, the unlogged velocities reconstructed by the nominal plant plus the
     ``members`` of ``fit`` (:func:`udrobot_ctrl.gap.shrink.prepare_with_effects`, along the nominal
     reconstruction); ``which``: ``"all"`` runs or only the ``"holdout"`` runs."""
-    hooks = hooks_of(inp, actuation, fit, members)
+    hooks = fitted_hooks(inp.catalogue, inp.p, actuation, fit, members)
     known = " + ".join(members)
     n_fit = len(inp.fit)
     preps = [prepare_with_effects(run, inp.p, pr, hooks, known) if (which == "all" or i >= n_fit) else pr
