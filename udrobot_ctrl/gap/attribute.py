@@ -198,7 +198,7 @@ class Attributor:
         lag at the 1 s top of its range): the effect is then likely standing in for something else. Shape
         parameters whose ends are physical forms (``Effect.physical_ends``: a thrust exponent of 1 or 2) are not
         checked. The other shape parameters are checked against the effect's search bounds, amplitudes against
-        their design bounds, within ``rel`` of the range (or of the bound's magnitude for a one-sided range).
+        their design bounds, within ``rel`` of the smaller of the range's width and the bound's magnitude.
         """
         eff = self.cat[name]
         shape = fit.shapes[name]
@@ -213,8 +213,10 @@ class Attributor:
         for pname, value, lo, hi in checks:
             if value is None or not np.isfinite(value):
                 continue
-            tol = rel * max(abs(hi - lo) if np.isfinite(hi - lo) else 0.0, abs(lo), abs(hi), 1e-12)
             for bound in (lo, hi):
+                # within rel of the range's width, and of the bound's own magnitude: a wide one-sided range (a
+                # damping from -D_L to 1e4) must not flag every value near its physical end
+                tol = rel * min(abs(hi - lo), abs(bound))
                 if np.isfinite(bound) and abs(value - bound) <= tol and bound != 0.0:
                     out[pname] = (float(value), float(bound))
         return out

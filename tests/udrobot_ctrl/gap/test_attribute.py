@@ -36,3 +36,16 @@ def test_an_amplitude_fitted_to_zero_on_a_zero_bound_is_not_flagged(attributor):
     fit = attributor.fit([("thrust_inflow_loss", ())])
     flagged = attributor.at_bounds(fit, "thrust_inflow_loss")
     assert all(v[1] != 0.0 for v in flagged.values())
+
+
+def test_a_damping_well_inside_a_wide_one_sided_range_is_not_flagged(attributor):
+    # linear damping may add from -D_L (no damping left) up to 1e4: a value of a few N s/m is inside, however wide
+    # the range is; one at -D_L is at its physical end
+    fit = attributor.fit([("linear_damping", ())])
+    d = attributor.design("linear_damping", ())
+    inside = {n: 2.0 for n in d.names}
+    fit_inside = type(fit)(**{**fit.__dict__, "params": {"linear_damping": inside}})
+    assert attributor.at_bounds(fit_inside, "linear_damping") == {}
+    at_end = {n: float(lo) for n, lo in zip(d.names, d.lower)}
+    fit_end = type(fit)(**{**fit.__dict__, "params": {"linear_damping": at_end}})
+    assert set(attributor.at_bounds(fit_end, "linear_damping")) == {n for n, lo in zip(d.names, d.lower) if lo != 0}
