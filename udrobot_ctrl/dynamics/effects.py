@@ -8,7 +8,12 @@ the plant in one of three ways:
   controller design) simulates it for free (:func:`fold_parameters`):
 
   ``linear_damping``            D_L,ii += d_i  (``d_Xu`` ... ``d_Nr``; N s/m, N m s)
-  ``quadratic_damping_error``   Q_ii *= 1 + s_i  (``scale_Xu|u|`` ...)
+  ``quadratic_damping_error``   Q_ii *= 1 + s_i  (``scale_Xu|u|`` ...); with the optional ``norm_weight`` a in
+                                [0, 1] (default 0) the error's drag acts on the speed, not per axis:
+                                -s_i Q_ii ((1 - a) |nu_i| + a |nu_g|) nu_i, |nu_g| the norm of the translational
+                                (u v w) or rotational (p q r) velocity (the cross-flow principle: a body's drag
+                                grows with the flow speed, which a per-axis |nu_i| nu_i model identified on
+                                single-axis tests misses in combined motion). The norm part enters as a force
   ``added_mass_error``          M_A,ii *= 1 + s_i  (``scale_Xdu`` ...; M and its Coriolis part follow)
   ``cross_coupled_damping``     D_L,ij += D_ij, Q_ij += Q_ij  (``D_Xv``, ``Q_Xv|v|`` ...)
   ``buoyancy_offset``           B += dB  (``dB_N``; acting at the centre of buoyancy)
@@ -124,7 +129,7 @@ CATALOGUE = {k.name: k for k in (
     EffectKind("linear_damping", "linear damping missing or wrong", "parameters",
                tuple(f"d_{d}{v}" for d, v in zip(DOF, VEL))),
     EffectKind("quadratic_damping_error", "quadratic damping wrong in scale", "parameters",
-               tuple(f"scale_{d}{v}|{v}|" for d, v in zip(DOF, VEL))),
+               tuple(f"scale_{d}{v}|{v}|" for d, v in zip(DOF, VEL)), optional=("norm_weight",)),
     EffectKind("added_mass_error", "added mass wrong in scale", "parameters",
                tuple(f"scale_{d}d{v}" for d, v in zip(DOF, VEL))),
     EffectKind("cross_coupled_damping", "off-diagonal damping couples DOFs", "parameters", (),
@@ -135,8 +140,12 @@ CATALOGUE = {k.name: k for k in (
                ("dBG_x_Nm", "dBG_y_Nm", "dBG_z_Nm")),
 )}
 EFFECT_NAMES = tuple(CATALOGUE)
-#: optional shape exponents of the thruster effects and their value when a model file leaves them out (today's forms)
-OPTIONAL_DEFAULTS = {"thrust_exponent": 1.0, "command_exponent": 1.0}
+#: optional shape parameters (the thruster effects' exponents, the quadratic damping error's norm weight) and their
+#: value when a model file leaves them out (the forms before they existed)
+OPTIONAL_DEFAULTS = {"thrust_exponent": 1.0, "command_exponent": 1.0, "norm_weight": 0.0}
+#: the nominal quadratic damping a ``quadratic_damping_error`` with a norm weight carries as a run-time force
+#: (filled in by :func:`fold_parameters`; not a model-file parameter)
+NOMINAL_Q = tuple(f"nominal_Q_{d}{v}|{v}|" for d, v in zip(DOF, VEL))
 #: the range of the shape exponents: 1 (the form linear in the thrust) to 2 (thrust ~ rotor speed n|n| ~ command^2)
 EXPONENT_RANGE = (1.0, 2.0)
 EXPONENT_MEANING = {"thrust_exponent": "1: a lag of the thrust, 2: of the rotor speed, thrust ~ n|n|",
@@ -207,6 +216,9 @@ def plant_effect(doc, where: str = "effects[0]") -> PlantEffect:
         if key in params and not EXPONENT_RANGE[0] <= params[key] <= EXPONENT_RANGE[1]:
             raise ValueError(f"{where}.params.{key}: must be within [{EXPONENT_RANGE[0]:g}, {EXPONENT_RANGE[1]:g}] "
                              f"({meaning}), got {params[key]:g}")
+    if name == "quadratic_damping_error" and not 0.0 <= params.get("norm_weight", 0.0) <= 1.0:
+        raise ValueError(f"{where}.params.norm_weight: must be within [0, 1] (0: per-axis drag |nu_i| nu_i, 1: drag "
+                         f"on the speed |nu_g| nu_i), got {params['norm_weight']:g}")
     if name == "wall_effect" and params["decay_length_m"] <= 0:
         raise ValueError(f"{where}.params.decay_length_m: must be > 0 m, got {params['decay_length_m']}")
     if name == "wall_effect":
@@ -288,7 +300,11 @@ def fold_parameters(p, effects):
         if e.name == "linear_damping":
             D_L[np.diag_indices(6)] += [q[f"d_{d}{v}"] for d, v in zip(DOF, VEL)]
         elif e.name == "quadratic_damping_error":
-            Q[np.diag_indices(6)] *= 1.0 + np.array([q[f"scale_{d}{v}|{v}|"] for d, v in zip(DOF, VEL)])
+            scale = np.array([q[f"scale_{d}{v}|{v}|"] for d, v in zip(DOF, VEL)])
+            a = float(q.get("norm_weight", OPTIONAL_DEFAULTS["norm_weight"]))
+            if a > 0:  # the part on the speed norm is a run-time force on the nominal coefficients
+                runtime.append(replace(e, params={**q, **dict(zip(NOMINAL_Q, np.diag(Q).tolist()))}))
+            Q[np.diag_indices(6)] *= 1.0 + (1.0 - a) * scale
         elif e.name == "added_mass_error":
             M_A[np.diag_indices(6)] *= 1.0 + np.array([q[f"scale_{d}d{v}"] for d, v in zip(DOF, VEL)])
         elif e.name == "cross_coupled_damping":
@@ -688,11 +704,27 @@ def relative_velocity(be, eta, nu, effects):
     return nu
 
 
+def speed_norm_drag(be, nu, params):
+    """The speed-norm part of a ``quadratic_damping_error`` (6 components, N and N m, body frame):
+    -a s_i Q_ii |nu_g| nu_i, |nu_g| the norm of the translational or rotational velocity, Q_ii the nominal
+    coefficients :func:`fold_parameters` stored (``NOMINAL_Q``). The norm is sqrt(|nu_g|^2 + 1e-12): smooth at
+    rest, so that a linearisation there exists (the term and its derivative vanish)."""
+    a = params.get("norm_weight", OPTIONAL_DEFAULTS["norm_weight"])
+    out = []
+    for g in ((nu[0], nu[1], nu[2]), (nu[3], nu[4], nu[5])):
+        speed = be.sqrt(g[0] * g[0] + g[1] * g[1] + g[2] * g[2] + 1e-12)
+        out += [speed * v for v in g]
+    return tuple(-a * params[f"scale_{d}{v}|{v}|"] * params[qn] * t for d, v, qn, t in zip(DOF, VEL, NOMINAL_Q, out))
+
+
 def external_force(be, eta, nu, effects):
-    """Sum of the tether and wall suction forces (6 components, N and N m, body frame)."""
+    """Sum of the tether and wall suction forces and the speed-norm part of a quadratic damping error (6
+    components, N and N m, body frame)."""
     total = None
     for e in effects:
-        if e.name == "tether_drag":
+        if e.name == "quadratic_damping_error":
+            term = speed_norm_drag(be, nu, e.params)
+        elif e.name == "tether_drag":
             term = tether_force(be, eta, nu, e.params)
         elif e.name == "wall_effect":
             term = None

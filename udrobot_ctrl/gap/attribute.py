@@ -179,6 +179,7 @@ class Attributor:
         self.N = stack.n
         self._cache = {}
         self._dof_cache, self._gram_cache = {}, {}  # see _dof_design, _gram
+        self._free_shapes = {}  # see free_shapes
         self.n_eff = float(self.N)
 
     def design(self, name, shape) -> fx.Design:
@@ -302,11 +303,19 @@ class Attributor:
             params[name] = {k_: float(v) for k_, v in sp.items()}
         for nm, own, val in zip(names, owner, a):
             params[own][nm] = float(val)
-        kk += sum(len(self.cat[n].shape_names) for n, _ in terms)
+        kk += sum(self.free_shapes(n) for n, _ in terms)
         full_pred = np.zeros_like(self.r)
         full_pred[:, d] = pred
         return Fit(tuple(n for n, _ in terms), shapes, params, rss, kk, float(np.sum(np.log(rss / self.N))), a,
                    full_pred)
+
+    def free_shapes(self, name) -> int:
+        """Number of shape parameters of ``name`` the search moves (a form held at one end is not one)."""
+        if name not in self._free_shapes:
+            _, bounds = self.cat[name].search_space(self.s)
+            self._free_shapes[name] = (sum(1 for lo, hi in bounds if hi > lo) if bounds
+                                       else len(self.cat[name].shape_names))
+        return self._free_shapes[name]
 
     def bic(self, fit: Fit) -> float:
         return self.n_eff * fit.loglik_n + fit.k * np.log(self.n_eff * max(1, self.dofs.sum()))

@@ -33,7 +33,8 @@ Templates (the diagnoser's lumped forms; a truth generator should use different 
                         suction force -a_s exp(-h/lam) |V_t|^2 n (V_t the speed along the surface).
 ``water_current``       steady NED current (c_N, c_E, c_D): damping acts on nu - R^T c.
 ``linear_damping``      extra diagonal linear damping d_i (N s/m, N m s).
-``quadratic_damping_error``  Q_ii scaled by (1 + s_i).
+``quadratic_damping_error``  Q_ii scaled by (1 + s_i), the error's drag on each axis' speed |nu_i| or (shape
+                        ``norm_weight`` a) on (1 - a) |nu_i| + a |nu_g|, |nu_g| the translational or rotational speed.
 ``added_mass_error``    M_A,ii scaled by (1 + s_i) (with its Coriolis-centripetal part).
 ``cross_coupled_damping``    off-diagonal linear and quadratic damping D_ij nu_j, Q_ij |nu_j| nu_j.
 ``buoyancy_offset``     net buoyancy B - W changed by dB (N).
@@ -500,10 +501,28 @@ class LinearDamping(Effect):
 
 
 
+#: a unit speed-norm drag: norm weight 1, every scale and nominal coefficient 1 (:func:`quadratic_drag`)
+_UNIT_NORM_DRAG = {"norm_weight": 1.0, **{f"scale_{d}{v}|{v}|": 1.0 for d, v in zip(DOF, VEL)},
+                   **dict.fromkeys(pfx.NOMINAL_Q, 1.0)}
+
+
+def quadratic_drag(nu, norm_weight) -> np.ndarray:
+    """(n, 6) quadratic drag per unit coefficient, ((1 - a) |nu_i| + a |nu_g|) nu_i, |nu_g| the norm of the
+    translational or rotational velocity (a = ``norm_weight``): the speed-norm part is the plant's own
+    :func:`udrobot_ctrl.dynamics.effects.speed_norm_drag`."""
+    nu = np.asarray(nu, float)
+    on_norm = -_stack(pfx.speed_norm_drag(pfx.NUMPY, _comps(nu), _UNIT_NORM_DRAG))
+    return (1.0 - norm_weight) * np.abs(nu) * nu + norm_weight * on_norm
+
+
 class QuadDampingError(Effect):
+    """Q_ii scaled by 1 + s_i; the shape ``norm_weight`` a moves the error's drag from each axis' own speed (0) to
+    the translational or rotational speed (1)."""
+
     def design(self, s, shape):
         q = np.diag(s.p.Q)
-        A = s.full(lambda r: -(q * np.abs(r["nu"]) * r["nu"])[:, :, None] * np.eye(6)[None])
+        a = float(shape[0]) if len(shape) else 0.0
+        A = s.full(lambda r: -(q * quadratic_drag(r["nu"], a))[:, :, None] * np.eye(6)[None])
         return Design(np.zeros((s.n, 6)), A, tuple(f"scale_{d}{v}|{v}|" for d, v in zip(DOF, VEL)),
                       np.full(6, -0.95), np.full(6, 10.0))
 
@@ -601,8 +620,10 @@ def catalogue() -> dict:
                 ((-1.0, 1.0), (-1.0, 1.0), (-0.3, 0.3)), refine=True, mimics=("buoyancy_offset",)),
         LinearDamping("linear_damping", "linear damping missing or wrong",
                       mimics=("quadratic_damping_error", "tether_drag")),
-        QuadDampingError("quadratic_damping_error", "quadratic damping wrong in scale",
-                         mimics=("thrust_inflow_loss", "tether_drag", "linear_damping")),
+        QuadDampingError("quadratic_damping_error", "quadratic damping wrong in scale", ("norm_weight",),
+                         ((0.0,), (1.0,)), ((0.0, 1.0),), refine=True,
+                         mimics=("thrust_inflow_loss", "tether_drag", "linear_damping"),
+                         physical_ends=("norm_weight",)),
         AddedMassError("added_mass_error", "added mass wrong in scale", mimics=("thruster_lag",)),
         CrossDamping("cross_coupled_damping", "off-diagonal damping couples DOFs"),
         BuoyancyOffset("buoyancy_offset", "net buoyancy differs from the model"),

@@ -23,6 +23,12 @@ listed with the reason and the measurement that would fix it, excluded from sele
 An effect identified in part stays testable with its non-identified amplitude parameters frozen at zero
 (:meth:`Identifiability.restrict`). With every DOF observed and nothing reconstructed, the only possible
 finding is a vanishing regressor.
+
+A *form* parameter (``Effect.physical_ends``: each end of its range is a physical form, e.g. a quadratic damping
+error on each axis' speed or on the vehicle's speed) is checked at each end: when the effect is identified in
+one form and not in the other (the speed-norm drag of heave hinges on the surge speed, which a stock vehicle does
+not measure), the search keeps the identified form only, and the report lists the form parameter as not
+identified with the reason.
 """
 from __future__ import annotations
 
@@ -97,6 +103,9 @@ class EffectCheck:
     name: str
     params: list = field(default_factory=list)
     excited_by: str = "manoeuvres in which it acts"  # what the runs lack when its regressors vanish
+    #: form parameter -> (the end the channels identify, ParameterCheck of the end they do not): the search keeps
+    #: the identified form
+    forms: dict = field(default_factory=dict)
 
     @property
     def identified(self) -> bool:
@@ -104,17 +113,19 @@ class EffectCheck:
 
     @property
     def not_identified(self) -> list:
-        return [c.name for c in self.params if not c.identified]
+        """Amplitude parameters not identified, then the form parameters kept at one end."""
+        return [c.name for c in self.params if not c.identified] + list(self.forms)
 
     def reason(self) -> str:
         """Why parameters are not identified, with the measurement that would fix it."""
         causes = []
-        for c in self.params:
-            if not c.identified:
-                causes += [k for k in c.causes if k not in causes]
-        if "vanishes" in causes:
+        for c in [c for c in self.params if not c.identified] + [chk for _, chk in self.forms.values()]:
+            causes += [k for k in c.causes if k not in causes]
+        if "vanishes" in causes and not self.identified:
             return f"its regressors are zero on these runs: nothing it acts on is present; it needs {self.excited_by}"
-        return "; ".join(f"{MISSING[k][0]}; {MISSING[k][1]}" for k in causes)
+        forms = "".join(f"{k} kept at {v:g} (the form at {chk.name.split('=')[1]} is not identified); "
+                        for k, (v, chk) in self.forms.items())
+        return forms + "; ".join(f"{MISSING[k][0]}; {MISSING[k][1]}" for k in causes if k in MISSING)
 
 
 @dataclass
@@ -166,19 +177,23 @@ class Identifiability:
         out = {}
         for n, eff in catalogue.items():
             chk = self.effects.get(n)
-            frozen = tuple(chk.not_identified) if chk is not None and chk.identified else ()
-            out[n] = Restricted(eff, frozen) if frozen else eff
+            frozen = tuple(c.name for c in chk.params if not c.identified) if chk is not None and chk.identified \
+                else ()
+            forms = {k: v for k, (v, _) in chk.forms.items()} if chk is not None and chk.identified else {}
+            out[n] = Restricted(eff, frozen, forms) if frozen or forms else eff
         return out
 
 
 class Restricted(fx.Effect):
-    """A catalogue effect with some amplitude parameters frozen at zero (their columns removed from the design)."""
+    """A catalogue effect with some amplitude parameters frozen at zero (their columns removed from the design) and
+    some form parameters kept at one end of their range (``forms``: name -> value)."""
 
-    def __init__(self, inner: fx.Effect, frozen):
+    def __init__(self, inner: fx.Effect, frozen, forms=None):
         super().__init__(inner.name, inner.meaning, inner.shape_names, inner.shape_grid, inner.shape_bounds,
                          inner.refine, inner.mimics, inner.excited_by, inner.physical_ends)
         self.inner = inner
         self.frozen = tuple(frozen)
+        self.forms = dict(forms or {})
 
     def design(self, s, shape):
         b0, A, names, lo, hi = self.inner.design(s, shape)
@@ -186,7 +201,14 @@ class Restricted(fx.Effect):
         return b0, A * keep, names, lo, hi
 
     def search_space(self, s):
-        return self.inner.search_space(s)
+        grid, bounds = self.inner.search_space(s)
+        if not self.forms:
+            return grid, bounds
+        at = {self.shape_names.index(k): v for k, v in self.forms.items()}
+        kept = [tuple(at.get(i, x) for i, x in enumerate(shape)) for shape in grid]
+        grid = tuple(dict.fromkeys(kept))  # the grid's shapes in the kept form, once each
+        bounds = tuple((at[i], at[i]) if i in at else b for i, b in enumerate(bounds))
+        return grid, bounds
 
     def refine_step(self, s, x0):
         return self.inner.refine_step(s, x0)
@@ -291,55 +313,102 @@ def assess(stack, r, dofs, preps, catalogue: dict, names=None) -> Identifiabilit
            for pr in preps):
         moves.append("xy")
     stacks = {m: _perturbed(stack, preps, m) for m in moves}
-    raw = {}
-    top = 0.0
-    for n in names:
-        eff = catalogue[n]
-        acc = {}
-        for shape in _shapes(eff, stack):
-            A, nm = _columns(eff, stack, shape)
-            An = A / sigma[None, :, None]
-            e_obs = np.sum(An[:, observed] ** 2, axis=(0, 1))
-            e_all = np.sum(An ** 2, axis=(0, 1))
-            dev = {}
-            for m, st_m in stacks.items():
-                Am, _ = _columns(eff, st_m, shape)
-                dA = (Am - A) / sigma[None, :, None]
-                dev[m] = np.sum(dA[:, observed] ** 2, axis=(0, 1))
-            for j, pname in enumerate(nm):
-                a = acc.setdefault(pname, {"obs": 0.0, "all": 0.0, "dev": dict.fromkeys(stacks, 0.0),
-                                           "per_dof": np.zeros(6)})
-                a["obs"] += e_obs[j]
-                a["all"] += e_all[j]
-                a["per_dof"] += np.sum(An[:, :, j] ** 2, axis=0)
-                for m in stacks:
-                    a["dev"][m] += dev[m][j]
-        raw[n] = acc
-        top = max([top] + [a["all"] for a in acc.values()])
+    raw = {n: _energies(catalogue[n], stack, stacks, _shapes(catalogue[n], stack), sigma, observed) for n in names}
+    top = max([a["all"] for acc in raw.values() for a in acc.values()], default=0.0)
     out = {}
     for n in names:
-        checks = []
-        for pname, a in raw[n].items():
-            if a["all"] <= VANISH * max(top, 1e-300):
-                checks.append(ParameterCheck(pname, float("nan"), float("nan"), False, ("vanishes",)))
-                continue
-            share = a["obs"] / a["all"]
-            sens = {m: np.sqrt(d / a["obs"]) if a["obs"] > 0 else 0.0 for m, d in a["dev"].items()}
-            worst = max(sens.values(), default=0.0)
-            causes = []
-            if share < SHARE_MIN:
-                causes += [DOF_GROUP[i] for i in np.argsort(-a["per_dof"]) if not observed[i]
-                           and a["per_dof"][i] > 0.1 * a["all"]]
-            causes += ["position" if m == "xy" else DOF_GROUP[m] if not observed[m] else RECONSTRUCTED[DOF_GROUP[m]]
-                       for m, v in sens.items() if v > SENSITIVITY_MAX]
-            causes = list(dict.fromkeys(causes))
-            ok = share >= SHARE_MIN and worst <= SENSITIVITY_MAX
-            checks.append(ParameterCheck(pname, float(share), float(worst), ok, () if ok else tuple(causes)))
+        eff = catalogue[n]
+        forms = _forms(eff, stack, stacks, sigma, observed, top)
+        if forms:  # the parameters are judged in the form the search keeps
+            kept = Restricted(eff, (), {k: v for k, (v, _) in forms.items()})
+            raw[n] = _energies(eff, stack, stacks, _shapes(kept, stack), sigma, observed)
+        checks = _checks(raw[n], top, observed)
         if not checks:  # no amplitude column and a shape term that is zero at every probed shape
-            checks.append(ParameterCheck(",".join(catalogue[n].shape_names) or n, float("nan"), float("nan"), False,
+            checks.append(ParameterCheck(",".join(eff.shape_names) or n, float("nan"), float("nan"), False,
                                          ("vanishes",)))
-        out[n] = EffectCheck(n, checks, catalogue[n].excited_by)
+        out[n] = EffectCheck(n, checks, eff.excited_by, forms)
     return Identifiability(out, observed, reconstructed)
+
+
+def _energies(eff, stack, stacks, shapes, sigma, observed) -> dict:
+    """Per parameter of ``eff``, summed over ``shapes``: its noise-normalised regressor energy in the observed DOFs
+    (``obs``), in all DOFs (``all``) and per DOF (``per_dof``), and the energy of its change in the observed DOFs
+    under each reconstruction move (``dev``: move -> energy)."""
+    acc = {}
+    for shape in shapes:
+        A, nm = _columns(eff, stack, shape)
+        An = A / sigma[None, :, None]
+        e_obs = np.sum(An[:, observed] ** 2, axis=(0, 1))
+        e_all = np.sum(An ** 2, axis=(0, 1))
+        dev = {}
+        for m, st_m in stacks.items():
+            Am, _ = _columns(eff, st_m, shape)
+            dA = (Am - A) / sigma[None, :, None]
+            dev[m] = np.sum(dA[:, observed] ** 2, axis=(0, 1))
+        for j, pname in enumerate(nm):
+            a = acc.setdefault(pname, {"obs": 0.0, "all": 0.0, "dev": dict.fromkeys(stacks, 0.0),
+                                       "per_dof": np.zeros(6)})
+            a["obs"] += e_obs[j]
+            a["all"] += e_all[j]
+            a["per_dof"] += np.sum(An[:, :, j] ** 2, axis=0)
+            for m in stacks:
+                a["dev"][m] += dev[m][j]
+    return acc
+
+
+def _checks(acc, top, observed) -> list:
+    """:class:`ParameterCheck` of each parameter from its :func:`_energies` (``top``: the largest energy of all
+    effects, for "zero on the data")."""
+    checks = []
+    for pname, a in acc.items():
+        if a["all"] <= VANISH * max(top, 1e-300):
+            checks.append(ParameterCheck(pname, float("nan"), float("nan"), False, ("vanishes",)))
+            continue
+        share = a["obs"] / a["all"]
+        sens = {m: np.sqrt(d / a["obs"]) if a["obs"] > 0 else 0.0 for m, d in a["dev"].items()}
+        worst = max(sens.values(), default=0.0)
+        causes = []
+        if share < SHARE_MIN:
+            causes += [DOF_GROUP[i] for i in np.argsort(-a["per_dof"]) if not observed[i]
+                       and a["per_dof"][i] > 0.1 * a["all"]]
+        causes += ["position" if m == "xy" else DOF_GROUP[m] if not observed[m] else RECONSTRUCTED[DOF_GROUP[m]]
+                   for m, v in sens.items() if v > SENSITIVITY_MAX]
+        causes = list(dict.fromkeys(causes))
+        ok = share >= SHARE_MIN and worst <= SENSITIVITY_MAX
+        checks.append(ParameterCheck(pname, float(share), float(worst), ok, () if ok else tuple(causes)))
+    return checks
+
+
+def _forms(eff, stack, stacks, sigma, observed, top) -> dict:
+    """Form parameters of ``eff`` (``physical_ends``) at whose one end the channels identify more of its amplitude
+    parameters than at the other (a strict superset): name -> (that end, the :class:`ParameterCheck` of the other
+    end, named ``"name=value"``, with the causes of the parameters it loses). Each end is probed with the other
+    shape parameters at the middle of the effect's grid."""
+    grid, bounds = eff.search_space(stack)
+    grid = list(grid)
+    if not eff.physical_ends or not grid or not bounds:
+        return {}
+    middle = list(grid[len(grid) // 2])
+    out = {}
+    for k in eff.physical_ends:
+        i = eff.shape_names.index(k)
+        ends = {}
+        for end in bounds[i]:
+            shape = tuple(middle[:i] + [end] + middle[i + 1:])
+            ends[float(end)] = {c.name: c for c in _checks(_energies(eff, stack, stacks, [shape], sigma, observed),
+                                                           top, observed)}
+        if len(ends) != 2:
+            continue
+        (e1, c1), (e2, c2) = ends.items()
+        ok1 = {n for n, c in c1.items() if c.identified}
+        ok2 = {n for n, c in c2.items() if c.identified}
+        if ok1 == ok2 or not (ok1 < ok2 or ok2 < ok1):
+            continue  # the same parameters in both forms, or neither form better: the search keeps both
+        good, bad, lost = (e2, c1, ok2 - ok1) if ok1 < ok2 else (e1, c2, ok1 - ok2)
+        causes = tuple(dict.fromkeys(x for n in sorted(lost) for x in bad[n].causes))
+        out[k] = (good, ParameterCheck(f"{k}={e1 if good == e2 else e2:g}", float("nan"), float("nan"), False,
+                                       causes))
+    return out
 
 
 def sensors(preps) -> dict:

@@ -9,6 +9,7 @@ from udrobot_ctrl.dynamics import effects as fx
 from udrobot_ctrl.dynamics import plant_casadi
 from udrobot_ctrl.dynamics.plant import (
     delivered_wrench,
+    generalized_forces,
     kinematics,
     plant_parameters,
     rotation_zyx,
@@ -67,6 +68,30 @@ def test_numpy_and_casadi_plants_agree_with_the_effect(name):
         fd = np.array(fx.static_thrust(fx.NUMPY, list(fi), maps, p.f_ref, p.capacities), float)
         ref = state_derivative(xi, delivered_wrench(xi, fd, p), p)
         np.testing.assert_allclose(np.asarray(f_cas(xi, fi)).ravel(), ref, rtol=1e-9, atol=1e-9)
+
+
+@pytest.mark.parametrize("a", [0.0, 0.5, 1.0])
+def test_quadratic_damping_error_on_the_speed_norm_in_numpy_and_casadi(a):
+    """-s_i Q_ii ((1 - a)|nu_i| + a |nu_g|) nu_i added to the nominal drag, the same in both twins; the norm part is
+    a run-time force (a = 0 is folded into Q, as before)."""
+    params = {**EXAMPLES["quadratic_damping_error"], "norm_weight": a}
+    p0 = plant_parameters(NOMINAL)
+    p = plant_parameters(NOMINAL.with_changes(effects=(fx.PlantEffect("quadratic_damping_error", params),)))
+    assert len(p.effects) == (a > 0)
+    x, _ = _states()
+    nu = x[:, 6:]
+    speed = np.concatenate([np.repeat(np.linalg.norm(nu[:, g], axis=1, keepdims=True), 3, axis=1)
+                            for g in (slice(0, 3), slice(3, 6))], axis=1)
+    extra = 0.5 * np.diag(p0.Q) * ((1 - a) * np.abs(nu) + a * speed) * nu  # EXAMPLES: every scale 0.5
+    nominal_rhs = np.array([state_derivative(xi, np.zeros(6), p0) for xi in x])[:, 6:] @ np.asarray(p0.M).T
+    rhs = np.array([state_derivative(xi, np.zeros(6), p) for xi in x])[:, 6:] @ np.asarray(p.M).T
+    np.testing.assert_allclose(nominal_rhs - rhs, extra, rtol=1e-8, atol=1e-8)
+    xs = ca.SX.sym("x", 12)
+    twin = ca.Function("g", [xs], [plant_casadi.generalized_forces(xs, p)])
+    np.testing.assert_allclose(np.vstack([np.asarray(twin(xi)).ravel() for xi in x]), generalized_forces(x, p),
+                               rtol=1e-9, atol=1e-9)
+    jac = ca.Function("j", [xs], [ca.jacobian(plant_casadi.generalized_forces(xs, p), xs)])
+    assert np.isfinite(np.asarray(jac(np.zeros(12)))).all()  # linearisable at rest
 
 
 #: the fixed-direction tether of model files written before anchors (the limit of a far anchor)
@@ -399,6 +424,8 @@ def test_model_file_round_trips_effects(tmp_path, tether):
                                         "suction_N_s2_per_m2": 1.0}}, "needs a plane"),
     ({"name": "wall_effect", "params": {"decay_length_m": 0.2, "added_mass_at_contact_kg": 1.0,
                                         "suction_N_s2_per_m2": 1.0, "wall1_point_n_m": 0.0}}, "misses wall1_point_e_m"),
+    ({"name": "quadratic_damping_error", "params": {**EXAMPLES["quadratic_damping_error"], "norm_weight": 1.5}},
+     r"params.norm_weight: must be within \[0, 1\].*got 1.5"),
     ({"name": "tether_drag", "params": {**EXAMPLES["tether_drag"], "cable_azimuth_rad": 1.0}}, "not both"),
     ({"name": "tether_drag", "params": {"k_quadratic_N_s2_per_m2": 1.0, "k_linear_N_s_per_m": 0.0,
                                         "anchor_north_m": 1.0, "anchor_east_m": 2.0}}, "misses .*anchor_down_m"),

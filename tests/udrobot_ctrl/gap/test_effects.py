@@ -121,3 +121,23 @@ def test_tether_search_covers_anchors_around_the_runs_and_the_fixed_directions()
     assert any(np.allclose(r[:2], centre) and r[2] < -0.99 * FAR_ANCHOR_M for r in g)
     for (lo, hi), v in zip(bounds, g.T):
         assert np.all((v >= lo) & (v <= hi))
+
+
+@pytest.mark.parametrize("a", [0.0, 0.4, 1.0])
+def test_quadratic_damping_regressor_is_the_plant_force_at_its_norm_weight(a):
+    """The quadratic damping error's design at shape ``norm_weight`` a, times the scales, is the corrected plant's
+    force, and the replay's hooks apply the same."""
+    rng = np.random.default_rng(2)
+    p0 = plant_parameters(load_model("pendulum:chin"))
+    x = _state(rng)
+    eff = catalogue()["quadratic_damping_error"]
+    b0, A, names, lo, hi = eff.design(_stack(x, p0), (a,))
+    scales = rng.uniform(-0.5, 1.0, 6)
+    params = {**dict(zip(names, scales)), "norm_weight": a}
+    corrected = plant_parameters(load_model("pendulum:chin").with_changes(
+        effects=(PlantEffect("quadratic_damping_error", params),)))
+    plant_force = generalized_forces(x, p0) - generalized_forces(x, corrected)
+    np.testing.assert_allclose(b0 + A @ scales, plant_force, rtol=1e-8, atol=1e-9)
+    hooks = eff.hooks(params, p0, Actuation(None, None, None, p0.M_A))
+    np.testing.assert_allclose(hooks.force(x, None, {}), plant_force, rtol=1e-8, atol=1e-9)
+

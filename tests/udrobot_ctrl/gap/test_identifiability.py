@@ -63,10 +63,28 @@ def test_restricted_catalogue_freezes_only_unidentified_columns(stock):
     assert not col["d_Xu"].any() and not col["d_Yv"].any() and col["d_Zw"].any()
 
 
+def test_stock_sensors_keep_the_quadratic_damping_error_on_each_axis_speed(stock):
+    """The speed-norm form puts the unmeasured surge speed into the heave drag: without a DVL the search keeps the
+    per-axis form (norm_weight 0), and the report says why."""
+    ident, preps = stock
+    quad = ident.effects["quadratic_damping_error"]
+    assert quad.identified and set(quad.forms) == {"norm_weight"} and quad.forms["norm_weight"][0] == 0.0
+    entry = ident.entry("quadratic_damping_error")["not_identified"]
+    assert "norm_weight" in entry["params"] and "norm_weight kept at 0" in entry["reason"]
+    assert "horizontal velocity is not observed" in entry["reason"]
+    st, _, _ = build_stack(preps, P, P.M_A)
+    grid, bounds = ident.restrict(fx.catalogue())["quadratic_damping_error"].search_space(st)
+    assert grid == ((0.0,),) and bounds == ((0.0, 0.0),)
+    # in the kept form the heave, roll, pitch and yaw scales are identified; surge and sway are not
+    assert {c.name for c in quad.params if c.identified} == {"scale_Zw|w|", "scale_Kp|p|", "scale_Mq|q|",
+                                                               "scale_Nr|r|"}
+
+
 def test_full_sensors_identify_everything():
     ident, preps = _assess(STATE)
     assert not any(pr.reconstructed.any() for pr in preps)
     assert ident.names == []
+    assert not any(e.forms for e in ident.effects.values())  # every form is searched
     rep = sensors(preps)
     assert rep["velocities"]["u"] == "observed" and rep["scored_dofs"] == list(fx.DOF)
 
