@@ -10,8 +10,11 @@ of issue 13. A case is right when:
 * stock sensors (depth, attitude, rates, accelerometer; no DVL, no positioning): no significant effect is
   outside the truth set, and every truth effect is either significant or listed under ``unidentifiable``.
 
+The summary also counts the two ways a catalogue case goes wrong: a *wrong* significant effect (outside the truth
+set) and a *missed* truth effect (not significant and, with stock sensors, not listed as unidentifiable).
+
 Usage: ``python bench/blind_score.py [--sensors full|stock] [--pairs N] [--draws K] [--jobs J] [--only CASE]
-[--json]``.
+[--window S] [--json]``.
 Prints one line per case and the score; with ``--json`` ends with one JSON line.
 """
 from __future__ import annotations
@@ -49,9 +52,9 @@ def cases(n_pairs: int, draws: int, seed: int):
     return out
 
 
-def run_case(case, sensors: str, duration: float, rate: float, log_dir: str | None = None):
+def run_case(case, sensors: str, duration: float, rate: float, log_dir: str | None = None, window_s: float = 8.0):
     """Diagnose one case; returns a dict with the truth, the verdict and whether it is right (``log_dir``: write
-    the diagnoser's console story of each case there)."""
+    the diagnoser's console story of each case there; ``window_s``: the replay window, s)."""
     draw, names = case
     seed = 1000 * draw + sum(EFFECT_NAMES.index(n) + 1 if n in EFFECT_NAMES else 50 for n in names) * 7
     rng = np.random.default_rng(seed)
@@ -60,7 +63,7 @@ def run_case(case, sensors: str, duration: float, rate: float, log_dir: str | No
     runs = generate(truth, n_runs=5, duration=duration, rate=rate, seed=seed, **kw)
     t0 = time.perf_counter()
     lines = []
-    report, _ = diagnose("pendulum:chin", runs[:3], runs[3:], log=lines.append)
+    report, _ = diagnose("pendulum:chin", runs[:3], runs[3:], window_s=window_s, log=lines.append)
     if log_dir:
         label = f"{sensors}_d{draw}_{'+'.join(names) or 'none'}"
         (Path(log_dir) / f"{label}.log").write_text("\n".join(lines) + "\n")
@@ -76,8 +79,13 @@ def run_case(case, sensors: str, duration: float, rate: float, log_dir: str | No
     else:
         right = sig <= in_cat and all(n in sig or n in unid for n in in_cat)
     shrink = {e["name"]: e["shrink"] for e in report["effects"] if e["name"] in in_cat}
+    # the two ways to be wrong: a significant effect outside the truth (a wrong verdict), and a truth effect neither
+    # named nor (stock sensors) listed as unidentifiable (a miss)
+    wrong = sorted(sig - in_cat) if in_cat == set(names) else []
+    missed = sorted(n for n in in_cat if n not in sig and (sensors == "full" or n not in unid))
     return {"draw": draw, "truth": list(names), "significant": sorted(sig), "unidentifiable": sorted(unid),
-            "right": bool(right), "shrink": shrink, "unexplained": report["unexplained"], "elapsed_s": elapsed}
+            "right": bool(right), "wrong": wrong, "missed": missed, "shrink": shrink,
+            "unexplained": report["unexplained"], "elapsed_s": elapsed}
 
 
 def main(argv=None) -> int:
@@ -95,6 +103,7 @@ def main(argv=None) -> int:
                     help="run only this case, named like its printed label (e.g. thruster_lag, "
                          "thruster_deadband+thruster_asymmetry, none); repeatable")
     ap.add_argument("--log-dir", default=None, help="write each case's console story and report to this folder")
+    ap.add_argument("--window", type=float, default=8.0, help="multiple-shooting replay window, s (diagnose's)")
     args = ap.parse_args(argv)
     todo = cases(args.pairs, args.draws, args.seed)
     todo = [c for c in todo if c[0] >= args.first_draw]
@@ -106,7 +115,7 @@ def main(argv=None) -> int:
         Path(args.log_dir).mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
     with ProcessPoolExecutor(max_workers=args.jobs) as ex:
-        extra = [(args.sensors, args.duration, args.rate, args.log_dir)] * len(todo)
+        extra = [(args.sensors, args.duration, args.rate, args.log_dir, args.window)] * len(todo)
         results = list(ex.map(run_case, todo, *zip(*extra)))
     for r in results:
         truth = "+".join(r["truth"]) or "none"
@@ -115,8 +124,10 @@ def main(argv=None) -> int:
               f"{', '.join(r['significant']) or '-'}; unidentifiable: {len(r['unidentifiable'])}"
               f"{'; shrink ' + shr if shr else ''} ({r['elapsed_s']:.1f} s)")
     n_right = sum(r["right"] for r in results)
-    print(f"{args.sensors} sensors: {n_right} of {len(results)} cases right "
-          f"({time.perf_counter() - t0:.0f} s wall, {args.jobs} jobs)")
+    n_wrong = sum(bool(r["wrong"]) for r in results)
+    n_missed = sum(bool(r["missed"]) for r in results)
+    print(f"{args.sensors} sensors: {n_right} of {len(results)} cases right; {n_wrong} with a wrong significant "
+          f"effect, {n_missed} with a missed one ({time.perf_counter() - t0:.0f} s wall, {args.jobs} jobs)")
     if args.json:
         print(json.dumps({"sensors": args.sensors, "right": n_right, "cases": len(results), "results": results}))
     return 0
