@@ -121,11 +121,12 @@ class EffectCheck:
         causes = []
         for c in [c for c in self.params if not c.identified] + [chk for _, chk in self.forms.values()]:
             causes += [k for k in c.causes if k not in causes]
-        if "vanishes" in causes and not self.identified:
-            return f"its regressors are zero on these runs: nothing it acts on is present; it needs {self.excited_by}"
         forms = "".join(f"{k} kept at {v:g} (the form at {chk.name.split('=')[1]} is not identified); "
                         for k, (v, chk) in self.forms.items())
-        return forms + "; ".join(f"{MISSING[k][0]}; {MISSING[k][1]}" for k in causes if k in MISSING)
+        if "vanishes" in causes:
+            return (forms + f"its regressors are zero on these runs: nothing it acts on is present; it needs "
+                            f"{self.excited_by}")
+        return forms + "; ".join(f"{MISSING[k][0]}; {MISSING[k][1]}" for k in causes)
 
 
 @dataclass

@@ -10,7 +10,7 @@ from udrobot_ctrl.dynamics.plant import plant_parameters
 from udrobot_ctrl.gap import effects as fx
 from udrobot_ctrl.gap.attribute import build_stack
 from udrobot_ctrl.gap.data import prepare
-from udrobot_ctrl.gap.identifiability import Restricted, assess, sensors
+from udrobot_ctrl.gap.identifiability import EffectCheck, ParameterCheck, Restricted, assess, sensors
 from udrobot_ctrl.vehicle import load_model
 
 from .stock_sim import STATE, STOCK, simulate
@@ -97,3 +97,18 @@ def test_vanishing_regressor_is_unidentifiable_with_its_reason(stock):
     rep = sensors(preps)
     assert rep["velocities"]["u"].startswith("reconstructed") and rep["velocities"]["w"].startswith("observed")
     assert rep["scored_dofs"] == ["Z", "K", "M", "N"]
+
+
+def test_a_partly_identified_effect_names_why_its_other_parameters_are_not():
+    """Every non-identified parameter comes with its reason, whether it vanishes on the runs or hinges on a
+    reconstructed state, with or without a form kept at one end."""
+    ok = ParameterCheck("a", 0.9, 0.0, True)
+    zero = ParameterCheck("b", float("nan"), float("nan"), False, ("vanishes",))
+    hidden = ParameterCheck("c", 0.1, 0.0, False, ("horizontal",))
+    assert "regressors are zero" in EffectCheck("e", [ok, zero], "commands of both signs").reason()
+    assert "commands of both signs" in EffectCheck("e", [ok, zero], "commands of both signs").reason()
+    assert "horizontal velocity is not observed" in EffectCheck("e", [ok, hidden]).reason()
+    kept = EffectCheck("e", [ok], forms={"norm_weight": (0.0, ParameterCheck("norm_weight=1", 0, 0, False,
+                                                                             ("horizontal",)))})
+    assert kept.reason().startswith("norm_weight kept at 0 (the form at 1 is not identified)")
+    assert kept.not_identified == ["norm_weight"]
