@@ -107,6 +107,33 @@ def test_an_interacting_pair_is_named_though_one_alone_makes_the_holdout_worse()
 
 
 @pytest.mark.slow
+def test_quadratic_damping_on_the_speed_is_recovered_in_its_form():
+    """The truth's damping error acts on the speed norm (cross-flow drag), not per axis: the template's form
+    ``norm_weight`` ends near 1 and the per-DOF scales are the truth's translational and rotational ones, with no
+    cross-coupled damping standing in for the coupling."""
+    report, truth = _run(["quadratic_damping_error"], seed=3)
+    assert {e["name"] for e in report["effects"] if e["significant"]} == {"quadratic_damping_error"}, truth
+    fit = _by_name(report)["quadratic_damping_error"]["params"]
+    c = truth["quadratic_damping_error"]
+    assert fit["norm_weight"] > 0.9, fit
+    for k in ("scale_Xu|u|", "scale_Yv|v|", "scale_Zw|w|"):
+        assert fit[k] == pytest.approx(c["s_t"], abs=0.05), (k, fit, c)
+    for k in ("scale_Mq|q|", "scale_Nr|r|"):  # roll is barely excited by these manoeuvres
+        assert fit[k] == pytest.approx(c["s_r"], abs=0.1), (k, fit, c)
+
+
+@pytest.mark.slow
+def test_linear_and_quadratic_damping_errors_together_are_both_named():
+    """A |nu|^1.1 skin-friction term and a speed-norm quadratic error: both named, nothing else; the quadratic
+    error in its speed form, so the linear template does not absorb it."""
+    report, truth = _run(["linear_damping", "quadratic_damping_error"])
+    assert {e["name"] for e in report["effects"] if e["significant"]} == {"linear_damping",
+                                                                          "quadratic_damping_error"}, truth
+    assert _by_name(report)["quadratic_damping_error"]["params"]["norm_weight"] > 0.8
+    assert report["unexplained"] < 0.3
+
+
+@pytest.mark.slow
 def test_effect_outside_catalogue_is_unexplained(diagnosed):
     report, _ = diagnosed(["periodic_disturbance"], seed=3)
     sig = [e for e in report["effects"] if e["significant"]]
