@@ -663,6 +663,19 @@ DISCRIMINATING_MANOEUVRE = {
         "reverse-thrust loss only on one sign)",
     frozenset({"thruster_deadband", "thruster_asymmetry"}):
         "slow ramps of the command through zero in both directions",
+    frozenset({"wall_effect", "added_mass_error"}):
+        "heave steps at two or more heights above the seabed, with the altitude logged (a wall's added mass decays "
+        "with the distance; an added-mass error is the same everywhere; within a decay length of the seabed the two "
+        "are one heave added mass)",
+    frozenset({"added_mass_error", "cg_cb_offset"}):
+        "forced pitch and roll steps held at an angle, besides free oscillations (the restoring moment acts on the "
+        "held angle, an added-mass error only while the rate changes; in a lightly damped free oscillation the "
+        "angular acceleration follows -sin(angle) and the two cannot be told apart)",
+    frozenset({"cross_coupled_damping", "quadratic_damping_error"}):
+        "combined surge and heave runs at several ratios of the two speeds, besides single-axis runs (a drag on the "
+        "vehicle's speed grows with the total speed, a cross-coupled term with the product of the two)",
+    frozenset({"thruster_lag", "thruster_deadband"}):
+        "small command steps around zero and large steps (a deadband removes the small ones, a lag delays all)",
 }
 
 

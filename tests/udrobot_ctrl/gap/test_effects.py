@@ -5,7 +5,14 @@ import pytest
 from udrobot_ctrl.dynamics.effects import TETHER_SPEED_FLOOR, PlantEffect
 from udrobot_ctrl.dynamics.effects import cable_direction as _cable_direction
 from udrobot_ctrl.dynamics.plant import generalized_forces, plant_parameters, rotation_zyx
-from udrobot_ctrl.gap.effects import FAR_ANCHOR_M, Actuation, Stack, _tether_columns, catalogue
+from udrobot_ctrl.gap.effects import (
+    FAR_ANCHOR_M,
+    Actuation,
+    Stack,
+    _tether_columns,
+    catalogue,
+    discriminating_manoeuvre,
+)
 from udrobot_ctrl.vehicle import load_model
 
 
@@ -141,3 +148,14 @@ def test_quadratic_damping_regressor_is_the_plant_force_at_its_norm_weight(a):
     hooks = eff.hooks(params, p0, Actuation(None, None, None, p0.M_A))
     np.testing.assert_allclose(hooks.force(x, None, {}), plant_force, rtol=1e-8, atol=1e-9)
 
+
+
+def test_look_alikes_come_with_the_manoeuvre_that_separates_them():
+    """Pairs the diagnoser confuses on ordinary pool runs each name a specific separating manoeuvre, in either
+    order; any other pair gets the generic advice naming both effects."""
+    for a, b in (("wall_effect", "added_mass_error"), ("added_mass_error", "cg_cb_offset"),
+                 ("cross_coupled_damping", "quadratic_damping_error"), ("thruster_lag", "thruster_deadband"),
+                 ("quadratic_damping_error", "thrust_inflow_loss")):
+        text = discriminating_manoeuvre(a, b)
+        assert text == discriminating_manoeuvre(b, a) and "regressors of" not in text
+    assert "water_current" in discriminating_manoeuvre("water_current", "thruster_lag")
