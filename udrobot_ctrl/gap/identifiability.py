@@ -96,6 +96,26 @@ class ParameterCheck:
     causes: tuple = ()
 
 
+@dataclass(frozen=True)
+class FormCheck:
+    """A form parameter held at one end of its range: the channels identify fewer of the effect's parameters at the
+    other end.
+
+    Attributes
+    ----------
+    kept : float
+        The end the search keeps.
+    other : float
+        The end it does not search.
+    causes : tuple of str
+        Keys of :data:`MISSING` for the parameters the other end loses.
+    """
+
+    kept: float
+    other: float
+    causes: tuple = ()
+
+
 @dataclass
 class EffectCheck:
     """Identifiability of one effect: its parameters' checks, and whether any is identified."""
@@ -103,8 +123,7 @@ class EffectCheck:
     name: str
     params: list = field(default_factory=list)
     excited_by: str = "manoeuvres in which it acts"  # what the runs lack when its regressors vanish
-    #: form parameter -> (the end the channels identify, ParameterCheck of the end they do not): the search keeps
-    #: the identified form
+    #: form parameter -> :class:`FormCheck` (the search keeps the identified form)
     forms: dict = field(default_factory=dict)
 
     @property
@@ -119,10 +138,10 @@ class EffectCheck:
     def reason(self) -> str:
         """Why parameters are not identified, with the measurement that would fix it."""
         causes = []
-        for c in [c for c in self.params if not c.identified] + [chk for _, chk in self.forms.values()]:
+        for c in [c for c in self.params if not c.identified] + list(self.forms.values()):
             causes += [k for k in c.causes if k not in causes]
-        forms = "".join(f"{k} kept at {v:g} (the form at {chk.name.split('=')[1]} is not identified); "
-                        for k, (v, chk) in self.forms.items())
+        forms = "".join(f"{k} kept at {f.kept:g} (the form at {f.other:g} is not identified); "
+                        for k, f in self.forms.items())
         if "vanishes" in causes:
             return (forms + f"its regressors are zero on these runs: nothing it acts on is present; it needs "
                             f"{self.excited_by}")
@@ -180,7 +199,7 @@ class Identifiability:
             chk = self.effects.get(n)
             frozen = tuple(c.name for c in chk.params if not c.identified) if chk is not None and chk.identified \
                 else ()
-            forms = {k: v for k, (v, _) in chk.forms.items()} if chk is not None and chk.identified else {}
+            forms = {k: f.kept for k, f in chk.forms.items()} if chk is not None and chk.identified else {}
             out[n] = Restricted(eff, frozen, forms) if frozen or forms else eff
         return out
 
@@ -321,7 +340,7 @@ def assess(stack, r, dofs, preps, catalogue: dict, names=None) -> Identifiabilit
         eff = catalogue[n]
         forms = _forms(eff, stack, stacks, sigma, observed, top)
         if forms:  # the parameters are judged in the form the search keeps
-            kept = Restricted(eff, (), {k: v for k, (v, _) in forms.items()})
+            kept = Restricted(eff, (), {k: f.kept for k, f in forms.items()})
             raw[n] = _energies(eff, stack, stacks, _shapes(kept, stack), sigma, observed)
         checks = _checks(raw[n], top, observed)
         if not checks:  # no amplitude column and a shape term that is zero at every probed shape
@@ -382,9 +401,9 @@ def _checks(acc, top, observed) -> list:
 
 def _forms(eff, stack, stacks, sigma, observed, top) -> dict:
     """Form parameters of ``eff`` (``physical_ends``) at whose one end the channels identify more of its amplitude
-    parameters than at the other (a strict superset): name -> (that end, the :class:`ParameterCheck` of the other
-    end, named ``"name=value"``, with the causes of the parameters it loses). Each end is probed with the other
-    shape parameters at the middle of the effect's grid."""
+    parameters than at the other (a strict superset), the others failing because their regressor hinges on a
+    reconstructed state (sensitivity), not because it acts less in the observed DOFs (share): name ->
+    :class:`FormCheck`. Each end is probed with the other shape parameters at the middle of the effect's grid."""
     grid, bounds = eff.search_space(stack)
     grid = list(grid)
     if not eff.physical_ends or not grid or not bounds:
@@ -406,9 +425,10 @@ def _forms(eff, stack, stacks, sigma, observed, top) -> dict:
         if ok1 == ok2 or not (ok1 < ok2 or ok2 < ok1):
             continue  # the same parameters in both forms, or neither form better: the search keeps both
         good, bad, lost = (e2, c1, ok2 - ok1) if ok1 < ok2 else (e1, c2, ok1 - ok2)
+        if any(not bad[n].share >= SHARE_MIN for n in lost):
+            continue  # the other form acts elsewhere (less in the observed DOFs), it does not hinge on a reconstruction
         causes = tuple(dict.fromkeys(x for n in sorted(lost) for x in bad[n].causes))
-        out[k] = (good, ParameterCheck(f"{k}={e1 if good == e2 else e2:g}", float("nan"), float("nan"), False,
-                                       causes))
+        out[k] = FormCheck(good, e1 if good == e2 else e2, causes)
     return out
 
 

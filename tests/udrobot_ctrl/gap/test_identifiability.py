@@ -10,7 +10,14 @@ from udrobot_ctrl.dynamics.plant import plant_parameters
 from udrobot_ctrl.gap import effects as fx
 from udrobot_ctrl.gap.attribute import build_stack
 from udrobot_ctrl.gap.data import prepare
-from udrobot_ctrl.gap.identifiability import EffectCheck, ParameterCheck, Restricted, assess, sensors
+from udrobot_ctrl.gap.identifiability import (
+    EffectCheck,
+    FormCheck,
+    ParameterCheck,
+    Restricted,
+    assess,
+    sensors,
+)
 from udrobot_ctrl.vehicle import load_model
 
 from .stock_sim import STATE, STOCK, simulate
@@ -68,7 +75,9 @@ def test_stock_sensors_keep_the_quadratic_damping_error_on_each_axis_speed(stock
     per-axis form (norm_weight 0), and the report says why."""
     ident, preps = stock
     quad = ident.effects["quadratic_damping_error"]
-    assert quad.identified and set(quad.forms) == {"norm_weight"} and quad.forms["norm_weight"][0] == 0.0
+    assert quad.identified and set(quad.forms) == {"norm_weight"} and quad.forms["norm_weight"].kept == 0.0
+    # a thruster map's exponent does not hinge on any reconstructed state: both of its forms stay searched
+    assert not ident.effects["thruster_deadband"].forms and not ident.effects["thruster_lag"].forms
     entry = ident.entry("quadratic_damping_error")["not_identified"]
     assert "norm_weight" in entry["params"] and "norm_weight kept at 0" in entry["reason"]
     assert "horizontal velocity is not observed" in entry["reason"]
@@ -108,7 +117,6 @@ def test_a_partly_identified_effect_names_why_its_other_parameters_are_not():
     assert "regressors are zero" in EffectCheck("e", [ok, zero], "commands of both signs").reason()
     assert "commands of both signs" in EffectCheck("e", [ok, zero], "commands of both signs").reason()
     assert "horizontal velocity is not observed" in EffectCheck("e", [ok, hidden]).reason()
-    kept = EffectCheck("e", [ok], forms={"norm_weight": (0.0, ParameterCheck("norm_weight=1", 0, 0, False,
-                                                                             ("horizontal",)))})
+    kept = EffectCheck("e", [ok], forms={"norm_weight": FormCheck(0.0, 1.0, ("horizontal",))})
     assert kept.reason().startswith("norm_weight kept at 0 (the form at 1 is not identified)")
     assert kept.not_identified == ["norm_weight"]
