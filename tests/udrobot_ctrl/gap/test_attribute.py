@@ -7,6 +7,7 @@ from udrobot_ctrl.dynamics.plant import plant_parameters
 from udrobot_ctrl.gap import effects as fx
 from udrobot_ctrl.gap.attribute import Attributor, build_stack
 from udrobot_ctrl.gap.data import prepare
+from udrobot_ctrl.gap.identifiability import Restricted
 from udrobot_ctrl.vehicle import load_model
 
 from .stock_sim import STATE, simulate
@@ -49,3 +50,16 @@ def test_a_damping_well_inside_a_wide_one_sided_range_is_not_flagged(attributor)
     at_end = {n: float(lo) for n, lo in zip(d.names, d.lower)}
     fit_end = type(fit)(**{**fit.__dict__, "params": {"linear_damping": at_end}})
     assert set(attributor.at_bounds(fit_end, "linear_damping")) == {n for n, lo in zip(d.names, d.lower) if lo != 0}
+
+
+def test_bic_counts_only_the_shape_parameters_the_search_moves(attributor):
+    """A form held at one end (stock runs keep the per-axis quadratic drag) is not a fitted parameter."""
+    cat = fx.catalogue()
+    held = Attributor(attributor.s, attributor.r, attributor.dofs,
+                      {**cat, "quadratic_damping_error": Restricted(cat["quadratic_damping_error"], (),
+                                                                    {"norm_weight": 0.0})})
+    assert attributor.free_shapes("quadratic_damping_error") == 1 and held.free_shapes("quadratic_damping_error") == 0
+    assert attributor.free_shapes("thruster_lag") == 2 and attributor.free_shapes("buoyancy_offset") == 0
+    free = attributor.fit([("quadratic_damping_error", (0.0,))])
+    fixed = held.fit([("quadratic_damping_error", (0.0,))])
+    assert free.k == fixed.k + 1 and free.rss == pytest.approx(fixed.rss)
