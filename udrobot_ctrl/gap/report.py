@@ -607,6 +607,10 @@ def diagnosis_pass(inp: Inputs, say, t0) -> Pass:
     if unidentifiable:
         say(f"not identifiable from the observed channels ({', '.join(stacks.identifiability.observed_dofs())}): "
             f"{', '.join(unidentifiable)} (never significant; see the report's unidentifiable list)")
+    for n, chk in stacks.identifiability.effects.items():
+        for k, form in chk.forms.items():
+            say(f"{n}: searched with {k} = {form.kept:g} only (at {form.other:g} it hinges on a velocity the "
+                f"channels do not measure; see its not_identified entry)")
     sel = attribute(stacks, inp.names, log=say)
     say(f"candidates (forward selection on the fit runs, {len(inp.names) - len(unidentifiable)} identifiable "
         f"effects tested): {', '.join(sel.proposed) or 'none'} ({time.perf_counter() - t0:.1f} s)")
