@@ -57,7 +57,7 @@ class Replay:
 
     members: tuple
     gap: GapScore
-    sims: list  # (n, 12) per holdout run
+    sims: list  # (n, 15) per holdout run: state and specific force (shrink.simulate_windows)
 
 
 def fitted_hooks(catalogue, p, actuation: Actuation, fit: Fit | None, members) -> list:

@@ -39,7 +39,7 @@ from scipy.signal import savgol_coeffs
 from udrobot_ctrl.dynamics.plant import PlantParameters
 from udrobot_ctrl.gap.attribute import residual, tau_int
 from udrobot_ctrl.gap.data import POSE, VEL, Prepared, smooth_derivative
-from udrobot_ctrl.gap.shrink import channel_noise, errors, simulate_windows, window_starts
+from udrobot_ctrl.gap.shrink import ACCEL, accel_bias, channel_noise, errors, simulate_windows, window_starts
 
 FLOOR_DRAWS = 2
 FLOOR_SEED = 0
@@ -129,8 +129,9 @@ def synthetic_replay(prep: Prepared, sim, p: PlantParameters, window_s, rng):
     ----------
     prep : Prepared
         The real run (its noise levels, logged channels, commands and windows).
-    sim : (n, 12) ndarray
-        The nominal multiple-shooting replay of ``prep`` (the synthetic truth; nan outside windows).
+    sim : (n, 15) ndarray
+        The nominal multiple-shooting replay of ``prep`` (state and specific force,
+        :func:`udrobot_ctrl.gap.shrink.simulate_windows`: the synthetic truth; nan outside windows).
     p : PlantParameters
         Nominal plant.
     window_s : float
@@ -140,11 +141,12 @@ def synthetic_replay(prep: Prepared, sim, p: PlantParameters, window_s, rng):
     Returns
     -------
     syn : Prepared
-        The synthetic run: ``meas`` = truth + white noise of each channel's measured level; the window start states
+        The synthetic run: ``meas`` = truth + white noise of each channel's measured level (the accelerometer: the
+        replay's specific force plus the run's estimated bias and its noise); the window start states
         are the synthetic measurement (pose) and truth plus the smoother's bias (:func:`smoothing_bias`) and the
         Savitzky-Golay filtered noise (velocities; body rates derived from the attitude get the differentiated
         attitude noise).
-    sim_syn : (n, 12) ndarray
+    sim_syn : (n, 15) ndarray
         The nominal replay of ``syn``.
     """
     starts, _ = window_starts(prep, window_s)
@@ -157,6 +159,13 @@ def synthetic_replay(prep: Prepared, sim, p: PlantParameters, window_s, rng):
         sigma = channel_noise(m)
         noise[c] = rng.normal(0.0, sigma if np.isfinite(sigma) else 0.0, prep.n)
         meas[c] = np.where(np.isfinite(m), sim[:, i] + noise[c], np.nan)
+    bias = accel_bias(prep)
+    for j, c in enumerate(ACCEL if bias is not None else ()):  # the accelerometer reads the replay's specific force
+        m = prep.meas.get(c)
+        if m is not None and np.isfinite(m).any():
+            sigma = channel_noise(m)
+            meas[c] = np.where(np.isfinite(m), sim[:, 12 + j] + bias[j]
+                               + rng.normal(0.0, sigma if np.isfinite(sigma) else 0.0, prep.n), np.nan)
     eta, nu, bias = prep.eta.copy(), prep.nu.copy(), smoothing_bias(prep)
     for i, c in enumerate(POSE):
         if c in meas:

@@ -61,8 +61,8 @@ class WindowedGap:
         Channels whose NRMSE is undefined, and why.
     preps : tuple of Prepared
         The prepared runs.
-    sims : tuple of (n, 12) ndarray
-        Simulated states per run, nan outside the windows.
+    sims : tuple of (n, 15) ndarray
+        Simulated states and specific force per run (shrink.simulate_windows), nan outside the windows.
     """
 
     model: str

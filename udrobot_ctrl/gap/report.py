@@ -260,7 +260,7 @@ class Inputs:
 class Where:
     """Step 1, locate: the nominal model's replays of every run, where they disagree, and the holdout gap."""
 
-    nominal_sims: list  # (n, 12) per run, fit runs then holdout runs
+    nominal_sims: list  # (n, 15) per run (state and specific force), fit runs then holdout runs
     residuals: list  # equation-error residuals (n, 6) per run
     located: Located
     before: GapScore  # nominal gap on the holdout runs

@@ -10,6 +10,11 @@ Definition used by the report (``metric: "nrmse"``):
   constants. Windows whose start state is not measured (DVL gap) are skipped.
 * Per channel c (u v w p q r z phi theta psi, when logged): NRMSE_c = RMS(sim_c - meas_c) / std(meas_c)
   over all scored samples of all runs (angle errors wrapped to [-pi, pi)).
+* The accelerometer (``ax ay az``), on runs whose unlogged velocities the smoother reconstructed: the replay's
+  specific force ``f = v_dot + omega x v - R^T [0, 0, g]`` (:func:`specific_force`; ``v_dot`` the model's
+  acceleration at each replayed sample, effects included) against the measurement minus the smoother's estimate of the
+  accelerometer bias. Without a DVL this is the one measurement of the surge and sway dynamics (an added-mass
+  error in surge, a thrust loss on the horizontal thrusters).
 * A channel is *scored* when the vehicle moved in it: std(meas_c) > 3 x its sensor noise (estimated from
   the sample-to-sample differences). The overall gap is the RMS of the scored channels' NRMSE.
 * ``shrink`` = 1 - gap(model + effect) / gap(nominal); ``unexplained`` = gap_after / gap_before.
@@ -23,11 +28,14 @@ import numpy as np
 from udrobot_ctrl.dynamics.integrators import rk4_step
 from udrobot_ctrl.dynamics.plant import PlantParameters, generalized_forces, kinematics, wrap_angle
 from udrobot_ctrl.gap.data import Prepared, prepare
-from udrobot_ctrl.gap.smoother import channel_noise
+from udrobot_ctrl.gap.smoother import GRAVITY, channel_noise
 from udrobot_ctrl.io.runlog import Run
 from udrobot_ctrl.vehicle import STATE_INDEX
 
 CHANNELS = ("u", "v", "w", "p", "q", "r", "z", "phi", "theta", "psi")
+ACCEL = ("ax", "ay", "az")
+#: columns of a replay: the state (x y z phi theta psi u v w p q r), then the specific force (ax ay az)
+SIM_COLUMNS = 15
 ANGLES = ("phi", "theta", "psi")
 
 
@@ -100,8 +108,19 @@ def prepare_with_effects(run: Run, p: PlantParameters, prep: Prepared, hooks, kn
                    known_as=known_as)
 
 
+def specific_force(eta, nu, nu_dot, g=GRAVITY) -> np.ndarray:
+    """(..., 3) accelerometer reading at the body origin, body FRD, m/s^2: ``v_dot + omega x v - R^T [0, 0, g]``
+    (the run-log format's definition) of pose ``eta`` (..., 6), velocity ``nu`` (..., 6) and its derivative
+    ``nu_dot`` (..., 3 or 6)."""
+    phi, th = eta[..., 3], eta[..., 4]
+    g_body = g * np.stack([-np.sin(th), np.cos(th) * np.sin(phi), np.cos(th) * np.cos(phi)], -1)
+    return nu_dot[..., :3] + np.cross(nu[..., 3:6], nu[..., 0:3]) - g_body
+
+
 def simulate_windows(prep: Prepared, p: PlantParameters, hooks=(), window_s=8.0, M_A=None):
-    """Multiple-shooting replay of one run; returns the simulated state (n, 12), nan outside windows.
+    """Multiple-shooting replay of one run; returns (n, :data:`SIM_COLUMNS`): the simulated state (12 columns) and,
+    on runs whose accelerometer is scored (:func:`accel_bias`), its specific force (3, :func:`specific_force` of the
+    plant's acceleration at each sample with that sample's command), nan outside windows.
 
     Parameters
     ----------
@@ -109,7 +128,7 @@ def simulate_windows(prep: Prepared, p: PlantParameters, hooks=(), window_s=8.0,
         Effects added to the nominal plant.
     """
     starts, w = window_starts(prep, window_s)
-    sim = np.full((prep.n, 12), np.nan)
+    sim = np.full((prep.n, SIM_COLUMNS), np.nan)
     if starts.size == 0:
         return sim
     f = delivered_commands(prep, hooks)
@@ -134,7 +153,15 @@ def simulate_windows(prep: Prepared, p: PlantParameters, hooks=(), window_s=8.0,
             nd = tot @ p.M_inv.T
         return np.concatenate([kinematics(xx[:, :6], xx[:, 6:]), nd], axis=1)
 
-    sim[starts] = x
+    scores_accel = accel_bias(prep) is not None
+
+    def accel_at(xx, kk):  # the specific force at the states xx with the commands held from samples kk on
+        nd = deriv(xx, kk, f[kk], tau_seq[kk], _surfaces_at(prep, kk))[:, 6:]
+        return specific_force(xx[:, :6], xx[:, 6:], nd)
+
+    sim[starts, :12] = x
+    if scores_accel:
+        sim[starts, 12:] = accel_at(x, starts)
     alive = np.ones(N, bool)
     for j in range(1, w):
         k = np.minimum(starts + j - 1, prep.n - 1)
@@ -147,12 +174,22 @@ def simulate_windows(prep: Prepared, p: PlantParameters, hooks=(), window_s=8.0,
         idx = starts + j
         keep = alive & (idx < prep.n)
         if j < w:
-            sim[idx[keep]] = x[keep]
+            sim[idx[keep], :12] = x[keep]
+            if scores_accel:
+                sim[idx[keep], 12:] = accel_at(x, np.minimum(idx, prep.n - 1))[keep]
     return sim
 
 
+def accel_bias(prep: Prepared):
+    """(3,) accelerometer bias the smoother estimated for the run (m/s^2), or None: then the accelerometer is not
+    scored (its bias cannot be told from a model error)."""
+    sm = prep.smoothed
+    return sm.accel_bias if sm is not None and np.all(np.isfinite(sm.accel_bias)) else None
+
+
 def errors(prep: Prepared, sim):
-    """Channel -> (sim - meas) (n,) with angle wrapping; only channels logged in the run."""
+    """Channel -> (sim - meas) (n,) with angle wrapping; only channels logged in the run, the accelerometer where
+    its bias is known (:func:`accel_bias`)."""
     out = {}
     for c in CHANNELS:
         if c not in prep.meas or not np.isfinite(prep.meas[c]).any():
@@ -161,6 +198,11 @@ def errors(prep: Prepared, sim):
         if c in ANGLES:
             e = wrap_angle(e)
         out[c] = e
+    bias = accel_bias(prep)
+    if bias is not None and sim.shape[1] >= SIM_COLUMNS:
+        for j, c in enumerate(ACCEL):
+            if c in prep.meas and np.isfinite(prep.meas[c]).any():
+                out[c] = sim[:, 12 + j] - (prep.meas[c] - bias[j])
     return out
 
 
