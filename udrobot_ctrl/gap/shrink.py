@@ -25,10 +25,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from udrobot_ctrl.dynamics.effects import NUMPY
 from udrobot_ctrl.dynamics.integrators import rk4_step
 from udrobot_ctrl.dynamics.plant import PlantParameters, generalized_forces, kinematics, wrap_angle
 from udrobot_ctrl.gap.data import Prepared, prepare
-from udrobot_ctrl.gap.smoother import GRAVITY, channel_noise
+from udrobot_ctrl.gap.smoother import GRAVITY, accelerometer, channel_noise
 from udrobot_ctrl.io.runlog import Run
 from udrobot_ctrl.vehicle import STATE_INDEX
 
@@ -111,10 +112,10 @@ def prepare_with_effects(run: Run, p: PlantParameters, prep: Prepared, hooks, kn
 def specific_force(eta, nu, nu_dot, g=GRAVITY) -> np.ndarray:
     """(..., 3) accelerometer reading at the body origin, body FRD, m/s^2: ``v_dot + omega x v - R^T [0, 0, g]``
     (the run-log format's definition) of pose ``eta`` (..., 6), velocity ``nu`` (..., 6) and its derivative
-    ``nu_dot`` (..., 3 or 6)."""
-    phi, th = eta[..., 3], eta[..., 4]
-    g_body = g * np.stack([-np.sin(th), np.cos(th) * np.sin(phi), np.cos(th) * np.cos(phi)], -1)
-    return nu_dot[..., :3] + np.cross(nu[..., 3:6], nu[..., 0:3]) - g_body
+    ``nu_dot`` (..., 3 or 6): the smoother's measurement model (:func:`udrobot_ctrl.gap.smoother.accelerometer`)
+    on numpy arrays."""
+    parts = [list(np.moveaxis(np.asarray(a, float), -1, 0)) for a in (eta, nu, nu_dot)]
+    return np.stack(accelerometer(NUMPY, *parts, g), axis=-1)
 
 
 def simulate_windows(prep: Prepared, p: PlantParameters, hooks=(), window_s=8.0, M_A=None):

@@ -42,6 +42,7 @@ import numpy as np
 from scipy.interpolate import CubicSpline
 
 from udrobot_ctrl.dynamics import plant_casadi as pc
+from udrobot_ctrl.dynamics.effects import CASADI
 from udrobot_ctrl.dynamics.fastsim import compile_function, parameter_hash
 from udrobot_ctrl.dynamics.integrators import rk4_step
 from udrobot_ctrl.dynamics.plant import PlantParameters, rotation_zyx, wrap_angle
@@ -55,6 +56,19 @@ N_STATE = 21
 NOISE_FLOOR = {"x": 0.01, "y": 0.01, "z": 0.002, "phi": 1e-3, "theta": 1e-3, "psi": 1e-3, "u": 2e-3, "v": 2e-3,
                "w": 2e-3, "p": 1e-3, "q": 1e-3, "r": 1e-3, "ax": 0.01, "ay": 0.01, "az": 0.01}
 GRAVITY = 9.81  # m/s^2, the vehicle model's default g (udrobot_ctrl.vehicle.Vehicle.g)
+
+
+def accelerometer(be, eta, nu, nu_dot, g=GRAVITY) -> tuple:
+    """Specific force at the body origin in body axes (FRD), m/s^2, without bias: ``v_dot + omega x v -
+    R^T [0, 0, g]`` (the run-log format's accelerometer), from the components of the pose ``eta`` (6), the velocity
+    ``nu`` (6) and the linear acceleration ``nu_dot`` (3), with the functions of backend ``be`` (numpy arrays of any
+    shape or casadi expressions): the smoother's measurement model and the replay's prediction are this one
+    function."""
+    phi, th = eta[3], eta[4]
+    u, v, w, p, q, r = nu[:6]
+    g_body = (-g * be.sin(th), g * be.cos(th) * be.sin(phi), g * be.cos(th) * be.cos(phi))  # R^T [0, 0, g]
+    omega_x_v = (q * w - r * v, r * u - p * w, p * v - q * u)
+    return tuple(nu_dot[i] + omega_x_v[i] - g_body[i] for i in range(3))
 
 
 class SmootherError(ValueError):
@@ -154,10 +168,8 @@ def _symbolic_model(p: PlantParameters, s: SmootherSettings):
     d, b = x[12:18], x[18:21]
     nu_dot = f12[6:12] + d
     xdot = ca.vertcat(f12[0:6], nu_dot, -d / s.T_d, ca.DM.zeros(3))
-    phi, th = x[3], x[4]
-    v, w = x[6:9], x[9:12]
-    g_body = s.g * ca.vertcat(-ca.sin(th), ca.cos(th) * ca.sin(phi), ca.cos(th) * ca.cos(phi))  # R^T [0, 0, g]
-    acc = nu_dot[0:3] + ca.cross(w, v) - g_body + b
+    acc = ca.vertcat(*accelerometer(CASADI, [x[i] for i in range(6)], [x[6 + i] for i in range(6)],
+                                    [nu_dot[i] for i in range(3)], s.g)) + b
     h = ca.vertcat(x[0:12], acc)
     return x, tau, xdot, h
 
