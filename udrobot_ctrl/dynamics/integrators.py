@@ -6,7 +6,7 @@ The numba kernels of :mod:`udrobot_ctrl.dynamics.sim_kernels` keep a compiled co
 from __future__ import annotations
 
 
-def rk4_step(f, t, x, dt):
+def rk4_step(f, t, x, dt, k1=None):
     """One classical Runge-Kutta step of x' = f(t, x) over ``dt`` seconds.
 
     Parameters
@@ -19,12 +19,14 @@ def rk4_step(f, t, x, dt):
         State at ``t``.
     dt : float
         Step, s.
+    k1 : array_like or casadi expression, optional
+        ``f(t, x)`` when the caller has already evaluated it (it is the first stage).
 
     Returns
     -------
     Same type as ``x``: the state at ``t + dt``.
     """
-    k1 = f(t, x)
+    k1 = f(t, x) if k1 is None else k1
     k2 = f(t + dt / 2, x + dt / 2 * k1)
     k3 = f(t + dt / 2, x + dt / 2 * k2)
     k4 = f(t + dt, x + dt * k3)

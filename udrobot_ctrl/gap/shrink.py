@@ -156,28 +156,33 @@ def simulate_windows(prep: Prepared, p: PlantParameters, hooks=(), window_s=8.0,
 
     scores_accel = accel_bias(prep) is not None
 
-    def accel_at(xx, kk):  # the specific force at the states xx with the commands held from samples kk on
-        nd = deriv(xx, kk, f[kk], tau_seq[kk], _surfaces_at(prep, kk))[:, 6:]
-        return specific_force(xx[:, :6], xx[:, 6:], nd)
+    def store_accel(rows, which, xx, x_dot):  # the specific force of the states just stored, from the plant's x_dot
+        if scores_accel:
+            sim[rows, 12:] = specific_force(xx[:, :6], xx[:, 6:], x_dot[:, 6:])[which]
 
     sim[starts, :12] = x
-    if scores_accel:
-        sim[starts, 12:] = accel_at(x, starts)
+    rows, which = starts, np.ones(N, bool)  # rows of sim holding the current states, and which states they are
     alive = np.ones(N, bool)
     for j in range(1, w):
         k = np.minimum(starts + j - 1, prep.n - 1)
         fk, tk, at_k = f[k], tau_seq[k], _surfaces_at(prep, k)
-        for _ in range(nsub):
-            x = rk4_step(lambda _t, xx: deriv(xx, k, fk, tk, at_k), 0.0, x, h_dt)  # noqa: B023 - used at once
+        def step(_t, xx):
+            return deriv(xx, k, fk, tk, at_k)  # noqa: B023 - used within this iteration
+
+        x_dot = step(0.0, x)  # the first stage of the step is the acceleration the accelerometer reads now
+        store_accel(rows, which, x, x_dot)
+        for i_sub in range(nsub):
+            x = rk4_step(step, 0.0, x, h_dt, k1=x_dot if i_sub == 0 else None)
         bad = ~np.all(np.isfinite(x), axis=1) | (np.abs(x[:, 6:]).max(axis=1) > 1e3)
         alive &= ~bad
         x[bad] = 0.0
         idx = starts + j
         keep = alive & (idx < prep.n)
-        if j < w:
-            sim[idx[keep], :12] = x[keep]
-            if scores_accel:
-                sim[idx[keep], 12:] = accel_at(x, np.minimum(idx, prep.n - 1))[keep]
+        sim[idx[keep], :12] = x[keep]
+        rows, which = idx[keep], keep
+    if scores_accel:  # the last sample of each window: its own command
+        kk = np.minimum(starts + w - 1, prep.n - 1)
+        store_accel(rows, which, x, deriv(x, kk, f[kk], tau_seq[kk], _surfaces_at(prep, kk)))
     return sim
 
 
@@ -200,7 +205,7 @@ def errors(prep: Prepared, sim):
             e = wrap_angle(e)
         out[c] = e
     bias = accel_bias(prep)
-    if bias is not None and sim.shape[1] >= SIM_COLUMNS:
+    if bias is not None:
         for j, c in enumerate(ACCEL):
             if c in prep.meas and np.isfinite(prep.meas[c]).any():
                 out[c] = sim[:, 12 + j] - (prep.meas[c] - bias[j])
