@@ -151,21 +151,20 @@ def synthetic_replay(prep: Prepared, sim, p: PlantParameters, window_s, rng):
     """
     starts, _ = window_starts(prep, window_s)
     smooth, deriv = _sg_kernels(prep)
+    # each logged channel's synthetic truth: the state, and the accelerometer's reading of the replay's specific force
+    # (plus the run's estimated bias) where it is scored
+    truth = [(c, sim[:, i]) for i, c in enumerate(POSE + VEL)]
+    b_acc = accel_bias(prep)
+    if b_acc is not None:
+        truth += [(c, sim[:, 12 + j] + b_acc[j]) for j, c in enumerate(ACCEL)]
     meas, noise = {}, {}
-    for i, c in enumerate(POSE + VEL):
+    for c, y in truth:
         m = prep.meas.get(c)
         if m is None or not np.isfinite(m).any():
             continue
         sigma = channel_noise(m)
         noise[c] = rng.normal(0.0, sigma if np.isfinite(sigma) else 0.0, prep.n)
-        meas[c] = np.where(np.isfinite(m), sim[:, i] + noise[c], np.nan)
-    bias = accel_bias(prep)
-    for j, c in enumerate(ACCEL if bias is not None else ()):  # the accelerometer reads the replay's specific force
-        m = prep.meas.get(c)
-        if m is not None and np.isfinite(m).any():
-            sigma = channel_noise(m)
-            meas[c] = np.where(np.isfinite(m), sim[:, 12 + j] + bias[j]
-                               + rng.normal(0.0, sigma if np.isfinite(sigma) else 0.0, prep.n), np.nan)
+        meas[c] = np.where(np.isfinite(m), y + noise[c], np.nan)
     eta, nu, bias = prep.eta.copy(), prep.nu.copy(), smoothing_bias(prep)
     for i, c in enumerate(POSE):
         if c in meas:
