@@ -4,7 +4,9 @@ Forward selection (:func:`udrobot_ctrl.gap.attribute.forward_select`) proposes e
 and the holdout equation error one at a time; an effect added early can become redundant once later ones are in
 (a thruster lag proposed with a deadband, an added-mass and a damping error that only shared its residual). So the
 final set is checked member by member: each member, dropped from the set (the others' amplitudes refitted on the
-fit runs with their shapes kept), must make the holdout worse on both scores:
+fit runs with their shapes kept), must leave the fit runs' BIC higher (the fit runs still prefer the set with it:
+forward selection admitted it given the effects before it, and a later effect can take its share) and must make
+the holdout worse on both scores:
 
 * **equation error** (significance): the holdout likelihood ratio of the set against the set without it,
   parameters frozen from the fit runs, exceeds chi^2_1(0.99) = ``HOLDOUT_CHI2`` (N_eff = N / tau_int of the
@@ -178,10 +180,16 @@ class MemberTest:
     replay_p: float  # one-sided p of the rise over windows (signed-rank and t, Bonferroni)
     alone: Alone | None = None  # the effect alone against the nominal model (None: not checked)
     windows_worse: float = float("nan")  # fraction of holdout windows whose replay error rises when it is dropped
+    fit_delta_bic: float = float("nan")  # fit-run BIC of the set minus that of the set without it (nan: unchecked)
 
     @property
     def passed_equation_error(self) -> bool:
         return self.holdout_lr > HOLDOUT_CHI2
+
+    @property
+    def passed_fit(self) -> bool:
+        """The fit runs still prefer the set with it (BIC): not nan and >= 0."""
+        return not self.fit_delta_bic >= 0
 
     @property
     def passed_replay(self) -> bool:
@@ -200,11 +208,14 @@ class MemberTest:
 
     @property
     def passed(self) -> bool:
-        return self.passed_equation_error and self.passed_replay and self.passed_alone
+        return self.passed_fit and self.passed_equation_error and self.passed_replay and self.passed_alone
 
     def reason(self) -> str:
         """Why the member fails (empty when it passes)."""
         why = []
+        if not self.passed_fit:
+            why.append(f"the fit runs do not prefer the set with it (BIC {self.fit_delta_bic:+.1f} against the set "
+                       f"without it)")
         if not self.passed_equation_error:
             why.append(f"holdout equation-error likelihood ratio {self.holdout_lr:.1f} <= {HOLDOUT_CHI2:g}")
         if self.gap_contribution <= REPLAY_MATERIAL:
@@ -219,7 +230,8 @@ class MemberTest:
         return "; ".join(why)
 
     def to_json(self) -> dict:
-        out = {"holdout_lr": self.holdout_lr, "holdout_gap_contribution": self.gap_contribution,
+        out = {"fit_delta_bic": self.fit_delta_bic, "holdout_lr": self.holdout_lr,
+               "holdout_gap_contribution": self.gap_contribution,
                "replay_w": self.replay_w, "replay_p": self.replay_p, "windows_worse": self.windows_worse,
                "passed": self.passed}
         if self.alone is not None:
@@ -288,7 +300,8 @@ def check_members(att: Attributor, att_h: Attributor, combo: Combination, full: 
         e_rest = window_energy(preps, r_rest.sims, r_rest.gap, window_s)
         t, pval = paired_rise(e_rest, e_full)
         contrib = (r_rest.gap.value - full.gap.value) / before.value if before.value > 0 else 0.0
-        tests.append(MemberTest(n, lr, float(contrib), t, pval, alone.get(n), rise_fraction(e_rest, e_full)))
+        tests.append(MemberTest(n, lr, float(contrib), t, pval, alone.get(n), rise_fraction(e_rest, e_full),
+                                float(att.bic(combo.fit) - att.bic(fit_rest))))
     return tuple(tests)
 
 
@@ -336,7 +349,7 @@ def _eliminate(att, att_h, combo, full, names, before, replay_fit, window_s, pre
     while combo.members:
         tests = check_members(att, att_h, combo, full, before, replay_fit, window_s, preps, alone)
         failing = [t for t in tests if not t.passed]
-        worst = min(failing, key=lambda t: (t.passed_alone, t.passed_replay, t.gap_contribution,
+        worst = min(failing, key=lambda t: (t.passed_alone and t.passed_fit, t.passed_replay, t.gap_contribution,
                                             t.holdout_lr)) if failing else None
         rounds.append(EliminationRound(combo.members, tests, worst.name if worst else None))
         if log:

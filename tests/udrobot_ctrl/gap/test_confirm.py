@@ -119,6 +119,17 @@ def test_an_interacting_member_passes_although_alone_it_makes_the_holdout_worse(
     assert CONSISTENT_WINDOWS > 0.81
 
 
+def test_a_member_the_fit_runs_no_longer_prefer_fails():
+    # a wall effect kept by a 3 % holdout replay rise while its fit-run BIC, alone in the set, is +0.5: the fit
+    # runs do not prefer it (forward selection admitted it only beside three effects the holdout later dropped)
+    wall = MemberTest("wall_effect", 8.9, 0.031, 116.0, 0.011, Alone(0.031, 116.0, 0.011), 0.69, 0.5)
+    assert wall.passed_replay and wall.passed_equation_error and wall.passed_alone
+    assert not wall.passed_fit and not wall.passed and "BIC +0.5" in wall.reason()
+    assert wall.to_json()["fit_delta_bic"] == 0.5
+    assert MemberTest("cg_cb_offset", 60.0, 0.5, 136.0, 3e-5, Alone(0.4, 136.0, 3e-5), 1.0, -3.6).passed
+    assert _test("a", 50.0, 0.2, 4.0).passed_fit  # unchecked (nan) passes
+
+
 def test_rise_fraction_counts_the_windows_that_change():
     assert rise_fraction([2.0, 3.0, 1.0, 5.0], [1.0, 3.0, 2.0, 4.0]) == pytest.approx(2 / 3)
     assert rise_fraction([1.0], [1.0]) == 0.0
