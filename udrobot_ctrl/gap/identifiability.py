@@ -18,11 +18,7 @@ smoother (:mod:`udrobot_ctrl.gap.smoother`) with a posterior standard deviation.
   nothing.
 
 A parameter is identified when its regressor is non-zero, its share is at least ``SHARE_MIN`` and its
-sensitivity at most ``SENSITIVITY_MAX``. An amplitude parameter that fails on sensitivity in some observed
-DOFs' equations only (a heave added-mass scale: its heave inertia is pinned by depth and the accelerometer, its
-Munk moment in pitch needs the surge speed) is identified through the others when they pass both tests on their
-own; the fit then uses its column in those equations only (:class:`Restricted` ``masks``), and the report lists
-them. An effect with no identified parameter is *unidentifiable*: it is
+sensitivity at most ``SENSITIVITY_MAX``. An effect with no identified parameter is *unidentifiable*: it is
 listed with the reason and the measurement that would fix it, excluded from selection and never significant.
 An effect identified in part stays testable with its non-identified amplitude parameters frozen at zero
 (:meth:`Identifiability.restrict`). With every DOF observed and nothing reconstructed, the only possible
@@ -91,11 +87,6 @@ class ParameterCheck:
     identified : bool
     causes : tuple of str
         Keys of :data:`MISSING` (or ``"vanishes"``) that make it non-identified.
-    dofs : (6,) bool ndarray or None
-        The DOFs whose equations the fit uses for it, when it is identified through part of its regressor only
-        (the observed DOFs where it does not hinge on a reconstruction); None: all of them.
-    masked_causes : tuple of str
-        Keys of :data:`MISSING` for the observed DOFs left out of ``dofs``.
     """
 
     name: str
@@ -103,8 +94,6 @@ class ParameterCheck:
     sensitivity: float
     identified: bool
     causes: tuple = ()
-    dofs: np.ndarray | None = None
-    masked_causes: tuple = ()
 
 
 @dataclass(frozen=True)
@@ -145,19 +134,6 @@ class EffectCheck:
     def not_identified(self) -> list:
         """Amplitude parameters not identified, then the form parameters kept at one end."""
         return [c.name for c in self.params if not c.identified] + list(self.forms)
-
-    @property
-    def masks(self) -> dict:
-        """Parameter -> (6,) bool DOFs the fit uses, for the parameters identified through part of their
-        regressor."""
-        return {c.name: c.dofs for c in self.params if c.identified and c.dofs is not None}
-
-    def partial_fit(self) -> dict:
-        """Parameter -> {"dofs": the equations its fit uses, "reason": why the others are left out}, for the
-        parameters identified through part of their regressor."""
-        return {c.name: {"dofs": [d for d, ok in zip(fx.DOF, c.dofs) if ok],
-                         "reason": "; ".join(f"{MISSING[k][0]}; {MISSING[k][1]}" for k in c.masked_causes)}
-                for c in self.params if c.identified and c.dofs is not None}
 
     def reason(self) -> str:
         """Why parameters are not identified, with the measurement that would fix it."""
@@ -212,12 +188,9 @@ class Identifiability:
     def entry(self, name) -> dict:
         """Extra fields of an effect's report entry: the parameters not identified (partial effects only)."""
         e = self.effects.get(name)
-        if e is None or not e.identified or name in self.ambiguous:
+        if e is None or not e.identified or not e.not_identified or name in self.ambiguous:
             return {}
-        out = {"not_identified": {"params": e.not_identified, "reason": e.reason()}} if e.not_identified else {}
-        if e.masks:
-            out["fitted_on"] = e.partial_fit()
-        return out
+        return {"not_identified": {"params": e.not_identified, "reason": e.reason()}}
 
     def restrict(self, catalogue: dict) -> dict:
         """The catalogue with each partly identified effect's non-identified amplitude parameters frozen at 0."""
@@ -227,38 +200,25 @@ class Identifiability:
             frozen = tuple(c.name for c in chk.params if not c.identified) if chk is not None and chk.identified \
                 else ()
             forms = {k: f.kept for k, f in chk.forms.items()} if chk is not None and chk.identified else {}
-            masks = chk.masks if chk is not None and chk.identified else {}
-            out[n] = Restricted(eff, frozen, forms, masks) if frozen or forms or masks else eff
+            out[n] = Restricted(eff, frozen, forms) if frozen or forms else eff
         return out
 
 
 class Restricted(fx.Effect):
-    """A catalogue effect with some amplitude parameters frozen at zero (their columns removed from the design),
-    some form parameters kept at one end of their range (``forms``: name -> value), and some parameters fitted on
-    part of the equations only (``masks``: name -> (6,) bool DOFs whose equations keep its column; the shape term
-    of a shape-only form is named by its shape parameters, as in :func:`_columns`).
+    """A catalogue effect with some amplitude parameters frozen at zero (their columns removed from the design) and
+    some form parameters kept at one end of their range (``forms``: name -> value)."""
 
-    The mask concerns the fit only: the effect's force, when replayed or added to a model, acts in every DOF."""
-
-    def __init__(self, inner: fx.Effect, frozen, forms=None, masks=None):
+    def __init__(self, inner: fx.Effect, frozen, forms=None):
         super().__init__(inner.name, inner.meaning, inner.shape_names, inner.shape_grid, inner.shape_bounds,
                          inner.refine, inner.mimics, inner.excited_by, inner.physical_ends)
         self.inner = inner
         self.frozen = tuple(frozen)
         self.forms = dict(forms or {})
-        self.masks = {k: np.asarray(v, float) for k, v in (masks or {}).items()}
 
     def design(self, s, shape):
         b0, A, names, lo, hi = self.inner.design(s, shape)
         keep = np.array([nm not in self.frozen for nm in names], float)
-        A = A * keep  # a new array: the masks below write into it
-        for j, nm in enumerate(names):
-            if nm in self.masks:
-                A[:, :, j] *= self.masks[nm][None, :]
-        term = ",".join(self.shape_names)
-        if term in self.masks:
-            b0 = b0 * self.masks[term][None, :]
-        return b0, A, names, lo, hi
+        return b0, A * keep, names, lo, hi
 
     def search_space(self, s):
         grid, bounds = self.inner.search_space(s)
@@ -382,7 +342,7 @@ def assess(stack, r, dofs, preps, catalogue: dict, names=None) -> Identifiabilit
         if forms:  # the parameters are judged in the form the search keeps
             kept = Restricted(eff, (), {k: f.kept for k, f in forms.items()})
             raw[n] = _energies(eff, stack, stacks, _shapes(kept, stack), sigma, observed)
-        checks = _checks(raw[n], top, observed, _shape_term(eff))
+        checks = _checks(raw[n], top, observed)
         if not checks:  # no amplitude column and a shape term that is zero at every probed shape
             checks.append(ParameterCheck(",".join(eff.shape_names) or n, float("nan"), float("nan"), False,
                                          ("vanishes",)))
@@ -392,8 +352,8 @@ def assess(stack, r, dofs, preps, catalogue: dict, names=None) -> Identifiabilit
 
 def _energies(eff, stack, stacks, shapes, sigma, observed) -> dict:
     """Per parameter of ``eff``, summed over ``shapes``: its noise-normalised regressor energy in the observed DOFs
-    (``obs``), in all DOFs (``all``) and per DOF (``per_dof``), and the energy of its change per DOF under each
-    reconstruction move (``dev``: move -> (6,) energies)."""
+    (``obs``), in all DOFs (``all``) and per DOF (``per_dof``), and the energy of its change in the observed DOFs
+    under each reconstruction move (``dev``: move -> energy)."""
     acc = {}
     for shape in shapes:
         A, nm = _columns(eff, stack, shape)
@@ -404,24 +364,19 @@ def _energies(eff, stack, stacks, shapes, sigma, observed) -> dict:
         for m, st_m in stacks.items():
             Am, _ = _columns(eff, st_m, shape)
             dA = (Am - A) / sigma[None, :, None]
-            dev[m] = np.sum(dA ** 2, axis=0)  # (6, k)
+            dev[m] = np.sum(dA[:, observed] ** 2, axis=(0, 1))
         for j, pname in enumerate(nm):
-            a = acc.setdefault(pname, {"obs": 0.0, "all": 0.0, "dev": {m: np.zeros(6) for m in stacks},
+            a = acc.setdefault(pname, {"obs": 0.0, "all": 0.0, "dev": dict.fromkeys(stacks, 0.0),
                                        "per_dof": np.zeros(6)})
             a["obs"] += e_obs[j]
             a["all"] += e_all[j]
             a["per_dof"] += np.sum(An[:, :, j] ** 2, axis=0)
             for m in stacks:
-                a["dev"][m] += dev[m][:, j]
+                a["dev"][m] += dev[m][j]
     return acc
 
 
-def _shape_term(eff) -> str:
-    """The name :func:`_columns` gives a shape-only form's term."""
-    return ",".join(eff.shape_names)
-
-
-def _checks(acc, top, observed, shape_term="") -> list:
+def _checks(acc, top, observed) -> list:
     """:class:`ParameterCheck` of each parameter from its :func:`_energies` (``top``: the largest energy of all
     effects, for "zero on the data")."""
     checks = []
@@ -430,52 +385,18 @@ def _checks(acc, top, observed, shape_term="") -> list:
             checks.append(ParameterCheck(pname, float("nan"), float("nan"), False, ("vanishes",)))
             continue
         share = a["obs"] / a["all"]
-        sens = {m: np.sqrt(d[observed].sum() / a["obs"]) if a["obs"] > 0 else 0.0 for m, d in a["dev"].items()}
+        sens = {m: np.sqrt(d / a["obs"]) if a["obs"] > 0 else 0.0 for m, d in a["dev"].items()}
         worst = max(sens.values(), default=0.0)
         causes = []
         if share < SHARE_MIN:
             causes += [DOF_GROUP[i] for i in np.argsort(-a["per_dof"]) if not observed[i]
                        and a["per_dof"][i] > 0.1 * a["all"]]
-        causes += [_move_cause(m, observed) for m, v in sens.items() if v > SENSITIVITY_MAX]
+        causes += ["position" if m == "xy" else DOF_GROUP[m] if not observed[m] else RECONSTRUCTED[DOF_GROUP[m]]
+                   for m, v in sens.items() if v > SENSITIVITY_MAX]
         causes = list(dict.fromkeys(causes))
         ok = share >= SHARE_MIN and worst <= SENSITIVITY_MAX
-        if not ok and share >= SHARE_MIN and pname != shape_term:  # an amplitude that hinges on a reconstruction,
-            # perhaps in some equations only (a shape term moves several shape parameters at once: all or nothing)
-            part = _robust_part(pname, a, observed)
-            if part is not None:
-                checks.append(part)
-                continue
         checks.append(ParameterCheck(pname, float(share), float(worst), ok, () if ok else tuple(causes)))
     return checks
-
-
-def _move_cause(m, observed) -> str:
-    """The :data:`MISSING` key of a reconstruction move (a DOF index or ``"xy"``)."""
-    return "position" if m == "xy" else DOF_GROUP[m] if not observed[m] else RECONSTRUCTED[DOF_GROUP[m]]
-
-
-def _robust_part(pname, a, observed) -> ParameterCheck | None:
-    """A parameter whose regressor hinges on a reconstruction in some observed DOFs' equations but not in others
-    (a heave added-mass scale: its Munk moment in pitch needs the surge speed, its heave inertia does not) is
-    identified through the others alone, when what remains passes both tests: the observed DOFs in which no
-    reconstruction move changes it by more than ``SENSITIVITY_MAX`` hold at least ``SHARE_MIN`` of its energy
-    outside the left-out DOFs. None when no such part exists."""
-    e = a["per_dof"]
-    sens = {m: np.sqrt(d / np.maximum(e, 1e-300)) for m, d in a["dev"].items()}
-    robust = observed & (e > 0) & np.all([v <= SENSITIVITY_MAX for v in sens.values()], axis=0)
-    left_out = observed & ~robust
-    if not robust.any() or not left_out.any():
-        return None
-    kept = e[robust].sum()
-    share = kept / (kept + e[~observed].sum())
-    if share < SHARE_MIN:
-        return None
-    worst = max(np.sqrt(d[robust].sum() / kept) for d in a["dev"].values())
-    if worst > SENSITIVITY_MAX:
-        return None
-    causes = tuple(dict.fromkeys(_move_cause(m, observed) for m, v in sens.items()
-                                 if np.any(v[left_out] > SENSITIVITY_MAX)))
-    return ParameterCheck(pname, float(share), float(worst), True, (), robust.copy(), causes)
 
 
 def _forms(eff, stack, stacks, sigma, observed, top) -> dict:
@@ -495,7 +416,7 @@ def _forms(eff, stack, stacks, sigma, observed, top) -> dict:
         for end in bounds[i]:
             shape = tuple(middle[:i] + [end] + middle[i + 1:])
             ends[float(end)] = {c.name: c for c in _checks(_energies(eff, stack, stacks, [shape], sigma, observed),
-                                                           top, observed, _shape_term(eff))}
+                                                           top, observed)}
         if len(ends) != 2:
             continue
         (e1, c1), (e2, c2) = ends.items()

@@ -312,7 +312,6 @@ class EffectVerdict:
     indistinguishable_from: tuple = ()  # (name, manoeuvre that separates them)
     wall: dict | None = None  # wall_effect only: {"matters_below_m", "matters_below"}
     not_identified: dict | None = None  # partly identified effects: {"params": [...], "reason": ...}
-    fitted_on: dict | None = None  # parameters fitted on part of the equations: name -> {"dofs", "reason"}
     at_bound: dict | None = None  # significant effects: parameter -> (value, bound) of fits that ended on a bound
 
     def to_json(self) -> dict:
@@ -326,8 +325,6 @@ class EffectVerdict:
             out.update(self.wall)
         if self.not_identified:
             out["not_identified"] = self.not_identified
-        if self.fitted_on:
-            out["fitted_on"] = self.fitted_on
         if self.at_bound:
             out["at_bound"] = {k: {"value": v, "bound": b} for k, (v, b) in self.at_bound.items()}
         return out
@@ -510,7 +507,6 @@ def effect_verdicts(inp: Inputs, stacks: Stacks, sel: Selection, elim: Eliminati
             fitted_params_if_added=None if significant else sel.singles[n].params[n], indistinguishable_from=alts,
             wall=_wall_entry(combo.fit.params[n], stacks.fit.s, inp.p) if significant and n == "wall_effect"
             else None, not_identified=stacks.identifiability.entry(n).get("not_identified"),
-            fitted_on=stacks.identifiability.entry(n).get("fitted_on"),
             at_bound=stacks.fit.at_bounds(combo.fit, n) if significant else None))
     return out
 
@@ -616,9 +612,6 @@ def diagnosis_pass(inp: Inputs, say, t0) -> Pass:
         for k, form in chk.forms.items():
             say(f"{n}: searched with {k} = {form.kept:g} only (at {form.other:g} it hinges on a velocity the "
                 f"channels do not measure; see its not_identified entry)")
-        for k, part in chk.partial_fit().items():
-            say(f"{n}: {k} fitted on the {', '.join(part['dofs'])} equation{'s' if len(part['dofs']) > 1 else ''} "
-                f"only (elsewhere it hinges on a velocity the channels do not measure; see its fitted_on entry)")
     sel = attribute(stacks, inp.names, log=say)
     say(f"candidates (forward selection on the fit runs, {len(inp.names) - len(unidentifiable)} identifiable "
         f"effects tested): {', '.join(sel.proposed) or 'none'} ({time.perf_counter() - t0:.1f} s)")
