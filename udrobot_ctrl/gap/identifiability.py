@@ -155,8 +155,8 @@ class Identifiability:
     effects: dict
     observed: np.ndarray
     reconstructed: np.ndarray
-    #: effects the channels identify alone, but whose fit an unidentifiable effect matches as well on the observed
-    #: DOFs (name -> those look-alikes): the data cannot say which of them acts (:meth:`with_ambiguous`)
+    #: effects the channels identify alone, but whose fit another effect matches as well on the observed DOFs (name
+    #: -> those look-alikes): the data cannot say which of them acts (:meth:`with_ambiguous`)
     ambiguous: dict = field(default_factory=dict)
 
     def observed_dofs(self) -> list:
@@ -169,17 +169,32 @@ class Identifiability:
         return [n for n, e in self.effects.items() if not e.identified or n in self.ambiguous]
 
     def with_ambiguous(self, ambiguous: dict) -> Identifiability:
-        """A copy that also lists ``ambiguous`` (name -> unidentifiable look-alikes) as unidentifiable."""
-        return replace(self, ambiguous={**self.ambiguous, **{k: tuple(v) for k, v in ambiguous.items() if v}})
+        """A copy that also lists ``ambiguous`` (name -> look-alikes) as unidentifiable, and with each of them its
+        identifiable look-alikes (the relation is symmetric: the runs cannot say which of them acts; an unidentifiable
+        look-alike is listed already, with its own reason)."""
+        amb = dict(self.ambiguous)
+        for k, alts in ambiguous.items():
+            if not alts:
+                continue
+            amb[k] = tuple(dict.fromkeys(amb.get(k, ()) + tuple(alts)))
+            for a in alts:
+                if self.effects[a].identified:
+                    amb[a] = tuple(dict.fromkeys(amb.get(a, ()) + (k,)))
+        return replace(self, ambiguous=amb)
 
     def reason(self, name) -> str:
-        """Why ``name`` is unidentifiable, with the measurement that would fix it."""
-        if name in self.ambiguous:
-            alts = self.ambiguous[name]
-            return (f"on the observed DOFs ({', '.join(self.observed_dofs())}) its fit is matched as well by "
-                    f"{', '.join(alts)}, which these channels cannot identify, so the runs cannot say which acts; "
-                    + self.effects[alts[0]].reason())
-        return self.effects[name].reason()
+        """Why ``name`` is unidentifiable, with the measurement (or the manoeuvre) that would fix it."""
+        if name not in self.ambiguous:
+            return self.effects[name].reason()
+        alts = self.ambiguous[name]
+        hidden = [a for a in alts if not self.effects[a].identified]
+        line = (f"on the observed DOFs ({', '.join(self.observed_dofs())}) its fit is matched as well by "
+                f"{', '.join(alts)}")
+        if hidden:
+            line += f" ({', '.join(hidden)}: not identifiable from these channels)"
+        fixes = [self.effects[hidden[0]].reason()] if hidden else []
+        fixes += [f"to tell it from {a}: {fx.discriminating_manoeuvre(name, a)}" for a in alts if a not in hidden]
+        return line + ", so the runs cannot say which acts; " + "; ".join(fixes)
 
     def report(self) -> list:
         """The report's ``unidentifiable`` list: ``[{"name", "reason"}]``."""

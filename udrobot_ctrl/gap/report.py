@@ -439,10 +439,12 @@ def confirm(inp: Inputs, stacks: Stacks, sel: Selection, where: Where, singles: 
 
 
 def set_aside_ambiguous(inp: Inputs, stacks: Stacks, where: Where, elim: Elimination, log=None):
-    """Step 3b: a confirmed effect whose fit an effect the channels cannot identify matches as well (a look-alike
-    within ``BIC_STRONG`` on the observed DOFs) is not significant: the runs cannot say which of the two acts (e.g.
-    without a DVL, a heave-side thrust loss and a tether whose drag needs the unobserved surge speed). It is listed
-    as unidentifiable with that reason; the rest is refitted and replayed.
+    """Step 3b: a confirmed effect whose fit another effect matches as well (a look-alike within ``BIC_STRONG`` on
+    the observed DOFs) is not significant: the runs cannot say which of the two acts (e.g. without a DVL, a
+    heave-side thrust loss and a tether whose drag needs the unobserved surge speed; a pitch added-mass error and a
+    CG-CB offset in free pitch oscillations). It is listed as unidentifiable with that reason, and so are its
+    look-alikes; the rest is refitted and replayed. With full sensors the replay's and the fit's evidence rarely
+    leave a confirmed effect a look-alike; the runs that do are those whose channels leave the fit little to go on.
 
     Returns
     -------
@@ -451,8 +453,7 @@ def set_aside_ambiguous(inp: Inputs, stacks: Stacks, where: Where, elim: Elimina
     stacks : Stacks
         With the ambiguous effects added to its identifiability.
     """
-    hidden = set(stacks.identifiability.names)
-    amb = {k: [a for a in elim.combination.indistinguishable.get(k, ()) if a in hidden] for k in elim.kept}
+    amb = {k: list(elim.combination.indistinguishable.get(k, ())) for k in elim.kept}
     amb = {k: v for k, v in amb.items() if v}
     if not amb:
         return elim, stacks
@@ -462,8 +463,7 @@ def set_aside_ambiguous(inp: Inputs, stacks: Stacks, where: Where, elim: Elimina
              Replay((), where.before, where.nominal_sims[len(inp.fit):]))
     if log:
         for k, v in amb.items():
-            log(f"  set aside: {k} (its fit is matched as well by {', '.join(v)}, which these channels cannot "
-                f"identify)")
+            log(f"  set aside: {k} (its fit is matched as well by {', '.join(v)}; the runs cannot say which acts)")
     return (replace(elim, kept=tuple(rest), combination=combo, after=after),
             replace(stacks, identifiability=stacks.identifiability.with_ambiguous(amb)))
 
@@ -496,7 +496,10 @@ def effect_verdicts(inp: Inputs, stacks: Stacks, sel: Selection, elim: Eliminati
             note = ("a forward-selection candidate, dropped by the backward check on the holdout: "
                     + dropped[n].reason() + "; not significant")
         elif n in stacks.identifiability.ambiguous:
-            note = ("confirmed on the holdout, but " + stacks.identifiability.reason(n).split("; ")[0]
+            test = elim.last_test(n)
+            note = (("confirmed on the holdout, but " if test is not None and test.passed else
+                     "the look-alike of an effect confirmed on the holdout: ")
+                    + stacks.identifiability.reason(n).split("; ")[0]
                     + "; listed under unidentifiable, not significant")
         ev = Evidence(sel.delta_bic[n], steps.get(n), elim.last_test(n), note)
         alts = tuple((a, fx.discriminating_manoeuvre(n, a)) for a in combo.indistinguishable.get(n, ())) \

@@ -13,6 +13,7 @@ from udrobot_ctrl.gap.data import prepare
 from udrobot_ctrl.gap.identifiability import (
     EffectCheck,
     FormCheck,
+    Identifiability,
     ParameterCheck,
     Restricted,
     assess,
@@ -120,3 +121,24 @@ def test_a_partly_identified_effect_names_why_its_other_parameters_are_not():
     kept = EffectCheck("e", [ok], forms={"norm_weight": FormCheck(0.0, 1.0, ("horizontal",))})
     assert kept.reason().startswith("norm_weight kept at 0 (the form at 1 is not identified)")
     assert kept.not_identified == ["norm_weight"]
+
+
+def test_ambiguity_is_symmetric_and_names_what_would_settle_it():
+    """A confirmed effect whose fit a look-alike matches as well is listed with it: an unidentifiable look-alike
+    keeps its own reason (the measurement that would identify it), an identifiable one is listed too, with the
+    manoeuvre that tells the two apart."""
+    ok = ParameterCheck("a", 0.9, 0.0, True)
+    hidden = ParameterCheck("k", 0.9, 2.0, False, ("horizontal",))
+    ident = Identifiability({n: EffectCheck(n, [hidden if n == "tether_drag" else ok])
+                             for n in ("added_mass_error", "cg_cb_offset", "tether_drag", "buoyancy_offset")},
+                            np.array([0, 0, 1, 1, 1, 1], bool), np.array([1, 1, 0, 0, 0, 0], bool))
+    assert ident.names == ["tether_drag"]
+    amb = ident.with_ambiguous({"added_mass_error": ["cg_cb_offset", "tether_drag"]})
+    assert set(amb.names) == {"added_mass_error", "cg_cb_offset", "tether_drag"}
+    why = amb.reason("added_mass_error")
+    assert why.startswith("on the observed DOFs (Z, K, M, N) its fit is matched as well by cg_cb_offset, tether_drag")
+    assert "tether_drag: not identifiable" in why and "DVL" in why
+    assert "to tell it from cg_cb_offset: forced pitch and roll steps" in why
+    assert "matched as well by added_mass_error" in amb.reason("cg_cb_offset")
+    assert amb.reason("tether_drag") == ident.reason("tether_drag")
+    assert amb.entry("added_mass_error") == {}  # listed, so no partial-identification entry
