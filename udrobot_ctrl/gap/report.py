@@ -598,7 +598,8 @@ class Pass:
     stacks: Stacks
     sel: Selection
     shrink: dict  # name -> shrink of the effect alone
-    elim: Elimination
+    elim: Elimination  # the significant set (ambiguous effects set aside)
+    confirmed: Elimination  # what the holdout confirmed, before the ambiguous effects were set aside
 
 
 def diagnosis_pass(inp: Inputs, say, t0) -> Pass:
@@ -622,9 +623,9 @@ def diagnosis_pass(inp: Inputs, say, t0) -> Pass:
     singles = shrink_each(inp, stacks, sel, where.before)
     b = where.before.value
     shrink = {n: (1 - r.gap.value / b) if b > 0 else 0.0 for n, r in singles.items()}
-    elim = confirm(inp, stacks, sel, where, singles, log=say)
-    elim, stacks = set_aside_ambiguous(inp, stacks, where, elim, log=say)
-    return Pass(where, stacks, sel, shrink, elim)
+    confirmed = confirm(inp, stacks, sel, where, singles, log=say)
+    elim, stacks = set_aside_ambiguous(inp, stacks, where, confirmed, log=say)
+    return Pass(where, stacks, sel, shrink, elim, confirmed)
 
 
 def diagnose(model, runs, holdout=None, window_s=8.0, effects=None, log=None, model_label=None):
@@ -660,15 +661,17 @@ def diagnose(model, runs, holdout=None, window_s=8.0, effects=None, log=None, mo
     say(f"prepared {len(inp.fit)} fit and {len(inp.holdout)} holdout runs ({time.perf_counter() - t0:.1f} s)")
 
     res = diagnosis_pass(inp, say, t0)
-    if reconstructed(inp) and res.elim.kept:
-        first, nominal = res, inp
+    # the force the holdout confirmed improves the reconstruction whichever effect it is named as (an ambiguous
+    # effect is set aside from the verdict, not from the plant that smooths the velocities)
+    if reconstructed(inp) and res.confirmed.kept:
+        first, nominal = res.confirmed, inp
         say(f"reconstruction, pass 2: the unlogged velocities smoothed again with the force of "
-            f"{', '.join(first.elim.kept)} added to the nominal plant; the diagnosis repeated on them")
-        inp = reconstruct_with(inp, first.stacks.actuation, first.elim.combination.fit, first.elim.kept)
+            f"{', '.join(first.kept)} added to the nominal plant; the diagnosis repeated on them")
+        inp = reconstruct_with(inp, res.stacks.actuation, first.combination.fit, first.kept)
         res = diagnosis_pass(inp, say, t0)
         inp = replace(inp, notes=inp.notes + [
-            f"reconstruction: the unlogged velocities were smoothed twice, first with the nominal plant (significant "
-            f"then: {', '.join(first.elim.kept)}), then with those effects' force added (significant: "
+            f"reconstruction: the unlogged velocities were smoothed twice, first with the nominal plant (confirmed "
+            f"on the holdout then: {', '.join(first.kept)}), then with those effects' force added (significant: "
             f"{', '.join(res.elim.kept) or 'none'}); the report is that of the second pass"])
         if res.elim.kept:  # gap_after as `simulate --windows` replays the corrected model: reconstructed with it
             final = reconstruct_with(nominal, res.stacks.actuation, res.elim.combination.fit, res.elim.kept, "holdout")
