@@ -438,13 +438,17 @@ def confirm(inp: Inputs, stacks: Stacks, sel: Selection, where: Where, singles: 
                               _replayer(inp, stacks, before.scored), inp.window_s, inp.holdout, alone=alone, log=log)
 
 
-def set_aside_ambiguous(inp: Inputs, stacks: Stacks, where: Where, elim: Elimination, log=None):
+def set_aside_ambiguous(inp: Inputs, stacks: Stacks, where: Where, elim: Elimination, log=None, prior=None):
     """Step 3b: a confirmed effect whose fit another effect matches as well (a look-alike within ``BIC_STRONG`` on
     the observed DOFs) is not significant: the runs cannot say which of the two acts (e.g. without a DVL, a
     heave-side thrust loss and a tether whose drag needs the unobserved surge speed; a pitch added-mass error and a
     CG-CB offset in free pitch oscillations). It is listed as unidentifiable with that reason, and so are its
     look-alikes; the rest is refitted and replayed. With full sensors the replay's and the fit's evidence rarely
     leave a confirmed effect a look-alike; the runs that do are those whose channels leave the fit little to go on.
+
+    ``prior`` (name -> look-alikes) holds the effects set aside in the first reconstruction pass: confirmed again in
+    the second, they stay set aside, since that pass reconstructed the velocities with their force and so cannot
+    settle which look-alike acts (it would confirm whichever one it assumed).
 
     Returns
     -------
@@ -453,7 +457,9 @@ def set_aside_ambiguous(inp: Inputs, stacks: Stacks, where: Where, elim: Elimina
     stacks : Stacks
         With the ambiguous effects added to its identifiability.
     """
-    amb = {k: list(elim.combination.indistinguishable.get(k, ())) for k in elim.kept}
+    prior = prior or {}
+    amb = {k: list(dict.fromkeys([*elim.combination.indistinguishable.get(k, ()), *prior.get(k, ())]))
+           for k in elim.kept}
     amb = {k: v for k, v in amb.items() if v}
     if not amb:
         return elim, stacks
@@ -463,7 +469,9 @@ def set_aside_ambiguous(inp: Inputs, stacks: Stacks, where: Where, elim: Elimina
              Replay((), where.before, where.nominal_sims[len(inp.fit):]))
     if log:
         for k, v in amb.items():
-            log(f"  set aside: {k} (its fit is matched as well by {', '.join(v)}; the runs cannot say which acts)")
+            log(f"  set aside: {k} (its fit is matched as well by {', '.join(v)}; the runs cannot say which acts"
+                + ("; set aside in the first pass, whose reconstruction this pass assumed" if k in prior else "")
+                + ")")
     return (replace(elim, kept=tuple(rest), combination=combo, after=after),
             replace(stacks, identifiability=stacks.identifiability.with_ambiguous(amb)))
 
@@ -602,8 +610,9 @@ class Pass:
     confirmed: Elimination  # what the holdout confirmed, before the ambiguous effects were set aside
 
 
-def diagnosis_pass(inp: Inputs, say, t0) -> Pass:
-    """Steps 1-3 of :func:`diagnose` on ``inp``'s prepared runs."""
+def diagnosis_pass(inp: Inputs, say, t0, prior_ambiguous=None) -> Pass:
+    """Steps 1-3 of :func:`diagnose` on ``inp``'s prepared runs (``prior_ambiguous``: the effects the first
+    reconstruction pass set aside, see :func:`set_aside_ambiguous`)."""
     where = locate_gap(inp)
     say("where: " + (", ".join(_where_line(x) for x in where.located.locations) or "no channel above its noise floor"))
 
@@ -624,7 +633,7 @@ def diagnosis_pass(inp: Inputs, say, t0) -> Pass:
     b = where.before.value
     shrink = {n: (1 - r.gap.value / b) if b > 0 else 0.0 for n, r in singles.items()}
     confirmed = confirm(inp, stacks, sel, where, singles, log=say)
-    elim, stacks = set_aside_ambiguous(inp, stacks, where, confirmed, log=say)
+    elim, stacks = set_aside_ambiguous(inp, stacks, where, confirmed, log=say, prior=prior_ambiguous)
     return Pass(where, stacks, sel, shrink, elim, confirmed)
 
 
@@ -668,7 +677,8 @@ def diagnose(model, runs, holdout=None, window_s=8.0, effects=None, log=None, mo
         say(f"reconstruction, pass 2: the unlogged velocities smoothed again with the force of "
             f"{', '.join(first.kept)} added to the nominal plant; the diagnosis repeated on them")
         inp = reconstruct_with(inp, res.stacks.actuation, first.combination.fit, first.kept)
-        res = diagnosis_pass(inp, say, t0)
+        set_aside = {k: res.stacks.identifiability.ambiguous[k] for k in first.kept if k not in res.elim.kept}
+        res = diagnosis_pass(inp, say, t0, prior_ambiguous=set_aside)
         inp = replace(inp, notes=inp.notes + [
             f"reconstruction: the unlogged velocities were smoothed twice, first with the nominal plant (confirmed "
             f"on the holdout then: {', '.join(first.kept)}), then with those effects' force added (significant: "
