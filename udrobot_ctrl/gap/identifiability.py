@@ -158,6 +158,9 @@ class Identifiability:
     #: effects the channels identify alone, but whose fit another effect matches as well on the observed DOFs (name
     #: -> those look-alikes): the data cannot say which of them acts (:meth:`with_ambiguous`)
     ambiguous: dict = field(default_factory=dict)
+    #: partly identified effects that the equation error on the observed DOFs selects but the holdout replay, which
+    #: needs their non-identified parameters, cannot confirm (name -> its evidence; :meth:`with_unconfirmed`)
+    unconfirmed: dict = field(default_factory=dict)
 
     def observed_dofs(self) -> list:
         """Names of the observed (scored) DOFs."""
@@ -165,8 +168,9 @@ class Identifiability:
 
     @property
     def names(self) -> list:
-        """Names of the unidentifiable effects (the ambiguous ones included)."""
-        return [n for n, e in self.effects.items() if not e.identified or n in self.ambiguous]
+        """Names of the unidentifiable effects (the ambiguous and the unconfirmed ones included)."""
+        return [n for n, e in self.effects.items()
+                if not e.identified or n in self.ambiguous or n in self.unconfirmed]
 
     def with_ambiguous(self, ambiguous: dict) -> Identifiability:
         """A copy that also lists ``ambiguous`` (name -> look-alikes) as unidentifiable, and with each of them its
@@ -182,8 +186,28 @@ class Identifiability:
                     amb[a] = tuple(dict.fromkeys(amb.get(a, ()) + (k,)))
         return replace(self, ambiguous=amb)
 
+    def unconfirmable(self, name) -> bool:
+        """Whether ``name`` is identified in part only because of what the runs do not measure (a parameter or a
+        form not identified for a missing or reconstructed channel, not because its regressor vanishes)."""
+        e = self.effects.get(name)
+        if e is None or not e.identified:
+            return False
+        causes = {k for c in e.params if not c.identified for k in c.causes}
+        causes |= {k for f in e.forms.values() for k in f.causes}
+        return bool(causes - {"vanishes"})
+
+    def with_unconfirmed(self, unconfirmed: dict) -> Identifiability:
+        """A copy that also lists ``unconfirmed`` (name -> its equation-error evidence) as unidentifiable."""
+        return replace(self, unconfirmed={**self.unconfirmed, **unconfirmed})
+
     def reason(self, name) -> str:
         """Why ``name`` is unidentifiable, with the measurement (or the manoeuvre) that would fix it."""
+        if name in self.unconfirmed and name not in self.ambiguous:
+            e = self.effects[name]
+            return (f"the equation error on the observed DOFs ({', '.join(self.observed_dofs())}) selects it "
+                    f"({self.unconfirmed[name]}), but the holdout replay cannot confirm it with the parameters these "
+                    f"channels identify ({', '.join(e.not_identified)} not identified, so not in the replay): "
+                    + e.reason())
         if name not in self.ambiguous:
             return self.effects[name].reason()
         alts = self.ambiguous[name]
@@ -203,7 +227,8 @@ class Identifiability:
     def entry(self, name) -> dict:
         """Extra fields of an effect's report entry: the parameters not identified (partial effects only)."""
         e = self.effects.get(name)
-        if e is None or not e.identified or not e.not_identified or name in self.ambiguous:
+        if (e is None or not e.identified or not e.not_identified or name in self.ambiguous
+                or name in self.unconfirmed):
             return {}
         return {"not_identified": {"params": e.not_identified, "reason": e.reason()}}
 

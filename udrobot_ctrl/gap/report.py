@@ -106,6 +106,14 @@ def _clean(v):
 
 
 WALL_FRACTION = 0.05
+#: the confirmed effects leave more than this fraction of the holdout gap unexplained (the verdict line's threshold):
+#: candidates that only the replay rejected, and whose replay lacks the parameters the channels cannot identify, are
+#: then listed as unidentifiable instead of dropped silently (:func:`set_aside_unconfirmed`)
+UNEXPLAINED_LARGE = 0.5
+#: ... and the nominal replay is this far above its noise floor (summed NRMSE^2 over summed floor^2,
+#: :meth:`~udrobot_ctrl.gap.locate.Located.replay_to_floor`): with no gap to explain, an equation-error selection is
+#: the reconstruction's, not an effect's
+REPLAY_ABOVE_FLOOR = 2.0
 
 
 def wall_distances(params, surfaces, eta, p, speed):
@@ -476,6 +484,40 @@ def set_aside_ambiguous(inp: Inputs, stacks: Stacks, where: Where, elim: Elimina
             replace(stacks, identifiability=stacks.identifiability.with_ambiguous(amb)))
 
 
+def set_aside_unconfirmed(stacks: Stacks, sel: Selection, where: Where, elim: Elimination, log=None) -> Stacks:
+    """Step 3c: a forward-selection candidate that the holdout replay dropped is listed as unidentifiable when the
+    replay could not have confirmed it: the effect is identified in part only (parameters or a form that hinge on a
+    channel the runs do not measure are frozen: e.g. without a DVL, a surge added mass, a heave drag on the flow
+    speed), its equation error on the observed DOFs still held on the holdout when it was dropped, the nominal replay
+    is more than ``REPLAY_ABOVE_FLOOR`` above its noise floor (there is a gap), and the confirmed effects leave more
+    than ``UNEXPLAINED_LARGE`` of the holdout gap unexplained. Its evidence and the measurement
+    that would settle it go into the reason. Nothing changes when the confirmed effects explain the gap: a candidate
+    dropped beside them is then redundant, not unconfirmable.
+
+    Returns
+    -------
+    Stacks
+        With the unconfirmed effects added to its identifiability.
+    """
+    before = where.before.value
+    if (not before > 0 or elim.after.gap.value / before <= UNEXPLAINED_LARGE
+            or not where.located.replay_to_floor() > REPLAY_ABOVE_FLOOR):
+        return stacks
+    ident = stacks.identifiability
+    steps = {s.effect: s for s in sel.steps}
+    found = {n: (f"selection dBIC {steps[n].delta_bic:.0f} on the fit runs, holdout likelihood ratio "
+                 f"{t.holdout_lr:.0f} when dropped")
+             for n, t in elim.dropped.items()
+             if n in steps and n not in ident.names and t.passed_equation_error and ident.unconfirmable(n)}
+    if not found:
+        return stacks
+    if log:
+        for n, ev in found.items():
+            log(f"  listed, not confirmable: {n} ({ev}; its replay lacks "
+                f"{', '.join(ident.effects[n].not_identified)}, which these channels cannot identify)")
+    return replace(stacks, identifiability=ident.with_unconfirmed(found))
+
+
 def _wall_entry(params, stack, p) -> dict:
     """``matters_below_m`` and ``matters_below`` of a significant wall effect (see :func:`wall_distances`)."""
     speed95 = float(np.nanpercentile(np.hypot(stack.nu[:, 0], stack.nu[:, 1]), 95))
@@ -502,7 +544,9 @@ def effect_verdicts(inp: Inputs, stacks: Stacks, sel: Selection, elim: Eliminati
         note = None
         if n in dropped:
             note = ("a forward-selection candidate, dropped by the backward check on the holdout: "
-                    + dropped[n].reason() + "; not significant")
+                    + dropped[n].reason() + ("; listed under unidentifiable: the replay lacks its parameters "
+                                             "these channels cannot identify"
+                                             if n in stacks.identifiability.unconfirmed else "; not significant"))
         elif n in stacks.identifiability.ambiguous:
             test = elim.last_test(n)
             note = (("confirmed on the holdout, but " if test is not None and test.passed else
@@ -634,6 +678,7 @@ def diagnosis_pass(inp: Inputs, say, t0, prior_ambiguous=None) -> Pass:
     shrink = {n: (1 - r.gap.value / b) if b > 0 else 0.0 for n, r in singles.items()}
     confirmed = confirm(inp, stacks, sel, where, singles, log=say)
     elim, stacks = set_aside_ambiguous(inp, stacks, where, confirmed, log=say, prior=prior_ambiguous)
+    stacks = set_aside_unconfirmed(stacks, sel, where, elim, log=say)
     return Pass(where, stacks, sel, shrink, elim, confirmed)
 
 

@@ -142,3 +142,25 @@ def test_ambiguity_is_symmetric_and_names_what_would_settle_it():
     assert "matched as well by added_mass_error" in amb.reason("cg_cb_offset")
     assert amb.reason("tether_drag") == ident.reason("tether_drag")
     assert amb.entry("added_mass_error") == {}  # listed, so no partial-identification entry
+
+
+def test_an_unconfirmed_partial_effect_is_listed_with_its_evidence_and_the_fix():
+    """A candidate the replay could not confirm because its parameters in the unmeasured DOFs were frozen is listed
+    with the equation-error evidence and the measurement that would let the replay confirm it; an effect identified in
+    part only because a regressor vanishes on the runs is not unconfirmable (nothing would be missing from its
+    replay)."""
+    ok = ParameterCheck("scale_Zdw", 0.9, 0.1, True)
+    surge = ParameterCheck("scale_Xdu", 0.1, 0.0, False, ("horizontal",))
+    gone = ParameterCheck("suction", 0.0, 0.0, False, ("vanishes",))
+    ident = Identifiability({"added_mass_error": EffectCheck("added_mass_error", [ok, surge]),
+                             "wall_effect": EffectCheck("wall_effect", [ok, gone]),
+                             "cg_cb_offset": EffectCheck("cg_cb_offset", [ok])},
+                            np.array([0, 0, 1, 1, 1, 1], bool), np.array([1, 1, 0, 0, 0, 0], bool))
+    assert ident.unconfirmable("added_mass_error")
+    assert not ident.unconfirmable("wall_effect") and not ident.unconfirmable("cg_cb_offset")
+    listed = ident.with_unconfirmed({"added_mass_error": "selection dBIC -131"})
+    assert listed.names == ["added_mass_error"] and ident.names == []
+    why = listed.reason("added_mass_error")
+    assert why.startswith("the equation error on the observed DOFs (Z, K, M, N) selects it (selection dBIC -131)")
+    assert "scale_Xdu not identified" in why and "DVL" in why
+    assert listed.entry("added_mass_error") == {}  # listed, so no partial-identification entry
