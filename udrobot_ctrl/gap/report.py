@@ -466,8 +466,11 @@ def set_aside_ambiguous(inp: Inputs, stacks: Stacks, where: Where, elim: Elimina
         With the ambiguous effects added to its identifiability.
     """
     prior = prior or {}
-    amb = {k: list(dict.fromkeys([*elim.combination.indistinguishable.get(k, ()), *prior.get(k, ())]))
-           for k in elim.kept}
+    # with every velocity measured the holdout replay separates identifiable look-alikes (the tether of a tank run
+    # and its quadratic-damping look-alike): only an unidentifiable one sets a confirmed effect aside there
+    hidden = set(stacks.identifiability.names)
+    amb = {k: [a for a in dict.fromkeys([*elim.combination.indistinguishable.get(k, ()), *prior.get(k, ())])
+               if reconstructed(inp) or a in hidden] for k in elim.kept}
     amb = {k: v for k, v in amb.items() if v}
     if not amb:
         return elim, stacks
