@@ -188,7 +188,7 @@ class MemberTest:
 
     @property
     def passed_fit(self) -> bool:
-        """The fit runs still prefer the set with it (BIC): not nan and >= 0."""
+        """The fit runs still prefer the set with it: ``fit_delta_bic`` negative, or nan (unchecked)."""
         return not self.fit_delta_bic >= 0
 
     @property

@@ -135,11 +135,18 @@ class EffectCheck:
         """Amplitude parameters not identified, then the form parameters kept at one end."""
         return [c.name for c in self.params if not c.identified] + list(self.forms)
 
+    @property
+    def causes(self) -> list:
+        """Keys of :data:`MISSING` (or ``"vanishes"``) of the parameters not identified and the forms held, once
+        each, in order."""
+        out = []
+        for c in [c for c in self.params if not c.identified] + list(self.forms.values()):
+            out += [k for k in c.causes if k not in out]
+        return out
+
     def reason(self) -> str:
         """Why parameters are not identified, with the measurement that would fix it."""
-        causes = []
-        for c in [c for c in self.params if not c.identified] + list(self.forms.values()):
-            causes += [k for k in c.causes if k not in causes]
+        causes = self.causes
         forms = "".join(f"{k} kept at {f.kept:g} (the form at {f.other:g} is not identified); "
                         for k, f in self.forms.items())
         if "vanishes" in causes:
@@ -190,11 +197,7 @@ class Identifiability:
         """Whether ``name`` is identified in part only because of what the runs do not measure (a parameter or a
         form not identified for a missing or reconstructed channel, not because its regressor vanishes)."""
         e = self.effects.get(name)
-        if e is None or not e.identified:
-            return False
-        causes = {k for c in e.params if not c.identified for k in c.causes}
-        causes |= {k for f in e.forms.values() for k in f.causes}
-        return bool(causes - {"vanishes"})
+        return e is not None and e.identified and bool(set(e.causes) - {"vanishes"})
 
     def with_unconfirmed(self, unconfirmed: dict) -> Identifiability:
         """A copy that also lists ``unconfirmed`` (name -> its equation-error evidence) as unidentifiable."""

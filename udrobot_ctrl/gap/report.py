@@ -451,8 +451,9 @@ def set_aside_ambiguous(inp: Inputs, stacks: Stacks, where: Where, elim: Elimina
     the observed DOFs) is not significant: the runs cannot say which of the two acts (e.g. without a DVL, a
     heave-side thrust loss and a tether whose drag needs the unobserved surge speed; a pitch added-mass error and a
     CG-CB offset in free pitch oscillations). It is listed as unidentifiable with that reason, and so are its
-    look-alikes; the rest is refitted and replayed. With full sensors the replay's and the fit's evidence rarely
-    leave a confirmed effect a look-alike; the runs that do are those whose channels leave the fit little to go on.
+    look-alikes; the rest is refitted and replayed. An identifiable look-alike counts only on runs whose velocities
+    the smoother reconstructed (the channels leave the fit little to go on); with every velocity measured the
+    holdout replay separates identifiable look-alikes, and only an unidentifiable one sets an effect aside.
 
     ``prior`` (name -> look-alikes) holds the effects set aside in the first reconstruction pass: confirmed again in
     the second, they stay set aside, since that pass reconstructed the velocities with their force and so cannot
@@ -468,9 +469,9 @@ def set_aside_ambiguous(inp: Inputs, stacks: Stacks, where: Where, elim: Elimina
     prior = prior or {}
     # with every velocity measured the holdout replay separates identifiable look-alikes (the tether of a tank run
     # and its quadratic-damping look-alike): only an unidentifiable one sets a confirmed effect aside there
-    hidden = set(stacks.identifiability.names)
+    hidden, any_alike = set(stacks.identifiability.names), reconstructed(inp)
     amb = {k: [a for a in dict.fromkeys([*elim.combination.indistinguishable.get(k, ()), *prior.get(k, ())])
-               if reconstructed(inp) or a in hidden] for k in elim.kept}
+               if any_alike or a in hidden] for k in elim.kept}
     amb = {k: v for k, v in amb.items() if v}
     if not amb:
         return elim, stacks
