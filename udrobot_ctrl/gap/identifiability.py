@@ -50,6 +50,10 @@ SENSITIVITY_MAX = 0.3
 #: energy below this fraction of the largest column energy of all effects is "zero on the data"
 VANISH = 1e-12
 N_SHAPES = 3  # grid shapes probed per effect: first, middle, last
+#: a parameter acts in a DOF that holds at least this share of its noise-normalised regressor energy (its RMS there is
+#: then at least 14 % of its overall RMS: a heave added mass whose energy lies mostly in the Munk moments still acts
+#: on the heave force)
+ACTS_SHARE = 0.02
 
 #: what measures each DOF's velocity (for the reason): DOF groups -> (what is missing, how to fix it)
 MISSING = {
@@ -94,6 +98,8 @@ class ParameterCheck:
     sensitivity: float
     identified: bool
     causes: tuple = ()
+    #: share of its noise-normalised regressor energy in each DOF (X Y Z K M N; empty when it vanishes)
+    dof_share: tuple = ()
 
 
 @dataclass(frozen=True)
@@ -144,6 +150,12 @@ class EffectCheck:
             out += [k for k in c.causes if k not in out]
         return out
 
+    def acting_in(self, dofs, min_share: float = ACTS_SHARE) -> list:
+        """The parameters the channels do not identify that act in any of the DOF indices ``dofs`` (hold at least
+        ``min_share`` of their noise-normalised regressor energy there)."""
+        return [c.name for c in self.params if not c.identified and len(c.dof_share) == 6
+                and any(c.dof_share[i] >= min_share for i in dofs)]
+
     def reason(self) -> str:
         """Why parameters are not identified, with the measurement that would fix it."""
         causes = self.causes
@@ -168,6 +180,10 @@ class Identifiability:
     #: partly identified effects that the equation error on the observed DOFs selects but the holdout replay, which
     #: needs their non-identified parameters, cannot confirm (name -> its evidence; :meth:`with_unconfirmed`)
     unconfirmed: dict = field(default_factory=dict)
+    #: partly identified effects whose non-identified parameters act where an unexplained gap lies: the part the
+    #: channels identify was not selected, the rest cannot be tested (name -> the gap and those parameters;
+    #: :meth:`with_not_excluded`)
+    not_excluded: dict = field(default_factory=dict)
 
     def observed_dofs(self) -> list:
         """Names of the observed (scored) DOFs."""
@@ -177,7 +193,7 @@ class Identifiability:
     def names(self) -> list:
         """Names of the unidentifiable effects (the ambiguous and the unconfirmed ones included)."""
         return [n for n, e in self.effects.items()
-                if not e.identified or n in self.ambiguous or n in self.unconfirmed]
+                if not e.identified or n in self.ambiguous or n in self.unconfirmed or n in self.not_excluded]
 
     def with_ambiguous(self, ambiguous: dict) -> Identifiability:
         """A copy that also lists ``ambiguous`` (name -> look-alikes) as unidentifiable, and with each of them its
@@ -203,6 +219,11 @@ class Identifiability:
         """A copy that also lists ``unconfirmed`` (name -> its equation-error evidence) as unidentifiable."""
         return replace(self, unconfirmed={**self.unconfirmed, **unconfirmed})
 
+    def with_not_excluded(self, not_excluded: dict) -> Identifiability:
+        """A copy that also lists ``not_excluded`` (name -> the unexplained gap and its non-identified parameters that
+        act there) as unidentifiable."""
+        return replace(self, not_excluded={**self.not_excluded, **not_excluded})
+
     def reason(self, name) -> str:
         """Why ``name`` is unidentifiable, with the measurement (or the manoeuvre) that would fix it."""
         if name in self.unconfirmed and name not in self.ambiguous:
@@ -211,6 +232,10 @@ class Identifiability:
                     f"({self.unconfirmed[name]}), but the holdout replay cannot confirm it with the parameters these "
                     f"channels identify ({', '.join(e.not_identified)} not identified, so not in the replay): "
                     + e.reason())
+        if name in self.not_excluded and name not in self.ambiguous:
+            e = self.effects[name]
+            return (f"not excluded: {self.not_excluded[name]}; the part of it these channels identify does not "
+                    f"explain that gap, and the rest cannot be tested: " + e.reason())
         if name not in self.ambiguous:
             return self.effects[name].reason()
         alts = self.ambiguous[name]
@@ -231,7 +256,7 @@ class Identifiability:
         """Extra fields of an effect's report entry: the parameters not identified (partial effects only)."""
         e = self.effects.get(name)
         if (e is None or not e.identified or not e.not_identified or name in self.ambiguous
-                or name in self.unconfirmed):
+                or name in self.unconfirmed or name in self.not_excluded):
             return {}
         return {"not_identified": {"params": e.not_identified, "reason": e.reason()}}
 
@@ -438,7 +463,8 @@ def _checks(acc, top, observed) -> list:
                    for m, v in sens.items() if v > SENSITIVITY_MAX]
         causes = list(dict.fromkeys(causes))
         ok = share >= SHARE_MIN and worst <= SENSITIVITY_MAX
-        checks.append(ParameterCheck(pname, float(share), float(worst), ok, () if ok else tuple(causes)))
+        checks.append(ParameterCheck(pname, float(share), float(worst), ok, () if ok else tuple(causes),
+                                     tuple(float(v) for v in a["per_dof"] / a["all"])))
     return checks
 
 

@@ -495,13 +495,18 @@ def set_aside_unconfirmed(stacks: Stacks, sel: Selection, where: Where, elim: El
     speed), its equation error on the observed DOFs still held on the holdout when it was dropped, the nominal replay
     is more than ``REPLAY_ABOVE_FLOOR`` above its noise floor (there is a gap), and the confirmed effects leave more
     than ``UNEXPLAINED_LARGE`` of the holdout gap unexplained. Its evidence and the measurement
-    that would settle it go into the reason. Nothing changes when the confirmed effects explain the gap: a candidate
-    dropped beside them is then redundant, not unconfirmable.
+    that would settle it go into the reason. Under the same two conditions, a partly identified effect that was not
+    selected is listed as *not excluded* when some of its non-identified parameters act in a DOF holding at least
+    ``locate.GAP_SHARE`` of the located gap (``Located.gap_dofs``, ``EffectCheck.acting_in``): the part the channels
+    identify does not explain the gap, and the part that might cannot be tested (without a DVL, a surge added mass
+    acts on the pitch and heave forces through the Munk moment and the reconstructed surge speed). Nothing changes
+    when the confirmed effects explain the gap: a candidate dropped beside them is then redundant, not
+    unconfirmable, and nothing is left for an untested part to explain.
 
     Returns
     -------
     Stacks
-        With the unconfirmed effects added to its identifiability.
+        With the unconfirmed and the not-excluded effects added to its identifiability.
     """
     before = where.before.value
     if (not before > 0 or elim.after.gap.value / before <= UNEXPLAINED_LARGE
@@ -513,13 +518,21 @@ def set_aside_unconfirmed(stacks: Stacks, sel: Selection, where: Where, elim: El
                  f"{t.holdout_lr:.0f} when dropped")
              for n, t in elim.dropped.items()
              if n in steps and n not in ident.names and t.passed_equation_error and ident.unconfirmable(n)}
-    if not found:
-        return stacks
+    gap = where.located.gap_dofs()
+    left = (f"the confirmed effects leave {elim.after.gap.value / before:.0%} of the holdout gap unexplained, "
+            + ", ".join(f"{share:.0%} of it in {fx.DOF[i]}" for i, share in gap.items()))
+    acting = {n: ident.effects[n].acting_in(gap) for n in sel.delta_bic
+              if n not in elim.kept and n not in found and n not in ident.names and ident.unconfirmable(n)}
+    spare = {n: f"{left}, where its {', '.join(a)} act" for n, a in acting.items() if a}
     if log:
         for n, ev in found.items():
             log(f"  listed, not confirmable: {n} ({ev}; its replay lacks "
                 f"{', '.join(ident.effects[n].not_identified)}, which these channels cannot identify)")
-    return replace(stacks, identifiability=ident.with_unconfirmed(found))
+        for n in spare:
+            log(f"  listed, not excluded: {n} (its {', '.join(acting[n])}, which these channels cannot identify, act "
+                f"where the unexplained gap lies)")
+    return replace(stacks, identifiability=ident.with_unconfirmed(found).with_not_excluded(spare))
+
 
 
 def _wall_entry(params, stack, p) -> dict:
@@ -551,6 +564,8 @@ def effect_verdicts(inp: Inputs, stacks: Stacks, sel: Selection, elim: Eliminati
                     + dropped[n].reason() + ("; listed under unidentifiable: the replay lacks its parameters "
                                              "these channels cannot identify"
                                              if n in stacks.identifiability.unconfirmed else "; not significant"))
+        elif n in stacks.identifiability.not_excluded:
+            note = f"not selected; listed under unidentifiable, not excluded: {stacks.identifiability.not_excluded[n]}"
         elif n in stacks.identifiability.ambiguous:
             test = elim.last_test(n)
             note = (("confirmed on the holdout, but " if test is not None and test.passed else

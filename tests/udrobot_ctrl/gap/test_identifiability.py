@@ -164,3 +164,38 @@ def test_an_unconfirmed_partial_effect_is_listed_with_its_evidence_and_the_fix()
     assert why.startswith("the equation error on the observed DOFs (Z, K, M, N) selects it (selection dBIC -131)")
     assert "scale_Xdu not identified" in why and "DVL" in why
     assert listed.entry("added_mass_error") == {}  # listed, so no partial-identification entry
+
+
+def test_frozen_parameters_act_where_their_regressor_energy_lies(stock):
+    """Each parameter's DOF shares are its noise-normalised regressor energy per DOF (summing to 1). Without a DVL a
+    linear surge damping acts in surge only, never in the observed yaw; the frozen sway added mass acts where its
+    Munk moments put it, in the observed roll and yaw, besides sway."""
+    ident, _ = stock
+    for e in ident.effects.values():
+        for c in e.params:
+            if c.dof_share:
+                assert sum(c.dof_share) == pytest.approx(1.0, abs=1e-9), (e.name, c)
+    lin = ident.effects["linear_damping"]
+    assert lin.acting_in([0]) == ["d_Xu"] and lin.acting_in([5]) == []
+    am = ident.effects["added_mass_error"]
+    assert "scale_Ydv" in am.acting_in([3, 5]), [(c.name, np.round(c.dof_share, 2)) for c in am.params]
+
+
+def test_a_not_excluded_partial_effect_is_listed_with_the_gap_it_could_explain():
+    """An effect not selected whose frozen parameters act where an unexplained gap lies is listed with that gap, the
+    parameters and the measurement that would test them; it carries no partial-identification entry then."""
+    ok = ParameterCheck("scale_Ndr", 0.9, 0.1, True, (), (0, 0, 0, 0, 0, 1.0))
+    heave = ParameterCheck("scale_Zdw", 0.9, 2.0, False, ("horizontal",), (0, 0, 0.03, 0.34, 0.63, 0))
+    surge = ParameterCheck("scale_Xdu", 0.1, 0.0, False, ("horizontal",), (0.9, 0, 0, 0, 0.1, 0))
+    am = EffectCheck("added_mass_error", [ok, heave, surge])
+    assert am.acting_in([2]) == ["scale_Zdw"] and am.acting_in([5]) == []
+    assert am.acting_in([4]) == ["scale_Zdw", "scale_Xdu"] and am.acting_in([2], min_share=0.05) == []
+    ident = Identifiability({"added_mass_error": am}, np.array([0, 0, 1, 1, 1, 1], bool),
+                            np.array([1, 1, 0, 0, 0, 0], bool))
+    listed = ident.with_not_excluded({"added_mass_error": "54% of the gap unexplained, 76% of it in Z, where its "
+                                                          "scale_Zdw act"})
+    assert ident.names == [] and listed.names == ["added_mass_error"]
+    why = listed.reason("added_mass_error")
+    assert why.startswith("not excluded: 54% of the gap unexplained, 76% of it in Z, where its scale_Zdw act")
+    assert "cannot be tested" in why and "DVL" in why
+    assert listed.entry("added_mass_error") == {} and ident.entry("added_mass_error") != {}

@@ -7,7 +7,7 @@ import pytest
 from udrobot_ctrl.dynamics.plant import plant_parameters
 from udrobot_ctrl.gap.attribute import residual
 from udrobot_ctrl.gap.data import prepare
-from udrobot_ctrl.gap.locate import ForceFloor, Located, excess_shares, force_floor, noise_floor
+from udrobot_ctrl.gap.locate import ForceFloor, Located, Location, excess_shares, force_floor, noise_floor
 from udrobot_ctrl.gap.shrink import gap, simulate_windows
 from udrobot_ctrl.vehicle import load_model
 
@@ -87,3 +87,13 @@ def test_stock_floor_holds_the_reconstruction_error():
     assert all(v < 1.6 for v in ratio.values()), ratio
     loc = Located((), dict(g.per_channel), floor, {}, {}, {})
     assert loc.replay_to_floor() < 1.5
+
+
+def test_gap_dofs_count_each_location_for_its_dof():
+    """A channel ranked by its DOF's residual force counts for that DOF, a replayed one for the DOF it measures;
+    DOFs holding less than GAP_SHARE of the gap are left out, the rest ranked by share."""
+    def at(channel, share, dof=None):
+        return Location(channel, share, float("nan"), 0.0, "", [], "", {}, dof)
+    located = Located((at("w", 0.6, "Z"), at("r", 0.15), at("psi", 0.1), at("phi", 0.15)), {}, {}, {}, {}, {})
+    assert located.gap_dofs() == {2: pytest.approx(0.6), 5: pytest.approx(0.25)}
+    assert located.gap_dofs(min_share=0.5) == {2: pytest.approx(0.6)}
