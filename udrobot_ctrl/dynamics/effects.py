@@ -44,7 +44,9 @@ the plant in one of three ways:
   ``tether_drag``    F_ned = -(k_q |V_n| + k_l) V_n, V_n the NED velocity normal to the cable's direction e: from
                      the vehicle towards a fixed anchor (``anchor_north_m anchor_east_m anchor_down_m``, the frame
                      of the logged x y z), or along a fixed direction (``cable_azimuth_rad`` from north,
-                     ``cable_elevation_rad`` above the horizontal; the limit of an anchor far away)
+                     ``cable_elevation_rad`` above the horizontal; the limit of an anchor far away); an anchor
+                     may walk with the vehicle (``walk_azimuth_rad``, ``walk_fraction``: a handler on the pool
+                     edge, a tender boat), the drag then integrated along the moving cable
   ``water_current``  damping and added-mass Coriolis act on nu_r = nu - [R^T v_c; 0] (v_c NED, m/s)
   ``wall_effect``    near a plane at distance h: added mass a_m exp(-h/lam) n n^T and suction
                      -a_s exp(-h/lam) |V_t|^2 n, summed over the planes: the seabed at ``seabed_depth_m`` (NED z)
@@ -108,6 +110,9 @@ WALL_PARAMETERS = tuple(f"wall{i}_{k}" for i in range(1, WALL_SLOTS + 1) for k i
 #: written before anchors, a fixed direction (rad)
 TETHER_ANCHOR = ("anchor_north_m", "anchor_east_m", "anchor_down_m")
 TETHER_FIXED_DIRECTION = ("cable_azimuth_rad", "cable_elevation_rad")
+#: a top end that walks along a horizontal line (a handler on the pool edge, a tender boat) with the vehicle: the
+#: line's azimuth (rad, from north) and the fraction (0-1) of the vehicle's motion along it that the top end follows
+TETHER_WALK = ("walk_azimuth_rad", "walk_fraction")
 
 CATALOGUE = {k.name: k for k in (
     EffectKind("thrust_inflow_loss", "thrust falls with the axial inflow speed through the thruster", "thrust",
@@ -120,7 +125,8 @@ CATALOGUE = {k.name: k for k in (
                optional=("thrust_exponent",)),
     EffectKind("tether_drag", "umbilical cross-flow drag, normal to the cable", "force",
                ("k_quadratic_N_s2_per_m2", "k_linear_N_s_per_m") + TETHER_ANCHOR,
-               alternatives=(("k_quadratic_N_s2_per_m2", "k_linear_N_s_per_m") + TETHER_FIXED_DIRECTION,)),
+               alternatives=(("k_quadratic_N_s2_per_m2", "k_linear_N_s_per_m") + TETHER_FIXED_DIRECTION,),
+               optional=TETHER_WALK),
     EffectKind("wall_effect", "extra added mass and suction near the seabed or a wall", "force",
                ("decay_length_m", "added_mass_at_contact_kg", "suction_N_s2_per_m2"),
                optional=("seabed_depth_m",) + WALL_PARAMETERS),
@@ -206,6 +212,12 @@ def plant_effect(doc, where: str = "effects[0]") -> PlantEffect:
     if name == "tether_drag" and set(TETHER_ANCHOR) & set(params) and set(TETHER_FIXED_DIRECTION) & set(params):
         raise ValueError(f"{where}: effect 'tether_drag' takes either an anchor ({', '.join(TETHER_ANCHOR)}) or a "
                          f"fixed cable direction ({', '.join(TETHER_FIXED_DIRECTION)}), not both")
+    if name == "tether_drag" and set(TETHER_WALK) & set(params):
+        if not set(TETHER_ANCHOR) <= set(params) or not set(TETHER_WALK) <= set(params):
+            raise ValueError(f"{where}: effect 'tether_drag' with a walking top end needs an anchor "
+                             f"({', '.join(TETHER_ANCHOR)}) and both of {', '.join(TETHER_WALK)}")
+        if not 0.0 <= params["walk_fraction"] <= 1.0:
+            raise ValueError(f"{where}.params.walk_fraction: must be in [0, 1], got {params['walk_fraction']}")
     if not any(set(s) <= set(params) for s in sets):
         closest = max(sets, key=lambda c: len(set(c) & set(params)))  # the set the entry started to give
         missing = sorted(set(closest) - set(params))
@@ -589,36 +601,95 @@ def anchor_direction(be, position, anchor):
     return tuple(d[i] * inv for i in range(3))
 
 
-def tether_direction(be, eta, q):
+def walking(q) -> bool:
+    """Whether the tether parameters ``q`` describe a top end that walks with the vehicle (``walk_fraction`` > 0)."""
+    return TETHER_ANCHOR[0] in q and float(q.get("walk_fraction", 0.0)) > 0.0
+
+
+def tether_top_end(be, eta, nu, q):
+    """Position (NED, m) and velocity (NED, m/s) of the tether's top end for the parameters ``q``: the anchor
+    A = (``anchor_north_m anchor_east_m anchor_down_m``), moved along the horizontal unit vector d at
+    ``walk_azimuth_rad`` by ``walk_fraction`` f of the vehicle's own motion along d: a = A + f (p.d) d, with velocity
+    f (V.d) d (V the vehicle's NED velocity). With f = 0 (or no walk parameters) it is a fixed anchor."""
+    f = float(q.get("walk_fraction", 0.0))
+    chi = float(q.get("walk_azimuth_rad", 0.0))
+    d = (math.cos(chi), math.sin(chi), 0.0)
+    v = _to_ned(_rotation(be, eta), nu)
+    along_p = eta[0] * d[0] + eta[1] * d[1]
+    along_v = v[0] * d[0] + v[1] * d[1]
+    anchor = tuple(q[k] + f * along_p * d[i] for i, k in enumerate(TETHER_ANCHOR))
+    return anchor, tuple(f * along_v * d[i] for i in range(3))
+
+
+def tether_direction(be, eta, q, nu=None):
     """Unit NED vector from the vehicle along its tether for the parameters ``q`` of a ``tether_drag`` effect:
-    towards the anchor (``anchor_north_m anchor_east_m anchor_down_m``; it turns as the vehicle moves) or, without
-    an anchor, the fixed direction (``cable_azimuth_rad cable_elevation_rad``: an anchor infinitely far away)."""
+    towards the anchor (``anchor_north_m anchor_east_m anchor_down_m``; it turns as the vehicle moves; a walking
+    top end, :func:`tether_top_end`, needs ``nu``) or, without an anchor, the fixed direction
+    (``cable_azimuth_rad cable_elevation_rad``: an anchor infinitely far away)."""
+    if walking(q):
+        return anchor_direction(be, eta[:3], tether_top_end(be, eta, nu, q)[0])
     if TETHER_ANCHOR[0] in q:
         return anchor_direction(be, eta[:3], tuple(q[k] for k in TETHER_ANCHOR))
     return cable_direction(q["cable_azimuth_rad"], q["cable_elevation_rad"])
+
+
+def _normal(v, e):
+    along = v[0] * e[0] + v[1] * e[1] + v[2] * e[2]
+    return tuple(v[i] - along * e[i] for i in range(3))
+
+
+def _norm(be, vn):
+    return be.sqrt(vn[0] * vn[0] + vn[1] * vn[1] + vn[2] * vn[2] + TETHER_SPEED_FLOOR ** 2)
 
 
 def tether_cross_flow(be, eta, nu, q):
     """The rotation R (body to NED), the vehicle's NED velocity normal to the cable V_n = V - (V.e) e (3 components,
     m/s; e from :func:`tether_direction`) and |V_n| (m/s) with a floor of ``TETHER_SPEED_FLOOR`` under the root:
     smooth at rest (a finite Jacobian for linearisation); the force changes by less than 1e-8 relative at 1 m/s."""
-    e = tether_direction(be, eta, q)
+    e = tether_direction(be, eta, q, nu)
+    R = _rotation(be, eta)
+    vn = _normal(_to_ned(R, nu), e)
+    return R, vn, _norm(be, vn)
+
+
+#: Gauss-Legendre nodes and weights on [0, 1] (3 points: exact for polynomials of degree 5)
+CABLE_NODES = (0.5 - math.sqrt(15.0) / 10.0, 0.5, 0.5 + math.sqrt(15.0) / 10.0)
+CABLE_WEIGHTS = (5.0 / 18.0, 8.0 / 18.0, 5.0 / 18.0)
+
+
+def _walking_unit_forces(be, eta, nu, q):
+    """NED unit forces (quadratic, linear) of a cable whose top end moves: the cable point at s (0 top, 1 vehicle)
+    moves at V(s) = a' + s (V - a'); the water's normal drag on it, shared with the vehicle in proportion to s,
+    integrates to 4 int s |V_n(s)| V_n(s) ds and 3 int s V_n(s) ds (3-point Gauss-Legendre): the fixed anchor's
+    |V_n| V_n and V_n when a' = 0."""
+    top, top_v = tether_top_end(be, eta, nu, q)
+    e = anchor_direction(be, eta[:3], top)
     R = _rotation(be, eta)
     v = _to_ned(R, nu)
-    along = v[0] * e[0] + v[1] * e[1] + v[2] * e[2]
-    vn = tuple(v[i] - along * e[i] for i in range(3))
-    speed = be.sqrt(vn[0] * vn[0] + vn[1] * vn[1] + vn[2] * vn[2] + TETHER_SPEED_FLOOR ** 2)
-    return R, vn, speed
+    fq, fl = [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]
+    for s, w in zip(CABLE_NODES, CABLE_WEIGHTS):
+        vn = _normal(tuple(top_v[i] + s * (v[i] - top_v[i]) for i in range(3)), e)
+        speed = _norm(be, vn)
+        for i in range(3):
+            fq[i] = fq[i] - 4.0 * w * s * speed * vn[i]
+            fl[i] = fl[i] - 3.0 * w * s * vn[i]
+    return R, tuple(fq), tuple(fl)
 
 
 def tether_unit_forces(be, eta, nu, q):
     """The tether force per unit of each amplitude (two 6-component body wrenches, N per N s^2/m^2 and per N s/m):
-    R^T (-|V_n| V_n) and R^T (-V_n), from :func:`tether_cross_flow`. The force is linear in the amplitudes, so
-    these are its derivatives: the diagnoser's regressors."""
-    R, vn, speed = tether_cross_flow(be, eta, nu, q)
+    R^T (-|V_n| V_n) and R^T (-V_n), from :func:`tether_cross_flow`; for a walking top end
+    (:func:`tether_top_end`) the cable's drag integrated over its length (:func:`_walking_unit_forces`). The force is
+    linear in the amplitudes, so these are its derivatives: the diagnoser's regressors."""
+    if walking(q):
+        R, fq, fl = _walking_unit_forces(be, eta, nu, q)
+        ned = (fq, fl)
+    else:
+        R, vn, speed = tether_cross_flow(be, eta, nu, q)
+        ned = tuple(tuple(-k * vn[i] for i in range(3)) for k in (speed, 1.0))
     out = []
-    for k in (speed, 1.0):
-        fb = _to_body(R, tuple(-k * vn[i] for i in range(3)))
+    for f in ned:
+        fb = _to_body(R, f)
         out.append((fb[0], fb[1], fb[2], 0.0 * fb[0], 0.0 * fb[0], 0.0 * fb[0]))
     return tuple(out)
 
@@ -628,7 +699,8 @@ def tether_force(be, eta, nu, q):
 
     F_ned = -(k_q |V_n| + k_l) V_n with V_n the vehicle's NED velocity normal to the cable
     (:func:`tether_cross_flow`): the water resists motion across the cable, not along it; k_q =
-    ``k_quadratic_N_s2_per_m2``, k_l = ``k_linear_N_s_per_m`` times :func:`tether_unit_forces`.
+    ``k_quadratic_N_s2_per_m2``, k_l = ``k_linear_N_s_per_m`` times :func:`tether_unit_forces` (which also
+    integrates the drag along a cable whose top end walks with the vehicle).
     """
     dq, dl = tether_unit_forces(be, eta, nu, q)
     kq, kl = q["k_quadratic_N_s2_per_m2"], q["k_linear_N_s_per_m"]

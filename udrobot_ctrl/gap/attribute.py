@@ -335,15 +335,22 @@ class Attributor:
             lo = np.array([b[0] for b in bounds])
             hi = np.array([b[1] for b in bounds])
 
-            def obj(z):
-                zz = np.clip(z, lo, hi)
-                return self.fit(list(fixed) + [(name, tuple(zz))], iters=2).loglik_n
+            step = np.asarray(eff.refine_step(self.s, x0), float)
+            free = step != 0  # a zero step holds that shape parameter (a form chosen on the grid)
 
-            step = eff.refine_step(self.s, x0)
-            simplex = np.vstack([x0] + [x0 + np.diag(step)[i] for i in range(x0.size)])
-            res = minimize(obj, x0, method="Nelder-Mead",
+            def full_shape(zf):
+                z = x0.copy()
+                z[free] = zf
+                return np.clip(z, lo, hi)
+
+            def obj(zf):
+                return self.fit(list(fixed) + [(name, tuple(full_shape(zf)))], iters=2).loglik_n
+
+            z0 = x0[free]
+            simplex = np.vstack([z0] + [z0 + np.diag(step[free])[i] for i in range(z0.size)])
+            res = minimize(obj, z0, method="Nelder-Mead",
                            options={"initial_simplex": simplex, "xatol": 1e-3, "fatol": 1e-7, "maxfev": 40})
-            cand = self.fit(list(fixed) + [(name, tuple(np.clip(res.x, lo, hi)))])
+            cand = self.fit(list(fixed) + [(name, tuple(full_shape(res.x)))])
             if cand.loglik_n < best.loglik_n:
                 best = cand
         return best

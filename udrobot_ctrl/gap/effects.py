@@ -392,6 +392,11 @@ FAR_ANCHOR_M = 1000.0
 ANCHOR_MARGIN_M = 3.0
 ANCHOR_SPACING_M = 2.0
 ANCHOR_LATTICE_MAX = 7
+#: walking top ends searched: line azimuths (rad; d and -d are the same line), distances behind (+: ahead) the
+#: vehicle along the line (m), and at most this many parallel lines across the runs' area
+WALK_AZIMUTHS = tuple(np.radians((0.0, 45.0, 90.0, 135.0)))
+WALK_BACK_M = (-4.0, -1.5, 1.5, 4.0)
+WALK_LINES = 5
 
 
 class TetherDrag(Effect):
@@ -408,6 +413,12 @@ class TetherDrag(Effect):
     a cable straight up); the best is refined locally (Nelder-Mead, steps of 30 % of the anchor's distance). The
     lumped amplitudes do not grow with the distance to the anchor: the paid-out length, not the straight-line
     distance, sets the drag of a cable that is not taut.
+
+    The top end may also walk with the vehicle (``walk_azimuth_rad walk_fraction``,
+    :func:`udrobot_ctrl.dynamics.effects.tether_top_end`: a handler following it along the pool edge, a tender
+    boat): the cable then keeps its direction along the walk and moves with the vehicle, so motion along the walk
+    drags little. These are searched as lines at four azimuths (0, 45, 90, 135 deg), top ends 1.5 or 4 m behind
+    or ahead of the vehicle along them, on lines across the runs' area; a fixed anchor has ``walk_fraction`` 0.
     """
 
     def search_space(self, s):
@@ -426,14 +437,28 @@ class TetherDrag(Effect):
         for el in np.radians((15.0, 45.0)):
             grid += [(c[0] + FAR_ANCHOR_M * np.cos(el) * np.cos(h), c[1] + FAR_ANCHOR_M * np.cos(el) * np.sin(h),
                       zc - FAR_ANCHOR_M * np.sin(el)) for h in heads]
+        grid = [g + (0.0, 0.0) for g in grid]  # fixed anchors: walk_azimuth_rad (unused), walk_fraction 0
+        for chi in WALK_AZIMUTHS:  # top ends walking along a line at azimuth chi, WALK_BACK_M behind or ahead
+            d, n_h = np.array([np.cos(chi), np.sin(chi)]), np.array([-np.sin(chi), np.cos(chi)])
+            across = xy @ n_h
+            c_lo, c_hi = np.percentile(across, 1) - ANCHOR_MARGIN_M, np.percentile(across, 99) + ANCHOR_MARGIN_M
+            lines = np.linspace(c_lo, c_hi, max(2, min(WALK_LINES, int(np.ceil((c_hi - c_lo) / spacing)) + 1)))
+            grid += [tuple(back * d + line * n_h) + (z_top, float(chi), 1.0)
+                     for back in WALK_BACK_M for line in lines]
         span = 2.0 * FAR_ANCHOR_M
-        bounds = ((c[0] - span, c[0] + span), (c[1] - span, c[1] + span), (zc - span, zc + span))
+        bounds = ((c[0] - span, c[0] + span), (c[1] - span, c[1] + span), (zc - span, zc + span),
+                  (-0.5 * np.pi, np.pi), (0.0, 1.0))
         return tuple(tuple(float(v) for v in g) for g in grid), bounds
 
     def refine_step(self, s, x0):
-        """30 % of the anchor's distance from the runs' centre on each coordinate (at least 0.5 m)."""
+        """30 % of the anchor's distance from the runs' centre on each coordinate (at least 0.5 m) and, for a walking
+        top end, 0.3 rad on the walk's azimuth; the walk fraction is held at its grid value (0: a fixed anchor, 1: a
+        top end that walks with the vehicle -- the two physical forms; in between, a single-effect fit would use it
+        to soak up what another effect does)."""
+        x0 = np.asarray(x0, float)
         centre = np.r_[np.median(s.eta[:, :2], axis=0), np.median(s.eta[:, 2])]
-        return np.full(3, max(0.5, 0.3 * float(np.linalg.norm(np.asarray(x0, float) - centre))))
+        step = max(0.5, 0.3 * float(np.linalg.norm(x0[:3] - centre)))
+        return np.r_[np.full(3, step), 0.3 if x0[4] > 0 else 0.0, 0.0]
 
     def design(self, s, shape):
         geometry = dict(zip(self.shape_names, shape))
@@ -609,7 +634,8 @@ def catalogue() -> dict:
         Lag("thruster_lag", "thrust follows the command with a first-order lag", ("T_lag_s", "thrust_exponent"),
             lag_grid, ((0.005, 1.0), pfx.EXPONENT_RANGE), refine=True, mimics=("added_mass_error",),
             excited_by=THRUSTERS_MOVING, physical_ends=("thrust_exponent",)),
-        TetherDrag("tether_drag", "umbilical cross-flow drag, normal to the cable", pfx.TETHER_ANCHOR, (), (),
+        TetherDrag("tether_drag", "umbilical cross-flow drag, normal to the cable", pfx.TETHER_ANCHOR + pfx.TETHER_WALK,
+                   (), (),
                    refine=True, mimics=("quadratic_damping_error", "linear_damping", "thrust_inflow_loss")),
         WallEffect("wall_effect", "extra added mass and suction near the seabed or a wall", ("decay_length_m",),
                    wall_grid, ((0.01, 2.0),), refine=True,

@@ -71,6 +71,7 @@ def test_the_fitted_anchor_is_the_deck_point(alone):
     true = np.asarray(truth["tether_drag"]["anchor"], float)
     assert np.hypot(*(fitted[:2] - true[:2])) < ANCHOR_TOLERANCE_M[0], (fitted, true)
     assert abs(fitted[2] - true[2]) < ANCHOR_TOLERANCE_M[1], (fitted, true)
+    assert q["walk_fraction"] < 0.5, q  # a deck point: the top end stands still
 
 
 @pytest.mark.slow
@@ -89,3 +90,32 @@ def test_anchored_tether_and_inflow_loss_are_both_named_and_nothing_else(with_in
     sig = _significant(report)
     assert set(sig) == {"tether_drag", "thrust_inflow_loss"}, \
         {e["name"]: (e["significant"], e["shrink"]) for e in report["effects"]}
+
+
+@pytest.fixture(scope="module")
+def walking():
+    """A handler walking along the pool edge (the wall line y = 0) ``back`` m behind the vehicle, legs along and
+    across the pool (:func:`.truth.random_magnitudes`)."""
+    rng = np.random.default_rng(7)
+    truth = {"tether_drag": random_magnitudes("tether_drag", rng)}
+    runs = generate(truth, n_runs=3, duration=60.0, rate=20.0, seed=7)
+    report, _ = diagnose("pendulum:chin", runs)
+    return truth, runs, report
+
+
+@pytest.mark.slow
+def test_a_handler_walking_the_tether_along_the_pool_edge_is_found_walking(walking):
+    """The fitted top end walks along the edge (north, or south: the same line) with the vehicle, behind it by the
+    truth's distance within 1.5 m, on the edge's line within 1 m (the lumped template trades the truth's length-
+    dependent drag for a displaced top end, as for the deck anchor), and the tether is named alone."""
+    truth, _, report = walking
+    sig = _significant(report)
+    assert set(sig) == {"tether_drag"}, {e["name"]: (e["significant"], e["shrink"]) for e in report["effects"]}
+    q = sig["tether_drag"]["params"]
+    assert q["walk_fraction"] > 0.5, q
+    chi = q["walk_azimuth_rad"]
+    d = np.array([np.cos(chi), np.sin(chi)])
+    assert abs(d[0]) > np.cos(0.3), q  # along north-south, the edge's line
+    top = np.array([q["anchor_north_m"], q["anchor_east_m"]])
+    assert abs(top @ d * np.sign(d[0]) + truth["tether_drag"]["back"]) < 1.5, (q, truth)
+    assert abs(top @ np.array([-d[1], d[0]])) < 1.0, q  # the edge line y = 0

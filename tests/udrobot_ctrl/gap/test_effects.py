@@ -7,6 +7,8 @@ from udrobot_ctrl.dynamics.effects import cable_direction as _cable_direction
 from udrobot_ctrl.dynamics.plant import generalized_forces, plant_parameters, rotation_zyx
 from udrobot_ctrl.gap.effects import (
     FAR_ANCHOR_M,
+    WALK_AZIMUTHS,
+    WALK_BACK_M,
     Actuation,
     Stack,
     _tether_columns,
@@ -88,15 +90,18 @@ def _stack(x, p):
                  f_ref=np.ones(4), surfaces={}, runs=[run], p=p, M_A=p.M_A)
 
 
-@pytest.mark.parametrize("geometry", [ANCHOR, {"cable_azimuth_rad": 2.5, "cable_elevation_rad": 0.4}],
-                         ids=["anchor", "fixed-direction"])
+WALKING = {**ANCHOR, "walk_azimuth_rad": 0.7, "walk_fraction": 1.0}
+
+
+@pytest.mark.parametrize("geometry", [ANCHOR, WALKING, {"cable_azimuth_rad": 2.5, "cable_elevation_rad": 0.4}],
+                         ids=["anchor", "walking", "fixed-direction"])
 def test_tether_regressor_is_the_derivative_of_the_plant_force(geometry):
     """b0 + A a of the diagnoser's design is the corrected plant's own force (the effect it writes to a model)."""
     rng = np.random.default_rng(1)
     p0 = plant_parameters(load_model("pendulum:chin"))
     x = _anchored_states(rng)
     eff = catalogue()["tether_drag"]
-    shape = tuple(geometry[k] for k in eff.shape_names) if "anchor_north_m" in geometry else None
+    shape = tuple(geometry.get(k, 0.0) for k in eff.shape_names) if "anchor_north_m" in geometry else None
     if shape is None:  # the diagnoser fits anchors; a fixed direction enters through the same plant function
         b0, A = np.zeros((x.shape[0], 6)), _tether_columns(x[:, :6], x[:, 6:], geometry)
     else:
@@ -118,7 +123,14 @@ def test_tether_search_covers_anchors_around_the_runs_and_the_fixed_directions()
     x = _anchored_states(rng)
     x[:, 0] += 40.0  # runs far from the frame's origin: the grid follows the data
     grid, bounds = catalogue()["tether_drag"].search_space(_stack(x, p0))
-    g = np.array(grid)
+    g_all = np.array(grid)
+    walk = g_all[:, 4] == 1.0  # walking top ends: on the surface, along four line azimuths
+    assert walk.sum() >= 4 * len(WALK_BACK_M) * 2 and np.all(g_all[walk, 2] == 0.0)
+    np.testing.assert_allclose(np.unique(g_all[walk, 3]), WALK_AZIMUTHS)
+    for (lo, hi), v in zip(bounds, g_all.T):
+        assert np.all((v >= lo) & (v <= hi))
+    assert np.all(g_all[~walk, 4] == 0.0)
+    g = g_all[~walk, :3]
     centre = np.median(x[:, :2], axis=0)
     dist = np.linalg.norm(g - np.r_[centre, np.median(x[:, 2])], axis=1)
     near = dist < 100
@@ -126,8 +138,6 @@ def test_tether_search_covers_anchors_around_the_runs_and_the_fixed_directions()
     assert np.hypot(*(g[near, :2] - centre).T).max() > np.hypot(*(x[:, :2] - centre).T).max()  # and beyond them
     np.testing.assert_allclose(dist[~near], FAR_ANCHOR_M, rtol=1e-9)  # the fixed-direction limit
     assert any(np.allclose(r[:2], centre) and r[2] < -0.99 * FAR_ANCHOR_M for r in g)
-    for (lo, hi), v in zip(bounds, g.T):
-        assert np.all((v >= lo) & (v <= hi))
 
 
 @pytest.mark.parametrize("a", [0.0, 0.4, 1.0])
