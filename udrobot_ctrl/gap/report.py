@@ -455,9 +455,10 @@ def set_aside_ambiguous(inp: Inputs, stacks: Stacks, where: Where, elim: Elimina
     the smoother reconstructed (the channels leave the fit little to go on); with every velocity measured the
     holdout replay separates identifiable look-alikes, and only an unidentifiable one sets an effect aside.
 
-    ``prior`` (name -> look-alikes) holds the effects set aside in the first reconstruction pass: confirmed again in
-    the second, they stay set aside, since that pass reconstructed the velocities with their force and so cannot
-    settle which look-alike acts (it would confirm whichever one it assumed).
+    ``prior`` (name -> look-alikes) holds the effects set aside in the first reconstruction pass: confirmed in the
+    second, they and their look-alikes stay set aside, since that pass reconstructed the velocities with the force
+    of one of them and so cannot settle which look-alike acts (it would confirm whichever one it assumed, or the
+    look-alike that best matches the assumed force).
 
     Returns
     -------
@@ -466,7 +467,7 @@ def set_aside_ambiguous(inp: Inputs, stacks: Stacks, where: Where, elim: Elimina
     stacks : Stacks
         With the ambiguous effects added to its identifiability.
     """
-    prior = prior or {}
+    prior = _lookalike_groups(prior or {})
     # with every velocity measured the holdout replay separates identifiable look-alikes (the tether of a tank run
     # and its quadratic-damping look-alike): only an unidentifiable one sets a confirmed effect aside there
     hidden, any_alike = set(stacks.identifiability.names), reconstructed(inp)
@@ -482,10 +483,22 @@ def set_aside_ambiguous(inp: Inputs, stacks: Stacks, where: Where, elim: Elimina
     if log:
         for k, v in amb.items():
             log(f"  set aside: {k} (its fit is matched as well by {', '.join(v)}; the runs cannot say which acts"
-                + ("; set aside in the first pass, whose reconstruction this pass assumed" if k in prior else "")
+                + ("; it or a look-alike was set aside in the first pass, whose reconstruction this pass assumed"
+                   if k in prior else "")
                 + ")")
     return (replace(elim, kept=tuple(rest), combination=combo, after=after),
             replace(stacks, identifiability=stacks.identifiability.with_ambiguous(amb)))
+
+
+def _lookalike_groups(prior: dict) -> dict:
+    """``prior`` (name -> look-alikes) made symmetric: each member of a group (a name and its look-alikes) maps to
+    the group's other members, in order."""
+    out = {}
+    for k, alts in prior.items():
+        group = (k, *alts)
+        for m in group:
+            out[m] = tuple(dict.fromkeys([*out.get(m, ()), *(g for g in group if g != m)]))
+    return out
 
 
 def set_aside_unconfirmed(stacks: Stacks, sel: Selection, where: Where, elim: Elimination, log=None) -> Stacks:

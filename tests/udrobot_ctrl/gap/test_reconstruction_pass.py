@@ -16,6 +16,7 @@ from udrobot_ctrl.dynamics.effects import PlantEffect
 from udrobot_ctrl.dynamics.plant import plant_parameters
 from udrobot_ctrl.gap.data import prepare, restoring_gradient
 from udrobot_ctrl.gap.effects import Actuation, plant_hooks
+from udrobot_ctrl.gap.report import _lookalike_groups
 from udrobot_ctrl.gap.shrink import effect_wrench, prepare_with_effects
 from udrobot_ctrl.io.runlog import write_run
 from udrobot_ctrl.vehicle import load_model
@@ -103,3 +104,16 @@ def test_stock_corrected_model_replay_reproduces_gap_after(tmp_path, capsys):
     assert g["value"] == pytest.approx(report["gap_after"]["value"], abs=10 * REPLAY_TOL)
     assert g["scored"] == report["gap_after"]["scored"]
     assert report["gap_after"]["value"] < 0.8 * report["gap_before"]["value"]
+
+
+def test_a_first_pass_lookalike_group_stays_set_aside_whichever_member_the_second_pass_confirms():
+    """The first pass set aside a linear damping matched as well by an inflow loss and a quadratic-damping error;
+    the second pass, smoothing with the linear damping's force, may confirm the quadratic one instead: every member of
+    the group maps to the others (a stock case of the blind score: inflow loss + linear damping, draw 1)."""
+    groups = _lookalike_groups({"linear_damping": ("thrust_inflow_loss", "quadratic_damping_error"),
+                                "cg_cb_offset": ("added_mass_error", "quadratic_damping_error")})
+    assert groups["quadratic_damping_error"] == ("linear_damping", "thrust_inflow_loss", "cg_cb_offset",
+                                                 "added_mass_error")
+    assert groups["thrust_inflow_loss"] == ("linear_damping", "quadratic_damping_error")
+    assert groups["linear_damping"] == ("thrust_inflow_loss", "quadratic_damping_error")
+    assert "buoyancy_offset" not in groups and _lookalike_groups({}) == {}
