@@ -30,6 +30,7 @@ from functools import lru_cache
 import numpy as np
 from scipy.optimize import lsq_linear, minimize
 from scipy.signal import savgol_coeffs
+from scipy.sparse import csr_matrix
 
 from udrobot_ctrl.dynamics.plant import PlantParameters, generalized_forces
 from udrobot_ctrl.gap import effects as fx
@@ -60,9 +61,13 @@ def _deriv_weights(win: int, dt: float) -> np.ndarray:
     return w
 
 
-def filter_forces(prep: Prepared, y, held=False):
+def filter_forces(prep: Prepared, y, held=False, at=None):
     """Apply :func:`deriv_kernel` to sample-wise forces y (n, ...): interval values (held: y_k on [t_k, t_k+1);
-    else the mean of the end points), then the weights; nan within m samples of the ends or of a nan."""
+    else the mean of the end points), then the weights; nan within m samples of the ends or of a nan.
+
+    ``at`` (sample indices, optional): return only those rows (len(at), ...), from :func:`row_filter`."""
+    if at is not None:
+        return row_filter(prep, at)(y, held)
     w = deriv_kernel(prep)
     m = w.size // 2
     y = np.asarray(y, float)
@@ -76,6 +81,28 @@ def filter_forces(prep: Prepared, y, held=False):
         acc += w[j] * yi[j: j + n - 2 * m]
     out[m: n - m] = acc
     return out
+
+
+def row_filter(prep: Prepared, at):
+    """:func:`filter_forces` at the sample indices ``at`` only, as a function ``(y, held=False) -> (len(at), ...)``:
+    the kernel's rows for those samples held once as a sparse matrix (the stack samples a few rows of a long run and
+    filters every regressor there; the same sums, in the same order, as the full-rate filter)."""
+    w = deriv_kernel(prep)
+    m = w.size // 2
+    n = prep.n
+    at = np.asarray(at, int)
+    ok = (at >= m) & (at < n - m)
+    indptr = np.r_[0, np.cumsum(np.where(ok, 2 * m, 0))]
+    indices = (at[ok, None] - m + np.arange(2 * m)[None, :]).ravel()
+    W = csr_matrix((np.tile(w, int(ok.sum())), indices, indptr), shape=(at.size, max(n - 1, 0)))
+
+    def apply(y, held=False):
+        y = np.asarray(y, float)
+        yi = y[:-1] if held else 0.5 * (y[:-1] + y[1:])
+        out = np.asarray(W @ yi.reshape(n - 1, -1)).reshape((at.size,) + y.shape[1:])
+        out[~ok] = np.nan
+        return out
+    return apply
 
 
 def residual(prep: Prepared, p: PlantParameters):
@@ -115,7 +142,7 @@ def build_stack(preps, p: PlantParameters, M_A, rate_hz=FIT_RATE_HZ):
         runs.append({"f": pr.f, "dt": pr.dt, "idx": idx, "rows": slice(row, row + idx.size), "name": pr.name,
                      "x": x, "nu": x[:, 6:], "eta": x[:, :6], "nu_dot": nud,
                      "surfaces": [(s[0], s[1]) for s in pr.surfaces], "labels": [s[2] for s in pr.surfaces],
-                     "smooth": (lambda y, pr=pr, held=False: filter_forces(pr, y, held))})
+                     "smooth": row_filter(pr, idx)})
         row += idx.size
     if not np.logical_and.reduce([pr.dof_ok for pr in preps]).any():
         raise ValueError("nothing is scoreable: no DOF's velocity is observed in every run (log depth, attitude or "

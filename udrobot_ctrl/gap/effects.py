@@ -91,11 +91,12 @@ class Stack:
     def full(self, func, held=False, filt=True):
         """Evaluate func(run) -> (n_full, ...) on each run at its full rate (raw logged state, held commands),
         filter it like the velocity derivative (``held``: a command held over each interval; ``filt=False``
-        for terms already built from the filtered nu_dot) and sample it at the stacked rows."""
+        for terms already built from the filtered nu_dot) and sample it at the stacked rows (``run["smooth"](y,
+        held)`` filters y and returns those rows)."""
         parts = []
         for r in self.runs:
             y = func(r)
-            parts.append((r["smooth"](y, held=held) if filt else y)[r["idx"]])
+            parts.append(r["smooth"](y, held=held) if filt else y[r["idx"]])
         return np.nan_to_num(np.concatenate(parts, axis=0))
 
 

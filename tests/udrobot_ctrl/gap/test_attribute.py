@@ -1,11 +1,12 @@
 """Fits that end on the edge of the catalogue's range are flagged (Attributor.at_bounds)."""
 from __future__ import annotations
 
+import numpy as np
 import pytest
 
 from udrobot_ctrl.dynamics.plant import plant_parameters
 from udrobot_ctrl.gap import effects as fx
-from udrobot_ctrl.gap.attribute import Attributor, build_stack
+from udrobot_ctrl.gap.attribute import Attributor, build_stack, filter_forces
 from udrobot_ctrl.gap.data import prepare
 from udrobot_ctrl.gap.identifiability import Restricted
 from udrobot_ctrl.vehicle import load_model
@@ -63,3 +64,19 @@ def test_bic_counts_only_the_shape_parameters_the_search_moves(attributor):
     free = attributor.fit([("quadratic_damping_error", (0.0,))])
     fixed = held.fit([("quadratic_damping_error", (0.0,))])
     assert free.k == fixed.k + 1 and free.rss == pytest.approx(fixed.rss)
+
+
+def test_filtering_only_the_stacked_rows_gives_the_full_filter_there():
+    """The stack filters forces only at its (decimated) rows: the same sums as the full-rate filter, bit for bit,
+    nan at the ends and next to a nan sample."""
+    run, _ = simulate(duration=10.0, rate=50.0, seed=5)
+    prep = prepare(run, P)
+    y = np.random.default_rng(0).normal(size=(prep.n, 6, 2))
+    y[200, 3] = np.nan
+    at = np.r_[0, 1, np.arange(2, prep.n, 5), prep.n - 1]
+    for held in (False, True):
+        full = filter_forces(prep, y, held)
+        part = filter_forces(prep, y, held, at=at)
+        np.testing.assert_array_equal(part, full[at])
+        assert np.isnan(part[0]).all() and np.isnan(part[-1]).all()
+        assert np.isnan(full[200, 3]).all() and np.isfinite(full[200, 2]).all()
