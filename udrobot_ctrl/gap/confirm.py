@@ -25,8 +25,9 @@ term that bends a lag template towards a lag of another form, a cross-coupled da
 negative) compensates for that other effect's template, it is not a second effect. The exception is an effect
 that **interacts** with a partner: an added-mass error next to a CG-CB offset, a current next to an inflow loss;
 alone, its single fit is biased by the partner it lacks and the replay can get worse, yet in the set dropping it
-worsens the replay in every holdout window (at least ``CONSISTENT_WINDOWS`` of them). A compensator does not: it
-trades error between windows.
+worsens the replay in every holdout window (at least ``CONSISTENT_WINDOWS`` of them, or so many that a sign test
+over the windows gives p < ``INTERACTING_P``, 15 of 16, with a rise above ``REPLAY_LARGE``). A compensator does
+not: it trades error between windows.
 
 The member that fails is dropped (one that does not help alone first, then the one with the weakest replay
 evidence), the rest are refitted jointly (their shapes re-optimised,
@@ -51,6 +52,10 @@ REPLAY_MATERIAL = 0.02  # fraction of gap_before
 REPLAY_P = 0.1  # one-sided p of the per-window rise (signed-rank and t, Bonferroni) below REPLAY_LARGE
 REPLAY_LARGE = 0.10  # fraction of gap_before: a rise this large is material without the test over windows
 CONSISTENT_WINDOWS = 0.95  # fraction of holdout windows whose replay error rises when an interacting effect is dropped
+#: ... or so many of them that a coin (a compensator trading error between windows) would give as many with a
+#: probability below this (one-sided sign test; 15 of 16 windows: 2.6e-4), the gap rising by more than REPLAY_LARGE
+#: (a partner carries a large share; a small consistent rise is a template correction)
+INTERACTING_P = 1e-3
 
 
 @dataclass(frozen=True)
@@ -125,6 +130,15 @@ def rise_fraction(without: np.ndarray, with_: np.ndarray) -> float:
     return float(np.mean(d > 0)) if d.size else 0.0
 
 
+def sign_p(without: np.ndarray, with_: np.ndarray) -> float:
+    """One-sided sign-test p that as many windows (of those that change) would be worse ``without`` by chance (1.0
+    when none change)."""
+    d = window_changes(without, with_)
+    if not d.size:
+        return 1.0
+    return float(stats.binomtest(int(np.sum(d > 0)), int(d.size), 0.5, alternative="greater").pvalue)
+
+
 def paired_rise(without: np.ndarray, with_: np.ndarray):
     """One-sided paired tests that ``without`` exceeds ``with_`` window by window: (W+, p).
 
@@ -181,6 +195,7 @@ class MemberTest:
     alone: Alone | None = None  # the effect alone against the nominal model (None: not checked)
     windows_worse: float = float("nan")  # fraction of holdout windows whose replay error rises when it is dropped
     fit_delta_bic: float = float("nan")  # fit-run BIC of the set minus that of the set without it (nan: unchecked)
+    windows_p: float = float("nan")  # one-sided sign-test p of that many windows worse (nan: unchecked)
 
     @property
     def passed_equation_error(self) -> bool:
@@ -198,9 +213,11 @@ class MemberTest:
 
     @property
     def interacting(self) -> bool:
-        """Dropping it worsens the replay in (nearly) every holdout window: needed in the set whatever it does
-        alone."""
-        return self.windows_worse >= CONSISTENT_WINDOWS
+        """Dropping it worsens the replay in (nearly) every holdout window (at least ``CONSISTENT_WINDOWS`` of them,
+        or so many that a sign test gives p < ``INTERACTING_P`` while the gap rises by more than ``REPLAY_LARGE``):
+        needed in the set whatever it does alone."""
+        return self.windows_worse >= CONSISTENT_WINDOWS or (self.windows_p < INTERACTING_P
+                                                            and self.gap_contribution > REPLAY_LARGE)
 
     @property
     def passed_alone(self) -> bool:
@@ -233,7 +250,7 @@ class MemberTest:
         out = {"fit_delta_bic": self.fit_delta_bic, "holdout_lr": self.holdout_lr,
                "holdout_gap_contribution": self.gap_contribution,
                "replay_w": self.replay_w, "replay_p": self.replay_p, "windows_worse": self.windows_worse,
-               "passed": self.passed}
+               "windows_p": self.windows_p, "passed": self.passed}
         if self.alone is not None:
             out |= {"alone_shrink": self.alone.shrink, "alone_w": self.alone.w, "alone_p": self.alone.p}
         return out
@@ -301,7 +318,7 @@ def check_members(att: Attributor, att_h: Attributor, combo: Combination, full: 
         t, pval = paired_rise(e_rest, e_full)
         contrib = (r_rest.gap.value - full.gap.value) / before.value if before.value > 0 else 0.0
         tests.append(MemberTest(n, lr, float(contrib), t, pval, alone.get(n), rise_fraction(e_rest, e_full),
-                                float(att.bic(combo.fit) - att.bic(fit_rest))))
+                                float(att.bic(combo.fit) - att.bic(fit_rest)), sign_p(e_rest, e_full)))
     return tuple(tests)
 
 

@@ -12,6 +12,7 @@ from udrobot_ctrl.gap import confirm
 from udrobot_ctrl.gap.attribute import HOLDOUT_CHI2, Combination, Fit
 from udrobot_ctrl.gap.confirm import (
     CONSISTENT_WINDOWS,
+    INTERACTING_P,
     REPLAY_LARGE,
     REPLAY_MATERIAL,
     REPLAY_P,
@@ -21,6 +22,7 @@ from udrobot_ctrl.gap.confirm import (
     backward_eliminate,
     paired_rise,
     rise_fraction,
+    sign_p,
     window_energy,
 )
 from udrobot_ctrl.gap.data import prepare
@@ -117,6 +119,25 @@ def test_an_interacting_member_passes_although_alone_it_makes_the_holdout_worse(
     comp = MemberTest("linear_damping", 170.0, 0.127, 120.0, 8e-4, Alone(-0.012, 60.0, 0.7), 0.81)
     assert not comp.interacting and not comp.passed and "on its own" in comp.reason()
     assert CONSISTENT_WINDOWS > 0.81
+
+
+def test_a_partner_worse_in_15_of_16_windows_interacts_a_compensator_in_13_does_not():
+    """A sign test over the windows: 15 of 16 worse when dropped (a water current next to a cross-coupled damping,
+    blind-score draw 2, raising the gap by 42 %) is no coin flip (p 2.6e-4), 13 of 16 can be (p 0.011), as a
+    compensator trades error between windows; a consistent rise of a few percent is a template correction."""
+    full = np.ones(16)
+    worse15 = np.r_[np.full(15, 2.0), 0.5]
+    worse13 = np.r_[np.full(13, 2.0), np.full(3, 0.5)]
+    p15, p13 = sign_p(worse15, full), sign_p(worse13, full)
+    assert p15 == pytest.approx(17 / 2 ** 16) and p13 == pytest.approx(697 / 2 ** 16)
+    assert sign_p(full, full) == 1.0
+    current = MemberTest("water_current", 1590.0, 0.42, 130.0, 6e-5, Alone(-0.057, 40.0, 0.9), 15 / 16, -900.0, p15)
+    assert current.windows_worse < CONSISTENT_WINDOWS and current.interacting and current.passed
+    comp = MemberTest("linear_damping", 170.0, 0.127, 120.0, 8e-4, Alone(-0.012, 60.0, 0.7), 13 / 16, -50.0, p13)
+    assert p13 > INTERACTING_P and not comp.interacting and not comp.passed
+    # consistent but small: an added-mass correction beside them raised the gap by 2 % in 15 of 16 windows
+    small = MemberTest("added_mass_error", 32.6, 0.02, 130.0, 9e-5, Alone(-0.29, 20.0, 1.0), 15 / 16, -20.0, p15)
+    assert small.gap_contribution <= REPLAY_LARGE and not small.interacting and not small.passed
 
 
 def test_a_member_the_fit_runs_no_longer_prefer_fails():
