@@ -7,6 +7,14 @@ Equation error. With smoothed measured velocities nu and their derivatives nu_do
 
 and an effect predicts it as ``b0(shape) + A(shape) a`` (:mod:`udrobot_ctrl.gap.effects`).
 
+Composition. Effects in a set add, except where the plant chains them: the thrusters deliver lag(map(f)) with the
+static maps (deadband, asymmetry) on the command, the lag after them and the inflow loss on the lagged thrust. So in
+a set with a lag (whose filter its shape alone sets), an inflow loss is fitted on the lagged commands
+(``Effect.reads_delivered``) and a static map's thrust change is passed through the lag (``Effect.maps_command``;
+exact for a lag of the thrust, the small-signal lag for one of the rotor speed): :meth:`Attributor.upstream`.
+Summing them instead leaves a misfit a template of another effect takes up (a quadratic damping error beside a
+lag standing in for the inflow loss).
+
 Likelihood and noise floor. Each DOF i has its own Gaussian noise of unknown variance; maximising over
 the variances gives the concentrated log-likelihood ``-N/2 sum_i log(RSS_i / N)`` (fitted by iteratively
 re-weighted bounded least squares). The residual is serially correlated (smoothing, slow dynamics), so the
@@ -204,20 +212,48 @@ class Attributor:
         self.s, self.r, self.dofs = stack, r, dofs
         self.cat = catalogue or fx.catalogue()
         self.N = stack.n
-        self._cache = {}
+        self._cache, self._stacks = {}, {}  # designs; stacks with filtered commands (see design)
         self._dof_cache, self._gram_cache = {}, {}  # see _dof_design, _gram
         self._free_shapes = {}  # see free_shapes
         self.n_eff = float(self.N)
 
-    def design(self, name, shape) -> fx.Design:
-        """The effect's :class:`~udrobot_ctrl.gap.effects.Design` on this stack (non-finite entries zeroed), cached."""
-        key = (name, tuple(np.round(shape, 6)))
+    def design(self, name, shape, upstream=()) -> fx.Design:
+        """The effect's :class:`~udrobot_ctrl.gap.effects.Design` on this stack (non-finite entries zeroed), cached.
+
+        ``upstream``: (name, shape) of the set's members whose input filters act together with this effect in the
+        plant's order (:meth:`upstream`): an effect that reads the delivered thrust sees the commands through them,
+        a static map's thrust change goes through them."""
+        key = (name, tuple(np.round(shape, 6)), _rounded(upstream))
         if key not in self._cache:
-            d = fx.Design(*self.cat[name].design(self.s, tuple(shape)))
+            s = self._composed(name, upstream) if upstream else self.s
+            d = fx.Design(*self.cat[name].design(s, tuple(shape)))
             if len(self._cache) > 400:
                 self._cache.clear()
             self._cache[key] = d._replace(b0=np.nan_to_num(d.b0), A=np.nan_to_num(d.A))
         return self._cache[key]
+
+    def upstream(self, name, terms) -> tuple:
+        """(name, shape) of the members of ``terms`` whose input filter (a lag: shape only) composes with ``name`` in
+        the plant's order: an inflow loss reads the lagged thrust, a deadband's or an asymmetry's thrust change is
+        lagged; () for the other effects."""
+        eff = self.cat[name]
+        if not (eff.reads_delivered or eff.maps_command):
+            return ()
+        return tuple((n, tuple(sh)) for n, sh in terms
+                     if n != name and self.cat[n].command_filter(tuple(sh)) is not None)
+
+    def _composed(self, name, upstream) -> fx.Stack:
+        """The stack as effect ``name`` sees it behind or before the filters of ``upstream`` (cached)."""
+        maps = self.cat[name].maps_command
+        key = (maps, _rounded(upstream))
+        if key not in self._stacks:
+            if len(self._stacks) > 40:
+                self._stacks.clear()
+            if maps:
+                self._stacks[key] = self.s.followed_by([self.cat[n].change_filter(sh) for n, sh in upstream])
+            else:
+                self._stacks[key] = self.s.delivered([self.cat[n].command_filter(sh) for n, sh in upstream])
+        return self._stacks[key]
 
     def at_bounds(self, fit: Fit, name, rel=1e-3) -> dict:
         """Parameters of ``name`` in ``fit`` that ended on a bound of their search: name -> (value, bound).
@@ -249,20 +285,21 @@ class Attributor:
                     out[pname] = (float(value), float(bound))
         return out
 
-    def _dof_design(self, name, shape):
+    def _dof_design(self, name, shape, upstream=()):
         """Regressors of a design on the scored DOFs, (nd, k, n) C-contiguous (kept with the design cache)."""
-        key = (name, tuple(np.round(shape, 6)), self.dofs.tobytes())
+        key = (name, tuple(np.round(shape, 6)), _rounded(upstream), self.dofs.tobytes())
         if key not in self._dof_cache:
             if len(self._dof_cache) > 400:
                 self._dof_cache.clear()
                 self._gram_cache.clear()
-            A = self.design(name, shape)[1]
+            A = self.design(name, shape, upstream)[1]
             self._dof_cache[key] = np.ascontiguousarray(A[:, self.dofs, :].transpose(1, 2, 0))
         return self._dof_cache[key]
 
     def _gram(self, ti, tj, At_i, At_j):
         """Per-DOF cross products At_i At_j^T (nd, k_i, k_j) of two terms' regressors, cached per pair."""
-        key = (ti[0], tuple(np.round(ti[1], 6)), tj[0], tuple(np.round(tj[1], 6)), self.dofs.tobytes())
+        key = (ti[0], tuple(np.round(ti[1], 6)), _rounded(ti[2]), tj[0], tuple(np.round(tj[1], 6)), _rounded(tj[2]),
+               self.dofs.tobytes())
         if key not in self._gram_cache:
             if len(self._gram_cache) > 4000:
                 self._gram_cache.clear()
@@ -275,9 +312,10 @@ class Attributor:
         b0 = np.zeros_like(self.r)
         keys, names, lo, hi, owner = [], [], [], [], []
         for name, shape in terms:
-            b, A, nm, l, h = self.design(name, shape)
+            up = self.upstream(name, terms)
+            b, A, nm, l, h = self.design(name, shape, up)
             b0 = b0 + b
-            keys.append((name, shape))
+            keys.append((name, shape, up))
             names += list(nm)
             lo.append(l)
             hi.append(h)
@@ -287,7 +325,7 @@ class Attributor:
         sig = np.sqrt(np.mean(self.r[:, d] ** 2, axis=0)) + 1e-12
         a = np.zeros(k)
         if k:
-            Ats = [self._dof_design(name, shape) for name, shape in keys]  # (nd, k_i, n) per term
+            Ats = [self._dof_design(*key) for key in keys]  # (nd, k_i, n) per term
             cuts = np.cumsum([0] + [At.shape[1] for At in Ats])
             G = np.empty((int(d.sum()), k, k))  # per-DOF normal equations, blocks cached per pair of terms
             for i, ti in enumerate(keys):
@@ -397,12 +435,18 @@ class Attributor:
         return tau, full
 
 
+def _rounded(terms) -> tuple:
+    """A cache key of (name, shape) pairs."""
+    return tuple((n, tuple(np.round(sh, 6))) for n, sh in terms)
+
+
 def holdout_loglik(att_h: Attributor, fit: Fit):
     """sum_i log(RSS_i/N) on a holdout stack with the parameters of ``fit`` frozen."""
     d = att_h.dofs
     pred = np.zeros_like(att_h.r)
+    terms = [(n, fit.shapes[n]) for n in fit.names]
     for name in fit.names:
-        des = att_h.design(name, fit.shapes[name])
+        des = att_h.design(name, fit.shapes[name], att_h.upstream(name, terms))
         a = np.array([fit.params[name][nm] for nm in des.names])
         pred += des.b0 + (np.einsum("nik,k->ni", des.A, a) if a.size else 0.0)
     e = (att_h.r - pred)[:, d]

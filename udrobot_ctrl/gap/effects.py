@@ -43,7 +43,7 @@ Templates (the diagnoser's lumped forms; a truth generator should use different 
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
-from typing import NamedTuple
+from typing import ClassVar, NamedTuple
 
 import numpy as np
 
@@ -98,6 +98,31 @@ class Stack:
             y = func(r)
             parts.append(r["smooth"](y, held=held) if filt else y[r["idx"]])
         return np.nan_to_num(np.concatenate(parts, axis=0))
+
+    def delivered(self, filters) -> Stack:
+        """This stack with each run's command sequence passed through ``filters`` (``(f (n, k), dt) -> f``, in
+        order): the thrust the actuators deliver, which effects downstream of the filters read."""
+        runs = []
+        for r in self.runs:
+            f = r["f"]
+            for flt in filters:
+                f = flt(f, r["dt"])
+            runs.append({**r, "f": f})
+        return replace(self, runs=runs)
+
+    def followed_by(self, filters) -> Stack:
+        """This stack with ``filters`` (``(df (n, k), dt) -> df``, linear, in order) recorded as what a static map's
+        thrust change goes through before it acts (``run["after"]``; :meth:`Effect.change_filter`)."""
+        def chain(df, dt):
+            for flt in filters:
+                df = flt(df, dt)
+            return df
+        return replace(self, runs=[{**r, "after": chain} for r in self.runs])
+
+
+def _after(r, df):
+    """A static map's thrust change ``df`` (n, k) of run ``r`` as it reaches the vehicle (``Stack.followed_by``)."""
+    return r["after"](df, r["dt"]) if "after" in r else df
 
 
 def _to_body(R, vec):
@@ -173,6 +198,23 @@ class Effect:
     #: shape parameters whose range ends are physical forms (an exponent 1 or 2), not limits of the search: a fit
     #: there is not "at the edge of the catalogue's range"
     physical_ends: tuple = ()
+    #: its regressors read the thrust the actuators deliver, i.e. after the input filters of the other effects in a
+    #: set (the plant applies an inflow loss to the lagged thrust): see :meth:`command_filter`
+    reads_delivered: ClassVar[bool] = False
+    #: a static map of the command (deadband, asymmetry): the thrust it changes passes through the input filters
+    #: that follow it in the plant (a lag), see :meth:`change_filter`
+    maps_command: ClassVar[bool] = False
+
+    def change_filter(self, shape):
+        """The linear filter ``(df (n, k), dt) -> df_delivered`` a thrust change made upstream of this effect's input
+        filter goes through at a shape (a lag: its small-signal form), else None."""
+        return None
+
+    def command_filter(self, shape):
+        """The input filter ``(f (n, k), dt) -> f_delivered`` this effect applies to the commands at a shape, when
+        the shape alone sets it (no amplitude parameter: a lag), else None. Effects that read the delivered thrust
+        (``reads_delivered``) are fitted on commands passed through the filters of the other members of a set."""
+        return None
 
     def search_space(self, s: Stack):
         """(grid, bounds) of the shape search on stack ``s``: the fixed ``shape_grid`` and ``shape_bounds`` unless
@@ -272,6 +314,8 @@ def plant_hooks(e: PlantEffect, p: PlantParameters, actuation: Actuation) -> Hoo
 
 # ------------------------------------------------------------------------------------------- thrusters
 class InflowLoss(Effect):
+    reads_delivered = True  # the plant's inflow loss acts on the clipped, mapped and lagged thrust
+
     def design(self, s, shape):
         def cols(r):
             ua = r["nu"] @ s.inflow  # (n, k) axial advance speed
@@ -325,6 +369,8 @@ class Deadband(Effect):
     error or a constant offset in disguise. For a commanded wrench the shift is per DOF (see ``WRENCH_DOF_NOTE``).
     """
 
+    maps_command = True
+
     def design(self, s, shape):
         w, p = shape
         caps = None if _per_dof(s) else thruster_capacities(s.p, s.B)
@@ -333,8 +379,8 @@ class Deadband(Effect):
         def terms(r):  # b0 and the shift's regressor of one run, in one evaluation of the plant's deadband
             d, unit = pfx.deadband_terms(pfx.NUMPY, r["f"], s.f_ref, w, p, caps)
             inside = np.abs(r["f"]) < d
-            b0 = np.where(inside, -r["f"], 0.0) @ s.B.T
-            shift = np.where(inside, 0.0, -unit) * x
+            b0 = _after(r, np.where(inside, -r["f"], 0.0)) @ s.B.T
+            shift = _after(r, np.where(inside, 0.0, -unit) * x)
             col = shift[:, :, None] * np.eye(6)[None] if _per_dof(s) else (shift @ s.B.T)[..., None]
             return np.concatenate([b0[..., None], col], axis=-1)
         both = s.full(terms, held=True)
@@ -349,13 +395,15 @@ class Asymmetry(Effect):
     """Reverse thrust ``(1 - reverse_loss) f`` for f < 0, reverse_loss in [-0.5, 0.7] (a reversed propeller
     gives 30 % to 150 % of its forward thrust; the T200's is about 80 %). Per DOF for a commanded wrench."""
 
+    maps_command = True
+
     def design(self, s, shape):
         x = crossing(s)
         if _per_dof(s):
-            col = s.full(lambda r: (-np.minimum(r["f"], 0.0) * x)[:, :, None] * np.eye(6)[None], held=True)
+            col = s.full(lambda r: _after(r, -np.minimum(r["f"], 0.0) * x)[:, :, None] * np.eye(6)[None], held=True)
             return Design(np.zeros((s.n, 6)), col, tuple(f"reverse_loss_{k}" for k in DOF), np.full(6, -0.5),
                           np.full(6, 0.7))
-        col = s.full(lambda r: (-np.minimum(r["f"], 0.0) * x) @ s.B.T, held=True)
+        col = s.full(lambda r: _after(r, -np.minimum(r["f"], 0.0) * x) @ s.B.T, held=True)
         return Design(np.zeros((s.n, 6)), col[..., None], ("reverse_loss",), np.array([-0.5]), np.array([0.7]))
 
 
@@ -368,6 +416,16 @@ class Lag(Effect):
     the thrust's rise from rest for the same T (63 % at 1.59 T for k = 2) and the faster its fall. Shape only
     (both parameters), no amplitude.
     """
+
+    def command_filter(self, shape):
+        T, k = shape
+        return lambda f, dt: pfx.first_order_lag(f, dt, T, thrust_exponent=k)
+
+    def change_filter(self, shape):
+        """A small thrust change df passes the lag of time constant T whatever k (the state's change ds = df /
+        (k |s|^(k-1)) is lagged and mapped back by the same slowly varying factor), from rest."""
+        T, _ = shape
+        return lambda df, dt: pfx.first_order_lag(df, dt, T, f0=np.zeros(df.shape[1:]))
 
     def design(self, s, shape):
         T, k = shape

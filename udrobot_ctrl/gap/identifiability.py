@@ -280,6 +280,7 @@ class Restricted(fx.Effect):
         super().__init__(inner.name, inner.meaning, inner.shape_names, inner.shape_grid, inner.shape_bounds,
                          inner.refine, inner.mimics, inner.excited_by, inner.physical_ends)
         self.inner = inner
+        self.reads_delivered, self.maps_command = inner.reads_delivered, inner.maps_command
         self.frozen = tuple(frozen)
         self.forms = dict(forms or {})
 
@@ -300,6 +301,12 @@ class Restricted(fx.Effect):
 
     def refine_step(self, s, x0):
         return self.inner.refine_step(s, x0)
+
+    def command_filter(self, shape):
+        return self.inner.command_filter(shape)
+
+    def change_filter(self, shape):
+        return self.inner.change_filter(shape)
 
     def hooks(self, params, p, actuation):
         return self.inner.hooks(params, p, actuation)
