@@ -102,22 +102,22 @@ class Stack:
     def delivered(self, filters) -> Stack:
         """This stack with each run's command sequence passed through ``filters`` (``(f (n, k), dt) -> f``, in
         order): the thrust the actuators deliver, which effects downstream of the filters read."""
-        runs = []
-        for r in self.runs:
-            f = r["f"]
-            for flt in filters:
-                f = flt(f, r["dt"])
-            runs.append({**r, "f": f})
-        return replace(self, runs=runs)
+        chain = _chained(filters)
+        return replace(self, runs=[{**r, "f": chain(r["f"], r["dt"])} for r in self.runs])
 
     def followed_by(self, filters) -> Stack:
         """This stack with ``filters`` (``(df (n, k), dt) -> df``, linear, in order) recorded as what a static map's
         thrust change goes through before it acts (``run["after"]``; :meth:`Effect.change_filter`)."""
-        def chain(df, dt):
-            for flt in filters:
-                df = flt(df, dt)
-            return df
-        return replace(self, runs=[{**r, "after": chain} for r in self.runs])
+        return replace(self, runs=[{**r, "after": _chained(filters)} for r in self.runs])
+
+
+def _chained(filters):
+    """One filter ``(y, dt) -> y`` applying ``filters`` in order."""
+    def chain(y, dt):
+        for flt in filters:
+            y = flt(y, dt)
+        return y
+    return chain
 
 
 def _after(r, df):
@@ -428,8 +428,8 @@ class Lag(Effect):
         return lambda df, dt: pfx.first_order_lag(df, dt, T, f0=np.zeros(df.shape[1:]))
 
     def design(self, s, shape):
-        T, k = shape
-        b0 = s.full(lambda r: (pfx.first_order_lag(r["f"], r["dt"], T, thrust_exponent=k) - r["f"]) @ s.B.T,
+        lag = self.command_filter(shape)
+        b0 = s.full(lambda r: (lag(r["f"], r["dt"]) - r["f"]) @ s.B.T,
                     held=True)
         return Design(b0, np.zeros((s.n, 6, 0)), (), np.zeros(0), np.zeros(0))
 

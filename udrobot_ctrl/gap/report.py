@@ -548,7 +548,6 @@ def set_aside_unconfirmed(stacks: Stacks, sel: Selection, where: Where, elim: El
     return replace(stacks, identifiability=ident.with_unconfirmed(found).with_not_excluded(spare))
 
 
-
 def _wall_entry(params, stack, p) -> dict:
     """``matters_below_m`` and ``matters_below`` of a significant wall effect (see :func:`wall_distances`)."""
     speed95 = float(np.nanpercentile(np.hypot(stack.nu[:, 0], stack.nu[:, 1]), 95))
