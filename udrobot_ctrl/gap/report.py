@@ -632,8 +632,8 @@ def _method(window_s) -> dict:
                         f"{100 * REPLAY_MATERIAL:g}% of gap_before (below {100 * REPLAY_LARGE:g}%: consistently "
                         f"over the windows, one-sided p < {REPLAY_P:g}), and alone it shrinks the holdout replay "
                         f"gap by more than {100 * REPLAY_MATERIAL:g}% (or, interacting with a partner, dropping it "
-                        f"worsens at least {100 * CONSISTENT_WINDOWS:g}% of the windows, or so many that a sign test "
-                        f"gives p < {INTERACTING_P:g} with a rise above {100 * REPLAY_LARGE:g}%); the weakest "
+                        f"worsens at least {100 * CONSISTENT_WINDOWS:g}% of the windows, or raises the gap by more "
+                        f"than {100 * REPLAY_LARGE:g}% with a window-by-window p < {INTERACTING_P:g}); the weakest "
                         f"failing one "
                         f"is dropped and the rest refitted until all pass, then each dropped effect is re-admitted "
                         f"once if, added back, every member passes",
