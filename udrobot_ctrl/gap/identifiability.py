@@ -240,8 +240,8 @@ class Identifiability:
             return self.effects[name].reason()
         alts = self.ambiguous[name]
         hidden = [a for a in alts if not self.effects[a].identified]
-        line = (f"on the observed DOFs ({', '.join(self.observed_dofs())}) its fit is matched as well by "
-                f"{', '.join(alts)}")
+        line = (f"on the observed DOFs ({', '.join(self.observed_dofs())}) its fit, or alone the holdout replay, is "
+                f"matched as well by {', '.join(alts)}")
         if hidden:
             line += f" ({', '.join(hidden)}: not identifiable from these channels)"
         fixes = [self.effects[hidden[0]].reason()] if hidden else []

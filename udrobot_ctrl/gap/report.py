@@ -447,7 +447,8 @@ def confirm(inp: Inputs, stacks: Stacks, sel: Selection, where: Where, singles: 
                               _replayer(inp, stacks, before.scored), inp.window_s, inp.holdout, alone=alone, log=log)
 
 
-def set_aside_ambiguous(inp: Inputs, stacks: Stacks, where: Where, elim: Elimination, log=None, prior=None):
+def set_aside_ambiguous(inp: Inputs, stacks: Stacks, where: Where, elim: Elimination, log=None, prior=None,
+                        shrink=None):
     """Step 3b: a confirmed effect whose fit another effect matches as well (a look-alike within ``BIC_STRONG`` on
     the observed DOFs) is not significant: the runs cannot say which of the two acts (e.g. without a DVL, a
     heave-side thrust loss and a tether whose drag needs the unobserved surge speed; a pitch added-mass error and a
@@ -455,6 +456,12 @@ def set_aside_ambiguous(inp: Inputs, stacks: Stacks, where: Where, elim: Elimina
     look-alikes; the rest is refitted and replayed. An identifiable look-alike counts only on runs whose velocities
     the smoother reconstructed (the channels leave the fit little to go on); with every velocity measured the
     holdout replay separates identifiable look-alikes, and only an unidentifiable one sets an effect aside.
+
+    On reconstructed runs the holdout replay also names look-alikes: an identifiable effect outside the confirmed
+    set that alone (``shrink``: name -> its single-effect holdout shrink) shrinks the holdout gap by more than the
+    whole confirmed set does is a look-alike of every confirmed member (without a DVL, an inflow loss and a linear
+    damping that the equation error on the reconstructed surge speed ranks below a quadratic-damping error, which
+    alone explains less of the holdout than either of them).
 
     ``prior`` (name -> look-alikes) holds the effects set aside in the first reconstruction pass: confirmed in the
     second, they and their look-alikes stay set aside, since that pass reconstructed the velocities with the force
@@ -472,7 +479,8 @@ def set_aside_ambiguous(inp: Inputs, stacks: Stacks, where: Where, elim: Elimina
     # with every velocity measured the holdout replay separates identifiable look-alikes (the tether of a tank run
     # and its quadratic-damping look-alike): only an unidentifiable one sets a confirmed effect aside there
     hidden, any_alike = set(stacks.identifiability.names), reconstructed(inp)
-    amb = {k: [a for a in dict.fromkeys([*elim.combination.indistinguishable.get(k, ()), *prior.get(k, ())])
+    rivals = replay_rivals(elim, where.before, shrink or {}, hidden) if any_alike else []
+    amb = {k: [a for a in dict.fromkeys([*elim.combination.indistinguishable.get(k, ()), *prior.get(k, ()), *rivals])
                if any_alike or a in hidden] for k in elim.kept}
     amb = {k: v for k, v in amb.items() if v}
     if not amb:
@@ -483,12 +491,27 @@ def set_aside_ambiguous(inp: Inputs, stacks: Stacks, where: Where, elim: Elimina
              Replay((), where.before, where.nominal_sims[len(inp.fit):]))
     if log:
         for k, v in amb.items():
-            log(f"  set aside: {k} (its fit is matched as well by {', '.join(v)}; the runs cannot say which acts"
+            fit_alike = [a for a in v if a not in rivals]
+            log(f"  set aside: {k} ("
+                + "; ".join(([f"its fit is matched as well by {', '.join(fit_alike)}"] if fit_alike else [])
+                            + ([f"alone, {', '.join(a for a in v if a in rivals)} explain more of the holdout gap "
+                                f"than the confirmed set"] if any(a in rivals for a in v) else []))
+                + "; the runs cannot say which acts"
                 + ("; it or a look-alike was set aside in the first pass, whose reconstruction this pass assumed"
                    if k in prior else "")
                 + ")")
     return (replace(elim, kept=tuple(rest), combination=combo, after=after),
             replace(stacks, identifiability=stacks.identifiability.with_ambiguous(amb)))
+
+
+def replay_rivals(elim: Elimination, before: GapScore, shrink: dict, hidden) -> list:
+    """Identifiable effects outside the confirmed set that alone shrink the holdout gap by more than the whole set
+    (``shrink``: name -> single-effect holdout shrink; ``hidden``: the unidentifiable ones), best first."""
+    if not elim.kept or not before.value > 0:
+        return []
+    set_shrink = 1 - elim.after.gap.value / before.value
+    out = [n for n, s in shrink.items() if n not in elim.kept and n not in hidden and s > set_shrink]
+    return sorted(out, key=lambda n: -shrink[n])
 
 
 def _lookalike_groups(prior: dict) -> dict:
@@ -711,7 +734,7 @@ def diagnosis_pass(inp: Inputs, say, t0, prior_ambiguous=None) -> Pass:
     b = where.before.value
     shrink = {n: (1 - r.gap.value / b) if b > 0 else 0.0 for n, r in singles.items()}
     confirmed = confirm(inp, stacks, sel, where, singles, log=say)
-    elim, stacks = set_aside_ambiguous(inp, stacks, where, confirmed, log=say, prior=prior_ambiguous)
+    elim, stacks = set_aside_ambiguous(inp, stacks, where, confirmed, log=say, prior=prior_ambiguous, shrink=shrink)
     stacks = set_aside_unconfirmed(stacks, sel, where, elim, log=say)
     return Pass(where, stacks, sel, shrink, elim, confirmed)
 
@@ -758,6 +781,13 @@ def diagnose(model, runs, holdout=None, window_s=8.0, effects=None, log=None, mo
         inp = reconstruct_with(inp, res.stacks.actuation, first.combination.fit, first.kept)
         set_aside = {k: res.stacks.identifiability.ambiguous[k] for k in first.kept if k not in res.elim.kept}
         res = diagnosis_pass(inp, say, t0, prior_ambiguous=set_aside)
+        # what pass 1 set aside stays listed: pass 2 smoothed with its force, so its residual is gone from there
+        listed = res.stacks.identifiability
+        left = {k: v for k, v in set_aside.items() if k not in listed.ambiguous}
+        if left:
+            say(f"  still set aside from pass 1: {', '.join(left)} (the runs cannot say which of them and their "
+                f"look-alikes acts)")
+            res = replace(res, stacks=replace(res.stacks, identifiability=listed.with_ambiguous(left)))
         inp = replace(inp, notes=inp.notes + [
             f"reconstruction: the unlogged velocities were smoothed twice, first with the nominal plant (confirmed "
             f"on the holdout then: {', '.join(first.kept)}), then with those effects' force added (significant: "
