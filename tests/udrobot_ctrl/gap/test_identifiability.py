@@ -136,7 +136,8 @@ def test_ambiguity_is_symmetric_and_names_what_would_settle_it():
     amb = ident.with_ambiguous({"added_mass_error": ["cg_cb_offset", "tether_drag"]})
     assert set(amb.names) == {"added_mass_error", "cg_cb_offset", "tether_drag"}
     why = amb.reason("added_mass_error")
-    assert why.startswith("on the observed DOFs (Z, K, M, N) its fit, or alone the holdout replay, is matched as well by cg_cb_offset, tether_drag")
+    assert why.startswith("on the observed DOFs (Z, K, M, N) its fit, or alone the holdout replay, is matched as "
+                          "well by cg_cb_offset, tether_drag")
     assert "tether_drag: not identifiable" in why and "DVL" in why
     assert "to tell it from cg_cb_offset: forced pitch and roll steps" in why
     assert "matched as well by added_mass_error" in amb.reason("cg_cb_offset")
