@@ -115,11 +115,15 @@ class FormCheck:
         The end it does not search.
     causes : tuple of str
         Keys of :data:`MISSING` for the parameters the other end loses.
+    dof_share : tuple of float
+        Per DOF (X Y Z K M N), the largest share of noise-normalised regressor energy there of the parameters the
+        other end loses (where the untested form would act).
     """
 
     kept: float
     other: float
     causes: tuple = ()
+    dof_share: tuple = ()
 
 
 @dataclass
@@ -151,10 +155,12 @@ class EffectCheck:
         return out
 
     def acting_in(self, dofs, min_share: float = ACTS_SHARE) -> list:
-        """The parameters the channels do not identify that act in any of the DOF indices ``dofs`` (hold at least
-        ``min_share`` of their noise-normalised regressor energy there)."""
-        return [c.name for c in self.params if not c.identified and len(c.dof_share) == 6
-                and any(c.dof_share[i] >= min_share for i in dofs)]
+        """The parameters the channels do not identify, and the forms held at one end, that act in any of the DOF
+        indices ``dofs`` (hold at least ``min_share`` of their noise-normalised regressor energy there; a held form:
+        the parameters its other end loses)."""
+        held = [(c.name, c.dof_share) for c in self.params if not c.identified]
+        held += [(f"{k} form", f.dof_share) for k, f in self.forms.items()]
+        return [n for n, share in held if len(share) == 6 and any(share[i] >= min_share for i in dofs)]
 
     def reason(self) -> str:
         """Why parameters are not identified, with the measurement that would fix it."""
@@ -504,7 +510,9 @@ def _forms(eff, stack, stacks, sigma, observed, top) -> dict:
         if any(not bad[n].share >= SHARE_MIN for n in lost):
             continue  # the other form acts elsewhere (less in the observed DOFs), it does not hinge on a reconstruction
         causes = tuple(dict.fromkeys(x for n in sorted(lost) for x in bad[n].causes))
-        out[k] = FormCheck(good, e1 if good == e2 else e2, causes)
+        shares = [bad[n].dof_share for n in sorted(lost) if len(bad[n].dof_share) == 6]
+        out[k] = FormCheck(good, e1 if good == e2 else e2, causes,
+                           tuple(float(v) for v in np.max(shares, axis=0)) if shares else ())
     return out
 
 
