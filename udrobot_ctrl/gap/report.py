@@ -457,11 +457,11 @@ def set_aside_ambiguous(inp: Inputs, stacks: Stacks, where: Where, elim: Elimina
     the smoother reconstructed (the channels leave the fit little to go on); with every velocity measured the
     holdout replay separates identifiable look-alikes, and only an unidentifiable one sets an effect aside.
 
-    On reconstructed runs the holdout replay also names look-alikes: an identifiable effect outside the confirmed
-    set that alone (``shrink``: name -> its single-effect holdout shrink) shrinks the holdout gap by more than the
-    whole confirmed set does is a look-alike of every confirmed member (without a DVL, an inflow loss and a linear
-    damping that the equation error on the reconstructed surge speed ranks below a quadratic-damping error, which
-    alone explains less of the holdout than either of them).
+    On reconstructed runs the holdout replay also names look-alikes (:func:`replay_rivals`): an effect outside the
+    confirmed set that alone (``shrink``: name -> its single-effect holdout shrink) shrinks the holdout gap by more
+    than ``REPLAY_MATERIAL`` beyond what the whole confirmed set does is a look-alike of every confirmed member
+    (without a DVL, an inflow loss and a linear damping that the equation error on the reconstructed surge speed
+    ranks below a quadratic-damping error, which alone explains less of the holdout than either of them).
 
     ``prior`` (name -> look-alikes) holds the effects set aside in the first reconstruction pass: confirmed in the
     second, they and their look-alikes stay set aside, since that pass reconstructed the velocities with the force
@@ -479,7 +479,7 @@ def set_aside_ambiguous(inp: Inputs, stacks: Stacks, where: Where, elim: Elimina
     # with every velocity measured the holdout replay separates identifiable look-alikes (the tether of a tank run
     # and its quadratic-damping look-alike): only an unidentifiable one sets a confirmed effect aside there
     hidden, any_alike = set(stacks.identifiability.names), reconstructed(inp)
-    rivals = replay_rivals(elim, where.before, shrink or {}, hidden) if any_alike else []
+    rivals = replay_rivals(elim, where.before, shrink or {}) if any_alike else []
     amb = {k: [a for a in dict.fromkeys([*elim.combination.indistinguishable.get(k, ()), *prior.get(k, ()), *rivals])
                if any_alike or a in hidden] for k in elim.kept}
     amb = {k: v for k, v in amb.items() if v}
@@ -504,13 +504,15 @@ def set_aside_ambiguous(inp: Inputs, stacks: Stacks, where: Where, elim: Elimina
             replace(stacks, identifiability=stacks.identifiability.with_ambiguous(amb)))
 
 
-def replay_rivals(elim: Elimination, before: GapScore, shrink: dict, hidden) -> list:
-    """Identifiable effects outside the confirmed set that alone shrink the holdout gap by more than the whole set
-    (``shrink``: name -> single-effect holdout shrink; ``hidden``: the unidentifiable ones), best first."""
+def replay_rivals(elim: Elimination, before: GapScore, shrink: dict) -> list:
+    """Effects outside the confirmed set that alone shrink the holdout gap by more than ``REPLAY_MATERIAL`` beyond
+    what the whole set shrinks it (at least beyond no shrink; ``shrink``: name -> single-effect holdout shrink), best
+    first. An unidentifiable one counts too: its replay with what the channels fit of it explains more of the gap
+    than the set (without a DVL, an inflow loss whose fit hinges on the reconstructed surge speed)."""
     if not elim.kept or not before.value > 0:
         return []
-    set_shrink = 1 - elim.after.gap.value / before.value
-    out = [n for n, s in shrink.items() if n not in elim.kept and n not in hidden and s > set_shrink]
+    floor = max(1 - elim.after.gap.value / before.value, 0.0) + REPLAY_MATERIAL
+    out = [n for n, s in shrink.items() if n not in elim.kept and s > floor]
     return sorted(out, key=lambda n: -shrink[n])
 
 
