@@ -106,6 +106,10 @@ def test_a_rise_that_flips_sign_over_the_windows_is_not_material():
     assert not trader.passed and not trader.passed_replay and "not consistently" in trader.reason()
     steady = MemberTest("buoyancy_offset", 70.0, 0.05, 60.0, 0.5 * REPLAY_P, Alone(0.30, 60.0, 0.03), 0.8)
     assert steady.passed
+    # a rise below 10 % carried by a few windows (a t-test p of 0.042) while most improve: a quadratic-damping error
+    # beside a cross-coupled damping (all-pairs bench; every kept member like it in the bench logs was false)
+    few = MemberTest("quadratic_damping_error", 93.5, 0.033, 40.0, 0.042, Alone(0.05, 30.0, 0.2), 0.31)
+    assert not few.passed_replay and not few.passed and "31% of them worse" in few.reason()
     # a large rise is material however it is spread: a tether acts at speed, in a few of the eleven windows
     burst = MemberTest("tether_drag", 100.0, 0.65, 40.0, 0.12, Alone(0.60, 40.0, 0.1), 0.64)
     assert burst.gap_contribution > REPLAY_LARGE and burst.passed
