@@ -247,8 +247,9 @@ class MemberTest:
                        f"gap_before (<= {100 * REPLAY_MATERIAL:g}%)")
         elif not self.passed_replay:
             why.append(f"dropping it raises the holdout replay gap by {100 * self.gap_contribution:+.1f}% of "
-                       f"gap_before, but not consistently over the windows (p {self.replay_p:.2g} >= {REPLAY_P:g}; "
-                       f"{100 * self.windows_worse:.0f}% of them worse)")
+                       f"gap_before, but not consistently over the windows (p {self.replay_p:.2g}, "
+                       f"{100 * self.windows_worse:.0f}% of them worse; below {100 * REPLAY_LARGE:g}% it needs "
+                       f"p < {REPLAY_P:g} and more than half of them worse)")
         if not self.passed_alone:
             why.append(self.alone.reason())
         return "; ".join(why)
