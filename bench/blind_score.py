@@ -37,11 +37,12 @@ from udrobot_ctrl.gap.effects import EFFECT_NAMES  # noqa: E402
 from udrobot_ctrl.gap.report import diagnose  # noqa: E402
 
 OUTSIDE = ("periodic_disturbance",)
+HARD = ("wall_effect",)  # the truth's image-law wall pulls the unactuated vehicle through the wall (see tests)
 
 
 def cases(n_pairs: int, draws: int, seed: int):
     """(label, effect names) of every case: none, each effect alone, n_pairs pairs, outside-catalogue."""
-    singles = list(EFFECT_NAMES)
+    singles = [e for e in EFFECT_NAMES if e not in HARD]
     pairs = list(itertools.combinations(singles, 2))
     rng = np.random.default_rng(seed)
     chosen = [pairs[i] for i in rng.choice(len(pairs), size=min(n_pairs, len(pairs)), replace=False)]

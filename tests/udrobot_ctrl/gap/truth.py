@@ -12,17 +12,12 @@ means the physics was recovered, not a formula matched:
   20 nodes with each node's velocity, weighted by its share carried by the vehicle end; or (``anchor`` given,
   :func:`anchored_tether`) the same cable from a fixed point on a deck at the pool edge, its drag growing with the
   straight-line length (the template: a lumped drag independent of the distance);
-* wall_effect: method-of-images sphere laws, added mass ~ (a/h)^3, suction ~ (a/h)^4 (scaled by a drawn factor:
-  at the full sphere law the unactuated sway lets the suction pin the vehicle to the wall);
+* wall_effect: method-of-images sphere laws, added mass ~ (a/h)^3, suction ~ (a/h)^4;
 * water_current: a 1/7-power boundary-layer profile over the pool depth;
 * linear_damping: a |nu|^1.1 skin-friction law; quadratic_damping_error: drag on the speed *norm*;
 * added_mass_error: scaled M_A (with its Coriolis part); cross_coupled_damping: u|u| lift and yaw terms and a
   Munk u w moment; buoyancy_offset: compressible foam, dB(z); cg_cb_offset: a shifted ballast (r_g moved).
 * outside the catalogue: a periodic (wave) disturbance and a sensor delay.
-
-The pool has a seabed and one wall; the hull bumps them (a stiff contact) and never crosses them. Each run keeps
-a lane, near the wall (0.35-0.5 m) or far from it (1.2-2 m): its turns go into the pool, and on the legs path a
-wall guard in the heading loop steers away whenever the vehicle drifts wallward of its lane.
 """
 from __future__ import annotations
 
@@ -43,7 +38,6 @@ RHO = 1000.0
 SEABED = 3.0
 WALL_Y = 0.0  # wall plane y = 0, water on y < 0 (normal (0, -1, 0))
 GRAVITY = 9.81  # m/s^2
-CONTACT_K, CONTACT_C = 3000.0, 60.0  # N/m, N s/m: the hull against the pool's seabed or wall (assumed, stiff)
 # accelerometer of the stock sensor set (assumed): white noise 0.03 m/s^2 per logged sample (an MPU-6000 class
 # MEMS, 400 ug/sqrt(Hz) over a ~20 Hz band plus thruster vibration) and a residual bias after calibration
 ACCEL_NOISE = 0.03
@@ -59,7 +53,7 @@ def random_magnitudes(name, rng):
         "thruster_asymmetry": {"ratio": u(0.45, 0.65), "gamma": u(1.05, 1.2)},
         "thruster_lag": {"T_m": u(0.35, 0.6)},
         "tether_drag": {"d": u(0.010, 0.016), "back": u(3.0, 5.0), "cd": u(1.0, 1.2)},
-        "wall_effect": {"a": u(0.17, 0.22), "kappa": u(2.0, 3.0), "suction": u(0.05, 0.1)},
+        "wall_effect": {"a": u(0.17, 0.22), "kappa": u(2.0, 3.0)},
         "water_current": {"V0": u(0.08, 0.14), "dir": u(0, 2 * np.pi)},
         "linear_damping": {"dX": u(8, 14), "dZ": u(8, 14), "dN": u(0.15, 0.3), "dK": u(0.05, 0.1)},
         "quadratic_damping_error": {"s_t": u(0.5, 0.9) * rng.choice([-0.7, 1.0]), "s_r": u(0.5, 1.0)},
@@ -92,7 +86,6 @@ class Truth:
         self.v = load_model(model)
         self.p = plant_parameters(self.v)
         self.M_A = np.asarray(self.v.added_mass, float)
-        self.half_size = 0.5 * np.asarray(self.v.extras["dims"], float)  # L, W, H / 2, m (contact)
         self.eff = dict(effects or {})
         self.T = self.p.T
         self.fmax = self.p.f_max
@@ -165,13 +158,6 @@ class Truth:
             dF = -0.5 * RHO * c["cd"] * c["d"] * (L[:, None] / 20) * np.linalg.norm(vn, axis=-1, keepdims=True) * vn
             tot = np.sum(s * dF, axis=1)
             F[:, :3] += np.einsum("nji,nj->ni", Rm, tot)
-        for h, nrm in ((SEABED - x[:, 2], np.array([0, 0, -1.0])), (WALL_Y - x[:, 1], np.array([0, -1.0, 0]))):
-            # the pool: the hull bumps the seabed and the wall (a stiff spring-damper once the gap closes), it never
-            # crosses them; the runs keep off them (a lane per run, a wall guard in the heading loop)
-            nb = np.einsum("nji,j->ni", Rm, nrm)  # body-frame normal, into the water
-            pen = nb ** 2 @ self.half_size - h  # the hull's half-size along the normal minus the distance, m
-            push = CONTACT_K * pen - CONTACT_C * np.sum(nu[:, :3] * nb, 1)
-            F[:, :3] += (np.maximum(push, 0.0) * (pen > 0))[:, None] * nb
         if "wall_effect" in e:
             c = e["wall_effect"]
             a = c["a"]
@@ -184,8 +170,7 @@ class Truth:
                 dM[:, :3, :3] += c["kappa"] * m_ref * (ratio[:, None, None] * (3 / 8 * P + 3 / 16 * (np.eye(3) - P)))
                 vn = np.sum(nu[:, :3] * nb, 1)
                 vt2 = np.maximum(np.sum(nu[:, :3] ** 2, 1) - vn ** 2, 0)
-                suction = c["suction"] * c["kappa"] * 3 / 8 * RHO * np.pi * a ** 2 * vt2 * (a / hh) ** 4
-                F[:, :3] += -suction[:, None] * nb
+                F[:, :3] += -(c["kappa"] * 3 / 8 * RHO * np.pi * a ** 2 * vt2 * (a / hh) ** 4)[:, None] * nb
         if "water_current" in e:
             c = e["water_current"]
             prof = np.clip((SEABED - x[:, 2]) / SEABED, 0, 1) ** (1 / 7)
@@ -267,15 +252,11 @@ def schedule(t, prm, turn_rate=0.0):
         z = z0 + 0.3 * np.sin(2 * np.pi * t / 13.0)
         psi = 0.3 * np.sin(2 * np.pi * t / 17.0)
     if 28 <= t < 34:
-        psi = psi - 0.5
+        psi = psi + 0.5
     if turn_rate and t >= 4:
         psi = psi + turn_rate * (t - 4)
     return u_ref, psi, z, on
 
-
-#: depth reference rate limit, m/s (an autopilot's depth hold ramps its set point; a 1.5 m step to 0.25 m above the
-#: seabed overshoots into it)
-DEPTH_RATE = 0.3
 
 #: heading rate of the loop path (rad/s): one turn in 40 s, i.e. circles of 2-4 m radius at 0.3-0.6 m/s, turning
 #: away from the wall (towards -y, into the pool)
@@ -294,9 +275,8 @@ def generate(effects=None, n_runs=3, duration=90.0, rate=20.0, seed=0, model="pe
              wall_distance=None, noise_scale=1.0, path="legs", sensors="full"):
     """Simulate ``n_runs`` closed-loop pool runs with the withheld ``effects`` (name -> params dict).
 
-    ``path``: ``"legs"`` (surge legs along the pool with yaw turns into the pool, a wall guard holding the run's
-    lane) or ``"loop"`` (the same legs as arcs of a steady turn, :data:`LOOP_TURN_RATE`: the vehicle goes around,
-    so a cable to a fixed anchor turns with it).
+    ``path``: ``"legs"`` (surge legs along the pool with yaw turns) or ``"loop"`` (the same legs as arcs of a steady
+    turn, :data:`LOOP_TURN_RATE`: the vehicle goes around, so a cable to a fixed anchor turns with it).
     ``sensors``: ``"full"`` logs pose, body velocities and altitude (a pool vehicle with DVL and positioning);
     ``"stock"`` logs what a stock small ROV has: depth, attitude, gyro rates and the accelerometer ``ax ay az``
     (specific force of the truth state, white noise ``ACCEL_NOISE`` plus a constant bias per axis and run drawn
@@ -316,12 +296,12 @@ def generate(effects=None, n_runs=3, duration=90.0, rate=20.0, seed=0, model="pe
     a1 = rng.uniform(0.25, 0.4, R_)
     a2 = rng.uniform(0.5, 0.7, R_)
     a3 = rng.uniform(0.25, 0.4, R_)
-    dpsi = -rng.uniform(0.8, 1.5, R_)  # turns away from the wall, into the pool
+    dpsi = rng.uniform(0.8, 1.5, R_) * rng.choice([-1, 1], R_)
     z0 = rng.uniform(0.8, 1.4, R_)
-    zdeep = SEABED - rng.uniform(0.35, 0.5, R_)  # the deep leg overshoots its set point by ~0.15 m
-    if wall_distance is None:  # runs alternate near (0.35-0.5 m) and far (1.2-2 m) from the wall
+    zdeep = SEABED - rng.uniform(0.25, 0.4, R_)
+    if wall_distance is None:  # runs alternate near (0.2-0.35 m) and far (1.2-2 m) from the wall
         near = np.arange(R_) % 2 == 0
-        wall_distance = np.where(near, rng.uniform(0.35, 0.5, R_), rng.uniform(1.2, 2.0, R_))
+        wall_distance = np.where(near, rng.uniform(0.2, 0.35, R_), rng.uniform(1.2, 2.0, R_))
     ywall = -np.asarray(wall_distance, float) * np.ones(R_)
     prm = (a1, a2, a3, dpsi, z0, zdeep)
     if path not in ("legs", "loop"):
@@ -330,8 +310,6 @@ def generate(effects=None, n_runs=3, duration=90.0, rate=20.0, seed=0, model="pe
     x = np.zeros((R_, 12))
     x[:, 2] = z0
     x[:, 1] = WALL_Y + ywall
-    ylane = x[:, 1].copy()
-    z_ref = z0.copy()
     s_state = np.zeros((R_, 4))
     A = _allocation(tr.T)
     p = tr.p
@@ -341,18 +319,13 @@ def generate(effects=None, n_runs=3, duration=90.0, rate=20.0, seed=0, model="pe
     ff_z = -(p.weight - p.buoyancy)  # thrust that holds depth on the nominal model
     for k in range(n):
         t = k * dt
-        u_ref, psi_ref, z_goal, on = schedule(t, prm, turn_rate)
-        z_ref = z_ref + np.clip(z_goal - z_ref, -DEPTH_RATE * dt, DEPTH_RATE * dt)  # depth steps as ramps
+        u_ref, psi_ref, z_ref, on = schedule(t, prm, turn_rate)
         u, w, r, phi, pp = x[:, 6], x[:, 8], x[:, 11], x[:, 3], x[:, 9]
         ez = z_ref - x[:, 2]
         iz = np.clip(iz + ez * dt, -2, 2)
         iu = np.clip(iu + (u_ref - u) * dt * on, -1, 1)
         X = (40 * (u_ref - u) + 15 * iu + p.Q[0, 0] * np.abs(u_ref) * u_ref + p.D_L[0, 0] * u_ref) * on
         Z = 60 * ez + 15 * iz - 30 * w + ff_z
-        if path == "legs":  # wall guard (no sway thruster): steer away while wallward of the run's lane
-            ydot = np.sin(x[:, 5]) * u + np.cos(x[:, 5]) * x[:, 7]
-            away = np.clip(1.5 * (x[:, 1] - ylane) + 3.0 * ydot, 0.0, 0.5)
-            psi_ref = psi_ref - away * np.sign(u) * (np.abs(u) > 0.05)
         epsi = (psi_ref - x[:, 5] + np.pi) % (2 * np.pi) - np.pi
         N = 3.0 * epsi - 1.5 * r
         K = -2.0 * phi - 0.5 * pp
