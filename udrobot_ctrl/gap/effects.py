@@ -429,8 +429,7 @@ class Lag(Effect):
 
     def design(self, s, shape):
         lag = self.command_filter(shape)
-        b0 = s.full(lambda r: (lag(r["f"], r["dt"]) - r["f"]) @ s.B.T,
-                    held=True)
+        b0 = s.full(lambda r: (lag(r["f"], r["dt"]) - r["f"]) @ s.B.T, held=True)
         return Design(b0, np.zeros((s.n, 6, 0)), (), np.zeros(0), np.zeros(0))
 
 

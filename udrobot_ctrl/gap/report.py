@@ -491,12 +491,11 @@ def set_aside_ambiguous(inp: Inputs, stacks: Stacks, where: Where, elim: Elimina
              Replay((), where.before, where.nominal_sims[len(inp.fit):]))
     if log:
         for k, v in amb.items():
-            fit_alike = [a for a in v if a not in rivals]
-            log(f"  set aside: {k} ("
-                + "; ".join(([f"its fit is matched as well by {', '.join(fit_alike)}"] if fit_alike else [])
-                            + ([f"alone, {', '.join(a for a in v if a in rivals)} explain more of the holdout gap "
-                                f"than the confirmed set"] if any(a in rivals for a in v) else []))
-                + "; the runs cannot say which acts"
+            fit_alike, by_replay = [a for a in v if a not in rivals], [a for a in v if a in rivals]
+            why = ([f"its fit is matched as well by {', '.join(fit_alike)}"] if fit_alike else []) + (
+                [f"alone, {', '.join(by_replay)} explain more of the holdout gap than the confirmed set"]
+                if by_replay else [])
+            log(f"  set aside: {k} (" + "; ".join(why) + "; the runs cannot say which acts"
                 + ("; it or a look-alike was set aside in the first pass, whose reconstruction this pass assumed"
                    if k in prior else "")
                 + ")")
