@@ -32,6 +32,7 @@ are reported as indistinguishable on this data, with the manoeuvre that would se
 """
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass, field
 from functools import lru_cache
 
@@ -216,6 +217,19 @@ class Attributor:
         self._dof_cache, self._gram_cache = {}, {}  # see _dof_design, _gram
         self._free_shapes = {}  # see free_shapes
         self.n_eff = float(self.N)
+
+    def with_effect(self, name, effect) -> Attributor:
+        """A copy whose catalogue entry ``name`` is ``effect`` (e.g. a form the search does not use), with the same
+        N_eff; the cached designs of the other effects are shared, those involving ``name`` dropped."""
+        out = copy.copy(self)
+        out.cat = {**self.cat, name: effect}
+
+        def others(cache):  # keys name their terms and upstream members (quoted in the key's repr)
+            return {k: v for k, v in cache.items() if repr(name) not in repr(k)}
+        out._cache, out._dof_cache, out._gram_cache = others(self._cache), others(self._dof_cache), others(
+            self._gram_cache)
+        out._stacks, out._free_shapes = others(self._stacks), others(self._free_shapes)
+        return out
 
     def design(self, name, shape, upstream=()) -> fx.Design:
         """The effect's :class:`~udrobot_ctrl.gap.effects.Design` on this stack (non-finite entries zeroed), cached.

@@ -126,6 +126,31 @@ class FormCheck:
     dof_share: tuple = ()
 
 
+@dataclass(frozen=True)
+class FormAlike:
+    """An effect whose fit another matches as well when one of the two is held in the form the channels cannot test.
+
+    Attributes
+    ----------
+    rival : str
+        The other effect.
+    form : str
+        The form parameter the channels cannot test (of the rival when ``held_by_rival``, else of this effect).
+    other : float
+        Its untested end.
+    delta_bic : float
+        Fit-run BIC change when the confirmed effect is swapped for the one in its untested form.
+    held_by_rival : bool
+        Whether the untested form is the rival's (this effect was confirmed) or this effect's own.
+    """
+
+    rival: str
+    form: str
+    other: float
+    delta_bic: float
+    held_by_rival: bool = True
+
+
 @dataclass
 class EffectCheck:
     """Identifiability of one effect: its parameters' checks, and whether any is identified."""
@@ -190,6 +215,10 @@ class Identifiability:
     #: channels identify was not selected, the rest cannot be tested (name -> the gap and those parameters;
     #: :meth:`with_not_excluded`)
     not_excluded: dict = field(default_factory=dict)
+    #: confirmed effects that carry a small share of the gap beside an effect whose form these channels cannot test,
+    #: where that untested form would act: the share may be the form's (name -> :class:`FormAlike`;
+    #: :meth:`with_form_alike`)
+    form_alike: dict = field(default_factory=dict)
 
     def observed_dofs(self) -> list:
         """Names of the observed (scored) DOFs."""
@@ -199,7 +228,8 @@ class Identifiability:
     def names(self) -> list:
         """Names of the unidentifiable effects (the ambiguous and the unconfirmed ones included)."""
         return [n for n, e in self.effects.items()
-                if not e.identified or n in self.ambiguous or n in self.unconfirmed or n in self.not_excluded]
+                if not e.identified or n in self.ambiguous or n in self.unconfirmed or n in self.not_excluded
+                or n in self.form_alike]
 
     def with_ambiguous(self, ambiguous: dict) -> Identifiability:
         """A copy that also lists ``ambiguous`` (name -> look-alikes) as unidentifiable, and with each of them its
@@ -230,8 +260,21 @@ class Identifiability:
         act there) as unidentifiable."""
         return replace(self, not_excluded={**self.not_excluded, **not_excluded})
 
+    def with_form_alike(self, form_alike: dict) -> Identifiability:
+        """A copy that also lists ``form_alike`` (name -> :class:`FormAlike`) as unidentifiable."""
+        return replace(self, form_alike={**self.form_alike, **form_alike})
+
     def reason(self, name) -> str:
         """Why ``name`` is unidentifiable, with the measurement (or the manoeuvre) that would fix it."""
+        if name in self.form_alike and name not in self.ambiguous:
+            a = self.form_alike[name]
+            held = a.rival if a.held_by_rival else name
+            line = (f"on the observed DOFs ({', '.join(self.observed_dofs())}) its fit is matched as well by "
+                    f"{a.rival} with {a.form} = {a.other:g}" if a.held_by_rival else
+                    f"on the observed DOFs ({', '.join(self.observed_dofs())}), with {a.form} = {a.other:g}, its fit "
+                    f"matches that of {a.rival} as well")
+            return (line + f" (BIC {a.delta_bic:+.0f} when swapped), a form of {held} these channels cannot test, so "
+                    f"the runs cannot say which acts; " + self.effects[held].reason())
         if name in self.unconfirmed and name not in self.ambiguous:
             e = self.effects[name]
             return (f"the equation error on the observed DOFs ({', '.join(self.observed_dofs())}) selects it "
@@ -262,7 +305,7 @@ class Identifiability:
         """Extra fields of an effect's report entry: the parameters not identified (partial effects only)."""
         e = self.effects.get(name)
         if (e is None or not e.identified or not e.not_identified or name in self.ambiguous
-                or name in self.unconfirmed or name in self.not_excluded):
+                or name in self.unconfirmed or name in self.not_excluded or name in self.form_alike):
             return {}
         return {"not_identified": {"params": e.not_identified, "reason": e.reason()}}
 

@@ -448,7 +448,7 @@ def confirm(inp: Inputs, stacks: Stacks, sel: Selection, where: Where, singles: 
 
 
 def set_aside_ambiguous(inp: Inputs, stacks: Stacks, where: Where, elim: Elimination, log=None, prior=None,
-                        shrink=None):
+                        shrink=None, prior_forms=None):
     """Step 3b: a confirmed effect whose fit another effect matches as well (a look-alike within ``BIC_STRONG`` on
     the observed DOFs) is not significant: the runs cannot say which of the two acts (e.g. without a DVL, a
     heave-side thrust loss and a tether whose drag needs the unobserved surge speed; a pitch added-mass error and a
@@ -463,10 +463,15 @@ def set_aside_ambiguous(inp: Inputs, stacks: Stacks, where: Where, elim: Elimina
     (without a DVL, an inflow loss and a linear damping that the equation error on the reconstructed surge speed
     ranks below a quadratic-damping error, which alone explains less of the holdout than either of them).
 
+    On reconstructed runs a member may also be the look-alike of an effect in the form the channels cannot test
+    (:func:`form_alikes`). It is listed as unidentifiable with that reason, and so is that effect unless it is
+    confirmed in the form the search kept (then it stays significant).
+
     ``prior`` (name -> look-alikes) holds the effects set aside in the first reconstruction pass: confirmed in the
     second, they and their look-alikes stay set aside, since that pass reconstructed the velocities with the force
     of one of them and so cannot settle which look-alike acts (it would confirm whichever one it assumed, or the
-    look-alike that best matches the assumed force).
+    look-alike that best matches the assumed force). ``prior_forms`` (name -> ``FormAlike``) does the same for the
+    form look-alikes of the first pass.
 
     Returns
     -------
@@ -475,7 +480,7 @@ def set_aside_ambiguous(inp: Inputs, stacks: Stacks, where: Where, elim: Elimina
     stacks : Stacks
         With the ambiguous effects added to its identifiability.
     """
-    prior = _lookalike_groups(prior or {})
+    prior, prior_forms = _lookalike_groups(prior or {}), prior_forms or {}
     # with every velocity measured the holdout replay separates identifiable look-alikes (the tether of a tank run
     # and its quadratic-damping look-alike): only an unidentifiable one sets a confirmed effect aside there
     hidden, any_alike = set(stacks.identifiability.names), reconstructed(inp)
@@ -483,9 +488,13 @@ def set_aside_ambiguous(inp: Inputs, stacks: Stacks, where: Where, elim: Elimina
     amb = {k: [a for a in dict.fromkeys([*elim.combination.indistinguishable.get(k, ()), *prior.get(k, ()), *rivals])
                if any_alike or a in hidden] for k in elim.kept}
     amb = {k: v for k, v in amb.items() if v}
-    if not amb:
-        return elim, stacks
-    rest = [k for k in elim.kept if k not in amb]
+    forms = {**{k: a for k, a in prior_forms.items() if k in elim.kept},
+             **(form_alikes(elim, stacks.identifiability, stacks.fit, inp.catalogue, inp.names) if any_alike
+                else {})}
+    forms = {k: a for k, a in forms.items() if k not in amb}
+    if not amb and not any(k in elim.kept for k in forms):
+        return elim, replace(stacks, identifiability=stacks.identifiability.with_form_alike(forms))
+    rest = [k for k in elim.kept if k not in amb and k not in forms]
     combo = finalize(stacks.fit, rest, inp.names)
     after = (_replayer(inp, stacks, where.before.scored)(combo.fit, combo.members) if rest else
              Replay((), where.before, where.nominal_sims[len(inp.fit):]))
@@ -499,8 +508,47 @@ def set_aside_ambiguous(inp: Inputs, stacks: Stacks, where: Where, elim: Elimina
                 + ("; it or a look-alike was set aside in the first pass, whose reconstruction this pass assumed"
                    if k in prior else "")
                 + ")")
-    return (replace(elim, kept=tuple(rest), combination=combo, after=after),
-            replace(stacks, identifiability=stacks.identifiability.with_ambiguous(amb)))
+        for k, a in forms.items():
+            if a.held_by_rival:
+                log(f"  set aside: {k} (its fit is matched as well by {a.rival} with {a.form} = {a.other:g}, a form "
+                    f"these channels cannot test: BIC {a.delta_bic:+.0f} when swapped; the runs cannot say which acts)")
+    ident = stacks.identifiability.with_ambiguous(amb).with_form_alike(forms)
+    return replace(elim, kept=tuple(rest), combination=combo, after=after), replace(stacks, identifiability=ident)
+
+
+def form_alikes(elim: Elimination, ident: Identifiability, att: Attributor, catalogue, names) -> dict:
+    """Confirmed members whose fit an effect matches as well in the form the channels cannot test: swapped for that
+    effect held at the untested end of its form parameter (the rest of the set kept, and that effect's own member
+    replaced when it is in the set), the fit-run BIC rises by less than ``BIC_STRONG`` (the look-alike test of
+    :func:`~udrobot_ctrl.gap.attribute.finalize`, with the form the search does not use). Without a DVL a
+    quadratic-damping error is fitted on each axis' speed only; the truth's drag on the speed norm adds a heave force
+    that grows with the unobserved surge speed, which an inflow loss on the vertical thrusters takes up (beside the
+    per-axis fit, or instead of it).
+
+    Returns
+    -------
+    dict
+        Name -> :class:`~udrobot_ctrl.gap.identifiability.FormAlike`: each such member, and each look-alike that is
+        not in the set (the relation is symmetric: the runs cannot say which acts).
+    """
+    fit, out = elim.combination.fit, {}
+    current = att.bic(fit)
+    for h in names:
+        chk = ident.effects.get(h)
+        if chk is None or not chk.identified or not chk.forms:
+            continue
+        for form, f in chk.forms.items():
+            other = att.with_effect(h, identifiability.Restricted(catalogue[h], (), {form: f.other}))
+            for m in elim.kept:
+                if m == h or m in out:
+                    continue
+                rest = [(n, fit.shapes[n]) for n in elim.kept if n not in (m, h)]
+                dbic = other.bic(other.best_shape(h, rest, refine=False)) - current
+                if dbic < BIC_STRONG:
+                    out[m] = identifiability.FormAlike(h, form, f.other, dbic, held_by_rival=True)
+                    if h not in elim.kept:
+                        out.setdefault(h, identifiability.FormAlike(m, form, f.other, dbic, held_by_rival=False))
+    return out
 
 
 def replay_rivals(elim: Elimination, before: GapScore, shrink: dict) -> list:
@@ -603,6 +651,11 @@ def effect_verdicts(inp: Inputs, stacks: Stacks, sel: Selection, elim: Eliminati
                                              if n in stacks.identifiability.unconfirmed else "; not significant"))
         elif n in stacks.identifiability.not_excluded:
             note = f"not selected; listed under unidentifiable, not excluded: {stacks.identifiability.not_excluded[n]}"
+        elif n in stacks.identifiability.form_alike:
+            test = elim.last_test(n)
+            note = (("confirmed on the holdout, but " if test is not None and test.passed else "")
+                    + stacks.identifiability.reason(n).split(", so the runs")[0]
+                    + "; listed under unidentifiable, not significant")
         elif n in stacks.identifiability.ambiguous:
             test = elim.last_test(n)
             note = (("confirmed on the holdout, but " if test is not None and test.passed else
@@ -713,9 +766,9 @@ class Pass:
     confirmed: Elimination  # what the holdout confirmed, before the ambiguous effects were set aside
 
 
-def diagnosis_pass(inp: Inputs, say, t0, prior_ambiguous=None) -> Pass:
-    """Steps 1-3 of :func:`diagnose` on ``inp``'s prepared runs (``prior_ambiguous``: the effects the first
-    reconstruction pass set aside, see :func:`set_aside_ambiguous`)."""
+def diagnosis_pass(inp: Inputs, say, t0, prior_ambiguous=None, prior_forms=None) -> Pass:
+    """Steps 1-3 of :func:`diagnose` on ``inp``'s prepared runs (``prior_ambiguous``, ``prior_forms``: the effects
+    the first reconstruction pass set aside, see :func:`set_aside_ambiguous`)."""
     where = locate_gap(inp)
     say("where: " + (", ".join(_where_line(x) for x in where.located.locations) or "no channel above its noise floor"))
 
@@ -736,7 +789,8 @@ def diagnosis_pass(inp: Inputs, say, t0, prior_ambiguous=None) -> Pass:
     b = where.before.value
     shrink = {n: (1 - r.gap.value / b) if b > 0 else 0.0 for n, r in singles.items()}
     confirmed = confirm(inp, stacks, sel, where, singles, log=say)
-    elim, stacks = set_aside_ambiguous(inp, stacks, where, confirmed, log=say, prior=prior_ambiguous, shrink=shrink)
+    elim, stacks = set_aside_ambiguous(inp, stacks, where, confirmed, log=say, prior=prior_ambiguous, shrink=shrink,
+                                       prior_forms=prior_forms)
     stacks = set_aside_unconfirmed(stacks, sel, where, elim, log=say)
     return Pass(where, stacks, sel, shrink, elim, confirmed)
 
@@ -781,15 +835,19 @@ def diagnose(model, runs, holdout=None, window_s=8.0, effects=None, log=None, mo
         say(f"reconstruction, pass 2: the unlogged velocities smoothed again with the force of "
             f"{', '.join(first.kept)} added to the nominal plant; the diagnosis repeated on them")
         inp = reconstruct_with(inp, res.stacks.actuation, first.combination.fit, first.kept)
-        set_aside = {k: res.stacks.identifiability.ambiguous[k] for k in first.kept if k not in res.elim.kept}
-        res = diagnosis_pass(inp, say, t0, prior_ambiguous=set_aside)
+        pass1 = res.stacks.identifiability
+        set_aside = {k: pass1.ambiguous[k] for k in first.kept if k not in res.elim.kept and k in pass1.ambiguous}
+        set_forms = dict(pass1.form_alike)
+        res = diagnosis_pass(inp, say, t0, prior_ambiguous=set_aside, prior_forms=set_forms)
         # what pass 1 set aside stays listed: pass 2 smoothed with its force, so its residual is gone from there
         listed = res.stacks.identifiability
         left = {k: v for k, v in set_aside.items() if k not in listed.ambiguous}
-        if left:
-            say(f"  still set aside from pass 1: {', '.join(left)} (the runs cannot say which of them and their "
-                f"look-alikes acts)")
-            res = replace(res, stacks=replace(res.stacks, identifiability=listed.with_ambiguous(left)))
+        left_forms = {k: a for k, a in set_forms.items() if k not in listed.names and k not in res.elim.kept}
+        if left or left_forms:
+            say(f"  still set aside from pass 1: {', '.join([*left, *left_forms])} (the runs cannot say which of "
+                f"them and their look-alikes acts)")
+            res = replace(res, stacks=replace(res.stacks, identifiability=listed.with_ambiguous(left)
+                                              .with_form_alike(left_forms)))
         inp = replace(inp, notes=inp.notes + [
             f"reconstruction: the unlogged velocities were smoothed twice, first with the nominal plant (confirmed "
             f"on the holdout then: {', '.join(first.kept)}), then with those effects' force added (significant: "

@@ -68,6 +68,24 @@ def test_bic_counts_only_the_shape_parameters_the_search_moves(attributor):
     assert free.k == fixed.k + 1 and free.rss == pytest.approx(fixed.rss)
 
 
+def test_an_attributor_with_one_effect_replaced_fits_it_in_the_new_form_and_the_rest_as_before(attributor):
+    """The look-alike test of an untested form swaps one catalogue entry (the quadratic drag held on the speed norm)
+    and keeps the cached designs of the others: their fits are unchanged, the swapped effect is fitted in its new
+    form, and the original attributor still fits the old one."""
+    cat = fx.catalogue()
+    quad = attributor.fit([("quadratic_damping_error", (0.0,)), ("buoyancy_offset", ())])  # fills the caches
+    norm = attributor.with_effect("quadratic_damping_error", Restricted(cat["quadratic_damping_error"], (),
+                                                                        {"norm_weight": 1.0}))
+    assert norm.n_eff == attributor.n_eff and norm.free_shapes("quadratic_damping_error") == 0
+    assert norm.fit([("buoyancy_offset", ())]).rss == pytest.approx(attributor.fit([("buoyancy_offset", ())]).rss)
+    assert norm.cat["quadratic_damping_error"].search_space(norm.s)[0] == ((1.0,),)
+    swapped = norm.best_shape("quadratic_damping_error", [("buoyancy_offset", ())], refine=False)
+    direct = attributor.fit([("quadratic_damping_error", (1.0,)), ("buoyancy_offset", ())])
+    assert swapped.rss == pytest.approx(direct.rss, rel=1e-9)
+    assert attributor.fit([("quadratic_damping_error", (0.0,)), ("buoyancy_offset", ())]).rss == pytest.approx(
+        quad.rss)
+
+
 def test_filtering_only_the_stacked_rows_gives_the_full_filter_there():
     """The stack filters forces only at its (decimated) rows: the same sums as the full-rate filter, bit for bit,
     nan at the ends and next to a nan sample."""

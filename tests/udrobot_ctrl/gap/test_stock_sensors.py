@@ -110,3 +110,20 @@ def test_stock_effect_the_replay_cannot_confirm_is_listed_with_its_evidence():
         why = listed["added_mass_error"]
         assert "the equation error on the observed DOFs (Z, K, M, N) selects it" in why, why
         assert "scale_Xdu" in why and "log u, v (DVL)" in why, why
+
+
+# the truth's quadratic drag acts on the speed norm, a form whose heave drag grows with the unmeasured surge speed:
+# the search keeps the per-axis form, and an inflow loss on the vertical thrusters took up the rest (+2.5 % of the gap
+# when dropped, p 0.002: it passed every holdout test). Swapped for the drag in the untested form, the fit is as good,
+# so the inflow loss is listed with that reason instead of named
+@pytest.mark.slow
+def test_stock_look_alike_of_a_form_the_channels_cannot_test_is_listed_not_named():
+    report = _bench_case(("quadratic_damping_error",), draw=2)
+    sig = {e["name"] for e in report["effects"] if e["significant"]}
+    listed = {u["name"]: u["reason"] for u in report["unidentifiable"]}
+    assert sig <= {"quadratic_damping_error"} and ("quadratic_damping_error" in sig
+                                                   or "quadratic_damping_error" in listed), (sig, sorted(listed))
+    form_alikes = [why for why in listed.values()
+                   if "its fit is matched as well by quadratic_damping_error with norm_weight = 1" in why]
+    assert form_alikes, f"no effect set aside for the untested speed-norm form: {sorted(listed)}"
+    assert all("log u, v (DVL)" in why for why in form_alikes), form_alikes
