@@ -215,9 +215,9 @@ class Identifiability:
     #: channels identify was not selected, the rest cannot be tested (name -> the gap and those parameters;
     #: :meth:`with_not_excluded`)
     not_excluded: dict = field(default_factory=dict)
-    #: confirmed effects that carry a small share of the gap beside an effect whose form these channels cannot test,
-    #: where that untested form would act: the share may be the form's (name -> :class:`FormAlike`;
-    #: :meth:`with_form_alike`)
+    #: effects whose fit another matches as well when one of the two is held in the form these channels cannot test
+    #: (a confirmed effect swapped for it, BIC within ``BIC_STRONG``): name -> :class:`FormAlike`;
+    #: :meth:`with_form_alike`
     form_alike: dict = field(default_factory=dict)
 
     def observed_dofs(self) -> list:
