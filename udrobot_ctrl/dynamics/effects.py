@@ -46,7 +46,8 @@ the plant in one of three ways:
                      of the logged x y z), or along a fixed direction (``cable_azimuth_rad`` from north,
                      ``cable_elevation_rad`` above the horizontal; the limit of an anchor far away); an anchor
                      may walk with the vehicle (``walk_azimuth_rad``, ``walk_fraction``: a handler on the pool
-                     edge, a tender boat), the drag then integrated along the moving cable
+                     edge, a tender boat), the drag then integrated along the moving cable; a taut cable
+                     (``cable_taut`` 1) drags in proportion to its straight-line length to the anchor
   ``water_current``  damping and added-mass Coriolis act on nu_r = nu - [R^T v_c; 0] (v_c NED, m/s)
   ``wall_effect``    near a plane at distance h: added mass a_m exp(-h/lam) n n^T and suction
                      -a_s exp(-h/lam) |V_t|^2 n, summed over the planes: the seabed at ``seabed_depth_m`` (NED z)
@@ -113,6 +114,10 @@ TETHER_FIXED_DIRECTION = ("cable_azimuth_rad", "cable_elevation_rad")
 #: a top end that walks along a horizontal line (a handler on the pool edge, a tender boat) with the vehicle: the
 #: line's azimuth (rad, from north) and the fraction (0-1) of the vehicle's motion along it that the top end follows
 TETHER_WALK = ("walk_azimuth_rad", "walk_fraction")
+#: how the cable's length follows the vehicle (with an anchor; 0-1, a blend): 0 a slack cable whose paid-out length
+#: is fixed (lumped amplitudes), 1 a taut cable whose length is the straight-line distance to the top end (amplitudes
+#: per metre of it)
+TETHER_TAUT = "cable_taut"
 
 CATALOGUE = {k.name: k for k in (
     EffectKind("thrust_inflow_loss", "thrust falls with the axial inflow speed through the thruster", "thrust",
@@ -126,7 +131,7 @@ CATALOGUE = {k.name: k for k in (
     EffectKind("tether_drag", "umbilical cross-flow drag, normal to the cable", "force",
                ("k_quadratic_N_s2_per_m2", "k_linear_N_s_per_m") + TETHER_ANCHOR,
                alternatives=(("k_quadratic_N_s2_per_m2", "k_linear_N_s_per_m") + TETHER_FIXED_DIRECTION,),
-               optional=TETHER_WALK),
+               optional=TETHER_WALK + (TETHER_TAUT,)),
     EffectKind("wall_effect", "extra added mass and suction near the seabed or a wall", "force",
                ("decay_length_m", "added_mass_at_contact_kg", "suction_N_s2_per_m2"),
                optional=("seabed_depth_m",) + WALL_PARAMETERS),
@@ -218,6 +223,13 @@ def plant_effect(doc, where: str = "effects[0]") -> PlantEffect:
                              f"({', '.join(TETHER_ANCHOR)}) and both of {', '.join(TETHER_WALK)}")
         if not 0.0 <= params["walk_fraction"] <= 1.0:
             raise ValueError(f"{where}.params.walk_fraction: must be in [0, 1], got {params['walk_fraction']}")
+    if name == "tether_drag" and TETHER_TAUT in params:
+        if not set(TETHER_ANCHOR) <= set(params):
+            raise ValueError(f"{where}: effect 'tether_drag' with {TETHER_TAUT} needs an anchor "
+                             f"({', '.join(TETHER_ANCHOR)}): a fixed direction has no length")
+        if not 0.0 <= params[TETHER_TAUT] <= 1.0:
+            raise ValueError(f"{where}.params.{TETHER_TAUT}: must be in [0, 1] (0 slack, 1 taut), got "
+                             f"{params[TETHER_TAUT]:g}")
     if not any(set(s) <= set(params) for s in sets):
         closest = max(sets, key=lambda c: len(set(c) & set(params)))  # the set the entry started to give
         missing = sorted(set(closest) - set(params))
@@ -676,17 +688,35 @@ def _walking_unit_forces(be, eta, nu, q):
     return R, tuple(fq), tuple(fl)
 
 
+def cable_length_factor(be, eta, nu, q):
+    """How the cable's drag scales with the vehicle's place (dimensionless): (1 - t) + t L / (1 m), t =
+    ``cable_taut`` (0 when absent), L the straight-line distance (m) from the vehicle to the top end
+    (:func:`tether_top_end`). A slack cable (t = 0) has a fixed paid-out length: the factor is 1 and the amplitudes
+    are lumped. A taut one (t = 1, a handler keeping it tight) is as long as that distance, and its drag grows with
+    it: the amplitudes are then per metre of cable."""
+    t = float(q.get(TETHER_TAUT, 0.0))
+    if t == 0.0:
+        return 1.0
+    top = tether_top_end(be, eta, nu, q)[0]
+    d = tuple(top[i] - eta[i] for i in range(3))
+    return (1.0 - t) + t * be.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2] + ANCHOR_DISTANCE_FLOOR ** 2)
+
+
 def tether_unit_forces(be, eta, nu, q):
     """The tether force per unit of each amplitude (two 6-component body wrenches, N per N s^2/m^2 and per N s/m):
     R^T (-|V_n| V_n) and R^T (-V_n), from :func:`tether_cross_flow`; for a walking top end
-    (:func:`tether_top_end`) the cable's drag integrated over its length (:func:`_walking_unit_forces`). The force is
-    linear in the amplitudes, so these are its derivatives: the diagnoser's regressors."""
+    (:func:`tether_top_end`) the cable's drag integrated over its length (:func:`_walking_unit_forces`); both times
+    :func:`cable_length_factor` (a taut cable's drag grows with its length). The force is linear in the
+    amplitudes, so these are its derivatives: the diagnoser's regressors."""
     if walking(q):
         R, fq, fl = _walking_unit_forces(be, eta, nu, q)
         ned = (fq, fl)
     else:
         R, vn, speed = tether_cross_flow(be, eta, nu, q)
         ned = tuple(tuple(-k * vn[i] for i in range(3)) for k in (speed, 1.0))
+    if TETHER_ANCHOR[0] in q and float(q.get(TETHER_TAUT, 0.0)) != 0.0:
+        scale = cable_length_factor(be, eta, nu, q)
+        ned = tuple(tuple(scale * c for c in f) for f in ned)
     out = []
     for f in ned:
         fb = _to_body(R, f)

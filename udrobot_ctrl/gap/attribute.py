@@ -275,15 +275,18 @@ class Attributor:
         A fit at its bound has not found an optimum inside the physical range the catalogue allows (e.g. a thruster
         lag at the 1 s top of its range): the effect is then likely standing in for something else. Shape
         parameters whose ends are physical forms (``Effect.physical_ends``: a thrust exponent of 1 or 2) are not
-        checked. The other shape parameters are checked against the effect's search bounds, amplitudes against
+        checked, nor those the refinement holds at their grid value (a zero ``refine_step``: a tether's walking or
+        taut form). The other shape parameters are checked against the effect's search bounds, amplitudes against
         their design bounds, within ``rel`` of the smaller of the range's width and the bound's magnitude.
         """
         eff = self.cat[name]
         shape = fit.shapes[name]
         out = {}
         _, bounds = eff.search_space(self.s)
-        checks = [(sn, fit.params[name].get(sn), lo, hi) for sn, (lo, hi) in zip(eff.shape_names, bounds)
-                  if sn not in eff.physical_ends]
+        held = (np.asarray(eff.refine_step(self.s, shape), float) == 0 if eff.refine and bounds
+                else np.zeros(len(eff.shape_names), bool))
+        checks = [(sn, fit.params[name].get(sn), lo, hi)
+                  for sn, (lo, hi), h in zip(eff.shape_names, bounds, held) if sn not in eff.physical_ends and not h]
         d = self.design(name, shape)
         active = np.einsum("nik,nik->k", d.A[:, self.dofs], d.A[:, self.dofs]) > 0
         checks += [(an, fit.params[name].get(an), lo, hi)

@@ -28,7 +28,8 @@ Templates (the diagnoser's lumped forms; a truth generator should use different 
 ``tether_drag``         cross-flow drag of a cable from the vehicle to an anchor fixed in the pool (a deck, a boat;
                         shape: its NED position), e the unit vector towards it: F_ned = -(k_q |V_n| + k_l) V_n,
                         V_n = V - (V.e) e. The direction turns as the vehicle moves; a far anchor is a fixed
-                        direction (a cable straight up gives horizontal drag).
+                        direction (a cable straight up gives horizontal drag). The top end may walk with the
+                        vehicle, and the cable be slack (lumped) or taut (drag per metre of the straight line).
 ``wall_effect``         per surface at distance h with normal n: added mass a_m exp(-h/lam) n n^T and a
                         suction force -a_s exp(-h/lam) |V_t|^2 n (V_t the speed along the surface).
 ``water_current``       steady NED current (c_N, c_E, c_D): damping acts on nu - R^T c.
@@ -477,6 +478,11 @@ class TetherDrag(Effect):
     boat): the cable then keeps its direction along the walk and moves with the vehicle, so motion along the walk
     drags little. These are searched as lines at four azimuths (0, 45, 90, 135 deg), top ends 1.5 or 4 m behind
     or ahead of the vehicle along them, on lines across the runs' area; a fixed anchor has ``walk_fraction`` 0.
+
+    The cable may be slack or taut (``cable_taut``, :func:`udrobot_ctrl.dynamics.effects.cable_length_factor`): a
+    slack cable's paid-out length is fixed and its amplitudes are lumped; a taut one is as long as the straight line
+    to its top end and drags in proportion. Each near anchor and walking line is searched in both forms (far
+    anchors only slack: their distance does not change); the form is held at its grid value in the refinement.
     """
 
     def search_space(self, s):
@@ -491,10 +497,12 @@ class TetherDrag(Effect):
         rho = 3.0 * float(np.max(hi - lo))  # a deck beyond the area covered
         grid += [(c[0] + rho * np.cos(h), c[1] + rho * np.sin(h), z_top) for h in heads]
         zc = float(np.median(s.eta[:, 2]))
+        first_far = len(grid)
         grid.append((c[0], c[1], zc - FAR_ANCHOR_M))
         for el in np.radians((15.0, 45.0)):
             grid += [(c[0] + FAR_ANCHOR_M * np.cos(el) * np.cos(h), c[1] + FAR_ANCHOR_M * np.cos(el) * np.sin(h),
                       zc - FAR_ANCHOR_M * np.sin(el)) for h in heads]
+        far = range(first_far, len(grid))  # fixed directions: their distance does not change over the runs
         grid = [g + (0.0, 0.0) for g in grid]  # fixed anchors: walk_azimuth_rad (unused), walk_fraction 0
         for chi in WALK_AZIMUTHS:  # top ends walking along a line at azimuth chi, WALK_BACK_M behind or ahead
             d, n_h = np.array([np.cos(chi), np.sin(chi)]), np.array([-np.sin(chi), np.cos(chi)])
@@ -503,20 +511,22 @@ class TetherDrag(Effect):
             lines = np.linspace(c_lo, c_hi, max(2, min(WALK_LINES, int(np.ceil((c_hi - c_lo) / spacing)) + 1)))
             grid += [tuple(back * d + line * n_h) + (z_top, float(chi), 1.0)
                      for back in WALK_BACK_M for line in lines]
+        slack = [g + (0.0,) for g in grid]  # cable_taut 0: a fixed paid-out length
+        taut = [g + (1.0,) for i, g in enumerate(grid) if i not in far]  # cable_taut 1: as long as the line
         span = 2.0 * FAR_ANCHOR_M
         bounds = ((c[0] - span, c[0] + span), (c[1] - span, c[1] + span), (zc - span, zc + span),
-                  (-0.5 * np.pi, np.pi), (0.0, 1.0))
-        return tuple(tuple(float(v) for v in g) for g in grid), bounds
+                  (-0.5 * np.pi, np.pi), (0.0, 1.0), (0.0, 1.0))
+        return tuple(tuple(float(v) for v in g) for g in slack + taut), bounds
 
     def refine_step(self, s, x0):
         """30 % of the anchor's distance from the runs' centre on each coordinate (at least 0.5 m) and, for a walking
         top end, 0.3 rad on the walk's azimuth; the walk fraction is held at its grid value (0: a fixed anchor, 1: a
         top end that walks with the vehicle -- the two physical forms; in between, a single-effect fit would use it
-        to soak up what another effect does)."""
+        to soak up what another effect does), and so is ``cable_taut`` (slack or taut)."""
         x0 = np.asarray(x0, float)
         centre = np.r_[np.median(s.eta[:, :2], axis=0), np.median(s.eta[:, 2])]
         step = max(0.5, 0.3 * float(np.linalg.norm(x0[:3] - centre)))
-        return np.r_[np.full(3, step), 0.3 if x0[4] > 0 else 0.0, 0.0]
+        return np.r_[np.full(3, step), 0.3 if x0[4] > 0 else 0.0, 0.0, 0.0]
 
     def design(self, s, shape):
         geometry = dict(zip(self.shape_names, shape))
@@ -692,8 +702,8 @@ def catalogue() -> dict:
         Lag("thruster_lag", "thrust follows the command with a first-order lag", ("T_lag_s", "thrust_exponent"),
             lag_grid, ((0.005, 1.0), pfx.EXPONENT_RANGE), refine=True, mimics=("added_mass_error",),
             excited_by=THRUSTERS_MOVING, physical_ends=("thrust_exponent",)),
-        TetherDrag("tether_drag", "umbilical cross-flow drag, normal to the cable", pfx.TETHER_ANCHOR + pfx.TETHER_WALK,
-                   (), (),
+        TetherDrag("tether_drag", "umbilical cross-flow drag, normal to the cable",
+                   pfx.TETHER_ANCHOR + pfx.TETHER_WALK + (pfx.TETHER_TAUT,), (), (),
                    refine=True, mimics=("quadratic_damping_error", "linear_damping", "thrust_inflow_loss")),
         WallEffect("wall_effect", "extra added mass and suction near the seabed or a wall", ("decay_length_m",),
                    wall_grid, ((0.01, 2.0),), refine=True,

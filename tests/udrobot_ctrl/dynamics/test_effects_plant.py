@@ -104,7 +104,8 @@ WALKING_TETHER = {"k_quadratic_N_s2_per_m2": 20.0, "k_linear_N_s_per_m": 2.0, "a
                   "anchor_east_m": 0.0, "anchor_down_m": 0.0, "walk_azimuth_rad": 0.0, "walk_fraction": 1.0}
 
 
-@pytest.mark.parametrize("tether", [FIXED_TETHER, WALKING_TETHER], ids=["fixed_direction", "walking"])
+@pytest.mark.parametrize("tether", [FIXED_TETHER, WALKING_TETHER, {**WALKING_TETHER, "cable_taut": 1.0}],
+                         ids=["fixed_direction", "walking", "walking_taut"])
 def test_numpy_and_casadi_plants_agree_with_a_fixed_direction_or_walking_tether(tether):
     p = plant_parameters(NOMINAL.with_changes(effects=(fx.PlantEffect("tether_drag", tether),)))
     f_cas = plant_casadi.dynamics_function(p, "thrust")
@@ -192,6 +193,20 @@ def test_a_walking_top_end_drags_the_cable_along_with_the_vehicle():
     assert np.linalg.norm(_tether_ned(fixed_quad, oblique)[0]) > 0.1
     np.testing.assert_allclose(_tether_ned({**q, "walk_fraction": 1e-12}, x), _tether_ned(fixed, x), rtol=1e-6,
                                atol=1e-9)
+
+
+def test_a_taut_cable_drags_in_proportion_to_its_length_and_a_slack_one_does_not():
+    q = {**EXAMPLES["tether_drag"], "anchor_north_m": 0.0, "anchor_east_m": 0.0, "anchor_down_m": 0.0}
+    x, _ = _states(2, seed=5)
+    x[:, 3:6] = 0.0
+    x[:, :3] = [[2.0, 0.0, 1.0], [4.0, 0.0, 2.0]]  # the same cable direction, 2.24 m and 4.47 m from the anchor
+    x[:, 6:12] = [[0.0, 0.4, 0.0, 0.0, 0.0, 0.0]] * 2  # sway: across the cable
+    slack, taut = _tether_ned(q, x), _tether_ned({**q, "cable_taut": 1.0}, x)
+    np.testing.assert_allclose(slack[1], slack[0], rtol=1e-9)  # a fixed paid-out length
+    np.testing.assert_allclose(taut[0], np.hypot(2.0, 1.0) * slack[0], rtol=1e-9)  # per metre of the line
+    np.testing.assert_allclose(taut[1], 2.0 * taut[0], rtol=1e-9)
+    half = _tether_ned({**q, "cable_taut": 0.5}, x)  # a blend of the two
+    np.testing.assert_allclose(half, 0.5 * (slack + taut), rtol=1e-9)
 
 
 def test_tools_without_actuator_states_refuse_a_lag():
@@ -486,6 +501,9 @@ def test_model_file_round_trips_effects(tmp_path, tether):
      "needs an anchor .* and both of walk_azimuth_rad, walk_fraction"),
     ({"name": "tether_drag", "params": {**WALKING_TETHER, "walk_fraction": 1.5}},
      r"params.walk_fraction: must be in \[0, 1\], got 1.5"),
+    ({"name": "tether_drag", "params": {**FIXED_TETHER, "cable_taut": 1.0}}, "cable_taut needs an anchor"),
+    ({"name": "tether_drag", "params": {**WALKING_TETHER, "cable_taut": 2.0}},
+     r"params.cable_taut: must be in \[0, 1\] \(0 slack, 1 taut\), got 2"),
     ({"name": "tether_drag", "params": {"k_quadratic_N_s2_per_m2": 1.0, "k_linear_N_s_per_m": 0.0,
                                         "anchor_north_m": 1.0, "anchor_east_m": 2.0}}, "misses .*anchor_down_m"),
     ({"name": "tether_drag", "params": {"k_quadratic_N_s2_per_m2": 1.0, "k_linear_N_s_per_m": 0.0,

@@ -11,7 +11,8 @@ means the physics was recovered, not a formula matched:
 * tether_drag: a straight cable from a handler walking along the pool edge, normal drag integrated along
   20 nodes with each node's velocity, weighted by its share carried by the vehicle end; or (``anchor`` given,
   :func:`anchored_tether`) the same cable from a fixed point on a deck at the pool edge, its drag growing with the
-  straight-line length (the template: a lumped drag independent of the distance);
+  straight-line length (a taut cable); with ``slack_length`` given, that paid-out length (m) instead, whatever the
+  distance (the template: a drag per metre of the straight line, or lumped, integrated over 3 Gauss points);
 * wall_effect: method-of-images sphere laws, added mass ~ (a/h)^3, suction ~ (a/h)^4;
 * water_current: a 1/7-power boundary-layer profile over the pool depth;
 * linear_damping: a |nu|^1.1 skin-friction law; quadratic_damping_error: drag on the speed *norm*;
@@ -155,7 +156,9 @@ class Truth:
             s = ((np.arange(20) + 0.5) / 20)[None, :, None]  # 20 nodes from the anchor (0) to the vehicle (1)
             ve = a_dot[:, None] + s * (vned - a_dot)[:, None]
             vn = ve - np.sum(ve * eh[:, None], -1, keepdims=True) * eh[:, None]
-            dF = -0.5 * RHO * c["cd"] * c["d"] * (L[:, None] / 20) * np.linalg.norm(vn, axis=-1, keepdims=True) * vn
+            length = L if "slack_length" not in c else np.full_like(L, c["slack_length"])
+            speed = np.linalg.norm(vn, axis=-1, keepdims=True)
+            dF = -0.5 * RHO * c["cd"] * c["d"] * (length[:, None] / 20) * speed * vn
             tot = np.sum(s * dF, axis=1)
             F[:, :3] += np.einsum("nji,nj->ni", Rm, tot)
         if "wall_effect" in e:
