@@ -107,7 +107,8 @@ def _clean(v):
 
 
 WALL_FRACTION = 0.05
-#: the confirmed effects leave more than this fraction of the holdout gap unexplained (the verdict line's threshold):
+#: the confirmed effects leave more than this fraction of the holdout gap unexplained (the verdict line's threshold),
+#: or leave a replay still more than REPLAY_ABOVE_FLOOR above its noise floor (:func:`remaining_to_floor`):
 #: candidates that only the replay rejected, and whose replay lacks the parameters the channels cannot identify, are
 #: then listed as unidentifiable instead of dropped silently (:func:`set_aside_unconfirmed`)
 UNEXPLAINED_LARGE = 0.5
@@ -574,13 +575,29 @@ def _lookalike_groups(prior: dict) -> dict:
     return out
 
 
+def remaining_to_floor(where: Where, after: GapScore) -> float:
+    """How far the replay with the confirmed effects stays above the noise floor (the nominal's
+    :meth:`~udrobot_ctrl.gap.locate.Located.replay_to_floor` times the share of the holdout replay's summed NRMSE^2
+    that ``after`` leaves, over the channels with a floor; nan without one): above ``REPLAY_ABOVE_FLOOR``, a gap
+    that noise and reconstruction cannot account for is left, however much of the nominal gap was explained."""
+    floor = where.located.floor
+    both = [c for c in where.before.scored if floor.get(c, 0.0) > 0 and np.isfinite(after.per_channel.get(c, np.nan))
+            and np.isfinite(where.before.per_channel.get(c, np.nan))]
+    den = sum(where.before.per_channel[c] ** 2 for c in both)
+    if not den > 0:
+        return float("nan")
+    return where.located.replay_to_floor() * sum(after.per_channel[c] ** 2 for c in both) / den
+
+
 def set_aside_unconfirmed(stacks: Stacks, sel: Selection, where: Where, elim: Elimination, log=None) -> Stacks:
     """Step 3c: a forward-selection candidate that the holdout replay dropped is listed as unidentifiable when the
     replay could not have confirmed it: the effect is identified in part only (parameters or a form that hinge on a
     channel the runs do not measure are frozen: e.g. without a DVL, a surge added mass, a heave drag on the flow
     speed), its equation error on the observed DOFs still held on the holdout when it was dropped, the nominal replay
     is more than ``REPLAY_ABOVE_FLOOR`` above its noise floor (there is a gap), and the confirmed effects leave more
-    than ``UNEXPLAINED_LARGE`` of the holdout gap unexplained. Its evidence and the measurement
+    than ``UNEXPLAINED_LARGE`` of the holdout gap unexplained or a replay still more than ``REPLAY_ABOVE_FLOOR``
+    above that floor (:func:`remaining_to_floor`: a lag that explains 62 % of a gap 250 x its floor leaves 36 x
+    the floor to explain). Its evidence and the measurement
     that would settle it go into the reason. Under the same two conditions, a partly identified effect that was not
     selected is listed as *not excluded* when some of its non-identified parameters act in a DOF holding at least
     ``locate.GAP_SHARE`` of the located gap (``Located.gap_dofs``, ``EffectCheck.acting_in``): the part the channels
@@ -595,8 +612,10 @@ def set_aside_unconfirmed(stacks: Stacks, sel: Selection, where: Where, elim: El
         With the unconfirmed and the not-excluded effects added to its identifiability.
     """
     before = where.before.value
-    if (not before > 0 or elim.after.gap.value / before <= UNEXPLAINED_LARGE
-            or not where.located.replay_to_floor() > REPLAY_ABOVE_FLOOR):
+    if not before > 0 or not where.located.replay_to_floor() > REPLAY_ABOVE_FLOOR:
+        return stacks
+    left_to_floor = remaining_to_floor(where, elim.after.gap)
+    if not (elim.after.gap.value / before > UNEXPLAINED_LARGE or left_to_floor > REPLAY_ABOVE_FLOOR):
         return stacks
     ident = stacks.identifiability
     steps = {s.effect: s for s in sel.steps}
@@ -605,7 +624,8 @@ def set_aside_unconfirmed(stacks: Stacks, sel: Selection, where: Where, elim: El
              for n, t in elim.dropped.items()
              if n in steps and n not in ident.names and t.passed_equation_error and ident.unconfirmable(n)}
     gap = where.located.gap_dofs()
-    left = (f"the confirmed effects leave {elim.after.gap.value / before:.0%} of the holdout gap unexplained, "
+    left = (f"the confirmed effects leave {elim.after.gap.value / before:.0%} of the holdout gap unexplained "
+            f"({left_to_floor:.0f} x the noise floor), "
             + ", ".join(f"{share:.0%} of it in {fx.DOF[i]}" for i, share in gap.items()))
     acting = {n: ident.effects[n].acting_in(gap) for n in sel.delta_bic
               if n not in elim.kept and n not in found and n not in ident.names and ident.unconfirmable(n)}

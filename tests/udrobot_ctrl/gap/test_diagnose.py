@@ -11,7 +11,9 @@ import pytest
 
 from udrobot_ctrl.gap.confirm import CONSISTENT_WINDOWS, REPLAY_MATERIAL
 from udrobot_ctrl.gap.effects import EFFECT_NAMES
-from udrobot_ctrl.gap.report import diagnose
+from udrobot_ctrl.gap.locate import Located
+from udrobot_ctrl.gap.report import REPLAY_ABOVE_FLOOR, Where, diagnose, remaining_to_floor
+from udrobot_ctrl.gap.shrink import GapScore
 from udrobot_ctrl.io.runlog import write
 
 from .truth import generate, random_magnitudes
@@ -225,3 +227,20 @@ def test_cli_bad_input(tmp_path):
     proc = subprocess.run([sys.executable, "-m", "udrobot_ctrl.cli", "diagnose", "--model", "pendulum:chin",
                            "--json", str(tmp_path / "r.json"), str(bad)], capture_output=True, text=True, cwd=REPO)
     assert proc.returncode == 2 and "bad.csv" in proc.stderr
+
+
+def test_the_gap_left_is_measured_against_the_noise_floor():
+    """A nominal replay 250 x its floor (summed NRMSE^2) with 38 % of the holdout gap left is still ~36 x above
+    it: a gap to explain, though most of it was; a channel without a floor does not count."""
+    located = Located((), {"z": 1.0, "r": 0.5, "u": 9.0}, {"z": 0.063, "r": 0.032}, {}, {}, {})
+    before = GapScore(1.0, {"z": 1.0, "r": 0.5, "u": 9.0}, ["z", "r", "u"], {})
+    where = Where([], [], located, before)
+    after = GapScore(0.38, {"z": 0.38, "r": 0.19, "u": 0.1}, ["z", "r", "u"], {})
+    nominal = located.replay_to_floor()
+    assert nominal == pytest.approx(1.25 / (0.063 ** 2 + 0.032 ** 2))
+    assert remaining_to_floor(where, after) == pytest.approx(nominal * 0.38 ** 2)
+    assert remaining_to_floor(where, after) > REPLAY_ABOVE_FLOOR
+    explained = GapScore(0.05, {"z": 0.05, "r": 0.02, "u": 9.0}, ["z", "r", "u"], {})
+    assert remaining_to_floor(where, explained) < REPLAY_ABOVE_FLOOR  # near the floor: nothing left to explain
+    assert np.isnan(remaining_to_floor(Where([], [], Located((), {"u": 1.0}, {}, {}, {}, {}),
+                                             GapScore(1.0, {"u": 1.0}, ["u"], {})), after))

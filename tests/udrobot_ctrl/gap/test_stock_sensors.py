@@ -127,3 +127,19 @@ def test_stock_look_alike_of_a_form_the_channels_cannot_test_is_listed_not_named
                    if "its fit is matched as well by quadratic_damping_error with norm_weight = 1" in why]
     assert form_alikes, f"no effect set aside for the untested speed-norm form: {sorted(listed)}"
     assert all("log u, v (DVL)" in why for why in form_alikes), form_alikes
+
+
+# a lag explains 62 % of the holdout gap, and what it leaves is still ~36 x the noise floor: the added-mass error,
+# whose heave part needs the heave acceleration the depth channel gives only through a reconstruction, may explain
+# it and cannot be tested; it is listed, not dropped silently because most of the gap was explained
+@pytest.mark.slow
+def test_stock_effect_beside_a_confirmed_one_is_listed_when_a_gap_above_the_floor_is_left():
+    report = _bench_case(("thruster_lag", "added_mass_error"))
+    sig = {e["name"] for e in report["effects"] if e["significant"]}
+    listed = {u["name"]: u["reason"] for u in report["unidentifiable"]}
+    assert sig <= {"thruster_lag", "added_mass_error"}, sig
+    assert "thruster_lag" in sig, (sig, sorted(listed))
+    assert "added_mass_error" in sig or "added_mass_error" in listed, (sig, sorted(listed))
+    if "added_mass_error" in listed:  # not excluded (the gap left, against the floor) or not confirmable (evidence)
+        why = listed["added_mass_error"]
+        assert "x the noise floor" in why or "the equation error on the observed DOFs" in why, why
