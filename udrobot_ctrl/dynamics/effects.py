@@ -601,16 +601,22 @@ def cable_direction(azimuth, elevation):
     return (ce * math.cos(azimuth), ce * math.sin(azimuth), -math.sin(elevation))
 
 
+def anchor_distance(be, position, anchor):
+    """Straight-line distance (m) from the vehicle at ``position`` (NED, m) to the tether's ``anchor``, with a floor
+    of ``ANCHOR_DISTANCE_FLOOR`` under the root (finite derivatives with the vehicle on the anchor)."""
+    d = tuple(anchor[i] - position[i] for i in range(3))
+    return be.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2] + ANCHOR_DISTANCE_FLOOR ** 2)
+
+
 def anchor_direction(be, position, anchor):
     """Unit NED vector (3 components) from the vehicle at ``position`` (NED, m) towards the tether's ``anchor``.
 
-    The distance carries a floor of ``ANCHOR_DISTANCE_FLOOR`` under the root, so the direction stays finite with
+    The distance (:func:`anchor_distance`) carries a floor under the root, so the direction stays finite with
     the vehicle on the anchor (a zero vector there: the drag then opposes the whole velocity); its length is
     short of 1 by 5e-13 at 1 m.
     """
-    d = tuple(anchor[i] - position[i] for i in range(3))
-    inv = 1.0 / be.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2] + ANCHOR_DISTANCE_FLOOR ** 2)
-    return tuple(d[i] * inv for i in range(3))
+    inv = 1.0 / anchor_distance(be, position, anchor)
+    return tuple((anchor[i] - position[i]) * inv for i in range(3))
 
 
 def walking(q) -> bool:
@@ -697,9 +703,7 @@ def cable_length_factor(be, eta, nu, q):
     t = float(q.get(TETHER_TAUT, 0.0))
     if t == 0.0:
         return 1.0
-    top = tether_top_end(be, eta, nu, q)[0]
-    d = tuple(top[i] - eta[i] for i in range(3))
-    return (1.0 - t) + t * be.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2] + ANCHOR_DISTANCE_FLOOR ** 2)
+    return (1.0 - t) + t * anchor_distance(be, eta[:3], tether_top_end(be, eta, nu, q)[0])
 
 
 def tether_unit_forces(be, eta, nu, q):
@@ -714,7 +718,7 @@ def tether_unit_forces(be, eta, nu, q):
     else:
         R, vn, speed = tether_cross_flow(be, eta, nu, q)
         ned = tuple(tuple(-k * vn[i] for i in range(3)) for k in (speed, 1.0))
-    if TETHER_ANCHOR[0] in q and float(q.get(TETHER_TAUT, 0.0)) != 0.0:
+    if float(q.get(TETHER_TAUT, 0.0)) != 0.0:  # a taut cable (an anchor: plant_effect refuses it without one)
         scale = cable_length_factor(be, eta, nu, q)
         ned = tuple(tuple(scale * c for c in f) for f in ned)
     out = []
