@@ -313,6 +313,23 @@ def state_derivative(x, tau, p: PlantParameters):
     return np.concatenate([_assemble(_EQ.kinematics(eta, nu)), nu_dot], axis=-1)
 
 
+def water_relative_terms(nu, p: PlantParameters) -> tuple:
+    """C_A(nu) nu + D(nu) nu (6 components, N and N m) for velocity components ``nu``: the terms that act on the
+    velocity relative to the water (a current changes them). Batches of at most one axis go through the compiled
+    twin of the equations (:func:`compiled_kernels`, with the added mass as the inertia and no restoring force; a
+    replay evaluates them thousands of times on a few dozen states), others through the equations themselves."""
+    comps = np.broadcast_arrays(*[np.asarray(c, float) for c in nu])
+    M_A, D_L, Q = (np.ascontiguousarray(a, dtype=float) for a in (p.M_A, p.D_L, p.Q))
+    if comps[0].ndim <= 1 and M_A.ndim == 2:
+        v = np.stack(comps, axis=-1).reshape(-1, 6)
+        out = np.empty_like(v)
+        zero3 = np.zeros(3)
+        compiled_kernels().generalized_forces_rows(np.concatenate([np.zeros_like(v), v], axis=1), M_A, D_L, Q, 0.0,
+                                                   0.0, zero3, zero3, out)
+        return tuple(out.reshape(comps[0].shape + (6,))[..., i] for i in range(6))
+    return tuple(a + b for a, b in zip(_EQ.damping(D_L, Q, nu), _EQ.coriolis(M_A, nu)))
+
+
 def effect_forces(X, p: PlantParameters) -> tuple:
     """Generalised force (6 components, N and N m) of the model's force effects at state components ``X``.
 
@@ -323,12 +340,7 @@ def effect_forces(X, p: PlantParameters) -> tuple:
     total = [0.0] * 6
     nu_r = fx.relative_velocity(fx.NUMPY, eta, nu, p.effects)
     if nu_r is not nu:
-        M_A = np.asarray(p.M_A, float)
-        D_L, Q = np.asarray(p.D_L, float), np.asarray(p.Q, float)
-        for terms in (_EQ.damping(D_L, Q, nu), _EQ.coriolis(M_A, nu)):
-            total = [a + b for a, b in zip(total, terms)]
-        for terms in (_EQ.damping(D_L, Q, nu_r), _EQ.coriolis(M_A, nu_r)):
-            total = [a - b for a, b in zip(total, terms)]
+        total = [a - b for a, b in zip(water_relative_terms(nu, p), water_relative_terms(nu_r, p))]
     ext = fx.external_force(fx.NUMPY, eta, nu, p.effects)
     if ext is not None:
         total = [a + b for a, b in zip(total, ext)]

@@ -33,6 +33,7 @@ are reported as indistinguishable on this data, with the manoeuvre that would se
 from __future__ import annotations
 
 import copy
+from collections import OrderedDict
 from dataclasses import dataclass, field
 from functools import lru_cache
 
@@ -52,6 +53,11 @@ BIC_STRONG = 10.0
 REFINE_EVALS_PER_SHAPE = 40
 HOLDOUT_CHI2 = 6.63
 FIT_RATE_HZ = 10.0
+#: memory (bytes) the cached designs, their per-DOF regressors and their cross products may hold, each: a tether's
+#: search grid (~320 anchors and forms) is evaluated again by every forward step and look-alike check, and a cache
+#: that forgets it halfway recomputes every cable geometry (about a fifth of a stock diagnosis); 10 min of logs at
+#: FIT_RATE_HZ make a tether design of 0.9 MB
+CACHE_BYTES = 512 * 2 ** 20
 
 
 def deriv_kernel(prep: Prepared):
@@ -196,6 +202,57 @@ def tau_int(x, max_lag=200):
     return tau
 
 
+class ArrayCache:
+    """Least-recently-used cache whose values (arrays, or tuples holding arrays) are bounded by their total size.
+
+    Parameters
+    ----------
+    max_bytes : int
+        The oldest entries are dropped once the values' ``nbytes`` sum above this.
+    """
+
+    def __init__(self, max_bytes=CACHE_BYTES):
+        self.max_bytes = int(max_bytes)
+        self._items = OrderedDict()
+        self.nbytes = 0
+
+    @staticmethod
+    def size(value) -> int:
+        """Bytes held by ``value``'s arrays (an array, or a tuple of arrays and small fields)."""
+        if isinstance(value, np.ndarray):
+            return value.nbytes
+        if isinstance(value, tuple):
+            return sum(v.nbytes for v in value if isinstance(v, np.ndarray))
+        return 0
+
+    def __contains__(self, key) -> bool:
+        return key in self._items
+
+    def __getitem__(self, key):
+        self._items.move_to_end(key)
+        return self._items[key]
+
+    def __setitem__(self, key, value):
+        if key in self._items:
+            self.nbytes -= self.size(self._items.pop(key))
+        self._items[key] = value
+        self.nbytes += self.size(value)
+        while self.nbytes > self.max_bytes and len(self._items) > 1:
+            _, old = self._items.popitem(last=False)
+            self.nbytes -= self.size(old)
+
+    def __len__(self) -> int:
+        return len(self._items)
+
+    def without(self, drop) -> ArrayCache:
+        """A copy without the keys for which ``drop(key)`` is true (the values are shared, not copied)."""
+        out = ArrayCache(self.max_bytes)
+        for k, v in self._items.items():
+            if not drop(k):
+                out[k] = v
+        return out
+
+
 @dataclass
 class Fit:
     """Result of fitting a set of (effect, shape) terms."""
@@ -217,8 +274,8 @@ class Attributor:
         self.s, self.r, self.dofs = stack, r, dofs
         self.cat = catalogue or fx.catalogue()
         self.N = stack.n
-        self._cache, self._stacks = {}, {}  # designs; stacks with filtered commands (see design)
-        self._dof_cache, self._gram_cache = {}, {}  # see _dof_design, _gram
+        self._cache, self._stacks = ArrayCache(), {}  # designs; stacks with filtered commands (see design)
+        self._dof_cache, self._gram_cache = ArrayCache(), ArrayCache()  # see _dof_design, _gram
         self._free_shapes = {}  # see free_shapes
         self.n_eff = float(self.N)
 
@@ -228,11 +285,12 @@ class Attributor:
         out = copy.copy(self)
         out.cat = {**self.cat, name: effect}
 
-        def others(cache):  # keys name their terms and upstream members (quoted in the key's repr)
-            return {k: v for k, v in cache.items() if repr(name) not in repr(k)}
-        out._cache, out._dof_cache, out._gram_cache = others(self._cache), others(self._dof_cache), others(
-            self._gram_cache)
-        out._stacks, out._free_shapes = others(self._stacks), others(self._free_shapes)
+        def names_it(key):  # keys name their terms and upstream members (quoted in the key's repr)
+            return repr(name) in repr(key)
+        out._cache, out._dof_cache, out._gram_cache = (c.without(names_it) for c in (
+            self._cache, self._dof_cache, self._gram_cache))
+        out._stacks = {k: v for k, v in self._stacks.items() if not names_it(k)}
+        out._free_shapes = {k: v for k, v in self._free_shapes.items() if not names_it(k)}
         return out
 
     def design(self, name, shape, upstream=()) -> fx.Design:
@@ -245,8 +303,6 @@ class Attributor:
         if key not in self._cache:
             s = self._composed(name, upstream) if upstream else self.s
             d = fx.Design(*self.cat[name].design(s, tuple(shape)))
-            if len(self._cache) > 400:
-                self._cache.clear()
             self._cache[key] = d._replace(b0=np.nan_to_num(d.b0), A=np.nan_to_num(d.A))
         return self._cache[key]
 
@@ -310,9 +366,6 @@ class Attributor:
         """Regressors of a design on the scored DOFs, (nd, k, n) C-contiguous (kept with the design cache)."""
         key = (name, tuple(np.round(shape, 6)), _rounded(upstream), self.dofs.tobytes())
         if key not in self._dof_cache:
-            if len(self._dof_cache) > 400:
-                self._dof_cache.clear()
-                self._gram_cache.clear()
             A = self.design(name, shape, upstream)[1]
             self._dof_cache[key] = np.ascontiguousarray(A[:, self.dofs, :].transpose(1, 2, 0))
         return self._dof_cache[key]
@@ -322,8 +375,6 @@ class Attributor:
         key = (ti[0], tuple(np.round(ti[1], 6)), _rounded(ti[2]), tj[0], tuple(np.round(tj[1], 6)), _rounded(tj[2]),
                self.dofs.tobytes())
         if key not in self._gram_cache:
-            if len(self._gram_cache) > 4000:
-                self._gram_cache.clear()
             self._gram_cache[key] = At_i @ At_j.transpose(0, 2, 1)
         return self._gram_cache[key]
 
@@ -539,12 +590,14 @@ def forward_select(att: Attributor, att_h: Attributor, names=None, max_effects=4
         Receives one line per step.
     exclude : sequence of str
         Effects the runs cannot identify (:mod:`udrobot_ctrl.gap.identifiability`): fitted alone for the record
-        and never selected; they are still look-alikes of a selected effect whose fit they match on the observed
-        DOFs (the runs cannot tell them apart: that is what the report must say).
+        (best grid shape, not refined) and never selected; they are still look-alikes of a selected effect whose
+        fit they match on the observed DOFs (the runs cannot tell them apart: that is what the report must say).
     """
     names = list(names or att.cat)
     nominal = att.fit([])
-    singles = {n: att.best_shape(n) for n in names}
+    # an effect the runs cannot identify is fitted on its grid only: its parameters are not identified, and refining
+    # them (a tether's four anchor coordinates) would cost a fifth of a stock diagnosis for a number nobody reads
+    singles = {n: att.best_shape(n, refine=n not in exclude) for n in names}
     tau, _ = att.estimate_noise(singles)
     bic0 = att.bic(nominal)
     delta = {n: att.bic(f) - bic0 for n, f in singles.items()}

@@ -16,6 +16,7 @@ from __future__ import annotations
 import json
 import math
 import time
+from collections.abc import Mapping
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
@@ -431,11 +432,33 @@ def _replayer(inp: Inputs, stacks: Stacks, scored):
                                        inp.window_s, scored)
 
 
-def shrink_each(inp: Inputs, stacks: Stacks, sel: Selection, before: GapScore) -> dict:
+class OnDemand(Mapping):
+    """A read-only mapping whose value for each of ``keys`` is ``compute(key)``, computed on first access and kept:
+    a stock diagnosis's first reconstruction pass needs the replays of its candidates only, the report those of
+    every effect."""
+
+    def __init__(self, keys, compute):
+        self._keys, self._compute, self._values = tuple(keys), compute, {}
+
+    def __getitem__(self, key):
+        if key not in self._keys:
+            raise KeyError(key)
+        if key not in self._values:
+            self._values[key] = self._compute(key)
+        return self._values[key]
+
+    def __iter__(self):
+        return iter(self._keys)
+
+    def __len__(self) -> int:
+        return len(self._keys)
+
+
+def shrink_each(inp: Inputs, stacks: Stacks, sel: Selection, before: GapScore) -> Mapping:
     """Step 3, shrink: name -> holdout :class:`~udrobot_ctrl.gap.confirm.Replay` with the effect alone (its single
-    fit); its shrink is 1 - replay gap / gap_before."""
+    fit), replayed when first read (:class:`OnDemand`); its shrink is 1 - replay gap / gap_before."""
     run = _replayer(inp, stacks, before.scored)
-    return {n: run(sel.singles[n], (n,)) for n in inp.names}
+    return OnDemand(inp.names, lambda n: run(sel.singles[n], (n,)))
 
 
 def confirm(inp: Inputs, stacks: Stacks, sel: Selection, where: Where, singles: dict, log=None) -> Elimination:
@@ -781,7 +804,7 @@ class Pass:
     where: Where
     stacks: Stacks
     sel: Selection
-    shrink: dict  # name -> shrink of the effect alone
+    shrink: Mapping  # name -> shrink of the effect alone (OnDemand)
     elim: Elimination  # the significant set (ambiguous effects set aside)
     confirmed: Elimination  # what the holdout confirmed, before the ambiguous effects were set aside
 
@@ -807,7 +830,7 @@ def diagnosis_pass(inp: Inputs, say, t0, prior_ambiguous=None, prior_forms=None)
 
     singles = shrink_each(inp, stacks, sel, where.before)
     b = where.before.value
-    shrink = {n: (1 - r.gap.value / b) if b > 0 else 0.0 for n, r in singles.items()}
+    shrink = OnDemand(inp.names, lambda n: (1 - singles[n].gap.value / b) if b > 0 else 0.0)
     confirmed = confirm(inp, stacks, sel, where, singles, log=say)
     elim, stacks = set_aside_ambiguous(inp, stacks, where, confirmed, log=say, prior=prior_ambiguous, shrink=shrink,
                                        prior_forms=prior_forms)

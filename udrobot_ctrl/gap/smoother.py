@@ -40,6 +40,7 @@ from dataclasses import dataclass, field
 import casadi as ca
 import numpy as np
 from scipy.interpolate import CubicSpline
+from scipy.linalg.lapack import dposv
 
 from udrobot_ctrl.dynamics import plant_casadi as pc
 from udrobot_ctrl.dynamics.effects import CASADI
@@ -259,6 +260,20 @@ def _block_mean(a, step, n_out):
     return out
 
 
+def spd_solve(A, B):
+    """X with A X = B for a symmetric positive definite A (a covariance): LAPACK's Cholesky solver called directly
+    (``np.linalg.solve``'s checks cost twice the solve at the smoother's sizes, and it runs twice per sample); a
+    matrix rounding has left indefinite goes through the general solver.
+
+    Raises
+    ------
+    numpy.linalg.LinAlgError
+        If A is singular.
+    """
+    _, X, info = dposv(A, B)
+    return X if info == 0 else np.linalg.solve(A, B)
+
+
 def smooth_run(t, meas: dict, tau, p: PlantParameters, settings: SmootherSettings | None = None,
                label: str = "run") -> SmoothedRun:
     """Forward EKF and backward RTS pass over one run (see the module docstring).
@@ -347,7 +362,7 @@ def smooth_run(t, meas: dict, tau, p: PlantParameters, settings: SmootherSetting
             y = z[ok] - hk[r_ok]
             y[ang] = wrap_angle(y[ang])
             PHt = P @ H.T
-            K = np.linalg.solve(H @ PHt + Rk, PHt.T).T
+            K = spd_solve(H @ PHt + Rk, PHt.T).T
             x[sl] += K @ y
             P = P - K @ PHt.T
             P = 0.5 * (P + P.T)
@@ -369,7 +384,7 @@ def smooth_run(t, meas: dict, tau, p: PlantParameters, settings: SmootherSetting
     for k in range(m - 2, -1, -1):
         Pp = Ps_p[k + 1]
         try:
-            C = np.linalg.solve(Pp, Fs[k] @ Ps_f[k]).T
+            C = spd_solve(Pp, Fs[k] @ Ps_f[k]).T
         except np.linalg.LinAlgError as exc:
             raise SmootherError(f"{label}: singular predicted covariance at t = {t[idx[k + 1]]:.2f} s in the RTS "
                                 f"pass") from exc

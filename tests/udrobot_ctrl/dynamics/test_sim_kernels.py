@@ -5,9 +5,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from udrobot_ctrl.dynamics.plant import generalized_forces, kinematics
+from udrobot_ctrl.dynamics.equations import equations
+from udrobot_ctrl.dynamics.plant import generalized_forces, kinematics, water_relative_terms
 from udrobot_ctrl.dynamics.sim import SimResult, as_parameters, simulate, stack_parameters, vehicle_parameters
 from udrobot_ctrl.vehicle import load_model
+
+EQ = equations(np.sin, np.cos, np.tan)  # the numpy equations
 
 
 def _x0(rng, n=None):
@@ -127,3 +130,18 @@ def test_compiled_forces_and_kinematics_equal_the_numpy_equations(name):
     ref_kin = kinematics(x[:, None, :6], x[:, None, 6:])[:, 0]  # 3-D: the numpy path
     np.testing.assert_allclose(kinematics(x[:, :6], x[:, 6:]), ref_kin, rtol=1e-13, atol=1e-13)
     assert np.all(np.abs(ref) > 0) and kinematics(x[0, :6], x[0, 6:]).shape == (6,)
+
+
+@pytest.mark.parametrize("shape", [(), (25,), (3, 4)])
+def test_water_relative_terms_compiled_equal_the_equations(shape):
+    """The current's terms C_A(nu) nu + D(nu) nu: a batch of at most one axis runs the compiled twin (added mass as
+    the inertia, no restoring force), others the equations; both equal the equations' damping + Coriolis."""
+    p = as_parameters("bluerov2-heavy")
+    nu = np.random.default_rng(5).normal(scale=0.5, size=(6,) + shape)
+    got = water_relative_terms(list(nu), p)
+    M_A, D_L, Q = (np.asarray(a, float) for a in (p.M_A, p.D_L, p.Q))
+    ref = [a + b for a, b in zip(EQ.damping(D_L, Q, nu), EQ.coriolis(M_A, nu))]
+    for g, r in zip(got, ref):
+        assert np.shape(g) == shape
+        np.testing.assert_allclose(g, r, rtol=1e-13, atol=1e-13)
+    assert np.abs(np.asarray(got[0])).max() > 0  # damping acts

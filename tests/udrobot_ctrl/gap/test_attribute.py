@@ -7,7 +7,7 @@ import pytest
 
 from udrobot_ctrl.dynamics.plant import plant_parameters
 from udrobot_ctrl.gap import effects as fx
-from udrobot_ctrl.gap.attribute import Attributor, build_stack, filter_forces
+from udrobot_ctrl.gap.attribute import ArrayCache, Attributor, build_stack, filter_forces
 from udrobot_ctrl.gap.data import prepare
 from udrobot_ctrl.gap.identifiability import Restricted
 from udrobot_ctrl.gap.shrink import delivered_commands, effect_wrench
@@ -160,3 +160,16 @@ def test_a_deadband_before_a_lag_is_fitted_with_its_thrust_change_lagged(k):
     y = (r - att.design(*lag).b0 - plain.b0)[:, dofs]
     a, *_ = np.linalg.lstsq(plain.A[:, dofs].reshape(-1, 1), y.ravel(), rcond=None)
     assert np.sum(fit.rss) < 0.2 * np.sum((y - plain.A[:, dofs, 0] * a[0]) ** 2)
+
+
+def test_the_design_cache_drops_the_least_recently_used_arrays_beyond_its_byte_budget():
+    cache = ArrayCache(max_bytes=3 * 800)
+    for k in range(3):
+        cache[k] = np.zeros(100)  # 800 bytes each
+    _ = cache[0]  # used again: the oldest is now 1
+    cache[3] = (np.zeros(100), "names")  # a tuple holding one array
+    assert 1 not in cache and all(k in cache for k in (0, 2, 3)) and cache.nbytes == 3 * 800
+    cache[4] = np.zeros(150)  # 1200 bytes: the two least recently used (2, then 0) go
+    assert len(cache) == 2 and 4 in cache and 3 in cache and cache.nbytes == 2000
+    kept = cache.without(lambda key: key == 3)
+    assert 3 not in kept and 4 in kept and 3 in cache and kept.nbytes == 1200

@@ -12,7 +12,7 @@ import pytest
 from udrobot_ctrl.gap.confirm import CONSISTENT_WINDOWS, REPLAY_MATERIAL
 from udrobot_ctrl.gap.effects import EFFECT_NAMES
 from udrobot_ctrl.gap.locate import Located
-from udrobot_ctrl.gap.report import REPLAY_ABOVE_FLOOR, Where, diagnose, remaining_to_floor
+from udrobot_ctrl.gap.report import REPLAY_ABOVE_FLOOR, OnDemand, Where, diagnose, remaining_to_floor
 from udrobot_ctrl.gap.shrink import GapScore
 from udrobot_ctrl.io.runlog import write
 
@@ -244,3 +244,17 @@ def test_the_gap_left_is_measured_against_the_noise_floor():
     assert remaining_to_floor(where, explained) < REPLAY_ABOVE_FLOOR  # near the floor: nothing left to explain
     assert np.isnan(remaining_to_floor(Where([], [], Located((), {"u": 1.0}, {}, {}, {}, {}),
                                              GapScore(1.0, {"u": 1.0}, ["u"], {})), after))
+
+
+def test_replays_on_demand_run_once_per_effect_and_only_when_read():
+    calls = []
+
+    def replay(name):
+        calls.append(name)
+        return len(name)
+    lazy = OnDemand(("lag", "tether"), replay)
+    assert calls == [] and len(lazy) == 2 and list(lazy) == ["lag", "tether"]
+    assert lazy["tether"] == 6 and lazy["tether"] == 6 and calls == ["tether"]
+    assert dict(lazy) == {"lag": 3, "tether": 6} and calls == ["tether", "lag"]
+    with pytest.raises(KeyError):
+        lazy["current"]

@@ -6,7 +6,7 @@ import pytest
 
 from udrobot_ctrl.dynamics.plant import plant_parameters
 from udrobot_ctrl.gap.data import actuators, prepare
-from udrobot_ctrl.gap.smoother import SmootherError, smooth_run
+from udrobot_ctrl.gap.smoother import SmootherError, smooth_run, spd_solve
 from udrobot_ctrl.vehicle import load_model
 
 from .stock_sim import ACCEL_BIAS, NOISE, STOCK, simulate
@@ -79,3 +79,15 @@ def test_prepare_fills_velocities_only_where_not_logged():
     assert prep.dof_ok.tolist() == [True, False, True, True, True, True]
     assert np.isfinite(prep.nu).all()
     assert _rms(prep.nu[20:-20, 2] - truth["w"][20:-20]) < 0.03
+
+
+def test_the_covariance_solve_matches_the_general_one_and_refuses_a_singular_matrix():
+    rng = np.random.default_rng(2)
+    A = rng.normal(size=(19, 19))
+    B = rng.normal(size=(19, 5))
+    spd = A @ A.T + np.eye(19)
+    np.testing.assert_allclose(spd_solve(spd, B), np.linalg.solve(spd, B), rtol=1e-10, atol=1e-12)
+    indefinite = 0.5 * (A + A.T)  # Cholesky fails: the general solver takes it
+    np.testing.assert_allclose(spd_solve(indefinite, B), np.linalg.solve(indefinite, B), rtol=1e-8, atol=1e-10)
+    with pytest.raises(np.linalg.LinAlgError):
+        spd_solve(np.zeros((19, 19)), B)
