@@ -52,8 +52,14 @@ BIC_STRONG = 10.0
 #: up the rest (the full-sensor all-pairs tether + quadratic-damping case); at 40 each it converges to 2 cm
 REFINE_EVALS_PER_SHAPE = 40
 HOLDOUT_CHI2 = 6.63
+#: a forward step ranks the remaining effects with the shapes of those already selected held, then re-fits every
+#: shape jointly (:func:`refit`) for this many of the best: a held shape favours the effect that makes up for its
+#: error (without a DVL, a thruster lag's time constant fitted first, which a heave quadratic-damping error
+#: complements better than the inflow loss the runs hold, until the lag's time constant is fitted again beside it)
+REFIT_CONTENDERS = 3
 FIT_RATE_HZ = 10.0
-#: memory (bytes) the cached designs, their per-DOF regressors and their cross products may hold, each: a tether's
+#: memory (bytes) the cached designs, their per-DOF regressors and their cross products may hold together, per
+#: attributor (a diagnosis has two: fit and holdout runs; copies for an untested form share the values): a tether's
 #: search grid (~320 anchors and forms) is evaluated again by every forward step and look-alike check, and a cache
 #: that forgets it halfway recomputes every cable geometry (about a fifth of a stock diagnosis); 10 min of logs at
 #: FIT_RATE_HZ make a tether design of 0.9 MB
@@ -268,14 +274,29 @@ class Fit:
 
 
 class Attributor:
-    """Equation-error fits of catalogue effects on a stack of fit runs (see the module docstring)."""
+    """Equation-error fits of catalogue effects on a stack of fit runs (see the module docstring).
 
-    def __init__(self, stack, r, dofs, catalogue=None):
+    Parameters
+    ----------
+    stack : Stack
+        The runs' equation-error stack (:func:`build_stack`).
+    r : ndarray, shape (n, 6)
+        Its nominal residual (N, N m).
+    dofs : ndarray of bool, shape (6,)
+        The DOFs scored.
+    catalogue : dict, optional
+        Name -> effect (default: the whole catalogue).
+    cache_bytes : int
+        Memory the cached designs, per-DOF regressors and cross products may hold together (``CACHE_BYTES``).
+    """
+
+    def __init__(self, stack, r, dofs, catalogue=None, cache_bytes=CACHE_BYTES):
         self.s, self.r, self.dofs = stack, r, dofs
         self.cat = catalogue or fx.catalogue()
         self.N = stack.n
-        self._cache, self._stacks = ArrayCache(), {}  # designs; stacks with filtered commands (see design)
-        self._dof_cache, self._gram_cache = ArrayCache(), ArrayCache()  # see _dof_design, _gram
+        # designs, their per-DOF regressors and cross products (keys tagged "design", "dof", "gram"; see design,
+        # _dof_design, _gram) under one byte budget; stacks with filtered commands (see design)
+        self._cache, self._stacks = ArrayCache(cache_bytes), {}
         self._free_shapes = {}  # see free_shapes
         self.n_eff = float(self.N)
 
@@ -287,8 +308,7 @@ class Attributor:
 
         def names_it(key):  # keys name their terms and upstream members (quoted in the key's repr)
             return repr(name) in repr(key)
-        out._cache, out._dof_cache, out._gram_cache = (c.without(names_it) for c in (
-            self._cache, self._dof_cache, self._gram_cache))
+        out._cache = self._cache.without(names_it)
         out._stacks = {k: v for k, v in self._stacks.items() if not names_it(k)}
         out._free_shapes = {k: v for k, v in self._free_shapes.items() if not names_it(k)}
         return out
@@ -299,7 +319,7 @@ class Attributor:
         ``upstream``: (name, shape) of the set's members whose input filters act together with this effect in the
         plant's order (:meth:`upstream`): an effect that reads the delivered thrust sees the commands through them,
         a static map's thrust change goes through them."""
-        key = (name, tuple(np.round(shape, 6)), _rounded(upstream))
+        key = ("design", name, tuple(np.round(shape, 6)), _rounded(upstream))
         if key not in self._cache:
             s = self._composed(name, upstream) if upstream else self.s
             d = fx.Design(*self.cat[name].design(s, tuple(shape)))
@@ -364,19 +384,19 @@ class Attributor:
 
     def _dof_design(self, name, shape, upstream=()):
         """Regressors of a design on the scored DOFs, (nd, k, n) C-contiguous (kept with the design cache)."""
-        key = (name, tuple(np.round(shape, 6)), _rounded(upstream), self.dofs.tobytes())
-        if key not in self._dof_cache:
+        key = ("dof", name, tuple(np.round(shape, 6)), _rounded(upstream), self.dofs.tobytes())
+        if key not in self._cache:
             A = self.design(name, shape, upstream)[1]
-            self._dof_cache[key] = np.ascontiguousarray(A[:, self.dofs, :].transpose(1, 2, 0))
-        return self._dof_cache[key]
+            self._cache[key] = np.ascontiguousarray(A[:, self.dofs, :].transpose(1, 2, 0))
+        return self._cache[key]
 
     def _gram(self, ti, tj, At_i, At_j):
         """Per-DOF cross products At_i At_j^T (nd, k_i, k_j) of two terms' regressors, cached per pair."""
-        key = (ti[0], tuple(np.round(ti[1], 6)), _rounded(ti[2]), tj[0], tuple(np.round(tj[1], 6)), _rounded(tj[2]),
-               self.dofs.tobytes())
-        if key not in self._gram_cache:
-            self._gram_cache[key] = At_i @ At_j.transpose(0, 2, 1)
-        return self._gram_cache[key]
+        key = ("gram", ti[0], tuple(np.round(ti[1], 6)), _rounded(ti[2]), tj[0], tuple(np.round(tj[1], 6)),
+               _rounded(tj[2]), self.dofs.tobytes())
+        if key not in self._cache:
+            self._cache[key] = At_i @ At_j.transpose(0, 2, 1)
+        return self._cache[key]
 
     def fit(self, terms, iters=3):
         """Fit terms [(name, shape), ...] jointly; per-DOF variances by re-weighting."""
@@ -576,7 +596,9 @@ def forward_select(att: Attributor, att_h: Attributor, names=None, max_effects=4
     """Single fits of every effect, noise floor, forward selection and look-alike groups.
 
     An effect is added while it lowers the fit-run BIC by more than ``BIC_STRONG`` and, with its parameters frozen,
-    raises the holdout equation-error likelihood by a ratio above ``HOLDOUT_CHI2``.
+    raises the holdout equation-error likelihood by a ratio above ``HOLDOUT_CHI2``. Each step ranks the remaining
+    effects with the selected ones' shapes held and, once a selected effect has a free shape, re-fits all shapes
+    jointly for the ``REFIT_CONTENDERS`` best (:func:`refit`) and adds the best of those.
 
     Parameters
     ----------
@@ -610,8 +632,15 @@ def forward_select(att: Attributor, att_h: Attributor, names=None, max_effects=4
                  for n in names if n not in selected and n not in exclude}
         if not cands:
             break
-        best = min(cands, key=lambda n: att.bic(cands[n]))
-        fbest = att.best_shape(best, fixed, refine=True)
+        ranked = sorted(cands, key=lambda n: att.bic(cands[n]))
+        if any(att.free_shapes(m) for m in selected):
+            trials = {n: refit(att, [*selected, n], {**current.shapes, n: cands[n].shapes[n]})
+                      for n in ranked[:REFIT_CONTENDERS]}
+            best = min(trials, key=lambda n: att.bic(trials[n]))
+            fbest = trials[best]
+        else:
+            best = ranked[0]
+            fbest = att.best_shape(best, fixed, refine=True)
         d_bic = att.bic(fbest) - cur_bic
         lr = holdout_lr(att_h, current, fbest)
         ok = d_bic < -BIC_STRONG and lr > HOLDOUT_CHI2
@@ -631,15 +660,17 @@ def refit(att: Attributor, members, shapes=None):
     """Joint fit of ``members`` with each one's shape re-optimised given the others (one coordinate pass).
 
     Used after members are dropped: the remaining parameters were fitted alongside the dropped ones and
-    would otherwise keep the share of the residual the dropped effects had taken.
+    would otherwise keep the share of the residual the dropped effects had taken; and by forward selection, to
+    compare the best candidates of a step with every shape fitted again. A given shape also seeds its member's
+    search, so the pass never ends worse than where it started.
     """
-    shapes = dict(shapes or {})
+    shapes = {n: s for n, s in (shapes or {}).items() if n in members}
     for n in members:
         if n not in shapes:
             shapes[n] = att.best_shape(n, [(m, shapes[m]) for m in members if m in shapes]).shapes[n]
     for n in members:
         fixed = [(m, shapes[m]) for m in members if m != n]
-        shapes[n] = att.best_shape(n, fixed).shapes[n]
+        shapes[n] = att.best_shape(n, fixed, seeds=(shapes[n],)).shapes[n]
     return att.fit([(n, shapes[n]) for n in members])
 
 

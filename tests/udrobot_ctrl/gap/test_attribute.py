@@ -173,3 +173,14 @@ def test_the_design_cache_drops_the_least_recently_used_arrays_beyond_its_byte_b
     assert len(cache) == 2 and 4 in cache and 3 in cache and cache.nbytes == 2000
     kept = cache.without(lambda key: key == 3)
     assert 3 not in kept and 4 in kept and 3 in cache and kept.nbytes == 1200
+
+
+def test_an_attributor_holds_its_designs_regressors_and_cross_products_under_one_budget(attributor):
+    """The three caches of a fit share one byte budget: a small one is never exceeded, and the fits are the same."""
+    budget = 200_000
+    small = Attributor(attributor.s, attributor.r, attributor.dofs, attributor.cat, cache_bytes=budget)
+    terms = [("thruster_lag", (T, 2.0)) for T in (0.1, 0.2, 0.3, 0.45)]
+    for t in terms:
+        fits = small.fit([t, ("linear_damping", ())]), attributor.fit([t, ("linear_damping", ())])
+        assert 0 < small._cache.nbytes <= budget
+        np.testing.assert_allclose(fits[0].rss, fits[1].rss, rtol=1e-9)
