@@ -151,6 +151,58 @@ class FormAlike:
     held_by_rival: bool = True
 
 
+@dataclass(frozen=True)
+class Hinged:
+    """An identified effect whose support hinges on the untested part of a partly identified one.
+
+    Attributes
+    ----------
+    on : str
+        The partly identified effect.
+    delta_bic : float
+        Fit-run BIC change when the effect is added beside the significant set and ``on`` with its non-identified
+        parameters fitted too.
+    holdout_lr : float
+        Holdout equation-error likelihood ratio of that addition, parameters frozen.
+    gap : str
+        The unexplained gap it might account for.
+    """
+
+    on: str
+    delta_bic: float
+    holdout_lr: float
+    gap: str
+
+
+@dataclass(frozen=True)
+class StandIn:
+    """A confirmed effect that may stand in for the untested part of a partly identified one with a look-alike.
+
+    Attributes
+    ----------
+    on : str
+        The partly identified effect.
+    partner : str
+        The confirmed effect's look-alike fitted beside ``on``.
+    delta_bic : float
+        Fit-run BIC of the set with the effect replaced by ``on`` (untested part fitted) and ``partner``, minus that
+        of the confirmed set.
+    member_delta_bic : float
+        Fit-run BIC change when the effect is added back beside them.
+    partner_support : Hinged
+        The partner's own support beside ``on`` (it is listed with it).
+    partner_form : str
+        The partner's form when it is one the channels cannot test (e.g. ``"norm_weight = 1"``), else empty.
+    """
+
+    on: str
+    partner: str
+    delta_bic: float
+    member_delta_bic: float
+    partner_support: Hinged
+    partner_form: str = ""
+
+
 @dataclass
 class EffectCheck:
     """Identifiability of one effect: its parameters' checks, and whether any is identified."""
@@ -219,6 +271,12 @@ class Identifiability:
     #: (a confirmed effect swapped for it, BIC within ``BIC_STRONG``): name -> :class:`FormAlike`;
     #: :meth:`with_form_alike`
     form_alike: dict = field(default_factory=dict)
+    #: effects the channels identify, not significant, whose support hinges on the untested part of a partly
+    #: identified effect (name -> :class:`Hinged`; :meth:`with_hinged`)
+    hinged: dict = field(default_factory=dict)
+    #: confirmed effects that may stand in for the untested part of a partly identified effect with one of their
+    #: look-alikes (name -> :class:`StandIn`; :meth:`with_stand_in`)
+    stand_in: dict = field(default_factory=dict)
 
     def observed_dofs(self) -> list:
         """Names of the observed (scored) DOFs."""
@@ -229,7 +287,7 @@ class Identifiability:
         """Names of the unidentifiable effects (the ambiguous and the unconfirmed ones included)."""
         return [n for n, e in self.effects.items()
                 if not e.identified or n in self.ambiguous or n in self.unconfirmed or n in self.not_excluded
-                or n in self.form_alike]
+                or n in self.form_alike or n in self.hinged or n in self.stand_in]
 
     def with_ambiguous(self, ambiguous: dict) -> Identifiability:
         """A copy that also lists ``ambiguous`` (name -> look-alikes) as unidentifiable, and with each of them its
@@ -264,8 +322,34 @@ class Identifiability:
         """A copy that also lists ``form_alike`` (name -> :class:`FormAlike`) as unidentifiable."""
         return replace(self, form_alike={**self.form_alike, **form_alike})
 
+    def with_stand_in(self, stand_in: dict) -> Identifiability:
+        """A copy that also lists ``stand_in`` (name -> :class:`StandIn`) as unidentifiable."""
+        return replace(self, stand_in={**self.stand_in, **stand_in})
+
+    def with_hinged(self, hinged: dict) -> Identifiability:
+        """A copy that also lists ``hinged`` (name -> :class:`Hinged`) as unidentifiable."""
+        return replace(self, hinged={**self.hinged, **hinged})
+
     def reason(self, name) -> str:
         """Why ``name`` is unidentifiable, with the measurement (or the manoeuvre) that would fix it."""
+        if name in self.stand_in and name not in self.ambiguous:
+            st = self.stand_in[name]
+            part = self.effects[st.on]
+            return (f"with it replaced by {st.on}, its {', '.join(part.not_identified)} fitted as well (on the "
+                    f"velocities the smoother reconstructs), and {st.partner}"
+                    + (f" with {st.partner_form} (a form these channels cannot test)" if st.partner_form else "")
+                    + f", the fit runs' BIC changes by "
+                    f"{st.delta_bic:+.0f} against the confirmed set, and it adds nothing beside them (dBIC "
+                    f"{st.member_delta_bic:+.0f}): it may stand in for what these channels cannot test of {st.on}, so "
+                    f"the runs cannot say which acts; " + part.reason()
+                    + f"; to tell it from {st.partner}: {fx.discriminating_manoeuvre(name, st.partner)}")
+        if name in self.hinged and name not in self.ambiguous:
+            h = self.hinged[name]
+            part = self.effects[h.on]
+            return (f"not excluded: {h.gap}; beside {h.on} with its {', '.join(part.not_identified)} fitted as well "
+                    f"(on the velocities the smoother reconstructs), it lowers the fit runs' BIC by {-h.delta_bic:.0f} "
+                    f"(holdout likelihood ratio {h.holdout_lr:.0f}), and without them it is not selected: whether it "
+                    f"acts hinges on what these channels cannot test of {h.on}: " + part.reason())
         if name in self.form_alike and name not in self.ambiguous:
             a = self.form_alike[name]
             held = a.rival if a.held_by_rival else name
@@ -305,7 +389,8 @@ class Identifiability:
         """Extra fields of an effect's report entry: the parameters not identified (partial effects only)."""
         e = self.effects.get(name)
         if (e is None or not e.identified or not e.not_identified or name in self.ambiguous
-                or name in self.unconfirmed or name in self.not_excluded or name in self.form_alike):
+                or name in self.unconfirmed or name in self.not_excluded or name in self.form_alike
+                or name in self.hinged or name in self.stand_in):
             return {}
         return {"not_identified": {"params": e.not_identified, "reason": e.reason()}}
 

@@ -30,11 +30,14 @@ from udrobot_ctrl.gap.attribute import (
     BIC_STRONG,
     HOLDOUT_CHI2,
     Attributor,
+    Fit,
     Selection,
     SelectionStep,
     build_stack,
     finalize,
     forward_select,
+    holdout_loglik,
+    holdout_lr,
     residual,
 )
 from udrobot_ctrl.gap.confirm import (
@@ -634,11 +637,8 @@ def set_aside_unconfirmed(stacks: Stacks, sel: Selection, where: Where, elim: El
     Stacks
         With the unconfirmed and the not-excluded effects added to its identifiability.
     """
-    before = where.before.value
-    if not before > 0 or not where.located.replay_to_floor() > REPLAY_ABOVE_FLOOR:
-        return stacks
-    left_to_floor = remaining_to_floor(where, elim.after.gap)
-    if not (elim.after.gap.value / before > UNEXPLAINED_LARGE or left_to_floor > REPLAY_ABOVE_FLOOR):
+    left = gap_left(where, elim)
+    if left is None:
         return stacks
     ident = stacks.identifiability
     steps = {s.effect: s for s in sel.steps}
@@ -647,9 +647,6 @@ def set_aside_unconfirmed(stacks: Stacks, sel: Selection, where: Where, elim: El
              for n, t in elim.dropped.items()
              if n in steps and n not in ident.names and t.passed_equation_error and ident.unconfirmable(n)}
     gap = where.located.gap_dofs()
-    left = (f"the confirmed effects leave {elim.after.gap.value / before:.0%} of the holdout gap unexplained "
-            f"({left_to_floor:.0f} x the noise floor), "
-            + ", ".join(f"{share:.0%} of it in {fx.DOF[i]}" for i, share in gap.items()))
     acting = {n: ident.effects[n].acting_in(gap) for n in sel.delta_bic
               if n not in elim.kept and n not in found and n not in ident.names and ident.unconfirmable(n)}
     spare = {n: f"{left}, where its {', '.join(a)} act" for n, a in acting.items() if a}
@@ -661,6 +658,177 @@ def set_aside_unconfirmed(stacks: Stacks, sel: Selection, where: Where, elim: El
             log(f"  listed, not excluded: {n} (its {', '.join(acting[n])}, which these channels cannot identify, act "
                 f"where the unexplained gap lies)")
     return replace(stacks, identifiability=ident.with_unconfirmed(found).with_not_excluded(spare))
+
+
+def gap_left(where: Where, elim: Elimination) -> str | None:
+    """What the confirmed effects leave of the holdout gap (share, times the noise floor, and the DOFs holding it), or
+    None when there is no gap or they explain it: the nominal replay is at most ``REPLAY_ABOVE_FLOOR`` above its
+    noise floor, or they leave at most ``UNEXPLAINED_LARGE`` of the gap and a replay at most ``REPLAY_ABOVE_FLOOR``
+    above that floor (:func:`remaining_to_floor`)."""
+    before = where.before.value
+    if not before > 0 or not where.located.replay_to_floor() > REPLAY_ABOVE_FLOOR:
+        return None
+    left_to_floor = remaining_to_floor(where, elim.after.gap)
+    if not (elim.after.gap.value / before > UNEXPLAINED_LARGE or left_to_floor > REPLAY_ABOVE_FLOOR):
+        return None
+    return (f"the confirmed effects leave {elim.after.gap.value / before:.0%} of the holdout gap unexplained "
+            f"({left_to_floor:.0f} x the noise floor), "
+            + ", ".join(f"{share:.0%} of it in {fx.DOF[i]}" for i, share in where.located.gap_dofs().items()))
+
+
+@dataclass(frozen=True)
+class FreedPart:
+    """A listed, partly identified effect with its non-identified amplitude parameters fitted too (on the velocities
+    the smoother reconstructs): the fit-run and holdout attributors with it, and its fit beside the confirmed set."""
+
+    name: str
+    fit: Attributor
+    holdout: Attributor
+    beside: Fit  # the confirmed set and the freed effect, on ``fit``
+
+
+def freed_parts(stacks: Stacks, elim: Elimination, catalogue) -> list:
+    """:class:`FreedPart` of each listed, partly identified effect (amplitude parameters not identified; forms held
+    as the search holds them) whose untested part the runs support: beside the confirmed set, freeing it lowers the
+    fit-run BIC by more than ``BIC_STRONG`` and raises the holdout equation-error likelihood by a ratio above
+    ``HOLDOUT_CHI2`` (the forward-selection test)."""
+    att, att_h, ident = stacks.fit, stacks.holdout, stacks.identifiability
+    terms = [(n, elim.combination.fit.shapes[n]) for n in elim.kept]
+    out = []
+    for h in [h for h in ident.names if h not in elim.kept and ident.unconfirmable(h)]:
+        chk = ident.effects[h]
+        if all(c.identified for c in chk.params):
+            continue  # only a form is held: nothing to free
+        freed = identifiability.Restricted(catalogue[h], (), {k: f.kept for k, f in chk.forms.items()})
+        fa, fa_h = att.with_effect(h, freed), att_h.with_effect(h, freed)
+        held, free = att.best_shape(h, terms, refine=False), fa.best_shape(h, terms, refine=False)
+        lr = att_h.n_eff * (holdout_loglik(att_h, held) - holdout_loglik(fa_h, free))
+        if fa.bic(free) - att.bic(held) < -BIC_STRONG and lr > HOLDOUT_CHI2:
+            out.append(FreedPart(h, fa, fa_h, free))
+    return out
+
+
+def _supported(att: Attributor, att_h: Attributor, base: Fit, name) -> tuple:
+    """(fit, BIC change, holdout likelihood ratio) of ``name`` added to ``base`` (a fit on ``att``; ``att_h``: the
+    holdout's attributor with the same catalogue)."""
+    with_ = att.best_shape(name, [(n, base.shapes[n]) for n in base.names], refine=False)
+    return with_, att.bic(with_) - att.bic(base), holdout_lr(att_h, base, with_)
+
+
+def hinging_on_untested(parts, elim: Elimination, ident: Identifiability, left: str) -> dict:
+    """Identified effects, not significant and not listed, whose support hinges on the untested part of a listed,
+    partly identified effect (``parts``, :func:`freed_parts`): beside the significant set and that effect with its
+    untested part fitted too, the effect passes the forward-selection test (BIC lower by more than ``BIC_STRONG``,
+    holdout likelihood ratio above ``HOLDOUT_CHI2``). Without a DVL a buoyancy offset can cancel, in the mean heave
+    force, a cross-coupled heave drag ``u|u|`` of the unmeasured surge speed: alone it is not selected, beside the
+    drag it is.
+
+    Returns
+    -------
+    dict
+        Name -> :class:`~udrobot_ctrl.gap.identifiability.Hinged` (the strongest such part for each).
+    """
+    listed = set(ident.names)
+    testable = [m for m, chk in ident.effects.items() if chk.identified and m not in elim.kept and m not in listed]
+    out = {}
+    for part in parts:
+        for m in testable:
+            _, d_bic, lr = _supported(part.fit, part.holdout, part.beside, m)
+            if d_bic < -BIC_STRONG and lr > HOLDOUT_CHI2 and (m not in out or d_bic < out[m].delta_bic):
+                out[m] = identifiability.Hinged(part.name, float(d_bic), float(lr), left)
+    return out
+
+
+def stand_ins(parts, elim: Elimination, att: Attributor, ident: Identifiability, catalogue, left: str) -> dict:
+    """Confirmed members that may stand in for the untested part of a listed, partly identified effect together with
+    one of their own look-alikes (``Effect.mimics``, in the form the search holds or in the form the channels cannot
+    test): with the member replaced by that effect, untested part fitted too (``parts``, :func:`freed_parts`), and
+    the look-alike, the fit-run BIC is lower than the confirmed set's, and the member added back fails the
+    forward-selection test. Without a DVL a heave added-mass error cannot be fitted (its Munk moments hinge on the
+    surge speed); what it leaves in heave and yaw, with a linear damping or a drag on the vehicle's speed, an inflow
+    loss on the hover thrust takes up better than the damping alone.
+
+    Returns
+    -------
+    dict
+        Member -> :class:`~udrobot_ctrl.gap.identifiability.StandIn`.
+    """
+    shapes = elim.combination.fit.shapes
+    current = att.bic(elim.combination.fit)
+    out = {}
+    for m in elim.kept:
+        rest = [(n, shapes[n]) for n in elim.kept if n != m]
+        for part in parts:
+            alone = part.fit.best_shape(part.name, rest, refine=False)
+            for x in catalogue[m].mimics:
+                chk = ident.effects.get(x)
+                if x in elim.kept or x == part.name or chk is None or not chk.identified:
+                    continue
+                untested = {f"{k} = {f.other:g}": identifiability.Restricted(catalogue[x], (), {k: f.other})
+                            for k, f in chk.forms.items()}
+                forms = [("", part.fit, part.holdout)] + [
+                    (label, part.fit.with_effect(x, eff), part.holdout.with_effect(x, eff))
+                    for label, eff in untested.items()]
+                for form, fa, fa_h in forms:
+                    alt, d_x, lr_x = _supported(fa, fa_h, alone, x)
+                    if not fa.bic(alt) < current:
+                        continue
+                    _, d_m, lr_m = _supported(fa, fa_h, alt, m)
+                    if not (d_m < -BIC_STRONG and lr_m > HOLDOUT_CHI2):
+                        out[m] = identifiability.StandIn(
+                            part.name, x, float(fa.bic(alt) - current), float(d_m),
+                            identifiability.Hinged(part.name, float(d_x), float(lr_x), left), form)
+                        break
+                if m in out:
+                    break
+            if m in out:
+                break
+    return out
+
+
+def set_aside_stand_ins(inp: Inputs, stacks: Stacks, where: Where, elim: Elimination, log=None, prior=None):
+    """Step 3d, while a gap is left (:func:`gap_left`): confirmed members that may stand in for the untested part of a
+    partly identified effect are set aside (:func:`stand_ins`), and effects whose support hinges on such a part are
+    listed (:func:`hinging_on_untested`); both as unidentifiable, with the measurement that would test that part.
+    ``prior`` (member -> ``StandIn``): the stand-ins of the first reconstruction pass, which stay set aside when the
+    second confirms them (it reconstructed the velocities with their force).
+
+    Returns
+    -------
+    elim : Elimination
+        Without the stand-ins (refitted and replayed when there are any).
+    stacks : Stacks
+        With the stand-ins, the effects they may stand in with and the hinged effects listed.
+    """
+    left = gap_left(where, elim)
+    found = {m: s for m, s in (prior or {}).items() if m in elim.kept}
+    if (left is None or not reconstructed(inp)) and not found:
+        return elim, stacks
+    ident = stacks.identifiability
+    parts = freed_parts(stacks, elim, inp.catalogue) if left is not None else []
+    found.update(stand_ins(parts, elim, stacks.fit, ident, inp.catalogue, left) if parts else {})
+    if found:
+        rest = [k for k in elim.kept if k not in found]
+        combo = finalize(stacks.fit, rest, inp.names)
+        after = (_replayer(inp, stacks, where.before.scored)(combo.fit, combo.members) if rest else
+                 Replay((), where.before, where.nominal_sims[len(inp.fit):]))
+        elim = replace(elim, kept=tuple(rest), combination=combo, after=after)
+        left = gap_left(where, elim) or left
+        parts = freed_parts(stacks, elim, inp.catalogue) if left is not None else []
+    ident = ident.with_stand_in(found)
+    partners = {s.partner: s.partner_support for s in found.values() if s.partner not in ident.names}
+    ident = ident.with_hinged(partners)
+    hinged = hinging_on_untested(parts, elim, ident, left) if parts else {}
+    if log:
+        for m, s in found.items():
+            log(f"  set aside: {m} (with {s.on}'s parameters these channels cannot identify fitted and {s.partner}"
+                + (f" with {s.partner_form}" if s.partner_form else "") + ", "
+                f"BIC {s.delta_bic:+.0f} against the confirmed set; {m} added back: dBIC {s.member_delta_bic:.0f}; "
+                f"it may stand in for them)")
+        for n, h in {**partners, **hinged}.items():
+            log(f"  listed, not excluded: {n} (beside {h.on} with its parameters these channels cannot identify "
+                f"fitted as well: dBIC {h.delta_bic:.0f}, holdout LR {h.holdout_lr:.0f}; not selected without them)")
+    return elim, replace(stacks, identifiability=ident.with_hinged(hinged))
 
 
 def _wall_entry(params, stack, p) -> dict:
@@ -694,6 +862,13 @@ def effect_verdicts(inp: Inputs, stacks: Stacks, sel: Selection, elim: Eliminati
                                              if n in stacks.identifiability.unconfirmed else "; not significant"))
         elif n in stacks.identifiability.not_excluded:
             note = f"not selected; listed under unidentifiable, not excluded: {stacks.identifiability.not_excluded[n]}"
+        elif n in stacks.identifiability.stand_in:
+            note = ("confirmed on the holdout, but "
+                    + stacks.identifiability.reason(n).split(": it may stand in")[0]
+                    + "; listed under unidentifiable, not significant")
+        elif n in stacks.identifiability.hinged:
+            note = ("not selected; listed under unidentifiable, "
+                    + stacks.identifiability.reason(n).split(": whether it acts")[0])
         elif n in stacks.identifiability.form_alike:
             test = elim.last_test(n)
             note = (("confirmed on the holdout, but " if test is not None and test.passed else "")
@@ -809,9 +984,10 @@ class Pass:
     confirmed: Elimination  # what the holdout confirmed, before the ambiguous effects were set aside
 
 
-def diagnosis_pass(inp: Inputs, say, t0, prior_ambiguous=None, prior_forms=None) -> Pass:
-    """Steps 1-3 of :func:`diagnose` on ``inp``'s prepared runs (``prior_ambiguous``, ``prior_forms``: the effects
-    the first reconstruction pass set aside, see :func:`set_aside_ambiguous`)."""
+def diagnosis_pass(inp: Inputs, say, t0, prior_ambiguous=None, prior_forms=None, prior_stand_ins=None) -> Pass:
+    """Steps 1-3 of :func:`diagnose` on ``inp``'s prepared runs (``prior_ambiguous``, ``prior_forms``,
+    ``prior_stand_ins``: the effects the first reconstruction pass set aside, see :func:`set_aside_ambiguous` and
+    :func:`set_aside_stand_ins`)."""
     where = locate_gap(inp)
     say("where: " + (", ".join(_where_line(x) for x in where.located.locations) or "no channel above its noise floor"))
 
@@ -835,6 +1011,7 @@ def diagnosis_pass(inp: Inputs, say, t0, prior_ambiguous=None, prior_forms=None)
     elim, stacks = set_aside_ambiguous(inp, stacks, where, confirmed, log=say, prior=prior_ambiguous, shrink=shrink,
                                        prior_forms=prior_forms)
     stacks = set_aside_unconfirmed(stacks, sel, where, elim, log=say)
+    elim, stacks = set_aside_stand_ins(inp, stacks, where, elim, log=say, prior=prior_stand_ins)
     return Pass(where, stacks, sel, shrink, elim, confirmed)
 
 
@@ -880,17 +1057,19 @@ def diagnose(model, runs, holdout=None, window_s=8.0, effects=None, log=None, mo
         inp = reconstruct_with(inp, res.stacks.actuation, first.combination.fit, first.kept)
         pass1 = res.stacks.identifiability
         set_aside = {k: pass1.ambiguous[k] for k in first.kept if k not in res.elim.kept and k in pass1.ambiguous}
-        set_forms = dict(pass1.form_alike)
-        res = diagnosis_pass(inp, say, t0, prior_ambiguous=set_aside, prior_forms=set_forms)
+        set_forms, set_stand = dict(pass1.form_alike), dict(pass1.stand_in)
+        res = diagnosis_pass(inp, say, t0, prior_ambiguous=set_aside, prior_forms=set_forms,
+                             prior_stand_ins=set_stand)
         # what pass 1 set aside stays listed: pass 2 smoothed with its force, so its residual is gone from there
         listed = res.stacks.identifiability
         left = {k: v for k, v in set_aside.items() if k not in listed.ambiguous}
         left_forms = {k: a for k, a in set_forms.items() if k not in listed.names and k not in res.elim.kept}
-        if left or left_forms:
-            say(f"  still set aside from pass 1: {', '.join([*left, *left_forms])} (the runs cannot say which of "
-                f"them and their look-alikes acts)")
+        left_stand = {k: a for k, a in set_stand.items() if k not in listed.names and k not in res.elim.kept}
+        if left or left_forms or left_stand:
+            say(f"  still set aside from pass 1: {', '.join([*left, *left_forms, *left_stand])} (the runs cannot say "
+                f"which of them and their look-alikes acts)")
             res = replace(res, stacks=replace(res.stacks, identifiability=listed.with_ambiguous(left)
-                                              .with_form_alike(left_forms)))
+                                              .with_form_alike(left_forms).with_stand_in(left_stand)))
         inp = replace(inp, notes=inp.notes + [
             f"reconstruction: the unlogged velocities were smoothed twice, first with the nominal plant (confirmed "
             f"on the holdout then: {', '.join(first.kept)}), then with those effects' force added (significant: "

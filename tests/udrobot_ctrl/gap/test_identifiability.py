@@ -13,9 +13,11 @@ from udrobot_ctrl.gap.data import prepare
 from udrobot_ctrl.gap.identifiability import (
     EffectCheck,
     FormCheck,
+    Hinged,
     Identifiability,
     ParameterCheck,
     Restricted,
+    StandIn,
     assess,
     sensors,
 )
@@ -205,3 +207,40 @@ def test_a_not_excluded_partial_effect_is_listed_with_the_gap_it_could_explain()
     assert why.startswith("not excluded: 54% of the gap unexplained, 76% of it in Z, where its scale_Zdw act")
     assert "cannot be tested" in why and "DVL" in why
     assert listed.entry("added_mass_error") == {} and ident.entry("added_mass_error") != {}
+
+
+def _partial_added_mass():
+    ok = ParameterCheck("scale_Ndr", 0.9, 0.1, True, (), (0, 0, 0, 0, 0, 1.0))
+    heave = ParameterCheck("scale_Zdw", 0.9, 2.0, False, ("horizontal",), (0, 0, 0.03, 0.34, 0.63, 0))
+    full = [ParameterCheck("d", 1.0, 0.0, True, (), (0, 0, 1.0, 0, 0, 0))]
+    checks = {"added_mass_error": EffectCheck("added_mass_error", [ok, heave]),
+              "buoyancy_offset": EffectCheck("buoyancy_offset", full),
+              "thrust_inflow_loss": EffectCheck("thrust_inflow_loss", full),
+              "linear_damping": EffectCheck("linear_damping", full)}
+    return Identifiability(checks, np.array([0, 0, 1, 1, 1, 1], bool), np.array([1, 1, 0, 0, 0, 0], bool))
+
+
+def test_an_effect_whose_support_hinges_on_an_untested_part_is_listed_with_that_part_and_its_measurement():
+    """Listed as not excluded: the gap, the partly identified effect beside which it is supported, the evidence, and
+    the measurement that would test that part; no partial-identification entry."""
+    ident = _partial_added_mass()
+    listed = ident.with_hinged({"buoyancy_offset": Hinged("added_mass_error", -205.3, 219.3, "80% of the gap left")})
+    assert ident.names == [] and listed.names == ["buoyancy_offset"]
+    why = listed.reason("buoyancy_offset")
+    assert why.startswith("not excluded: 80% of the gap left; beside added_mass_error with its scale_Zdw fitted")
+    assert "by 205" in why and "ratio 219" in why and "log u, v (DVL)" in why
+    assert listed.entry("buoyancy_offset") == {}
+
+
+def test_a_confirmed_stand_in_for_an_untested_part_is_listed_with_its_partner_and_what_tells_them_apart():
+    ident = _partial_added_mass()
+    partner = Hinged("added_mass_error", -433.0, 275.8, "83% of the gap left")
+    stand = StandIn("added_mass_error", "linear_damping", -662.9, 104.7, partner)
+    listed = ident.with_stand_in({"thrust_inflow_loss": stand}).with_hinged({"linear_damping": partner})
+    assert listed.names == ["thrust_inflow_loss", "linear_damping"]
+    why = listed.reason("thrust_inflow_loss")
+    assert "replaced by added_mass_error, its scale_Zdw fitted" in why and "-663" in why and "+105" in why
+    assert "log u, v (DVL)" in why and "to tell it from linear_damping: coast-downs" in why
+    form = replace(stand, partner_form="norm_weight = 1")
+    assert "with norm_weight = 1 (a form these channels cannot test)" in ident.with_stand_in(
+        {"thrust_inflow_loss": form}).reason("thrust_inflow_loss")

@@ -149,3 +149,45 @@ def test_stock_effect_beside_a_confirmed_one_is_listed_when_a_gap_above_the_floo
     if "added_mass_error" in listed:  # not excluded (the gap left, against the floor) or not confirmable (evidence)
         why = listed["added_mass_error"]
         assert "x the noise floor" in why or "the equation error on the observed DOFs" in why, why
+
+
+# the truth's inflow loss (K_T falling with the advance ratio, a J^2 term included: a drag on the thruster axis) with
+# a rotor-speed lag: forward selection fitted the lag alone first, and with its time constant held (0.59 s) a heave
+# quadratic-damping error complemented it better than the inflow loss; with the shapes fitted again for the best
+# candidates of each step (lag 0.48 s beside the inflow loss), the two truth effects are named
+@pytest.mark.slow
+def test_stock_forward_selection_refits_the_lag_beside_each_contender():
+    report = _bench_case(("thrust_inflow_loss", "thruster_lag"))
+    sig = {e["name"] for e in report["effects"] if e["significant"]}
+    assert sig == {"thrust_inflow_loss", "thruster_lag"}, (sig, [u["name"] for u in report["unidentifiable"]])
+    lag = next(e for e in report["effects"] if e["name"] == "thruster_lag")
+    assert 0.3 < lag["params"]["T_lag_s"] < 0.7, lag["params"]  # the truth's rotor time constant: 0.47 s
+
+
+# a cross-coupled heave drag c u|u| of the unmeasured surge speed whose mean (+1.7 N) cancels a buoyancy offset of
+# -1.8 N: alone the offset does not lower the BIC, beside the drag fitted on the reconstructed surge speed it does
+# (by ~200); neither can be named, and the offset is listed with that reason instead of missed
+@pytest.mark.slow
+def test_stock_effect_hinging_on_an_untested_part_is_listed_not_missed():
+    report = _bench_case(("cross_coupled_damping", "buoyancy_offset"))
+    sig = {e["name"] for e in report["effects"] if e["significant"]}
+    listed = {u["name"]: u["reason"] for u in report["unidentifiable"]}
+    assert sig <= {"cross_coupled_damping", "buoyancy_offset"}, (sig, sorted(listed))
+    assert "cross_coupled_damping" in listed, sorted(listed)
+    if "buoyancy_offset" not in sig:
+        why = listed.get("buoyancy_offset", "")
+        assert "beside cross_coupled_damping" in why and "log u, v (DVL)" in why, (why, sorted(listed))
+
+
+# a quadratic drag on the speed norm and a heave/yaw added-mass error: neither can be fitted whole without a DVL, and
+# an inflow loss on the hover thrust took up what they leave (confirmed on the holdout, 58 % of the gap left). With
+# the added mass's untested part fitted and the drag in its untested form, the inflow loss adds nothing: it is
+# listed as their possible stand-in, not named
+@pytest.mark.slow
+def test_stock_stand_in_for_untested_parts_is_listed_not_named():
+    report = _bench_case(("quadratic_damping_error", "added_mass_error"))
+    sig = {e["name"] for e in report["effects"] if e["significant"]}
+    listed = {u["name"]: u["reason"] for u in report["unidentifiable"]}
+    assert sig <= {"quadratic_damping_error", "added_mass_error"}, (sig, sorted(listed))
+    assert all(n in sig or n in listed for n in ("quadratic_damping_error", "added_mass_error")), sorted(listed)
+    assert "may stand in for what these channels cannot test" in listed.get("thrust_inflow_loss", ""), sorted(listed)
