@@ -52,10 +52,13 @@ BIC_STRONG = 10.0
 #: up the rest (the full-sensor all-pairs tether + quadratic-damping case); at 40 each it converges to 2 cm
 REFINE_EVALS_PER_SHAPE = 40
 HOLDOUT_CHI2 = 6.63
-#: a forward step ranks the remaining effects with the shapes of those already selected held, then re-fits every
-#: shape jointly (:func:`refit`) for this many of the best: a held shape favours the effect that makes up for its
-#: error (without a DVL, a thruster lag's time constant fitted first, which a heave quadratic-damping error
-#: complements better than the inflow loss the runs hold, until the lag's time constant is fitted again beside it)
+#: a forward step ranks the remaining effects with the shapes of those already selected held, then picks among this
+#: many of the best by a joint fit of every shape (:func:`refit`): a held shape favours the effect that makes up for
+#: its error (without a DVL, a thruster lag's time constant fitted first, which a heave quadratic-damping error
+#: complements better than the inflow loss the runs hold, until the lag's time constant is fitted again beside it).
+#: The pick is added with the selected shapes held, as before: refitted jointly, an exponential wall template and an
+#: added-mass error share a power-law wall's far tail (seed 003's gap-ratio law), the wall's decay length halves and
+#: the added mass is confirmed as a second effect
 REFIT_CONTENDERS = 3
 FIT_RATE_HZ = 10.0
 #: memory (bytes) the cached designs, their per-DOF regressors and their cross products may hold together, per
@@ -597,8 +600,9 @@ def forward_select(att: Attributor, att_h: Attributor, names=None, max_effects=4
 
     An effect is added while it lowers the fit-run BIC by more than ``BIC_STRONG`` and, with its parameters frozen,
     raises the holdout equation-error likelihood by a ratio above ``HOLDOUT_CHI2``. Each step ranks the remaining
-    effects with the selected ones' shapes held and, once a selected effect has a free shape, re-fits all shapes
-    jointly for the ``REFIT_CONTENDERS`` best (:func:`refit`) and adds the best of those.
+    effects with the selected ones' shapes held and, once a selected effect has a free shape, picks among the
+    ``REFIT_CONTENDERS`` best by a joint fit of all shapes (:func:`refit`); the pick is added with the selected
+    shapes held.
 
     Parameters
     ----------
@@ -633,14 +637,12 @@ def forward_select(att: Attributor, att_h: Attributor, names=None, max_effects=4
         if not cands:
             break
         ranked = sorted(cands, key=lambda n: att.bic(cands[n]))
+        best = ranked[0]
         if any(att.free_shapes(m) for m in selected):
             trials = {n: refit(att, [*selected, n], {**current.shapes, n: cands[n].shapes[n]})
                       for n in ranked[:REFIT_CONTENDERS]}
             best = min(trials, key=lambda n: att.bic(trials[n]))
-            fbest = trials[best]
-        else:
-            best = ranked[0]
-            fbest = att.best_shape(best, fixed, refine=True)
+        fbest = att.best_shape(best, fixed, refine=True)
         d_bic = att.bic(fbest) - cur_bic
         lr = holdout_lr(att_h, current, fbest)
         ok = d_bic < -BIC_STRONG and lr > HOLDOUT_CHI2

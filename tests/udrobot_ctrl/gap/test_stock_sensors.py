@@ -153,13 +153,19 @@ def test_stock_effect_beside_a_confirmed_one_is_listed_when_a_gap_above_the_floo
 
 # the truth's inflow loss (K_T falling with the advance ratio, a J^2 term included: a drag on the thruster axis) with
 # a rotor-speed lag: forward selection fitted the lag alone first, and with its time constant held (0.59 s) a heave
-# quadratic-damping error complemented it better than the inflow loss; with the shapes fitted again for the best
-# candidates of each step (lag 0.48 s beside the inflow loss), the two truth effects are named
+# quadratic-damping error complemented it better than the inflow loss and was named. Each step now picks among its
+# best candidates by a joint fit of every shape (lag 0.48 s beside the inflow loss, against 0.51 s beside the
+# damping): the inflow loss is picked; with the lag held it is matched as well by its look-alikes, so it is named or
+# listed with them, and the damping is never named
 @pytest.mark.slow
-def test_stock_forward_selection_refits_the_lag_beside_each_contender():
+def test_stock_forward_selection_picks_by_a_joint_fit_of_the_shapes():
     report = _bench_case(("thrust_inflow_loss", "thruster_lag"))
     sig = {e["name"] for e in report["effects"] if e["significant"]}
-    assert sig == {"thrust_inflow_loss", "thruster_lag"}, (sig, [u["name"] for u in report["unidentifiable"]])
+    listed = {u["name"]: u["reason"] for u in report["unidentifiable"]}
+    assert sig <= {"thrust_inflow_loss", "thruster_lag"} and "thruster_lag" in sig, (sig, sorted(listed))
+    assert "thrust_inflow_loss" in sig or "thrust_inflow_loss" in listed, (sig, sorted(listed))
+    steps = [s["effect"] for s in report["selection_steps"] if s["accepted"]]
+    assert steps[:2] == ["thruster_lag", "thrust_inflow_loss"], steps
     lag = next(e for e in report["effects"] if e["name"] == "thruster_lag")
     assert 0.3 < lag["params"]["T_lag_s"] < 0.7, lag["params"]  # the truth's rotor time constant: 0.47 s
 
