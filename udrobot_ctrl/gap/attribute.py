@@ -56,9 +56,12 @@ HOLDOUT_CHI2 = 6.63
 #: many of the best by a joint fit of every shape (:func:`refit`): a held shape favours the effect that makes up for
 #: its error (without a DVL, a thruster lag's time constant fitted first, which a heave quadratic-damping error
 #: complements better than the inflow loss the runs hold, until the lag's time constant is fitted again beside it).
-#: The pick is added with the selected shapes held, as before: refitted jointly, an exponential wall template and an
-#: added-mass error share a power-law wall's far tail (seed 003's gap-ratio law), the wall's decay length halves and
-#: the added mass is confirmed as a second effect
+#: With measured velocities the pick is added with the selected shapes held: refitted jointly, an exponential wall
+#: template and an added-mass error share a power-law wall's far tail (seed 003's gap-ratio law), the wall's decay
+#: length halves and the added mass is confirmed as a second effect. With reconstructed velocities it is added with
+#: every shape refitted (``joint_add``): the first pass smooths them with the nominal plant, so an effect selected
+#: first fits its shape on velocities that carry the missing effects' force (a stock dead band's width and exponent
+#: took up a linear damping's share, and the damping, 280 BIC units better with the width fitted again, was missed)
 REFIT_CONTENDERS = 3
 FIT_RATE_HZ = 10.0
 #: memory (bytes) the cached designs, their per-DOF regressors and their cross products may hold together, per
@@ -595,14 +598,14 @@ class Selection:
 
 
 def forward_select(att: Attributor, att_h: Attributor, names=None, max_effects=4, log=None,
-                   exclude=()) -> Selection:
+                   exclude=(), joint_add=False) -> Selection:
     """Single fits of every effect, noise floor, forward selection and look-alike groups.
 
     An effect is added while it lowers the fit-run BIC by more than ``BIC_STRONG`` and, with its parameters frozen,
     raises the holdout equation-error likelihood by a ratio above ``HOLDOUT_CHI2``. Each step ranks the remaining
     effects with the selected ones' shapes held and, once a selected effect has a free shape, picks among the
     ``REFIT_CONTENDERS`` best by a joint fit of all shapes (:func:`refit`); the pick is added with the selected
-    shapes held.
+    shapes held, or with every shape refitted when ``joint_add`` (reconstructed velocities).
 
     Parameters
     ----------
@@ -618,6 +621,9 @@ def forward_select(att: Attributor, att_h: Attributor, names=None, max_effects=4
         Effects the runs cannot identify (:mod:`udrobot_ctrl.gap.identifiability`): fitted alone for the record
         (best grid shape, not refined) and never selected; they are still look-alikes of a selected effect whose
         fit they match on the observed DOFs (the runs cannot tell them apart: that is what the report must say).
+    joint_add : bool
+        Add each pick with every shape refitted jointly (its :func:`refit` trial), not with the selected shapes
+        held: for velocities the smoother reconstructed with the nominal plant (see ``REFIT_CONTENDERS``).
     """
     names = list(names or att.cat)
     nominal = att.fit([])
@@ -637,12 +643,12 @@ def forward_select(att: Attributor, att_h: Attributor, names=None, max_effects=4
         if not cands:
             break
         ranked = sorted(cands, key=lambda n: att.bic(cands[n]))
-        best = ranked[0]
+        best, trials = ranked[0], {}
         if any(att.free_shapes(m) for m in selected):
             trials = {n: refit(att, [*selected, n], {**current.shapes, n: cands[n].shapes[n]})
                       for n in ranked[:REFIT_CONTENDERS]}
             best = min(trials, key=lambda n: att.bic(trials[n]))
-        fbest = att.best_shape(best, fixed, refine=True)
+        fbest = trials[best] if joint_add and best in trials else att.best_shape(best, fixed, refine=True)
         d_bic = att.bic(fbest) - cur_bic
         lr = holdout_lr(att_h, current, fbest)
         ok = d_bic < -BIC_STRONG and lr > HOLDOUT_CHI2

@@ -155,19 +155,34 @@ def test_stock_effect_beside_a_confirmed_one_is_listed_when_a_gap_above_the_floo
 # a rotor-speed lag: forward selection fitted the lag alone first, and with its time constant held (0.59 s) a heave
 # quadratic-damping error complemented it better than the inflow loss and was named. Each step now picks among its
 # best candidates by a joint fit of every shape (lag 0.48 s beside the inflow loss, against 0.51 s beside the
-# damping): the inflow loss is picked; with the lag held it is matched as well by its look-alikes, so it is named or
-# listed with them, and the damping is never named
+# damping) and, the velocities being reconstructed, adds the pick with the lag's time constant fitted again: both
+# effects are named, and the damping never is
 @pytest.mark.slow
 def test_stock_forward_selection_picks_by_a_joint_fit_of_the_shapes():
     report = _bench_case(("thrust_inflow_loss", "thruster_lag"))
     sig = {e["name"] for e in report["effects"] if e["significant"]}
     listed = {u["name"]: u["reason"] for u in report["unidentifiable"]}
-    assert sig <= {"thrust_inflow_loss", "thruster_lag"} and "thruster_lag" in sig, (sig, sorted(listed))
-    assert "thrust_inflow_loss" in sig or "thrust_inflow_loss" in listed, (sig, sorted(listed))
+    assert sig == {"thrust_inflow_loss", "thruster_lag"}, (sig, sorted(listed))
     steps = [s["effect"] for s in report["selection_steps"] if s["accepted"]]
     assert steps[:2] == ["thruster_lag", "thrust_inflow_loss"], steps
     lag = next(e for e in report["effects"] if e["name"] == "thruster_lag")
     assert 0.3 < lag["params"]["T_lag_s"] < 0.7, lag["params"]  # the truth's rotor time constant: 0.47 s
+
+
+# a dead band (truth 0.27 of the reference thrust, a command-domain form) and a linear damping: on velocities the
+# first pass smooths with the nominal plant, the dead band's width and exponent, fitted first, take up the damping's
+# share; with them held, the damping did not lower the BIC (it was not among the step's best) and was missed, fitted
+# again beside it, it lowers the BIC by ~100. Added with the shapes refitted, the damping is selected and confirmed on
+# the holdout (here set aside with its tether look-alike, which these channels cannot test)
+@pytest.mark.slow
+def test_stock_second_effect_is_added_with_the_first_ones_shape_fitted_again():
+    report = _bench_case(("thruster_deadband", "linear_damping"))
+    sig = {e["name"] for e in report["effects"] if e["significant"]}
+    listed = {u["name"]: u["reason"] for u in report["unidentifiable"]}
+    assert sig <= {"thruster_deadband", "linear_damping"} and "thruster_deadband" in sig, (sig, sorted(listed))
+    assert "linear_damping" in sig or "linear_damping" in listed, (sig, sorted(listed))
+    steps = [s["effect"] for s in report["selection_steps"] if s["accepted"]]
+    assert "linear_damping" in steps, steps
 
 
 # a cross-coupled heave drag c u|u| of the unmeasured surge speed whose mean (+1.7 N) cancels a buoyancy offset of
