@@ -181,8 +181,10 @@ def test_stock_second_effect_is_added_with_the_first_ones_shape_fitted_again():
     listed = {u["name"]: u["reason"] for u in report["unidentifiable"]}
     assert sig <= {"thruster_deadband", "linear_damping"} and "thruster_deadband" in sig, (sig, sorted(listed))
     assert "linear_damping" in sig or "linear_damping" in listed, (sig, sorted(listed))
-    steps = [s["effect"] for s in report["selection_steps"] if s["accepted"]]
-    assert "linear_damping" in steps, steps
+    # selected and confirmed on the holdout in the first pass, then set aside with its look-alike: listed with the
+    # reason that names it (the second pass's selection_steps, reported, start from the dead band's force alone)
+    if "linear_damping" in listed:
+        assert "matched as well by" in listed["linear_damping"], listed["linear_damping"]
 
 
 # a cross-coupled heave drag c u|u| of the unmeasured surge speed whose mean (+1.7 N) cancels a buoyancy offset of
