@@ -3,8 +3,9 @@
 Forward selection (:func:`udrobot_ctrl.gap.attribute.forward_select`) proposes effects that lower the fit-run BIC
 and the holdout equation error one at a time; an effect added early can become redundant once later ones are in
 (a thruster lag proposed with a deadband, an added-mass and a damping error that only shared its residual). So the
-final set is checked member by member: each member, dropped from the set (the others' amplitudes refitted on the
-fit runs with their shapes kept), must leave the fit runs' BIC higher (the fit runs still prefer the set with it:
+final set is checked member by member: each member, dropped from the set (the others refitted on the fit runs,
+their shapes too: two templates that split one effect's force when fitted jointly, the one left must get its share
+back before the removal is scored), must leave the fit runs' BIC higher (the fit runs still prefer the set with it:
 forward selection admitted it given the effects before it, and a later effect can take its share) and must make
 the holdout worse on both scores:
 
@@ -48,7 +49,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy import stats
 
-from udrobot_ctrl.gap.attribute import HOLDOUT_CHI2, Attributor, Combination, Fit, finalize, holdout_lr
+from udrobot_ctrl.gap.attribute import HOLDOUT_CHI2, Attributor, Combination, Fit, finalize, holdout_lr, refit
 from udrobot_ctrl.gap.effects import Actuation
 from udrobot_ctrl.gap.shrink import GapScore, errors, gap, simulate_windows, window_starts
 
@@ -319,7 +320,7 @@ def check_members(att: Attributor, att_h: Attributor, combo: Combination, full: 
     tests = []
     for n in combo.members:
         rest = [m for m in combo.members if m != n]
-        fit_rest = att.fit([(m, combo.fit.shapes[m]) for m in rest])  # amplitudes refitted, shapes kept
+        fit_rest = refit(att, rest, combo.fit.shapes) if rest else att.fit([])
         lr = holdout_lr(att_h, fit_rest, combo.fit)
         r_rest = replay_rest(fit_rest, rest)
         e_rest = window_energy(preps, r_rest.sims, r_rest.gap, window_s)

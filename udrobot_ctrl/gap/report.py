@@ -420,14 +420,12 @@ def build_stacks(inp: Inputs) -> Stacks:
     return Stacks(att, att_h, Actuation(h0.B, h0.inflow, st.f_ref, M_A), ident)
 
 
-def attribute(stacks: Stacks, names, log=None, joint_add=False) -> Selection:
+def attribute(stacks: Stacks, names, log=None) -> Selection:
     """Step 2, attribute: fit every tested effect on the fit runs and select forward among the identifiable ones
-    (fit-run BIC, holdout equation error; ``joint_add``: each pick added with every shape refitted, for velocities
-    the smoother reconstructed, see :func:`~udrobot_ctrl.gap.attribute.forward_select`); then set the holdout
+    (fit-run BIC, holdout equation error, :func:`~udrobot_ctrl.gap.attribute.forward_select`); then set the holdout
     stack's N_eff from the fit runs' noise whiteness for the backward check. Unidentifiable effects are fitted for
     the record and still count as look-alikes."""
-    sel = forward_select(stacks.fit, stacks.holdout, names, log=log, exclude=stacks.identifiability.names,
-                         joint_add=joint_add)
+    sel = forward_select(stacks.fit, stacks.holdout, names, log=log, exclude=stacks.identifiability.names)
     stacks.holdout.n_eff = max(10.0, stacks.holdout.N / max(sel.tau_int, 1.0))
     return sel
 
@@ -1003,7 +1001,7 @@ def diagnosis_pass(inp: Inputs, say, t0, prior_ambiguous=None, prior_forms=None,
         for k, form in chk.forms.items():
             say(f"{n}: searched with {k} = {form.kept:g} only (at {form.other:g} it hinges on a velocity the "
                 f"channels do not measure; see its not_identified entry)")
-    sel = attribute(stacks, inp.names, log=say, joint_add=reconstructed(inp))
+    sel = attribute(stacks, inp.names, log=say)
     say(f"candidates (forward selection on the fit runs, {len(inp.names) - len(unidentifiable)} identifiable "
         f"effects tested): {', '.join(sel.proposed) or 'none'} ({time.perf_counter() - t0:.1f} s)")
 
