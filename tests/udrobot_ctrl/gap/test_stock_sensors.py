@@ -98,6 +98,8 @@ def test_stock_look_alikes_are_listed_not_guessed(names):
     assert all("to tell it from" in listed[n] or "log " in listed[n] for n in names if n not in sig), listed
     ambiguous = [r for r in listed.values() if "the runs cannot say which acts" in r]
     assert all("to tell it from" in r or "log " in r for r in ambiguous), ambiguous
+    ranked = [e["name"] for e in report["effects"]]  # the list opens with what explains most of the holdout gap
+    assert list(listed) == sorted(listed, key=ranked.index), (list(listed), ranked)
 
 
 # a heave/yaw added-mass error whose surge part (and, through the Munk moment, its heave part) needs the surge speed:

@@ -41,6 +41,21 @@ def test_summary_prints_undefined_values():
     assert "unexplained undefined" in text and "shrink undefined" in text
 
 
+def test_summary_says_a_single_effect_replay_drifts_off_instead_of_a_huge_negative_shrink():
+    report = {"model": "m", "fit_runs": ["a"], "holdout_runs": ["b"],
+              "gap_before": {"value": 1.0, "per_channel": {"z": 1.0}, "scored": ["z"]},
+              "gap_after": {"value": 1.0, "per_channel": {"z": 1.0}, "scored": ["z"]}, "location": [],
+              "effects": [{"name": "cross_coupled_damping", "significant": False, "shrink": -7031.0,
+                           "evidence": {"delta_bic": -5.0}, "params": {}},
+                          {"name": "buoyancy_offset", "significant": False, "shrink": -0.5,
+                           "evidence": {"delta_bic": 3.0}, "params": {}}],
+              "unexplained": 1.0, "verdict": "nothing significant"}
+    lines = summary(report).splitlines()
+    ccd = next(ln for ln in lines if "cross_coupled_damping" in ln)
+    assert "alone its replay drifts off (7.03e+03 x the nominal gap)" in ccd
+    assert "drifts off" not in next(ln for ln in lines if "buoyancy_offset" in ln)  # twice the gap or less: a number
+
+
 @pytest.mark.slow
 def test_diagnose_a_vehicle_holding_still(tmp_path, capsys):
     t = np.arange(0, 60, 0.05)
