@@ -675,9 +675,10 @@ def refit(att: Attributor, members, shapes=None):
     """Joint fit of ``members`` with each one's shape re-optimised given the others (one coordinate pass).
 
     Used after members are dropped: the remaining parameters were fitted alongside the dropped ones and
-    would otherwise keep the share of the residual the dropped effects had taken; and by forward selection, to
-    compare the best candidates of a step with every shape fitted again. A given shape also seeds its member's
-    search, so the pass never ends worse than where it started.
+    would otherwise keep the share of the residual the dropped effects had taken (the backward check's removal
+    test, :func:`udrobot_ctrl.gap.confirm.check_members`, and :func:`finalize`); and by forward selection, to compare
+    the best candidates of a step with every shape fitted again and to add the pick. A given shape also seeds its
+    member's search, so the pass never ends worse than where it started. With no members it is the nominal fit.
     """
     shapes = {n: s for n, s in (shapes or {}).items() if n in members}
     for n in members:

@@ -320,7 +320,7 @@ def check_members(att: Attributor, att_h: Attributor, combo: Combination, full: 
     tests = []
     for n in combo.members:
         rest = [m for m in combo.members if m != n]
-        fit_rest = refit(att, rest, combo.fit.shapes) if rest else att.fit([])
+        fit_rest = refit(att, rest, combo.fit.shapes)  # amplitudes and shapes refitted without it
         lr = holdout_lr(att_h, fit_rest, combo.fit)
         r_rest = replay_rest(fit_rest, rest)
         e_rest = window_energy(preps, r_rest.sims, r_rest.gap, window_s)
