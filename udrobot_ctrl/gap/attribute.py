@@ -38,6 +38,7 @@ from dataclasses import dataclass, field
 from functools import lru_cache
 
 import numpy as np
+from scipy.linalg import solve_triangular
 from scipy.optimize import lsq_linear, minimize
 from scipy.signal import savgol_coeffs
 from scipy.sparse import csr_matrix
@@ -455,11 +456,8 @@ class Attributor:
                 hw = (h * w[:, None]).sum(0)[active]
                 scale = np.sqrt(np.diag(Gw)) + 1e-300
                 Gn = Gw / np.outer(scale, scale) + 1e-9 * np.eye(active.sum())
-                L = np.linalg.cholesky(Gn)
-                bvec = np.linalg.solve(L, hw / scale)
-                res = lsq_linear(L.T, bvec, bounds=(lo[active] * scale, hi[active] * scale), method="bvls")
                 a = np.zeros(k)
-                a[active] = res.x / scale
+                a[active] = bounded_normal_solve(Gn, hw / scale, lo[active] * scale, hi[active] * scale) / scale
                 e = y - prediction(a)
                 sig = np.sqrt(np.mean(e ** 2, axis=0)) + 1e-12
             pred = b0[:, d] + prediction(a)
@@ -543,6 +541,18 @@ class Attributor:
         tau = float(np.median(taus)) if taus else 1.0
         self.n_eff = max(10.0, self.N / max(tau, 1.0))
         return tau, full
+
+
+def bounded_normal_solve(G, h, lo, hi) -> np.ndarray:
+    """argmin_z z^T G z - 2 h^T z subject to lo <= z <= hi, for a symmetric positive definite G (normal equations):
+    the unconstrained solution when it lies within the bounds (where almost every fit ends), else bounded-variable
+    least squares on the Cholesky factor (scipy's ``bvls``), which returns that same solution when it is feasible."""
+    L = np.linalg.cholesky(G)
+    b = solve_triangular(L, h, lower=True, check_finite=False)
+    z = solve_triangular(L.T, b, lower=False, check_finite=False)
+    if np.all(z >= lo) and np.all(z <= hi):
+        return z
+    return lsq_linear(L.T, b, bounds=(lo, hi), method="bvls").x
 
 
 def _rounded(terms) -> tuple:

@@ -44,6 +44,7 @@ took its share (a quadratic damping error next to a tether that is kept for want
 """
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -51,7 +52,7 @@ from scipy import stats
 
 from udrobot_ctrl.gap.attribute import HOLDOUT_CHI2, Attributor, Combination, Fit, finalize, holdout_lr, refit
 from udrobot_ctrl.gap.effects import Actuation
-from udrobot_ctrl.gap.shrink import GapScore, errors, gap, simulate_windows, window_starts
+from udrobot_ctrl.gap.shrink import GapScore, errors, gap, simulate_windows_sets, window_starts
 
 REPLAY_MATERIAL = 0.02  # fraction of gap_before
 REPLAY_P = 0.1  # one-sided p of the per-window rise (signed-rank and t, Bonferroni) below REPLAY_LARGE
@@ -71,6 +72,17 @@ class Replay:
     members: tuple
     gap: GapScore
     sims: list  # (n, 15) per holdout run: state and specific force (shrink.simulate_windows)
+
+
+@dataclass(frozen=True)
+class Replayer:
+    """Holdout replays of fitted effect sets: ``replayer(fit, members)`` gives one :class:`Replay`,
+    ``replayer.many([(fit, members), ...])`` several, integrated together (:func:`replay_sets`)."""
+
+    many: Callable  # sequence of (fit, members) -> list of Replay, in order
+
+    def __call__(self, fit, members) -> Replay:
+        return self.many([(fit, members)])[0]
 
 
 def fitted_hooks(catalogue, p, actuation: Actuation, fit: Fit | None, members) -> list:
@@ -98,9 +110,19 @@ def replay(preps, p, fit: Fit | None, members, catalogue, actuation: Actuation, 
     scored : list of str
         Channels scored (those of the nominal gap).
     """
-    hooks = fitted_hooks(catalogue, p, actuation, fit, members)
-    sims = [simulate_windows(pr, p, hooks, window_s) for pr in preps]
-    return Replay(tuple(members), gap(preps, sims, scored), sims)
+    return replay_sets(preps, p, [(fit, members)], catalogue, actuation, window_s, scored)[0]
+
+
+def replay_sets(preps, p, sets, catalogue, actuation: Actuation, window_s, scored) -> list:
+    """:func:`replay` of several sets at once: ``sets`` is a sequence of (fit, members); one :class:`Replay` each, in
+    order, integrated together (:func:`udrobot_ctrl.gap.shrink.simulate_windows_sets`)."""
+    hook_sets = [fitted_hooks(catalogue, p, actuation, fit, members) for fit, members in sets]
+    per_run = [simulate_windows_sets(pr, p, hook_sets, window_s) for pr in preps]
+    out = []
+    for v, (_, members) in enumerate(sets):
+        sims = [run_sims[v] for run_sims in per_run]
+        out.append(Replay(tuple(members), gap(preps, sims, scored), sims))
+    return out
 
 
 def window_energy(preps, sims, score: GapScore, window_s) -> np.ndarray:
@@ -312,17 +334,17 @@ def check_members(att: Attributor, att_h: Attributor, combo: Combination, full: 
                   replay_rest, window_s, preps, alone=None) -> tuple:
     """:class:`MemberTest` of every member of ``combo`` (see the module docstring).
 
-    ``replay_rest(fit, members)`` replays the holdout with ``members`` of ``fit``; ``alone`` maps names to their
-    :class:`Alone` check.
+    ``replay_rest`` (:class:`Replayer`) replays the holdout with the rest of the set, every member's rest at once;
+    ``alone`` maps names to their :class:`Alone` check.
     """
     alone = alone or {}
     e_full = window_energy(preps, full.sims, full.gap, window_s)
+    rests = [[m for m in combo.members if m != n] for n in combo.members]
+    fits = [refit(att, rest, combo.fit.shapes) for rest in rests]  # amplitudes and shapes refitted without it
+    replays = replay_rest.many(list(zip(fits, rests)))
     tests = []
-    for n in combo.members:
-        rest = [m for m in combo.members if m != n]
-        fit_rest = refit(att, rest, combo.fit.shapes)  # amplitudes and shapes refitted without it
+    for n, fit_rest, r_rest in zip(combo.members, fits, replays):
         lr = holdout_lr(att_h, fit_rest, combo.fit)
-        r_rest = replay_rest(fit_rest, rest)
         e_rest = window_energy(preps, r_rest.sims, r_rest.gap, window_s)
         t, pval = paired_rise(e_rest, e_full)
         contrib = (r_rest.gap.value - full.gap.value) / before.value if before.value > 0 else 0.0
@@ -346,7 +368,7 @@ def backward_eliminate(att: Attributor, att_h: Attributor, candidates: Combinati
         Effects tested (for the refitted set's look-alikes).
     before : GapScore
         Nominal holdout gap.
-    replay_fit : callable (fit, members) -> Replay
+    replay_fit : Replayer
         Holdout replay with members of a fit added.
     window_s : float
     preps : list of Prepared

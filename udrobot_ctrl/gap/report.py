@@ -49,10 +49,11 @@ from udrobot_ctrl.gap.confirm import (
     Elimination,
     MemberTest,
     Replay,
+    Replayer,
     alone_tests,
     backward_eliminate,
     fitted_hooks,
-    replay,
+    replay_sets,
 )
 from udrobot_ctrl.gap.data import prepare
 from udrobot_ctrl.gap.effects import Actuation
@@ -430,25 +431,32 @@ def attribute(stacks: Stacks, names, log=None) -> Selection:
     return sel
 
 
-def _replayer(inp: Inputs, stacks: Stacks, scored):
-    """(fit, members) -> holdout :class:`Replay` with those members of the fit added."""
-    return lambda fit, members: replay(inp.holdout, inp.p, fit, members, inp.catalogue, stacks.actuation,
-                                       inp.window_s, scored)
+def _replayer(inp: Inputs, stacks: Stacks, scored) -> Replayer:
+    """The holdout :class:`~udrobot_ctrl.gap.confirm.Replayer` of fitted effect sets."""
+    return Replayer(lambda sets: replay_sets(inp.holdout, inp.p, sets, inp.catalogue, stacks.actuation,
+                                             inp.window_s, scored))
 
 
 class OnDemand(Mapping):
-    """A read-only mapping whose value for each of ``keys`` is ``compute(key)``, computed on first access and kept:
-    a stock diagnosis's first reconstruction pass needs the replays of its candidates only, the report those of
-    every effect."""
+    """A read-only mapping whose values for ``keys`` are computed when first read and kept: ``compute(keys) ->
+    {key: value}`` for the keys still missing, all of them at once when the values are iterated
+    (:meth:`fill`; a stock diagnosis's first reconstruction pass needs the replays of its candidates only, the
+    report those of every effect, replayed together)."""
 
     def __init__(self, keys, compute):
         self._keys, self._compute, self._values = tuple(keys), compute, {}
 
+    def fill(self, keys) -> None:
+        """Compute the values of ``keys`` not computed yet, together."""
+        missing = [k for k in dict.fromkeys(keys) if k not in self._values]
+        unknown = [k for k in missing if k not in self._keys]
+        if unknown:
+            raise KeyError(unknown[0])
+        if missing:
+            self._values.update(self._compute(missing))
+
     def __getitem__(self, key):
-        if key not in self._keys:
-            raise KeyError(key)
-        if key not in self._values:
-            self._values[key] = self._compute(key)
+        self.fill((key,))
         return self._values[key]
 
     def __iter__(self):
@@ -457,19 +465,28 @@ class OnDemand(Mapping):
     def __len__(self) -> int:
         return len(self._keys)
 
+    def items(self):
+        self.fill(self._keys)
+        return super().items()
 
-def shrink_each(inp: Inputs, stacks: Stacks, sel: Selection, before: GapScore) -> Mapping:
+    def values(self):
+        self.fill(self._keys)
+        return super().values()
+
+
+def shrink_each(inp: Inputs, stacks: Stacks, sel: Selection, before: GapScore) -> OnDemand:
     """Step 3, shrink: name -> holdout :class:`~udrobot_ctrl.gap.confirm.Replay` with the effect alone (its single
     fit), replayed when first read (:class:`OnDemand`); its shrink is 1 - replay gap / gap_before."""
     run = _replayer(inp, stacks, before.scored)
-    return OnDemand(inp.names, lambda n: run(sel.singles[n], (n,)))
+    return OnDemand(inp.names, lambda names: dict(zip(names, run.many([(sel.singles[n], (n,)) for n in names]))))
 
 
-def confirm(inp: Inputs, stacks: Stacks, sel: Selection, where: Where, singles: dict, log=None) -> Elimination:
+def confirm(inp: Inputs, stacks: Stacks, sel: Selection, where: Where, singles: OnDemand, log=None) -> Elimination:
     """Step 3, confirm on the holdout: backward elimination from the forward-selected candidates, each of which must
     also shrink the holdout gap on its own (its replay in ``singles`` against the nominal one)."""
     before = where.before
     nominal = Replay((), before, where.nominal_sims[len(inp.fit):])
+    singles.fill(sel.proposed)
     alone = alone_tests(inp.holdout, nominal, {n: singles[n] for n in sel.proposed}, inp.window_s)
     return backward_eliminate(stacks.fit, stacks.holdout, sel.candidates, inp.names, before,
                               _replayer(inp, stacks, before.scored), inp.window_s, inp.holdout, alone=alone, log=log)
@@ -845,10 +862,11 @@ def _wall_entry(params, stack, p) -> dict:
                 "per_surface": per}}
 
 
-def effect_verdicts(inp: Inputs, stacks: Stacks, sel: Selection, elim: Elimination, shrink: dict) -> list:
+def effect_verdicts(inp: Inputs, stacks: Stacks, sel: Selection, elim: Elimination, shrink: Mapping) -> list:
     """Step 4, report: one :class:`EffectVerdict` per tested effect, the significant ones first (by shrink), then
     the candidates the holdout dropped, then the rest."""
     kept, dropped, combo = elim.kept, elim.dropped, elim.combination
+    shrink = dict(shrink.items())  # every effect's (an OnDemand replays the missing ones together)
     steps = {s.effect: s for s in sel.steps}
     order = sorted(kept, key=lambda n: -shrink[n]) + sorted(
         [n for n in inp.names if n not in kept], key=lambda n: (n not in dropped, -shrink[n]))
@@ -1015,7 +1033,11 @@ def diagnosis_pass(inp: Inputs, say, t0, prior_ambiguous=None, prior_forms=None,
 
     singles = shrink_each(inp, stacks, sel, where.before)
     b = where.before.value
-    shrink = OnDemand(inp.names, lambda n: (1 - singles[n].gap.value / b) if b > 0 else 0.0)
+
+    def shrinks(names):
+        singles.fill(names)
+        return {n: (1 - singles[n].gap.value / b) if b > 0 else 0.0 for n in names}
+    shrink = OnDemand(inp.names, shrinks)
     confirmed = confirm(inp, stacks, sel, where, singles, log=say)
     elim, stacks = set_aside_ambiguous(inp, stacks, where, confirmed, log=say, prior=prior_ambiguous, shrink=shrink,
                                        prior_forms=prior_forms)

@@ -114,8 +114,11 @@ def specific_force(eta, nu, nu_dot, g=GRAVITY) -> np.ndarray:
     (the run-log format's definition) of pose ``eta`` (..., 6), velocity ``nu`` (..., 6) and its derivative
     ``nu_dot`` (..., 3 or 6): the smoother's measurement model (:func:`udrobot_ctrl.gap.smoother.accelerometer`)
     on numpy arrays."""
-    parts = [list(np.moveaxis(np.asarray(a, float), -1, 0)) for a in (eta, nu, nu_dot)]
-    return np.stack(accelerometer(NUMPY, *parts, g), axis=-1)
+    arrays = [np.asarray(a, float) for a in (eta, nu, nu_dot)]
+    out = np.empty(np.broadcast_shapes(*(a.shape[:-1] for a in arrays)) + (3,))
+    for i, c in enumerate(accelerometer(NUMPY, *([a[..., j] for j in range(a.shape[-1])] for a in arrays), g)):
+        out[..., i] = c
+    return out
 
 
 def simulate_windows(prep: Prepared, p: PlantParameters, hooks=(), window_s=8.0, M_A=None):
@@ -128,46 +131,71 @@ def simulate_windows(prep: Prepared, p: PlantParameters, hooks=(), window_s=8.0,
     hooks : sequence of effects.Hooks
         Effects added to the nominal plant.
     """
+    return simulate_windows_sets(prep, p, [hooks], window_s)[0]
+
+
+def simulate_windows_sets(prep: Prepared, p: PlantParameters, hook_sets, window_s=8.0) -> list:
+    """:func:`simulate_windows` of one run for several sets of effects at once: one (n, :data:`SIM_COLUMNS`) array
+    per set of ``hook_sets``, each as its own replay gives it.
+
+    The windows of every set are integrated together as one batch (the nominal plant, kinematics and surfaces on all
+    of them per step; each set's effects on its own windows), so that replaying the holdout with each candidate
+    effect alone costs little more than one replay: the step's fixed cost is paid once, not once per set.
+    """
     starts, w = window_starts(prep, window_s)
-    sim = np.full((prep.n, SIM_COLUMNS), np.nan)
-    if starts.size == 0:
-        return sim
-    f = delivered_commands(prep, hooks)
-    forces = [h.force for h in hooks if h.force is not None]
-    masses = [h.mass for h in hooks if h.mass is not None]
-    nu0 = np.where(np.isfinite(prep.nu), prep.nu, 0.0)
-    x = np.concatenate([prep.eta[starts], nu0[starts]], axis=1)
+    n_sets = len(hook_sets)
+    sim = np.full((n_sets, prep.n, SIM_COLUMNS), np.nan)
+    if starts.size == 0 or n_sets == 0:
+        return list(sim)
+    N = starts.size
+    groups = []  # per set: its rows of the batch, its force and added-mass hooks
+    for v, hooks in enumerate(hook_sets):
+        groups.append((slice(v * N, (v + 1) * N), [h.force for h in hooks if h.force is not None],
+                       [h.mass for h in hooks if h.mass is not None]))
+    f = np.stack([delivered_commands(prep, hooks) for hooks in hook_sets])  # (sets, n, k)
     tau_seq = f @ prep.B.T
+    nu0 = np.where(np.isfinite(prep.nu), prep.nu, 0.0)
+    x = np.tile(np.concatenate([prep.eta[starts], nu0[starts]], axis=1), (n_sets, 1))
+    set_of = np.repeat(np.arange(n_sets), N)  # the set each row of the batch belongs to
+    start_of = np.tile(starts, n_sets)
     nsub = max(1, int(np.ceil(prep.dt / 0.05)))
     h_dt = prep.dt / nsub
-    N = starts.size
 
     def deriv(xx, k, fk, tk, at_k):
-        ctx = {"surfaces": _surface_ctx(prep, k, xx, at_k)}
+        surfaces = _surface_ctx(prep, k, xx, at_k)
         tot = tk - generalized_forces(xx, p)
-        for fo in forces:
-            tot = tot + fo(xx, fk, ctx)
-        if masses:
-            Mt = p.M + sum(m(xx, ctx) for m in masses)
-            nd = np.linalg.solve(Mt, tot[..., None])[..., 0]
-        else:
-            nd = tot @ p.M_inv.T
+        heavier = []  # (rows, mass matrices) of the sets whose effects add mass
+        for rows, forces, masses in groups:
+            if not (forces or masses):
+                continue
+            ctx = {"surfaces": [(dist[rows], normal) for dist, normal in surfaces]}
+            for fo in forces:
+                tot[rows] = tot[rows] + fo(xx[rows], fk[rows], ctx)
+            if masses:
+                heavier.append((rows, p.M + sum(m(xx[rows], ctx) for m in masses)))
+        nd = tot @ p.M_inv.T
+        for rows, Mt in heavier:
+            nd[rows] = np.linalg.solve(Mt, tot[rows][..., None])[..., 0]
         return np.concatenate([kinematics(xx[:, :6], xx[:, 6:]), nd], axis=1)
 
     scores_accel = accel_bias(prep) is not None
 
     def store_accel(rows, which, xx, x_dot):  # the specific force of the states just stored, from the plant's x_dot
         if scores_accel:
-            sim[rows, 12:] = specific_force(xx[:, :6], xx[:, 6:], x_dot[:, 6:])[which]
+            sim[set_of[which], rows, 12:] = specific_force(xx[:, :6], xx[:, 6:], x_dot[:, 6:])[which]
 
-    sim[starts, :12] = x
-    rows, which = starts, np.ones(N, bool)  # rows of sim holding the current states, and which states they are
-    alive = np.ones(N, bool)
+    def inputs(k):  # per row of the batch: command, wrench and surfaces at sample k (N,) of its windows
+        kk = np.tile(k, n_sets)
+        return f[set_of, kk], tau_seq[set_of, kk], kk, _surfaces_at(prep, kk)
+
+    sim[set_of, start_of, :12] = x
+    rows, which = start_of, np.ones(len(x), bool)  # rows of sim holding the current states, and which states
+    alive = np.ones(len(x), bool)
     for j in range(1, w):
-        k = np.minimum(starts + j - 1, prep.n - 1)
-        fk, tk, at_k = f[k], tau_seq[k], _surfaces_at(prep, k)
+        fk, tk, kk, at_k = inputs(np.minimum(starts + j - 1, prep.n - 1))
+
         def step(_t, xx):
-            return deriv(xx, k, fk, tk, at_k)  # noqa: B023 - used within this iteration
+            return deriv(xx, kk, fk, tk, at_k)  # noqa: B023 - used within this iteration
 
         x_dot = step(0.0, x)  # the first stage of the step is the acceleration the accelerometer reads now
         store_accel(rows, which, x, x_dot)
@@ -176,14 +204,14 @@ def simulate_windows(prep: Prepared, p: PlantParameters, hooks=(), window_s=8.0,
         bad = ~np.all(np.isfinite(x), axis=1) | (np.abs(x[:, 6:]).max(axis=1) > 1e3)
         alive &= ~bad
         x[bad] = 0.0
-        idx = starts + j
+        idx = start_of + j
         keep = alive & (idx < prep.n)
-        sim[idx[keep], :12] = x[keep]
+        sim[set_of[keep], idx[keep], :12] = x[keep]
         rows, which = idx[keep], keep
     if scores_accel:  # the last sample of each window: its own command
-        kk = np.minimum(starts + w - 1, prep.n - 1)
-        store_accel(rows, which, x, deriv(x, kk, f[kk], tau_seq[kk], _surfaces_at(prep, kk)))
-    return sim
+        fk, tk, kk, at_k = inputs(np.minimum(starts + w - 1, prep.n - 1))
+        store_accel(rows, which, x, deriv(x, kk, fk, tk, at_k))
+    return list(sim)
 
 
 def accel_bias(prep: Prepared):

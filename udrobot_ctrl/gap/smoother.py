@@ -47,6 +47,7 @@ from udrobot_ctrl.dynamics.effects import CASADI
 from udrobot_ctrl.dynamics.fastsim import compile_function, parameter_hash
 from udrobot_ctrl.dynamics.integrators import rk4_step
 from udrobot_ctrl.dynamics.plant import PlantParameters, rotation_zyx, wrap_angle
+from udrobot_ctrl.gap import smoother_kernels as kernels
 
 CHANNELS = ("x", "y", "z", "phi", "theta", "psi", "u", "v", "w", "p", "q", "r", "ax", "ay", "az")
 ANGLE_ROWS = (3, 4, 5)
@@ -253,11 +254,9 @@ def measurement_noise(meas: dict, channels) -> dict:
 
 def _block_mean(a, step, n_out):
     """Mean of ``a`` (n, k) over consecutive blocks of ``step`` rows (the last block may be shorter)."""
-    n = a.shape[0]
-    out = np.empty((n_out, a.shape[1]))
-    for k in range(n_out):
-        out[k] = a[k * step: min(n, (k + 1) * step)].mean(axis=0)
-    return out
+    starts = np.arange(n_out) * step
+    counts = np.diff(np.append(starts, a.shape[0]))
+    return np.add.reduceat(a, starts, axis=0) / counts[:, None]
 
 
 def spd_solve(A, B):
@@ -345,52 +344,56 @@ def smooth_run(t, meas: dict, tau, p: PlantParameters, settings: SmootherSetting
     Ps_p = np.empty((m, ns, ns))
     Fs = np.empty((m, ns, ns))
     x = x0.copy()
+    Ps_p[0] = P
+    P_end = np.empty((ns, ns))  # the prediction past the last sample (not kept)
+    finite = np.isfinite(Z)
     patterns = {}
     for k in range(m):
         xs_p[k] = x
-        Ps_p[k] = P
-        z = Z[k]
-        ok = np.isfinite(z)
+        ok = finite[k]
         if ok.any():
             key = ok.tobytes()
             if key not in patterns:
                 r_ok = rows[ok]
-                patterns[key] = (r_ok, np.flatnonzero(np.isin(r_ok, ANGLE_ROWS)), np.diag(Rdiag[ok]))
-            r_ok, ang, Rk = patterns[key]
+                patterns[key] = (r_ok, np.flatnonzero(np.isin(r_ok, ANGLE_ROWS)), Rdiag[ok])
+            r_ok, ang, r_k = patterns[key]
             hk, Hk = f_meas(x, tau_c[k])
-            H = Hk[r_ok, sl]
-            y = z[ok] - hk[r_ok]
+            H = np.ascontiguousarray(Hk[r_ok, sl])
+            y = Z[k, ok] - hk[r_ok]
             y[ang] = wrap_angle(y[ang])
-            PHt = P @ H.T
-            K = spd_solve(H @ PHt + Rk, PHt.T).T
-            x[sl] += K @ y
-            P = P - K @ PHt.T
-            P = 0.5 * (P + P.T)
+            if not kernels.kalman_update(x[sl], Ps_p[k], H, y, r_k, Ps_f[k]):  # rounding left S indefinite
+                PHt = Ps_p[k] @ H.T
+                K = spd_solve(H @ PHt + np.diag(r_k), PHt.T).T
+                x[sl] += K @ y
+                Pn = Ps_p[k] - K @ PHt.T
+                Ps_f[k] = 0.5 * (Pn + Pn.T)
+        else:
+            Ps_f[k] = Ps_p[k]
         xs_f[k] = x
-        Ps_f[k] = P
         xn, Fk = f_step(x, tau_c[k])
-        F = Fk[sl, sl]
-        Fs[k] = F
+        Fs[k] = Fk[sl, sl]
         x = xn.copy()
-        P = F @ P @ F.T + Q
-        if not (np.isfinite(P).all() and np.isfinite(x).all()):
+        if not (kernels.predict_covariance(Fs[k], Ps_f[k], Q, Ps_p[k + 1] if k + 1 < m else P_end)
+                and np.isfinite(x).all()):
             raise SmootherError(f"{label}: the smoother's forward pass diverged at t = {t[idx[k]]:.2f} s "
                                 f"(non-finite covariance or state)")
     xs_p = np.vstack([xs_p[1:], x])  # prediction of step k+1 from step k
 
-    # backward RTS pass
+    # backward RTS pass (compiled; a step whose predicted covariance rounding left indefinite goes through the
+    # general solver here)
     xs = xs_f.copy()
     Ps = Ps_f.copy()
-    for k in range(m - 2, -1, -1):
+    k = kernels.rts_pass(xs, xs_f, xs_p, Ps, Ps_f, Ps_p, Fs, sl.start, m - 2)
+    while k >= 0:
         Pp = Ps_p[k + 1]
         try:
-            C = spd_solve(Pp, Fs[k] @ Ps_f[k]).T
+            C = np.linalg.solve(Pp, Fs[k] @ Ps_f[k]).T
         except np.linalg.LinAlgError as exc:
             raise SmootherError(f"{label}: singular predicted covariance at t = {t[idx[k + 1]]:.2f} s in the RTS "
                                 f"pass") from exc
-        dx = xs[k + 1, sl] - xs_p[k, sl]
-        xs[k, sl] = xs_f[k, sl] + C @ dx
+        xs[k, sl] = xs_f[k, sl] + C @ (xs[k + 1, sl] - xs_p[k, sl])
         Ps[k] = Ps_f[k] + C @ (Ps[k + 1] - Pp) @ C.T
+        k = kernels.rts_pass(xs, xs_f, xs_p, Ps, Ps_f, Ps_p, Fs, sl.start, k - 1)
     var = np.einsum("kii->ki", Ps)
     if not (np.isfinite(xs).all() and np.isfinite(var).all()) or (var < -1e-9 * (1 + np.abs(var).max())).any():
         raise SmootherError(f"{label}: the smoother's backward pass produced a non-finite or negative covariance")

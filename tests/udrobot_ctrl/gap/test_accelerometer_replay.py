@@ -7,10 +7,20 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from udrobot_ctrl.dynamics.effects import PlantEffect
 from udrobot_ctrl.dynamics.plant import plant_parameters
 from udrobot_ctrl.gap.data import prepare
+from udrobot_ctrl.gap.effects import Actuation, plant_hooks
 from udrobot_ctrl.gap.locate import noise_floor
-from udrobot_ctrl.gap.shrink import SIM_COLUMNS, accel_bias, errors, gap, simulate_windows, specific_force
+from udrobot_ctrl.gap.shrink import (
+    SIM_COLUMNS,
+    accel_bias,
+    errors,
+    gap,
+    simulate_windows,
+    simulate_windows_sets,
+    specific_force,
+)
 from udrobot_ctrl.vehicle import load_model
 
 from .stock_sim import ACCEL_BIAS, STATE, STOCK, simulate
@@ -67,3 +77,26 @@ def test_runs_with_logged_velocities_do_not_score_the_accelerometer():
     prep = prepare(run, P)
     assert accel_bias(prep) is None
     assert not {"ax", "ay", "az"} & set(errors(prep, simulate_windows(prep, P, (), 8.0)))
+
+
+def test_effect_sets_replayed_together_are_each_their_own_replay(stock_run):
+    """The batched replay (every set's windows integrated together) gives each set of effects what its own replay
+    gives: the nominal plant, a force (buoyancy), an added mass (its own mass matrix per set), an input filter (a
+    lag: its own commands per set) and two of them at once, states and specific force alike, to rounding."""
+    prep, _ = stock_run
+    act = Actuation(prep.B, prep.inflow, prep.f_ref, P.M_A)
+    heavier = PlantEffect("added_mass_error", {f"scale_{d}d{v}": 0.0 for d, v in zip("XYZKMN", "uvwpqr")}
+                          | {"scale_Xdu": 0.8, "scale_Zdw": 0.5})
+    sets = [[], [PlantEffect("buoyancy_offset", {"dB_N": 2.0})], [heavier],
+            [PlantEffect("thruster_lag", {"T_lag_s": 0.3})],
+            [PlantEffect("thruster_lag", {"T_lag_s": 0.3}), heavier]]
+    hook_sets = [[plant_hooks(e, P, act) for e in effects] for effects in sets]
+    together = simulate_windows_sets(prep, P, hook_sets, 8.0)
+    assert len(together) == len(sets)
+    alone = [simulate_windows(prep, P, hooks, 8.0) for hooks in hook_sets]
+    for a, b in zip(together, alone):
+        assert a.shape == (prep.n, SIM_COLUMNS) and np.array_equal(np.isnan(a), np.isnan(b))
+        np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-12)
+    # and the sets do differ: each was replayed with its own effects
+    for k in range(1, len(sets)):
+        assert np.nanmax(np.abs(together[k][:, 8] - together[0][:, 8])) > 1e-3

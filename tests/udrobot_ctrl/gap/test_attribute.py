@@ -4,10 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from scipy.optimize import lsq_linear
 
 from udrobot_ctrl.dynamics.plant import plant_parameters
 from udrobot_ctrl.gap import effects as fx
-from udrobot_ctrl.gap.attribute import ArrayCache, Attributor, build_stack, filter_forces
+from udrobot_ctrl.gap.attribute import ArrayCache, Attributor, bounded_normal_solve, build_stack, filter_forces
 from udrobot_ctrl.gap.data import prepare
 from udrobot_ctrl.gap.identifiability import Restricted
 from udrobot_ctrl.gap.shrink import delivered_commands, effect_wrench
@@ -184,3 +185,17 @@ def test_an_attributor_holds_its_designs_regressors_and_cross_products_under_one
         fits = small.fit([t, ("linear_damping", ())]), attributor.fit([t, ("linear_damping", ())])
         assert 0 < small._cache.nbytes <= budget
         np.testing.assert_allclose(fits[0].rss, fits[1].rss, rtol=1e-9)
+
+
+@pytest.mark.parametrize("bounds", [(-10.0, 10.0), (0.0, 10.0), (-10.0, -0.2)])
+def test_the_bounded_normal_equations_solve_is_bounded_least_squares(bounds):
+    """Inside the bounds, the unconstrained solution; with a bound active, what bounded-variable least squares on
+    the same problem gives (the minimiser of a strictly convex problem is unique)."""
+    rng = np.random.default_rng(11)
+    A = rng.normal(size=(60, 4))
+    y = A @ np.array([0.5, -0.3, 1.2, 0.05]) + 0.01 * rng.normal(size=60)
+    lo, hi = np.full(4, bounds[0]), np.full(4, bounds[1])
+    z = bounded_normal_solve(A.T @ A, A.T @ y, lo, hi)
+    ref = lsq_linear(A, y, bounds=(lo, hi), method="bvls").x
+    np.testing.assert_allclose(z, ref, rtol=1e-7, atol=1e-9)
+    assert np.all(z >= lo) and np.all(z <= hi)

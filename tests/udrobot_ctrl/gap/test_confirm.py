@@ -19,6 +19,7 @@ from udrobot_ctrl.gap.confirm import (
     Alone,
     MemberTest,
     Replay,
+    Replayer,
     backward_eliminate,
     paired_rise,
     rise_fraction,
@@ -192,7 +193,8 @@ def _eliminate(members, explains=None):
 
     def replay(fit, m):
         return Replay(tuple(m), SimpleNamespace(value=1.0 - sum(explains.get(k, 0.1) for k in m)), [])
-    return backward_eliminate(None, None, _combo(members), members, SimpleNamespace(value=1.0), replay, 8.0, [])
+    return backward_eliminate(None, None, _combo(members), members, SimpleNamespace(value=1.0),
+                              Replayer(lambda sets: [replay(fit, m) for fit, m in sets]), 8.0, [])
 
 
 def test_compensator_goes_first_then_the_rest_is_refitted_and_rechecked(monkeypatch):

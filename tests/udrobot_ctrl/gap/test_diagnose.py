@@ -264,15 +264,17 @@ def test_the_gap_left_is_measured_against_the_noise_floor():
                                              GapScore(1.0, {"u": 1.0}, ["u"], {})), after))
 
 
-def test_replays_on_demand_run_once_per_effect_and_only_when_read():
+def test_replays_on_demand_run_once_per_effect_only_when_read_and_together_when_iterated():
     calls = []
 
-    def replay(name):
-        calls.append(name)
-        return len(name)
-    lazy = OnDemand(("lag", "tether"), replay)
-    assert calls == [] and len(lazy) == 2 and list(lazy) == ["lag", "tether"]
-    assert lazy["tether"] == 6 and lazy["tether"] == 6 and calls == ["tether"]
-    assert dict(lazy) == {"lag": 3, "tether": 6} and calls == ["tether", "lag"]
+    def replay(names):
+        calls.append(tuple(names))
+        return {n: len(n) for n in names}
+    lazy = OnDemand(("lag", "tether", "current"), replay)
+    assert calls == [] and len(lazy) == 3 and list(lazy) == ["lag", "tether", "current"]
+    assert lazy["tether"] == 6 and lazy["tether"] == 6 and calls == [("tether",)]
+    # iterating the values computes every missing one in one call (the replays are integrated together)
+    assert dict(lazy.items()) == {"lag": 3, "tether": 6, "current": 7} and calls == [("tether",), ("lag", "current")]
+    assert list(lazy.values()) == [3, 6, 7] and len(calls) == 2
     with pytest.raises(KeyError):
-        lazy["current"]
+        lazy["wall"]

@@ -1,0 +1,121 @@
+"""numba kernels of :mod:`udrobot_ctrl.gap.smoother`: the Kalman update, the covariance prediction and the RTS pass.
+
+The smoother's forward pass calls the casadi plant (its state transition and measurement Jacobians) once per
+sample from Python; the linear algebra around those calls (gain, update, prediction) and the whole backward RTS pass
+run here, compiled: at the smoother's sizes (19 or 21 states, up to 9 measurements) the numpy calls they replace
+cost more in call overhead than in arithmetic. Covariances are solved with a Cholesky factorisation (they are
+symmetric positive definite); a kernel reports a matrix rounding has left indefinite instead of raising, and the
+caller solves that one step with the general solver (:func:`udrobot_ctrl.gap.smoother.spd_solve`'s rule). Compiled
+once per machine and cached on disk (:func:`udrobot_ctrl.caches.configure_numba_cache`).
+"""
+from udrobot_ctrl.caches import configure_numba_cache
+
+configure_numba_cache()  # before the decorators below choose their cache folder
+
+import math  # noqa: E402
+
+import numba  # noqa: E402
+import numpy as np  # noqa: E402
+
+
+@numba.njit(cache=True)
+def cholesky_solve(A, B, X) -> bool:
+    """X = A^-1 B for a symmetric positive definite A (n, n) (lower triangle read) and B (n, k); False (X
+    unspecified) when A is not numerically positive definite."""
+    n, k = B.shape
+    L = np.zeros((n, n))
+    for j in range(n):
+        s = A[j, j]
+        for c in range(j):
+            s -= L[j, c] * L[j, c]
+        if not s > 0.0:
+            return False
+        d = math.sqrt(s)
+        L[j, j] = d
+        for i in range(j + 1, n):
+            s = A[i, j]
+            for c in range(j):
+                s -= L[i, c] * L[j, c]
+            L[i, j] = s / d
+    for col in range(k):
+        for i in range(n):  # L y = b
+            s = B[i, col]
+            for c in range(i):
+                s -= L[i, c] * X[c, col]
+            X[i, col] = s / L[i, i]
+        for i in range(n - 1, -1, -1):  # L^T x = y
+            s = X[i, col]
+            for c in range(i + 1, n):
+                s -= L[c, i] * X[c, col]
+            X[i, col] = s / L[i, i]
+    return True
+
+
+@numba.njit(cache=True)
+def kalman_update(x, P, H, y, r, P_out) -> bool:
+    """Measurement update in place: x += K y, P_out = sym(P - K H P) with K = P H^T (H P H^T + diag(r))^-1.
+
+    Parameters
+    ----------
+    x : (ns,) ndarray
+        Predicted state (the filter's part of it), updated in place.
+    P : (ns, ns) ndarray
+        Predicted covariance.
+    H : (nr, ns) ndarray
+        Measurement Jacobian of the logged channels.
+    y : (nr,) ndarray
+        Innovation (angles already wrapped).
+    r : (nr,) ndarray
+        Measurement noise variances.
+    P_out : (ns, ns) ndarray
+        Filtered covariance (written).
+
+    Returns
+    -------
+    bool
+        False (nothing written) when the innovation covariance is not numerically positive definite.
+    """
+    PHt = P @ H.T
+    S = H @ PHt
+    for i in range(r.size):
+        S[i, i] += r[i]
+    KT = np.empty((H.shape[0], P.shape[0]))
+    if not cholesky_solve(S, np.ascontiguousarray(PHt.T), KT):
+        return False
+    x += KT.T @ y
+    Pn = P - KT.T @ PHt.T
+    P_out[:, :] = 0.5 * (Pn + Pn.T)
+    return True
+
+
+@numba.njit(cache=True)
+def predict_covariance(F, P, Q, P_out) -> bool:
+    """P_out = F P F^T + Q; False when it is not finite."""
+    P_out[:, :] = F @ P @ F.T + Q
+    return bool(np.all(np.isfinite(P_out)))
+
+
+@numba.njit(cache=True)
+def rts_pass(xs, xs_f, xs_p, Ps, Ps_f, Ps_p, Fs, lo, k_start) -> int:
+    """Backward Rauch-Tung-Striebel pass from step ``k_start`` down to 0, in place on ``xs`` and ``Ps``.
+
+    Step k: C = P_f[k] F[k]^T P_p[k+1]^-1, x[k] = x_f[k] + C (x[k+1] - x_p[k]), P[k] = P_f[k] + C (P[k+1] -
+    P_p[k+1]) C^T, on the filter's state components ``lo:`` (``xs_p[k]`` is the prediction of step k+1).
+
+    Returns
+    -------
+    int
+        -1 when done, else the step whose predicted covariance was not numerically positive definite (nothing
+        written for it; the caller solves it with the general solver and resumes at the step before).
+    """
+    ns = Ps.shape[1]
+    CT = np.empty((ns, ns))
+    for k in range(k_start, -1, -1):
+        Pp = Ps_p[k + 1]
+        if not cholesky_solve(Pp, Fs[k] @ Ps_f[k], CT):
+            return k
+        C = np.ascontiguousarray(CT.T)
+        dx = xs[k + 1, lo:] - xs_p[k, lo:]
+        xs[k, lo:] = xs_f[k, lo:] + C @ dx
+        Ps[k] = Ps_f[k] + C @ (Ps[k + 1] - Pp) @ CT
+    return -1
