@@ -544,15 +544,44 @@ class Attributor:
 
 
 def bounded_normal_solve(G, h, lo, hi) -> np.ndarray:
-    """argmin_z z^T G z - 2 h^T z subject to lo <= z <= hi, for a symmetric positive definite G (normal equations):
-    the unconstrained solution when it lies within the bounds (where almost every fit ends), else bounded-variable
-    least squares on the Cholesky factor (scipy's ``bvls``), which returns that same solution when it is feasible."""
-    L = np.linalg.cholesky(G)
-    b = solve_triangular(L, h, lower=True, check_finite=False)
-    z = solve_triangular(L.T, b, lower=False, check_finite=False)
+    """argmin_z z^T G z - 2 h^T z subject to lo <= z <= hi, for a symmetric positive definite G (k, k) (the normal
+    equations of a fit): the unconstrained solution when it lies within the bounds; else the active-set method of
+    bounded-variable least squares (Stark and Parker 1995) on the normal equations, whose every step solves the free
+    variables with the others held at their bounds and ends when the Karush-Kuhn-Tucker conditions hold. The problem is
+    strictly convex, so its minimiser is unique and this is what scipy's ``bvls`` returns (it takes over, on the
+    Cholesky factor, should the active set not settle within its iteration budget)."""
+    k = h.size
+    z = np.linalg.solve(G, h)
     if np.all(z >= lo) and np.all(z <= hi):
         return z
-    return lsq_linear(L.T, b, bounds=(lo, hi), method="bvls").x
+    z = np.clip(z, lo, hi)
+    free = (z > lo) & (z < hi)
+    for _ in range(4 * k + 4):
+        fixed = ~free
+        target = z.copy()
+        if free.any():
+            F = np.flatnonzero(free)
+            target[F] = np.linalg.solve(G[np.ix_(F, F)], h[F] - G[np.ix_(F, np.flatnonzero(fixed))] @ z[fixed])
+        inside = np.all(target >= lo) & np.all(target <= hi)
+        if inside:
+            z = target
+            grad = G @ z - h  # KKT: at a lower bound the objective must rise inwards (grad >= 0), at an upper one fall
+            wrong = np.where(fixed & (z <= lo), -grad, 0.0) + np.where(fixed & (z >= hi), grad, 0.0)
+            worst = int(np.argmax(wrong))
+            if wrong[worst] <= 1e-12 * (np.abs(h).max() + 1e-300):
+                return z
+            free[worst] = True
+            continue
+        # move towards the target until the first free variable meets its bound; that one is held there
+        step = target - z
+        with np.errstate(divide="ignore", invalid="ignore"):
+            room = np.where(step < 0, (lo - z) / step, np.where(step > 0, (hi - z) / step, np.inf))
+        room[~free] = np.inf
+        alpha = float(np.clip(room.min(), 0.0, 1.0))
+        z = np.clip(z + alpha * step, lo, hi)
+        free &= (z > lo) & (z < hi)
+    L = np.linalg.cholesky(G)
+    return lsq_linear(L.T, solve_triangular(L, h, lower=True, check_finite=False), bounds=(lo, hi), method="bvls").x
 
 
 def _rounded(terms) -> tuple:
