@@ -343,6 +343,19 @@ class Attributor:
             self._cache[key] = d._replace(b0=np.nan_to_num(d.b0), A=np.nan_to_num(d.A))
         return self._cache[key]
 
+    def prefetch(self, name, shapes, fixed=()) -> None:
+        """Compute the designs of ``name`` at ``shapes`` not cached yet together (:meth:`Effect.designs
+        <udrobot_ctrl.gap.effects.Effect.designs>`), when it sees no other member's filter beside ``fixed``: a grid
+        search then reads them from the cache."""
+        if self.upstream(name, [*fixed, (name, ())]):
+            return
+        keys = {tuple(np.round(sh, 6)): tuple(sh) for sh in shapes}
+        missing = [sh for k, sh in keys.items() if ("design", name, k, ()) not in self._cache]
+        if len(missing) > 1:
+            for k_sh, d in zip(missing, self.cat[name].designs(self.s, missing)):
+                self._cache[("design", name, tuple(np.round(k_sh, 6)), ())] = d._replace(
+                    b0=np.nan_to_num(d.b0), A=np.nan_to_num(d.A))
+
     def upstream(self, name, terms) -> tuple:
         """(name, shape) of the members of ``terms`` whose input filter (a lag: shape only) composes with ``name`` in
         the plant's order: an inflow loss reads the lagged thrust, a deadband's or an asymmetry's thrust change is
@@ -497,6 +510,7 @@ class Attributor:
         fixed terms."""
         eff = self.cat[name]
         grid, bounds = eff.search_space(self.s)
+        self.prefetch(name, tuple(grid) + tuple(seeds), fixed)
         best = None
         for shape in tuple(grid) + tuple(seeds):
             f = self.fit(list(fixed) + [(name, shape)])

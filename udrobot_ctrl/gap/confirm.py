@@ -53,6 +53,7 @@ from scipy import stats
 from udrobot_ctrl.gap.attribute import HOLDOUT_CHI2, Attributor, Combination, Fit, finalize, holdout_lr, refit
 from udrobot_ctrl.gap.effects import Actuation
 from udrobot_ctrl.gap.shrink import GapScore, errors, gap, simulate_windows_sets, window_starts
+from udrobot_ctrl.parallel import default_jobs, fork_map
 
 REPLAY_MATERIAL = 0.02  # fraction of gap_before
 REPLAY_P = 0.1  # one-sided p of the per-window rise (signed-rank and t, Bonferroni) below REPLAY_LARGE
@@ -117,12 +118,26 @@ def replay_sets(preps, p, sets, catalogue, actuation: Actuation, window_s, score
     """:func:`replay` of several sets at once: ``sets`` is a sequence of (fit, members); one :class:`Replay` each, in
     order, integrated together (:func:`udrobot_ctrl.gap.shrink.simulate_windows_sets`)."""
     hook_sets = [fitted_hooks(catalogue, p, actuation, fit, members) for fit, members in sets]
-    per_run = [simulate_windows_sets(pr, p, hook_sets, window_s) for pr in preps]
+    # one piece of work per run and share of the sets, spread over the cores (a set's replay is its own either way)
+    shares = [(r, part) for r in range(len(preps)) for part in _shares(len(sets), default_jobs())]
+    done = fork_map(lambda rp: simulate_windows_sets(preps[rp[0]], p, [hook_sets[v] for v in rp[1]], window_s),
+                    shares)
+    per_run = [[None] * len(sets) for _ in preps]
+    for (r, part), sims in zip(shares, done):
+        for v, sim in zip(part, sims):
+            per_run[r][v] = sim
     out = []
     for v, (_, members) in enumerate(sets):
         sims = [run_sims[v] for run_sims in per_run]
         out.append(Replay(tuple(members), gap(preps, sims, scored), sims))
     return out
+
+
+def _shares(n: int, parts: int) -> list:
+    """range(n) cut into at most ``parts`` contiguous, non-empty shares of near-equal size."""
+    parts = max(1, min(parts, n))
+    cuts = [round(i * n / parts) for i in range(parts + 1)]
+    return [tuple(range(a, b)) for a, b in zip(cuts, cuts[1:]) if b > a]
 
 
 def window_energy(preps, sims, score: GapScore, window_s) -> np.ndarray:

@@ -44,6 +44,7 @@ Templates (the diagnoser's lumped forms; a truth generator should use different 
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
+from functools import partial
 from typing import ClassVar, NamedTuple
 
 import numpy as np
@@ -231,6 +232,11 @@ class Effect:
     def design(self, s: Stack, shape) -> Design:
         """The effect's :class:`Design` (b0 (n,6), A (n,6,k), names (k,), lower (k,), upper (k,)) for a shape."""
         raise NotImplementedError
+
+    def designs(self, s: Stack, shapes) -> list:
+        """The :class:`Design` of each of ``shapes`` (a shape grid), in order: each on its own unless an effect
+        computes several at once (a tether's anchors)."""
+        return [Design(*self.design(s, tuple(sh))) for sh in shapes]
 
     def hooks(self, params: dict, p: PlantParameters, actuation: Actuation) -> Hooks:
         """How the fitted effect enters a replay: the plant's own definition of it (:func:`plant_hooks`)."""
@@ -436,11 +442,19 @@ class Lag(Effect):
 
 
 # ------------------------------------------------------------------------------------------- environment
-def _tether_columns(eta, nu, geometry):
-    """Body-frame generalised force per unit (k_q, k_l) of the tether drag (..., 6, 2) for the cable geometry
-    ``geometry`` (an anchor or a fixed direction, as a model file gives it): the plant's own derivatives,
-    :func:`udrobot_ctrl.dynamics.effects.tether_unit_forces`."""
-    return np.stack([_stack(c) for c in pfx.tether_unit_forces(pfx.NUMPY, _comps(eta), _comps(nu), geometry)], -1)
+def _tether_columns(run, geometry, count) -> np.ndarray:
+    """Body-frame generalised force per unit (k_q, k_l) of the tether drag of ``count`` anchors on a run's samples,
+    (n, 6, 2 count) (anchor j's two columns at k count + j): the plant's own derivatives,
+    :func:`udrobot_ctrl.dynamics.effects.tether_unit_forces`, with the anchor coordinates of ``geometry`` as (count,
+    1) arrays and its cable form (walk azimuth, walk fraction, cable_taut) as scalars, so that the vehicle's rotation
+    and velocity are computed once for all of them."""
+    n = run["eta"].shape[0]
+    out = np.empty((n, 6, 2, count))
+    units = pfx.tether_unit_forces(pfx.NUMPY, _comps(run["eta"]), _comps(run["nu"]), geometry)
+    for k, force in enumerate(units):  # components (count, n), (n,) or scalars
+        for c, comp in enumerate(force):
+            out[:, c, k, :] = np.broadcast_to(comp, (count, n)).T
+    return out.reshape(n, 6, 2 * count)
 
 
 #: an anchor this far (m) from the runs is a fixed cable direction (the old template): over runs spanning 10 m
@@ -529,10 +543,24 @@ class TetherDrag(Effect):
         return np.r_[np.full(3, step), 0.3 if x0[4] > 0 else 0.0, 0.0, 0.0]
 
     def design(self, s, shape):
-        geometry = dict(zip(self.shape_names, shape))
-        A = s.full(lambda r: _tether_columns(r["eta"], r["nu"], geometry))
-        return Design(np.zeros((s.n, 6)), A, ("k_quadratic_N_s2_per_m2", "k_linear_N_s_per_m"), np.zeros(2),
-                      np.array([1e4, 1e4]))
+        return self.designs(s, [shape])[0]
+
+    def designs(self, s, shapes):
+        """The designs of many anchors at once (:func:`_tether_columns`, one call per cable form); the same numbers
+        as one anchor at a time."""
+        shapes = [tuple(float(v) for v in sh) for sh in shapes]
+        forms = {}
+        for i, sh in enumerate(shapes):
+            forms.setdefault(sh[3:], []).append(i)
+        out = [None] * len(shapes)
+        for form, idx in forms.items():
+            anchors = np.array([shapes[i][:3] for i in idx])  # (S, 3)
+            geometry = dict(zip(self.shape_names, [anchors[:, j, None] for j in range(3)] + list(form)))
+            A = s.full(partial(_tether_columns, geometry=geometry, count=len(idx))).reshape((s.n, 6, 2, len(idx)))
+            for j, i in enumerate(idx):
+                out[i] = Design(np.zeros((s.n, 6)), np.ascontiguousarray(A[..., j]),
+                                ("k_quadratic_N_s2_per_m2", "k_linear_N_s_per_m"), np.zeros(2), np.array([1e4, 1e4]))
+        return out
 
 
 

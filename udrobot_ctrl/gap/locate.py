@@ -40,6 +40,7 @@ from udrobot_ctrl.dynamics.plant import PlantParameters
 from udrobot_ctrl.gap.attribute import residual, tau_int
 from udrobot_ctrl.gap.data import OBSERVING, POSE, VEL, Prepared, smooth_derivative
 from udrobot_ctrl.gap.shrink import ACCEL, accel_bias, channel_noise, errors, simulate_windows, window_starts
+from udrobot_ctrl.parallel import fork_map
 
 FLOOR_DRAWS = 2
 #: a DOF holding at least this share of the located gap is where the gap lies (:meth:`Located.gap_dofs`): a partly
@@ -125,8 +126,9 @@ def smoothing_bias(prep: Prepared) -> np.ndarray:
     return out
 
 
-def synthetic_replay(prep: Prepared, sim, p: PlantParameters, window_s, rng):
-    """One draw of the floor replay: the nominal replay ``sim`` as a synthetic truth, measured with the run's noise.
+def synthetic_run(prep: Prepared, sim, window_s, rng) -> Prepared:
+    """One draw of the floor replay's run: the nominal replay ``sim`` as a synthetic truth, measured with the run's
+    noise (replayed by :func:`noise_floor`).
 
     Parameters
     ----------
@@ -135,22 +137,18 @@ def synthetic_replay(prep: Prepared, sim, p: PlantParameters, window_s, rng):
     sim : (n, 15) ndarray
         The nominal multiple-shooting replay of ``prep`` (state and specific force,
         :func:`udrobot_ctrl.gap.shrink.simulate_windows`: the synthetic truth; nan outside windows).
-    p : PlantParameters
-        Nominal plant.
     window_s : float
         Multiple-shooting window, s.
     rng : numpy.random.Generator
 
     Returns
     -------
-    syn : Prepared
+    Prepared
         The synthetic run: ``meas`` = truth + white noise of each channel's measured level (the accelerometer: the
         replay's specific force plus the run's estimated bias and its noise); the window start states
         are the synthetic measurement (pose) and truth plus the smoother's bias (:func:`smoothing_bias`) and the
         Savitzky-Golay filtered noise (velocities; body rates derived from the attitude get the differentiated
         attitude noise).
-    sim_syn : (n, 15) ndarray
-        The nominal replay of ``syn``.
     """
     starts, _ = window_starts(prep, window_s)
     smooth, deriv = _sg_kernels(prep)
@@ -187,8 +185,7 @@ def synthetic_replay(prep: Prepared, sim, p: PlantParameters, window_s, rng):
         else:
             d = np.zeros(prep.n)
         nu[starts, i] = sim[starts, 6 + i] + bias[starts, i] + d[starts]
-    syn = replace(prep, meas={**prep.meas, **meas}, eta=eta, nu=nu)
-    return syn, simulate_windows(syn, p, (), window_s)
+    return replace(prep, meas={**prep.meas, **meas}, eta=eta, nu=nu)
 
 
 def noise_floor(preps, sims, p: PlantParameters, window_s, scale, draws=FLOOR_DRAWS, seed=FLOOR_SEED) -> dict:
@@ -211,14 +208,13 @@ def noise_floor(preps, sims, p: PlantParameters, window_s, scale, draws=FLOOR_DR
     dict channel -> floor NRMSE (dimensionless).
     """
     rng = np.random.default_rng(seed)
+    syns = [synthetic_run(prep, sim, window_s, rng) for _ in range(draws) for prep, sim in zip(preps, sims)]
     se, cnt = {}, {}
-    for _ in range(draws):
-        for prep, sim in zip(preps, sims):
-            syn, sim_syn = synthetic_replay(prep, sim, p, window_s, rng)
-            for c, e in errors(syn, sim_syn).items():
-                ok = np.isfinite(e)
-                se[c] = se.get(c, 0.0) + float(np.sum(e[ok] ** 2))
-                cnt[c] = cnt.get(c, 0) + int(ok.sum())
+    for syn, sim_syn in zip(syns, fork_map(lambda syn: simulate_windows(syn, p, (), window_s), syns)):
+        for c, e in errors(syn, sim_syn).items():
+            ok = np.isfinite(e)
+            se[c] = se.get(c, 0.0) + float(np.sum(e[ok] ** 2))
+            cnt[c] = cnt.get(c, 0) + int(ok.sum())
     return {c: float(np.sqrt(se[c] / cnt[c]) / scale[c]) for c in se
             if cnt[c] and c in scale and scale[c] > 0}
 

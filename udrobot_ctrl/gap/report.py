@@ -62,6 +62,7 @@ from udrobot_ctrl.gap.locate import Located, locate, noise_floor
 from udrobot_ctrl.gap.shrink import GapScore, gap, prepare_with_effects, simulate_windows
 from udrobot_ctrl.io.files import atomic_write
 from udrobot_ctrl.io.runlog import Run
+from udrobot_ctrl.parallel import fork_map
 from udrobot_ctrl.vehicle import load_model
 
 FORMAT = "udrobot-diagnosis/1"
@@ -369,8 +370,8 @@ def prepare_inputs(model, runs, holdout, effects, window_s, model_label=None) ->
         if n not in cat:
             raise ValueError(f"unknown effect {n!r}; the catalogue is {', '.join(fx.EFFECT_NAMES)}")
     fit_runs, ho_runs, split_note = split_runs(runs, holdout)
-    fit_p = [prepare(r, p, run_label(r)) for r in fit_runs]
-    ho_p = [prepare(r, p, run_label(r)) for r in ho_runs]
+    preps = fork_map(lambda r: prepare(r, p, run_label(r)), [*fit_runs, *ho_runs], warm=True)  # a smoother each
+    fit_p, ho_p = preps[:len(fit_runs)], preps[len(fit_runs):]
     label = model_label or (str(model) if not hasattr(model, "name") else model.name)
     return Inputs(label, p, cat, names, fit_p, ho_p, [split_note] + [n for pr in fit_p + ho_p for n in pr.notes],
                   window_s, tuple(fit_runs) + tuple(ho_runs))
@@ -388,8 +389,11 @@ def reconstruct_with(inp: Inputs, actuation: Actuation, fit, members, which: str
     hooks = fitted_hooks(inp.catalogue, inp.p, actuation, fit, members)
     known = " + ".join(members)
     n_fit = len(inp.fit)
-    preps = [prepare_with_effects(run, inp.p, pr, hooks, known) if (which == "all" or i >= n_fit) else pr
-             for i, (run, pr) in enumerate(zip(inp.sources, inp.runs))]
+    again = [i for i in range(len(inp.runs)) if which == "all" or i >= n_fit]
+    preps = list(inp.runs)
+    for i, pr in zip(again, fork_map(lambda i: prepare_with_effects(inp.sources[i], inp.p, inp.runs[i], hooks, known),
+                                     again, warm=True)):
+        preps[i] = pr
     return replace(inp, fit=preps[:n_fit], holdout=preps[n_fit:],
                    notes=inp.notes[:1] + [n for pr in preps for n in pr.notes])
 
@@ -398,7 +402,7 @@ def locate_gap(inp: Inputs) -> Where:
     """Nominal multiple-shooting replays of every run (the nominal model is fitted to nothing), their noise floor,
     where the gap lies above it, and the nominal holdout gap."""
     runs = inp.runs
-    sims = [simulate_windows(pr, inp.p, (), inp.window_s) for pr in runs]
+    sims = fork_map(lambda pr: simulate_windows(pr, inp.p, (), inp.window_s), runs)
     scale = gap(runs, sims).scale
     floor = noise_floor(runs, sims, inp.p, inp.window_s, scale)
     residuals = [residual(pr, inp.p) for pr in runs]
