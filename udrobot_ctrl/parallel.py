@@ -6,8 +6,9 @@ and data without pickling them (only the results travel back), so they run on ev
 code that computes them; the results are those of the serial loop, in order.
 
 The number of workers is ``jobs`` when given, else the ``UDROBOT_JOBS`` environment variable, else the cores this
-process may use. One worker, a platform without ``fork`` (Windows), or a call from inside a worker (no nesting)
-runs the loop in the calling process.
+process may use. One worker, a platform without ``fork`` (Windows), a call from inside a worker (no nesting), or a
+process that has run numba's OpenMP threading layer (a forked child using it again aborts) runs the loop in the
+calling process.
 """
 from __future__ import annotations
 
@@ -35,6 +36,16 @@ def default_jobs() -> int:
             raise ValueError(f"{JOBS_ENV}={env!r}: expected a positive integer number of worker processes")
         return int(env)
     return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+
+
+def _fork_safe() -> bool:
+    """False once numba's OpenMP threading layer has run in this process (a threaded batch simulation): OpenMP
+    aborts a forked child that uses it again, so the work then stays in the calling process."""
+    try:
+        import numba
+        return numba.threading_layer() != "omp"
+    except ValueError:  # no threaded kernel has run yet
+        return True
 
 
 def _mark_worker() -> None:
@@ -70,7 +81,7 @@ def fork_map(func, items, jobs: int | None = None, warm: bool = False) -> list:
     items = list(items)
     jobs = default_jobs() if jobs is None else int(jobs)
     if jobs <= 1 or len(items) <= 1 or _in_worker or _task is not None or (
-            "fork" not in multiprocessing.get_all_start_methods()):
+            "fork" not in multiprocessing.get_all_start_methods()) or not _fork_safe():
         return [func(x) for x in items]
     if warm:
         return [func(items[0])] + fork_map(func, items[1:], jobs)

@@ -552,13 +552,13 @@ class TetherDrag(Effect):
         forms = {}
         for i, sh in enumerate(shapes):
             forms.setdefault(sh[3:], []).append(i)
-        out = [None] * len(shapes)
+        out, b0 = [None] * len(shapes), np.zeros((s.n, 6))  # one b0 for all (a tether has no fixed term)
         for form, idx in forms.items():
             anchors = np.array([shapes[i][:3] for i in idx])  # (S, 3)
             geometry = dict(zip(self.shape_names, [anchors[:, j, None] for j in range(3)] + list(form)))
             A = s.full(partial(_tether_columns, geometry=geometry, count=len(idx))).reshape((s.n, 6, 2, len(idx)))
             for j, i in enumerate(idx):
-                out[i] = Design(np.zeros((s.n, 6)), np.ascontiguousarray(A[..., j]),
+                out[i] = Design(b0, np.ascontiguousarray(A[..., j]),
                                 ("k_quadratic_N_s2_per_m2", "k_linear_N_s_per_m"), np.zeros(2), np.array([1e4, 1e4]))
         return out
 

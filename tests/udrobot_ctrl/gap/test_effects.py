@@ -103,7 +103,7 @@ def test_tether_regressor_is_the_derivative_of_the_plant_force(geometry):
     eff = catalogue()["tether_drag"]
     shape = tuple(geometry.get(k, 0.0) for k in eff.shape_names) if "anchor_north_m" in geometry else None
     if shape is None:  # the diagnoser fits anchors; a fixed direction enters through the same plant function
-        b0, A = np.zeros((x.shape[0], 6)), _tether_columns(x[:, :6], x[:, 6:], geometry)
+        b0, A = np.zeros((x.shape[0], 6)), _tether_columns({"eta": x[:, :6], "nu": x[:, 6:]}, geometry, 1)
     else:
         b0, A, names, lo, hi = eff.design(_stack(x, p0), shape)
         assert names == ("k_quadratic_N_s2_per_m2", "k_linear_N_s_per_m")
@@ -169,3 +169,19 @@ def test_look_alikes_come_with_the_manoeuvre_that_separates_them():
         text = discriminating_manoeuvre(a, b)
         assert text == discriminating_manoeuvre(b, a) and "regressors of" not in text
     assert "water_current" in discriminating_manoeuvre("water_current", "thruster_lag")
+
+
+def test_tether_designs_of_many_anchors_are_each_anchors_own():
+    """The grid's anchors computed together (per cable form) give each anchor's design as computed alone: fixed and
+    walking top ends, slack and taut, in any order."""
+    rng = np.random.default_rng(4)
+    p0 = plant_parameters(load_model("pendulum:chin"))
+    st = _stack(_anchored_states(rng), p0)
+    eff = catalogue()["tether_drag"]
+    shapes = [(3.0, -2.0, 0.0, 0.0, 0.0, 0.0), (-1.0, 4.0, 0.0, 0.7, 1.0, 1.0), (8.0, 1.0, -0.5, 0.0, 0.0, 1.0),
+              (0.5, 0.5, 0.0, 0.7, 1.0, 1.0), (-6.0, 2.0, 0.0, 0.0, 0.0, 0.0)]
+    together = eff.designs(st, shapes)
+    for shape, d in zip(shapes, together):
+        alone = eff.designs(st, [shape])[0]
+        assert np.array_equal(d.A, alone.A) and np.array_equal(d.b0, alone.b0)
+    assert not np.allclose(together[0].A, together[4].A)  # the anchors differ

@@ -1,0 +1,55 @@
+"""fork_map: the serial loop's results, in order, from forked workers."""
+from __future__ import annotations
+
+import multiprocessing
+import os
+
+import numpy as np
+import pytest
+
+from udrobot_ctrl.parallel import JOBS_ENV, default_jobs, fork_map
+
+FORK = "fork" in multiprocessing.get_all_start_methods()
+
+
+def test_results_in_order_from_a_closure_over_large_data():
+    data = np.arange(200_000.0)  # inherited by the workers, not sent to them
+    items = list(range(7))
+    out = fork_map(lambda k: (os.getpid(), float(data[k::7].sum())), items, jobs=2)
+    assert [v for _, v in out] == [float(data[k::7].sum()) for k in items]
+    if FORK:
+        assert os.getpid() not in {pid for pid, _ in out}
+
+
+def test_a_worker_error_is_raised_in_the_caller():
+    def fail_on_three(k):
+        if k == 3:
+            raise ValueError("three")
+        return k
+    with pytest.raises(ValueError, match="three"):
+        fork_map(fail_on_three, range(5), jobs=2)
+
+
+@pytest.mark.skipif(not FORK, reason="no fork on this platform: everything runs in the caller")
+def test_warm_runs_the_first_item_here_and_nesting_stays_in_the_worker():
+    seen = []
+
+    def work(k):
+        seen.append(k)  # lands in this process only when computed here
+        inner = fork_map(lambda j: (os.getpid(), j * k), range(3), jobs=2)
+        return os.getpid(), [v for _, v in inner], {pid for pid, _ in inner}
+    out = fork_map(work, [1, 2, 3], jobs=2, warm=True)
+    assert seen == [1]
+    assert out[0][0] == os.getpid() and all(pid != os.getpid() for pid, _, _ in out[1:])
+    assert [v for _, v, _ in out] == [[0, k, 2 * k] for k in (1, 2, 3)]
+    # inside a worker the nested map ran in that worker
+    assert all(pids == {pid} for pid, _, pids in out[1:])
+
+
+def test_jobs_from_the_environment(monkeypatch):
+    monkeypatch.setenv(JOBS_ENV, "1")
+    assert default_jobs() == 1
+    assert fork_map(lambda k: os.getpid(), range(3)) == [os.getpid()] * 3  # one job: in this process
+    monkeypatch.setenv(JOBS_ENV, "two")
+    with pytest.raises(ValueError, match=JOBS_ENV):
+        default_jobs()
