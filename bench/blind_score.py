@@ -22,6 +22,7 @@ from __future__ import annotations
 import argparse
 import itertools
 import json
+import os
 import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
@@ -35,6 +36,7 @@ from truth import generate, random_magnitudes  # noqa: E402
 
 from udrobot_ctrl.gap.effects import EFFECT_NAMES  # noqa: E402
 from udrobot_ctrl.gap.report import diagnose  # noqa: E402
+from udrobot_ctrl.parallel import JOBS_ENV  # noqa: E402
 
 OUTSIDE = ("periodic_disturbance",)
 HARD = ("wall_effect",)  # the truth's image-law wall pulls the unactuated vehicle through the wall (see tests)
@@ -88,6 +90,10 @@ def run_case(case, sensors: str, duration: float, rate: float, log_dir: str | No
             "unexplained": report["unexplained"], "elapsed_s": elapsed}
 
 
+def _one_job_each() -> None:
+    os.environ[JOBS_ENV] = "1"
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--sensors", choices=("full", "stock"), default="full")
@@ -114,7 +120,8 @@ def main(argv=None) -> int:
     if args.log_dir:
         Path(args.log_dir).mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
-    with ProcessPoolExecutor(max_workers=args.jobs) as ex:
+    # the cases share the cores: each diagnosis stays in its worker (udrobot_ctrl.parallel)
+    with ProcessPoolExecutor(max_workers=args.jobs, initializer=_one_job_each if args.jobs > 1 else None) as ex:
         extra = [(args.sensors, args.duration, args.rate, args.log_dir, args.window)] * len(todo)
         results = list(ex.map(run_case, todo, *zip(*extra)))
     for r in results:

@@ -6,16 +6,21 @@ with --json, ends with one JSON line holding ``diagnose_10min_s``. Goal: <= 30 s
 ``--sensors stock`` logs what a stock small ROV has (depth, attitude, gyro, accelerometer; no DVL, no
 positioning): the velocities are then reconstructed by the model-based smoother, whose time is printed too, and
 once an effect is significant, smoothed again with it and diagnosed a second time (both passes are counted).
+The diagnosis spreads its independent work over ``--jobs`` worker processes (default: the cores this process may
+use, :mod:`udrobot_ctrl.parallel`); ``--jobs 1`` measures it on one core.
 """
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "udrobot_ctrl" / "gap"))
+
+from udrobot_ctrl.parallel import JOBS_ENV, default_jobs  # noqa: E402
 
 
 def main(argv=None) -> int:
@@ -23,7 +28,10 @@ def main(argv=None) -> int:
     ap.add_argument("--json", action="store_true")
     ap.add_argument("--duration", type=float, default=200.0, help="seconds per run (3 runs)")
     ap.add_argument("--sensors", default="full", choices=("full", "stock"), help="sensor set of the logs")
+    ap.add_argument("--jobs", type=int, default=None, help="worker processes (default: the cores)")
     args = ap.parse_args(argv)
+    if args.jobs is not None:
+        os.environ[JOBS_ENV] = str(args.jobs)
     from truth import generate
 
     from udrobot_ctrl.gap.report import diagnose
@@ -43,10 +51,12 @@ def main(argv=None) -> int:
     for line in lines:  # stock runs with a significant effect: the second reconstruction pass
         if line.startswith("reconstruction"):
             print("  " + line)
-    print(f"diagnosis against all {len(report['effects'])} catalogue effects: {t_diag:.1f} s "
-          f"(goal <= 30 s); significant: {', '.join(sig) or 'none'}; unexplained {report['unexplained']:.2f}")
+    print(f"diagnosis against all {len(report['effects'])} catalogue effects: {t_diag:.1f} s with {default_jobs()} "
+          f"worker(s) (goal <= 30 s); significant: {', '.join(sig) or 'none'}; unexplained "
+          f"{report['unexplained']:.2f}")
     if args.json:
-        print(json.dumps({"diagnose_10min_s": round(t_diag, 2), "minutes": minutes, "sensors": args.sensors,
+        print(json.dumps({"diagnose_10min_s": round(t_diag, 2), "jobs": default_jobs(), "minutes": minutes,
+                          "sensors": args.sensors,
                           "significant": sig, "unidentifiable": [u["name"] for u in report["unidentifiable"]]}))
     return 0
 
