@@ -38,9 +38,11 @@ def default_jobs() -> int:
     return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
 
 
-def _fork_safe() -> bool:
-    """False once numba's OpenMP threading layer has run in this process (a threaded batch simulation): OpenMP
-    aborts a forked child that uses it again, so the work then stays in the calling process."""
+def can_fork() -> bool:
+    """Whether :func:`fork_map` may fork workers here: the platform has ``fork`` and numba's OpenMP threading layer
+    has not run in this process (a threaded batch simulation: OpenMP aborts a forked child that uses it again)."""
+    if "fork" not in multiprocessing.get_all_start_methods():
+        return False
     try:
         import numba
         return numba.threading_layer() != "omp"
@@ -80,8 +82,7 @@ def fork_map(func, items, jobs: int | None = None, warm: bool = False) -> list:
     global _task
     items = list(items)
     jobs = default_jobs() if jobs is None else int(jobs)
-    if jobs <= 1 or len(items) <= 1 or _in_worker or _task is not None or (
-            "fork" not in multiprocessing.get_all_start_methods()) or not _fork_safe():
+    if jobs <= 1 or len(items) <= 1 or _in_worker or _task is not None or not can_fork():
         return [func(x) for x in items]
     if warm:
         return [func(items[0])] + fork_map(func, items[1:], jobs)

@@ -1,15 +1,14 @@
 """fork_map: the serial loop's results, in order, from forked workers."""
 from __future__ import annotations
 
-import multiprocessing
 import os
+import subprocess
+import sys
 
 import numpy as np
 import pytest
 
-from udrobot_ctrl.parallel import JOBS_ENV, default_jobs, fork_map
-
-FORK = "fork" in multiprocessing.get_all_start_methods()
+from udrobot_ctrl.parallel import JOBS_ENV, can_fork, default_jobs, fork_map
 
 
 def test_results_in_order_from_a_closure_over_large_data():
@@ -17,7 +16,7 @@ def test_results_in_order_from_a_closure_over_large_data():
     items = list(range(7))
     out = fork_map(lambda k: (os.getpid(), float(data[k::7].sum())), items, jobs=2)
     assert [v for _, v in out] == [float(data[k::7].sum()) for k in items]
-    if FORK:
+    if can_fork():  # else (no fork, or numba's OpenMP layer ran in this process) the loop ran here
         assert os.getpid() not in {pid for pid, _ in out}
 
 
@@ -30,20 +29,33 @@ def test_a_worker_error_is_raised_in_the_caller():
         fork_map(fail_on_three, range(5), jobs=2)
 
 
-@pytest.mark.skipif(not FORK, reason="no fork on this platform: everything runs in the caller")
-def test_warm_runs_the_first_item_here_and_nesting_stays_in_the_worker():
-    seen = []
+WORKERS_CHECK = """
+import os
+from udrobot_ctrl.parallel import can_fork, fork_map
+assert can_fork()
+seen = []
 
-    def work(k):
-        seen.append(k)  # lands in this process only when computed here
-        inner = fork_map(lambda j: (os.getpid(), j * k), range(3), jobs=2)
-        return os.getpid(), [v for _, v in inner], {pid for pid, _ in inner}
-    out = fork_map(work, [1, 2, 3], jobs=2, warm=True)
-    assert seen == [1]
-    assert out[0][0] == os.getpid() and all(pid != os.getpid() for pid, _, _ in out[1:])
-    assert [v for _, v, _ in out] == [[0, k, 2 * k] for k in (1, 2, 3)]
-    # inside a worker the nested map ran in that worker
-    assert all(pids == {pid} for pid, _, pids in out[1:])
+def work(k):
+    seen.append(k)  # lands in this process only when computed here
+    inner = fork_map(lambda j: (os.getpid(), j * k), range(3), jobs=2)
+    return os.getpid(), [v for _, v in inner], {pid for pid, _ in inner}
+
+out = fork_map(work, [1, 2, 3], jobs=2, warm=True)
+assert seen == [1], seen
+assert out[0][0] == os.getpid() and all(pid != os.getpid() for pid, _, _ in out[1:]), out
+assert [v for _, v, _ in out] == [[0, k, 2 * k] for k in (1, 2, 3)], out
+assert all(pids == {pid} for pid, _, pids in out[1:]), out  # nested: ran in that worker
+print("ok")
+"""
+
+
+@pytest.mark.skipif(not hasattr(os, "fork"), reason="no fork on this platform: everything runs in the caller")
+def test_warm_runs_the_first_item_here_and_nesting_stays_in_the_worker():
+    """In a fresh interpreter (this one may have run numba's OpenMP layer, after which nothing is forked): the first
+    item is computed in the caller, the others in forked workers, and a fork_map inside a worker stays there."""
+    env = {**os.environ, JOBS_ENV: "2"}
+    done = subprocess.run([sys.executable, "-c", WORKERS_CHECK], capture_output=True, text=True, env=env, timeout=120)
+    assert done.returncode == 0 and done.stdout.strip() == "ok", done.stderr
 
 
 def test_jobs_from_the_environment(monkeypatch):
