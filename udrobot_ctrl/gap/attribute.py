@@ -46,7 +46,6 @@ from scipy.sparse import csr_matrix
 from udrobot_ctrl.dynamics.plant import PlantParameters, generalized_forces
 from udrobot_ctrl.gap import effects as fx
 from udrobot_ctrl.gap.data import Prepared
-from udrobot_ctrl.parallel import fork_map
 
 BIC_STRONG = 10.0
 #: Nelder-Mead budget of a shape refinement, per free shape parameter: a tether anchor walking with the vehicle
@@ -268,10 +267,6 @@ class ArrayCache:
     def __len__(self) -> int:
         return len(self._items)
 
-    def items(self):
-        """(key, value) pairs, oldest first (reading them does not refresh them)."""
-        return list(self._items.items())
-
     def without(self, drop) -> ArrayCache:
         """A copy without the keys for which ``drop(key)`` is true (the values are shared, not copied)."""
         out = ArrayCache(self.max_bytes)
@@ -348,15 +343,6 @@ class Attributor:
             self._cache[key] = d._replace(b0=np.nan_to_num(d.b0), A=np.nan_to_num(d.A))
         return self._cache[key]
 
-    def cached_designs(self, name) -> dict:
-        """The cached designs of ``name`` (cache key -> design), for :meth:`adopt`."""
-        return {k: v for k, v in self._cache.items() if k[0] == "design" and k[1] == name}
-
-    def adopt(self, designs: dict) -> None:
-        """Cache ``designs`` (:meth:`cached_designs` of a copy of this attributor, e.g. in a worker process)."""
-        for k, v in designs.items():
-            self._cache[k] = v
-
     def prefetch(self, name, shapes, fixed=()) -> None:
         """Compute the designs of ``name`` at ``shapes`` not cached yet together (:meth:`Effect.designs
         <udrobot_ctrl.gap.effects.Effect.designs>`), when it sees no other member's filter beside ``fixed``: a grid
@@ -366,9 +352,9 @@ class Attributor:
         keys = {tuple(np.round(sh, 6)): tuple(sh) for sh in shapes}
         missing = [sh for k, sh in keys.items() if ("design", name, k, ()) not in self._cache]
         if len(missing) > 1:
-            for k_sh, d in zip(missing, self.cat[name].designs(self.s, missing)):  # fresh arrays: zeroed in place
+            for k_sh, d in zip(missing, self.cat[name].designs(self.s, missing)):
                 self._cache[("design", name, tuple(np.round(k_sh, 6)), ())] = d._replace(
-                    b0=np.nan_to_num(d.b0, copy=False), A=np.nan_to_num(d.A, copy=False))
+                    b0=np.nan_to_num(d.b0), A=np.nan_to_num(d.A))
 
     def upstream(self, name, terms) -> tuple:
         """(name, shape) of the members of ``terms`` whose input filter (a lag: shape only) composes with ``name`` in
@@ -701,18 +687,9 @@ def forward_select(att: Attributor, att_h: Attributor, names=None, max_effects=4
     """
     names = list(names or att.cat)
     nominal = att.fit([])
-
-    def single(n):  # its best single fit and the designs computed for it (a worker's cache does not come back)
-        # an effect the runs cannot identify is fitted on its grid only: its parameters are not identified, and
-        # refining them (a tether's four anchor coordinates) would cost a fifth of a stock diagnosis for a number
-        # nobody reads
-        return att.best_shape(n, refine=n not in exclude), att.cached_designs(n)
-    largest_first = sorted(names, key=lambda n: -len(att.cat[n].search_space(att.s)[0]))  # balances the cores
-    done = dict(zip(largest_first, fork_map(single, largest_first)))  # each effect on its own, over the cores
-    singles = {}
-    for n in names:
-        singles[n], designs = done[n]
-        att.adopt(designs)
+    # an effect the runs cannot identify is fitted on its grid only: its parameters are not identified, and refining
+    # them (a tether's four anchor coordinates) would cost a fifth of a stock diagnosis for a number nobody reads
+    singles = {n: att.best_shape(n, refine=n not in exclude) for n in names}
     tau, _ = att.estimate_noise(singles)
     bic0 = att.bic(nominal)
     delta = {n: att.bic(f) - bic0 for n, f in singles.items()}
@@ -721,18 +698,15 @@ def forward_select(att: Attributor, att_h: Attributor, names=None, max_effects=4
         fixed = [(n, current.shapes[n]) for n in selected]
         # the grid plus the effect's refined single-effect shape: a coarse grid must not hand the step to a
         # many-parameter look-alike (e.g. cross-coupled damping for a current between grid points)
-        left = [n for n in names if n not in selected and n not in exclude]
-        cands = dict(zip(left, fork_map(lambda n: att.best_shape(n, fixed, refine=False,  # noqa: B023
-                                                                 seeds=(singles[n].shapes[n],)), left)))
+        cands = {n: att.best_shape(n, fixed, refine=False, seeds=(singles[n].shapes[n],))
+                 for n in names if n not in selected and n not in exclude}
         if not cands:
             break
         ranked = sorted(cands, key=lambda n: att.bic(cands[n]))
         best, trials = ranked[0], {}
         if any(att.free_shapes(m) for m in selected):
-            contenders = ranked[:REFIT_CONTENDERS]
-            trials = dict(zip(contenders, fork_map(
-                lambda n: refit(att, [*selected, n], {**current.shapes, n: cands[n].shapes[n]}),  # noqa: B023
-                contenders)))
+            trials = {n: refit(att, [*selected, n], {**current.shapes, n: cands[n].shapes[n]})
+                      for n in ranked[:REFIT_CONTENDERS]}
             best = min(trials, key=lambda n: att.bic(trials[n]))
         fbest = trials[best] if best in trials else att.best_shape(best, fixed, refine=True)
         d_bic = att.bic(fbest) - cur_bic
@@ -778,14 +752,16 @@ def finalize(att: Attributor, selected, names, final=None, lookalikes=True) -> C
     indist = {}
     for s_name in selected if lookalikes else ():
         others = [(n, final.shapes[n]) for n in selected if n != s_name]
-
-        def alike(n):  # the effect's best fit in place of s_name, refined when it comes close
-            alt = att.best_shape(n, others, refine=False)  # noqa: B023 - used within this iteration
+        alts = []
+        for n in names:
+            if n in selected:
+                continue
+            alt = att.best_shape(n, others, refine=False)
             if att.bic(alt) - cur_bic < LOOKALIKE_SCREEN:
-                alt = att.best_shape(n, others, refine=True)  # noqa: B023
-            return att.bic(alt) - cur_bic < BIC_STRONG
-        rest = [n for n in names if n not in selected]
-        indist[s_name] = [n for n, close in zip(rest, fork_map(alike, rest)) if close]
+                alt = att.best_shape(n, others, refine=True)
+            if att.bic(alt) - cur_bic < BIC_STRONG:
+                alts.append(n)
+        indist[s_name] = alts
     sigma = np.full(6, np.nan)
     sigma[att.dofs] = np.sqrt(final.rss / att.N)
     return Combination(members=selected, fit=final, indistinguishable=indist, noise_sigma=sigma)

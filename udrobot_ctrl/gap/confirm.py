@@ -355,7 +355,7 @@ def check_members(att: Attributor, att_h: Attributor, combo: Combination, full: 
     alone = alone or {}
     e_full = window_energy(preps, full.sims, full.gap, window_s)
     rests = [[m for m in combo.members if m != n] for n in combo.members]
-    fits = fork_map(lambda rest: refit(att, rest, combo.fit.shapes), rests)  # amplitudes and shapes, without it
+    fits = [refit(att, rest, combo.fit.shapes) for rest in rests]  # amplitudes and shapes refitted without it
     replays = replay_rest.many(list(zip(fits, rests)))
     tests = []
     for n, fit_rest, r_rest in zip(combo.members, fits, replays):

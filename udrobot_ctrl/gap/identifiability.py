@@ -39,7 +39,6 @@ import numpy as np
 from udrobot_ctrl.gap import effects as fx
 from udrobot_ctrl.gap.data import OBSERVING, VEL
 from udrobot_ctrl.gap.smoother import SmootherSettings
-from udrobot_ctrl.parallel import fork_map
 
 #: a parameter with less than a quarter of its noise-normalised regressor energy in observed DOFs is not identified:
 #: the observed part is then a side effect of what it does where nothing is measured (a thruster parameter shared by
@@ -543,9 +542,7 @@ def assess(stack, r, dofs, preps, catalogue: dict, names=None) -> Identifiabilit
            for pr in preps):
         moves.append("xy")
     stacks = {m: _perturbed(stack, preps, m) for m in moves}
-    # each effect's energies on its own, spread over the cores
-    raw = dict(zip(names, fork_map(lambda n: _energies(catalogue[n], stack, stacks, _shapes(catalogue[n], stack),
-                                                       sigma, observed), names)))
+    raw = {n: _energies(catalogue[n], stack, stacks, _shapes(catalogue[n], stack), sigma, observed) for n in names}
     top = max([a["all"] for acc in raw.values() for a in acc.values()], default=0.0)
     out = {}
     for n in names:
