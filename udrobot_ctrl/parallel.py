@@ -50,6 +50,13 @@ def can_fork() -> bool:
         return True
 
 
+def workers(jobs: int | None = None) -> int:
+    """Worker processes :func:`fork_map` would use here for ``jobs`` (default :func:`default_jobs`) and enough
+    items: 1 when the work stays in the calling process (one job, inside a worker, or :func:`can_fork` false)."""
+    jobs = default_jobs() if jobs is None else int(jobs)
+    return jobs if jobs > 1 and not _in_worker and _task is None and can_fork() else 1
+
+
 def _mark_worker() -> None:
     global _in_worker
     _in_worker = True
@@ -81,8 +88,8 @@ def fork_map(func, items, jobs: int | None = None, warm: bool = False) -> list:
     """
     global _task
     items = list(items)
-    jobs = default_jobs() if jobs is None else int(jobs)
-    if jobs <= 1 or len(items) <= 1 or _in_worker or _task is not None or not can_fork():
+    jobs = workers(jobs)
+    if jobs <= 1 or len(items) <= 1:
         return [func(x) for x in items]
     if warm:
         return [func(items[0])] + fork_map(func, items[1:], jobs)

@@ -8,7 +8,7 @@ import sys
 import numpy as np
 import pytest
 
-from udrobot_ctrl.parallel import JOBS_ENV, can_fork, default_jobs, fork_map
+from udrobot_ctrl.parallel import JOBS_ENV, can_fork, default_jobs, fork_map, workers
 
 
 def test_results_in_order_from_a_closure_over_large_data():
@@ -60,7 +60,8 @@ def test_warm_runs_the_first_item_here_and_nesting_stays_in_the_worker():
 
 def test_jobs_from_the_environment(monkeypatch):
     monkeypatch.setenv(JOBS_ENV, "1")
-    assert default_jobs() == 1
+    assert default_jobs() == 1 and workers() == 1
+    assert workers(2) == (2 if can_fork() else 1)
     assert fork_map(lambda k: os.getpid(), range(3)) == [os.getpid()] * 3  # one job: in this process
     monkeypatch.setenv(JOBS_ENV, "two")
     with pytest.raises(ValueError, match=JOBS_ENV):

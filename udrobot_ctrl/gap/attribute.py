@@ -336,25 +336,26 @@ class Attributor:
         ``upstream``: (name, shape) of the set's members whose input filters act together with this effect in the
         plant's order (:meth:`upstream`): an effect that reads the delivered thrust sees the commands through them,
         a static map's thrust change goes through them."""
-        key = ("design", name, tuple(np.round(shape, 6)), _rounded(upstream))
+        key = _design_key(name, shape, upstream)
         if key not in self._cache:
             s = self._composed(name, upstream) if upstream else self.s
-            d = fx.Design(*self.cat[name].design(s, tuple(shape)))
-            self._cache[key] = d._replace(b0=np.nan_to_num(d.b0), A=np.nan_to_num(d.A))
+            self._keep_design(key, fx.Design(*self.cat[name].design(s, tuple(shape))))
         return self._cache[key]
+
+    def _keep_design(self, key, d: fx.Design) -> None:
+        self._cache[key] = d._replace(b0=np.nan_to_num(d.b0), A=np.nan_to_num(d.A))
 
     def prefetch(self, name, shapes, fixed=()) -> None:
         """Compute the designs of ``name`` at ``shapes`` not cached yet together (:meth:`Effect.designs
         <udrobot_ctrl.gap.effects.Effect.designs>`), when it sees no other member's filter beside ``fixed``: a grid
         search then reads them from the cache."""
-        if self.upstream(name, [*fixed, (name, ())]):
+        if self.upstream(name, fixed):
             return
-        keys = {tuple(np.round(sh, 6)): tuple(sh) for sh in shapes}
-        missing = [sh for k, sh in keys.items() if ("design", name, k, ()) not in self._cache]
+        missing = {_design_key(name, sh): tuple(sh) for sh in shapes}
+        missing = {k: sh for k, sh in missing.items() if k not in self._cache}
         if len(missing) > 1:
-            for k_sh, d in zip(missing, self.cat[name].designs(self.s, missing)):
-                self._cache[("design", name, tuple(np.round(k_sh, 6)), ())] = d._replace(
-                    b0=np.nan_to_num(d.b0), A=np.nan_to_num(d.A))
+            for key, d in zip(missing, self.cat[name].designs(self.s, list(missing.values()))):
+                self._keep_design(key, d)
 
     def upstream(self, name, terms) -> tuple:
         """(name, shape) of the members of ``terms`` whose input filter (a lag: shape only) composes with ``name`` in
@@ -596,6 +597,11 @@ def bounded_normal_solve(G, h, lo, hi) -> np.ndarray:
         free &= (z > lo) & (z < hi)
     L = np.linalg.cholesky(G)
     return lsq_linear(L.T, solve_triangular(L, h, lower=True, check_finite=False), bounds=(lo, hi), method="bvls").x
+
+
+def _design_key(name, shape, upstream=()) -> tuple:
+    """The cache key of a design (shape rounded to 1e-6, see :func:`_rounded`)."""
+    return ("design", name, tuple(np.round(shape, 6)), _rounded(upstream))
 
 
 def _rounded(terms) -> tuple:

@@ -53,7 +53,7 @@ from scipy import stats
 from udrobot_ctrl.gap.attribute import HOLDOUT_CHI2, Attributor, Combination, Fit, finalize, holdout_lr, refit
 from udrobot_ctrl.gap.effects import Actuation
 from udrobot_ctrl.gap.shrink import GapScore, errors, gap, simulate_windows_sets, window_starts
-from udrobot_ctrl.parallel import default_jobs, fork_map
+from udrobot_ctrl.parallel import fork_map, workers
 
 REPLAY_MATERIAL = 0.02  # fraction of gap_before
 REPLAY_P = 0.1  # one-sided p of the per-window rise (signed-rank and t, Bonferroni) below REPLAY_LARGE
@@ -119,7 +119,7 @@ def replay_sets(preps, p, sets, catalogue, actuation: Actuation, window_s, score
     order, integrated together (:func:`udrobot_ctrl.gap.shrink.simulate_windows_sets`)."""
     hook_sets = [fitted_hooks(catalogue, p, actuation, fit, members) for fit, members in sets]
     # one piece of work per run and share of the sets, spread over the cores (a set's replay is its own either way)
-    shares = [(r, part) for r in range(len(preps)) for part in _shares(len(sets), default_jobs())]
+    shares = [(r, part) for r in range(len(preps)) for part in _shares(len(sets), workers())]
     done = fork_map(lambda rp: simulate_windows_sets(preps[rp[0]], p, [hook_sets[v] for v in rp[1]], window_s),
                     shares)
     per_run = [[None] * len(sets) for _ in preps]

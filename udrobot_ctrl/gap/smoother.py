@@ -379,15 +379,15 @@ def smooth_run(t, meas: dict, tau, p: PlantParameters, settings: SmootherSetting
                                 f"(non-finite covariance or state)")
     xs_p = np.vstack([xs_p[1:], x])  # prediction of step k+1 from step k
 
-    # backward RTS pass (compiled; a step whose predicted covariance rounding left indefinite goes through the
-    # general solver here)
+    # backward RTS pass (compiled; a step whose predicted covariance the compiled Cholesky refuses is solved here by
+    # spd_solve, as the forward pass's update)
     xs = xs_f.copy()
     Ps = Ps_f.copy()
     k = kernels.rts_pass(xs, xs_f, xs_p, Ps, Ps_f, Ps_p, Fs, sl.start, m - 2)
     while k >= 0:
         Pp = Ps_p[k + 1]
         try:
-            C = np.linalg.solve(Pp, Fs[k] @ Ps_f[k]).T
+            C = spd_solve(Pp, Fs[k] @ Ps_f[k]).T
         except np.linalg.LinAlgError as exc:
             raise SmootherError(f"{label}: singular predicted covariance at t = {t[idx[k + 1]]:.2f} s in the RTS "
                                 f"pass") from exc
