@@ -140,10 +140,15 @@ def row_filter(prep: Prepared, at):
 
     def apply(y, held=False):
         y = np.asarray(y, float)
-        yi = y[:-1] if held else 0.5 * (y[:-1] + y[1:])
-        out = np.asarray(W @ yi.reshape(n - 1, -1)).reshape((at.size,) + y.shape[1:])
+        flat = y.reshape(n, -1)
+        live = np.flatnonzero(np.any(flat != 0.0, axis=0))  # a regressor that is zero throughout filters to zero
+        out = np.zeros((at.size, flat.shape[1]))
+        if live.size:
+            yl = flat[:, live]
+            yi = yl[:-1] if held else 0.5 * (yl[:-1] + yl[1:])
+            out[:, live] = W @ yi
         out[~ok] = np.nan
-        return out
+        return out.reshape((at.size,) + y.shape[1:])
     return apply
 
 
@@ -315,6 +320,7 @@ class Attributor:
         # _dof_design, _gram) under one byte budget; stacks with filtered commands (see design)
         self._cache, self._stacks = ArrayCache(cache_bytes), {}
         self._free_shapes = {}  # see free_shapes
+        self._best = {}  # see best_shape
         self.n_eff = float(self.N)
 
     def with_effect(self, name, effect) -> Attributor:
@@ -328,6 +334,7 @@ class Attributor:
         out._cache = self._cache.without(names_it)
         out._stacks = {k: v for k, v in self._stacks.items() if not names_it(k)}
         out._free_shapes = {k: v for k, v in self._free_shapes.items() if not names_it(k)}
+        out._best = {k: v for k, v in self._best.items() if not names_it(k)}
         return out
 
     def design(self, name, shape, upstream=()) -> fx.Design:
@@ -508,7 +515,19 @@ class Attributor:
     def best_shape(self, name, fixed=(), refine=True, seeds=()):
         """Best fit of ``name`` (grid search over its shape and any ``seeds`` shapes, e.g. its refined single-effect
         shape, then local refinement, ``REFINE_EVALS_PER_SHAPE`` evaluations per free shape parameter) together with
-        fixed terms."""
+        fixed terms.
+
+        The result is kept per arguments (exact shapes): the look-alike screens of one selection repeat searches
+        (an unidentifiable tether's grid with nothing fixed, in each finalisation), and a search depends on nothing
+        else (the stack, its residual and scored DOFs are the attributor's own; N_eff does not enter a likelihood).
+        """
+        key = (name, _exact(fixed), bool(refine), _exact((name, sh) for sh in seeds))
+        if key not in self._best:
+            self._best[key] = self._search_shape(name, fixed, refine, seeds)
+        return self._best[key]
+
+    def _search_shape(self, name, fixed, refine, seeds):
+        """:meth:`best_shape` computed."""
         eff = self.cat[name]
         grid, bounds = eff.search_space(self.s)
         self.prefetch(name, tuple(grid) + tuple(seeds), fixed)
@@ -602,6 +621,11 @@ def bounded_normal_solve(G, h, lo, hi) -> np.ndarray:
 def _design_key(name, shape, upstream=()) -> tuple:
     """The cache key of a design (shape rounded to 1e-6, see :func:`_rounded`)."""
     return ("design", name, tuple(np.round(shape, 6)), _rounded(upstream))
+
+
+def _exact(terms) -> tuple:
+    """A key of (name, shape) pairs, shapes as exact floats."""
+    return tuple((n, tuple(float(v) for v in sh)) for n, sh in terms)
 
 
 def _rounded(terms) -> tuple:

@@ -295,23 +295,25 @@ def plant_hooks(e: PlantEffect, p: PlantParameters, actuation: Actuation) -> Hoo
         with_current = replace(nominal, effects=(e,))
         return Hooks(force=lambda x, f, ctx: _stack(effect_forces(_comps(x), with_current)))
     if e.name == "wall_effect":  # the planes are the run's measured surfaces (ctx), not one seabed depth
-        def known(dist):  # an unmeasured distance is no surface nearby
-            return np.where(np.isfinite(dist), dist, np.inf)
+        def planes(x, ctx):  # the state's components and, per surface, its distance and unit normal, stacked
+            dist = np.stack([np.where(np.isfinite(d), d, np.inf) for d, _ in ctx["surfaces"]])  # (planes, ...):
+            normals = np.asarray([n for _, n in ctx["surfaces"]], float)  # unmeasured = no surface nearby
+            column = (len(normals),) + (1,) * (dist.ndim - 1)
+            return _comps(x), dist, tuple(normals[:, c].reshape(column) for c in range(3))
 
-        def wall_force(x, f, ctx):
-            X = _comps(x)
-            out = np.zeros(np.shape(x)[:-1] + (6,))
-            for dist, normal in ctx["surfaces"]:
-                out += _stack(pfx.surface_suction(pfx.NUMPY, X[:6], X[6:], known(dist), tuple(normal), e.params))
-            return out
+        def wall_force(x, f, ctx):  # every surface's suction in one evaluation, summed over the surfaces
+            if not ctx["surfaces"]:
+                return np.zeros(np.shape(x)[:-1] + (6,))
+            X, dist, normal = planes(x, ctx)
+            return _stack(pfx.surface_suction(pfx.NUMPY, X[:6], X[6:], dist, normal, e.params)).sum(axis=0)
 
         def wall_mass(x, ctx):
-            X = _comps(x)
-            out = np.zeros(np.shape(x)[:-1] + (6, 6))
-            for dist, normal in ctx["surfaces"]:
-                rows = pfx.surface_added_mass(pfx.NUMPY, X[:6], X[6:], known(dist), tuple(normal), e.params)
-                out += np.stack([_stack(r) for r in rows], axis=-2)
-            return out
+            shape = np.shape(x)[:-1]
+            if not ctx["surfaces"]:
+                return np.zeros(shape + (6, 6))
+            X, dist, normal = planes(x, ctx)
+            rows = pfx.surface_added_mass(pfx.NUMPY, X[:6], X[6:], dist, normal, e.params)
+            return _stack([c for row in rows for c in row]).reshape((len(dist),) + shape + (6, 6)).sum(axis=0)
         return Hooks(force=wall_force, mass=wall_mass)
     folded = pfx.fold_parameters(nominal, (e,))  # an effect on the nominal matrices
     dM = folded.M - nominal.M

@@ -94,6 +94,7 @@ def test_filtering_only_the_stacked_rows_gives_the_full_filter_there():
     prep = prepare(run, P)
     y = np.random.default_rng(0).normal(size=(prep.n, 6, 2))
     y[200, 3] = np.nan
+    y[:, 4, 1] = 0.0  # a regressor that is zero throughout (a moment the force has none of): skipped, still zero
     at = np.r_[0, 1, np.arange(2, prep.n, 5), prep.n - 1]
     for held in (False, True):
         full = filter_forces(prep, y, held)
@@ -101,6 +102,8 @@ def test_filtering_only_the_stacked_rows_gives_the_full_filter_there():
         np.testing.assert_array_equal(part, full[at])
         assert np.isnan(part[0]).all() and np.isnan(part[-1]).all()
         assert np.isnan(full[200, 3]).all() and np.isfinite(full[200, 2]).all()
+        inner = (at >= 40) & (at < prep.n - 40)
+        assert np.all(part[inner, 4, 1] == 0.0) and np.all(part[inner, 4, 0] != 0.0)
 
 
 def test_an_inflow_loss_behind_a_lag_is_fitted_on_the_lagged_thrust():

@@ -24,6 +24,7 @@ from udrobot_ctrl.gap.confirm import (
     paired_rise,
     rise_fraction,
     sign_p,
+    signed_rank_greater,
     window_energy,
 )
 from udrobot_ctrl.gap.data import prepare
@@ -43,6 +44,26 @@ def test_paired_rise_is_the_smaller_of_signed_rank_and_t_bonferroni():
     assert p == pytest.approx(min(1.0, 2 * min(ref_w.pvalue, ref_t.pvalue)))
     assert paired_rise(with_, with_) == (0.0, 1.0)  # no change: no evidence
     assert paired_rise(with_ + 1.0, with_)[1] < 1e-3  # worse in every window
+
+
+
+@pytest.mark.parametrize("n", [2, 5, 9, 13, 14, 30])
+def test_signed_rank_equals_scipy_with_and_without_ties(n):
+    """The direct exact test gives scipy's W+ and p: tied window changes (repeated values, as rounding leaves them)
+    of up to 13 windows go through the 2^n enumeration, untied ones and longer ones through scipy itself."""
+    rng = np.random.default_rng(n)
+    for trial in range(20):
+        d = rng.normal(0.2 * (trial % 3), 1.0, n)
+        if trial % 2:  # ties in |d|, signs mixed
+            d = np.round(d, 1)
+            d[: n // 2] = np.abs(d[n // 2: 2 * (n // 2)]) * np.where(rng.random(n // 2) < 0.5, -1, 1)
+        d = d[d != 0]
+        if d.size < 2:
+            continue
+        ref = stats.wilcoxon(d, alternative="greater")
+        w, p = signed_rank_greater(d)
+        assert w == ref.statistic
+        assert p == pytest.approx(float(ref.pvalue), rel=1e-12, abs=0)
 
 
 def _prepared_run(n=1200, dt=0.05, seed=1):

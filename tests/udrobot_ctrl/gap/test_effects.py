@@ -2,6 +2,7 @@
 import numpy as np
 import pytest
 
+from udrobot_ctrl.dynamics import effects as fx
 from udrobot_ctrl.dynamics.effects import TETHER_SPEED_FLOOR, PlantEffect
 from udrobot_ctrl.dynamics.effects import cable_direction as _cable_direction
 from udrobot_ctrl.dynamics.plant import generalized_forces, plant_parameters, rotation_zyx
@@ -185,3 +186,34 @@ def test_tether_designs_of_many_anchors_are_each_anchors_own():
         alone = eff.designs(st, [shape])[0]
         assert np.array_equal(d.A, alone.A) and np.array_equal(d.b0, alone.b0)
     assert not np.allclose(together[0].A, together[4].A)  # the anchors differ
+
+
+def test_wall_replay_hooks_are_the_plants_suction_and_added_mass_over_every_surface():
+    """The replay's wall hooks (all measured surfaces in one evaluation) are the plant's own wall_effect terms
+    summed over its planes: the seabed and two walls of other normals; an unmeasured distance is no surface."""
+    rng = np.random.default_rng(3)
+    p = plant_parameters(load_model("pendulum:chin"))
+    x = _state(rng, 40)
+    x[:, :3] = rng.uniform([-2.0, -1.0, 0.5], [2.0, 3.0, 2.5], (40, 3))
+    q = {"decay_length_m": 0.4, "suction_N_s2_per_m2": 30.0, "added_mass_at_contact_kg": 6.0, "seabed_depth_m": 3.0,
+         "wall1_point_n_m": 3.0, "wall1_point_e_m": 0.0, "wall1_point_d_m": 0.0, "wall1_normal_n": -1.0,
+         "wall1_normal_e": 0.0, "wall1_normal_d": 0.0,
+         "wall2_point_n_m": 0.0, "wall2_point_e_m": -2.0, "wall2_point_d_m": 0.0, "wall2_normal_n": 0.3,
+         "wall2_normal_e": 1.0, "wall2_normal_d": 0.0}
+    planes = fx.wall_planes(q)
+    assert len(planes) == 3
+    ctx = {"surfaces": [(np.asarray(fx.plane_distance(x[:, :6].T, pt, n), float), np.asarray(n))
+                        for pt, n in planes]}
+    eff = PlantEffect("wall_effect", q)
+    hooks = catalogue()["wall_effect"].hooks(q, p, Actuation(None, None, None, p.M_A))
+    X = list(x.T)
+    force = np.stack(np.broadcast_arrays(*fx.external_force(fx.NUMPY, X[:6], X[6:], (eff,))), -1)
+    mass = np.stack([np.stack(np.broadcast_arrays(*r), -1)
+                     for r in fx.added_mass_increment(fx.NUMPY, X[:6], X[6:], (eff,))], -2)
+    np.testing.assert_allclose(hooks.force(x, None, ctx), force, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(hooks.mass(x, ctx), mass, rtol=1e-12, atol=1e-12)
+    assert np.abs(mass).max() > 0.1 and np.abs(force).max() > 1e-3  # the surfaces are near enough to act
+    far = {"surfaces": [(np.where(np.arange(40) % 2, d, np.nan), n) for d, n in ctx["surfaces"]]}
+    np.testing.assert_allclose(hooks.mass(x, far)[::2], 0.0, atol=0.0)  # unmeasured: no surface
+    np.testing.assert_allclose(hooks.mass(x, far)[1::2], mass[1::2], rtol=1e-12, atol=1e-12)
+    assert np.all(hooks.mass(x, {"surfaces": []}) == 0.0) and np.all(hooks.force(x, None, {"surfaces": []}) == 0.0)
