@@ -36,6 +36,7 @@ import copy
 from collections import OrderedDict
 from dataclasses import dataclass, field
 from functools import lru_cache
+from typing import NamedTuple
 
 import numpy as np
 from scipy.linalg import solve_triangular
@@ -295,6 +296,17 @@ class Fit:
     pred: np.ndarray = field(repr=False, default=None)
 
 
+class _Solution(NamedTuple):
+    """:meth:`Attributor._solve`'s result for S fits of one structure."""
+
+    a: np.ndarray  # (S, k) amplitudes (0 where inactive)
+    pred: np.ndarray | None  # (S, nd, n) A a on the scored DOFs (None: no amplitude)
+    active: np.ndarray  # (S, k) bool
+    names: list  # (k,) amplitude names
+    owner: list  # (k,) the effect each amplitude belongs to
+    b0: np.ndarray  # (S, n, nd) the fixed parts (the terms' b0) on the scored DOFs
+
+
 class Attributor:
     """Equation-error fits of catalogue effects on a stack of fit runs (see the module docstring).
 
@@ -437,69 +449,114 @@ class Attributor:
         return self._cache[key]
 
     def fit(self, terms, iters=3):
-        """Fit terms [(name, shape), ...] jointly; per-DOF variances by re-weighting."""
-        d = self.dofs
-        b0 = np.zeros_like(self.r)
-        keys, names, lo, hi, owner = [], [], [], [], []
-        for name, shape in terms:
-            up = self.upstream(name, terms)
-            b, A, nm, l, h = self.design(name, shape, up)
-            b0 = b0 + b
-            keys.append((name, shape, up))
-            names += list(nm)
-            lo.append(l)
-            hi.append(h)
-            owner += [name] * len(nm)
-        y = (self.r - b0)[:, d]
-        k = len(names)
-        sig = np.sqrt(np.mean(self.r[:, d] ** 2, axis=0)) + 1e-12
-        a = np.zeros(k)
-        if k:
-            Ats = [self._dof_design(*key) for key in keys]  # (nd, k_i, n) per term
-            cuts = np.cumsum([0] + [At.shape[1] for At in Ats])
-            G = np.empty((int(d.sum()), k, k))  # per-DOF normal equations, blocks cached per pair of terms
-            for i, ti in enumerate(keys):
-                for j in range(i, len(keys)):
-                    g = self._gram(ti, keys[j], Ats[i], Ats[j])
-                    G[:, cuts[i]:cuts[i + 1], cuts[j]:cuts[j + 1]] = g
-                    G[:, cuts[j]:cuts[j + 1], cuts[i]:cuts[i + 1]] = g.transpose(0, 2, 1)
-            yt = np.ascontiguousarray(y.T)[..., None]
-            h = np.concatenate([(At @ yt)[..., 0] for At in Ats], axis=1)
-
-            def prediction(a):  # A a, (n, nd)
-                return sum(a[cuts[i]:cuts[i + 1]] @ At for i, At in enumerate(Ats)).T
-            lo, hi = np.concatenate(lo), np.concatenate(hi)
-            active = np.einsum("ikk->k", G / sig[:, None, None] ** 2) > 1e-12 * max(
-                1.0, np.einsum("ikk->k", G / sig[:, None, None] ** 2).max())
-            for _ in range(iters):
-                w = 1.0 / sig ** 2
-                Gw = np.einsum("ikl,i->kl", G, w)[np.ix_(active, active)]
-                hw = (h * w[:, None]).sum(0)[active]
-                scale = np.sqrt(np.diag(Gw)) + 1e-300
-                Gn = Gw / np.outer(scale, scale) + 1e-9 * np.eye(active.sum())
-                a = np.zeros(k)
-                a[active] = bounded_normal_solve(Gn, hw / scale, lo[active] * scale, hi[active] * scale) / scale
-                e = y - prediction(a)
-                sig = np.sqrt(np.mean(e ** 2, axis=0)) + 1e-12
-            pred = b0[:, d] + prediction(a)
-            kk = int(active.sum())
-        else:
-            pred = b0[:, d]
-            kk = 0
-        e = self.r[:, d] - pred
+        """Fit terms [(name, shape), ...] jointly; per-DOF variances by re-weighting (:meth:`_solve`)."""
+        terms = [(n, tuple(sh)) for n, sh in terms]
+        sol = self._solve([terms], iters)
+        a, kk = sol.a[0], int(sol.active[0].sum())
+        pred = sol.b0[0] + (sol.pred[0].T if sol.pred is not None else 0.0)
+        e = self.r[:, self.dofs] - pred
         rss = np.sum(e ** 2, axis=0) + 1e-300
         params, shapes = {}, {}
         for name, shape in terms:
             shapes[name] = tuple(shape)
             sp = dict(zip(self.cat[name].shape_names, shape))
             params[name] = {k_: float(v) for k_, v in sp.items()}
-        for nm, own, val in zip(names, owner, a):
+        for nm, own, val in zip(sol.names, sol.owner, a):
             params[own][nm] = float(val)
         kk += sum(self.free_shapes(n) for n, _ in terms)
         full_pred = np.zeros_like(self.r)
-        full_pred[:, d] = pred
+        full_pred[:, self.dofs] = pred
         return Fit(tuple(n for n, _ in terms), shapes, params, rss, kk, float(np.sum(np.log(rss / self.N))), a,
                    full_pred)
+
+    def losses(self, fixed, name, shapes, iters=3, chunk=64) -> np.ndarray:
+        """``fit(fixed + [(name, shape)]).loglik_n`` for each of ``shapes`` (S,), the fits solved together
+        (:meth:`_solve`, ``chunk`` shapes at a time): a grid search's cost is then a few array operations per shape,
+        not a fit's Python overhead."""
+        fixed = [(n, tuple(sh)) for n, sh in fixed]
+        out = []
+        for c0 in range(0, len(shapes), chunk):
+            sets = [fixed + [(name, tuple(sh))] for sh in shapes[c0:c0 + chunk]]
+            sol = self._solve(sets, iters)
+            e = self.r[:, self.dofs].T[None] - sol.b0.transpose(0, 2, 1) - (sol.pred if sol.pred is not None else 0.0)
+            rss = np.sum(e ** 2, axis=2) + 1e-300
+            out.append(np.sum(np.log(rss / self.N), axis=1))
+        return np.concatenate(out) if out else np.zeros(0)
+
+    def _solve(self, term_sets, iters) -> _Solution:
+        """The weighted, bounded least squares of S fits of one structure (the same effects in the same order, each
+        term's shape free to differ), together.
+
+        Per fit: amplitudes ``a`` minimising sum_i |y_i - A_i a|^2 / sigma_i^2 over the scored DOFs i within the
+        designs' bounds, y = r - b0 (the terms' fixed parts), with sigma_i re-estimated from the residual ``iters``
+        times (from the residual's RMS); columns with no energy on the scored DOFs are inactive (zero). The normal
+        equations are scaled to a unit diagonal (plus 1e-9) and solved as one batch; a fit whose solution leaves its
+        bounds is solved on its own by :func:`bounded_normal_solve`.
+        """
+        d = self.dofs
+        S, nd = len(term_sets), int(d.sum())
+        per_set = [[(n, sh, self.upstream(n, terms)) for n, sh in terms] for terms in term_sets]
+        first = per_set[0]
+        designs = [[self.design(*key) for key in keys] for keys in per_set]
+        names = [nm for dz in designs[0] for nm in dz.names]
+        owner = [n for (n, _, _), dz in zip(first, designs[0]) for _ in dz.names]
+        k = len(names)
+        b0 = np.stack([sum((dz.b0 for dz in dzs), np.zeros_like(self.r))[:, d] for dzs in designs])  # (S, n, nd)
+        y = (self.r[:, d][None] - b0).transpose(0, 2, 1)  # (S, nd, n)
+        if k == 0:
+            return _Solution(np.zeros((S, 0)), None, np.zeros((S, 0), bool), names, owner, b0)
+        # per term: its per-DOF regressors (nd, k_i, n), shared by the fits where its key is the same
+        Ats = []
+        for t in range(len(first)):
+            keys = [keys[t] for keys in per_set]
+            if all(kt == keys[0] for kt in keys):
+                Ats.append(self._dof_design(*keys[0])[None])
+            else:
+                Ats.append(np.stack([self._dof_design(*kt) for kt in keys]))
+        cuts = np.cumsum([0] + [At.shape[2] for At in Ats])
+        G = np.empty((S, nd, k, k))
+        for i, Ai in enumerate(Ats):
+            for j in range(i, len(Ats)):
+                if Ai.shape[0] == 1 and Ats[j].shape[0] == 1:
+                    g = self._gram(per_set[0][i], per_set[0][j], Ai[0], Ats[j][0])[None]
+                else:
+                    g = Ai @ Ats[j].transpose(0, 1, 3, 2)
+                G[:, :, cuts[i]:cuts[i + 1], cuts[j]:cuts[j + 1]] = g
+                G[:, :, cuts[j]:cuts[j + 1], cuts[i]:cuts[i + 1]] = np.swapaxes(g, -1, -2)
+        h = np.concatenate([(At @ y[..., None])[..., 0] for At in Ats], axis=2)  # (S, nd, k)
+        lo = np.concatenate([dz.lower for dz in designs[0]])
+        hi = np.concatenate([dz.upper for dz in designs[0]])
+
+        def prediction(a):  # A a per fit, (S, nd, n)
+            return sum(np.einsum("sk,sdkn->sdn", a[:, cuts[i]:cuts[i + 1]], At) if At.shape[0] == S
+                       else np.einsum("sk,dkn->sdn", a[:, cuts[i]:cuts[i + 1]], At[0]) for i, At in enumerate(Ats))
+
+        sig = np.broadcast_to(np.sqrt(np.mean(self.r[:, d] ** 2, axis=0)) + 1e-12, (S, nd))
+        energy = np.einsum("sikk->sk", G / sig[:, :, None, None] ** 2)
+        active = energy > 1e-12 * np.maximum(1.0, energy.max(axis=1, keepdims=True))
+        eye = np.eye(k)
+        a = np.zeros((S, k))
+        for _ in range(iters):
+            w = 1.0 / sig ** 2
+            Gw = np.einsum("sikl,si->skl", G, w)
+            hw = np.einsum("sik,si->sk", h, w)
+            scale = np.sqrt(np.einsum("skk->sk", Gw)) + 1e-300
+            with np.errstate(invalid="ignore", divide="ignore"):  # an inactive column's 0/0, replaced below
+                Gn = Gw / (scale[:, :, None] * scale[:, None, :]) + 1e-9 * eye
+                rhs = np.where(active, hw / scale, 0.0)
+            off = ~(active[:, :, None] & active[:, None, :])  # an inactive column: a unit row, zero right-hand side
+            Gn = np.where(off, eye, Gn)
+            z = np.linalg.solve(Gn, rhs[..., None])[..., 0]
+            out = ~np.all(((z >= lo * scale) & (z <= hi * scale)) | ~active, axis=1)
+            for s_ in np.flatnonzero(out):  # bounds bind: the active-set method on that fit's active columns
+                on = active[s_]
+                z[s_] = 0.0
+                z[s_, on] = bounded_normal_solve(Gn[s_][np.ix_(on, on)], rhs[s_, on], lo[on] * scale[s_, on],
+                                                 hi[on] * scale[s_, on])
+            a = np.where(active, z / scale, 0.0)
+            e = y - prediction(a)
+            sig = np.sqrt(np.mean(e ** 2, axis=2)) + 1e-12
+        return _Solution(a, prediction(a), active, names, owner, b0)
 
     def free_shapes(self, name) -> int:
         """Number of shape parameters of ``name`` the search moves (a form held at one end is not one)."""
@@ -531,11 +588,8 @@ class Attributor:
         eff = self.cat[name]
         grid, bounds = eff.search_space(self.s)
         self.prefetch(name, tuple(grid) + tuple(seeds), fixed)
-        best = None
-        for shape in tuple(grid) + tuple(seeds):
-            f = self.fit(list(fixed) + [(name, shape)])
-            if best is None or f.loglik_n < best.loglik_n:
-                best = f
+        shapes = [tuple(sh) for sh in tuple(grid) + tuple(seeds)]
+        best = self.fit(list(fixed) + [(name, shapes[_first_min(self.losses(fixed, name, shapes))])])
         if refine and eff.refine and bounds:
             x0 = np.array(best.shapes[name], float)
             lo = np.array([b[0] for b in bounds])
@@ -575,6 +629,12 @@ class Attributor:
         tau = float(np.median(taus)) if taus else 1.0
         self.n_eff = max(10.0, self.N / max(tau, 1.0))
         return tau, full
+
+
+def _first_min(values) -> int:
+    """Index of the first smallest value, nan counting as +inf (a fit that failed never wins a grid search)."""
+    v = np.asarray(values, float)
+    return int(np.argmin(np.where(np.isnan(v), np.inf, v)))
 
 
 def bounded_normal_solve(G, h, lo, hi) -> np.ndarray:

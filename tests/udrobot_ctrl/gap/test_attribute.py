@@ -202,3 +202,49 @@ def test_the_bounded_normal_equations_solve_is_bounded_least_squares(bounds):
     ref = lsq_linear(A, y, bounds=(lo, hi), method="bvls").x
     np.testing.assert_allclose(z, ref, rtol=1e-7, atol=1e-9)
     assert np.all(z >= lo) and np.all(z <= hi)
+
+
+@pytest.mark.parametrize("fixed, name, restrict", [
+    ([("buoyancy_offset", ())], "tether_drag", False),  # many anchors; k >= 0 binds for some of them
+    ([("thruster_lag", (0.3, 1.5))], "thruster_deadband", False),  # its design sees the fixed lag
+    ([("thrust_inflow_loss", ())], "thruster_lag", False),  # the fixed term's design changes with each lag
+    ([("linear_damping", ())], "tether_drag", True),  # stock DOFs: the surge and sway columns are inactive
+])
+def test_a_grid_solved_together_gives_each_fits_own_likelihood(attributor, fixed, name, restrict):
+    """The grid search solves its fits as one batch (Attributor.losses): each shape's log-likelihood is what its own
+    fit gives, whether its amplitudes sit inside their bounds or on them, whether the fixed terms' designs change with
+    the searched shape (a lag ahead of an inflow loss) or not, and with columns that act only where nothing is
+    scored."""
+    att = attributor
+    if restrict:
+        dofs = np.array([False, False, True, True, True, True])
+        att = Attributor(attributor.s, attributor.r, dofs, fx.catalogue())
+    grid = list(att.cat[name].search_space(att.s)[0])
+    shapes = grid[:: max(1, len(grid) // 40)]
+    together = att.losses(fixed, name, shapes, chunk=16)
+    alone = np.array([att.fit(list(fixed) + [(name, sh)]).loglik_n for sh in shapes])
+    np.testing.assert_allclose(together, alone, rtol=1e-10, atol=1e-10)
+    assert np.ptp(alone) > 1e-6  # the shapes do differ
+    if name == "tether_drag" and not restrict:
+        on_bound = [att.fit(list(fixed) + [(name, sh)]).params[name]["k_quadratic_N_s2_per_m2"] == 0.0
+                    for sh in shapes]
+        assert any(on_bound) and not all(on_bound)
+
+
+def test_a_fit_is_the_weighted_least_squares_solution(attributor):
+    """One re-weighting (weights from the residual's RMS per DOF), amplitudes inside their bounds: the fit's
+    amplitudes are numpy's least squares on the weighted, stacked scored DOFs."""
+    terms = [("buoyancy_offset", ()), ("linear_damping", ())]
+    fit = attributor.fit(terms, iters=1)
+    d = attributor.dofs
+    A = np.concatenate([attributor.design(n, sh).A for n, sh in terms], axis=2)[:, d]  # (n, nd, k)
+    y = attributor.r[:, d] - sum(attributor.design(n, sh).b0 for n, sh in terms)[:, d]
+    w = 1.0 / (np.sqrt(np.mean(attributor.r[:, d] ** 2, axis=0)) + 1e-12)
+    on = np.einsum("nik,nik->k", A, A) > 0
+    ref = np.zeros(A.shape[2])
+    ref[on] = np.linalg.lstsq((A[:, :, on] * w[None, :, None]).reshape(-1, on.sum()), (y * w).ravel(),
+                              rcond=None)[0]
+    lo = np.concatenate([attributor.design(n, sh).lower for n, sh in terms])
+    hi = np.concatenate([attributor.design(n, sh).upper for n, sh in terms])
+    assert np.all((ref >= lo) & (ref <= hi))  # interior: the bounds do not act
+    np.testing.assert_allclose(fit.a, ref, rtol=1e-6, atol=1e-9 * np.abs(ref).max())
