@@ -1,4 +1,4 @@
-"""Independent pieces of work spread over the machine's cores: :func:`fork_map`.
+"""Independent pieces of work spread over the machine's cores: :func:`fork_map` and :class:`Background`.
 
 The diagnoser's heavy steps are independent per run or per effect set (smoothing each run, replaying the holdout
 with each candidate), written as closures over large prepared data. Forked worker processes inherit those closures
@@ -9,6 +9,10 @@ The number of workers is ``jobs`` when given, else the ``UDROBOT_JOBS`` environm
 process may use. One worker, a platform without ``fork`` (Windows), a call from inside a worker (no nesting), or a
 process that has run numba's OpenMP threading layer (a forked child using it again aborts) runs the loop in the
 calling process.
+
+A :class:`Background` job is one piece of work a forked worker computes while the caller goes on with another
+(the nominal replays while the fits run); it holds one of the cores until its result is taken, so that
+:func:`fork_map` meanwhile uses one worker fewer.
 """
 from __future__ import annotations
 
@@ -20,6 +24,8 @@ JOBS_ENV = "UDROBOT_JOBS"
 
 _task = None  # (func, items) of the running fork_map, inherited by its workers
 _in_worker = False
+_background = {}  # id -> func of the Background jobs being started (inherited by their worker)
+_running = 0  # Background jobs whose worker is computing: each takes one of the cores fork_map would use
 
 
 def default_jobs() -> int:
@@ -53,7 +59,7 @@ def can_fork() -> bool:
 def workers(jobs: int | None = None) -> int:
     """Worker processes :func:`fork_map` would use here for ``jobs`` (default :func:`default_jobs`) and enough
     items: 1 when the work stays in the calling process (one job, inside a worker, or :func:`can_fork` false)."""
-    jobs = default_jobs() if jobs is None else int(jobs)
+    jobs = (default_jobs() if jobs is None else int(jobs)) - _running
     return jobs if jobs > 1 and not _in_worker and _task is None and can_fork() else 1
 
 
@@ -100,3 +106,67 @@ def fork_map(func, items, jobs: int | None = None, warm: bool = False) -> list:
             return list(ex.map(_run, range(len(items))))
     finally:
         _task = None
+
+
+def _run_background(key):
+    return _background[key]()
+
+
+class Background:
+    """``func()`` computed in a forked worker while the caller goes on; :meth:`result` returns it (or raises its
+    exception). Where :func:`fork_map` would run serially (one job, no fork, inside a worker) it is computed in the
+    caller when the result is first asked for: the same value either way.
+
+    Parameters
+    ----------
+    func : callable
+        No arguments; closures included (the worker inherits it); its result must pickle.
+    jobs : int, optional
+        As :func:`fork_map`'s: a worker is forked only when at least two would be used.
+    """
+
+    def __init__(self, func, jobs: int | None = None):
+        global _running
+        self._func, self._pool, self._future, self._outcome = func, None, None, None
+        if workers(jobs) <= 1:
+            return
+        key = id(self)
+        _background[key] = func
+        try:  # a fork context's pool forks its worker at the first submit, here: it inherits func
+            self._pool = ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("fork"),
+                                             initializer=_mark_worker)
+            self._future = self._pool.submit(_run_background, key)
+        finally:
+            _background.pop(key, None)
+        self._func = None
+        _running += 1
+
+    def result(self):
+        """The value of ``func()`` (waits for the worker); an exception in it is raised here, every time."""
+        if self._future is not None:
+            try:
+                self._outcome = (True, self._future.result())
+            except BaseException as exc:  # noqa: BLE001 - handed to the caller below
+                self._outcome = (False, exc)
+            finally:
+                self._release(wait=True)
+        elif self._outcome is None:
+            try:
+                self._outcome = (True, self._func())
+            except Exception as exc:  # noqa: BLE001 - raised below, and again on a second call
+                self._outcome = (False, exc)
+            self._func = None
+        ok, value = self._outcome
+        if not ok:
+            raise value
+        return value
+
+    def _release(self, wait: bool) -> None:
+        global _running
+        if self._future is not None:
+            _running -= 1
+            self._future = None
+            self._pool.shutdown(wait=wait, cancel_futures=True)
+
+    def __del__(self):  # a job whose result is never taken gives its core back
+        self._release(wait=False)

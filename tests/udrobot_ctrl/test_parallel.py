@@ -1,4 +1,4 @@
-"""fork_map: the serial loop's results, in order, from forked workers."""
+"""fork_map: the serial loop's results, in order, from forked workers; Background: one job beside the caller."""
 from __future__ import annotations
 
 import os
@@ -8,7 +8,7 @@ import sys
 import numpy as np
 import pytest
 
-from udrobot_ctrl.parallel import JOBS_ENV, can_fork, default_jobs, fork_map, workers
+from udrobot_ctrl.parallel import JOBS_ENV, Background, can_fork, default_jobs, fork_map, workers
 
 
 def test_results_in_order_from_a_closure_over_large_data():
@@ -66,3 +66,54 @@ def test_jobs_from_the_environment(monkeypatch):
     monkeypatch.setenv(JOBS_ENV, "two")
     with pytest.raises(ValueError, match=JOBS_ENV):
         default_jobs()
+
+
+BACKGROUND_CHECK = """
+import os, time
+from udrobot_ctrl.parallel import Background, fork_map, workers
+data = list(range(100_000))
+assert workers() == 2
+t0 = time.perf_counter()
+job = Background(lambda: (os.getpid(), sum(data), workers(), time.sleep(1.0)))
+assert workers() == 1  # the job holds one of the two cores: fork_map runs here meanwhile
+assert fork_map(lambda k: os.getpid(), range(3)) == [os.getpid()] * 3
+time.sleep(1.0)  # the caller's own work, while the job runs
+pid, total, inner, _ = job.result()
+assert time.perf_counter() - t0 < 1.9, time.perf_counter() - t0  # the two seconds overlapped
+assert pid != os.getpid() and total == sum(data) and inner == 1  # computed in a worker, which forks nothing
+assert workers() == 2 and job.result()[1] == total  # its core back; the result kept
+
+def fail():
+    raise KeyError("lost")
+bad = Background(fail)
+for _ in range(2):
+    try:
+        bad.result()
+    except KeyError as exc:
+        assert "lost" in str(exc)
+    else:
+        raise AssertionError("no error")
+assert workers() == 2
+Background(lambda: time.sleep(5.0))  # never asked: its core comes back when it is dropped
+assert workers() == 2
+print("ok")
+"""
+
+
+@pytest.mark.skipif(not hasattr(os, "fork"), reason="no fork on this platform: everything runs in the caller")
+def test_a_background_job_runs_beside_the_caller_and_holds_one_core():
+    """In a fresh interpreter with two jobs: the job's result (computed in a forked worker, over data it inherits)
+    arrives while the caller did its own second of work, fork_map stays in the caller meanwhile, a worker's error is
+    raised at every result(), and a job never asked for gives its core back."""
+    env = {**os.environ, JOBS_ENV: "2"}
+    done = subprocess.run([sys.executable, "-c", BACKGROUND_CHECK], capture_output=True, text=True, env=env,
+                          timeout=120)
+    assert done.returncode == 0 and done.stdout.strip() == "ok", done.stderr
+
+
+def test_a_background_job_without_workers_is_computed_when_asked(monkeypatch):
+    monkeypatch.setenv(JOBS_ENV, "1")
+    calls = []
+    job = Background(lambda: calls.append(os.getpid()) or 42)
+    assert calls == []  # nothing yet: computed here, when asked
+    assert job.result() == 42 and job.result() == 42 and calls == [os.getpid()]

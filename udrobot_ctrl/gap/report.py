@@ -62,7 +62,7 @@ from udrobot_ctrl.gap.locate import Located, locate, noise_floor
 from udrobot_ctrl.gap.shrink import GapScore, gap, prepare_with_effects, simulate_windows
 from udrobot_ctrl.io.files import atomic_write
 from udrobot_ctrl.io.runlog import Run
-from udrobot_ctrl.parallel import fork_map
+from udrobot_ctrl.parallel import Background, fork_map
 from udrobot_ctrl.vehicle import load_model
 
 FORMAT = "udrobot-diagnosis/1"
@@ -447,15 +447,20 @@ class OnDemand(Mapping):
     (:meth:`fill`; a stock diagnosis's first reconstruction pass needs the replays of its candidates only, the
     report those of every effect, replayed together)."""
 
-    def __init__(self, keys, compute):
+    def __init__(self, keys, compute, pending=None):
         self._keys, self._compute, self._values = tuple(keys), compute, {}
+        self._pending = pending  # (keys, Background job computing {key: value} for them), or None
 
     def fill(self, keys) -> None:
-        """Compute the values of ``keys`` not computed yet, together."""
+        """Compute the values of ``keys`` not computed yet, together (those a pending job computes: its result)."""
         missing = [k for k in dict.fromkeys(keys) if k not in self._values]
         unknown = [k for k in missing if k not in self._keys]
         if unknown:
             raise KeyError(unknown[0])
+        if self._pending is not None and any(k in self._pending[0] for k in missing):
+            job, self._pending = self._pending[1], None
+            self._values.update({k: v for k, v in job.result().items() if k not in self._values})
+            missing = [k for k in missing if k not in self._values]
         if missing:
             self._values.update(self._compute(missing))
 
@@ -482,7 +487,13 @@ def shrink_each(inp: Inputs, stacks: Stacks, sel: Selection, before: GapScore) -
     """Step 3, shrink: name -> holdout :class:`~udrobot_ctrl.gap.confirm.Replay` with the effect alone (its single
     fit), replayed when first read (:class:`OnDemand`); its shrink is 1 - replay gap / gap_before."""
     run = _replayer(inp, stacks, before.scored)
-    return OnDemand(inp.names, lambda names: dict(zip(names, run.many([(sel.singles[n], (n,)) for n in names]))))
+
+    def replays(names):
+        return dict(zip(names, run.many([(sel.singles[n], (n,)) for n in names])))
+    # the candidates' replays are read first (the holdout check); the others', for the rivals and the report, are
+    # replayed meanwhile in a worker
+    rest = tuple(n for n in inp.names if n not in sel.proposed)
+    return OnDemand(inp.names, replays, (rest, Background(lambda: replays(rest))) if rest else None)
 
 
 def confirm(inp: Inputs, stacks: Stacks, sel: Selection, where: Where, singles: OnDemand, log=None) -> Elimination:
@@ -1019,19 +1030,23 @@ def diagnosis_pass(inp: Inputs, say, t0, prior_ambiguous=None, prior_forms=None,
     """Steps 1-3 of :func:`diagnose` on ``inp``'s prepared runs (``prior_ambiguous``, ``prior_forms``,
     ``prior_stand_ins``: the effects the first reconstruction pass set aside, see :func:`set_aside_ambiguous` and
     :func:`set_aside_stand_ins`)."""
-    where = locate_gap(inp)
-    say("where: " + (", ".join(_where_line(x) for x in where.located.locations) or "no channel above its noise floor"))
-
+    # the nominal replays and their noise floor in a worker while the fits run (the console story keeps its order)
+    locating = Background(lambda: locate_gap(inp))
+    lines = []
     stacks = build_stacks(inp)
     unidentifiable = stacks.identifiability.names
     if unidentifiable:
-        say(f"not identifiable from the observed channels ({', '.join(stacks.identifiability.observed_dofs())}): "
-            f"{', '.join(unidentifiable)} (never significant; see the report's unidentifiable list)")
+        lines.append(f"not identifiable from the observed channels ({', '.join(stacks.identifiability.observed_dofs())}"
+                     f"): {', '.join(unidentifiable)} (never significant; see the report's unidentifiable list)")
     for n, chk in stacks.identifiability.effects.items():
         for k, form in chk.forms.items():
-            say(f"{n}: searched with {k} = {form.kept:g} only (at {form.other:g} it hinges on a velocity the "
-                f"channels do not measure; see its not_identified entry)")
-    sel = attribute(stacks, inp.names, log=say)
+            lines.append(f"{n}: searched with {k} = {form.kept:g} only (at {form.other:g} it hinges on a velocity the "
+                         f"channels do not measure; see its not_identified entry)")
+    sel = attribute(stacks, inp.names, log=lines.append)
+    where = locating.result()
+    say("where: " + (", ".join(_where_line(x) for x in where.located.locations) or "no channel above its noise floor"))
+    for line in lines:
+        say(line)
     say(f"candidates (forward selection on the fit runs, {len(inp.names) - len(unidentifiable)} identifiable "
         f"effects tested): {', '.join(sel.proposed) or 'none'} ({time.perf_counter() - t0:.1f} s)")
 
