@@ -454,8 +454,7 @@ class Attributor:
         sol = self._solve([terms], iters)
         a, kk = sol.a[0], int(sol.active[0].sum())
         pred = sol.b0[0] + (sol.pred[0].T if sol.pred is not None else 0.0)
-        e = self.r[:, self.dofs] - pred
-        rss = np.sum(e ** 2, axis=0) + 1e-300
+        rss = self._rss(sol)[0]
         params, shapes = {}, {}
         for name, shape in terms:
             shapes[name] = tuple(shape)
@@ -477,11 +476,13 @@ class Attributor:
         out = []
         for c0 in range(0, len(shapes), chunk):
             sets = [fixed + [(name, tuple(sh))] for sh in shapes[c0:c0 + chunk]]
-            sol = self._solve(sets, iters)
-            e = self.r[:, self.dofs].T[None] - sol.b0.transpose(0, 2, 1) - (sol.pred if sol.pred is not None else 0.0)
-            rss = np.sum(e ** 2, axis=2) + 1e-300
-            out.append(np.sum(np.log(rss / self.N), axis=1))
+            out.append(np.sum(np.log(self._rss(self._solve(sets, iters)) / self.N), axis=1))
         return np.concatenate(out) if out else np.zeros(0)
+
+    def _rss(self, sol: _Solution) -> np.ndarray:
+        """(S, nd) residual sum of squares per scored DOF of each fit of a :meth:`_solve` (plus 1e-300)."""
+        e = self.r[:, self.dofs].T[None] - sol.b0.transpose(0, 2, 1) - (sol.pred if sol.pred is not None else 0.0)
+        return np.sum(e ** 2, axis=2) + 1e-300
 
     def _solve(self, term_sets, iters) -> _Solution:
         """The weighted, bounded least squares of S fits of one structure (the same effects in the same order, each
