@@ -68,6 +68,12 @@ def _mark_worker() -> None:
     _in_worker = True
 
 
+def _forked_pool(n: int) -> ProcessPoolExecutor:
+    """A pool of ``n`` forked workers that know they are workers (no nesting). A fork context's pool forks its
+    workers at the first submit: they inherit the caller's state of that moment (the task registered for them)."""
+    return ProcessPoolExecutor(n, mp_context=multiprocessing.get_context("fork"), initializer=_mark_worker)
+
+
 def _run(i):
     func, items = _task
     return func(items[i])
@@ -102,7 +108,7 @@ def fork_map(func, items, jobs: int | None = None, warm: bool = False) -> list:
     n = min(jobs, len(items))
     _task = (func, items)
     try:
-        with ProcessPoolExecutor(n, mp_context=multiprocessing.get_context("fork"), initializer=_mark_worker) as ex:
+        with _forked_pool(n) as ex:
             return list(ex.map(_run, range(len(items))))
     finally:
         _task = None
@@ -132,9 +138,8 @@ class Background:
             return
         key = id(self)
         _background[key] = func
-        try:  # a fork context's pool forks its worker at the first submit, here: it inherits func
-            self._pool = ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("fork"),
-                                             initializer=_mark_worker)
+        try:  # the worker is forked at this submit: it inherits func
+            self._pool = _forked_pool(1)
             self._future = self._pool.submit(_run_background, key)
         finally:
             _background.pop(key, None)
@@ -146,7 +151,7 @@ class Background:
         if self._future is not None:
             try:
                 self._outcome = (True, self._future.result())
-            except BaseException as exc:  # noqa: BLE001 - handed to the caller below
+            except Exception as exc:  # noqa: BLE001 - raised below, and again on a second call
                 self._outcome = (False, exc)
             finally:
                 self._release(wait=True)
