@@ -13,6 +13,12 @@ calling process.
 A :class:`Background` job is one piece of work a forked worker computes while the caller goes on with another
 (the nominal replays while the fits run); it holds one of the cores until its result is taken, so that
 :func:`fork_map` meanwhile uses one worker fewer.
+
+A :class:`Helper` is a forked worker that serves method calls on one object for as long as the caller keeps it:
+it keeps what it computes (an effect's cached regressors), so that the work on some of the object's parts can stay
+there, beside the caller's work on the others (the searches of the effects the runs cannot identify, fitted for the
+record and as look-alikes, while the caller fits the others). It holds one of the cores while calls sent to it are
+not yet collected.
 """
 from __future__ import annotations
 
@@ -60,7 +66,17 @@ def workers(jobs: int | None = None) -> int:
     """Worker processes :func:`fork_map` would use here for ``jobs`` (default :func:`default_jobs`) and enough
     items: 1 when the work stays in the calling process (one job, inside a worker, or :func:`can_fork` false)."""
     jobs = (default_jobs() if jobs is None else int(jobs)) - _running
-    return jobs if jobs > 1 and not _in_worker and _task is None and can_fork() else 1
+    return jobs if jobs > 1 and _may_fork() else 1
+
+
+def _may_fork() -> bool:
+    """Whether a worker may be forked from here (not inside a worker or a running fork_map; :func:`can_fork`)."""
+    return not _in_worker and _task is None and can_fork()
+
+
+def in_worker() -> bool:
+    """True inside a worker process of :func:`fork_map`, :class:`Background` or :class:`Helper`."""
+    return _in_worker
 
 
 def _mark_worker() -> None:
@@ -175,3 +191,130 @@ class Background:
 
     def __del__(self):  # a job whose result is never taken gives its core back
         self._release(wait=False)
+
+
+def _serve(obj, conn) -> None:
+    """A :class:`Helper`'s worker: ``(method, args)`` received -> ``(True, value)`` or ``(False, exception)`` sent
+    back, in order, until ``None`` or the caller's end closes."""
+    _mark_worker()
+    while True:
+        try:
+            msg = conn.recv()
+        except (EOFError, OSError):
+            return
+        if msg is None:
+            return
+        method, args = msg
+        try:
+            out = (True, getattr(obj, method)(*args))
+        except Exception as exc:  # noqa: BLE001 - raised in the caller
+            out = (False, exc)
+        try:
+            conn.send(out)
+        except OSError:  # the caller closed its end
+            return
+        except Exception as exc:  # noqa: BLE001 - a value or an exception that does not pickle
+            conn.send((False, RuntimeError(f"helper: the result of {method} could not be sent back: {exc!r}")))
+
+
+class Helper:
+    """A forked worker serving method calls on ``obj``: :meth:`submit` sends ``getattr(obj, method)(*args)`` to it
+    and returns at once, :meth:`result` waits for that call's value (or raises its exception, in the caller).
+
+    The worker inherits ``obj`` as it is when the helper starts and keeps what it computes since (its caches); the
+    caller's ``obj`` is not touched, so calls must not depend on changes the caller makes later. Calls are computed
+    one at a time in the order submitted; their arguments and values must pickle. The worker holds one of the cores
+    while calls sent to it are not yet collected (:func:`fork_map` meanwhile uses one worker fewer), and stops at
+    :meth:`close` (or when the helper is dropped).
+
+    Where :func:`fork_map` could not fork (one job, no fork, inside a worker) -- whatever :class:`Background` jobs
+    run -- each call is computed in the caller when its result is asked for: the same values.
+
+    Parameters
+    ----------
+    obj : object
+        The object whose methods are called.
+    jobs : int, optional
+        As :func:`fork_map`'s: the worker is forked only when at least two are allowed.
+    """
+
+    def __init__(self, obj, jobs: int | None = None):
+        self._obj, self._conn, self._proc, self._pid = obj, None, None, os.getpid()
+        self._sent, self._got, self._replies, self._calls = 0, 0, {}, {}  # calls: token -> (method, args)
+        if (default_jobs() if jobs is None else int(jobs)) > 1 and _may_fork():
+            ctx = multiprocessing.get_context("fork")
+            ours, theirs = ctx.Pipe()
+            self._proc = ctx.Process(target=_serve, args=(obj, theirs), daemon=True)
+            self._proc.start()
+            theirs.close()
+            self._conn = ours
+
+    @property
+    def forked(self) -> bool:
+        """Whether the calls run in a worker (else in the caller, when their results are asked for)."""
+        return self._conn is not None
+
+    def submit(self, method: str, *args) -> int:
+        """Send ``getattr(obj, method)(*args)`` to the worker; returns the call's token for :meth:`result`."""
+        global _running
+        token = self._sent
+        self._sent += 1
+        self._calls[token] = (method, args)
+        if self._conn is not None:
+            if self._sent - self._got == 1:  # the first call not collected: the worker now holds a core
+                _running += 1
+            self._conn.send((method, args))
+        return token
+
+    def result(self, token: int):
+        """The value of the call ``token`` (waits for the worker; the replies before it are kept). A call the worker
+        did not answer (closed, or its process ended) is computed in the caller."""
+        global _running
+        if token in self._replies:
+            ok, value = self._replies.pop(token)
+            self._calls.pop(token, None)
+            if not ok:
+                raise value
+            return value
+        if token not in self._calls:
+            raise KeyError(f"helper: no call {token} pending")
+        while self._conn is not None and token not in self._replies:
+            try:
+                reply = self._conn.recv()
+            except (EOFError, OSError):
+                self.close()  # the worker died: what it did not answer is computed here
+                break
+            self._replies[self._got] = reply
+            self._got += 1
+            if self._got == self._sent:
+                _running -= 1
+        if token in self._replies:
+            return self.result(token)
+        method, args = self._calls.pop(token)
+        return getattr(self._obj, method)(*args)
+
+    def close(self) -> None:
+        """Stop the worker and give its core back; calls it has not answered are computed in the caller if their
+        results are asked for."""
+        global _running
+        if self._conn is None or os.getpid() != self._pid:  # a forked child never stops its parent's helper
+            return
+        busy = self._got < self._sent
+        if busy:
+            _running -= 1
+        conn, self._conn = self._conn, None
+        if busy:  # calls still running: not waited for
+            self._proc.terminate()
+        else:
+            try:
+                conn.send(None)
+            except OSError:
+                self._proc.terminate()
+        conn.close()
+        self._proc.join(timeout=5.0)
+        if self._proc.is_alive():
+            self._proc.kill()
+            self._proc.join()
+
+    def __del__(self):
+        self.close()

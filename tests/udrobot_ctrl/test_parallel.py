@@ -8,7 +8,7 @@ import sys
 import numpy as np
 import pytest
 
-from udrobot_ctrl.parallel import JOBS_ENV, Background, can_fork, default_jobs, fork_map, workers
+from udrobot_ctrl.parallel import JOBS_ENV, Background, Helper, can_fork, default_jobs, fork_map, workers
 
 
 def test_results_in_order_from_a_closure_over_large_data():
@@ -117,3 +117,79 @@ def test_a_background_job_without_workers_is_computed_when_asked(monkeypatch):
     job = Background(lambda: calls.append(os.getpid()) or 42)
     assert calls == []  # nothing yet: computed here, when asked
     assert job.result() == 42 and job.result() == 42 and calls == [os.getpid()]
+
+
+HELPER_CHECK = """
+import os, time
+from udrobot_ctrl.parallel import Helper, fork_map, workers
+
+class Counter:
+    def __init__(self):
+        self.seen = []  # what this copy has computed: the worker keeps its own
+        self.data = list(range(100_000))
+
+    def work(self, k, seconds=0.0):
+        time.sleep(seconds)
+        self.seen.append(k)
+        return os.getpid(), k, sum(self.data), list(self.seen), workers()
+
+    def fail(self):
+        raise KeyError("lost")
+
+obj = Counter()
+helper = Helper(obj)
+assert helper.forked and workers() == 2  # idle: it holds no core
+t0 = time.perf_counter()
+a = helper.submit("work", 1, 1.0)
+assert workers() == 1  # a call not collected: the worker holds one of the two cores
+b = helper.submit("work", 2)
+time.sleep(1.0)  # the caller's own work, while the worker computes
+pid_b, k_b, total, seen_b, inner = helper.result(b)  # out of order: a's reply is kept
+pid_a, k_a, _, seen_a, _ = helper.result(a)
+assert time.perf_counter() - t0 < 1.9, time.perf_counter() - t0  # the two seconds overlapped
+assert pid_a == pid_b != os.getpid() and (k_a, k_b) == (1, 2) and total == sum(obj.data) and inner == 1
+assert seen_a == [1] and seen_b == [1, 2] and obj.seen == []  # one worker keeps its state; the caller's untouched
+assert workers() == 2  # every call collected: its core back
+try:
+    helper.result(helper.submit("fail"))
+except KeyError as exc:
+    assert "lost" in str(exc)
+else:
+    raise AssertionError("no error")
+assert helper.result(helper.submit("work", 3))[3] == [1, 2, 3]  # the worker goes on after an error
+d = helper.submit("work", 4, 2.0)
+t1 = time.perf_counter()
+helper.close()  # a call still running: the worker is stopped, not waited for; the call computed here when asked
+assert time.perf_counter() - t1 < 1.5 and workers() == 2 and not helper.forked
+pid_d, _, _, seen_d, _ = helper.result(d)
+assert pid_d == os.getpid() and seen_d == [4]
+print("ok")
+"""
+
+
+@pytest.mark.skipif(not hasattr(os, "fork"), reason="no fork on this platform: everything runs in the caller")
+def test_a_helper_serves_calls_beside_the_caller_and_keeps_its_state():
+    """In a fresh interpreter with two jobs: calls sent to the helper run in one forked worker that keeps what it
+    computed, while the caller works; replies come back by token in any order; the worker holds a core only while
+    calls are not collected; an error is raised in the caller and the worker goes on; a call still running at close
+    is computed in the caller."""
+    env = {**os.environ, JOBS_ENV: "2"}
+    done = subprocess.run([sys.executable, "-c", HELPER_CHECK], capture_output=True, text=True, env=env, timeout=120)
+    assert done.returncode == 0 and done.stdout.strip() == "ok", done.stderr
+
+
+def test_a_helper_without_workers_computes_in_the_caller(monkeypatch):
+    monkeypatch.setenv(JOBS_ENV, "1")
+    calls = []
+
+    class Obj:
+        def f(self, x):
+            calls.append(os.getpid())
+            return 2 * x
+    helper = Helper(Obj())
+    assert not helper.forked
+    t = helper.submit("f", 21)
+    assert calls == []  # computed when asked
+    assert helper.result(t) == 42 and calls == [os.getpid()]
+    with pytest.raises(KeyError):
+        helper.result(t)  # collected once

@@ -47,6 +47,7 @@ from scipy.sparse import csr_matrix
 from udrobot_ctrl.dynamics.plant import PlantParameters, generalized_forces
 from udrobot_ctrl.gap import effects as fx
 from udrobot_ctrl.gap.data import Prepared
+from udrobot_ctrl.parallel import Helper, in_worker
 
 BIC_STRONG = 10.0
 #: Nelder-Mead budget of a shape refinement, per free shape parameter: a tether anchor walking with the vehicle
@@ -333,6 +334,7 @@ class Attributor:
         self._cache, self._stacks = ArrayCache(cache_bytes), {}
         self._free_shapes = {}  # see free_shapes
         self._best = {}  # see best_shape
+        self._helper, self._delegated, self._asked = None, frozenset(), {}  # see delegate
         self.n_eff = float(self.N)
 
     def with_effect(self, name, effect) -> Attributor:
@@ -347,7 +349,37 @@ class Attributor:
         out._stacks = {k: v for k, v in self._stacks.items() if not names_it(k)}
         out._free_shapes = {k: v for k, v in self._free_shapes.items() if not names_it(k)}
         out._best = {k: v for k, v in self._best.items() if not names_it(k)}
+        out._helper, out._delegated, out._asked = None, frozenset(), {}  # the helper serves this attributor only
         return out
+
+    def delegate(self, names, jobs=None) -> None:
+        """Search the shapes of ``names`` (:meth:`best_shape`) in a helper process (:class:`~udrobot_ctrl.parallel.
+        Helper`) forked now, which keeps their designs, so that :meth:`request` starts them beside the caller's
+        other work; ``()`` stops the helper. The results are those computed here (a search depends on the stack, its
+        residual and scored DOFs only). Without a second core the searches run here, when asked for.
+
+        A diagnosis delegates the effects the runs cannot identify: they are fitted for the record and as look-alikes,
+        and a tether's 225 anchors cost more than the identifiable effects' searches together on stock runs.
+        """
+        if self._helper is not None:
+            self._helper.close()
+        self._helper, self._asked = None, {}
+        self._delegated = frozenset(names)
+        if self._delegated:
+            helper = Helper(self, jobs)
+            self._helper = helper if helper.forked else None
+
+    def delegates(self, name) -> bool:
+        """Whether the searches of ``name`` run in the helper (:meth:`delegate`)."""
+        return self._helper is not None and name in self._delegated and not in_worker()
+
+    def request(self, name, fixed=(), refine=True, seeds=()) -> None:
+        """Start :meth:`best_shape` with these arguments in the helper when ``name`` is delegated (:meth:`delegate`)
+        and the search is neither done nor asked for; else nothing (it is computed when :meth:`best_shape` asks)."""
+        key = (name, _exact(fixed), bool(refine), _exact((name, sh) for sh in seeds))
+        if self.delegates(name) and key not in self._best and key not in self._asked:
+            self._asked[key] = self._helper.submit("best_shape", name, tuple((n, tuple(sh)) for n, sh in fixed),
+                                                   bool(refine), tuple(tuple(sh) for sh in seeds))
 
     def design(self, name, shape, upstream=()) -> fx.Design:
         """The effect's :class:`~udrobot_ctrl.gap.effects.Design` on this stack (non-finite entries zeroed), cached.
@@ -581,7 +613,9 @@ class Attributor:
         """
         key = (name, _exact(fixed), bool(refine), _exact((name, sh) for sh in seeds))
         if key not in self._best:
-            self._best[key] = self._search_shape(name, fixed, refine, seeds)
+            self.request(name, fixed, refine, seeds)
+            self._best[key] = (self._helper.result(self._asked.pop(key)) if key in self._asked else
+                               self._search_shape(name, fixed, refine, seeds))
         return self._best[key]
 
     def _search_shape(self, name, fixed, refine, seeds):
@@ -780,7 +814,11 @@ def forward_select(att: Attributor, att_h: Attributor, names=None, max_effects=4
     nominal = att.fit([])
     # an effect the runs cannot identify is fitted on its grid only: its parameters are not identified, and refining
     # them (a tether's four anchor coordinates) would cost a fifth of a stock diagnosis for a number nobody reads
-    singles = {n: att.best_shape(n, refine=n not in exclude) for n in names}
+    for n in names:  # those delegated to a helper (att.delegate) start there, beside the others' searches here
+        if n in exclude:
+            att.request(n, refine=False)
+    searched = {n: att.best_shape(n) for n in names if n not in exclude}
+    singles = {n: searched[n] if n in searched else att.best_shape(n, refine=False) for n in names}
     tau, _ = att.estimate_noise(singles)
     bic0 = att.bic(nominal)
     delta = {n: att.bic(f) - bic0 for n, f in singles.items()}
@@ -840,19 +878,21 @@ def finalize(att: Attributor, selected, names, final=None, lookalikes=True) -> C
     selected = tuple(selected)
     final = final if final is not None else refit(att, selected)
     cur_bic = att.bic(final)
-    indist = {}
-    for s_name in selected if lookalikes else ():
-        others = [(n, final.shapes[n]) for n in selected if n != s_name]
-        alts = []
-        for n in names:
-            if n in selected:
-                continue
-            alt = att.best_shape(n, others, refine=False)
-            if att.bic(alt) - cur_bic < LOOKALIKE_SCREEN:
-                alt = att.best_shape(n, others, refine=True)
-            if att.bic(alt) - cur_bic < BIC_STRONG:
-                alts.append(n)
-        indist[s_name] = alts
+    screens = [(s_name, [(n, final.shapes[n]) for n in selected if n != s_name], n)
+               for s_name in (selected if lookalikes else ()) for n in names if n not in selected]
+    for _, others, n in screens:  # those delegated to a helper (att.delegate) start there
+        att.request(n, others, refine=False)
+
+    def alike(others, n) -> bool:
+        alt = att.best_shape(n, others, refine=False)
+        if att.bic(alt) - cur_bic < LOOKALIKE_SCREEN:
+            alt = att.best_shape(n, others, refine=True)
+        return att.bic(alt) - cur_bic < BIC_STRONG
+    # the screens computed here first, while the helper computes its own
+    ahead = {(s_name, n): alike(others, n) for s_name, others, n in screens if not att.delegates(n)}
+    found = {(s_name, n): ahead[s_name, n] if (s_name, n) in ahead else alike(others, n)
+             for s_name, others, n in screens}
+    indist = {s_name: [n for n in names if found.get((s_name, n))] for s_name in (selected if lookalikes else ())}
     sigma = np.full(6, np.nan)
     sigma[att.dofs] = np.sqrt(final.rss / att.N)
     return Combination(members=selected, fit=final, indistinguishable=indist, noise_sigma=sigma)

@@ -1035,6 +1035,19 @@ def diagnosis_pass(inp: Inputs, say, t0, prior_ambiguous=None, prior_forms=None,
     lines = []
     stacks = build_stacks(inp)
     unidentifiable = stacks.identifiability.names
+    # the effects the runs cannot identify are searched in a helper process, beside the others' fits (stopped below)
+    stacks.fit.delegate(unidentifiable)
+    try:
+        return _diagnosis_steps(inp, say, t0, locating, lines, stacks, prior_ambiguous, prior_forms,
+                                prior_stand_ins)
+    finally:
+        stacks.fit.delegate(())
+
+
+def _diagnosis_steps(inp: Inputs, say, t0, locating, lines, stacks, prior_ambiguous, prior_forms,
+                     prior_stand_ins) -> Pass:
+    """:func:`diagnosis_pass` once the stacks are built."""
+    unidentifiable = stacks.identifiability.names
     if unidentifiable:
         lines.append(f"not identifiable from the observed channels ({', '.join(stacks.identifiability.observed_dofs())}"
                      f"): {', '.join(unidentifiable)} (never significant; see the report's unidentifiable list)")

@@ -12,6 +12,7 @@ from udrobot_ctrl.gap.attribute import ArrayCache, Attributor, bounded_normal_so
 from udrobot_ctrl.gap.data import prepare
 from udrobot_ctrl.gap.identifiability import Restricted
 from udrobot_ctrl.gap.shrink import delivered_commands, effect_wrench
+from udrobot_ctrl.parallel import JOBS_ENV, can_fork, workers
 from udrobot_ctrl.vehicle import load_model
 
 from .stock_sim import STATE, simulate
@@ -248,3 +249,26 @@ def test_a_fit_is_the_weighted_least_squares_solution(attributor):
     hi = np.concatenate([attributor.design(n, sh).upper for n, sh in terms])
     assert np.all((ref >= lo) & (ref <= hi))  # interior: the bounds do not act
     np.testing.assert_allclose(fit.a, ref, rtol=1e-6, atol=1e-9 * np.abs(ref).max())
+
+
+def test_searches_delegated_to_a_helper_equal_those_made_here(attributor, monkeypatch):
+    """A delegated effect's searches (Attributor.delegate: a forked helper keeping its designs) give the fits the
+    caller's own searches give, started ahead (request) or asked for at once, alone or beside fixed terms."""
+    monkeypatch.setenv(JOBS_ENV, "2")
+    here = Attributor(attributor.s, attributor.r, attributor.dofs, fx.catalogue())
+    there = Attributor(attributor.s, attributor.r, attributor.dofs, fx.catalogue())
+    there.delegate(["tether_drag", "thruster_lag"])
+    try:
+        assert there.delegates("tether_drag") == can_fork() and not there.delegates("buoyancy_offset")
+        calls = [("tether_drag", (), False), ("thruster_lag", [("buoyancy_offset", ())], True),
+                 ("tether_drag", [("linear_damping", ())], False)]
+        for name, fixed, refine in calls[:2]:
+            there.request(name, fixed, refine=refine)
+        for name, fixed, refine in calls:
+            a, b = here.best_shape(name, fixed, refine=refine), there.best_shape(name, fixed, refine=refine)
+            assert a.shapes == b.shapes and a.names == b.names
+            np.testing.assert_allclose(b.loglik_n, a.loglik_n, rtol=1e-12)
+            np.testing.assert_allclose(b.a, a.a, rtol=1e-9, atol=1e-12 * np.abs(a.a).max())
+    finally:
+        there.delegate(())
+    assert workers() == 2 or not can_fork()  # the helper's core is back
