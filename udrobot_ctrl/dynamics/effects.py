@@ -754,17 +754,24 @@ def surface_terms(be, eta, nu, h, normal_ned, decay_length):
     return decay, nb, vt2
 
 
-def surface_suction(be, eta, nu, h, normal_ned, q):
-    """Suction towards a plane (6 components, N): -a_s exp(-h/lam) |V_t|^2 n."""
+def surface_action(be, eta, nu, h, normal_ned, q):
+    """What a plane does to the vehicle: its suction (6 components, N), -a_s exp(-h/lam) |V_t|^2 n, and its extra
+    added mass as the rank-one term a n n^T on the translations, given as the scale a = a_m exp(-h/lam) (kg) and the
+    body normal n (3 components); :func:`surface_suction` and :func:`surface_added_mass` are its parts."""
     decay, nb, vt2 = surface_terms(be, eta, nu, h, normal_ned, q["decay_length_m"])
     s = -q["suction_N_s2_per_m2"] * decay * vt2
-    return (s * nb[0], s * nb[1], s * nb[2], 0.0 * s, 0.0 * s, 0.0 * s)
+    return (s * nb[0], s * nb[1], s * nb[2], 0.0 * s, 0.0 * s, 0.0 * s), q["added_mass_at_contact_kg"] * decay, nb
+
+
+def surface_suction(be, eta, nu, h, normal_ned, q):
+    """Suction towards a plane (6 components, N): -a_s exp(-h/lam) |V_t|^2 n (:func:`surface_action`)."""
+    return surface_action(be, eta, nu, h, normal_ned, q)[0]
 
 
 def surface_added_mass(be, eta, nu, h, normal_ned, q):
-    """Extra added mass of a plane (6 x 6 nested tuples, kg): a_m exp(-h/lam) n n^T on the translations."""
-    decay, nb, _ = surface_terms(be, eta, nu, h, normal_ned, q["decay_length_m"])
-    a = q["added_mass_at_contact_kg"] * decay
+    """Extra added mass of a plane (6 x 6 nested tuples, kg): a_m exp(-h/lam) n n^T on the translations
+    (:func:`surface_action`)."""
+    _, a, nb = surface_action(be, eta, nu, h, normal_ned, q)
     zero = 0.0 * a
     return tuple(tuple(a * nb[i] * nb[j] if i < 3 and j < 3 else zero for j in range(6)) for i in range(6))
 

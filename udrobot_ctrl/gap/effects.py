@@ -181,6 +181,8 @@ class Hooks:
     input_filter: object = None  # (f (n,k), dt) -> f_act (n,k); applied to the whole command sequence
     force: object = None  # (x (N,12), f (N,k), ctx dict) -> (N,6)
     mass: object = None  # (x (N,12), ctx dict) -> (N,6,6)
+    # ctx: the surfaces' distances and normals at these states ("surfaces"); force and mass of one evaluation get the
+    # same ctx, in which a hook may keep terms both need (the wall's, keyed by its own identity and checked on x)
     order: float = 0.0  # input filters run in increasing order (static maps in [0, 1) as the plant, lag 1)
 
 
@@ -248,7 +250,11 @@ def _comps(a):
 
 
 def _stack(parts):
-    return np.stack(np.broadcast_arrays(*parts), axis=-1)
+    """Components (arrays of one broadcast shape, or scalars) stacked along a new last axis (float)."""
+    out = np.empty(np.broadcast_shapes(*(np.shape(c) for c in parts)) + (len(parts),))
+    for i, c in enumerate(parts):
+        out[..., i] = c
+    return out
 
 
 def thruster_capacities(p: PlantParameters, B):
@@ -295,25 +301,31 @@ def plant_hooks(e: PlantEffect, p: PlantParameters, actuation: Actuation) -> Hoo
         with_current = replace(nominal, effects=(e,))
         return Hooks(force=lambda x, f, ctx: _stack(effect_forces(_comps(x), with_current)))
     if e.name == "wall_effect":  # the planes are the run's measured surfaces (ctx), not one seabed depth
-        def planes(x, ctx):  # the state's components and, per surface, its distance and unit normal, stacked
-            dist = np.stack([np.where(np.isfinite(d), d, np.inf) for d, _ in ctx["surfaces"]])  # (planes, ...):
-            normals = np.asarray([n for _, n in ctx["surfaces"]], float)  # unmeasured = no surface nearby
-            column = (len(normals),) + (1,) * (dist.ndim - 1)
-            return _comps(x), dist, tuple(normals[:, c].reshape(column) for c in range(3))
+        key = ("wall_effect", id(e))
 
-        def wall_force(x, f, ctx):  # every surface's suction in one evaluation, summed over the surfaces
+        def action(x, ctx):  # every surface's suction (summed) and rank-one added mass, once per state (kept in ctx)
+            kept = ctx.get(key)
+            if kept is None or not (kept[0] is x or np.array_equal(kept[0], x)):
+                X = _comps(x)
+                dist = np.stack([np.where(np.isfinite(d), d, np.inf) for d, _ in ctx["surfaces"]])  # (planes, ...):
+                normals = np.asarray([n for _, n in ctx["surfaces"]], float)  # unmeasured = no surface nearby
+                column = (len(normals),) + (1,) * (dist.ndim - 1)
+                normal = tuple(normals[:, c].reshape(column) for c in range(3))
+                force, a, nb = pfx.surface_action(pfx.NUMPY, X[:6], X[6:], dist, normal, e.params)
+                kept = ctx[key] = (x, _stack(force).sum(axis=0), a, _stack(nb))
+            return kept[1:]
+
+        def wall_force(x, f, ctx):
             if not ctx["surfaces"]:
                 return np.zeros(np.shape(x)[:-1] + (6,))
-            X, dist, normal = planes(x, ctx)
-            return _stack(pfx.surface_suction(pfx.NUMPY, X[:6], X[6:], dist, normal, e.params)).sum(axis=0)
+            return action(x, ctx)[0]
 
-        def wall_mass(x, ctx):
-            shape = np.shape(x)[:-1]
-            if not ctx["surfaces"]:
-                return np.zeros(shape + (6, 6))
-            X, dist, normal = planes(x, ctx)
-            rows = pfx.surface_added_mass(pfx.NUMPY, X[:6], X[6:], dist, normal, e.params)
-            return _stack([c for row in rows for c in row]).reshape((len(dist),) + shape + (6, 6)).sum(axis=0)
+        def wall_mass(x, ctx):  # sum over the surfaces of a n n^T on the translations
+            out = np.zeros(np.shape(x)[:-1] + (6, 6))
+            if ctx["surfaces"]:
+                _, a, nb = action(x, ctx)
+                out[..., :3, :3] = ((a[..., None] * nb)[..., :, None] * nb[..., None, :]).sum(axis=0)
+            return out
         return Hooks(force=wall_force, mass=wall_mass)
     folded = pfx.fold_parameters(nominal, (e,))  # an effect on the nominal matrices
     dM = folded.M - nominal.M

@@ -217,3 +217,9 @@ def test_wall_replay_hooks_are_the_plants_suction_and_added_mass_over_every_surf
     np.testing.assert_allclose(hooks.mass(x, far)[::2], 0.0, atol=0.0)  # unmeasured: no surface
     np.testing.assert_allclose(hooks.mass(x, far)[1::2], mass[1::2], rtol=1e-12, atol=1e-12)
     assert np.all(hooks.mass(x, {"surfaces": []}) == 0.0) and np.all(hooks.force(x, None, {"surfaces": []}) == 0.0)
+    # the terms force and mass share within one ctx are those of the state asked for, not of an earlier one
+    turned = x.copy()
+    turned[:, 3:6] += 0.3
+    assert not np.allclose(hooks.mass(turned, ctx), mass)
+    np.testing.assert_array_equal(hooks.mass(turned, ctx), hooks.mass(turned, {"surfaces": ctx["surfaces"]}))
+    np.testing.assert_array_equal(hooks.force(x, None, ctx), hooks.force(x, None, {"surfaces": ctx["surfaces"]}))
