@@ -459,15 +459,17 @@ class Lag(Effect):
 def _tether_columns(run, geometry, count) -> np.ndarray:
     """Body-frame generalised force per unit (k_q, k_l) of the tether drag of ``count`` anchors on a run's samples,
     (n, 6, 2 count) (anchor j's two columns at k count + j): the plant's own derivatives,
-    :func:`udrobot_ctrl.dynamics.effects.tether_unit_forces`, with the anchor coordinates of ``geometry`` as (count,
-    1) arrays and its cable form (walk azimuth, walk fraction, cable_taut) as scalars, so that the vehicle's rotation
-    and velocity are computed once for all of them."""
+    :func:`udrobot_ctrl.dynamics.effects.tether_unit_forces`, with the anchor coordinates of ``geometry`` as (count,)
+    arrays and its cable form (walk azimuth, walk fraction, cable_taut) as scalars, so that the vehicle's rotation
+    and velocity are computed once for all of them (the run's samples as (n, 1) columns: each component comes out as
+    (n, count), in the layout of the columns written)."""
     n = run["eta"].shape[0]
     out = np.empty((n, 6, 2, count))
-    units = pfx.tether_unit_forces(pfx.NUMPY, _comps(run["eta"]), _comps(run["nu"]), geometry)
-    for k, force in enumerate(units):  # components (count, n), (n,) or scalars
+    eta, nu = ([c[:, None] for c in _comps(run[k])] for k in ("eta", "nu"))  # samples down, anchors across
+    units = pfx.tether_unit_forces(pfx.NUMPY, eta, nu, geometry)
+    for k, force in enumerate(units):  # components (n, count), (n, 1) or scalars
         for c, comp in enumerate(force):
-            out[:, c, k, :] = np.broadcast_to(comp, (count, n)).T
+            out[:, c, k, :] = comp
     return out.reshape(n, 6, 2 * count)
 
 
@@ -569,7 +571,7 @@ class TetherDrag(Effect):
         out, b0 = [None] * len(shapes), np.zeros((s.n, 6))  # one b0 for all (a tether has no fixed term)
         for form, idx in forms.items():
             anchors = np.array([shapes[i][:3] for i in idx])  # (S, 3)
-            geometry = dict(zip(self.shape_names, [anchors[:, j, None] for j in range(3)] + list(form)))
+            geometry = dict(zip(self.shape_names, [anchors[:, j] for j in range(3)] + list(form)))
             A = s.full(partial(_tether_columns, geometry=geometry, count=len(idx))).reshape((s.n, 6, 2, len(idx)))
             for j, i in enumerate(idx):
                 out[i] = Design(b0, np.ascontiguousarray(A[..., j]),
