@@ -359,7 +359,8 @@ class Attributor:
         residual and scored DOFs only). Without a second core the searches run here, when asked for.
 
         A diagnosis delegates the effects the runs cannot identify: they are fitted for the record and as look-alikes,
-        and a tether's 225 anchors cost more than the identifiable effects' searches together on stock runs.
+        and on stock runs a tether's anchor grid costs more than the identifiable effects' searches together. The
+        helper holds its own design cache (up to ``cache_bytes`` more memory).
         """
         if self._helper is not None:
             self._helper.close()
@@ -376,7 +377,7 @@ class Attributor:
     def request(self, name, fixed=(), refine=True, seeds=()) -> None:
         """Start :meth:`best_shape` with these arguments in the helper when ``name`` is delegated (:meth:`delegate`)
         and the search is neither done nor asked for; else nothing (it is computed when :meth:`best_shape` asks)."""
-        key = (name, _exact(fixed), bool(refine), _exact((name, sh) for sh in seeds))
+        key = _search_key(name, fixed, refine, seeds)
         if self.delegates(name) and key not in self._best and key not in self._asked:
             self._asked[key] = self._helper.submit("best_shape", name, tuple((n, tuple(sh)) for n, sh in fixed),
                                                    bool(refine), tuple(tuple(sh) for sh in seeds))
@@ -611,7 +612,7 @@ class Attributor:
         (an unidentifiable tether's grid with nothing fixed, in each finalisation), and a search depends on nothing
         else (the stack, its residual and scored DOFs are the attributor's own; N_eff does not enter a likelihood).
         """
-        key = (name, _exact(fixed), bool(refine), _exact((name, sh) for sh in seeds))
+        key = _search_key(name, fixed, refine, seeds)
         if key not in self._best:
             self.request(name, fixed, refine, seeds)
             self._best[key] = (self._helper.result(self._asked.pop(key)) if key in self._asked else
@@ -664,6 +665,11 @@ class Attributor:
         tau = float(np.median(taus)) if taus else 1.0
         self.n_eff = max(10.0, self.N / max(tau, 1.0))
         return tau, full
+
+
+def _search_key(name, fixed, refine, seeds) -> tuple:
+    """The key of a :meth:`Attributor.best_shape` search (exact shapes)."""
+    return name, _exact(fixed), bool(refine), _exact((name, sh) for sh in seeds)
 
 
 def _first_min(values) -> int:
