@@ -1,4 +1,5 @@
-"""Independent pieces of work spread over the machine's cores: :func:`fork_map` and :class:`Background`.
+"""Independent pieces of work spread over the machine's cores: :func:`fork_map`, :class:`Background` and
+:class:`Helper`.
 
 The diagnoser's heavy steps are independent per run or per effect set (smoothing each run, replaying the holdout
 with each candidate), written as closures over large prepared data. Forked worker processes inherit those closures
@@ -31,7 +32,7 @@ JOBS_ENV = "UDROBOT_JOBS"
 _task = None  # (func, items) of the running fork_map, inherited by its workers
 _in_worker = False
 _background = {}  # id -> func of the Background jobs being started (inherited by their worker)
-_running = 0  # Background jobs whose worker is computing: each takes one of the cores fork_map would use
+_running = 0  # Background jobs computing and Helpers with calls not collected: each takes a core fork_map would use
 
 
 def default_jobs() -> int:
@@ -65,8 +66,12 @@ def can_fork() -> bool:
 def workers(jobs: int | None = None) -> int:
     """Worker processes :func:`fork_map` would use here for ``jobs`` (default :func:`default_jobs`) and enough
     items: 1 when the work stays in the calling process (one job, inside a worker, or :func:`can_fork` false)."""
-    jobs = (default_jobs() if jobs is None else int(jobs)) - _running
+    jobs = _jobs(jobs) - _running
     return jobs if jobs > 1 and _may_fork() else 1
+
+
+def _jobs(jobs: int | None) -> int:
+    return default_jobs() if jobs is None else int(jobs)
 
 
 def _may_fork() -> bool:
@@ -241,7 +246,7 @@ class Helper:
     def __init__(self, obj, jobs: int | None = None):
         self._obj, self._conn, self._proc, self._pid = obj, None, None, os.getpid()
         self._sent, self._got, self._replies, self._calls = 0, 0, {}, {}  # calls: token -> (method, args)
-        if (default_jobs() if jobs is None else int(jobs)) > 1 and _may_fork():
+        if _jobs(jobs) > 1 and _may_fork():
             ctx = multiprocessing.get_context("fork")
             ours, theirs = ctx.Pipe()
             self._proc = ctx.Process(target=_serve, args=(obj, theirs), daemon=True)
@@ -270,15 +275,7 @@ class Helper:
         """The value of the call ``token`` (waits for the worker; the replies before it are kept). A call the worker
         did not answer (closed, or its process ended) is computed in the caller."""
         global _running
-        if token in self._replies:
-            ok, value = self._replies.pop(token)
-            self._calls.pop(token, None)
-            if not ok:
-                raise value
-            return value
-        if token not in self._calls:
-            raise KeyError(f"helper: no call {token} pending")
-        while self._conn is not None and token not in self._replies:
+        while self._conn is not None and token in self._calls and token not in self._replies:
             try:
                 reply = self._conn.recv()
             except (EOFError, OSError):
@@ -288,10 +285,15 @@ class Helper:
             self._got += 1
             if self._got == self._sent:
                 _running -= 1
-        if token in self._replies:
-            return self.result(token)
+        if token not in self._calls:
+            raise KeyError(f"helper: no call {token} pending")
         method, args = self._calls.pop(token)
-        return getattr(self._obj, method)(*args)
+        if token not in self._replies:
+            return getattr(self._obj, method)(*args)
+        ok, value = self._replies.pop(token)
+        if not ok:
+            raise value
+        return value
 
     def close(self) -> None:
         """Stop the worker and give its core back; calls it has not answered are computed in the caller if their

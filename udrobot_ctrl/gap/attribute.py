@@ -619,6 +619,15 @@ class Attributor:
                                self._search_shape(name, fixed, refine, seeds))
         return self._best[key]
 
+    def best_shapes(self, searches) -> list:
+        """:meth:`best_shape` of each ``(name, fixed, refine, seeds)`` of ``searches``, in order: the searches
+        delegated to the helper (:meth:`delegate`) are started there first, the others computed here meanwhile."""
+        searches = [tuple(sr) for sr in searches]
+        for sr in searches:
+            self.request(*sr)
+        here = {i: self.best_shape(*sr) for i, sr in enumerate(searches) if not self.delegates(sr[0])}
+        return [here[i] if i in here else self.best_shape(*sr) for i, sr in enumerate(searches)]
+
     def _search_shape(self, name, fixed, refine, seeds):
         """:meth:`best_shape` computed."""
         eff = self.cat[name]
@@ -820,11 +829,7 @@ def forward_select(att: Attributor, att_h: Attributor, names=None, max_effects=4
     nominal = att.fit([])
     # an effect the runs cannot identify is fitted on its grid only: its parameters are not identified, and refining
     # them (a tether's four anchor coordinates) would cost a fifth of a stock diagnosis for a number nobody reads
-    for n in names:  # those delegated to a helper (att.delegate) start there, beside the others' searches here
-        if n in exclude:
-            att.request(n, refine=False)
-    searched = {n: att.best_shape(n) for n in names if n not in exclude}
-    singles = {n: searched[n] if n in searched else att.best_shape(n, refine=False) for n in names}
+    singles = dict(zip(names, att.best_shapes((n, (), n not in exclude, ()) for n in names)))
     tau, _ = att.estimate_noise(singles)
     bic0 = att.bic(nominal)
     delta = {n: att.bic(f) - bic0 for n, f in singles.items()}
@@ -884,21 +889,14 @@ def finalize(att: Attributor, selected, names, final=None, lookalikes=True) -> C
     selected = tuple(selected)
     final = final if final is not None else refit(att, selected)
     cur_bic = att.bic(final)
-    screens = [(s_name, [(n, final.shapes[n]) for n in selected if n != s_name], n)
+    screens = [(s_name, n, [(m, final.shapes[m]) for m in selected if m != s_name])
                for s_name in (selected if lookalikes else ()) for n in names if n not in selected]
-    for _, others, n in screens:  # those delegated to a helper (att.delegate) start there
-        att.request(n, others, refine=False)
-
-    def alike(others, n) -> bool:
-        alt = att.best_shape(n, others, refine=False)
-        if att.bic(alt) - cur_bic < LOOKALIKE_SCREEN:
-            alt = att.best_shape(n, others, refine=True)
-        return att.bic(alt) - cur_bic < BIC_STRONG
-    # the screens computed here first, while the helper computes its own
-    ahead = {(s_name, n): alike(others, n) for s_name, others, n in screens if not att.delegates(n)}
-    found = {(s_name, n): ahead[s_name, n] if (s_name, n) in ahead else alike(others, n)
-             for s_name, others, n in screens}
-    indist = {s_name: [n for n in names if found.get((s_name, n))] for s_name in (selected if lookalikes else ())}
+    alts = att.best_shapes((n, others, False, ()) for _, n, others in screens)
+    near = [i for i, alt in enumerate(alts) if att.bic(alt) - cur_bic < LOOKALIKE_SCREEN]  # refined before the test
+    for i, alt in zip(near, att.best_shapes((screens[i][1], screens[i][2], True, ()) for i in near)):
+        alts[i] = alt
+    found = {(s_name, n) for (s_name, n, _), alt in zip(screens, alts) if att.bic(alt) - cur_bic < BIC_STRONG}
+    indist = {s_name: [n for n in names if (s_name, n) in found] for s_name in (selected if lookalikes else ())}
     sigma = np.full(6, np.nan)
     sigma[att.dofs] = np.sqrt(final.rss / att.N)
     return Combination(members=selected, fit=final, indistinguishable=indist, noise_sigma=sigma)

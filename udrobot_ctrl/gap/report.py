@@ -1032,21 +1032,19 @@ def diagnosis_pass(inp: Inputs, say, t0, prior_ambiguous=None, prior_forms=None,
     :func:`set_aside_stand_ins`)."""
     # the nominal replays and their noise floor in a worker while the fits run (the console story keeps its order)
     locating = Background(lambda: locate_gap(inp))
-    lines = []
     stacks = build_stacks(inp)
-    unidentifiable = stacks.identifiability.names
     # the effects the runs cannot identify are searched in a helper process, beside the others' fits (stopped below)
-    stacks.fit.delegate(unidentifiable)
+    stacks.fit.delegate(stacks.identifiability.names)
     try:
-        return _diagnosis_steps(inp, say, t0, locating, lines, stacks, prior_ambiguous, prior_forms,
-                                prior_stand_ins)
+        return _diagnosis_steps(inp, say, t0, locating, stacks, prior_ambiguous, prior_forms, prior_stand_ins)
     finally:
         stacks.fit.delegate(())
 
 
-def _diagnosis_steps(inp: Inputs, say, t0, locating, lines, stacks, prior_ambiguous, prior_forms,
+def _diagnosis_steps(inp: Inputs, say, t0, locating: Background, stacks: Stacks, prior_ambiguous, prior_forms,
                      prior_stand_ins) -> Pass:
-    """:func:`diagnosis_pass` once the stacks are built."""
+    """:func:`diagnosis_pass` once the stacks are built (``locating``: the pending :func:`locate_gap`)."""
+    lines = []  # said once the gap is located (the console story keeps its order)
     unidentifiable = stacks.identifiability.names
     if unidentifiable:
         lines.append(f"not identifiable from the observed channels ({', '.join(stacks.identifiability.observed_dofs())}"
