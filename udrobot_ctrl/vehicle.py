@@ -552,9 +552,29 @@ def read_model_file(path) -> Vehicle:
         doc = json.loads(path.read_text())
     except FileNotFoundError:
         raise FileNotFoundError(f"model file {path} does not exist") from None
-    except json.JSONDecodeError as exc:
-        raise ValueError(f"{path}: not valid JSON (line {exc.lineno}, column {exc.colno}: {exc.msg})") from exc
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        where = (f"line {exc.lineno}, column {exc.colno}: {exc.msg}" if isinstance(exc, json.JSONDecodeError)
+                 else f"byte {exc.start} is not UTF-8 text")
+        raise ValueError(f"{path}: not a model file: {_what_file_is(path)}not valid JSON ({where}); a model is "
+                         f"a name ({', '.join(ALL_MODEL_NAMES)}), a "
+                         f"udrobot-model/1 JSON or a udrobot-vehicle/1 TOML") from exc
     return model_from_dict(doc, str(path))
+
+
+def _what_file_is(path: Path) -> str:
+    """'this is a run log (...); ' when ``path`` looks like a udrobot-run/1 CSV or a field log, else ''."""
+    suffix = path.suffix.lower()
+    if suffix in (".bin", ".tlog", ".bag", ".mcap", ".db3"):
+        return f"this is a field log ({suffix}: give it to convert, simulate --input or diagnose as a run); "
+    try:
+        with path.open("r", errors="replace") as fh:
+            header = fh.readline()
+    except OSError:
+        return ""
+    cells = [c.strip() for c in header.split(",")]
+    if "t" in cells and len(cells) > 1:
+        return "this is a run log (a CSV with a 't' column: give it as a run, not as --model); "
+    return ""
 
 
 def write_model_file(v: Vehicle, path, protect=()) -> None:

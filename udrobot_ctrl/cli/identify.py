@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -117,7 +118,10 @@ def run(args) -> int:
     launches = report.pop("_launches", None)
     if not args.quiet:
         print(format_table(report))
-    if args.out:
+    if args.out and not report["n_ok"]:
+        print(f"udrobot-ctrl identify: nothing identified (every file failed, see the table): {args.out} not written",
+              file=sys.stderr)
+    elif args.out:
         name = args.name or Path(args.out).stem
         per_axis, prov, desc = coefficient_set_values(report, name,
                                                       coefficient_set(args.base) if args.base else None)

@@ -10,8 +10,10 @@ else is a bug and keeps its traceback. Output piped into a reader that closes ea
 from __future__ import annotations
 
 import argparse
+import difflib
 import importlib
 import os
+import re
 import sys
 
 from udrobot_ctrl import __version__
@@ -43,18 +45,19 @@ commands, in the order of a typical job:
   compare      LQR, PID and MPC designed on one model and flown on another, for every pair
   sensitivity  which coefficient matters to a controller (local, Sobol or Morris)
 
-Models are named SET:FORM (cfd:chin, cfd:morison, free_decay:morison, pendulum:chin, pendulum:morison)
-or given as a udrobot-model/1 JSON or coefficient-set TOML file. Formats: docs/formats/ in the source.
+Models: the UDrobot as SET:FORM (cfd:chin, cfd:morison, free_decay:morison, pendulum:chin, pendulum:morison),
+the BlueROV2 vehicles (bluerov2, bluerov2-heavy), or a udrobot-model/1 JSON or vehicle TOML file.
+A run's model is the vehicle that logged it. Formats: docs/formats/ in the source.
 """
 
 EPILOG = """\
 first steps:
   udrobot-ctrl demo --out demo_out      then open demo_out/README.md
 
-example (a pool log, from the raw log to a diagnosis; docs/tutorial.md goes on to a redesigned controller):
-  udrobot-ctrl convert pool.bag --mapping bluerov2-mavros --out pool.csv
-  udrobot-ctrl simulate --model pendulum:chin --input pool.csv --out pool_sim.csv
-  udrobot-ctrl diagnose --model pendulum:chin --json gap.json --plot gap_plots pool.csv
+example (a BlueROV2 dive, from the raw log to a diagnosis; docs/tutorial.md goes on to a redesign):
+  udrobot-ctrl convert dive.tlog --out dive.csv          (the sidecar dive.json names the vehicle)
+  udrobot-ctrl simulate --model bluerov2 --input dive.csv --out dive_sim.csv
+  udrobot-ctrl diagnose --model bluerov2 --json gap.json --plot gap_plots dive.csv
 
 'udrobot-ctrl COMMAND --help' describes each command and its options."""
 
@@ -92,6 +95,35 @@ def build_parser(only: str | None = None) -> argparse.ArgumentParser:
     return parser
 
 
+NEGATIVE_NUMBER = re.compile(r"^-\d+$|^-\d*\.\d+(e[-+]?\d+)?$", re.IGNORECASE)
+
+
+def unknown_option(parser: argparse.ArgumentParser, argv: list) -> str | None:
+    """A message naming the first option of ``argv`` that ``parser`` (a sub-command's) does not know, or None.
+
+    argparse checks the required options before it reports an unknown one, so ``--modle x`` got "required:
+    --model"; this names the mistake and the closest known option instead. Unique prefixes of a known option are
+    accepted as argparse accepts them; negative numbers and everything after ``--`` are values.
+    """
+    nested = next((a for a in parser._actions if isinstance(a, argparse._SubParsersAction)), None)
+    if nested is not None:  # identify spring|pendulum|cfd, model export|show: the options are the nested parser's
+        choice = next((i for i, a in enumerate(argv) if a in nested.choices), None)
+        if choice is not None:
+            return unknown_option(nested.choices[argv[choice]], argv[choice + 1:])
+    known = sorted(parser._option_string_actions)
+    for token in argv:
+        if token == "--":
+            break
+        if not token.startswith("-") or token == "-" or NEGATIVE_NUMBER.match(token):
+            continue
+        name = token.split("=", 1)[0]
+        if name in known or (name.startswith("--") and sum(k.startswith(name) for k in known) == 1):
+            continue
+        close = difflib.get_close_matches(name, known, n=1)
+        return f"unrecognized option {name}" + (f" (did you mean {close[0]}?)" if close else "")
+    return None
+
+
 def _quiet_broken_pipe() -> int:
     """The reader of stdout went away (``| head``): stop writing, without a traceback (Python docs' idiom)."""
     devnull = os.open(os.devnull, os.O_WRONLY)
@@ -104,6 +136,12 @@ def main(argv=None) -> int:
     first = next((a for a in argv if not a.startswith("-")), None)
     try:
         parser = build_parser(first if first in COMMANDS else None)
+        if first in COMMANDS:
+            sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+            command = sub.choices.get(first)
+            message = command is not None and unknown_option(command, argv[argv.index(first) + 1:])
+            if message:
+                command.error(message)
         args = parser.parse_args(argv)
         try:
             status = int(args.func(args) or 0)
