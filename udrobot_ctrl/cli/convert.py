@@ -21,6 +21,13 @@ def register(subparsers) -> None:
                                      "default: bluerov2-mavros for bags, ardusub for .tlog/.bin")
     p.add_argument("--out", help="output udrobot-run/1 CSV (sidecar JSON written next to it)")
     p.add_argument("--force", action="store_true", help="replace an existing output file")
+    p.add_argument("--vehicle", metavar="NAME",
+                   help="the vehicle of a .tlog/.bin (bluerov2, bluerov2-heavy, or the mapping's default vehicle): "
+                        "overrides FRAME_CONFIG and the inference from the active motor outputs; needed when the log "
+                        "does not name its vehicle and its outputs do not tell it")
+    p.add_argument("--no-cut", action="store_true",
+                   help="keep every row: do not cut the stretches the plant cannot represent (surface, disarmed, "
+                        "upside down; the mapping's [cut])")
     p.add_argument("--allow-missing-inputs", action="store_true",
                    help="write nan input columns when the log has no commands (e.g. a launch test)")
     p.add_argument("--segment", metavar="CHANNEL",
@@ -38,9 +45,14 @@ def run(args) -> int:
         check_outputs(run_files(args.out), [args.input], force=args.force, option="--out")
     if args.segment_dir:
         check_output_dir(args.segment_dir, [args.input], option="--segment-dir")
-    run_ = convert_log(args.input, args.mapping, require_inputs=not args.allow_missing_inputs)
+    run_ = convert_log(args.input, args.mapping, require_inputs=not args.allow_missing_inputs, vehicle=args.vehicle,
+                       cut=not args.no_cut)
     print(f"{args.input}: {run_.n} samples, {run_.duration:.3f} s, dt {run_.dt_median * 1e3:.2f} ms, "
-          f"channels {', '.join(run_.channels) or 'none'}, inputs {run_.input_kind} x{run_.inputs.shape[1]}")
+          f"channels {', '.join(run_.channels) or 'none'}, inputs {run_.input_kind} x{run_.inputs.shape[1]}"
+          + (f", vehicle {run_.metadata['vehicle']}" if run_.metadata.get("vehicle") else ""))
+    for line in run_.metadata.get("notes", "").splitlines():
+        if line.startswith(("cut: WARNING", "cut: kept")) or "ALMOST ALL" in line:
+            print(line)
     if args.out:
         path = write(run_, args.out, overwrite=args.force, protect=[args.input])
         print(f"wrote {path} and {Path(path).with_suffix('.json')}")

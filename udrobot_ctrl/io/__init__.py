@@ -12,10 +12,19 @@ import numpy as np
 from udrobot_ctrl.io.runlog import Run, read_run
 
 from . import mavlink, qgc_csv, rosbag, rostopic_csv
-from .mapping import Mapping, MappingError, assemble_run, load_mapping, motor_rules
-from .mavlink import DecodedLog, detect_vehicle, motor_command_pwm, water_density_from_params
+from .mapping import Mapping, MappingError, assemble_run, load_mapping, motor_rules, rule_stream
+from .mavlink import (
+    DecodedLog,
+    OutputEvidence,
+    choose_vehicle,
+    classify_outputs,
+    detect_vehicle,
+    motor_command_pwm,
+    water_density_from_params,
+)
 from .qgc_csv import is_qgc_csv
 from .streams import LogImportError
+from .stretches import cut_run
 
 DEFAULT_MAPPINGS = {"ros": "bluerov2-mavros", "mavlink": "ardusub", "qgc_csv": "qgc-csv"}
 
@@ -69,14 +78,40 @@ def read_streams(path, mapping: Mapping):
     return rostopic_csv.read_streams(path, mapping)
 
 
-def convert_log(path, mapping=None, require_inputs: bool = True) -> Run:
+def motor_evidence(mapping: Mapping, streams: dict) -> OutputEvidence | None:
+    """:func:`~udrobot_ctrl.io.mavlink.classify_outputs` of the first ``[motors]`` source in the log with any
+    logged output (None without one)."""
+    if not mapping.motors:
+        return None
+    servos = range(1, mapping.motors.max_servo + 1)
+    for rule in motor_rules(mapping, tuple(servos)):
+        stream = rule_stream(rule, streams)
+        if stream is not None and any(np.isfinite(stream.fields[f]).any() for f in rule.fields):
+            pattern = next(p for s, p, _ in mapping.motors.sources if s == rule.stream)
+            return classify_outputs(stream, pattern, mapping.motors.max_servo)
+    return None
+
+
+def convert_log(path, mapping=None, require_inputs: bool = True, vehicle: str | None = None,
+                cut: bool = True) -> Run:
     """Convert a log to a :class:`Run` with a mapping (path, shipped name or :class:`Mapping`).
 
     Without a mapping, bags use ``bluerov2-mavros``, ``.tlog``/``.bin`` use ``ardusub`` and QGC CSV exports
     ``qgc-csv``. For MAVLink/dataflash logs the damage skipped while reading goes to the notes (``damage:``
-    lines), the vehicle the log describes (FRAME_CONFIG, "Frame: ..." texts, SERVOn_FUNCTION) goes to the
-    sidecar's ``vehicle`` (``vehicle:`` lines say what was read and assumed), and all its motor outputs are
-    mapped to pwm_1..pwm_n in motor order through the mapping's ``[motors]`` table.
+    lines), the vehicle goes to the sidecar's ``vehicle`` (``vehicle:`` lines say what was read, inferred and
+    assumed), and all its motor outputs are mapped to pwm_1..pwm_n in motor order through the mapping's
+    ``[motors]`` table. The vehicle is ``vehicle`` when given, else what the log names (FRAME_CONFIG,
+    "Frame: ..." texts, SERVOn_FUNCTION), else inferred from the active motor outputs
+    (:func:`~udrobot_ctrl.io.mavlink.choose_vehicle`: an ambiguous log is refused, asking for ``vehicle``).
+    With a ``[cut]`` table in the mapping and ``cut`` true, the stretches the plant cannot represent (surface,
+    disarmed, upside down) are cut out (:func:`~udrobot_ctrl.io.stretches.cut_run`; ``cut:`` notes).
+
+    Parameters
+    ----------
+    vehicle : str, optional
+        Vehicle name (``bluerov2``, ``bluerov2-heavy``, or the mapping's default vehicle): overrides the log.
+    cut : bool
+        Apply the mapping's ``[cut]`` (False keeps every row).
     """
     kind = log_kind(path)
     if mapping is None:
@@ -88,7 +123,9 @@ def convert_log(path, mapping=None, require_inputs: bool = True) -> Run:
     decoded = read_streams(path, mapping)
     if isinstance(decoded, DecodedLog):
         facts = decoded.facts
-        vehicle = detect_vehicle(facts)
+        default = (mapping.metadata.get("vehicle"), mapping.motors.default_servos if mapping.motors else ())
+        evidence = motor_evidence(mapping, decoded.streams)
+        vehicle = choose_vehicle(detect_vehicle(facts), evidence, vehicle, default, str(path))
         notes = facts.damage.notes(path) + facts.notes + vehicle.notes
         servos = vehicle.motor_servos
         if not servos and mapping.motors:
@@ -108,7 +145,14 @@ def convert_log(path, mapping=None, require_inputs: bool = True) -> Run:
             run.metadata["water_density"] = density[0]
             run.metadata["notes"] += "\n" + density[1]
     else:
+        if vehicle is not None:
+            raise LogImportError(f"{path}: --vehicle applies to MAVLink / dataflash logs (the outputs of this log "
+                                 f"are named by its mapping {mapping.name})")
         run = assemble_run(mapping, decoded, str(path), require_inputs=require_inputs)
+    if cut and mapping.cut is not None:
+        result = cut_run(run, mapping.cut)
+        run = result.run
+        run.metadata["notes"] += "\n" + "\n".join(result.notes)
     run.path = str(path)
     return run
 
@@ -137,7 +181,7 @@ def apply_motor_directions(run: Run, params: dict) -> str:
             f"1500 us is thruster k's positive thrust in the vehicle model")
 
 
-def load_any(path, mapping=None, require_inputs: bool = True) -> Run:
+def load_any(path, mapping=None, require_inputs: bool = True, vehicle: str | None = None) -> Run:
     """A :class:`Run` from any supported file: a ``udrobot-run/1`` CSV is read as is, logs are converted.
 
     Parameters
@@ -147,10 +191,12 @@ def load_any(path, mapping=None, require_inputs: bool = True) -> Run:
         ``.tlog`` or ``.bin``.
     mapping : str, Path or Mapping, optional
         For logs; defaults per type as in :func:`convert_log`.
+    vehicle : str, optional
+        Vehicle of a MAVLink / dataflash log, as in :func:`convert_log`.
     """
     if log_kind(path) == "run":
         return read_run(path)
-    return convert_log(path, mapping, require_inputs=require_inputs)
+    return convert_log(path, mapping, require_inputs=require_inputs, vehicle=vehicle)
 
 
 __all__ = ["load_any", "convert_log", "read_streams", "log_kind", "load_mapping", "LogImportError", "MappingError"]

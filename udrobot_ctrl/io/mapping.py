@@ -34,8 +34,17 @@ docs/mappings.md. In short::
     scale = 1.0                 # value = scale * raw + offset, then `transform`
     transform = "none"          # none | quaternion_to_euler | vector_enu_to_ned | vector_flu_to_frd
                                 # | pressure_to_depth | world_to_body (after resampling, needs phi/theta/psi)
+                                # | delta_over_dt (3 deltas / interval) | bit (params.bit of an integer field)
     role = "measurement"        # measurement | estimate, for [select.COLUMN]
     keep_if = {orientation = 25}  # only the samples whose field equals the value
+    tag = "DVL-measured"        # what kind of source, stated in the notes
+    valid = [{field = "Stat", equal = 4, reason = "status not Good"}]  # invalid samples dropped, counted
+    lookup = {"10" = 1, "11" = 0}  # raw value -> output value, other samples dropped
+
+    [cut]                       # optional: keep the longest stretch the plant represents (io.stretches)
+    min_depth = 0.3
+    armed_column = "armed"
+    upside_down_s = 10.0
 
 Resampling: measured channels linearly (angles unwrapped), inputs and extra columns zero-order hold
 (the command logged at t_k holds until the next one). The output t starts at 0; the absolute log time of
@@ -45,7 +54,7 @@ original (log clock) time stamp of the time-base sample at or before each output
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from importlib import resources
 from pathlib import Path
 
@@ -72,6 +81,8 @@ TRANSFORMS = {
     "vector_flu_to_frd": (3, 3),
     "pressure_to_depth": (1, 1),
     "world_to_body": (3, 3),
+    "delta_over_dt": (4, 3),
+    "bit": (1, 1),
 }
 G = 9.81
 AUXILIARY_CHANNELS = ("altitude", "voltage", "ax", "ay", "az")  # never shorten the run to their span
@@ -82,8 +93,60 @@ class MappingError(ValueError):
 
 
 @dataclass(frozen=True)
+class ValidCheck:
+    """One ``valid`` check of a ``[[channels]]`` entry: samples that fail it are dropped and counted by ``reason``.
+
+    A sample fails when its ``field`` value (raw, before ``scale``) is not one of ``ignore`` (values that mean
+    "not logged", e.g. ArduPilot's Quality = -1) and: differs from ``equal``, is below ``min`` / above ``max``,
+    below / above the sample's own ``min_field`` / ``max_field`` (DISTANCE_SENSOR min_distance / max_distance),
+    or below / above ``param_scale`` x the log parameter ``min_param`` / ``max_param`` (RNGFND1_MIN_CM). A field
+    the log does not hold skips the check (noted). Bounds are inclusive; nan values fail.
+    """
+
+    field: str
+    reason: str
+    equal: float | None = None
+    min: float | None = None
+    max: float | None = None
+    min_field: str | None = None
+    max_field: str | None = None
+    min_param: str | None = None
+    max_param: str | None = None
+    param_scale: float = 1.0
+    ignore: tuple = ()
+
+    def fields(self) -> tuple:
+        """Stream fields this check reads."""
+        return tuple(f for f in (self.field, self.min_field, self.max_field) if f)
+
+
+@dataclass(frozen=True)
+class CutSpec:
+    """``[cut]``: rows the plant cannot represent, cut out of a converted run (see :mod:`udrobot_ctrl.io.stretches`).
+
+    Attributes
+    ----------
+    min_depth : float or None
+        m: rows with ``z`` below this are at (or out of) the surface.
+    armed_column : str or None
+        Extra column holding 1 (armed) / 0 (disarmed); rows where it is 0 are cut.
+    upside_down_s : float or None
+        s: body z axis pointing up (cos(phi) cos(theta) < 0) for longer than this is cut.
+    """
+
+    min_depth: float | None = 0.3
+    armed_column: str | None = "armed"
+    upside_down_s: float | None = 10.0
+
+
+@dataclass(frozen=True)
 class ChannelRule:
-    """One ``[[channels]]`` entry: output column(s) from field(s) of one stream."""
+    """One ``[[channels]]`` entry: output column(s) from field(s) of one stream.
+
+    ``tag`` says what kind of source this is (``DVL-measured``, ``EKF-estimated``) in the notes; ``valid`` holds
+    :class:`ValidCheck` s (invalid samples dropped, counted per reason); ``lookup`` maps raw values of the first
+    field to output values (samples with other values are dropped), e.g. dataflash EV ids 10/11 -> armed 1/0.
+    """
 
     to: tuple
     stream: str
@@ -96,6 +159,9 @@ class ChannelRule:
     index: int = 0
     role: str = ""
     keep_if: tuple = ()
+    tag: str = ""
+    valid: tuple = ()
+    lookup: tuple = ()
 
 
 @dataclass(frozen=True)
@@ -153,6 +219,7 @@ class Mapping:
     gap_factor: float = 3.0
     select: dict = field(default_factory=dict)
     motors: MotorSpec | None = None
+    cut: CutSpec | None = None
 
     def needs(self) -> dict:
         """Stream name -> set of field paths the mapping reads."""
@@ -165,8 +232,12 @@ class Mapping:
         return out
 
     def optional_needs(self) -> dict:
-        """Stream name -> fields read when present (nan otherwise): every servo of the ``[motors]`` sources."""
+        """Stream name -> fields read when present (nan otherwise): every servo of the ``[motors]`` sources and the
+        fields of ``valid`` checks (a firmware that does not log RFND Quality still gives its distances)."""
         out = {}
+        for rule in self.rules:
+            for check in rule.valid:
+                out.setdefault(rule.stream, set()).update(check.fields())
         if self.motors:
             for stream, pattern, keep_if in self.motors.sources:
                 out.setdefault(stream, set()).update(pattern.format(n=n) for n in range(1, self.motors.max_servo + 1))
@@ -246,7 +317,7 @@ def parse_mapping(text: str, source_name: str = "mapping") -> Mapping:
     for i, entry in enumerate(entries):
         w = f"{source_name}: channels[{i}]"
         unknown = set(entry) - {"to", "stream", "field", "fields", "transform", "scale", "offset", "frame", "params",
-                                "comment", "role", "keep_if"}
+                                "comment", "role", "keep_if", "tag", "valid", "lookup"}
         if unknown:
             raise MappingError(f"{w}: unknown key(s) {sorted(unknown)}")
         if "to" not in entry or "stream" not in entry or ("field" in entry) == ("fields" in entry):
@@ -278,10 +349,25 @@ def parse_mapping(text: str, source_name: str = "mapping") -> Mapping:
         if not isinstance(keep_if, dict) or not all(isinstance(v, (int, float)) and not isinstance(v, bool)
                                                     for v in keep_if.values()):
             raise MappingError(f"{w}: 'keep_if' must be a table of field = number (samples kept where equal)")
+        tag = entry.get("tag", "")
+        if not isinstance(tag, str):
+            raise MappingError(f"{w}: 'tag' must be a string (e.g. 'DVL-measured')")
+        lookup = entry.get("lookup", {})
+        if not isinstance(lookup, dict) or not all(isinstance(v, (int, float)) and not isinstance(v, bool)
+                                                   for v in lookup.values()):
+            raise MappingError(f"{w}: 'lookup' must be a table of \"raw value\" = number")
+        try:
+            lookup = tuple(sorted((float(k), float(v)) for k, v in lookup.items()))
+        except ValueError:
+            raise MappingError(f"{w}: 'lookup' keys must be numbers written as strings, got {sorted(lookup)}") \
+                from None
+        if lookup and len(fields) != 1:
+            raise MappingError(f"{w}: 'lookup' maps one field; got {len(fields)}")
         rules.append(ChannelRule(to=to, stream=str(entry["stream"]), fields=fields, transform=transform,
                                  scale=_number(entry, "scale", 1.0, w), offset=_number(entry, "offset", 0.0, w),
                                  frame=frame, params=params, index=i, role=role,
-                                 keep_if=tuple(sorted((str(k), float(v)) for k, v in keep_if.items()))))
+                                 keep_if=tuple(sorted((str(k), float(v)) for k, v in keep_if.items())),
+                                 tag=tag, valid=_valid_checks(entry.get("valid", []), w), lookup=lookup))
     files = doc.get("files", {})
     if not isinstance(files, dict) or not all(isinstance(v, str) and "{suffix}" in v for v in files.values()):
         raise MappingError(f"{source_name}: [files] must map stream names to patterns containing '{{suffix}}'")
@@ -320,12 +406,54 @@ def parse_mapping(text: str, source_name: str = "mapping") -> Mapping:
             raise MappingError(f"{w}: default_servos must be a list of servo numbers >= 1")
         motors = MotorSpec(sources=tuple(sources), default_servos=tuple(default),
                            max_servo=int(_number(m, "max_servo", 16, w, positive=True)))
+    cut = None
+    if "cut" in doc:
+        c = doc["cut"]
+        w = f"{source_name}: [cut]"
+        if not isinstance(c, dict) or set(c) - {"min_depth", "armed_column", "upside_down_s"}:
+            raise MappingError(f"{w}: keys are min_depth (m), armed_column (a column name), upside_down_s (s)")
+        armed = c.get("armed_column")
+        if armed is not None and not (isinstance(armed, str) and armed.isidentifier()):
+            raise MappingError(f"{w}: 'armed_column' must be a column name, got {armed!r}")
+        cut = CutSpec(min_depth=_number(c, "min_depth", None, w), armed_column=armed,
+                      upside_down_s=_number(c, "upside_down_s", None, w, positive=True))
     return Mapping(name=str(head.get("name", source_name)), source=source, path=source_name, rules=tuple(rules),
                    rate_hz=_number(head, "rate_hz", None, where, positive=True),
                    time_base=head.get("time_base"), time=time,
                    max_gap_s=_number(head, "max_gap_s", 0.5, where, positive=True), input_kind=input_kind,
                    metadata=metadata, description=str(head.get("description", "")), files=files,
-                   gap_factor=_number(head, "gap_factor", 3.0, where, positive=True), select=select, motors=motors)
+                   gap_factor=_number(head, "gap_factor", 3.0, where, positive=True), select=select, motors=motors,
+                   cut=cut)
+
+
+_CHECK_KEYS = {"field", "reason", "equal", "min", "max", "min_field", "max_field", "min_param", "max_param",
+               "param_scale", "ignore"}
+
+
+def _valid_checks(entries, where) -> tuple:
+    """``valid = [{field = ..., reason = ..., min = ...}, ...]`` -> tuple of :class:`ValidCheck`."""
+    if not isinstance(entries, list):
+        raise MappingError(f"{where}: 'valid' must be a list of tables {{field = ..., reason = ..., ...}}")
+    checks = []
+    for k, e in enumerate(entries):
+        w = f"{where}: valid[{k}]"
+        if not isinstance(e, dict) or set(e) - _CHECK_KEYS or not isinstance(e.get("field"), str) \
+                or not isinstance(e.get("reason"), str):
+            raise MappingError(f"{w}: needs 'field' and 'reason' (strings); other keys: "
+                               f"{', '.join(sorted(_CHECK_KEYS - {'field', 'reason'}))}")
+        for key in ("min_field", "max_field", "min_param", "max_param"):
+            if key in e and not isinstance(e[key], str):
+                raise MappingError(f"{w}: '{key}' must be a field / parameter name")
+        ignore = e.get("ignore", [])
+        if not isinstance(ignore, list) or not all(isinstance(v, (int, float)) for v in ignore):
+            raise MappingError(f"{w}: 'ignore' must be a list of numbers")
+        checks.append(ValidCheck(field=e["field"], reason=e["reason"], equal=_number(e, "equal", None, w),
+                                 min=_number(e, "min", None, w), max=_number(e, "max", None, w),
+                                 min_field=e.get("min_field"), max_field=e.get("max_field"),
+                                 min_param=e.get("min_param"), max_param=e.get("max_param"),
+                                 param_scale=_number(e, "param_scale", 1.0, w, positive=True),
+                                 ignore=tuple(float(v) for v in ignore)))
+    return tuple(checks)
 
 
 # ------------------------------------------------------------------------------------------- transforms
@@ -483,6 +611,20 @@ def _apply_rule(rule: ChannelRule, stream: Stream, where: str, log_params: dict 
     if tr == "pressure_to_depth":
         depth, notes = pressure_to_depth(raw[0], rule.params, where, log_params)
         return {rule.to[0]: depth}, notes
+    if tr == "bit":
+        bit = rule.params.get("bit")
+        if not isinstance(bit, int) or isinstance(bit, bool) or not 0 <= bit < 64:
+            raise MappingError(f"{where}: channels[{rule.index}] transform bit needs params.bit (0..63), got {bit!r}")
+        with np.errstate(invalid="ignore"):
+            value = np.where(np.isfinite(raw[0]), np.floor(raw[0] / 2.0**bit) % 2, np.nan)
+        return {rule.to[0]: value}, []
+    if tr == "delta_over_dt":
+        dt = _delta_interval(rule, stream)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            rates = [np.where(dt > 0, d / dt, np.nan) for d in raw[:3]]
+        bad = int(np.sum(~(dt > 0)))
+        notes = [f"{bad} samples with a non-positive interval {rule.fields[3]} -> nan"] if bad else []
+        return dict(zip(rule.to, rates)), notes
     vec = np.stack(raw, axis=-1)
     if tr == "vector_enu_to_ned":
         vec = vec @ _ENU_TO_NED.T
@@ -491,6 +633,14 @@ def _apply_rule(rule: ChannelRule, stream: Stream, where: str, log_params: dict 
     elif tr == "world_to_body" and rule.frame == "enu_flu":
         vec = vec @ _ENU_TO_NED.T
     return dict(zip(rule.to, vec.T)), []
+
+
+def _delta_interval(rule: ChannelRule, stream: Stream) -> np.ndarray:
+    """Interval (s) of a ``delta_over_dt`` rule: its 4th field x ``params.dt_scale`` (1e-6 for a us field)."""
+    scale = rule.params.get("dt_scale", 1.0)
+    if not isinstance(scale, (int, float)) or isinstance(scale, bool) or not scale > 0:
+        raise MappingError(f"channels[{rule.index}] ({rule.stream}): params.dt_scale must be a positive number")
+    return stream.fields[rule.fields[3]] * float(scale)
 
 
 def _euler_rotation(phi, theta, psi) -> np.ndarray:
@@ -656,37 +806,131 @@ def _input_layout(mapping: Mapping, found, where, require_inputs: bool, rules=No
     return kind, cols, notes
 
 
-def rule_stream(rule: ChannelRule, streams: dict) -> Stream | None:
+def _subset(stream: Stream, keep, notes, fields=None) -> Stream:
+    alt = None if stream.t_alternative is None else stream.t_alternative[keep]
+    fields = stream.fields if fields is None else fields
+    return Stream(name=stream.name, t=stream.t[keep], fields={k: v[keep] for k, v in fields.items()},
+                  time_source=stream.time_source, t_alternative=alt, alternative_source=stream.alternative_source,
+                  notes=stream.notes + notes)
+
+
+def invalid_samples(check: ValidCheck, stream: Stream, log_params: dict | None = None) -> tuple:
+    """(bool mask of the samples that fail ``check``, note or '') on ``stream``'s samples.
+
+    A check whose field the stream does not hold (or holds only as nan: the firmware does not log it) fails no
+    sample and says so in the note.
+    """
+    values = stream.fields.get(check.field)
+    if values is None or not np.isfinite(values).any():
+        return np.zeros(stream.t.size, bool), f"{check.field} not logged: check '{check.reason}' not applied"
+    with np.errstate(invalid="ignore"):
+        bad = ~np.isfinite(values)
+        if check.equal is not None:
+            bad |= values != check.equal
+        bounds = [(check.min, np.less), (check.max, np.greater)]
+        for name, op in ((check.min_field, np.less), (check.max_field, np.greater)):
+            if name and name in stream.fields:
+                bounds.append((stream.fields[name], op))
+        params = [n for n in (check.min_param, check.max_param) if n]
+        found = [n for n in params if (log_params or {}).get(n) is not None and np.isfinite(log_params[n])]
+        for name, op in ((check.min_param, np.less), (check.max_param, np.greater)):
+            if name in found:
+                bounds.append((check.param_scale * log_params[name], op))
+        for bound, op in bounds:
+            if bound is not None:
+                bad |= op(values, bound)
+        if check.ignore:
+            bad &= ~np.isin(values, check.ignore)
+    if params and not found and check.equal is None and check.min is None and check.max is None \
+            and not check.min_field and not check.max_field:
+        return bad, f"parameter(s) {', '.join(params)} not in the log: check '{check.reason}' not applied"
+    return bad, ""
+
+
+def rule_stream(rule: ChannelRule, streams: dict, log_params: dict | None = None,
+                rejected: list | None = None) -> Stream | None:
     """The rule's stream, restricted to the samples whose ``keep_if`` fields equal the given values (e.g. only the
-    downward DISTANCE_SENSOR, orientation 25); None if absent or lacking a field."""
+    downward DISTANCE_SENSOR, orientation 25), that pass the rule's ``valid`` checks (dropped samples counted per
+    reason in the stream's notes) and, with a ``lookup``, whose value is one of its keys (mapped to its value);
+    None if absent, lacking a field or left without samples (then, when every sample failed a validity check, the
+    counts are appended to ``rejected``)."""
     stream = streams.get(rule.stream)
     if stream is None or stream.t.size == 0 or not all(f in stream.fields for f in rule.fields):
         return None
-    if not rule.keep_if:
-        return stream
-    if not all(f in stream.fields for f, _ in rule.keep_if):
-        return None
-    keep = np.ones(stream.t.size, bool)
-    for f, value in rule.keep_if:
-        keep &= stream.fields[f] == value
-    if not keep.any():
-        return None
-    alt = None if stream.t_alternative is None else stream.t_alternative[keep]
-    cond = ", ".join(f"{f} = {v:g}" for f, v in rule.keep_if)
-    return Stream(name=stream.name, t=stream.t[keep], fields={k: v[keep] for k, v in stream.fields.items()},
-                  time_source=stream.time_source, t_alternative=alt, alternative_source=stream.alternative_source,
-                  notes=stream.notes + ([f"{stream.name}: {int((~keep).sum())} of {keep.size} samples dropped "
-                                         f"(kept where {cond})"] if not keep.all() else []))
+    if rule.keep_if:
+        if not all(f in stream.fields for f, _ in rule.keep_if):
+            return None
+        keep = np.ones(stream.t.size, bool)
+        for f, value in rule.keep_if:
+            keep &= stream.fields[f] == value
+        if not keep.any():
+            return None
+        cond = ", ".join(f"{f} = {v:g}" for f, v in rule.keep_if)
+        if not keep.all():
+            stream = _subset(stream, keep, [f"{stream.name}: {int((~keep).sum())} of {keep.size} samples dropped "
+                                            f"(kept where {cond})"])
+    if rule.valid:
+        keep = np.ones(stream.t.size, bool)
+        counts, skipped = [], []
+        for check in rule.valid:
+            bad, note = invalid_samples(check, stream, log_params)
+            if note:
+                skipped.append(note)
+            new = bad & keep
+            if new.any():
+                counts.append(f"{int(new.sum())} {check.reason}")
+            keep &= ~bad
+        notes = []
+        label = f"{stream.name}[{','.join(rule.fields)}] -> {'/'.join(rule.to)}"
+        if counts:
+            frac = 1.0 - keep.mean()
+            notes.append(f"{label}: {int((~keep).sum())} of {keep.size} samples invalid and dropped ("
+                         + "; ".join(counts) + ")"
+                         + (f"; ALMOST ALL ({100 * frac:.0f} %) of the readings are invalid: {'/'.join(rule.to)} "
+                            f"from this sensor is unusable in this log" if frac > 0.9 else ""))
+        elif not skipped:
+            notes.append(f"{label}: all {keep.size} samples pass the validity checks")
+        notes += [f"{label}: {n}" for n in skipped]
+        if not keep.any():
+            if rejected is not None:
+                rejected.extend(n for n in notes if n not in rejected)
+            return None
+        stream = _subset(stream, keep, notes)
+    if rule.lookup:
+        raw = stream.fields[rule.fields[0]]
+        keys = np.array([k for k, _ in rule.lookup])
+        keep = np.isin(raw, keys)
+        if not keep.any():
+            return None
+        mapped = np.interp(raw, keys, [v for _, v in rule.lookup])  # exact at the keys
+        fields = {**stream.fields, rule.fields[0]: mapped}
+        values = ", ".join(f"{k:g} -> {v:g}" for k, v in rule.lookup)
+        stream = _subset(stream, keep, [f"{stream.name}: {rule.fields[0]} mapped {values}; "
+                                        f"{int((~keep).sum())} of {keep.size} samples with other values dropped"],
+                         fields)
+    return stream
 
 
-def _present(rule, streams):
-    return rule_stream(rule, streams) is not None
+def _present(rule, streams, log_params=None, rejected=None):
+    return rule_stream(rule, streams, log_params, rejected) is not None
 
 
 def _finite_fields(rule, streams):
     """A motor source whose servo fields are all nan (the log lacks those outputs) is not present."""
     stream = rule_stream(rule, streams)
     return all(np.isfinite(stream.fields[f]).any() for f in rule.fields)
+
+
+def _mid_interval(rule: ChannelRule, stream: Stream) -> tuple:
+    """(stream stamped at the middle of each delta's interval, note): a delta over [t - dt, t] is the mean rate
+    at t - dt/2; kept at t when the shifted stamps would not increase (the note says so)."""
+    dt = _delta_interval(rule, stream)
+    t_mid = stream.t - 0.5 * np.where(np.isfinite(dt) & (dt > 0), dt, 0.0)
+    if t_mid.size > 1 and not np.all(np.diff(t_mid) > 0):
+        return stream, "deltas over intervals that overlap: stamped at the end of their interval"
+    shift = float(np.median(stream.t - t_mid)) if t_mid.size else 0.0
+    return replace(stream, t=t_mid, t_alternative=None), (f"mean rate over each interval, stamped at its middle "
+                                                          f"(t - {rule.fields[3]}/2, median shift {shift:.3f} s)")
 
 
 def _rate_notes(name, stream, grid_rate, is_input) -> list:
@@ -739,8 +983,9 @@ def assemble_run(mapping: Mapping, streams: dict, source_path: str, extra_notes=
     where = f"{source_path} (mapping {mapping.name})"
     rules = list(extra_rules) + list(mapping.rules)
     extra_streams = {r.stream for r in extra_rules}
-    present = [r for r in rules if _present(r, streams) and (r.stream not in extra_streams or r.index >= 0
-                                                              or _finite_fields(r, streams))]
+    rejected = []
+    present = [r for r in rules if _present(r, streams, log_params, rejected)
+               and (r.stream not in extra_streams or r.index >= 0 or _finite_fields(r, streams))]
     selection_notes, chosen, seen = [], [], set()
     for rule in present:
         if set(rule.to) & seen:
@@ -751,7 +996,7 @@ def assemble_run(mapping: Mapping, streams: dict, source_path: str, extra_notes=
             cands = [r for r in present if column in r.to and not (set(r.to) - set(rule.to)) & seen]
             cand_objs = []
             for r in cands:
-                r_stream = rule_stream(r, streams)
+                r_stream = rule_stream(r, streams, log_params)
                 values, _ = _apply_rule(r, r_stream, where, log_params)
                 cand_objs.append(Candidate(r, r_stream.t, values[column]))
             winner, notes = select_by_evidence(column, cand_objs, mapping.select[column])
@@ -770,7 +1015,9 @@ def assemble_run(mapping: Mapping, streams: dict, source_path: str, extra_notes=
     used = {r.stream for r in chosen}
     # auxiliary channels (altitude, voltage, accelerometer) do not cut the run: they are nan outside their own span
     # (named in gaps:), so a sonar that starts late never shortens the states and commands
-    core = {base_name} | {r.stream for r in chosen if not set(r.to) <= set(AUXILIARY_CHANNELS)}
+    # nor do extra columns (autopilot context: a MODE message logged only at the first mode change, pilot inputs)
+    core = {base_name} | {r.stream for r in chosen if not set(r.to) <= set(AUXILIARY_CHANNELS)
+                          and any(n in CHANNELS or _is_input(n) for n in r.to)}
     start = max(streams[s].t[0] for s in core)
     stop = min(streams[s].t[-1] for s in core)
     if not stop > start:
@@ -791,10 +1038,16 @@ def assemble_run(mapping: Mapping, streams: dict, source_path: str, extra_notes=
     out, provenance, rate_notes, gap_notes = {}, [], [], []
     deferred = []
     used_streams = {}
+    tag_notes = []
     for rule in chosen:
-        stream = rule_stream(rule, streams)
+        stream = rule_stream(rule, streams, log_params)
         used_streams.setdefault(rule.stream, stream)
         values, rule_notes = _apply_rule(rule, stream, where, log_params)
+        if rule.transform == "delta_over_dt":
+            stream, shift_note = _mid_interval(rule, stream)
+            rule_notes.append(shift_note)
+        if rule.tag:
+            tag_notes.append(f"source: {'/'.join(rule.to)} <- {rule.stream}[{','.join(rule.fields)}]: {rule.tag}")
         limit = gap_limit(stream.t, mapping)
         inputs_here = [n for n in values if _is_input(n)]
         for name, y in values.items():
@@ -804,8 +1057,9 @@ def assemble_run(mapping: Mapping, streams: dict, source_path: str, extra_notes=
                 out[name] = _interp_gapped(stream.t, y, grid, limit, angle=name in ANGLE_CHANNELS)
                 gap_notes += _gap_notes(name, stream, out[name], limit, grid)
         label = "/".join(rule.to) if len(rule.to) <= 6 else f"{rule.to[0]}..{rule.to[-1]}"
-        rate_notes += _rate_notes(label if inputs_here else "/".join(n for n in rule.to if n in CHANNELS) or label,
-                                  stream, grid_rate, bool(inputs_here))
+        if any(n in CHANNELS or _is_input(n) for n in rule.to):  # context columns are held (events, e.g. MODE)
+            rate_notes += _rate_notes(label if inputs_here else "/".join(n for n in rule.to if n in CHANNELS) or label,
+                                      stream, grid_rate, bool(inputs_here))
         if rule.transform == "world_to_body":
             deferred.append(rule)
         src = ",".join(rule.fields)
@@ -814,7 +1068,7 @@ def assemble_run(mapping: Mapping, streams: dict, source_path: str, extra_notes=
         provenance.append(f"{'/'.join(rule.to)} <- {rule.stream}[{src}] ({rule.transform}, scale {rule.scale:g}, "
                           f"offset {rule.offset:g}; {stream.t.size} samples, {rate:.1f} Hz, median interval "
                           f"{med:.3f} s, gaps > {limit:.2f} s not bridged; time {stream.time_source})"
-                          + "".join(f"; {n}" for n in rule_notes))
+                          + "".join(f"; {n}" for n in rule_notes) + (f" [{rule.tag}]" if rule.tag else ""))
     for rule in deferred:
         att = [out.get(a) for a in ANGLE_CHANNELS]
         if any(a is None for a in att):
@@ -836,7 +1090,7 @@ def assemble_run(mapping: Mapping, streams: dict, source_path: str, extra_notes=
              f"measured channels linear (angles unwrapped; no bridging of gaps longer than "
              f"max({mapping.max_gap_s:g} s, {mapping.gap_factor:g} x the stream's median interval)), inputs "
              f"zero-order hold; t_source = original {base_name} time stamp held"]
-    notes += provenance + selection_notes + rate_notes + gap_notes
+    notes += provenance + selection_notes + tag_notes + rate_notes + gap_notes + rejected
     if missing:
         notes.append("not in this log: " + ", ".join(missing))
     for s in sorted(used):

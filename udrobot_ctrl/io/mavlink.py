@@ -547,12 +547,16 @@ class VehicleInfo:
         motor k for the frame's motor count); empty when unknown.
     notes : list of str
         ``vehicle:`` lines: what was read and what was assumed.
+    servo_source : str
+        ``'function'`` (SERVOn_FUNCTION), ``'default'`` (servo k = motor k assumed), ``'outputs'`` (inferred from
+        the logged outputs) or ``''`` (unknown).
     """
 
     name: str | None
     frame: int | None
     motor_servos: tuple
     notes: list
+    servo_source: str = ""
 
 
 def detect_vehicle(facts: LogFacts) -> VehicleInfo:
@@ -601,7 +605,193 @@ def detect_vehicle(facts: LogFacts) -> VehicleInfo:
     if name is not None:
         notes.append(f"vehicle: named {name} with {len(servos)} thrusters (motor outputs in motor order -> "
                      f"pwm_1..pwm_{len(servos)})")
-    return VehicleInfo(name=name, frame=frame, motor_servos=servos, notes=notes)
+    source = "function" if servo_fn else ("default" if servos else "")
+    return VehicleInfo(name=name, frame=frame, motor_servos=servos, notes=notes, servo_source=source)
+
+
+# ------------------------------------------------------------------------------------------------ outputs
+
+MOTOR_PWM_RANGE = (1100.0, 1900.0)  # us: ArduSub motor outputs (MOT_PWM_MIN / MOT_PWM_MAX defaults)
+NEUTRAL_BAND_US = 50.0  # us: a motor output comes this close to 1500 at some time (lights at 1594-1708 never do)
+MOTOR_MEDIAN_US = 150.0  # us: a motor output's median is this close to 1500
+MIN_MOVE_US = 10.0  # us: an output whose range is smaller does not move
+INFERRED_VEHICLES = {6: "bluerov2", 8: "bluerov2-heavy"}  # active motor outputs 1..n -> vehicle
+
+
+@dataclass(frozen=True)
+class OutputActivity:
+    """One servo output as the log shows it.
+
+    Attributes
+    ----------
+    servo : int
+        Output number (RCOU ``Cn`` / SERVO_OUTPUT_RAW ``servoN_raw``).
+    kind : str
+        ``'motor'`` (moves, in the motor PWM range, around 1500 us), ``'neutral'`` (exactly 1500 us throughout:
+        a disarmed motor, or a trimmed servo), ``'unused'`` (0 / not logged) or ``'other'`` (lights, servos).
+    evidence : str
+        Numbers behind the verdict (range, median).
+    """
+
+    servo: int
+    kind: str
+    evidence: str
+
+
+@dataclass(frozen=True)
+class OutputEvidence:
+    """Classification of every logged servo output of a log (:func:`classify_outputs`)."""
+
+    stream: str
+    outputs: tuple
+
+    def servos(self, kind: str) -> tuple:
+        """Output numbers of one kind, ascending."""
+        return tuple(o.servo for o in self.outputs if o.kind == kind)
+
+    def describe(self) -> str:
+        """One line naming each output's kind and evidence (outputs at neutral and unused ones grouped)."""
+        parts = [f"{self.stream} output {o.servo}: {o.kind} ({o.evidence})" for o in self.outputs
+                 if o.kind in ("motor", "other")]
+        for kind, what in (("neutral", "at exactly 1500 us throughout (neutral)"), ("unused", "unused (0 or not "
+                                                                                              "logged)")):
+            servos = self.servos(kind)
+            if servos:
+                parts.append(f"output{'s' if len(servos) > 1 else ''} {', '.join(map(str, servos))} {what}")
+        return "; ".join(parts)
+
+
+def classify_outputs(stream, pattern: str, max_servo: int) -> OutputEvidence:
+    """Which logged outputs drive motors, from the PWM values alone.
+
+    A motor output has >= 95 % of its non-zero samples in the motor range 1100..1900 us, a median within
+    150 us of the 1500 us neutral, comes within 50 us of neutral at some time and moves (range >= 10 us);
+    one at exactly 1500 us throughout is ``neutral`` (a disarmed motor, or a servo at its trim). A lights
+    channel (1594-1708 us, never near neutral), an output at 0 and a constant off-neutral output are not motors.
+
+    Parameters
+    ----------
+    stream : Stream
+        The motor-output stream (RCOU, SERVO_OUTPUT_RAW port 0).
+    pattern : str
+        Field pattern with ``{n}`` (``C{n}``, ``servo{n}_raw``).
+    max_servo : int
+    """
+    outputs = []
+    lo, hi = MOTOR_PWM_RANGE
+    for n in range(1, max_servo + 1):
+        values = stream.fields.get(pattern.format(n=n))
+        finite = values[np.isfinite(values)] if values is not None else np.array([])
+        nonzero = finite[finite != 0]
+        if nonzero.size == 0:
+            outputs.append(OutputActivity(n, "unused", "0 or not logged"))
+            continue
+        vmin, vmax, med = float(nonzero.min()), float(nonzero.max()), float(np.median(nonzero))
+        evidence = f"{vmin:.0f}..{vmax:.0f} us, median {med:.0f}"
+        in_range = np.mean((nonzero >= lo) & (nonzero <= hi)) >= 0.95
+        if vmin == vmax == ARDUSUB_PWM_NEUTRAL:
+            kind = "neutral"
+        elif (in_range and abs(med - ARDUSUB_PWM_NEUTRAL) <= MOTOR_MEDIAN_US and vmax - vmin >= MIN_MOVE_US
+              and vmin <= ARDUSUB_PWM_NEUTRAL + NEUTRAL_BAND_US and vmax >= ARDUSUB_PWM_NEUTRAL - NEUTRAL_BAND_US):
+            kind = "motor"
+        else:
+            kind = "other"
+        outputs.append(OutputActivity(n, kind, evidence))
+    return OutputEvidence(stream=stream.name, outputs=tuple(outputs))
+
+
+def vehicle_thrusters(name: str, mapping_default: tuple = ()) -> int | None:
+    """Thruster count of a vehicle name a log can be converted for.
+
+    ``bluerov2`` 6, ``bluerov2-heavy`` 8, ``ardusub-frame-N`` with a known motor count, or the mapping's default
+    vehicle ``mapping_default`` = (name, default servos); None if unknown.
+    """
+    known = {v[2]: v[1] for v in ARDUSUB_FRAMES.values() if v[2]}
+    known.update({f"ardusub-frame-{k}": v[1] for k, v in ARDUSUB_FRAMES.items() if v[1]})
+    if mapping_default and mapping_default[0]:
+        known.setdefault(mapping_default[0], len(mapping_default[1]))
+    return known.get(name)
+
+
+def choose_vehicle(detected: VehicleInfo, evidence: OutputEvidence | None, override: str | None = None,
+                   mapping_default: tuple = (), where: str = "log") -> VehicleInfo:
+    """The vehicle and its motor outputs.
+
+    In order: ``override`` (``convert --vehicle``); what the log names (FRAME_CONFIG, ``Frame:`` text); else
+    inferred from the active motor outputs of ``evidence`` (outputs 1..6 -> bluerov2, 1..8 -> bluerov2-heavy;
+    all at neutral when none moves). Without an output stream the log's own (empty) answer is returned.
+
+    Parameters
+    ----------
+    detected : VehicleInfo
+        :func:`detect_vehicle`'s answer.
+    evidence : OutputEvidence or None
+        :func:`classify_outputs` of the motor-output stream, None if the log has none.
+    override : str, optional
+        Vehicle name given by the user.
+    mapping_default : tuple
+        (name, servos) of the mapping's default vehicle, a further name ``override`` may use.
+    where : str
+        File name for messages.
+
+    Raises
+    ------
+    LogImportError
+        The outputs do not tell the vehicle (a count other than 6 / 8, gaps, outputs at neutral beside moving
+        ones): the message lists the outputs and asks for ``--vehicle``; or the chosen vehicle (without a
+        SERVOn_FUNCTION map) has fewer thrusters than the log has moving motor outputs.
+    """
+    notes = list(detected.notes)
+    evid = f"; evidence: {evidence.describe()}" if evidence is not None else ""
+    moving = evidence.servos("motor") if evidence is not None else ()
+    if override is not None:
+        n = vehicle_thrusters(override, mapping_default)
+        if n is None:
+            known = sorted({v[2] for v in ARDUSUB_FRAMES.values() if v[2]}
+                           | ({mapping_default[0]} if mapping_default and mapping_default[0] else set()))
+            raise LogImportError(f"{where}: --vehicle {override!r}: unknown thruster count; known vehicles: "
+                                 f"{', '.join(known)}, ardusub-frame-N")
+        if detected.servo_source == "function" and len(detected.motor_servos) == n:
+            servos, source, how = detected.motor_servos, "function", "motor outputs from SERVOn_FUNCTION"
+        else:
+            servos, source = tuple(range(1, n + 1)), "default"
+            how = f"motor k on servo k, k = 1..{n} (ArduSub default, assumed)"
+        if detected.name is not None and detected.name != override:
+            notes.append(f"vehicle: the log names {detected.name}; --vehicle {override} overrides it")
+        notes.append(f"vehicle: {override} with {n} thrusters given by --vehicle; {how}{evid}")
+        info = VehicleInfo(name=override, frame=detected.frame, motor_servos=servos, notes=notes,
+                           servo_source=source)
+    elif detected.name is not None or evidence is None:
+        info = detected
+    else:
+        neutral = evidence.servos("neutral")
+        active, how = moving, "move around 1500 us"
+        if not moving and neutral:
+            active, how = neutral, "sit at the 1500 us neutral throughout (disarmed; no output moves)"
+        n = len(active)
+        if not (n in INFERRED_VEHICLES and active == tuple(range(1, n + 1)) and not (moving and neutral)):
+            default = f", {mapping_default[0]}" if mapping_default and mapping_default[0] else ""
+            raise LogImportError(
+                f"{where}: the log does not name its vehicle (no FRAME_CONFIG, no 'Frame:' text) and its motor outputs "
+                f"do not tell it: {evidence.describe()}. Expected outputs 1..6 (bluerov2) or 1..8 (bluerov2-heavy) "
+                f"moving around 1500 us. Give the vehicle: udrobot-ctrl convert --vehicle NAME (bluerov2, "
+                f"bluerov2-heavy{default})")
+        name = INFERRED_VEHICLES[n]
+        servos = tuple(range(1, n + 1))
+        notes.append(f"vehicle: inferred {name} ({n} thrusters) from the logged outputs, not named by the log (no "
+                     f"FRAME_CONFIG, no 'Frame:' text): outputs 1..{n} {how} in the motor range "
+                     f"{MOTOR_PWM_RANGE[0]:.0f}..{MOTOR_PWM_RANGE[1]:.0f} us; motor k on servo k assumed (ArduSub "
+                     f"default){evid}")
+        return VehicleInfo(name=name, frame=None, motor_servos=servos, notes=notes, servo_source="outputs")
+    if evidence is not None and info.servo_source != "function" and info.motor_servos:
+        dropped = [k for k in moving if k not in info.motor_servos]
+        if dropped:
+            raise LogImportError(
+                f"{where}: vehicle {info.name} has {len(info.motor_servos)} thrusters (servo "
+                f"{', '.join(map(str, info.motor_servos))}) but output(s) {', '.join(map(str, dropped))} also drive "
+                f"motors (they move around 1500 us) and would be dropped; {evidence.describe()}. Give a vehicle with "
+                f"all of them: convert --vehicle NAME")
+    return info
 
 
 ARDUSUB_PWM_NEUTRAL = 1500.0  # us, ArduSub motor output at zero command

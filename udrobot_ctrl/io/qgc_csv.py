@@ -77,9 +77,16 @@ def read_qgc_csv(path, name: str = "telemetry") -> Stream:
     times = []
     columns = {h: [] for h in header[1:]}
     numeric = {h: True for h in header[1:]}
+    longer, first_longer, most = 0, None, len(header)
     for k, row in enumerate(data, start=2):
-        if len(row) != len(header):
-            raise LogImportError(f"{path}: row {k} has {len(row)} cells, the header {len(header)}")
+        if len(row) > len(header):  # QGC adds fact columns (a second battery) after writing its header
+            longer += 1
+            first_longer = first_longer or k
+            most = max(most, len(row))
+            row = row[:len(header)]
+        elif len(row) < len(header):
+            raise LogImportError(f"{path}: row {k} has {len(row)} cells, the header {len(header)}; a QGC telemetry "
+                                 f"row has at least one cell per header column")
         times.append(_time(row[0], f"{path}: row {k}, column Timestamp"))
         for h, cell in zip(header[1:], row[1:]):
             value = _cell(cell)
@@ -89,6 +96,11 @@ def read_qgc_csv(path, name: str = "telemetry") -> Stream:
                 columns[h].append(value)
     fields = {h: v for h, v in columns.items() if numeric[h]}
     stream = finish_stream(name, times, fields, "QGC wall-clock Timestamp (local time)")
+    if longer:
+        stream.notes.append(f"{path}: {longer} of {len(data)} rows have more cells than the header (first: row "
+                            f"{first_longer}, up to {most} cells for {len(header)} header columns: facts QGC added "
+                            f"after writing the header, e.g. a second battery); the cells beyond the header have no "
+                            f"name and are ignored")
     dropped = [h for h, ok in numeric.items() if not ok]
     if dropped:
         stream.notes.append(f"{path}: non-numeric QGC columns not read: {', '.join(dropped)}")

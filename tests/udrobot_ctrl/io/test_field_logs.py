@@ -19,6 +19,9 @@ RHO_G = 1000.0 * 9.81  # Pa per m of fresh water, as the converter uses (rho = 1
 # ../shared next to the repository (as the other tests); UDROBOT_SHARED overrides it (e.g. from a git worktree)
 SHARED = Path(os.environ.get("UDROBOT_SHARED", Path(__file__).resolve().parents[3] / ".." / "shared"))
 ARDUSUB_LOGS = SHARED / "data" / "ardusub_log_tools"
+# a disarmed BlueROV2 Heavy: its 8 motor outputs at the 1500 us neutral, the unused outputs at 0 (as ArduSub logs
+# them); without FRAME_CONFIG the converter infers bluerov2-heavy from them
+DISARMED_HEAVY = [1500] * 8 + [0] * 8
 
 
 def _mav():
@@ -44,7 +47,8 @@ def params_events(mav, params, t=0.0):
 
 def dive_tlog(path, depth, duration=60.0, p_rate=2.0, servo_rate=2.0, params=None, vfr_alt=None, servo=None,
               extra=(), jitter=0.0, seed=0):
-    """ATTITUDE 20 Hz, SCALED_PRESSURE2 and SERVO_OUTPUT_RAW at the given rates (QGC default 2 Hz), RAW_IMU 2 Hz.
+    """ATTITUDE 20 Hz, SCALED_PRESSURE2 and SERVO_OUTPUT_RAW at the given rates (QGC default 2 Hz), RAW_IMU 2 Hz;
+    the servo outputs of a disarmed Heavy unless ``servo`` is given.
 
     depth(t) -> m; pressure = 101325 + rho g depth (the surface at the standard atmosphere); vfr_alt(t) -> VFR_HUD
     alt at 10 Hz if given; servo(t) -> 16 servo values.
@@ -60,7 +64,7 @@ def dive_tlog(path, depth, duration=60.0, p_rate=2.0, servo_rate=2.0, params=Non
         ev.append((rt, mav.scaled_pressure2_encode(int(t * 1000), (101325.0 + RHO_G * depth(t)) / 100.0, 0.0, 1200)))
         ev.append((rt + 1e-4, mav.raw_imu_encode(int(t * 1e6), 10, -20, -1000, 0, 0, 0, 0, 0, 0)))
     for t in np.arange(0.03, duration, 1.0 / servo_rate):
-        values = servo(t) if servo else [1500] * 16
+        values = servo(t) if servo else DISARMED_HEAVY
         ev.append((t + (rng.uniform(0, jitter) if jitter else 0.0),
                    mav.servo_output_raw_encode(int(t * 1e6), 0, *[int(v) for v in values])))
     if vfr_alt is not None:
@@ -90,7 +94,7 @@ def test_damaged_tlog_bad_crc_garbage_and_cut_tail(tmp_path):
     for t in np.arange(0.01, 20.0, 0.05):
         ev.append((t, mav.attitude_encode(int(t * 1000), 0.1, 0.0, 0.0, 0.0, 0.0, 0.0)))
     for t in np.arange(0.03, 20.0, 0.5):
-        ev.append((t, mav.servo_output_raw_encode(int(t * 1e6), 0, *[1500] * 16)))
+        ev.append((t, mav.servo_output_raw_encode(int(t * 1e6), 0, *DISARMED_HEAVY)))
     n_bad = 0
     for k, t in enumerate(np.arange(0.02, 20.0, 0.1)):
         frame = bytearray(mav.distance_sensor_encode(int(t * 1000), 20, 5000, 300 + k, 1, 1, 25, 0).pack(mav))
@@ -303,7 +307,7 @@ def test_two_hz_streams_are_kept_and_named(tmp_path):
     z = run.channels["z"]
     assert np.isfinite(z).all()
     notes = run.metadata["notes"]
-    assert "rate: pwm_1/pwm_2/pwm_3/pwm_4 from SERVO_OUTPUT_RAW at 2.0 Hz" in notes
+    assert "rate: pwm_1..pwm_8 from SERVO_OUTPUT_RAW at 2.0 Hz" in notes
     assert "cannot resolve command changes" in notes
     assert "rate: z from SCALED_PRESSURE2 at 2.0 Hz" in notes
     # dropout
@@ -479,7 +483,7 @@ def test_reboot_mid_log_is_named(tmp_path):
     mav = _mav()
     ev = [(t, mav.attitude_encode(int(((t if t < 30 else t - 30.0) + 100.0) * 1000), 0.0, 0.0, 0.0, 0.0, 0.0, 0.0))
           for t in np.arange(0.01, 60.0, 0.05)]
-    ev += [(t, mav.servo_output_raw_encode(int(t * 1e6), 0, *[1500] * 16)) for t in np.arange(0.03, 60.0, 0.5)]
+    ev += [(t, mav.servo_output_raw_encode(int(t * 1e6), 0, *DISARMED_HEAVY)) for t in np.arange(0.03, 60.0, 0.5)]
     run = convert_log(write_events(tmp_path / "r.tlog", mav, ev), "ardusub")
     assert run.duration > 59.0
     assert "ATTITUDE: the autopilot clock goes back 1 time(s)" in run.metadata["notes"]

@@ -10,6 +10,9 @@ from udrobot_ctrl.io import LogImportError, convert_log, load_any
 from udrobot_ctrl.io.mavlink import Damage, iter_dataflash, iter_tlog
 
 T0 = 1_700_000_000.0
+# these synthetic logs name no frame and their outputs do not tell one (outputs held at 1400 / 1600 us beside moving
+# ones, or a single moving output): the converter refuses to guess, so the tests give the 4-thruster vehicle
+VEHICLE = "udrobot"
 
 
 def roll(t):
@@ -43,7 +46,7 @@ def write_tlog(path, duration=3.0, servo_dt=0.1, pressure=False):
 
 def test_tlog_round_trip_with_vfr_hud_depth(tmp_path):
     path = write_tlog(tmp_path / "dive.tlog")
-    run = convert_log(path, "ardusub")
+    run = convert_log(path, "ardusub", vehicle=VEHICLE)
     t_abs = T0 + 0.005 + run.t  # overlap starts at the first SERVO_OUTPUT_RAW (+5 ms)
     t = t_abs - T0
     np.testing.assert_allclose(run.channels["phi"], roll(t), atol=0.4 * (2 * np.pi * 0.8) ** 2 * 0.02**2 / 8 + 1e-6)
@@ -56,12 +59,12 @@ def test_tlog_round_trip_with_vfr_hud_depth(tmp_path):
     notes = run.metadata["notes"]
     assert "z <- VFR_HUD[alt]" in notes and "tlog receive time" in notes
     assert "ATTITUDE: autopilot time (aligned by median offset) - tlog receive time delay median 0.0 ms" in notes
-    assert load_any(path).n == run.n
+    assert load_any(path, vehicle=VEHICLE).n == run.n
 
 
 def test_tlog_external_pressure_sensor_gives_depth(tmp_path):
     path = write_tlog(tmp_path / "p.tlog", pressure=True)
-    run = convert_log(path, "ardusub")
+    run = convert_log(path, "ardusub", vehicle=VEHICLE)
     t = run.t + 0.005
     # the log starts at 1.0 m (1111 hPa, above any weather): not the surface, so the standard atmosphere
     # (101325 Pa, the value encoded) is the reference and the depth is the true one
@@ -83,7 +86,7 @@ def test_tlog_damage_is_skipped_counted_and_named_by_offset(tmp_path):
     damage = Damage()
     assert len(list(iter_tlog(cut, damage))) == len(frames) - 1
     assert damage.kinds["truncated tail"].offsets == [last_offset]
-    run = convert_log(cut, "ardusub")
+    run = convert_log(cut, "ardusub", vehicle=VEHICLE)
     assert f"damage: truncated tail: 1 ({len(data) - 5 - last_offset} bytes), first byte offsets {last_offset}" \
         in run.metadata["notes"]
     # a flipped payload byte: that frame alone is skipped as a bad CRC of its type
@@ -158,7 +161,7 @@ def test_dataflash_round_trip_and_agrees_with_pymavlink(tmp_path):
     assert [n for n, _ in ours] == [n for n, _ in theirs]
     assert all(a == pytest.approx(b) for (_, a), (_, b) in zip(ours, theirs))
 
-    run = convert_log(path, "ardusub", require_inputs=True)
+    run = convert_log(path, "ardusub", require_inputs=True, vehicle=VEHICLE)
     t = run.t  # first ATT at boot 10.0 s is the earliest; BARO[1] starts 2 µs later
     np.testing.assert_allclose(run.channels["phi"], roll(t), atol=1e-3)
     np.testing.assert_allclose(run.channels["psi"], np.pi / 2, atol=1e-6)
@@ -172,7 +175,7 @@ def test_dataflash_truncated_or_corrupt(tmp_path):
     data = path.read_bytes()
     records = [(i, o, n) for i, o, n, _ in iter_dataflash(path)]
     (tmp_path / "cut.bin").write_bytes(data[:-7])
-    run = convert_log(tmp_path / "cut.bin", "ardusub")
+    run = convert_log(tmp_path / "cut.bin", "ardusub", vehicle=VEHICLE)
     _, last_offset, last_name = records[-1]
     assert f"damage: truncated tail ({last_name}): 1 ({len(data) - 7 - last_offset} bytes), first byte offsets " \
         f"{last_offset}" in run.metadata["notes"]
