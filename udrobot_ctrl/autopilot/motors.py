@@ -55,11 +55,14 @@ motors 3-4 had throttle only). :attr:`Frame.rank` and :attr:`Frame.unobservable`
 """
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from udrobot_ctrl.vehicle import Vehicle
+if TYPE_CHECKING:  # only an annotation: motors is imported by io, which vehicle imports
+    from udrobot_ctrl.vehicle import Vehicle
 
 #: The mixer's inputs, in the column order of :attr:`Frame.factors` (``add_motor_raw_6dof`` argument order).
 MIXER_INPUTS = ("roll", "pitch", "yaw", "throttle", "forward", "lateral")
@@ -431,3 +434,67 @@ def unmix(frame: Frame, thrust_out, rcond: float = 1e-10):
         raise ValueError(f"unmix: thrust_out must have a last axis of {frame.n_motors} (frame {frame.name}), got "
                          f"shape {t.shape}")
     return t @ np.linalg.pinv(frame.factors, rcond=rcond).T
+
+
+# ----------------------------------------------------------------------------- directions from a log
+def fit_horizontal_inputs(frame: Frame, known, thrust_out) -> np.ndarray:
+    """Forward and lateral inputs (N, 2) whose linear mix, with the ``known`` inputs (N, 4: roll, pitch, yaw,
+    bidirectional throttle), best matches the motor commands ``thrust_out`` (N, n), by least squares.
+
+    ArduSub logs the attitude and throttle outputs (RATE ``ROut/POut/YOut/AOut``) but not forward and lateral
+    (the pilot's or the position controller's); this recovers them per sample.
+    """
+    f = frame.factors
+    residual = np.asarray(thrust_out, float) - np.asarray(known, float) @ f[:, :4].T
+    return residual @ np.linalg.pinv(f[:, 4:6]).T
+
+
+@dataclass(frozen=True)
+class DirectionFit:
+    """``MOT_i_DIRECTION`` inferred from a log that lacks the parameters.
+
+    Attributes
+    ----------
+    directions : tuple of int
+        +1 or -1 per motor.
+    rms : float
+        RMS residual of the best sign pattern's linear mix against the logged commands (dimensionless, 1 = full
+        scale).
+    runner_up : float
+        RMS residual of the second-best pattern: the margin says how clear the inference is.
+    samples : int
+        Samples used (all of the known inputs and the PWM finite).
+    """
+
+    directions: tuple
+    rms: float
+    runner_up: float
+    samples: int
+
+
+def fit_directions(frame: Frame, known, pwm, params: MotorParameters | None = None) -> DirectionFit:
+    """The ``MOT_i_DIRECTION`` pattern (+-1 per motor) that best explains logged ``pwm`` (N, n, us) given the
+    ``known`` mixer inputs (N, 4: roll, pitch, yaw, bidirectional throttle), forward and lateral fitted per sample
+    (:func:`fit_horizontal_inputs`); all 2^n patterns are tried.
+
+    Raises
+    ------
+    ValueError
+        If fewer than 10 samples have finite known inputs and PWM.
+    """
+    known = np.asarray(known, float)
+    pwm = np.asarray(pwm, float)
+    n = frame.n_motors
+    p = _params(params, n)
+    ok = np.all(np.isfinite(known), axis=1) & np.all(np.isfinite(pwm), axis=1)
+    if ok.sum() < 10:
+        raise ValueError(f"fit_directions: only {int(ok.sum())} samples with finite mixer inputs and PWM; need 10")
+    base = from_pwm(pwm[ok], MotorParameters(p.pwm_min, p.pwm_max, (1,) * n))
+    costs = []
+    for signs in itertools.product((1, -1), repeat=n):
+        thrust = base * np.asarray(signs, float)
+        fl = fit_horizontal_inputs(frame, known[ok], thrust)
+        lin = np.concatenate([known[ok], fl], axis=1) @ frame.factors.T
+        costs.append((float(np.sqrt(np.mean((lin - thrust) ** 2))), signs))
+    costs.sort(key=lambda c: c[0])
+    return DirectionFit(tuple(int(s) for s in costs[0][1]), costs[0][0], costs[1][0], int(ok.sum()))

@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
+from udrobot_ctrl.autopilot.motors import MotorParameters, fit_directions, frame, throttle_bidirectional
 from udrobot_ctrl.io.runlog import Run, read_run
 
 from . import mavlink, qgc_csv, rosbag, rostopic_csv
@@ -140,6 +141,8 @@ def convert_log(path, mapping=None, require_inputs: bool = True, vehicle: str | 
         note = apply_motor_directions(run, facts.params)
         if note:
             run.metadata["notes"] += "\n" + note
+        if autopilot_params(facts.params):
+            run.metadata["autopilot_params"] = autopilot_params(facts.params)
         density = water_density_from_params(facts.params)
         if density is not None and "water_density" not in mapping.metadata:
             run.metadata["water_density"] = density[0]
@@ -171,7 +174,7 @@ def apply_motor_directions(run: Run, params: dict) -> str:
     n = run.inputs.shape[1]
     dirs = [params.get(f"MOT_{k}_DIRECTION") for k in range(1, n + 1)]
     if all(d is None for d in dirs):
-        return ""
+        return infer_motor_directions(run, params)
     known = [1.0 if d is None or not np.isfinite(d) else float(np.sign(d) or 1.0) for d in dirs]
     run.inputs = motor_command_pwm(run.inputs, known)
     reversed_ = [k + 1 for k, d in enumerate(known) if d < 0]
@@ -179,6 +182,69 @@ def apply_motor_directions(run: Run, params: dict) -> str:
     return (f"motors: MOT_k_DIRECTION ({listed}) from the log; pwm of reversed motor(s) "
             f"{', '.join(map(str, reversed_)) or 'none'} mirrored about 1500 us (pwm' = 3000 - pwm) so that pwm_k > "
             f"1500 us is thruster k's positive thrust in the vehicle model")
+
+
+#: ArduSub parameter prefixes kept in the sidecar's ``autopilot_params`` (the controllers, the mixer, the pilot input)
+AUTOPILOT_PARAM_PREFIXES = ("ATC_", "PSC_", "MOT_", "PILOT_", "RC1_", "RC2_", "RC3_", "RC4_", "RC5_", "RC6_",
+                            "RC7_", "RC8_", "RCMAP_", "JS_", "SURFTRAK_", "WPNAV_", "FRAME_", "SERVO")
+AUTOPILOT_PARAM_NAMES = ("ANGLE_MAX", "SCHED_LOOP_RATE", "BARO_SPEC_GRAV")
+#: a direction pattern is inferred only when it explains the logged PWM this well (RMS of the normalised
+#: command, 1 = full scale) and clearly better than the runner-up: ArduSub truncates its PWM to whole us, 0.0025
+#: of full scale, so a right pattern fits to about 0.001 while a wrong one leaves residuals of the command's size
+DIRECTION_FIT_RMS = 0.01
+DIRECTION_FIT_MARGIN = 3.0
+
+
+def autopilot_params(params: dict) -> dict:
+    """The log's controller, mixer and pilot-input parameters (name -> value, ArduSub units) for the sidecar."""
+    return {k: float(v) for k, v in sorted(params.items())
+            if (k.startswith(AUTOPILOT_PARAM_PREFIXES) or k in AUTOPILOT_PARAM_NAMES) and np.isfinite(v)}
+
+
+def infer_motor_directions(run: Run, params: dict) -> str:
+    """``MOT_k_DIRECTION`` inferred from the logged mixer inputs when the log lacks the parameters; mirrors the PWM of
+    reversed motors in place (as :func:`apply_motor_directions`) and returns the note.
+
+    ArduSub's PWM is a known function of its mixer inputs (:mod:`udrobot_ctrl.autopilot.motors`); with the
+    attitude and throttle outputs logged (``out_roll``, ``out_pitch``, ``out_yaw``, ``out_throttle``: dataflash
+    RATE) and forward / lateral fitted per sample, every sign pattern is tried
+    (:func:`~udrobot_ctrl.autopilot.motors.fit_directions`). The pattern is used only when it explains the PWM to
+    :data:`DIRECTION_FIT_RMS` and beats the runner-up by :data:`DIRECTION_FIT_MARGIN`; otherwise the PWM is left as
+    logged and the note says the directions are unknown (assumed +1).
+    """
+    names = ("out_roll", "out_pitch", "out_yaw", "out_throttle")
+    vehicle = run.metadata.get("vehicle")
+    unknown = ("motors: no MOT_k_DIRECTION in the log and {why}: every motor assumed MOT_k_DIRECTION = +1 "
+               "(pwm_k > 1500 us = positive thrust); a reversed motor would push the wrong way in the replay")
+    if not all(c in run.extra for c in names):
+        return unknown.format(why="no logged mixer inputs (dataflash RATE) to infer them from")
+    try:
+        fr = frame(vehicle)
+    except (ValueError, TypeError):
+        return unknown.format(why=f"vehicle {vehicle!r} has no known ArduSub frame")
+    if fr.n_motors != run.inputs.shape[1]:
+        return unknown.format(why=f"frame {fr.name} has {fr.n_motors} motors, the run {run.inputs.shape[1]} pwm "
+                                  f"columns")
+    known = np.column_stack([run.extra["out_roll"], run.extra["out_pitch"], run.extra["out_yaw"],
+                             throttle_bidirectional(run.extra["out_throttle"])])
+    moving = np.any(np.abs(run.inputs - 1500.0) > 0.5, axis=1)
+    pwm = np.where(moving[:, None], run.inputs, np.nan)
+    pmin, pmax = (params.get(k) for k in ("MOT_PWM_MIN", "MOT_PWM_MAX"))
+    motors = MotorParameters(pwm_min=float(pmin or 1100.0), pwm_max=float(pmax or 1900.0))
+    try:
+        fit = fit_directions(fr, known, pwm, motors)
+    except ValueError as exc:
+        return unknown.format(why=f"too little armed output to infer them ({exc})")
+    if not (fit.rms <= DIRECTION_FIT_RMS and fit.runner_up >= DIRECTION_FIT_MARGIN * fit.rms):
+        return unknown.format(why=f"the logged mixer inputs do not single them out (best pattern RMS {fit.rms:.4f}, "
+                                  f"runner-up {fit.runner_up:.4f} of full scale)")
+    run.inputs = motor_command_pwm(run.inputs, fit.directions)
+    reversed_ = [k + 1 for k, d in enumerate(fit.directions) if d < 0]
+    return (f"motors: MOT_k_DIRECTION not in the log; inferred from the logged mixer inputs (RATE ROut/POut/YOut/AOut, "
+            f"forward/lateral fitted per sample, frame {fr.name}) over {fit.samples} samples: "
+            f"({', '.join(f'{k + 1}: {d:+d}' for k, d in enumerate(fit.directions))}), residual RMS {fit.rms:.4f} "
+            f"of full scale against {fit.runner_up:.4f} for the next pattern (estimated); pwm of reversed motor(s) "
+            f"{', '.join(map(str, reversed_)) or 'none'} mirrored about 1500 us (pwm' = 3000 - pwm)")
 
 
 def load_any(path, mapping=None, require_inputs: bool = True, vehicle: str | None = None) -> Run:
