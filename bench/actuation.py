@@ -17,7 +17,6 @@ Usage: ``python bench/actuation.py [--data ../shared/data] [--work DIR]``.
 from __future__ import annotations
 
 import argparse
-import itertools
 import re
 import subprocess
 import sys
@@ -29,7 +28,7 @@ from pymavlink import DFReader
 from scipy.optimize import least_squares
 
 from udrobot_ctrl.autopilot.actuation import actuation_check
-from udrobot_ctrl.autopilot.motors import MotorParameters, frame, mix, motor_pwm, throttle_bidirectional
+from udrobot_ctrl.autopilot.motors import MotorParameters, fit_directions, frame, motor_pwm, throttle_bidirectional
 from udrobot_ctrl.io.mavlink import motor_command_pwm
 from udrobot_ctrl.io.runlog import Run, read_run
 from udrobot_ctrl.vehicle import load_model
@@ -90,25 +89,10 @@ def mixer_check(path: Path):
     known = np.column_stack([rate[:, 1], rate[:, 2], rate[:, 3], throttle_bidirectional(rate[:, 4])])
     print(f"mixer check: {path.name}, {len(pwm)} RCOU samples paired with RATE (10 Hz); frame VECTORED_6DOF; "
           f"MOT_PWM_MIN/MAX 1100/1900 us assumed (no parameters in the log)")
-    # verticals: their mix needs only roll, pitch, throttle (known); direction = sign of the correlation
-    u0 = np.column_stack([known, np.zeros((len(pwm), 2))])
-    m0 = mix(fr, u0)
-    dirs = [0] * 8
-    for i in range(4, 8):
-        c = np.corrcoef(m0[:, i], pwm[:, i] - 1500.0)[0, 1]
-        dirs[i] = 1 if c > 0 else -1
-        print(f"  motor {i + 1}: corr(mix, RCOU - 1500) = {c:+.3f} -> MOT_{i + 1}_DIRECTION = {dirs[i]:+d}")
-    best = None
-    for signs in itertools.product((1, -1), repeat=4):
-        params = MotorParameters(directions=tuple(signs) + tuple(dirs[4:]))
-        base = motor_pwm(fr, u0, params, integer=False)
-        A = np.column_stack([fr.factors[:4, 4], fr.factors[:4, 5]]) * np.asarray(signs)[:, None] * 400.0
-        sol = np.linalg.lstsq(A, (pwm[:, :4] - base[:, :4]).T, rcond=None)[0]
-        rms = float(np.sqrt(np.mean((A @ sol - (pwm[:, :4] - base[:, :4]).T) ** 2)))
-        if best is None or rms < best[0]:
-            best = (rms, signs)
-    dirs[:4] = best[1]
-    print(f"  horizontals: best MOT_1..4_DIRECTION = {best[1]} (linear-fit RMS {best[0]:.2f} us over the 16 sign sets)")
+    fit = fit_directions(fr, known, pwm)  # the converter's inference (udrobot_ctrl.io.infer_motor_directions)
+    dirs = list(fit.directions)
+    print(f"  MOT_1..8_DIRECTION fitted over the 256 sign patterns: {fit.directions} (residual RMS {fit.rms:.4f} of "
+          f"full scale; next pattern {fit.runner_up:.4f})")
     params = MotorParameters(directions=tuple(int(d) for d in dirs))
     u = fit_forward_lateral(fr, known, pwm, params)
     pred = motor_pwm(fr, u, params)  # ArduSub's integer PWM

@@ -383,6 +383,7 @@ def to_model_dict(v: Vehicle) -> dict:
         "provenance": dict(v.provenance),
         **({"effects": [e.to_dict() for e in v.effects]} if v.effects else {}),
         **_curve_entry(v),
+        **({"ardusub_frame": str(v.extras["ardusub_frame"])} if (v.extras or {}).get("ardusub_frame") else {}),
     }
 
 
@@ -393,7 +394,8 @@ def _curve_entry(v: Vehicle) -> dict:
         return {}
     return {"thruster_curve": {"name": str(ex.get("thruster_model", "t200")), "supply_voltage_V": float(ex["voltage"])}}
 MODEL_KEYS = ("format", "name", "rho", "g", "mass", "inertia_cg", "r_g", "r_b", "weight", "buoyancy", "added_mass",
-              "linear_damping", "quadratic_damping", "thrusters", "provenance", "effects", "thruster_curve")
+              "linear_damping", "quadratic_damping", "thrusters", "provenance", "effects", "thruster_curve",
+              "ardusub_frame")
 THRUSTER_KEYS = ("name", "position", "direction", "max_forward_N", "max_reverse_N")
 PSD_TOL = 1e-9  # relative: eigenvalues of sym(D) above -PSD_TOL * max|D| count as >= 0 (round-off of exported files)
 
@@ -534,6 +536,12 @@ def model_from_dict(doc: dict, source: str = "<dict>") -> Vehicle:
                              f"number}} ({exc!r})") from exc
         if not (np.isfinite(extras["voltage"]) and extras["voltage"] > 0):
             raise ValueError(f"{source}: thruster_curve.supply_voltage_V = {curve['supply_voltage_V']!r} must be > 0")
+    frame = doc.get("ardusub_frame")
+    if frame is not None:
+        if not isinstance(frame, str) or not frame:
+            raise ValueError(f"{source}: field 'ardusub_frame' must be an ArduSub frame name such as "
+                             f"\"VECTORED_6DOF\", got {frame!r}")
+        extras["ardusub_frame"] = frame
     return Vehicle(
         name=str(doc.get("name", Path(source).stem)), mass=scal["mass"],
         inertia_cg=inertia, r_g=_matrix(doc, "r_g", (3,), source),

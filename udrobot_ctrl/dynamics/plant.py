@@ -174,6 +174,7 @@ class PlantParameters:
         """Each thruster's forward and reverse capacity (max_forward_N, max_reverse_N), N, both positive."""
         return np.asarray(self.f_max, float), -np.asarray(self.f_min, float)
     supply_voltage: float = DEFAULT_SUPPLY_VOLTAGE  # V, thruster supply for pwm -> thrust (the vehicle's own)
+    ardusub_frame: str | None = None  # the vehicle's ArduSub frame (its autopilot's mixer), None if it has none
 
 
 def plant_parameters(vehicle: Vehicle) -> PlantParameters:
@@ -200,6 +201,7 @@ def plant_parameters(vehicle: Vehicle) -> PlantParameters:
         T=thruster_matrix(vehicle.thrusters), f_min=lo, f_max=hi, name=vehicle.name,
         M_A=np.asarray(vehicle.added_mass, float),
         supply_voltage=float((vehicle.extras or {}).get("voltage", DEFAULT_SUPPLY_VOLTAGE)),
+        ardusub_frame=(vehicle.extras or {}).get("ardusub_frame") or None,
     )
     return fx.fold_parameters(nominal, vehicle.effects) if vehicle.effects else nominal
 

@@ -20,11 +20,12 @@ Everything the diagnoser computes starts from a :class:`Prepared` run:
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy.signal import savgol_filter
 
+from udrobot_ctrl.autopilot.feedback import ReplayFeedback, replay_feedback
 from udrobot_ctrl.dynamics.plant import PlantParameters, restoring_forces
 from udrobot_ctrl.dynamics.thrusters import pwm_to_thrust
 from udrobot_ctrl.gap.smoother import SmoothedRun, SmootherError, smooth_run
@@ -76,6 +77,9 @@ class Prepared:
         DOFs whose ``nu`` (and ``nu_dot``) come from the smoother, not from a logged velocity.
     smoothed : SmoothedRun or None
         The smoother's result (with posterior std) when it ran.
+    feedback : ReplayFeedback or None
+        The vehicle's autopilot attitude loop, closed around the replay of a run whose logged outputs are too slow
+        to replay open loop (:func:`udrobot_ctrl.autopilot.feedback.replay_feedback`); None: open-loop replay.
     """
 
     name: str
@@ -97,6 +101,7 @@ class Prepared:
     observed: np.ndarray = field(default_factory=lambda: np.zeros(6, bool))
     reconstructed: np.ndarray = field(default_factory=lambda: np.zeros(6, bool))
     smoothed: SmoothedRun | None = None
+    feedback: ReplayFeedback | None = None
 
     @property
     def n(self) -> int:
@@ -295,6 +300,9 @@ def prepare(run: Run, p: PlantParameters, name=None, window_s=0.8, dt=None, know
     if np.isnan(f_raw).any():
         f_raw = np.column_stack([_fill(c) for c in f_raw.T])
     f, B, inflow, ref = actuators(run, p, f_raw)
+    loop = replay_feedback(replace(r, inputs=f_raw), p, label)
+    if loop.note:
+        notes.append(loop.note)
     observed = np.array([any(_logged(meas, c) for c in OBSERVING[i]) for i in range(6)])
     reconstructed = np.zeros(6, bool)
     smoothed = None
@@ -326,7 +334,7 @@ def prepare(run: Run, p: PlantParameters, name=None, window_s=0.8, dt=None, know
     return Prepared(name=label, t=t, dt=dt, meas=meas, eta=eta, nu=nu, nu_dot=nu_dot, f=f, B=B, inflow=inflow,
                     f_ref=ref, input_kind=run.input_kind, surfaces=_surfaces(run, meas, n, label, notes), dof_ok=dof_ok,
                     notes=notes, window_s=window_s, observed=observed, reconstructed=reconstructed,
-                    smoothed=smoothed)
+                    smoothed=smoothed, feedback=loop.feedback)
 
 
 def _logged(meas, c) -> bool:

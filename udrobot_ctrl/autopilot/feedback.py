@@ -1,0 +1,249 @@
+"""ArduSub's attitude loop closed around a replay: the diagnoser's closed-loop windows.
+
+Why. A field log holds the motor outputs of ArduSub's 400 Hz stabilising loop at 2-10 Hz (tlog / dataflash). A
+held sample of a fast stabilising loop, replayed open loop, destabilises any model: the real outputs were
+corrections to the *measured* motion, and a replay that departs from it a little gets no correction at all (the
+roll and pitch of an open-loop replay of a BlueROV2 dive run away within a window while the vehicle stayed level).
+
+What. The logged command already holds the autopilot's reaction to the measured motion. When the simulated state
+departs from the measured one, the real autopilot would have reacted to the *difference*, and for the attitude
+loop of :mod:`udrobot_ctrl.autopilot.attitude` (angle P -> rate PID, ``AC_AttitudeControl_Sub``) that reaction is
+linear in the deviation::
+
+    e_att       = rotation vector of R_sim^T R_meas              (body axes, rad: how far the replay is off)
+    rate target = ATC_ANG_*_P * e_att                             (rad/s)
+    d_out       = rate PID (target = rate target, measurement = omega_sim - omega_meas)   per axis
+    mixer input = logged mixer input + [d_out_roll, d_out_pitch, d_out_yaw, 0, 0, 0]
+
+with the rate PIDs (:class:`udrobot_ctrl.autopilot.pid.ACPID`, the one emulation of ``AC_PID``: gains, target /
+error / derivative filters) starting from rest at each window start: the logged output already holds the logged
+integrators. The mixer input of the logged PWM comes from :func:`udrobot_ctrl.autopilot.motors.unmix`, and the
+corrected one goes back through :func:`udrobot_ctrl.autopilot.motors.mix` (so the frame's saturation and
+normalisation act on the total) and the T-200 curve. Exact for the PID and its filters; linearised for the sqrt
+controller of the angle loop (linear below ``ACCEL_MAX / ANG_P^2``, 0.53 rad at ArduSub's defaults) and for the
+integrator limit. Throttle, forward and lateral stay as logged: the depth and position loops are slow next to the
+log rate, and their logged outputs are what a replay tests the heave, surge and sway dynamics against.
+
+Where the autopilot did not stabilise (``MANUAL`` mode, disarmed) the correction is zero: the logged command is
+then the pilot's own, and the open-loop replay is the truth.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from udrobot_ctrl.autopilot.modes import Mode
+from udrobot_ctrl.autopilot.motors import Frame, MotorParameters, frame, from_pwm, mix, to_pwm, unmix
+from udrobot_ctrl.autopilot.params import ArduSubParameters, AttitudeParameters
+from udrobot_ctrl.autopilot.pid import ACPID
+from udrobot_ctrl.dynamics.plant import PlantParameters, rotation_zyx
+from udrobot_ctrl.dynamics.thrusters import pwm_to_thrust
+from udrobot_ctrl.io.runlog import Run
+
+#: modes in which ArduSub does not stabilise the attitude (the logged output is the pilot's)
+UNSTABILISED_MODES = (int(Mode.MANUAL),)
+#: logged commands updated at least this often (s) replay open loop: ArduSub's rate loop runs at 200-400 Hz and its
+#: closed-loop attitude time constant is about 0.1 s (rate P 0.135, angle P 6 on a BlueROV2), so a command held over
+#: more than 10 ms is a stale sample of a stabilising loop (assumed bound: 4 loop ticks at 400 Hz)
+OPEN_LOOP_MAX_INTERVAL = 0.01
+
+
+def rotation_vector(R) -> np.ndarray:
+    """(..., 3) rotation vector (axis times angle, rad) of rotation matrices ``R`` (..., 3, 3)."""
+    R = np.asarray(R, float)
+    cos = np.clip((np.trace(R, axis1=-2, axis2=-1) - 1.0) / 2.0, -1.0, 1.0)
+    angle = np.arccos(cos)
+    axis = np.stack([R[..., 2, 1] - R[..., 1, 2], R[..., 0, 2] - R[..., 2, 0], R[..., 1, 0] - R[..., 0, 1]], -1)
+    sin = np.sin(angle)
+    scale = np.where(sin > 1e-9, angle / np.where(sin > 1e-9, 2.0 * sin, 1.0), 0.5)  # small angles: axis / 2
+    return axis * scale[..., None]
+
+
+def attitude_error(eta_sim, eta_meas) -> np.ndarray:
+    """(..., 3) body-axis rotation (rad) that takes the simulated attitude to the measured one.
+
+    ``eta_*`` (..., 6) poses (x y z phi theta psi, ZYX Euler angles, rad); the error is the rotation vector of
+    ``R_sim^T R_meas``, the angle error ArduSub's quaternion attitude controller acts on.
+    """
+    Rs = rotation_zyx(eta_sim[..., 3], eta_sim[..., 4], eta_sim[..., 5])
+    Rm = rotation_zyx(eta_meas[..., 3], eta_meas[..., 4], eta_meas[..., 5])
+    return rotation_vector(np.swapaxes(Rs, -1, -2) @ Rm)
+
+
+@dataclass(frozen=True)
+class ReplayFeedback:
+    """The autopilot's attitude loop closed around the replay of one run (module docstring).
+
+    Attributes
+    ----------
+    frame : Frame
+        ArduSub frame of the vehicle.
+    motors : MotorParameters
+        PWM range and ``MOT_i_DIRECTION`` of the run's ``pwm_i`` columns (all +1 when the converter already
+        mirrored the reversed motors to motor-command PWM).
+    attitude : AttitudeParameters
+        Angle P and rate PID gains (the log's, or ArduSub's defaults: see ``assumed``).
+    pwm : (n, k) ndarray
+        The logged PWM on the replay's grid, us.
+    voltage : (n, 1) ndarray or float
+        Battery voltage for the T-200 curve, V.
+    f_min, f_max : (k,) ndarray
+        Thrust limits, N (the same clipping as the replay's logged thrust).
+    stabilised : (n,) bool ndarray
+        Samples on which ArduSub stabilised the attitude (not MANUAL, not disarmed).
+    axes : (3,) bool ndarray
+        Roll, pitch, yaw loops closed (an axis the frame cannot actuate stays open).
+    assumed : tuple of str
+        Parameters taken from ArduSub's defaults and other assumptions, for the report.
+    """
+
+    frame: Frame
+    motors: MotorParameters
+    attitude: AttitudeParameters
+    pwm: np.ndarray
+    voltage: np.ndarray | float
+    f_min: np.ndarray
+    f_max: np.ndarray
+    stabilised: np.ndarray
+    axes: np.ndarray
+    assumed: tuple = ()
+    base_inputs: np.ndarray = field(init=False, repr=False)
+    base_pwm: np.ndarray = field(init=False, repr=False)
+    base_thrust: np.ndarray = field(init=False, repr=False)
+
+    def __post_init__(self):
+        inputs = unmix(self.frame, from_pwm(self.pwm, self.motors))
+        object.__setattr__(self, "base_inputs", inputs)
+        object.__setattr__(self, "base_pwm", to_pwm(mix(self.frame, inputs, self.motors), self.motors, integer=False))
+        object.__setattr__(self, "base_thrust", self._thrust(self.pwm, slice(None)))
+
+    def _thrust(self, pwm, k):
+        v = self.voltage if np.ndim(self.voltage) == 0 else np.asarray(self.voltage)[k]
+        return np.clip(pwm_to_thrust(pwm, v), self.f_min, self.f_max)
+
+    def start(self, rows: int) -> FeedbackState:
+        """A fresh loop for ``rows`` windows replayed together (the PIDs at rest: the window start)."""
+        return FeedbackState([ACPID(g) for g in self.attitude.rate_pids()], rows)
+
+    def delta_thrust(self, state: FeedbackState, x_sim, x_meas, k, dt: float) -> np.ndarray:
+        """(N, k) thrust (N) the closed attitude loop adds to the logged thrust at samples ``k`` (N,).
+
+        Parameters
+        ----------
+        state : FeedbackState
+            The loop's PIDs (advanced by ``dt``).
+        x_sim, x_meas : (N, 12) ndarray
+            Simulated and measured states (x y z phi theta psi u v w p q r).
+        k : (N,) int ndarray
+            Grid sample of each row (the logged command held on it).
+        dt : float
+            Loop step, s.
+        """
+        error = attitude_error(x_sim[:, :6], x_meas[:, :6])
+        rate_target = np.asarray(self.attitude.angle_p, float) * error
+        rate_dev = x_sim[:, 9:12] - x_meas[:, 9:12]
+        active = self.stabilised[k]
+        d_in = np.zeros((len(k), 6))
+        for axis, pid in enumerate(state.pids):
+            if self.axes[axis]:
+                out = pid.update_all(rate_target[:, axis], rate_dev[:, axis], dt)
+                d_in[:, axis] = np.where(active & np.isfinite(out), out, 0.0)
+        pwm = self.pwm[k] + to_pwm(mix(self.frame, self.base_inputs[k] + d_in, self.motors), self.motors,
+                                   integer=False) - self.base_pwm[k]
+        return self._thrust(pwm, k) - self.base_thrust[k]
+
+
+@dataclass
+class FeedbackState:
+    """The rate PIDs (roll, pitch, yaw) of a batch of replayed windows; their state holds one value per row."""
+
+    pids: list
+    rows: int
+
+
+def command_interval(run: Run) -> float:
+    """Median interval (s) between changes of a run's logged commands (the log's own output rate, not the grid's).
+
+    A converted log holds each logged command on its grid (zero-order hold), so the interval between the rows where
+    any input changes is the rate at which the autopilot's outputs were logged; nan with fewer than 3 changes.
+    """
+    u = np.asarray(run.inputs, float)
+    changed = np.flatnonzero(np.any(np.diff(u, axis=0) != 0, axis=1)) + 1
+    return float(np.median(np.diff(run.t[changed]))) if changed.size >= 3 else float("nan")
+
+
+@dataclass(frozen=True)
+class FeedbackChoice:
+    """Whether a run is replayed with the autopilot's attitude loop closed, and why.
+
+    Attributes
+    ----------
+    feedback : ReplayFeedback or None
+        The loop (None: open-loop replay).
+    note : str
+        One line for the run's notes: the choice, the evidence and what was assumed.
+    """
+
+    feedback: ReplayFeedback | None
+    note: str
+
+
+def replay_feedback(run: Run, p: PlantParameters, label: str = "run") -> FeedbackChoice:
+    """The closed-loop replay of ``run`` (on its own grid) with model ``p``, when the run needs one.
+
+    Closed loop when: the run logs ArduSub PWM (``pwm_i``) of a vehicle whose model names its ArduSub frame
+    (``ardusub_frame``), the logged commands change less often than :data:`OPEN_LOOP_MAX_INTERVAL`, and ArduSub
+    stabilised the attitude on some of it (``mode`` not MANUAL, ``armed`` not 0; a run without a ``mode`` column is
+    taken as stabilised, and the note says so). Gains: the sidecar's ``autopilot_params`` (the log's), ArduSub's
+    defaults for the rest (named in the note). The run's ``pwm_i`` are motor-command PWM (the converter mirrored the
+    reversed motors), so every direction is +1 here.
+    """
+    if run.input_kind != "pwm" or not p.ardusub_frame:
+        return FeedbackChoice(None, "")
+    try:
+        fr = frame(p.ardusub_frame)
+    except ValueError as exc:
+        return FeedbackChoice(None, f"replay: open loop ({exc})")
+    k = run.inputs.shape[1]
+    if fr.n_motors != k:
+        return FeedbackChoice(None, f"replay: open loop (frame {fr.name} has {fr.n_motors} motors, {label} has {k} "
+                                    f"pwm columns)")
+    interval = command_interval(run)
+    if not interval > OPEN_LOOP_MAX_INTERVAL:
+        return FeedbackChoice(None, f"replay: open loop ({label}: logged commands every {interval * 1e3:.0f} ms, "
+                                    f"fast enough to replay ArduSub's outputs as logged)")
+    mode = run.extra.get("mode")
+    armed = run.extra.get("armed")
+    stabilised = np.ones(run.n, bool)
+    assumed = []
+    if mode is None or not np.isfinite(mode).any():
+        assumed.append("no mode logged: ArduSub taken as stabilising throughout")
+    else:
+        stabilised &= ~np.isin(np.nan_to_num(mode, nan=-1.0), UNSTABILISED_MODES)
+    if armed is not None:
+        stabilised &= ~(np.nan_to_num(armed, nan=1.0) == 0)
+    if not stabilised.any():
+        return FeedbackChoice(None, f"replay: open loop ({label}: ArduSub did not stabilise the attitude (MANUAL or "
+                                    f"disarmed throughout): the logged commands are the pilot's)")
+    log_params = run.metadata.get("autopilot_params") or {}
+    params = ArduSubParameters.from_log_params(log_params)
+    gains = [n for n in params.assumed if n.startswith("ATC_")]
+    if gains:
+        listed = ", ".join(gains[:4]) + (", ..." if len(gains) > 4 else "")
+        assumed.append(f"ArduSub's defaults for {len(gains)} attitude parameters ({listed}): not in the log")
+    volts = run.channels.get("voltage")
+    voltage = (p.supply_voltage if volts is None or not np.isfinite(volts).any()
+               else np.nan_to_num(volts, nan=p.supply_voltage)[:, None])
+    axes = np.array([np.any(fr.factors[:, a]) for a in range(3)])
+    fb = ReplayFeedback(frame=fr, motors=replace(MotorParameters.from_log_params(log_params, k), directions=(1,) * k),
+                        attitude=params.attitude, pwm=np.asarray(run.inputs, float), voltage=voltage,
+                        f_min=np.asarray(p.f_min, float), f_max=np.asarray(p.f_max, float), stabilised=stabilised,
+                        axes=axes, assumed=tuple(assumed))
+    closed = ", ".join(n for n, a in zip(("roll", "pitch", "yaw"), axes) if a)
+    note = (f"replay: closed loop in {closed} ({label}: ArduSub's outputs logged every {interval * 1e3:.0f} ms, a "
+            f"stale sample of its {params.loop_rate_hz:.0f} Hz attitude loop; the emulated loop (frame {fr.name}, "
+            f"angle P {', '.join(f'{g:g}' for g in params.attitude.angle_p)}) acts on the replay's departure from "
+            f"the measured attitude, on {100 * stabilised.mean():.0f}% of the samples; throttle, forward and lateral "
+            f"as logged)" + (f"; assumed: {'; '.join(assumed)}" if assumed else ""))
+    return FeedbackChoice(fb, note)

@@ -1,0 +1,270 @@
+"""ArduSub's flight modes' inputs: RC channels -> pilot demands, the mode numbers, GUIDED/SURFTRAK targets.
+
+Sources (ArduPilot, ArduSub 4.1-4.5):
+
+* ``ArduSub/radio.cpp`` ``init_rc_in``: channel order pitch 1, roll 2, throttle 3, yaw 4, forward 5, lateral 6
+  (RCMAP disabled), roll/pitch/yaw/forward/lateral are *angle* channels of +-4500, throttle a *range* channel of
+  0..1000 (:data:`~udrobot_ctrl.autopilot.params.RC_MAP`).
+* ``libraries/RC_Channel/RC_Channel.cpp``: ``norm_input`` (-1..1 about the trim), ``pwm_to_angle_dz_trim``
+  (+-high_in outside the dead zone), ``pwm_to_range_dz`` (0..high_in from ``min + dz``), ``get_control_mid``.
+* ``ArduSub/Attitude.cpp``: ``get_pilot_desired_lean_angles`` (sticks scaled to ``ANGLE_MAX``, circular limit,
+  lateral tilt -> Euler roll), ``get_pilot_desired_yaw_rate`` (``stick * ACRO_YAW_P`` cdeg/s),
+  ``get_pilot_desired_climb_rate`` (``THR_DZ`` about mid stick, ``PILOT_SPEED_UP``/``DN``).
+* ``ArduSub/mode_manual.cpp``: roll, pitch, forward, lateral = ``norm_input``; yaw = ``norm_input * ACRO_YAW_P /
+  ACRO_YAW_P_default``; throttle from the stick.
+* ``ArduSub/mode_stabilize.cpp``, ``mode_althold.cpp``: lean angles and yaw rate from the sticks; the heading is
+  held (``input_euler_angle_roll_pitch_yaw`` with ``last_pilot_heading``) 250 ms after the yaw stick returns to
+  centre; forward/lateral = ``norm_input``; STABILIZE's throttle from the stick, ALT_HOLD's from the depth loop
+  with the stick as a climb rate.
+
+Throttle in the manual modes: ``AP_Motors6DOF`` reads the throttle as 0..1 with 0.5 neutral
+(``get_throttle_bidirectional = 2 (throttle - 0.5)``), so the stick's ``norm_input`` (-1..1) is mapped
+``(norm_input + 1) / 2`` as ``mode_stabilize.cpp`` writes it. (Some trees pass ``norm_input`` to
+``set_throttle`` in MANUAL directly; with the motors clamping the throttle to 0..1 that would put neutral stick at
+half up-thrust, which BlueROV2 pilots do not see, so the stabilize form is used for both.)
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from enum import IntEnum
+
+from udrobot_ctrl.autopilot.params import CDEG, RC_MAP, DepthParameters, PilotParameters, RCChannel
+
+ROLL_PITCH_INPUT_MAX = 4500.0   # ArduSub/config.h, centidegrees of stick
+ACRO_YAW_P_DEFAULT = 3.375      # ArduSub/config.h ACRO_YAW_P (the MANUAL mode's yaw scaling reference)
+YAW_HOLD_DELAY = 0.25           # s, mode_stabilize.cpp / mode_althold.cpp "give 250ms to slow down"
+
+
+class Mode(IntEnum):
+    """ArduSub's mode numbers (``ArduSub/defines.h`` / ``mode.h``, the MODE log's ``ModeNum``)."""
+
+    STABILIZE = 0
+    ACRO = 1
+    ALT_HOLD = 2
+    AUTO = 3
+    GUIDED = 4
+    CIRCLE = 7
+    SURFACE = 9
+    POSHOLD = 16
+    MANUAL = 19
+    MOTOR_DETECT = 20
+    SURFTRAK = 21
+
+
+@dataclass(frozen=True)
+class PilotInput:
+    """The RC inputs (``RCIN`` C1..C8 or the joystick's RC overrides), PWM in microseconds.
+
+    Parameters
+    ----------
+    pwm : tuple of float
+        Channels 1..n (at least 6), us.
+    """
+
+    pwm: tuple = (1500.0,) * 8
+
+    def channel(self, name: str) -> float:
+        """The PWM (us) of the named input (``RC_MAP``: pitch, roll, throttle, yaw, forward, lateral)."""
+        return float(self.pwm[RC_MAP[name] - 1])
+
+    @classmethod
+    def centred(cls) -> PilotInput:
+        """All sticks at 1500 us."""
+        return cls()
+
+    @classmethod
+    def from_sticks(cls, roll: float = 0.0, pitch: float = 0.0, yaw: float = 0.0, throttle: float = 0.0,
+                    forward: float = 0.0, lateral: float = 0.0) -> PilotInput:
+        """Sticks in -1..1 (0 centred) -> PWM ``1500 + 400 x`` in ArduSub's channel order."""
+        pwm = [1500.0] * 8
+        for name, x in (("roll", roll), ("pitch", pitch), ("yaw", yaw), ("throttle", throttle),
+                        ("forward", forward), ("lateral", lateral)):
+            pwm[RC_MAP[name] - 1] = 1500.0 + 400.0 * max(-1.0, min(1.0, x))
+        return cls(tuple(pwm))
+
+
+# ------------------------------------------------------------------------------------------ RC_Channel
+
+
+def norm_input(pwm: float, ch: RCChannel) -> float:
+    """``RC_Channel::norm_input``: -1..1 about the trim (dead zone ignored)."""
+    sign = -1.0 if ch.reversed else 1.0
+    if pwm < ch.trim:
+        if ch.min >= ch.trim:
+            return 0.0
+        ret = sign * (pwm - ch.trim) / (ch.trim - ch.min)
+    else:
+        if ch.max <= ch.trim:
+            return 0.0
+        ret = sign * (pwm - ch.trim) / (ch.max - ch.trim)
+    return max(-1.0, min(1.0, ret))
+
+
+def pwm_to_angle_dz_trim(pwm: float, ch: RCChannel, dead_zone: float, trim: float,
+                         high_in: float = 4500.0) -> float:
+    """``RC_Channel::pwm_to_angle_dz_trim``: +-``high_in`` outside ``trim +- dead_zone`` (ArduSub's int16 kept
+    as float)."""
+    sign = -1.0 if ch.reversed else 1.0
+    hi, lo = trim + dead_zone, trim - dead_zone
+    r = max(ch.min, min(ch.max, pwm))
+    if r > hi and ch.max != hi:
+        return sign * high_in * (r - hi) / (ch.max - hi)
+    if r < lo and lo != ch.min:
+        return sign * high_in * (r - lo) / (lo - ch.min)
+    return 0.0
+
+
+def pwm_to_range_dz(pwm: float, ch: RCChannel, dead_zone: float, high_in: float = 1000.0) -> float:
+    """``RC_Channel::pwm_to_range_dz``: 0..``high_in`` from ``min + dead_zone`` to ``max``."""
+    r = max(ch.min, min(ch.max, pwm))
+    if ch.reversed:
+        r = ch.max - (r - ch.min)
+    low = ch.min + dead_zone
+    return high_in * (r - low) / (ch.max - low) if r > low else 0.0
+
+
+def control_mid(ch: RCChannel, high_in: float = 1000.0) -> float:
+    """``RC_Channel::get_control_mid`` of a range channel: the control value at mid stick (0..1000)."""
+    r = (ch.min + ch.max) / 2.0
+    low = ch.min + ch.dead_zone
+    return high_in * (r - low) / (ch.max - low)
+
+
+# ------------------------------------------------------------------------------------ ArduSub/Attitude.cpp
+
+
+def pilot_lean_angles(roll_in: float, pitch_in: float, angle_max: float, angle_limit: float) -> tuple:
+    """``Sub::get_pilot_desired_lean_angles``: sticks (centidegrees, +-4500) -> Euler roll, pitch (rad).
+
+    Parameters
+    ----------
+    roll_in, pitch_in : float
+        Stick control values (cdeg, +-``ROLL_PITCH_INPUT_MAX``).
+    angle_max : float
+        ``ANGLE_MAX`` (rad), sanity-limited to 10..80 deg as ArduSub does.
+    angle_limit : float
+        The mode's limit (rad): ``ANGLE_MAX`` in STABILIZE, the alt-hold lean limit in ALT_HOLD.
+    """
+    amax = min(max(angle_max / CDEG, 1000.0), 8000.0)
+    limit = min(max(angle_limit / CDEG, 1000.0), amax)
+    scaler = amax / ROLL_PITCH_INPUT_MAX
+    roll_in, pitch_in = roll_in * scaler, pitch_in * scaler
+    total = math.hypot(pitch_in, roll_in)
+    if total > limit:
+        roll_in, pitch_in = roll_in * limit / total, pitch_in * limit / total
+    roll_rad = math.atan(math.cos(pitch_in * CDEG) * math.tan(roll_in * CDEG))
+    return roll_rad, pitch_in * CDEG
+
+
+def pilot_yaw_rate(yaw_in: float, acro_yaw_p: float) -> float:
+    """``Sub::get_pilot_desired_yaw_rate``: yaw stick (cdeg, +-4500) -> yaw rate (rad/s) = stick x ACRO_YAW_P cdeg/s."""
+    return yaw_in * acro_yaw_p * CDEG
+
+
+def pilot_climb_rate(throttle_control: float, mid: float, params: PilotParameters, depth: DepthParameters) -> float:
+    """``Sub::get_pilot_desired_climb_rate``: throttle control (0..1000) -> climb rate (m/s, positive *up*)."""
+    dz = max(0.0, min(400.0, params.throttle_deadzone))
+    top, bottom = mid + dz, mid - dz
+    t = max(0.0, min(1000.0, throttle_control))
+    if t < bottom:
+        return depth.speed_down_effective * (t - bottom) / bottom
+    if t > top:
+        return abs(depth.speed_up) * (t - top) / (1000.0 - top)
+    return 0.0
+
+
+@dataclass(frozen=True)
+class PilotCommand:
+    """The pilot's sticks read as ArduSub's modes read them (SI).
+
+    Attributes
+    ----------
+    norm : dict
+        ``norm_input`` (-1..1) per input name (MANUAL's pass-through; forward and lateral in every pilot mode).
+    roll, pitch : float
+        Lean-angle targets (rad) in STABILIZE (``ANGLE_MAX`` limit).
+    yaw_rate : float
+        Yaw-rate target (rad/s) from the yaw stick outside its dead zone.
+    throttle : float
+        Manual throttle (0..1, 0.5 neutral).
+    climb_rate : float
+        ALT_HOLD's climb rate demand (m/s, positive up).
+    """
+
+    norm: dict
+    roll: float
+    pitch: float
+    yaw_rate: float
+    throttle: float
+    climb_rate: float
+
+
+def shape_pilot(pilot: PilotInput, params: PilotParameters, depth: DepthParameters,
+                angle_limit: float | None = None) -> PilotCommand:
+    """Read the RC inputs as ArduSub's STABILIZE / ALT_HOLD / MANUAL do (module docstring for the sources).
+
+    Parameters
+    ----------
+    pilot : PilotInput
+        RC PWM (us).
+    params, depth : PilotParameters, DepthParameters
+    angle_limit : float, optional
+        Lean limit (rad); ``ANGLE_MAX`` if None.
+    """
+    ch = params.channels
+    norm = {name: norm_input(pilot.channel(name), ch[name]) for name in RC_MAP}
+    roll_in = pwm_to_angle_dz_trim(pilot.channel("roll"), ch["roll"], ch["roll"].dead_zone, ch["roll"].trim)
+    pitch_in = pwm_to_angle_dz_trim(pilot.channel("pitch"), ch["pitch"], ch["pitch"].dead_zone, ch["pitch"].trim)
+    roll, pitch = pilot_lean_angles(roll_in, pitch_in, params.angle_max,
+                                    params.angle_max if angle_limit is None else angle_limit)
+    yaw_in = pwm_to_angle_dz_trim(pilot.channel("yaw"), ch["yaw"], ch["yaw"].dead_zone, ch["yaw"].trim)
+    thr_ch = ch["throttle"]
+    throttle_control = pwm_to_range_dz(pilot.channel("throttle"), thr_ch, thr_ch.dead_zone)
+    climb = pilot_climb_rate(throttle_control, control_mid(thr_ch), params, depth)
+    return PilotCommand(norm=norm, roll=roll, pitch=pitch, yaw_rate=pilot_yaw_rate(yaw_in, params.acro_yaw_p),
+                        throttle=(norm["throttle"] + 1.0) / 2.0, climb_rate=climb)
+
+
+@dataclass(frozen=True)
+class Targets:
+    """GUIDED / SURFTRAK targets (the logged or the commanded ones), SI.
+
+    Attributes
+    ----------
+    roll, pitch : float
+        Attitude targets (rad) (ATT.DesRoll/DesPitch).
+    yaw : float or None
+        Heading target (rad) (ATT.DesYaw); None -> ``yaw_rate`` is used.
+    yaw_rate : float
+        Euler yaw-rate target (rad/s) when ``yaw`` is None; with ``shaped``, the target's Euler yaw rate.
+    roll_rate, pitch_rate : float
+        With ``shaped``: the target's Euler roll and pitch rates (rad/s), the feed-forward.
+    shaped : bool
+        The attitude targets are ArduSub's already *shaped* target (ATT.DesRoll/DesPitch/DesYaw are
+        ``_attitude_target``, not the mode's input): set them directly with their rates as feed-forward
+        (:meth:`~udrobot_ctrl.autopilot.attitude.AttitudeController.input_target`) instead of shaping them again.
+    depth : float or None
+        Depth target (m, down) (PSCD.TPD); None -> the depth loop holds its own target (as ALT_HOLD).
+    vel_down, accel_down : float
+        Feed-forward velocity (m/s) and acceleration (m/s^2) targets, down (PSCD.DVD, DAD).
+    forward, lateral : float
+        Horizontal mixer inputs (-1..1) from the horizontal position controller.
+    """
+
+    roll: float = 0.0
+    pitch: float = 0.0
+    yaw: float | None = None
+    yaw_rate: float = 0.0
+    roll_rate: float = 0.0
+    pitch_rate: float = 0.0
+    shaped: bool = False
+    depth: float | None = None
+    vel_down: float = 0.0
+    accel_down: float = 0.0
+    forward: float = 0.0
+    lateral: float = 0.0
+
+
+__all__ = ["Mode", "PilotCommand", "PilotInput", "Targets", "norm_input", "pilot_climb_rate", "pilot_lean_angles",
+           "pilot_yaw_rate", "pwm_to_angle_dz_trim", "pwm_to_range_dz", "shape_pilot"]
