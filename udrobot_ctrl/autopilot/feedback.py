@@ -35,7 +35,7 @@ import numpy as np
 
 from udrobot_ctrl.autopilot.modes import Mode
 from udrobot_ctrl.autopilot.motors import Frame, MotorParameters, frame, from_pwm, mix, to_pwm, unmix
-from udrobot_ctrl.autopilot.params import ArduSubParameters, AttitudeParameters
+from udrobot_ctrl.autopilot.params import ArduSubParameters, AttitudeParameters, run_log_params
 from udrobot_ctrl.autopilot.pid import ACPID
 from udrobot_ctrl.dynamics.plant import PlantParameters, rotation_zyx
 from udrobot_ctrl.dynamics.thrusters import pwm_to_thrust
@@ -226,8 +226,10 @@ def replay_feedback(run: Run, p: PlantParameters, label: str = "run") -> Feedbac
     if not stabilised.any():
         return FeedbackChoice(None, f"replay: open loop ({label}: ArduSub did not stabilise the attitude (MANUAL or "
                                     f"disarmed throughout): the logged commands are the pilot's)")
-    log_params = run.metadata.get("autopilot_params") or {}
+    log_params, estimated = run_log_params(run.metadata)
     params = ArduSubParameters.from_log_params(log_params)
+    if estimated:
+        assumed.append(f"gains {estimated}")
     gains = [n for n in params.assumed if n.startswith("ATC_")]
     if gains:
         listed = ", ".join(gains[:4]) + (", ..." if len(gains) > 4 else "")

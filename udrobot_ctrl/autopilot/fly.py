@@ -27,7 +27,7 @@ import numpy as np
 from udrobot_ctrl.autopilot.ardusub import ArduSubAutopilot, MotorLimits, VehicleState
 from udrobot_ctrl.autopilot.modes import Mode, PilotInput, Targets
 from udrobot_ctrl.autopilot.motors import Frame, MotorParameters, frame, from_pwm, mix, to_pwm, unmix
-from udrobot_ctrl.autopilot.params import ArduSubParameters
+from udrobot_ctrl.autopilot.params import ArduSubParameters, run_log_params
 from udrobot_ctrl.dynamics.plant import PlantParameters, plant_parameters
 from udrobot_ctrl.dynamics.sim import simulate
 from udrobot_ctrl.dynamics.thrusters import pwm_to_thrust
@@ -211,7 +211,7 @@ def fly(model, run: Run, loop_rate_hz: float | None = None, t_final: float | Non
         raise ValueError(f"model {vehicle.name!r} names no ArduSub frame ('ardusub_frame'): the closed-loop flight "
                          f"needs the vehicle's mixer (docs/formats/model.md)")
     fr = frame(p.ardusub_frame)
-    log_params = run.metadata.get("autopilot_params") or {}
+    log_params, estimated = run_log_params(run.metadata)
     params = ArduSubParameters.from_log_params(log_params, loop_rate_hz)
     k = fr.n_motors
     motors = MotorParameters.from_log_params(log_params, k)
@@ -232,7 +232,7 @@ def fly(model, run: Run, loop_rate_hz: float | None = None, t_final: float | Non
     m = res.x.shape[0]
     pwm = np.array(pilot.pwm[:m - 1] + pilot.pwm[-1:])[:m]
     modes = np.array(pilot.modes[:m - 1] + pilot.modes[-1:])[:m]
-    notes = []
+    notes = [f"closed loop: gains {estimated}"] if estimated else []
     gains = [n for n in params.assumed]
     if gains:
         notes.append(f"closed loop: {len(gains)} ArduSub parameters not in the log, ArduSub's defaults used "

@@ -100,6 +100,35 @@ VEL_Z_DEFAULT = PIDGains(p=5.0, i=0.0, d=0.0, imax=10.0, filt_e_hz=5.0, filt_d_h
 ACC_Z_DEFAULT = PIDGains(p=0.05, i=0.1, d=0.0, imax=0.8, filt_t_hz=0.0, filt_e_hz=20.0, filt_d_hz=0.0)
 
 
+#: PSC_ACCZ's ArduSub units (throttle per cm/s^2 x 1000 ...) -> SI: the factor each field is multiplied by
+ACC_Z_SCALE = {"p": 0.1, "i": 0.1, "d": 0.1, "ff": 0.1, "imax": 0.001, "d_ff": 0.1, "pd_max": 0.001}
+#: sidecar keys of a run's autopilot parameters: as the log stored them, and as estimated from its controller logs
+LOGGED_PARAMS, ESTIMATED_PARAMS = "autopilot_params", "autopilot_params_estimated"
+
+
+def gain_log_params(params: ArduSubParameters) -> dict:
+    """The rate-loop and depth-loop gains of ``params`` as ArduSub parameters (name -> value, ArduSub's units):
+    ``ATC_RAT_RLL/PIT/YAW_P/I/D``, ``PSC_ACCZ_P/I/D``, ``PSC_POSZ_P``, ``PSC_VELZ_P`` and ``SCHED_LOOP_RATE``; the
+    inverse of :meth:`ArduSubParameters.from_log_params` for these names."""
+    out = {}
+    for prefix, gains in zip(("ATC_RAT_RLL_", "ATC_RAT_PIT_", "ATC_RAT_YAW_"), params.attitude.rate_pids()):
+        out.update({prefix + "P": gains.p, prefix + "I": gains.i, prefix + "D": gains.d})
+    acc = params.depth.accel
+    out.update({f"PSC_ACCZ_{k.upper()}": getattr(acc, k) / ACC_Z_SCALE[k] for k in ("p", "i", "d")})
+    out.update({"PSC_POSZ_P": params.depth.pos_p, "PSC_VELZ_P": params.depth.vel.p,
+                "SCHED_LOOP_RATE": round(params.loop_rate_hz)})  # an integer parameter (Hz)
+    return {k: float(v) for k, v in out.items()}
+
+
+def run_log_params(metadata: Mapping) -> tuple:
+    """(parameters, note) for a run's autopilot: the sidecar's logged ``autopilot_params`` over the ones estimated
+    from the log's controller messages (``autopilot_params_estimated``); the note names the estimated ones used."""
+    logged = dict(metadata.get(LOGGED_PARAMS) or {})
+    estimated = {k: v for k, v in (metadata.get(ESTIMATED_PARAMS) or {}).items() if k not in logged}
+    note = (f"estimated from the log's controller messages: {', '.join(sorted(estimated))}" if estimated else "")
+    return {**estimated, **logged}, note
+
+
 @dataclass(frozen=True)
 class AttitudeParameters:
     """``AC_AttitudeControl_Sub``: angle P, input shaping and the three rate PIDs (SI units).
@@ -299,8 +328,7 @@ class ArduSubParameters:
             rate_max=tuple(get(f"ATC_RATE_{a}_MAX", d, math.radians(1.0))
                            for a, d in zip("RPY", (0.0, 0.0, 180.0))))
         # defaults are the SI constants above; values read from the log are converted from ArduSub's units
-        acc_scale = {"p": 0.1, "i": 0.1, "d": 0.1, "ff": 0.1, "imax": 0.001, "d_ff": 0.1, "pd_max": 0.001}
-        accel_pid = pid("PSC_ACCZ_", ACC_Z_DEFAULT, acc_scale)
+        accel_pid = pid("PSC_ACCZ_", ACC_Z_DEFAULT, ACC_Z_SCALE)
         vel_pid = pid("PSC_VELZ_", VEL_Z_DEFAULT, {"imax": 0.01})
         depth = DepthParameters(
             pos_p=get("PSC_POSZ_P", 1.0), vel=vel_pid, accel=accel_pid,

@@ -143,6 +143,10 @@ def convert_log(path, mapping=None, require_inputs: bool = True, vehicle: str | 
             run.metadata["notes"] += "\n" + note
         if autopilot_params(facts.params):
             run.metadata["autopilot_params"] = autopilot_params(facts.params)
+        if kind == "bin":
+            note = estimate_autopilot_gains(path, run, facts.params)
+            if note:
+                run.metadata["notes"] += "\n" + note
         density = water_density_from_params(facts.params)
         if density is not None and "water_density" not in mapping.metadata:
             run.metadata["water_density"] = density[0]
@@ -199,6 +203,29 @@ def autopilot_params(params: dict) -> dict:
     """The log's controller, mixer and pilot-input parameters (name -> value, ArduSub units) for the sidecar."""
     return {k: float(v) for k, v in sorted(params.items())
             if (k.startswith(AUTOPILOT_PARAM_PREFIXES) or k in AUTOPILOT_PARAM_NAMES) and np.isfinite(v)}
+
+
+def estimate_autopilot_gains(path, run: Run, params: dict) -> str:
+    """Where a dataflash log lacks the controllers' gains but logs their terms (PIDR/PIDP/PIDY/PIDA, PSCD), fit the
+    gains from them (:func:`udrobot_ctrl.autopilot.validate.fitted_parameters`) into the sidecar's
+    ``autopilot_params_estimated`` (ArduSub's names and units); returns the note ('' when nothing was estimated).
+    The emulated autopilot takes the logged parameters first, these next, ArduSub's defaults last."""
+    if "ATC_RAT_RLL_P" in params and "PSC_ACCZ_P" in params:
+        return ""
+    # local import: validate reads dataflash through this package (io.mavlink), which must be initialised first
+    from udrobot_ctrl.autopilot.params import ESTIMATED_PARAMS, gain_log_params
+    from udrobot_ctrl.autopilot.validate import fitted_parameters, read_log
+    try:
+        fitted = gain_log_params(fitted_parameters(read_log(path)))
+    except (KeyError, ValueError, IndexError, np.linalg.LinAlgError) as exc:
+        return f"autopilot: no gains in the log and none estimated from its controller messages ({exc})"
+    fitted = {k: v for k, v in fitted.items() if k not in params and np.isfinite(v)}
+    if not fitted:
+        return ""
+    run.metadata[ESTIMATED_PARAMS] = fitted
+    listed = ", ".join(f"{k} {v:.4g}" for k, v in fitted.items())
+    return (f"autopilot: gains not in the log, estimated from its PIDR/PIDP/PIDY/PIDA and PSCD messages (least "
+            f"squares of the logged terms on their errors; autopilot_params_estimated): {listed}")
 
 
 def infer_motor_directions(run: Run, params: dict) -> str:

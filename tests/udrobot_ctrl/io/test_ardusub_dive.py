@@ -410,3 +410,11 @@ def test_shared_sea_dive_converts_as_a_heavy_with_dvl_velocities():
     assert run.duration > 199.0  # submerged throughout: nothing cut
     assert set(np.unique(run.extra["mode"][np.isfinite(run.extra["mode"])])) == {0.0, 2.0, 4.0, 21.0}
     np.testing.assert_allclose(np.nanmedian(run.extra["z_target"] - z), 0.0, atol=0.1)
+    # the trimmed log holds no MOT_k_DIRECTION and no gains: both come from its own controller messages
+    assert "MOT_k_DIRECTION not in the log; inferred" in notes
+    assert "(1: -1, 2: -1, 3: +1, 4: +1, 5: -1, 6: +1, 7: +1, 8: -1)" in notes
+    est = run.metadata["autopilot_params_estimated"]
+    # ArduSub's rate-loop defaults (AC_AttitudeControl_Sub.h) are what this vehicle flew: recovered within 1-5 %
+    assert est["ATC_RAT_RLL_P"] == pytest.approx(0.135, rel=0.01)
+    assert est["ATC_RAT_YAW_P"] == pytest.approx(0.18, rel=0.01)
+    assert est["ATC_RAT_PIT_I"] == pytest.approx(0.09, rel=0.05) and est["SCHED_LOOP_RATE"] == 200
