@@ -41,20 +41,26 @@ Detection (what runs on the vehicle; :class:`FaultMonitor` bundles them with the
   a thruster offset; ``min_fault_N`` 2 N keeps them below the alarm for the bundled models), constant
   fault over a window.
 
+Per step (issue 38) the frozen-sensor test is one numba kernel over all channels
+(:func:`udrobot_ctrl.control.fastpath.frozen_statistics`) and the open thruster windows advance together: one
+call of the compiled linearisation mapped over the window slots and one kernel for the sensitivities and
+residuals (:func:`udrobot_ctrl.control.fastpath.propagate_windows`); ~60 us a step against ~0.6 ms, the GLR
+evaluation of a finished window (every ``stride_s``) ~0.5-1 ms.
+
 All events are :class:`FaultEvent` (time of detection, kind, which sensor or thruster, estimated value).
 :class:`EstimatorLoop` closes the loop plant -> sensors (+ sensor faults) -> EKF -> controller -> thrusters
 (+ thruster faults) for :func:`udrobot_ctrl.dynamics.sim.simulate`.
 """
 from __future__ import annotations
 
-from collections import deque
 from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.stats import chi2
 
 from udrobot_ctrl.control.ekf import UDrobotEKF
-from udrobot_ctrl.control.mpc import linearization_function, maybe_compiled
+from udrobot_ctrl.control.fastpath import CompiledFunction, frozen_statistics, propagate_windows
+from udrobot_ctrl.control.mpc import linearization_function
 from udrobot_ctrl.control.sensors import (
     ANGLE_CHANNELS,
     CHANNEL_STATE,
@@ -188,27 +194,27 @@ class FrozenChannelDetector:
             raise ValueError(f"frozen-sensor window must be >= 3 samples, got {window}")
         self.window, self.p_false = int(window), float(p_false)
         self.threshold = float(chi2.ppf(self.p_false, self.window - 1))
-        self._buf = [deque(maxlen=self.window) for _ in CHANNELS]
+        self._buf = np.zeros((len(CHANNELS), self.window))  # ring buffer per channel
+        self._count = np.zeros(len(CHANNELS), np.int64)  # samples seen per channel
+        self._stats = np.zeros(len(CHANNELS))
+        self._change = np.zeros(len(CHANNELS), bool)
         self.frozen = np.zeros(len(CHANNELS), bool)
 
     def step(self, t, z_row) -> list:
         """Add one row of samples (NaN = absent); returns the new :class:`FaultEvent` s."""
         events = []
-        for i in np.flatnonzero(np.isfinite(z_row)):
-            b = self._buf[i]
-            b.append(float(z_row[i]))
-            if len(b) < self.window:
-                continue
-            a = np.asarray(b)
-            if ANGLE_CHANNELS[i]:
-                a = np.unwrap(a)
-            stat = float(np.var(a, ddof=1) * (self.window - 1) / self.sigmas[i] ** 2)
-            if not self.frozen[i] and stat < self.threshold:
+        z_row = np.asarray(z_row, float)
+        if not frozen_statistics(self._buf, self._count, z_row, self.sigmas, ANGLE_CHANNELS, self.frozen,
+                                 self.threshold, self._stats, self._change):
+            return events
+        for i in np.flatnonzero(self._change):
+            stat = float(self._stats[i])
+            if not self.frozen[i]:
                 self.frozen[i] = True
                 events.append(FaultEvent(t, FROZEN, CHANNELS[i], int(i), float(z_row[i]),
                                          f"(n-1) s^2/sigma^2 = {stat:.3g} < chi2.ppf({self.p_false:g}, "
                                          f"{self.window - 1}) = {self.threshold:.3g} over {self.window} samples"))
-            elif self.frozen[i] and stat > self.threshold:
+            else:
                 self.frozen[i] = False
                 events.append(FaultEvent(t, RECOVERED, CHANNELS[i], int(i), float(z_row[i]),
                                          f"(n-1) s^2/sigma^2 = {stat:.3g} back above {self.threshold:.3g}"))
@@ -217,22 +223,98 @@ class FrozenChannelDetector:
 
 # ----------------------------------------------------------------------------- thruster faults
 class _Window:
-    """One detection window: simulated state and, per step k = 0..n, the sensitivities Phi_k, G_k, C_k."""
+    """One finished detection window: simulated state and, per step k = 0..n, the sensitivities Phi_k, G_k, C_k.
 
-    def __init__(self, t0, x0, P0, nu):
-        self.t0 = t0
-        self.x0 = np.array(x0, float)
-        self.x = self.x0.copy()
-        self.P0 = np.array(P0, float)
-        self.Phi = [np.eye(12)]
-        self.G = [np.zeros((12, nu))]
-        self.C = [np.zeros((12, nu))]
-        self.f: list = []  # thrust used in the simulation per step (N)
-        self.rows: list = []  # (step k, channel, state, residual, measured value)
+    Attributes
+    ----------
+    t0 : float
+        Start time, s.
+    x0, P0 : ndarray
+        EKF estimate (12,) and covariance (12, 12) at the start.
+    Phi, G, C : ndarray
+        (n+1, 12, 12), (n+1, 12, nu), (n+1, 12, nu).
+    f : ndarray
+        (n, nu) thrust used in the simulation per step, N.
+    rows : list
+        (step k, channel, state, residual, measured value) per used sample, in time then channel order.
+    """
+
+    def __init__(self, t0, x0, P0, Phi, G, C, f, rows):
+        self.t0, self.x0, self.P0 = t0, np.array(x0, float), np.array(P0, float)
+        self.Phi, self.G, self.C, self.f, self.rows = Phi, G, C, f, rows
 
     @property
     def steps(self):
         return len(self.f)
+
+
+class _WindowBank:
+    """The open windows of :class:`ThrusterFaultDetector`, propagated together: one call of the mapped,
+    compiled linearisation for all of them and batched products (the per-window Python loop cost ~0.1 ms each).
+
+    Slot arrays: state ``x`` (W, 12); histories ``Phi`` (W, n+1, 12, 12), ``G``, ``C`` (W, n+1, 12, nu),
+    thrusts ``F`` (W, n, nu); residuals ``E`` and measured values ``Z`` (W, n+1, 13), NaN where no sample.
+    """
+
+    def __init__(self, lin_map, n_slots, n, nu):
+        self.lin_map, self.W, self.n, self.nu = lin_map, n_slots, n, nu
+        self.active = np.zeros(n_slots, bool)
+        self.order = np.zeros(n_slots, np.int64)  # creation counter: windows finish oldest first
+        self.k = np.zeros(n_slots, np.int64)
+        self.t0 = np.zeros(n_slots)
+        self.x0 = np.zeros((n_slots, 12))
+        self.P0 = np.zeros((n_slots, 12, 12))
+        self.x = np.zeros((n_slots, 12))
+        self.Phi = np.zeros((n_slots, n + 1, 12, 12))
+        self.G = np.zeros((n_slots, n + 1, 12, nu))
+        self.C = np.zeros((n_slots, n + 1, 12, nu))
+        self.F = np.zeros((n_slots, n, nu))
+        self.E = np.full((n_slots, n + 1, len(CHANNELS)), np.nan)
+        self.Z = np.full((n_slots, n + 1, len(CHANNELS)), np.nan)
+        self._created = 0
+
+    def clear(self):
+        self.active[:] = False
+
+    def open(self, t, x_est, P_est):
+        free = np.flatnonzero(~self.active)
+        # a window is evaluated and closed before the next one opens, so ceil(window / stride) slots suffice;
+        # were none free, the oldest window would be dropped rather than stop the loop
+        w = int(free[0]) if free.size else int(np.argmin(self.order))
+        self.active[w] = True
+        self._created += 1
+        self.order[w] = self._created
+        self.k[w] = 0
+        self.t0[w] = t
+        self.x0[w] = x_est
+        self.P0[w] = P_est
+        self.x[w] = x_est
+        self.Phi[w, 0] = np.eye(12)
+        self.G[w, 0] = 0.0
+        self.C[w, 0] = 0.0
+        self.E[w] = np.nan
+        self.Z[w] = np.nan
+
+    def advance(self, fc, z_row, ch):
+        """One step of every open window with thrust ``fc``; residuals of the channels ``ch`` of ``z_row``."""
+        w = np.flatnonzero(self.active)
+        if w.size == 0:
+            return w
+        xn, A, B = self.lin_map(self.x.T, np.broadcast_to(fc[:, None], (self.nu, self.W)))
+        st = CHANNEL_STATE[ch]
+        propagate_windows(w, self.k, A.T, B.T, xn, fc, z_row, ch, st, ANGLE_CHANNELS[ch], self.x, self.Phi, self.G,
+                          self.C, self.F, self.E, self.Z)
+        return w
+
+    def window(self, w) -> _Window:
+        """Slot ``w`` as a :class:`_Window` (closes the slot)."""
+        self.active[w] = False
+        n = int(self.k[w])
+        steps, chans = np.nonzero(np.isfinite(self.E[w, :n + 1]))
+        rows = [(int(k), int(c), int(CHANNEL_STATE[c]), float(self.E[w, k, c]), float(self.Z[w, k, c]))
+                for k, c in zip(steps, chans)]
+        return _Window(float(self.t0[w]), self.x0[w], self.P0[w], self.Phi[w, :n + 1].copy(),
+                       self.G[w, :n + 1].copy(), self.C[w, :n + 1].copy(), self.F[w, :n].copy(), rows)
 
 
 class ThrusterFaultDetector:
@@ -292,8 +374,11 @@ class ThrusterFaultDetector:
         self.margin = float(chi2.isf(self.p_false, 1))
         self.min_fault_N, self.dead_band_N = float(min_fault_N), float(dead_band_N)
         self.outlier_sigma, self.max_cost = float(outlier_sigma), float(max_cost)
-        self.lin = maybe_compiled(linearization_function(params, self.dt), params, self.dt, compile=compile)
-        self._windows: list[_Window] = []
+        lin = linearization_function(params, self.dt)
+        self.lin = CompiledFunction(lin, params, self.dt, compile=compile)
+        n_slots = -(-self.window_steps // self.stride_steps)  # open windows never exceed ceil(window / stride)
+        self._bank = _WindowBank(CompiledFunction(lin.map(n_slots), params, self.dt, "map", n_slots, compile=compile),
+                                 n_slots, self.window_steps, self.nu)
         self._k = 0
         self.gain = np.ones(self.nu)  # thruster models: produced = gain * command + offset (gain 0 if faulty)
         self.offset = np.zeros(self.nu)
@@ -303,7 +388,7 @@ class ThrusterFaultDetector:
     def correct(self, f_cmd) -> np.ndarray:
         """Thrust the thrusters produce for the command ``f_cmd`` (N), with the detected faults applied."""
         f = self.gain * np.asarray(f_cmd, float) + self.offset
-        return np.clip(f, self.params.f_min, self.params.f_max)
+        return np.minimum(np.maximum(f, self.params.f_min), self.params.f_max)  # np.clip, without its overhead
 
     def step(self, t, f_cmd, z_row, x_est, P_est, exclude=None) -> list:
         """One period: ``f_cmd`` (N) was commanded over the last ``dt``; ``z_row`` (13,) sampled at ``t`` (s);
@@ -313,39 +398,23 @@ class ThrusterFaultDetector:
         """
         events = []
         f = np.asarray(f_cmd, float)
+        z_row = np.asarray(z_row, float)
         ok = np.isfinite(z_row) if exclude is None else np.isfinite(z_row) & ~np.asarray(exclude, bool)
         ch = np.flatnonzero(ok)
-        done = []
+        bank = self._bank
         if np.all(np.isfinite(f)):
-            fc = self.correct(f)
-            for win in self._windows:
-                xn, A, B = self.lin(win.x, fc)
-                A, B = A.full(), B.full()
-                win.x = xn.full().ravel()
-                win.Phi.append(A @ win.Phi[-1])
-                win.G.append(A @ win.G[-1] + B)
-                win.C.append(A @ win.C[-1] + B * fc)
-                win.f.append(fc)
-                if ch.size:
-                    st = CHANNEL_STATE[ch]
-                    e = z_row[ch] - win.x[st]
-                    ang = ANGLE_CHANNELS[ch]
-                    e[ang] = wrap_angle(e[ang])
-                    win.rows += [(win.steps, int(c), int(s), float(ei), float(zi))
-                                 for c, s, ei, zi in zip(ch, st, e, z_row[ch])]
-                if win.steps >= self.window_steps:
-                    done.append(win)
+            w = bank.advance(self.correct(f), z_row, ch)
+            done = w[bank.k[w] >= self.window_steps]
+            for slot in done[np.argsort(bank.order[done])]:
+                ev = self._evaluate(t, bank.window(slot))
+                if ev is not None:
+                    events.append(ev)
+                    bank.clear()  # restart with the faulty thruster's identified model
+                    break
         else:  # a non-finite command: the windows cannot be simulated
-            self._windows = []
-        for win in done:
-            self._windows.remove(win)
-            ev = self._evaluate(t, win)
-            if ev is not None:
-                events.append(ev)
-                self._windows = []  # restart with the faulty thruster's identified model
-                break
+            bank.clear()
         if self._k % self.stride_steps == 0 and np.all(np.isfinite(x_est)) and np.all(np.isfinite(P_est)):
-            self._windows.append(_Window(t, x_est, P_est, self.nu))
+            bank.open(t, x_est, P_est)
         self._k += 1
         return events
 
@@ -402,8 +471,7 @@ class ThrusterFaultDetector:
                 if step >= k0:
                     f[i] = a
                 xn, A, B = self.lin(x, f)
-                A, B = A.full(), B.full()
-                x = xn.full().ravel()
+                x = xn.copy()
                 X.append(x)
                 Phi.append(A @ Phi[-1])
                 Gi.append(A @ Gi[-1] + (B[:, i] if step >= k0 else 0.0))
@@ -424,9 +492,9 @@ class ThrusterFaultDetector:
         st = np.array([r[2] for r in win.rows])
         e = np.array([r[3] for r in win.rows])
         sw = np.sqrt(self.w[chans])
-        Phi = np.stack(win.Phi)  # (n+1, 12, 12)
-        G, C = np.stack(win.G), np.stack(win.C)  # (n+1, 12, nu)
-        F = np.array(win.f)  # (n, nu)
+        Phi = np.asarray(win.Phi)  # (n+1, 12, 12)
+        G, C = np.asarray(win.G), np.asarray(win.C)  # (n+1, 12, nu)
+        F = np.asarray(win.f)  # (n, nu)
         Prow, Grow, Crow = Phi[k, st], G[k, st], C[k, st]  # (m, 12), (m, nu), (m, nu)
         P0 = 0.5 * (win.P0 + win.P0.T) + 1e-12 * np.eye(12)
         prior = np.linalg.cholesky(np.linalg.inv(P0)).T  # prior' prior = P0^-1
@@ -438,8 +506,10 @@ class ThrusterFaultDetector:
         Pinv = prior.T @ prior
         after = (k[:, None] > np.arange(no)[None, :]).astype(float)  # (m, no): row after onset k0
         # candidate columns for every (thruster i, onset k0): sensitivity g and command contribution c (m, nu, no)
-        Gc = (Grow[:, :, None] - np.einsum("mj,ojn->mno", Prow, vG)) * after[:, None, :]
-        Cc = (Crow[:, :, None] - np.einsum("mj,ojn->mno", Prow, vC)) * after[:, None, :]
+        # Prow @ v for every onset as one BLAS product: (m, 12) @ (12, no * nu) -> (m, nu, no)
+        pv = (Prow @ np.concatenate([vG, vC], axis=2).transpose(1, 0, 2).reshape(12, -1)).reshape(len(k), no, 2, -1)
+        Gc = (Grow[:, :, None] - pv[:, :, 0].transpose(0, 2, 1)) * after[:, None, :]
+        Cc = (Crow[:, :, None] - pv[:, :, 1].transpose(0, 2, 1)) * after[:, None, :]
         keep = np.ones(len(e), bool)
         for _ in range(2):  # second pass without the outliers of the best explanation (spikes)
             lam, a_all, var_all, theta0 = self._glr(Prow[keep], e[keep], sw[keep] ** 2, Pinv,

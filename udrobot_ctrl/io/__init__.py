@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from udrobot_ctrl.autopilot.motors import MotorParameters, fit_directions, frame, throttle_bidirectional
+from udrobot_ctrl.autopilot.params import ESTIMATED_PARAMS, gain_log_params
 from udrobot_ctrl.io.runlog import Run, read_run
 
 from . import mavlink, qgc_csv, rosbag, rostopic_csv
@@ -213,7 +214,6 @@ def estimate_autopilot_gains(path, run: Run, params: dict) -> str:
     if "ATC_RAT_RLL_P" in params and "PSC_ACCZ_P" in params:
         return ""
     # local import: validate reads dataflash through this package (io.mavlink), which must be initialised first
-    from udrobot_ctrl.autopilot.params import ESTIMATED_PARAMS, gain_log_params
     from udrobot_ctrl.autopilot.validate import fitted_parameters, read_log
     try:
         fitted = gain_log_params(fitted_parameters(read_log(path)))

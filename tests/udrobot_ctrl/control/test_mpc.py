@@ -72,10 +72,10 @@ def test_heading_wraps_the_short_way(cls):
 
 
 def test_linear_mpc_first_move_matches_exact_qp():
-    """Default tolerances give a first move within 0.1 N of a 1e-10 OSQP solve of the same QP."""
+    """Default OSQP tolerances give a first move within 0.1 N of a 1e-10 OSQP solve of the same QP."""
     v = load_model(DESIGN)
-    fast = LinearMPC(v, _reference, horizon=20)
-    exact = LinearMPC(v, _reference, horizon=20,
+    fast = LinearMPC(v, _reference, horizon=20, solver="osqp")
+    exact = LinearMPC(v, _reference, horizon=20, solver="osqp",
                       settings=OSQPSettings(eps_abs=1e-10, eps_rel=1e-10, polishing=True, max_iter=200000))
     rng = np.random.default_rng(3)
     for i in range(5):
@@ -104,13 +104,14 @@ def test_rti_converges_to_ipopt_solution():
     np.testing.assert_allclose(f_rti, f_ipopt, atol=0.05)
 
 
-@pytest.mark.parametrize("kind", ["lmpc", "rti", "ipopt"])
+@pytest.mark.parametrize("kind", ["lmpc", "lmpc-osqp", "rti", "ipopt"])
 def test_failed_solve_falls_back_without_raising(kind):
     v = load_model(DESIGN)
     p = plant_parameters(v)
     kw = {"horizon": 8}
-    if kind == "lmpc":
-        make = lambda **k: LinearMPC(v, {"z": 1.0}, **kw, **k)  # noqa: E731
+    if kind.startswith("lmpc"):
+        solver = "osqp" if kind == "lmpc-osqp" else "dense"
+        make = lambda **k: LinearMPC(v, {"z": 1.0}, solver=solver, **kw, **k)  # noqa: E731
     else:
         make = lambda **k: NonlinearMPC(v, {"z": 1.0}, method=kind, **kw, **k)  # noqa: E731
     with warnings.catch_warnings():
@@ -149,10 +150,12 @@ def _make(kind, reference, **kw):
     v = load_model(DESIGN)
     if kind == "lmpc":
         return LinearMPC(v, reference, **kw)
+    if kind == "lmpc-osqp":
+        return LinearMPC(v, reference, solver="osqp", **kw)
     return NonlinearMPC(v, reference, method=kind, **kw)
 
 
-@pytest.mark.parametrize("kind", ["lmpc", "rti", "ipopt"])
+@pytest.mark.parametrize("kind", ["lmpc", "lmpc-osqp", "rti", "ipopt"])
 def test_poisoned_states_cost_only_their_own_calls(kind):
     """Issue 16: one 1e44 state (an EKF that swallowed a 300 m depth spike) made every later solve fall back.
     Now the poisoned calls fall back (previous plan) and every sane call before and after solves."""
@@ -178,7 +181,7 @@ def test_poisoned_states_cost_only_their_own_calls(kind):
     assert ctrl.stats["fallbacks"] == len(poison) and ctrl.stats["solves"] == n_calls
 
 
-@pytest.mark.parametrize("kind", ["lmpc", "rti"])
+@pytest.mark.parametrize("kind", ["lmpc", "lmpc-osqp", "rti"])
 def test_qp_data_is_validated_before_it_reaches_osqp(kind, monkeypatch):
     """Second line of defence: with the plausibility envelope switched off, a 1e44 state makes non-finite or
     1e30-scale QP data, which must be refused before OSQP (which would keep its old data and 'solve' it)."""
@@ -201,7 +204,7 @@ def test_qp_data_is_validated_before_it_reaches_osqp(kind, monkeypatch):
     assert ctrl.stats["fallbacks"] == 1 and ctrl.stats["solver_resets"] == 1
 
 
-@pytest.mark.parametrize("kind", ["lmpc", "rti"])
+@pytest.mark.parametrize("kind", ["lmpc", "lmpc-osqp", "rti"])
 def test_infeasible_solve_then_feasible_state_solves_again(kind):
     """An infeasible QP (depth ceiling 0.5 m, vehicle at 2 m) falls back; the next feasible state solves."""
     ctrl = _make(kind, {"z": 0.3}, horizon=10, state_bounds={"z": (0.0, 0.5)})
@@ -217,7 +220,7 @@ def test_infeasible_solve_then_feasible_state_solves_again(kind):
 
 def test_reset_solver_clears_diverged_iterates():
     """Diverged ADMM iterates (huge primal/dual, rho blown up) are forgotten by reset_solver."""
-    ctrl = LinearMPC(load_model(DESIGN), {"z": 1.0}, horizon=20)
+    ctrl = LinearMPC(load_model(DESIGN), {"z": 1.0}, horizon=20, solver="osqp")
     x = np.zeros(12)
     x[2] = 0.8
     ctrl.build_qp(0.0, x)
@@ -233,7 +236,7 @@ def test_reset_solver_clears_diverged_iterates():
     np.testing.assert_allclose(qp.split(z)[1][0], qp.split(z_ref)[1][0], atol=0.1)
 
 
-@pytest.mark.parametrize("kind", ["lmpc", "rti", "ipopt"])
+@pytest.mark.parametrize("kind", ["lmpc", "lmpc-osqp", "rti", "ipopt"])
 def test_thruster_reconfiguration_after_a_fault(kind):
     """set_thruster_limits(j, a, a): the plan holds thruster j at a (dead: 0 N, stuck: a) and the others take
     over; the depth step still asks both vertical thrusters before, only thruster 3 after thruster 2 died."""
