@@ -23,6 +23,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
+from udrobot_ctrl.autopilot.fly import fly
 from udrobot_ctrl.dynamics import effects as fx
 from udrobot_ctrl.dynamics.plant import plant_parameters, state_derivative
 from udrobot_ctrl.dynamics.sim import Actuators, integrate_intervals, rk4_step
@@ -58,6 +59,13 @@ def register(subparsers):
     parser.add_argument("--method", choices=("rk4", "solve_ivp"), default="rk4",
                         help="integrator: fixed-step RK4 sub-steps (default) or scipy solve_ivp (adaptive)")
     parser.add_argument("--max-step", type=float, default=0.01, help="largest RK4 sub-step, s (default 0.01)")
+    parser.add_argument("--closed-loop", action="store_true",
+                        help="fly the model under the emulated ArduSub autopilot from the run's logged pilot inputs, "
+                             "modes and targets instead of replaying its logged motor outputs (an ArduSub run "
+                             "converted from .bin/.tlog, a model with an ArduSub frame: bluerov2, bluerov2-heavy)")
+    parser.add_argument("--loop-rate", type=float, default=None, metavar="HZ",
+                        help="with --closed-loop: the autopilot's loop rate (default: the log's SCHED_LOOP_RATE, "
+                             "else ArduSub's 400 Hz)")
     parser.add_argument("--mapping", default=None, help="mapping for non-udrobot-run logs (see convert)")
     parser.add_argument("--force", action="store_true", help="replace an existing output run (never an input)")
     parser.set_defaults(func=run)
@@ -222,6 +230,9 @@ def _format_gap(g: WindowedGap) -> str:
         tag = "scored" if c in g.scored else ("undefined: " + g.undefined[c] if c in g.undefined else "not scored: "
                                               "did not move above its noise")
         lines.append(f"  {c:<6s} {v:10.6f}  {tag}")
+    if any(g.diverged.values()):
+        lines.append("diverged windows (their remaining samples score the error cap): " + ", ".join(
+            f"{run} {n} of {g.windows.get(run, 0)}" for run, n in g.diverged.items() if n))
     return "\n".join(lines)
 
 
@@ -258,6 +269,40 @@ def run_windows(args) -> int:
     return 0
 
 
+def run_closed_loop(args) -> int:
+    """``--closed-loop``: fly ``args.model`` under the emulated ArduSub from the run's logged pilot inputs and modes."""
+    if len(args.input) != 1:
+        raise ValueError(f"--closed-loop flies one --input run, got {len(args.input)}")
+    src, out = Path(args.input[0]), Path(args.out)
+    if not src.exists():
+        raise FileNotFoundError(f"input run {src} does not exist")
+    inputs = [src, *spec_files(args.model, getattr(args, "mapping", None))]
+    check_outputs(run_files(out), inputs, force=getattr(args, "force", False), option="--out")
+    if args.loop_rate is not None and not 10.0 <= args.loop_rate <= 2000.0:
+        raise ValueError(f"--loop-rate must be between 10 and 2000 Hz (ArduSub runs 100-400 Hz), got {args.loop_rate}")
+    rn = read_input_run(src, getattr(args, "mapping", None))
+    flight = fly(args.model, rn, args.loop_rate)
+    for note in flight.notes:
+        print(note)
+    channels = {name: flight.x[:, i] for i, name in enumerate(STATE_NAMES)}
+    runlog.write_run(out, flight.t, channels, "pwm", flight.pwm, protect=inputs,
+                     extra={"mode": flight.mode.astype(float)})
+    logged = runlog.resample(rn, rn.t[0] + flight.t)
+    lines = []
+    for name in ("z", "phi", "theta", "psi", "u", "v", "w"):
+        meas = logged.channels.get(name)
+        if meas is None or not np.isfinite(meas).any():
+            continue
+        err = flight.x[:, STATE_NAMES.index(name)] - meas
+        if name in ("phi", "theta", "psi"):
+            err = np.angle(np.exp(1j * err))
+        lines.append(f"{name} {np.sqrt(np.nanmean(err ** 2)):.3g}")
+    print(f"closed-loop flight against the log (RMS error, m, rad, m/s): {', '.join(lines)}")
+    print(f"wrote {out}: {flight.t.size} rows, {flight.t[-1]:.3f} s flown under the emulated ArduSub "
+          f"(pwm_i are its motor outputs)")
+    return 0
+
+
 def run(args) -> int:
     """Replay ``args.input`` through ``args.model`` and write ``args.out`` (or ``--windows``: score the gap)."""
 
@@ -267,6 +312,10 @@ def run(args) -> int:
         raise ValueError("--json writes the gap of a windowed replay; add --windows")
     if args.out is None:
         raise ValueError("--out is required (the simulated run), unless --windows scores the gap")
+    if getattr(args, "closed_loop", False):
+        return run_closed_loop(args)
+    if getattr(args, "loop_rate", None) is not None:
+        raise ValueError("--loop-rate sets the emulated autopilot's rate; add --closed-loop")
     if len(args.input) != 1:
         raise ValueError(f"the open-loop replay takes one --input run, got {len(args.input)} "
                          f"(--windows scores several)")

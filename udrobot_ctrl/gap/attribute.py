@@ -440,7 +440,10 @@ class Attributor:
         parameters whose ends are physical forms (``Effect.physical_ends``: a thrust exponent of 1 or 2) are not
         checked, nor those the refinement holds at their grid value (a zero ``refine_step``: a tether's walking or
         taut form). The other shape parameters are checked against the effect's search bounds, amplitudes against
-        their design bounds, within ``rel`` of the smaller of the range's width and the bound's magnitude.
+        their design bounds (except those whose ends are physical forms, ``Effect.physical_amplitudes``: a dead
+        band's shift of 1, the thrust continuous from the band's edge), within ``rel`` of the smaller of the range's
+        width and the bound's magnitude. A confirmed effect found here is not significant
+        (:func:`udrobot_ctrl.gap.report.set_aside_at_bound`).
         """
         eff = self.cat[name]
         shape = fit.shapes[name]
@@ -453,7 +456,8 @@ class Attributor:
         d = self.design(name, shape)
         active = np.einsum("nik,nik->k", d.A[:, self.dofs], d.A[:, self.dofs]) > 0
         checks += [(an, fit.params[name].get(an), lo, hi)
-                   for an, lo, hi, on in zip(d.names, d.lower, d.upper, active) if on]
+                   for an, lo, hi, on in zip(d.names, d.lower, d.upper, active)
+                   if on and an not in eff.physical_amplitudes]
         for pname, value, lo, hi in checks:
             if value is None or not np.isfinite(value):
                 continue
@@ -808,7 +812,10 @@ def forward_select(att: Attributor, att_h: Attributor, names=None, max_effects=4
     raises the holdout equation-error likelihood by a ratio above ``HOLDOUT_CHI2``. Each step ranks the remaining
     effects with the selected ones' shapes held and, once a selected effect has a free shape, picks among the
     ``REFIT_CONTENDERS`` best by a joint fit of all shapes (:func:`refit`) and adds the pick with every shape
-    refitted (its trial; see ``REFIT_CONTENDERS``).
+    refitted (its trial; see ``REFIT_CONTENDERS``). When the pick fails either test, the other effects are tried
+    in BIC order (each whose grid fit passes both tests, refined or refitted, then tested again), and the first that
+    passes is added: the selection stops only when no remaining effect passes, so one effect that the holdout
+    rejects (a CG-CB offset fitted on a bench log) does not hide another that both support.
 
     Parameters
     ----------
@@ -848,18 +855,37 @@ def forward_select(att: Attributor, att_h: Attributor, names=None, max_effects=4
             trials = {n: refit(att, [*selected, n], {**current.shapes, n: cands[n].shapes[n]})
                       for n in ranked[:REFIT_CONTENDERS]}
             best = min(trials, key=lambda n: att.bic(trials[n]))
-        fbest = trials[best] if best in trials else att.best_shape(best, fixed, refine=True)
-        d_bic = att.bic(fbest) - cur_bic
-        lr = holdout_lr(att_h, current, fbest)
-        ok = d_bic < -BIC_STRONG and lr > HOLDOUT_CHI2
-        steps.append(SelectionStep(best, float(d_bic), float(lr), bool(ok)))
-        if log:
-            log(f"  forward step {len(steps)}: {best} dBIC {d_bic:.1f}, holdout LR {lr:.1f} -> "
-                f"{'candidate' if ok else 'stop'}")
-        if not ok:
+        # the pick first, then (when it fails) the rest in BIC order whose grid fit passes both tests: one effect the
+        # holdout rejects must not hide another that the fit runs and the holdout both support
+        order = [best] + [n for n in ranked if n != best]
+        added = None
+        for n in order:
+            if n != best and not (att.bic(cands[n]) - cur_bic < -BIC_STRONG
+                                  and holdout_lr(att_h, current, cands[n]) > HOLDOUT_CHI2):
+                continue
+            if n in trials:
+                fit_n = trials[n]
+            elif trials:
+                fit_n = refit(att, [*selected, n], {**current.shapes, n: cands[n].shapes[n]})
+            else:
+                fit_n = att.best_shape(n, fixed, refine=True)
+            d_bic = att.bic(fit_n) - cur_bic
+            lr = holdout_lr(att_h, current, fit_n)
+            ok = d_bic < -BIC_STRONG and lr > HOLDOUT_CHI2
+            steps.append(SelectionStep(n, float(d_bic), float(lr), bool(ok)))
+            if log:
+                log(f"  forward step {len(steps)}: {n} dBIC {d_bic:.1f}, holdout LR {lr:.1f} -> "
+                    f"{'candidate' if ok else 'not added'}")
+            if ok:
+                added = (n, fit_n)
+                break
+        if added is None:
+            if log:
+                log("  forward selection stops: no remaining effect lowers the fit-run BIC by more than "
+                    f"{BIC_STRONG:g} and raises the holdout likelihood by a ratio above {HOLDOUT_CHI2:g}")
             break
-        selected.append(best)
-        current, cur_bic = fbest, att.bic(fbest)
+        selected.append(added[0])
+        current, cur_bic = added[1], att.bic(added[1])
     return Selection(nominal=nominal, singles=singles, delta_bic=delta, steps=tuple(steps), tau_int=tau,
                      n_eff=att.n_eff, candidates=finalize(att, selected, names, current))
 

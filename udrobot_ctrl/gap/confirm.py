@@ -72,7 +72,7 @@ class Replay:
 
     members: tuple
     gap: GapScore
-    sims: list  # (n, 15) per holdout run: state and specific force (shrink.simulate_windows)
+    sims: list  # (n, 16) per holdout run: state, specific force and window column (shrink.simulate_windows)
 
 
 @dataclass(frozen=True)
@@ -230,12 +230,19 @@ class Alone:
     shrink: float  # 1 - gap with it alone / gap_before
     w: float  # Wilcoxon signed-rank statistic W+ (nominal against alone)
     p: float
+    diverged: int = 0  # holdout windows its replay diverged in, beyond those the nominal replay diverged in
 
     @property
     def passed(self) -> bool:
-        return self.shrink > REPLAY_MATERIAL
+        """It shrinks the gap by more than ``REPLAY_MATERIAL``, and its replay diverges in no window the nominal
+        replay holds (a replay that blows up cannot be scored on the windows that survive)."""
+        return self.shrink > REPLAY_MATERIAL and self.diverged <= 0
 
     def reason(self) -> str:
+        if self.diverged > 0:
+            return (f"on its own its holdout replay diverges in {self.diverged} window"
+                    f"{'s' if self.diverged > 1 else ''} (shrink {self.shrink:+.3g}, the diverged samples scored at "
+                    f"the error cap)")
         return (f"on its own it does not shrink the holdout gap by more than {100 * REPLAY_MATERIAL:g}% "
                 f"(shrink {self.shrink:+.3f})")
 
@@ -247,7 +254,8 @@ def alone_tests(preps, nominal: Replay, singles: dict, window_s) -> dict:
     for n, r in singles.items():
         t, pval = paired_rise(e0, window_energy(preps, r.sims, r.gap, window_s))
         b = nominal.gap.value
-        out[n] = Alone((1 - r.gap.value / b) if b > 0 else 0.0, t, pval)
+        out[n] = Alone((1 - r.gap.value / b) if b > 0 else 0.0, t, pval,
+                       max(r.gap.n_diverged - nominal.gap.n_diverged, 0))
     return out
 
 
@@ -291,7 +299,9 @@ class MemberTest:
 
     @property
     def passed_alone(self) -> bool:
-        return self.alone is None or self.alone.passed or self.interacting
+        """Alone it shrinks the gap (or it interacts with a partner); an effect whose replay alone diverges in a
+        window fails whatever it does in the set."""
+        return self.alone is None or (self.alone.diverged <= 0 and (self.alone.passed or self.interacting))
 
     @property
     def passed(self) -> bool:
@@ -324,6 +334,8 @@ class MemberTest:
                "windows_p": self.windows_p, "passed": self.passed}
         if self.alone is not None:
             out |= {"alone_shrink": self.alone.shrink, "alone_w": self.alone.w, "alone_p": self.alone.p}
+            if self.alone.diverged:
+                out["alone_diverged_windows"] = self.alone.diverged
         return out
 
 

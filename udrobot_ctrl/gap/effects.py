@@ -202,6 +202,9 @@ class Effect:
     #: shape parameters whose range ends are physical forms (an exponent 1 or 2), not limits of the search: a fit
     #: there is not "at the edge of the catalogue's range"
     physical_ends: tuple = ()
+    #: amplitude parameters whose range ends are physical forms (a dead band's ``shift``: 0 the hard band, 1 the
+    #: thrust continuous from the band's edge), likewise not "at the edge of the catalogue's range" there
+    physical_amplitudes: tuple = ()
     #: its regressors read the thrust the actuators deliver, i.e. after the input filters of the other effects in a
     #: set (the plant applies an inflow loss to the lagged thrust): see :meth:`command_filter`
     reads_delivered: ClassVar[bool] = False
@@ -740,7 +743,8 @@ def catalogue() -> dict:
                    excited_by="thrust while the vehicle moves along a thruster's axis"),
         Deadband("thruster_deadband", "small commands produce no thrust", ("width_fraction", "command_exponent"),
                  db_grid, ((0.005, 0.35), pfx.EXPONENT_RANGE), refine=True, excited_by=THRUSTERS_MOVING,
-                 physical_ends=("command_exponent",)),
+                 physical_ends=("command_exponent",),
+                 physical_amplitudes=("shift", *(f"shift_{k}" for k in DOF))),
         Asymmetry("thruster_asymmetry", "reverse thrust weaker than modelled, relative to forward",
                   excited_by="thruster commands of both signs (reverse thrust on an armed thruster)"),
         Lag("thruster_lag", "thrust follows the command with a first-order lag", ("T_lag_s", "thrust_exponent"),

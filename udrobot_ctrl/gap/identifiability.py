@@ -412,7 +412,8 @@ class Restricted(fx.Effect):
 
     def __init__(self, inner: fx.Effect, frozen, forms=None):
         super().__init__(inner.name, inner.meaning, inner.shape_names, inner.shape_grid, inner.shape_bounds,
-                         inner.refine, inner.mimics, inner.excited_by, inner.physical_ends)
+                         inner.refine, inner.mimics, inner.excited_by, inner.physical_ends,
+                         inner.physical_amplitudes)
         self.inner = inner
         self.reads_delivered, self.maps_command = inner.reads_delivered, inner.maps_command
         self.frozen = tuple(frozen)
@@ -635,8 +636,10 @@ def _forms(eff, stack, stacks, sigma, observed, top) -> dict:
         if ok1 == ok2 or not (ok1 < ok2 or ok2 < ok1):
             continue  # the same parameters in both forms, or neither form better: the search keeps both
         good, bad, lost = (e2, c1, ok2 - ok1) if ok1 < ok2 else (e1, c2, ok1 - ok2)
-        if any(not bad[n].share >= SHARE_MIN for n in lost):
-            continue  # the other form acts elsewhere (less in the observed DOFs), it does not hinge on a reconstruction
+        if any(n not in bad or not bad[n].share >= SHARE_MIN for n in lost):
+            # the other form acts elsewhere (less in the observed DOFs), it does not hinge on a reconstruction; or
+            # its checks group the parameters differently (a shape that leaves one of them without a regressor)
+            continue
         causes = tuple(dict.fromkeys(x for n in sorted(lost) for x in bad[n].causes))
         shares = [bad[n].dof_share for n in sorted(lost) if len(bad[n].dof_share) == 6]
         out[k] = FormCheck(good, e1 if good == e2 else e2, causes,

@@ -402,6 +402,21 @@ def _regime_condition(c, per_run):
     return regimes, cond
 
 
+def _force_windows(preps, residuals, i) -> tuple:
+    """(worst windows [[t0, t1], ...] s, run name) of DOF ``i``'s equation-error residual force, in the run where its
+    squared residual sums largest; ([], "") without residuals."""
+    best = None
+    for prep, res in zip(preps, residuals or ()):
+        if res is None or not np.isfinite(res[:, i]).any():
+            continue
+        e2 = np.where(np.isfinite(res[:, i]), res[:, i], 0.0) ** 2
+        if best is None or e2.sum() > best[0]:
+            best = (float(e2.sum()), prep, e2)
+    if best is None or not best[0] > 0:
+        return [], ""
+    return _windows(best[1].t, best[2], best[1].dt), best[1].name
+
+
 def _frequency_detail(preps, residuals):
     acc = {}
     for prep, res in zip(preps, residuals):
@@ -464,8 +479,8 @@ def locate(preps, sims, scale, floor, residuals=None, p=None, min_share=0.1) -> 
             best_run = max(per_run[c], key=lambda x: x[0])
             regimes, cond = _regime_condition(c, per_run[c])
             windows, run = _windows(best_run[1].t, best_run[2], best_run[1].dt), best_run[1].name
-        else:  # a DOF whose velocity channel is not replayed (derived or unlogged)
-            regimes, cond, windows, run = {}, None, [], ""
+        else:  # a DOF whose velocity channel is not replayed (derived or unlogged): its residual force's windows
+            regimes, cond, windows, run = {}, None, *_force_windows(preps, residuals, VEL.index(c))
         i = VEL.index(c)
         locations.append(Location(
             channel=c, share=sh, nrmse=nrmse.get(c, float("nan")), floor=floor.get(c, float("nan")),

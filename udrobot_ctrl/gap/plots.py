@@ -1,4 +1,9 @@
-"""Figures of a diagnosis: residuals per channel with located windows shaded; simulated vs measured."""
+"""Figures of a diagnosis: residuals per channel with the located windows shaded; simulated vs measured.
+
+The replay columns of a channel (:data:`COLUMN`): the state for ``u v w p q r z phi theta psi``, the specific force
+for the accelerometer ``ax ay az`` (scored on runs without a DVL), compared with the measurement minus the
+accelerometer bias the smoother estimated.
+"""
 from __future__ import annotations
 
 import re
@@ -6,13 +11,34 @@ from pathlib import Path
 
 from matplotlib.figure import Figure
 
-from udrobot_ctrl.gap.shrink import errors
+from udrobot_ctrl.gap.shrink import ACCEL, accel_bias, errors
 from udrobot_ctrl.io.files import save_figure
 from udrobot_ctrl.vehicle import STATE_INDEX
 
-# units of the state channels (udrobot-run/1): positions m, angles rad, velocities m/s and rad/s
+# units of the channels (udrobot-run/1): positions m, angles rad, velocities m/s and rad/s, specific force m/s^2
 UNITS = {"x": "m", "y": "m", "z": "m", "phi": "rad", "theta": "rad", "psi": "rad", "u": "m/s", "v": "m/s",
-         "w": "m/s", "p": "rad/s", "q": "rad/s", "r": "rad/s"}
+         "w": "m/s", "p": "rad/s", "q": "rad/s", "r": "rad/s", "ax": "m/s^2", "ay": "m/s^2", "az": "m/s^2"}
+#: channel -> its column in a replay (:func:`udrobot_ctrl.gap.shrink.simulate_windows`)
+COLUMN = {**STATE_INDEX, **{c: 12 + j for j, c in enumerate(ACCEL)}}
+
+
+def measured(prep, c):
+    """The measurement a replay's channel ``c`` is scored against: the logged value, the accelerometer minus the
+    smoother's bias estimate (:func:`udrobot_ctrl.gap.shrink.accel_bias`)."""
+    bias = accel_bias(prep)
+    if c in ACCEL and bias is not None:
+        return prep.meas[c] - bias[ACCEL.index(c)]
+    return prep.meas[c]
+
+
+def located_windows(report) -> dict:
+    """Run name -> [(t0, t1, channel), ...]: the worst windows of each located channel (the report's
+    ``location``), in the run they were found in."""
+    out = {}
+    for loc in report["location"]:
+        for a, b in loc.get("windows") or []:
+            out.setdefault(loc["run"], []).append((a, b, loc["channel"]))
+    return out
 
 
 def file_label(run_name: str) -> str:
@@ -34,35 +60,42 @@ def write_plots(ctx, report, outdir, protect=()):
     out = Path(outdir)
     out.mkdir(parents=True, exist_ok=True)
     paths = []
-    windows = {}
-    for loc in report["location"]:
-        windows.setdefault(loc["run"], []).extend(loc["windows"])
+    windows = located_windows(report)
     for prep, sim in zip(ctx.preps, ctx.nominal_sims):
         err = errors(prep, sim)
         chans = list(err)
+        if not chans:
+            continue
+        spans = windows.get(prep.name, [])
         fig = Figure(figsize=(10, 1.6 * len(chans) + 1))
         axes = fig.subplots(len(chans), 1, sharex=True, squeeze=False)
         for ax, c in zip(axes[:, 0], chans):
             ax.plot(prep.t, err[c], lw=0.7)
             ax.set_ylabel(f"{c} sim - meas\n({UNITS.get(c, '')})")
-            for a, b in windows.get(prep.name, []):
-                ax.axvspan(a, b, color="orange", alpha=0.25)
+            for a, b, _ in spans:
+                ax.axvspan(a, b, color="orange", alpha=0.35, lw=0)
+        for a, b, c in spans:  # which located channel each window is the worst of
+            axes[0, 0].annotate(c, ((a + b) / 2, 1.0), xycoords=("data", "axes fraction"), ha="center",
+                                va="bottom", fontsize=7, color="darkorange")
         axes[-1, 0].set_xlabel("t (s)")
-        fig.suptitle(f"nominal model residuals, {prep.name} (located windows shaded)")
+        shaded = (f"the located channels' worst windows shaded: {', '.join(dict.fromkeys(c for *_, c in spans))}"
+                  if spans else "no located window in this run")
+        fig.suptitle(f"nominal model residuals, {prep.name} ({shaded})")
         p = save_figure(fig, out / f"residuals_{file_label(prep.name)}.png", protect=protect, dpi=90)
         paths.append(p)
     n_fit = ctx.n_fit
     for prep, s0, s1 in zip(ctx.preps[n_fit:], ctx.nominal_sims[n_fit:], ctx.after_sims):
-        chans = [c for c in report["gap_before"]["scored"] if c in prep.meas]
+        chans = [c for c in report["gap_before"]["scored"] if c in prep.meas and c in COLUMN]
         if not chans:
             continue
         fig = Figure(figsize=(10, 1.6 * len(chans) + 1))
         axes = fig.subplots(len(chans), 1, sharex=True, squeeze=False)
         for ax, c in zip(axes[:, 0], chans):
-            ax.plot(prep.t, prep.meas[c], "k.", ms=1.5, label="measured")
-            ax.plot(prep.t, s0[:, STATE_INDEX[c]], lw=0.8, label="nominal")
+            ax.plot(prep.t, measured(prep, c), "k.", ms=1.5,
+                    label="measured" + (" (bias removed)" if c in ACCEL else ""))
+            ax.plot(prep.t, s0[:, COLUMN[c]], lw=0.8, label="nominal")
             if s1 is not s0:
-                ax.plot(prep.t, s1[:, STATE_INDEX[c]], lw=0.8, label="with significant effects")
+                ax.plot(prep.t, s1[:, COLUMN[c]], lw=0.8, label="with significant effects")
             ax.set_ylabel(f"{c} ({UNITS.get(c, '')})")
         axes[0, 0].legend(loc="upper right", fontsize=7)
         axes[-1, 0].set_xlabel("t (s)")

@@ -25,7 +25,7 @@ noise (and the seabed's unevenness) only.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -61,8 +61,14 @@ class WindowedGap:
         Channels whose NRMSE is undefined, and why.
     preps : tuple of Prepared
         The prepared runs.
-    sims : tuple of (n, 15) ndarray
-        Simulated states and specific force per run (shrink.simulate_windows), nan outside the windows.
+    sims : tuple of (n, 16) ndarray
+        Simulated states, specific force and window column per run (shrink.simulate_windows), nan outside the
+        windows.
+    windows : dict of str -> int
+        Run label -> windows replayed.
+    diverged : dict of str -> int
+        Run label -> windows whose replay diverged (non-finite, or out of the envelope: their remaining samples
+        score the channel's error cap, :data:`udrobot_ctrl.gap.shrink.ERROR_CAP`).
     """
 
     model: str
@@ -75,15 +81,19 @@ class WindowedGap:
     undefined: dict
     preps: tuple
     sims: tuple
+    windows: dict = field(default_factory=dict)
+    diverged: dict = field(default_factory=dict)
 
     def to_dict(self) -> dict:
-        """JSON form: the report's gap object (``metric``, ``value``, ``per_channel``, ``undefined``, ``scored``)
-        plus ``model``, ``effects``, ``runs`` and ``window_s``; undefined numbers become null."""
+        """JSON form: the report's gap object (``metric``, ``value``, ``per_channel``, ``undefined``, ``scored``,
+        ``windows``, ``diverged_windows``) plus ``model``, ``effects``, ``runs`` and ``window_s``; undefined numbers
+        become null."""
         def num(v):
             return float(v) if v is not None and math.isfinite(v) else None
         return {"metric": "nrmse", "value": num(self.value),
                 "per_channel": {c: num(v) for c, v in self.per_channel.items()},
-                "undefined": dict(self.undefined), "scored": list(self.scored), "model": self.model,
+                "undefined": dict(self.undefined), "scored": list(self.scored), "windows": dict(self.windows),
+                "diverged_windows": dict(self.diverged), "model": self.model,
                 "effects": list(self.effects), "runs": list(self.runs), "window_s": self.window_s}
 
 
@@ -145,4 +155,4 @@ def windowed_gap(model, runs, window_s: float = 8.0, names=None, scored=None) ->
     return WindowedGap(model=vehicle.name, effects=tuple(e.name for e in vehicle.effects), runs=tuple(labels),
                        window_s=float(window_s), value=g.value, per_channel=g.per_channel,
                        scored=tuple(g.scored), undefined=dict(g.undefined), preps=tuple(preps),
-                       sims=tuple(sims))
+                       sims=tuple(sims), windows=dict(g.windows), diverged=dict(g.diverged))

@@ -17,7 +17,7 @@ import json
 import math
 import time
 from collections.abc import Mapping
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -55,7 +55,7 @@ from udrobot_ctrl.gap.confirm import (
     fitted_hooks,
     replay_sets,
 )
-from udrobot_ctrl.gap.data import prepare
+from udrobot_ctrl.gap.data import actuators, prepare
 from udrobot_ctrl.gap.effects import Actuation
 from udrobot_ctrl.gap.identifiability import Identifiability
 from udrobot_ctrl.gap.locate import Located, locate, noise_floor
@@ -328,7 +328,9 @@ class EffectVerdict:
     indistinguishable_from: tuple = ()  # (name, manoeuvre that separates them)
     wall: dict | None = None  # wall_effect only: {"matters_below_m", "matters_below"}
     not_identified: dict | None = None  # partly identified effects: {"params": [...], "reason": ...}
-    at_bound: dict | None = None  # significant effects: parameter -> (value, bound) of fits that ended on a bound
+    at_bound: dict | None = None  # parameter -> (value, bound) of a confirmed fit that ended on a bound
+    at_bound_reason: str | None = None  # why an effect at a bound is not significant
+    replay_diverged_windows: int = 0  # holdout windows its single-effect replay diverged in
 
     def to_json(self) -> dict:
         out = {"name": self.name, "significant": self.significant, "params": self.params, "shrink": self.shrink,
@@ -343,6 +345,10 @@ class EffectVerdict:
             out["not_identified"] = self.not_identified
         if self.at_bound:
             out["at_bound"] = {k: {"value": v, "bound": b} for k, (v, b) in self.at_bound.items()}
+        if self.at_bound_reason:
+            out["at_bound_reason"] = self.at_bound_reason
+        if self.replay_diverged_windows:
+            out["replay_diverged_windows"] = self.replay_diverged_windows
         return out
 
 
@@ -877,19 +883,26 @@ def _wall_entry(params, stack, p) -> dict:
                 "per_surface": per}}
 
 
-def effect_verdicts(inp: Inputs, stacks: Stacks, sel: Selection, elim: Elimination, shrink: Mapping) -> list:
+def effect_verdicts(inp: Inputs, stacks: Stacks, sel: Selection, elim: Elimination, shrink: Mapping,
+                    at_bound: Mapping | None = None, singles: Mapping | None = None) -> list:
     """Step 4, report: one :class:`EffectVerdict` per tested effect, the significant ones first (by shrink), then
-    the candidates the holdout dropped, then the rest."""
+    the confirmed effects set aside at a bound (``at_bound``: name -> :class:`AtBound`), then the candidates the
+    holdout dropped, then the rest. ``singles`` (name -> single-effect holdout Replay) gives the windows each
+    effect's replay alone diverged in."""
     kept, dropped, combo = elim.kept, elim.dropped, elim.combination
+    at_bound = dict(at_bound or {})
     shrink = dict(shrink.items())  # every effect's (an OnDemand replays the missing ones together)
+    diverged = {n: singles[n].gap.n_diverged for n in inp.names} if singles else {}
     steps = {s.effect: s for s in sel.steps}
     order = sorted(kept, key=lambda n: -shrink[n]) + sorted(
-        [n for n in inp.names if n not in kept], key=lambda n: (n not in dropped, -shrink[n]))
+        [n for n in inp.names if n not in kept], key=lambda n: (n not in at_bound, n not in dropped, -shrink[n]))
     out = []
     for n in order:
         significant = n in kept
         note = None
-        if n in dropped:
+        if n in at_bound:
+            note = at_bound[n].reason()
+        elif n in dropped:
             note = ("a forward-selection candidate, dropped by the backward check on the holdout: "
                     + dropped[n].reason() + ("; listed under unidentifiable: the replay lacks its parameters "
                                              "these channels cannot identify"
@@ -920,15 +933,46 @@ def effect_verdicts(inp: Inputs, stacks: Stacks, sel: Selection, elim: Eliminati
         out.append(EffectVerdict(
             name=n, significant=significant, params=combo.fit.params[n] if significant else {}, shrink=shrink[n],
             evidence=ev, meaning=inp.catalogue[n].meaning,
-            fitted_params_if_added=None if significant else sel.singles[n].params[n], indistinguishable_from=alts,
+            fitted_params_if_added=None if significant else (at_bound[n].fitted if n in at_bound
+                                                             else sel.singles[n].params[n]),
+            indistinguishable_from=alts,
             wall=_wall_entry(combo.fit.params[n], stacks.fit.s, inp.p) if significant and n == "wall_effect"
             else None, not_identified=stacks.identifiability.entry(n).get("not_identified"),
-            at_bound=stacks.fit.at_bounds(combo.fit, n) if significant else None))
+            at_bound=at_bound[n].params if n in at_bound else None,
+            at_bound_reason=at_bound[n].reason() if n in at_bound else None,
+            replay_diverged_windows=diverged.get(n, 0)))
     return out
 
 
-def verdict_line(kept, n_tested, before: GapScore, unexplained) -> str:
-    """The report's one-line verdict (also the console's last word on significance)."""
+#: the verdict names, with why they are not significant, the effects outside the significant set that alone shrink the
+#: holdout gap by more than this fraction of gap_before (at most ``NOT_NAMED_MAX`` of them), so that it never reads
+#: as if nothing helped while the ranked table shows an effect that explains most of the gap
+NOT_NAMED_SHRINK = 0.1
+NOT_NAMED_MAX = 3
+
+
+def not_named_reason(v: EffectVerdict) -> str:
+    """Why an effect that is not significant was not named, in a few words (for the verdict line)."""
+    if v.at_bound:
+        return "its fit ends at the edge of its range"
+    if "listed under unidentifiable" in (v.evidence.note or ""):  # set aside, not confirmable, not excluded
+        return "listed under unidentifiable"
+    if v.evidence.backward is not None:
+        return "the holdout check dropped it"
+    step = v.evidence.selection
+    if step is None:
+        return "the fit runs' equation error did not select it"
+    return (f"forward selection did not accept it (dBIC {step.delta_bic:.0f}, holdout LR {step.holdout_lr:.1f}: the "
+            f"equation error on the fit runs or the holdout does not support it)")
+
+
+def verdict_line(kept, n_tested, before: GapScore, unexplained, at_bound=None, verdicts=()) -> str:
+    """The report's one-line verdict (also the console's last word on significance).
+
+    ``at_bound``: the confirmed effects set aside at the edge of their range (named with that reason);
+    ``verdicts`` (:class:`EffectVerdict`): the effects not significant that alone shrink the holdout gap by more than
+    ``NOT_NAMED_SHRINK`` are named too, with why they are not significant.
+    """
     if not before.scored:
         const = ", ".join(before.undefined) or "none"
         line = (f"gap undefined: no measured channel varies above its noise (constant channels: {const}), so "
@@ -941,6 +985,15 @@ def verdict_line(kept, n_tested, before: GapScore, unexplained) -> str:
         line += f"; {100 * unexplained:.0f}% of the gap remains unexplained"
     elif not kept and before.value > 0:
         line += f" (gap {before.value:.3f} stays unexplained)"
+    if at_bound:
+        line += ("; at the edge of its range, so not named (a parameter at its bound is evidence of a missing term, "
+                 "not a finding): " + ", ".join(at_bound))
+    helpful = [v for v in verdicts if not v.significant and v.name not in (at_bound or {})
+               and v.shrink is not None and np.isfinite(v.shrink) and v.shrink > NOT_NAMED_SHRINK]
+    helpful = sorted(helpful, key=lambda v: -v.shrink)[:NOT_NAMED_MAX]
+    if helpful and before.scored:
+        line += "; alone " + "; ".join(f"{v.name} shrinks the holdout gap by {100 * v.shrink:.0f}% but is not "
+                                       f"significant: {not_named_reason(v)}" for v in helpful)
     return line
 
 
@@ -1022,8 +1075,10 @@ class Pass:
     stacks: Stacks
     sel: Selection
     shrink: Mapping  # name -> shrink of the effect alone (OnDemand)
-    elim: Elimination  # the significant set (ambiguous effects set aside)
+    elim: Elimination  # the significant set (ambiguous effects and effects at a bound set aside)
     confirmed: Elimination  # what the holdout confirmed, before the ambiguous effects were set aside
+    at_bound: Mapping = field(default_factory=dict)  # name -> AtBound: confirmed, set aside at the edge of its range
+    singles: Mapping = field(default_factory=dict)  # name -> its single-effect holdout Replay (OnDemand)
 
 
 def diagnosis_pass(inp: Inputs, say, t0, prior_ambiguous=None, prior_forms=None, prior_stand_ins=None) -> Pass:
@@ -1073,7 +1128,56 @@ def _diagnosis_steps(inp: Inputs, say, t0, locating: Background, stacks: Stacks,
                                        prior_forms=prior_forms)
     stacks = set_aside_unconfirmed(stacks, sel, where, elim, log=say)
     elim, stacks = set_aside_stand_ins(inp, stacks, where, elim, log=say, prior=prior_stand_ins)
-    return Pass(where, stacks, sel, shrink, elim, confirmed)
+    elim, at_bound = set_aside_at_bound(inp, stacks, where, elim, log=say)
+    return Pass(where, stacks, sel, shrink, elim, confirmed, at_bound, singles)
+
+
+@dataclass(frozen=True)
+class AtBound:
+    """A confirmed effect whose joint fit ended on the edge of the catalogue's range for some parameter."""
+
+    params: dict  # parameter -> (value, bound) (:meth:`~udrobot_ctrl.gap.attribute.Attributor.at_bounds`)
+    fitted: dict  # the effect's parameters in that fit
+
+    def reason(self) -> str:
+        """Why the effect is not significant (the report's ``at_bound_reason``)."""
+        where = ", ".join(f"{k} = {v:.4g} at its bound {b:.4g}" for k, (v, b) in self.params.items())
+        return (f"confirmed on the holdout, but its fit ends at the edge of the catalogue's range ({where}): a "
+                f"parameter at its bound is evidence of a missing term, not a finding (the effect stands in for "
+                f"something the catalogue lacks, or the truth lies beyond the physical range searched); not "
+                f"significant and not written to a corrected model")
+
+
+def set_aside_at_bound(inp: Inputs, stacks: Stacks, where: Where, elim: Elimination, log=None):
+    """Step 3e: a confirmed effect whose joint fit ends on a bound of its search
+    (:meth:`~udrobot_ctrl.gap.attribute.Attributor.at_bounds`: a dead band at 35 % of the command range, an added
+    mass at -90 %) is not significant: a parameter at its bound is evidence of a missing term, not a finding. It is
+    removed from the set, the rest refitted and replayed, until no member ends on a bound.
+
+    Returns
+    -------
+    elim : Elimination
+        Without the effects at a bound (unchanged when there are none).
+    at_bound : dict
+        Name -> :class:`AtBound`, in the order they were set aside.
+    """
+    found = {}
+    while elim.kept:
+        hits = {n: b for n in elim.kept if (b := stacks.fit.at_bounds(elim.combination.fit, n))}
+        if not hits:
+            break
+        for n, b in hits.items():
+            found[n] = AtBound(b, dict(elim.combination.fit.params[n]))
+            if log:
+                log(f"  set aside: {n} (its fit ends at the edge of its range: "
+                    + ", ".join(f"{k} = {v:.4g}" for k, (v, _) in b.items())
+                    + "; a parameter at its bound is evidence of a missing term, not a finding)")
+        rest = [k for k in elim.kept if k not in hits]
+        combo = finalize(stacks.fit, rest, inp.names)
+        after = (_replayer(inp, stacks, where.before.scored)(combo.fit, combo.members) if rest else
+                 Replay((), where.before, where.nominal_sims[len(inp.fit):]))
+        elim = replace(elim, kept=tuple(rest), combination=combo, after=after)
+    return elim, found
 
 
 def diagnose(model, runs, holdout=None, window_s=8.0, effects=None, log=None, model_label=None):
@@ -1105,6 +1209,19 @@ def diagnose(model, runs, holdout=None, window_s=8.0, effects=None, log=None, mo
     """
     t0 = time.perf_counter()
     say = log or (lambda s: None)
+    idle = unexcited_runs([*runs, *(holdout or [])], plant_parameters(load_model(model)))
+    if any(idle):
+        for u in idle:
+            if u is not None:
+                say(f"not diagnosed: {u.reason()}")
+        fit_x = [r for r, u in zip(runs, idle) if u is None]
+        hold_x = [r for r, u in zip(holdout or [], idle[len(runs):]) if u is None]
+        idle = [u for u in idle if u is not None]
+        if not fit_x and not hold_x:
+            return unexcited_report(model, runs, holdout or [], idle, model_label, time.perf_counter() - t0)
+        runs, holdout = (fit_x, hold_x) if fit_x and hold_x else (fit_x + hold_x, None)
+    else:
+        idle = []
     inp = prepare_inputs(model, runs, holdout, effects, window_s, model_label)
     say(f"prepared {len(inp.fit)} fit and {len(inp.holdout)} holdout runs ({time.perf_counter() - t0:.1f} s)")
 
@@ -1142,15 +1259,79 @@ def diagnose(model, runs, holdout=None, window_s=8.0, effects=None, log=None, mo
     where, stacks, sel, elim, shrink = res.where, res.stacks, res.sel, res.elim, res.shrink
     after = elim.after.gap
     unexplained = (after.value / where.before.value) if where.before.value > 0 else float("nan")
-    verdict = verdict_line(elim.kept, len(inp.names), where.before, unexplained)
+    verdicts = effect_verdicts(inp, stacks, sel, elim, shrink, res.at_bound, res.singles)
+    verdict = verdict_line(elim.kept, len(inp.names), where.before, unexplained, at_bound=res.at_bound,
+                           verdicts=verdicts)
     say(f"{verdict} ({time.perf_counter() - t0:.1f} s)")
 
     location = [x.to_json() for x in where.located.locations]
-    report = report_json(inp, where, stacks, sel, elim, effect_verdicts(inp, stacks, sel, elim, shrink), verdict,
-                         time.perf_counter() - t0)
+    inp = replace(inp, notes=inp.notes + [f"not diagnosed (no excitation): {u.reason()}" for u in idle])
+    report = report_json(inp, where, stacks, sel, elim, verdicts, verdict, time.perf_counter() - t0)
+    report["unexcited_runs"] = [u.to_json() for u in idle]
     after_sims = elim.after.sims if elim.kept else where.nominal_sims[len(inp.fit):]
     ctx = DiagnosisContext(inp.runs, len(inp.fit), where.nominal_sims, after_sims, where.residuals, location)
     return _clean(report), ctx
+
+
+#: a run whose every actuator command stays within this fraction of its capacity for the whole run is unexcited:
+#: nothing was commanded, so whatever moved the vehicle (a hand, the cable, waves) is not in the log
+UNEXCITED_COMMAND = 0.01
+
+
+@dataclass(frozen=True)
+class Unexcited:
+    """A run with no commanded excitation (:func:`unexcited_runs`): reported, not diagnosed."""
+
+    run: str
+    max_command: float  # largest |command| over the run, as a fraction of the actuator's capacity
+    depth_span_m: float  # range of the logged depth, m (nan when z is not logged)
+
+    def reason(self) -> str:
+        depth = (f", depth moving {100 * self.depth_span_m:.1f} cm" if math.isfinite(self.depth_span_m) else "")
+        return (f"{self.run}: no excitation (the largest actuator command of the whole run is "
+                f"{100 * self.max_command:.2g}% of its capacity, at most {100 * UNEXCITED_COMMAND:g}% counts as none"
+                f"{depth}): nothing was commanded, so the log holds no input for a model "
+                f"to answer and whatever moved the vehicle is not in it; fly commanded manoeuvres (steps, sweeps) to "
+                f"diagnose, or use udrobot-ctrl identify for free-decay launches")
+
+    def to_json(self) -> dict:
+        return {"run": self.run, "max_command_fraction": self.max_command, "depth_span_m": self.depth_span_m,
+                "reason": self.reason()}
+
+
+def unexcited_runs(runs, p: PlantParameters) -> list:
+    """Per run, an :class:`Unexcited` when no actuator command leaves ``UNEXCITED_COMMAND`` of its capacity during
+    the whole run (e.g. every PWM at 1500 us), else None. The capacity is each thruster's larger thrust limit
+    (``thrust_i``, ``pwm_i`` converted by the thruster curve), or for a commanded wrench (``tau_*``) what the
+    thrusters together give along each DOF."""
+    cap_t = np.maximum(p.f_max, -p.f_min)
+    out = []
+    for r in runs:
+        f = np.abs(np.nan_to_num(actuators(r, p)[0]))
+        cap = cap_t if r.input_kind in ("thrust", "pwm") else np.abs(p.T) @ cap_t
+        frac = float(np.max(f / np.where(cap > 0, cap, np.inf))) if f.size else 0.0
+        z = np.asarray(r.channels.get("z", np.zeros(0)), float)
+        z = z[np.isfinite(z)]
+        span = float(np.ptp(z)) if z.size else float("nan")
+        out.append(Unexcited(run_label(r), frac, span) if frac <= UNEXCITED_COMMAND else None)
+    return out
+
+
+def unexcited_report(model, runs, holdout, idle, model_label, elapsed_s):
+    """(report, context) when every run is unexcited: the report says so (``unexcited_runs``, ``verdict``) with no
+    gap, location or effect (nothing to diagnose), and the context holds no run (no figure)."""
+    label = model_label or (str(model) if not hasattr(model, "name") else model.name)
+    empty = {"metric": "nrmse", "value": None, "per_channel": {}, "undefined": {}, "scored": [], "windows": {},
+             "diverged_windows": {}}
+    verdict = (f"not diagnosed: no run is excited ({', '.join(u.run for u in idle)}: every actuator command within "
+               f"{100 * UNEXCITED_COMMAND:g}% of its capacity for the whole run), so there is no commanded input "
+               f"for a model to answer; fly commanded manoeuvres to diagnose")
+    report = {"format": FORMAT, "model": label, "fit_runs": [run_label(r) for r in runs],
+              "holdout_runs": [run_label(r) for r in holdout], "gap_before": dict(empty), "location": [],
+              "effects": [], "unidentifiable": [], "gap_after": dict(empty), "unexplained": None, "verdict": verdict,
+              "unexcited_runs": [u.to_json() for u in idle],
+              "notes": [f"not diagnosed (no excitation): {u.reason()}" for u in idle], "elapsed_s": elapsed_s}
+    return _clean(report), DiagnosisContext([], 0, [], [], [], [])
 
 
 #: a single-effect replay with a shrink below this (holdout gap more than twice the nominal's: the fit run's equation
@@ -1169,6 +1350,10 @@ def _num(value, spec: str, undefined: str = "undefined") -> str:
 def summary(report) -> str:
     """Human-readable summary of a report (undefined numbers, e.g. the gap of constant channels, say so)."""
     gb, ga = report["gap_before"], report["gap_after"]
+    if not report["effects"] and report.get("unexcited_runs"):  # nothing was diagnosed
+        return "\n".join([f"model {report['model']}: runs {', '.join(report['fit_runs'] + report['holdout_runs'])}"]
+                         + [f"  not diagnosed: {u['reason']}" for u in report["unexcited_runs"]]
+                         + [report["verdict"]])
     why = gb.get("undefined") or {}
     per = [f"{c} {_num(v, '.2f')}" for c, v in gb["per_channel"].items() if c in gb["scored"]]
     per += [f"{c} undefined: channel constant" for c in why]
@@ -1182,7 +1367,8 @@ def summary(report) -> str:
     lines.append("effects (ranked):")
     for e in report["effects"]:
         back = e["evidence"].get("backward_elimination")
-        tag = "SIGNIFICANT" if e["significant"] else ("dropped" if back else "-")
+        tag = "SIGNIFICANT" if e["significant"] else ("AT BOUND" if e.get("at_bound_reason") else
+                                                      "dropped" if back else "-")
         extra = ""
         if e.get("indistinguishable_from"):
             extra = "; indistinguishable from " + ", ".join(a["name"] for a in e["indistinguishable_from"])
@@ -1193,14 +1379,27 @@ def summary(report) -> str:
         if e.get("at_bound"):
             extra += "; at the edge of its range: " + ", ".join(f"{k}={_num(v['value'], '.4g')}"
                                                                 for k, v in e["at_bound"].items())
+        if e.get("replay_diverged_windows"):
+            extra += f"; alone its replay diverges in {e['replay_diverged_windows']} holdout windows"
         lines.append(f"  {e['name']:<26s} {tag:<11s} shrink {_num(e['shrink'], '+.2f')}  "
                      f"dBIC {_num(e['evidence']['delta_bic'], '.0f')}{extra}")
         if e["significant"]:
             lines.append("      params " + ", ".join(f"{k}={_num(v, '.4g')}" for k, v in e["params"].items()))
+        elif e.get("at_bound_reason"):
+            lines.append("      " + e["at_bound_reason"])
+            lines.append("      fitted " + ", ".join(f"{k}={_num(v, '.4g')}"
+                                                     for k, v in (e.get("fitted_params_if_added") or {}).items()))
         elif back:
             lines.append("      " + e["evidence"].get("note", "dropped on the holdout"))
     for u in report.get("unidentifiable", []):
         lines.append(f"  unidentifiable with these sensors: {u['name']} ({u['reason']})")
+    for u in report.get("unexcited_runs", []):
+        lines.append(f"  not diagnosed: {u['reason']}")
+    for which, g in (("before", gb), ("after", ga)):
+        div = {r: n for r, n in (g.get("diverged_windows") or {}).items() if n}
+        if div:
+            lines.append(f"  diverged windows {which} (scored at the error cap): " + ", ".join(
+                f"{r} {n} of {(g.get('windows') or {}).get(r, '?')}" for r, n in div.items()))
     lines.append(f"gap after {_num(ga['value'], '.3f')}; unexplained {_num(report['unexplained'], '.2f')}")
     lines.append(report["verdict"])
     return "\n".join(lines)

@@ -15,6 +15,14 @@ Definition used by the report (``metric: "nrmse"``):
   acceleration at each replayed sample, effects included) against the measurement minus the smoother's estimate of the
   accelerometer bias. Without a DVL this is the one measurement of the surge and sway dynamics (an added-mass
   error in surge, a thrust loss on the horizontal thrusters).
+* A window *diverges* when its state turns non-finite or leaves the replay's envelope: a speed or rate above
+  ``VELOCITY_ENVELOPE`` (1e3 m/s or rad/s) or a displacement from the window's start above ``POSITION_ENVELOPE``
+  (1e4 m). Its remaining samples count as the worst error a channel can score: the error is held at the channel's
+  cap (:data:`ERROR_CAP`: the velocity envelope for ``u v w p q r``, pi for the wrapped angles, the position envelope
+  for ``z``, ``ACCEL_ENVELOPE`` = 1e4 m/s^2 for ``ax ay az``), and every finite error is clipped to that cap, so the
+  NRMSE rises monotonically with the replay error and a model that blows up scores worse than any model that does
+  not (a window left at its first sample, which equals the measurement, would otherwise score best). The gap says
+  how many windows diverged in each run (:attr:`GapScore.diverged`).
 * A channel is *scored* when the vehicle moved in it: std(meas_c) > 3 x its sensor noise (estimated from
   the sample-to-sample differences). The overall gap is the RMS of the scored channels' NRMSE.
 * ``shrink`` = 1 - gap(model + effect) / gap(nominal); ``unexplained`` = gap_after / gap_before.
@@ -35,9 +43,23 @@ from udrobot_ctrl.vehicle import STATE_INDEX
 
 CHANNELS = ("u", "v", "w", "p", "q", "r", "z", "phi", "theta", "psi")
 ACCEL = ("ax", "ay", "az")
-#: columns of a replay: the state (x y z phi theta psi u v w p q r), then the specific force (ax ay az)
-SIM_COLUMNS = 15
+#: columns of a replay: the state (x y z phi theta psi u v w p q r), the specific force (ax ay az), then the window
+#: column (:data:`WINDOW`)
+SIM_COLUMNS = 16
+#: the replay's window column: k + 1 on the samples of its k-th window (0-based) while the replay holds, -(k + 1) on
+#: the samples after the window diverged, nan outside the windows
+WINDOW = 15
 ANGLES = ("phi", "theta", "psi")
+#: the replay's envelope: a window whose speed or rate exceeds this (m/s, rad/s) has diverged
+VELOCITY_ENVELOPE = 1e3
+#: ... or whose position moves further than this from the window's start (m: beyond any water depth)
+POSITION_ENVELOPE = 1e4
+#: the accelerometer channels' error cap, m/s^2 (about 1000 g: the velocity envelope gained in 0.1 s)
+ACCEL_ENVELOPE = 1e4
+#: channel -> largest error it scores (channel units): a diverged window's samples score this, finite errors are
+#: clipped to it (module docstring)
+ERROR_CAP = {**dict.fromkeys(("u", "v", "w", "p", "q", "r"), VELOCITY_ENVELOPE),
+             **dict.fromkeys(ANGLES, np.pi), "z": POSITION_ENVELOPE, **dict.fromkeys(ACCEL, ACCEL_ENVELOPE)}
 
 
 def window_starts(prep: Prepared, window_s: float):
@@ -122,9 +144,10 @@ def specific_force(eta, nu, nu_dot, g=GRAVITY) -> np.ndarray:
 
 
 def simulate_windows(prep: Prepared, p: PlantParameters, hooks=(), window_s=8.0, M_A=None):
-    """Multiple-shooting replay of one run; returns (n, :data:`SIM_COLUMNS`): the simulated state (12 columns) and,
-    on runs whose accelerometer is scored (:func:`accel_bias`), its specific force (3, :func:`specific_force` of the
-    plant's acceleration at each sample with that sample's command), nan outside windows.
+    """Multiple-shooting replay of one run; returns (n, :data:`SIM_COLUMNS`): the simulated state (12 columns),
+    on runs whose accelerometer is scored (:func:`accel_bias`) its specific force (3, :func:`specific_force` of the
+    plant's acceleration at each sample with that sample's command), nan outside windows, and the window column
+    (:data:`WINDOW`: which window each sample belongs to, negative after the window diverged).
 
     Parameters
     ----------
@@ -182,31 +205,47 @@ def simulate_windows_sets(prep: Prepared, p: PlantParameters, hook_sets, window_
 
     def store_accel(rows, which, xx, x_dot):  # the specific force of the states just stored, from the plant's x_dot
         if scores_accel:
-            sim[set_of[which], rows, 12:] = specific_force(xx[:, :6], xx[:, 6:], x_dot[:, 6:])[which]
+            sim[set_of[which], rows, 12:WINDOW] = specific_force(xx[:, :6], xx[:, 6:], x_dot[:, 6:])[which]
 
     def inputs(k):  # per row of the batch: command, wrench and surfaces at sample k (N,) of its windows
         kk = np.tile(k, n_sets)
         return f[set_of, kk], tau_seq[set_of, kk], kk, _surfaces_at(prep, kk)
 
+    window_id = np.tile(np.arange(1, N + 1, dtype=float), n_sets)  # the window column's value of each row
     sim[set_of, start_of, :12] = x
+    sim[set_of, start_of, WINDOW] = window_id
+    x_start = x[:, :3].copy()
     rows, which = start_of, np.ones(len(x), bool)  # rows of sim holding the current states, and which states
     alive = np.ones(len(x), bool)
+    loop = prep.feedback.start(len(x)) if prep.feedback is not None else None  # the autopilot's attitude loop
+    x_meas = np.nan_to_num(prep.state()) if loop is not None else None
     for j in range(1, w):
         fk, tk, kk, at_k = inputs(np.minimum(starts + j - 1, prep.n - 1))
+        if loop is not None:  # closed-loop replay: the loop's reaction to the departure from the measured state
+            df = prep.feedback.delta_thrust(loop, x, x_meas[kk], kk, prep.dt)
+            fk, tk = fk + df, tk + df @ prep.B.T
 
         def step(_t, xx):
             return deriv(xx, kk, fk, tk, at_k)  # noqa: B023 - used within this iteration
 
-        x_dot = step(0.0, x)  # the first stage of the step is the acceleration the accelerometer reads now
-        store_accel(rows, which, x, x_dot)
-        for i_sub in range(nsub):
-            x = rk4_step(step, 0.0, x, h_dt, k1=x_dot if i_sub == 0 else None)
-        bad = ~np.all(np.isfinite(x), axis=1) | (np.abs(x[:, 6:]).max(axis=1) > 1e3)
+        # a window on its way out of the envelope overflows before the check below marks it diverged: its
+        # non-finite arithmetic is expected, and scored (the error cap), not warned about
+        with np.errstate(over="ignore", invalid="ignore"):
+            x_dot = step(0.0, x)  # the first stage of the step is the acceleration the accelerometer reads now
+            store_accel(rows, which, x, x_dot)
+            for i_sub in range(nsub):
+                x = rk4_step(step, 0.0, x, h_dt, k1=x_dot if i_sub == 0 else None)
+        with np.errstate(invalid="ignore"):
+            bad = (~np.all(np.isfinite(x), axis=1) | (np.abs(x[:, 6:]).max(axis=1) > VELOCITY_ENVELOPE)
+                   | (np.abs(x[:, :3] - x_start).max(axis=1) > POSITION_ENVELOPE))
         alive &= ~bad
         x[bad] = 0.0
         idx = start_of + j
         keep = alive & (idx < prep.n)
         sim[set_of[keep], idx[keep], :12] = x[keep]
+        dead = ~alive & (idx < prep.n)  # the rest of a diverged window: its samples score the error cap
+        sim[set_of[keep], idx[keep], WINDOW] = window_id[keep]
+        sim[set_of[dead], idx[dead], WINDOW] = -window_id[dead]
         rows, which = idx[keep], keep
     if scores_accel:  # the last sample of each window: its own command
         fk, tk, kk, at_k = inputs(np.minimum(starts + w - 1, prep.n - 1))
@@ -221,22 +260,48 @@ def accel_bias(prep: Prepared):
     return sm.accel_bias if sm is not None and np.all(np.isfinite(sm.accel_bias)) else None
 
 
+def diverged_samples(sim) -> np.ndarray:
+    """(n,) True on the samples of a replay after their window diverged (:data:`WINDOW` negative)."""
+    if sim.shape[1] <= WINDOW:
+        return np.zeros(sim.shape[0], bool)
+    with np.errstate(invalid="ignore"):
+        return sim[:, WINDOW] < 0
+
+
+def window_counts(sim) -> tuple:
+    """(windows replayed, windows that diverged) of one run's replay, from its window column (:data:`WINDOW`)."""
+    if sim.shape[1] <= WINDOW:
+        return 0, 0
+    ids = sim[:, WINDOW]
+    ids = ids[np.isfinite(ids)]
+    return int(np.unique(np.abs(ids)).size), int(np.unique(ids[ids < 0]).size)
+
+
+def _capped(e, meas, dead, cap):
+    """The error ``e`` clipped to ``cap``, held at ``cap`` on the diverged samples that have a measurement."""
+    e = np.clip(e, -cap, cap)
+    e[dead & np.isfinite(meas)] = cap
+    return e
+
+
 def errors(prep: Prepared, sim):
     """Channel -> (sim - meas) (n,) with angle wrapping; only channels logged in the run, the accelerometer where
-    its bias is known (:func:`accel_bias`)."""
+    its bias is known (:func:`accel_bias`). Each error is clipped to its channel's :data:`ERROR_CAP` and held there
+    on the samples after a window diverged (the worst error the channel scores; module docstring)."""
     out = {}
+    dead = diverged_samples(sim)
     for c in CHANNELS:
         if c not in prep.meas or not np.isfinite(prep.meas[c]).any():
             continue
         e = sim[:, STATE_INDEX[c]] - prep.meas[c]
         if c in ANGLES:
             e = wrap_angle(e)
-        out[c] = e
+        out[c] = _capped(e, prep.meas[c], dead, ERROR_CAP[c])
     bias = accel_bias(prep)
     if bias is not None:
         for j, c in enumerate(ACCEL):
             if c in prep.meas and np.isfinite(prep.meas[c]).any():
-                out[c] = sim[:, 12 + j] - (prep.meas[c] - bias[j])
+                out[c] = _capped(sim[:, 12 + j] - (prep.meas[c] - bias[j]), prep.meas[c], dead, ERROR_CAP[c])
     return out
 
 
@@ -256,6 +321,10 @@ class GapScore:
         Channel -> std of its measurement (the NRMSE's denominator, channel units).
     undefined : dict
         Channel -> why its NRMSE is undefined (e.g. a constant channel).
+    windows : dict
+        Run name -> windows replayed.
+    diverged : dict
+        Run name -> windows whose replay diverged (their remaining samples scored at the error cap).
     """
 
     value: float
@@ -264,17 +333,29 @@ class GapScore:
     scale: dict
     undefined: dict = field(default_factory=dict)
     metric: str = "nrmse"
+    windows: dict = field(default_factory=dict)
+    diverged: dict = field(default_factory=dict)
+
+    @property
+    def n_diverged(self) -> int:
+        """Windows that diverged, over all runs."""
+        return int(sum(self.diverged.values()))
 
     def to_json(self) -> dict:
         """The report's ``gap_before`` / ``gap_after`` object."""
         return {"metric": self.metric, "value": self.value, "per_channel": self.per_channel,
-                "undefined": self.undefined, "scored": self.scored}
+                "undefined": self.undefined, "scored": self.scored, "windows": self.windows,
+                "diverged_windows": self.diverged}
 
 
 def gap(preps, sims, scored=None) -> GapScore:
     """NRMSE gap over runs (see the module docstring); ``scored`` fixes the channels (default: those that move)."""
-    acc = {}
+    acc, windows, diverged = {}, {}, {}
     for prep, sim in zip(preps, sims):
+        n_win, n_div = window_counts(sim)
+        name = getattr(prep, "name", None) or f"run {len(windows)}"
+        windows[name] = windows.get(name, 0) + n_win
+        diverged[name] = diverged.get(name, 0) + n_div
         for c, e in errors(prep, sim).items():
             ok = np.isfinite(e)
             a = acc.setdefault(c, {"se": 0.0, "n": 0, "meas": [], "noise": []})
@@ -298,4 +379,5 @@ def gap(preps, sims, scored=None) -> GapScore:
             auto.append(c)
     use = [c for c in (scored if scored is not None else auto) if c in per and np.isfinite(per[c])]
     value = float(np.sqrt(np.mean([per[c] ** 2 for c in use]))) if use else float("nan")
-    return GapScore(value=value, per_channel=per, scored=use, scale=scale, undefined=undefined)
+    return GapScore(value=value, per_channel=per, scored=use, scale=scale, undefined=undefined, windows=windows,
+                    diverged=diverged)

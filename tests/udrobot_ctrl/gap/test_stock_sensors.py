@@ -182,7 +182,14 @@ def test_stock_second_effect_is_added_with_the_first_ones_shape_fitted_again():
     report = _bench_case(("thruster_deadband", "linear_damping"))
     sig = {e["name"] for e in report["effects"] if e["significant"]}
     listed = {u["name"]: u["reason"] for u in report["unidentifiable"]}
-    assert sig <= {"thruster_deadband", "linear_damping"} and "thruster_deadband" in sig, (sig, sorted(listed))
+    dead = next(e for e in report["effects"] if e["name"] == "thruster_deadband")
+    assert sig <= {"thruster_deadband", "linear_damping"}, (sig, sorted(listed))
+    # the dead band is confirmed on the holdout; its width ends at the 0.35 top of its range (exponent 1.59 where the
+    # truth's is 2), and a parameter at its bound is evidence of a missing term, not a finding: it is named only when
+    # its fit ends inside the range, else listed with that reason (issue 37)
+    assert "thruster_deadband" in sig or dead.get("at_bound_reason"), (sig, dead)
+    if dead.get("at_bound_reason"):
+        assert dead["at_bound"]["width_fraction"]["bound"] == pytest.approx(0.35)
     assert "linear_damping" in sig or "linear_damping" in listed, (sig, sorted(listed))
     # selected and confirmed on the holdout in the first pass, then set aside with its look-alike: listed with the
     # reason that names it (the second pass's selection_steps, reported, start from the dead band's force alone)

@@ -1,0 +1,82 @@
+"""A run with no commanded excitation is reported as such, not diagnosed (issue 42.3).
+
+The shared bench log "2023-04-18 11-03-34.tlog" holds every PWM at 1500 us for 313 s while the depth moves 1.6 cm:
+the diagnoser named no effect while its own table showed a buoyancy offset shrinking the gap by 84 %. Nothing was
+commanded, so there is no input for a model to answer.
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from udrobot_ctrl.cli.main import main
+from udrobot_ctrl.dynamics.plant import plant_parameters
+from udrobot_ctrl.gap.report import UNEXCITED_COMMAND, diagnose, summary, unexcited_runs
+from udrobot_ctrl.io.runlog import Run, write_run
+from udrobot_ctrl.vehicle import load_model
+
+from .stock_sim import simulate
+
+REPO = Path(__file__).resolve().parents[3]
+BENCH_LOG = REPO.parent / "shared" / "data" / "ardusub_log_tools" / "2023-04-18 11-03-34.tlog"
+P = plant_parameters(load_model("pendulum:chin"))
+
+
+def _idle(path="idle.csv", duration=30.0, kind="thrust", level=0.0, k=4):
+    """A run with the vehicle floating at 1 m depth (2 mm of depth noise) and every command at ``level``."""
+    t = np.arange(0.0, duration, 0.05)
+    rng = np.random.default_rng(0)
+    ch = {"z": 1.0 + rng.normal(0, 0.002, t.size), "phi": np.zeros(t.size), "theta": np.zeros(t.size),
+          "psi": np.zeros(t.size), "p": np.zeros(t.size), "q": np.zeros(t.size), "r": np.zeros(t.size)}
+    return Run(path=path, t=t, channels=ch, input_kind=kind, inputs=np.full((t.size, k), level), extra={},
+               metadata={"format": "udrobot-run/1"})
+
+
+def test_zero_commands_are_unexcited_and_commanded_thrust_is_not():
+    flown, _ = simulate(duration=20.0, seed=1)
+    idle, pwm_idle, wrench_idle = _idle(), _idle(kind="pwm", level=1500.0), _idle(kind="tau", k=6)
+    out = unexcited_runs([flown, idle, pwm_idle, wrench_idle], P)
+    assert out[0] is None
+    assert [u.run for u in out[1:]] == ["idle.csv"] * 3
+    assert all(u.max_command <= UNEXCITED_COMMAND for u in out[1:])
+    assert out[1].depth_span_m == pytest.approx(np.ptp(idle.channels["z"]))
+    # a command of 5 % of a thruster's capacity is an input, however small the motion it causes
+    small = _idle(level=0.05 * float(np.max(P.f_max)))
+    assert unexcited_runs([small], P) == [None]
+
+
+def test_a_diagnosis_of_unexcited_runs_only_says_so(tmp_path, capsys):
+    run = write_run(tmp_path / "idle.csv", *(lambda r: (r.t, r.channels, "pwm", r.inputs))(
+        _idle(kind="pwm", level=1500.0)))
+    out = tmp_path / "r.json"
+    assert main(["diagnose", "--model", "pendulum:chin", "--json", str(out), "--quiet", str(run)]) == 0
+    report = json.loads(out.read_text())
+    assert report["effects"] == [] and report["location"] == [] and report["gap_before"]["value"] is None
+    assert [u["run"] for u in report["unexcited_runs"]] == ["idle.csv"]
+    assert report["verdict"].startswith("not diagnosed: no run is excited")
+    text = capsys.readouterr().out
+    assert "not diagnosed: idle.csv: no excitation" in text and "effects (ranked)" not in text
+
+
+def test_an_unexcited_run_is_left_out_of_a_diagnosis_of_excited_ones():
+    a, _ = simulate(duration=30.0, seed=1)
+    b, _ = simulate(duration=30.0, seed=2)
+    report, ctx = diagnose("pendulum:chin", [a, _idle()], [b], effects=["buoyancy_offset"])
+    assert [u["run"] for u in report["unexcited_runs"]] == ["idle.csv"]
+    assert report["fit_runs"] == ["nominal_1.csv"] and report["holdout_runs"] == ["nominal_2.csv"]
+    assert any(n.startswith("not diagnosed (no excitation): idle.csv") for n in report["notes"])
+    assert "not diagnosed: idle.csv" in summary(report)
+
+
+@pytest.mark.skipif(not BENCH_LOG.exists(), reason="shared data (../shared/data) not present")
+def test_the_shared_bench_log_with_every_pwm_at_neutral_is_reported_unexcited():
+    from udrobot_ctrl.io import load_any
+
+    run = load_any(BENCH_LOG, "ardusub")
+    report, _ = diagnose("bluerov2-heavy", [run])
+    (u,) = report["unexcited_runs"]
+    assert u["max_command_fraction"] == 0.0 and u["depth_span_m"] < 0.02
+    assert report["verdict"].startswith("not diagnosed") and report["effects"] == []
