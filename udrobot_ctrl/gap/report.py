@@ -83,7 +83,8 @@ def split_runs(runs, holdout):
 
     def part(mask, tag):
         return Run(path=f"{run_label(r)}[{tag}]", t=r.t[mask], channels={c: v[mask] for c, v in r.channels.items()},
-                   input_kind=r.input_kind, inputs=r.inputs[mask], extra={}, metadata=r.metadata)
+                   input_kind=r.input_kind, inputs=r.inputs[mask], extra={c: v[mask] for c, v in r.extra.items()},
+                   metadata=r.metadata)
     return [part(a, "first two thirds")], [part(b, "last third")], \
         f"no --holdout and one run: the first two thirds fit, the last third ({cut - r.t[0]:.1f} s on) is held out"
 
