@@ -1225,6 +1225,9 @@ def diagnose(model, runs, holdout=None, window_s=8.0, effects=None, log=None, mo
         idle = []
     inp = prepare_inputs(model, runs, holdout, effects, window_s, model_label)
     say(f"prepared {len(inp.fit)} fit and {len(inp.holdout)} holdout runs ({time.perf_counter() - t0:.1f} s)")
+    for note in dict.fromkeys(n.split(" (", 1)[0] for n in inp.notes if n.startswith("replay: ")):
+        say(f"{note}: the vehicle's autopilot emulated in the replay windows (the report's notes say why)"
+            if "closed loop" in note else note)
 
     res = diagnosis_pass(inp, say, t0)
     # the force the holdout confirmed improves the reconstruction whichever effect it is named as (an ambiguous
