@@ -29,7 +29,7 @@ from identification import fossen
 from identification.fossen import AXES
 from identification.sets import coefficient_set_from_dict, load_coefficient_set
 from identification.similitude import FullSizeVehicle
-from udrobot_ctrl.dynamics.effects import parse_effects
+from udrobot_ctrl.dynamics.effects import check_against_model, parse_effects
 from udrobot_ctrl.io.files import atomic_write
 
 MODEL_FORMAT = "udrobot-model/1"
@@ -542,13 +542,18 @@ def model_from_dict(doc: dict, source: str = "<dict>") -> Vehicle:
             raise ValueError(f"{source}: field 'ardusub_frame' must be an ArduSub frame name such as "
                              f"\"VECTORED_6DOF\", got {frame!r}")
         extras["ardusub_frame"] = frame
+    effects = parse_effects(doc.get("effects"), source)
+    check_against_model(effects, linear_damping=damping["linear_damping"],
+                        quadratic_damping=damping["quadratic_damping"], buoyancy=scal["buoyancy"],
+                        weight=scal["weight"], r_g=_matrix(doc, "r_g", (3,), source),
+                        r_b=_matrix(doc, "r_b", (3,), source), source=source)
     return Vehicle(
         name=str(doc.get("name", Path(source).stem)), mass=scal["mass"],
         inertia_cg=inertia, r_g=_matrix(doc, "r_g", (3,), source),
         r_b=_matrix(doc, "r_b", (3,), source), weight=scal["weight"], buoyancy=scal["buoyancy"],
         added_mass=added, linear_damping=damping["linear_damping"], quadratic_damping=damping["quadratic_damping"],
         thrusters=tuple(thrusters), rho=scal["rho"], g=scal["g"], provenance=dict(doc.get("provenance", {})),
-        effects=parse_effects(doc.get("effects"), source),
+        effects=effects,
         extras=extras,
     )
 

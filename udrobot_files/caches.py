@@ -67,15 +67,25 @@ def private_dir(path, purpose: str) -> Path:
 
 
 def configure_numba_cache() -> str:
-    """Point numba's on-disk cache at a private folder unless the user chose one (``NUMBA_CACHE_DIR``).
+    """Point numba's on-disk cache at a private folder: ``NUMBA_CACHE_DIR`` if set and safe, else our own.
 
-    Must run before the ``cache=True`` functions are decorated (numba picks the folder then). Returns the
-    folder in use.
+    numba's cache holds pickled indexes and object code that are loaded (and so executed) by the next run, so a
+    folder chosen by the user through ``NUMBA_CACHE_DIR`` gets the same checks as ``UDROBOT_CACHE``
+    (:func:`private_dir`: created 0700 if missing; a symbolic link, a folder of another user, or one writable
+    by group or others is refused with a warning and a private temporary folder is used for this process).
+    Unset, the folder is ``$XDG_CACHE_HOME/udrobot_ctrl/numba``.
+
+    Must run before the ``cache=True`` functions are decorated (numba picks the folder then).
+
+    Returns
+    -------
+    str
+        The folder in use (also left in ``NUMBA_CACHE_DIR`` and numba's ``config.CACHE_DIR``).
     """
     chosen = os.environ.get("NUMBA_CACHE_DIR")
-    if chosen:
+    folder = str(private_dir(Path(chosen) if chosen else user_cache_root() / "numba", "numba"))
+    if folder == chosen:
         return chosen
-    folder = str(private_dir(user_cache_root() / "numba", "numba"))
     os.environ["NUMBA_CACHE_DIR"] = folder
     from numba.core import config  # third-party, imported here so that importing this module stays cheap
 

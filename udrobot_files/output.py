@@ -5,7 +5,8 @@ Rules (the same for every command, see docs/files.md):
 - An output may not be an input, nor the sidecar (``NAME.json``) of an input run (``NAME.csv``), nor may an
   output run's sidecar be an input. Paths are compared after resolving symbolic links, and by inode when both
   exist (hard links).
-- An existing output (or the sidecar a run output would write) is replaced only with ``force=True``.
+- An existing output (or the sidecar a run output would write) is replaced only with ``force=True``; a device,
+  named pipe or socket at an output path is never replaced (:func:`not_regular`).
 - The destination folder is checked for writability *before* the computation (:func:`check_outputs`).
 - Files are written atomically (:func:`atomic_write`, :func:`open_atomic`): into an unpredictable temporary
   file created exclusively (``O_EXCL | O_NOFOLLOW``, so never through a planted symlink) in the destination
@@ -103,6 +104,20 @@ def _check_folder(path: Path, option: str) -> None:
         raise OutputError(f"{option} {path}: folder {probe} is not writable")
 
 
+def not_regular(path) -> str | None:
+    """What ``path`` is if it exists and is neither a regular file nor a symbolic link (a device, a named pipe, a
+    socket), else None: such a node is never replaced by an output, ``--force`` or not."""
+    try:
+        mode = os.lstat(path).st_mode
+    except (FileNotFoundError, NotADirectoryError):
+        return None
+    if stat.S_ISREG(mode) or stat.S_ISLNK(mode) or stat.S_ISDIR(mode):
+        return None
+    kinds = ((stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"), (stat.S_ISFIFO, "a named pipe"),
+             (stat.S_ISSOCK, "a socket"))
+    return next((what for test, what in kinds if test(mode)), "not a regular file")
+
+
 def check_outputs(outputs, inputs=(), *, force: bool = False, option: str = "--out") -> list:
     """Refuse outputs that would destroy an input or replace a file without ``force``; check the folders.
 
@@ -125,7 +140,8 @@ def check_outputs(outputs, inputs=(), *, force: bool = False, option: str = "--o
     Raises
     ------
     OutputError
-        Naming the output and the input it would destroy, or the existing file, or the unwritable folder.
+        Naming the output and the input it would destroy, the existing file (without ``force``), a device, pipe
+        or socket at the output path (whatever ``force``), or the unwritable folder.
     """
     outs = [Path(o) for o in outputs if o is not None]
     ins = [fam for i in inputs if i is not None for fam in _input_family(i)]
@@ -140,6 +156,10 @@ def check_outputs(outputs, inputs=(), *, force: bool = False, option: str = "--o
     for o in outs:
         if o.is_dir():
             raise OutputError(f"{option} {o}: is a folder, expected a file name")
+        kind = not_regular(o)
+        if kind:
+            raise OutputError(f"{option} {o}: is {kind}, not a regular file; refusing to replace it (--force only "
+                              f"replaces files), choose a file name")
         if (o.exists() or o.is_symlink()) and not force:
             raise OutputError(f"{option} {o}: exists; pass --force to replace it")
         _check_folder(o, option)
@@ -181,7 +201,7 @@ def open_atomic(path, mode: str = "w", *, force: bool = True, protect=(), encodi
         Destination. Its folder is created if missing.
     mode : {'w', 'wb'}
     force : bool
-        If False, refuse to replace an existing ``path``.
+        If False, refuse to replace an existing ``path``. A device, pipe or socket is never replaced.
     protect : iterable of paths
         Inputs (and their sidecars) that ``path`` must not be.
     file_mode : int, optional
@@ -194,6 +214,9 @@ def open_atomic(path, mode: str = "w", *, force: bool = True, protect=(), encodi
         raise ValueError(f"open_atomic mode must be 'w' or 'wb', got {mode!r}")
     path = Path(path)
     _protect(path, protect)
+    kind = not_regular(path)
+    if kind:
+        raise OutputError(f"{path}: is {kind}, not a regular file; refusing to replace it")
     if not force and (path.exists() or path.is_symlink()):
         raise OutputError(f"{path}: exists; pass --force to replace it")
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -210,6 +233,9 @@ def open_atomic(path, mode: str = "w", *, force: bool = True, protect=(), encodi
             os.fsync(fh.fileno())
         if not force and (path.exists() or path.is_symlink()):
             raise OutputError(f"{path}: appeared while writing; pass --force to replace it")
+        kind = not_regular(path)
+        if kind:
+            raise OutputError(f"{path}: became {kind} while writing; refusing to replace it")
         os.replace(tmp, path)
     except BaseException:  # cleanup, re-raised
         with contextlib.suppress(FileNotFoundError):

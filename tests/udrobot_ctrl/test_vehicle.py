@@ -104,7 +104,7 @@ def test_bad_model_files_name_the_field(tmp_path):
     with pytest.raises(ValueError, match=r"bad.json: field 'added_mass' has shape \(5, 6\)"):
         read_model_file(bad)
     (tmp_path / "trunc.json").write_text('{"format": "udrobot-model/1", ')
-    with pytest.raises(ValueError, match="trunc.json: not valid JSON"):
+    with pytest.raises(ValueError, match="trunc.json: not a model file: not valid JSON"):
         read_model_file(tmp_path / "trunc.json")
 
 

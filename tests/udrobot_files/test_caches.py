@@ -5,6 +5,7 @@ import os
 import shutil
 import stat
 import subprocess
+import sys
 
 import casadi as ca
 import numpy as np
@@ -126,3 +127,72 @@ def test_rollout_compiled_still_matches_interpreted(cache):
     a = fastsim.Rollout("cfd:chin", 0.01, 20)(x0, u)
     b = fastsim.Rollout("cfd:chin", 0.01, 20, compile=shutil.which("gcc") is not None)(x0, u)
     np.testing.assert_allclose(a, b, atol=1e-12)
+
+
+def test_unsafe_numba_cache_dir_chosen_by_the_user_is_not_used(tmp_path, monkeypatch):
+    from numba.core import config
+
+    monkeypatch.setattr(config, "CACHE_DIR", config.CACHE_DIR)
+    monkeypatch.setattr(caches, "_FALLBACKS", {})
+    shared = tmp_path / "shared"
+    shared.mkdir()
+    os.chmod(shared, 0o777)
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(shared))
+    with pytest.warns(RuntimeWarning, match="writable by group or others"):
+        folder = caches.configure_numba_cache()
+    assert folder != str(shared) and os.environ["NUMBA_CACHE_DIR"] == folder == config.CACHE_DIR
+    assert caches.unsafe_reason(folder, want_dir=True) is None
+    monkeypatch.setattr(caches, "_FALLBACKS", {})
+    link = tmp_path / "link"
+    link.symlink_to(tmp_path / "mine_target", target_is_directory=True)
+    (tmp_path / "mine_target").mkdir(mode=0o700)
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(link))
+    with pytest.warns(RuntimeWarning, match="symbolic link"):
+        assert caches.configure_numba_cache() != str(link)
+
+
+NUMBA_SCRIPT = """
+from udrobot_files.caches import configure_numba_cache
+print(configure_numba_cache())
+import numba
+
+@numba.njit(cache=True)
+def plus_one(x):
+    return x + 1
+
+print(plus_one(1))
+"""
+
+
+def _plant_index(folder, marker):
+    """Replace every numba index (.nbi) under ``folder`` with a pickle whose loading writes ``marker``."""
+    payload = (b"cbuiltins\nexec\n(V" + f"open({str(marker)!r}, 'w').write('planted code ran')".encode()
+               + b"\ntR.")
+    planted = 0
+    for nbi in folder.rglob("*.nbi"):
+        nbi.write_bytes(payload)
+        planted += 1
+    return planted
+
+
+def test_planted_pickle_in_a_world_writable_numba_cache_does_not_run(tmp_path):
+    script = tmp_path / "kernel.py"
+    script.write_text(NUMBA_SCRIPT)
+    cache = tmp_path / "numba_cache"
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(cache))
+
+    def run():
+        return subprocess.run([sys.executable, str(script)], env=env, capture_output=True, text=True, timeout=300)
+
+    first = run()
+    assert first.returncode == 0 and first.stdout.split()[-1] == "2", first.stderr
+    marker = tmp_path / "ran.txt"
+    assert _plant_index(cache, marker) >= 1
+    os.chmod(cache, 0o777)  # anyone may now write the cache: nothing is loaded from it
+    second = run()
+    assert second.returncode == 0 and second.stdout.split()[-1] == "2", second.stderr
+    assert "writable by group or others" in second.stderr and second.stdout.split()[0] != str(cache)
+    assert not marker.exists()
+    os.chmod(cache, 0o700)  # the control: the same planted index in a private folder is what numba loads
+    third = run()
+    assert marker.exists(), third.stderr

@@ -5,7 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from udrobot_ctrl.cli.main import CLIError
-from udrobot_ctrl.io import convert_log
+from udrobot_ctrl.io import convert_log, log_input_files
 from udrobot_ctrl.io.files import check_output_dir, check_outputs, run_files
 from udrobot_ctrl.io.runlog import write
 from udrobot_ctrl.io.segment import find_launches, idle_mask, write_launches
@@ -41,10 +41,11 @@ def register(subparsers) -> None:
 def run(args) -> int:
     if not args.out and not args.segment:
         raise ValueError("nothing to do: give --out RUN.csv and/or --segment CHANNEL")
+    inputs = log_input_files(args.input, args.mapping)  # the log, its mapping file, a rostopic set's other files
     if args.out:
-        check_outputs(run_files(args.out), [args.input], force=args.force, option="--out")
+        check_outputs(run_files(args.out), inputs, force=args.force, option="--out")
     if args.segment_dir:
-        check_output_dir(args.segment_dir, [args.input], option="--segment-dir")
+        check_output_dir(args.segment_dir, inputs, option="--segment-dir")
     run_ = convert_log(args.input, args.mapping, require_inputs=not args.allow_missing_inputs, vehicle=args.vehicle,
                        cut=not args.no_cut)
     print(f"{args.input}: {run_.n} samples, {run_.duration:.3f} s, dt {run_.dt_median * 1e3:.2f} ms, "
@@ -54,7 +55,7 @@ def run(args) -> int:
         if line.startswith(("cut: WARNING", "cut: kept")) or "ALMOST ALL" in line:
             print(line)
     if args.out:
-        path = write(run_, args.out, overwrite=args.force, protect=[args.input])
+        path = write(run_, args.out, overwrite=args.force, protect=inputs)
         print(f"wrote {path} and {Path(path).with_suffix('.json')}")
     if args.segment:
         try:
@@ -72,7 +73,7 @@ def run(args) -> int:
         out_dir = args.segment_dir or (Path(args.out).parent if args.out else Path("."))
         stem = Path(args.out).stem if args.out else Path(args.input).stem
         for launch, path in zip(launches, write_launches(run_.t, y, launches, out_dir, stem, column, angle,
-                                                                  protect=[args.input])):
+                                                                  protect=inputs)):
             print(f"launch at t = {launch.t_release:.3f} s, amplitude {launch.amplitude:.4g}, "
                   f"{launch.stop - launch.start} samples -> {path}")
     return 0

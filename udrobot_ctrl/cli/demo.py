@@ -28,7 +28,7 @@ from identification.plots import plot_report
 from identification.sets import write_coefficient_set
 from udrobot_ctrl.control.compare import TABLE_LEGEND, compare, contract_json, text_table, write_outputs
 from udrobot_ctrl.dynamics.sim import simulate
-from udrobot_ctrl.io.files import atomic_write, check_output_dir, open_atomic, save_figure
+from udrobot_ctrl.io.files import OutputError, atomic_write, check_output_dir, open_atomic, save_figure
 from udrobot_ctrl.vehicle import MODEL_NAMES, coefficient_set, full_size_vehicle, load_model, write_model_file
 
 SYNTHETIC_NOTE = ("the identification data are SYNTHETIC: launch logs and CFD tables generated from the "
@@ -40,6 +40,7 @@ SYNTHETIC_NOTE = ("the identification data are SYNTHETIC: launch logs and CFD ta
 # units of the identified coefficients (launches: of the scaled test model; CFD: full size)
 COEFF_UNITS = {"Cm": "[-]", "CD": "[-]", "KL": "[N s/m]", "KQ": "[N s^2/m^2]"}
 SUMMARY_FILE = "demo_summary.json"  # written last: its presence marks a folder holding an earlier demo
+INDEX_FILE = "README.md"  # the index of what the demo wrote (write_index)
 
 
 def register(subparsers):
@@ -283,8 +284,8 @@ def write_index(out: Path, failed=()) -> Path:
         if paths:
             rels = [p.relative_to(out).as_posix() + ("/" if p.is_dir() else "") for p in paths]
             lines.append(f"| {', '.join(f'[{r}]({r})' for r in rels)} | {what} |")
-    path = out / "README.md"
-    path.write_text("\n".join(lines) + "\n")
+    path = out / INDEX_FILE
+    atomic_write(path, "\n".join(lines) + "\n")  # replaces a planted link by a file, never writes through it
     return path
 
 
@@ -292,9 +293,28 @@ STEPS = [("identification", step_identification), ("models", step_models), ("ope
          ("controllers", step_controllers)]
 
 
+def check_demo_folder(out: Path, force: bool) -> None:
+    """The demo writes dozens of files under ``out``: without ``force`` it refuses a folder that holds anything.
+
+    Raises
+    ------
+    OutputError
+        ``out`` is not a writable folder, or (without ``force``) it exists and is not empty, naming a few of its
+        entries; with ``force``, a device, pipe or socket where the demo writes its index or summary.
+    """
+    check_output_dir(out, force=force, option="--out", names=[SUMMARY_FILE, INDEX_FILE])
+    if not force and out.is_dir():
+        entries = sorted(p.name for p in out.iterdir())
+        if entries:
+            raise OutputError(f"--out {out}: exists and is not empty ({len(entries)} entries: "
+                              f"{', '.join(entries[:5])}{', ...' if len(entries) > 5 else ''}); the demo would "
+                              f"replace files there: pass --force to replace the outputs of an earlier demo, or "
+                              f"choose a new folder")
+
+
 def run(args) -> int:
     out = Path(args.out)
-    check_output_dir(out, force=getattr(args, "force", False), option="--out", names=[SUMMARY_FILE])
+    check_demo_folder(out, getattr(args, "force", False))
     (out / "models").mkdir(parents=True, exist_ok=True)
     summary, failed = {}, []
     t_start = time.perf_counter()

@@ -35,7 +35,8 @@ def register(subparsers):
         "show", help="print a summary of the model",
         description="Print the model's mass, weight and buoyancy, centres of gravity and buoyancy, the diagonal "
                     "of M_total, M_A, linear (D_L) and quadratic (Q) damping per DOF, the thrusters, the actuated "
-                    "and passive DOFs and the provenance of every number.",
+                    "and passive DOFs, the model's effects (name and parameters) and the provenance of every "
+                    "number.",
         epilog="example: udrobot-ctrl model show --model demo_out/identification/pendulum_identified.toml:chin")
     show.add_argument("--model", required=True, help=f"model name ({', '.join(ALL_MODEL_NAMES)}) or model file")
     show.set_defaults(func=run_show)
@@ -59,7 +60,8 @@ def run_export(args) -> int:
 
 
 def summary(vehicle) -> str:
-    """Human-readable summary: masses, restoring, diagonal hydrodynamics, thrusters, actuated DOFs, provenance."""
+    """Human-readable summary: masses, restoring, diagonal hydrodynamics (with the effects that change parameters
+    folded in), thrusters, actuated DOFs, the ``effects`` list with its parameters, provenance."""
     p = plant_parameters(vehicle)
     lines = [f"model {vehicle.name}", f"  mass {vehicle.mass:.3f} kg, weight {vehicle.weight:.2f} N, "
              f"buoyancy {vehicle.buoyancy:.2f} N (net {vehicle.buoyancy - vehicle.weight:+.2f} N up)",
@@ -77,6 +79,13 @@ def summary(vehicle) -> str:
     lines.append(f"  actuated DOFs: {', '.join(rep.actuated) or 'none'} (thruster matrix rank {rep.rank}); "
                  + (f"coupled only: {', '.join(coupled)}; " if coupled else "")
                  + f"passive: {', '.join(rep.passive) or 'none'}")
+    if vehicle.effects:
+        lines.append(f"  effects ({len(vehicle.effects)}, in the plant besides the coefficients above):")
+        for e in vehicle.effects:
+            params = ", ".join(f"{k} {v:g}" for k, v in e.params.items())
+            lines.append(f"    {e.name} ({e.kind.enters}): {params or 'no parameters'}")
+    else:
+        lines.append("  effects: none")
     lines.append("  provenance:")
     for key, val in sorted(vehicle.provenance.items()):
         lines.append(f"    {key}: {val}")

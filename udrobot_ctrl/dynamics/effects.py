@@ -163,6 +163,59 @@ EXPONENT_MEANING = {"thrust_exponent": "1: a lag of the thrust, 2: of the rotor 
                     "command_exponent": "thrust ~ command^p beyond the deadband: 1 linear, 2 quadratic"}
 
 
+#: the physical range of every effect parameter a model file may give: name -> (low, high, unit and why). A value
+#: outside is refused where the ``effects`` list is parsed (:func:`plant_effect`), naming the file, the effect, the
+#: parameter and this range. The diagnoser's search stays inside these (``udrobot_ctrl.gap.effects``: e.g. a
+#: deadband width of 0.005-0.35, a lag of 0.005-1 s, damping scales of -0.95 to 10, drag amplitudes up to 1e4);
+#: these ranges are wider, physical limits for hand-written files. Limits that depend on the vehicle (the total
+#: damping, buoyancy and restoring moment) are checked against the base model by :func:`check_against_model`.
+_POS_M = (-1e7, 1e7, "m, a position within 10 000 km of the origin of the logged x y z")
+_NORMAL = (-1e6, 1e6, "-, a direction (normalised by the tool)")
+_SCALE = (-1.0, 10.0, "-, a relative error: -1 removes the term (it cannot change sign), 10 is 11 times it")
+_DAMPING = (-1e4, 1e4, "N s/m or N m s (the model's total must stay dissipative)")
+PARAMETER_RANGES = {
+    "thrust_inflow_loss": {"k1_per_mps": (0.0, 2.0, "1/(m/s), thrust lost per m/s of inflow"),
+                           "k2_per_mps": (0.0, 2.0, "1/(m/s), thrust lost per m/s of inflow")},
+    "thruster_deadband": {"width_fraction": (0.0, 0.9, "-, a fraction of the command range"),
+                          "shift": (0.0, 1.0, "-, 0 a hard band, 1 thrust continuous from its edge"),
+                          **dict.fromkeys(_per_dof("shift"), (0.0, 1.0, "-, 0 a hard band, 1 continuous")),
+                          "command_exponent": (*EXPONENT_RANGE, EXPONENT_MEANING["command_exponent"])},
+    "thruster_asymmetry": {"reverse_loss": (-1.0, 1.0, "-, 1 no reverse thrust, -1 twice the modelled one"),
+                           **dict.fromkeys(_per_dof("reverse_loss"), (-1.0, 1.0, "-, 1 no reverse thrust"))},
+    "thruster_lag": {"T_lag_s": (1e-6, 10.0, "s, a time constant > 0"),
+                     "thrust_exponent": (*EXPONENT_RANGE, EXPONENT_MEANING["thrust_exponent"])},
+    "tether_drag": {"k_quadratic_N_s2_per_m2": (0.0, 1e4, "N s^2/m^2, a drag (>= 0)"),
+                    "k_linear_N_s_per_m": (0.0, 1e4, "N s/m, a drag (>= 0)"),
+                    **dict.fromkeys(TETHER_ANCHOR, _POS_M),
+                    "cable_azimuth_rad": (-2 * math.pi, 2 * math.pi, "rad, an angle from north"),
+                    "cable_elevation_rad": (-math.pi / 2, math.pi / 2, "rad, an angle above the horizontal"),
+                    "walk_azimuth_rad": (-2 * math.pi, 2 * math.pi, "rad, an angle from north"),
+                    "walk_fraction": (0.0, 1.0, "-, the fraction of the motion the top end follows"),
+                    TETHER_TAUT: (0.0, 1.0, "-, 0 slack, 1 taut")},
+    "wall_effect": {"decay_length_m": (1e-6, 100.0, "m, a length > 0"),
+                    "added_mass_at_contact_kg": (0.0, 1e4, "kg, an added mass (>= 0)"),
+                    "suction_N_s2_per_m2": (0.0, 1e5, "N s^2/m^2, a suction coefficient (>= 0)"),
+                    "seabed_depth_m": _POS_M,
+                    **{n: (_NORMAL if "normal" in n else _POS_M) for n in WALL_PARAMETERS}},
+    "water_current": {n: (-5.0, 5.0, "m/s, beyond the strongest tidal streams")
+                      for n in ("current_north_mps", "current_east_mps", "current_down_mps")},
+    "linear_damping": {f"d_{d}{v}": _DAMPING for d, v in zip(DOF, VEL)},
+    "quadratic_damping_error": {**{f"scale_{d}{v}|{v}|": _SCALE for d, v in zip(DOF, VEL)},
+                                "norm_weight": (0.0, 1.0, "-, 0 per-axis drag, 1 drag on the speed")},
+    "added_mass_error": {f"scale_{d}d{v}": _SCALE for d, v in zip(DOF, VEL)},
+    "cross_coupled_damping": {n: (-1e4, 1e4, "N s/m, N s^2/m^2 or their rotational forms") for i, j in CROSS_PAIRS
+                              for n in (f"D_{DOF[i]}{VEL[j]}", f"Q_{DOF[i]}{VEL[j]}|{VEL[j]}|")},
+    "buoyancy_offset": {"dB_N": (-1e6, 1e6, "N; also within +-0.5 W of the model, and B + dB >= 0")},
+    "cg_cb_offset": {n: (-1e6, 1e6, "N m; also within +-0.1 W of the model (a 10 cm shift)")
+                     for n in ("dBG_x_Nm", "dBG_y_Nm", "dBG_z_Nm")},
+}
+#: relative round-off allowed at the vehicle-relative limits (a fit that ends on the diagnoser's bound reads back)
+_REL_TOL = 1e-9
+#: the vehicle-relative limits of :func:`check_against_model` (the diagnoser's bounds, ``udrobot_ctrl.gap.effects``)
+BUOYANCY_OFFSET_OF_WEIGHT = 0.5  # |dB_N| <= 0.5 W
+CG_CB_OFFSET_OF_WEIGHT = 0.1  # |dBG_i| <= 0.1 W (a 10 cm shift of the centre of gravity)
+
+
 @dataclass(frozen=True)
 class PlantEffect:
     """One effect of a model: a catalogue name and its parameters (SI units, names as in :data:`CATALOGUE`)."""
@@ -187,19 +240,31 @@ def _suggest(word, choices) -> str:
 def plant_effect(doc, where: str = "effects[0]") -> PlantEffect:
     """Parse and check one ``{"name": ..., "params": {...}}`` entry.
 
+    Parameters
+    ----------
+    doc : mapping
+        ``{"name": ..., "params": {...}}`` as in a model file.
+    where : str
+        The file and the entry, for messages (``"model.json: effects[0]"``).
+
+    Returns
+    -------
+    PlantEffect
+
     Raises
     ------
     ValueError
-        Naming ``where``: an unknown effect or parameter (with a suggestion), a missing parameter, or a value
-        that is not a finite number.
+        Naming ``where``: an unknown effect or parameter (with a suggestion), a missing parameter, a value that
+        is not a finite number, or one outside its physical range (:data:`PARAMETER_RANGES`, quoted).
     """
-    if not isinstance(doc, Mapping) or "name" not in doc:
+    if not isinstance(doc, Mapping) or "name" not in doc or not isinstance(doc["name"], str):
         raise ValueError(f"{where}: expected {{\"name\": ..., \"params\": {{...}}}}, got {doc!r}")
     name = str(doc["name"])
     if name not in CATALOGUE:
         raise ValueError(f"{where}: unknown effect {name!r}{_suggest(name, CATALOGUE)}; known: "
                          f"{', '.join(EFFECT_NAMES)}")
     kind = CATALOGUE[name]
+    where = where if where.endswith(f"({name})") else f"{where} ({name})"
     raw = doc.get("params", {}) or {}
     if not isinstance(raw, Mapping):
         raise ValueError(f"{where}.params: expected an object of numbers, got {raw!r}")
@@ -247,7 +312,18 @@ def plant_effect(doc, where: str = "effects[0]") -> PlantEffect:
         raise ValueError(f"{where}.params.decay_length_m: must be > 0 m, got {params['decay_length_m']}")
     if name == "wall_effect":
         _check_walls(params, where)
+    _check_ranges(name, params, where)
     return PlantEffect(name, params)
+
+
+def _check_ranges(name, params, where):
+    """Each parameter within :data:`PARAMETER_RANGES` (a finite, physical value)."""
+    ranges = PARAMETER_RANGES[name]
+    for key, value in params.items():
+        lo, hi, unit = ranges[key]
+        if not lo <= value <= hi:
+            raise ValueError(f"{where}.params.{key} = {value:g} is outside its physical range [{lo:g}, {hi:g}] "
+                             f"({unit})")
 
 
 def _check_walls(params, where):
@@ -295,6 +371,76 @@ def parse_effects(docs, source: str = "<model>") -> tuple:
     if dup:
         raise ValueError(f"{source}: effect(s) listed twice: {', '.join(dup)} (merge their parameters)")
     return out
+
+
+def check_against_model(effects, *, linear_damping, quadratic_damping, buoyancy, weight, r_g=(0, 0, 0),
+                        r_b=(0, 0, 0), source="<model>"):
+    """Refuse effects that give the model impossible physics, as the loader refuses it in the base fields.
+
+    Parameters
+    ----------
+    effects : sequence of PlantEffect
+    linear_damping, quadratic_damping : (6, 6) array_like
+        The base model's D_L and Q.
+    buoyancy, weight : float
+        The base model's B and W, N.
+    r_g, r_b : (3,) array_like
+        Centres of gravity and buoyancy, m: a ``dBG_z_Nm`` may remove up to 90 % of the righting moment
+        z_g W - z_b B (the diagnoser's bound) even where that exceeds 0.1 W.
+    source : str
+        The file, for messages.
+
+    Raises
+    ------
+    ValueError
+        Naming the file, the effect, the parameter and the accepted range: a total linear or quadratic damping
+        (base plus ``linear_damping``, ``quadratic_damping_error``, ``cross_coupled_damping``) with a negative
+        diagonal or a symmetric part that is not positive semidefinite (some motion would gain energy); a
+        ``buoyancy_offset`` beyond +-0.5 W or making the total buoyancy negative; a ``cg_cb_offset`` beyond
+        +-0.1 W N m.
+    """
+    D = np.array(linear_damping, float)
+    Q = np.array(quadratic_damping, float)
+    where = {e.name: f"{source}: effects[{i}]" for i, e in enumerate(effects)}
+    for e in effects:
+        q, at = e.params, where[e.name]
+        if e.name == "linear_damping":
+            for i, (d, v) in enumerate(zip(DOF, VEL)):
+                if D[i, i] + q[f"d_{d}{v}"] < -_REL_TOL * max(abs(D[i, i]), 1.0):  # the diagnoser's bound: -D_ii
+                    raise ValueError(f"{at}: effect 'linear_damping' parameter d_{d}{v} = {q[f'd_{d}{v}']:g} makes the "
+                                     f"total linear damping {D[i, i] + q[f'd_{d}{v}']:g} < 0 (negative damping feeds "
+                                     f"energy into the motion); accepted range [{-D[i, i]:g}, {_DAMPING[1]:g}]")
+            D[np.diag_indices(6)] += [q[f"d_{d}{v}"] for d, v in zip(DOF, VEL)]
+        elif e.name == "quadratic_damping_error":
+            Q[np.diag_indices(6)] *= 1.0 + np.array([q[f"scale_{d}{v}|{v}|"] for d, v in zip(DOF, VEL)])
+        elif e.name == "cross_coupled_damping":
+            for i, j in CROSS_PAIRS:
+                D[i, j] += q.get(f"D_{DOF[i]}{VEL[j]}", 0.0)
+                Q[i, j] += q.get(f"Q_{DOF[i]}{VEL[j]}|{VEL[j]}|", 0.0)
+        elif e.name == "buoyancy_offset":
+            lim = BUOYANCY_OFFSET_OF_WEIGHT * weight
+            lo = max(-lim, -buoyancy)
+            if not lo - _REL_TOL * weight <= q["dB_N"] <= lim + _REL_TOL * weight:
+                raise ValueError(f"{at}: effect 'buoyancy_offset' parameter dB_N = {q['dB_N']:g} is outside "
+                                 f"[{lo:g}, {lim:g}] N (within +-{BUOYANCY_OFFSET_OF_WEIGHT:g} W = {lim:g} N of the "
+                                 f"weight, and the total buoyancy B + dB = {buoyancy + q['dB_N']:g} N must be >= 0)")
+        elif e.name == "cg_cb_offset":
+            lim = CG_CB_OFFSET_OF_WEIGHT * weight
+            bgz = float(r_g[2]) * weight - float(r_b[2]) * buoyancy
+            for k in ("dBG_x_Nm", "dBG_y_Nm", "dBG_z_Nm"):
+                lo = min(-lim, -0.9 * bgz) if k == "dBG_z_Nm" else -lim
+                if not lo - _REL_TOL * weight <= q[k] <= lim + _REL_TOL * weight:
+                    raise ValueError(f"{at}: effect 'cg_cb_offset' parameter {k} = {q[k]:g} is outside [{lo:g}, "
+                                     f"{lim:g}] N m (+-{CG_CB_OFFSET_OF_WEIGHT:g} W: a 10 cm shift of the centre of "
+                                     f"gravity)")
+    names = [n for n in ("linear_damping", "quadratic_damping_error", "cross_coupled_damping") if n in where]
+    for label, M in (("linear", D), ("quadratic", Q)):
+        scale = max(float(np.abs(M).max()), 1.0)
+        if names and (np.diag(M).min() < 0 or np.linalg.eigvalsh(0.5 * (M + M.T)).min() < -1e-9 * scale):
+            raise ValueError(f"{source}: effect(s) {', '.join(names)} make the total {label} damping generate energy "
+                             f"for some motion (expected a non-negative diagonal and (D + D^T)/2 positive "
+                             f"semidefinite, as for the base field); effect parameters within "
+                             f"{', '.join(where[n] for n in names)}")
 
 
 # ----------------------------------------------------------------------------------------- parameters

@@ -80,6 +80,41 @@ def read_streams(path, mapping: Mapping):
     return rostopic_csv.read_streams(path, mapping)
 
 
+def log_input_files(path, mapping=None) -> list:
+    """Every file converting ``path`` with ``mapping`` reads: outputs must be none of them (``--force`` or not).
+
+    Parameters
+    ----------
+    path : str or Path
+        The log as given to ``convert``.
+    mapping : str, Path, Mapping or None
+        The ``--mapping`` argument.
+
+    Returns
+    -------
+    list of Path
+        The log; the mapping file if it is a file; for a ``rostopic echo -p`` CSV the other files of its set (the
+        mapping's ``[files]`` patterns with the same suffix); for a ROS 2 bag folder, the files in it. A set or a
+        mapping that cannot be resolved adds nothing here (the conversion reports it).
+    """
+    path = Path(path)
+    out = [path]
+    if mapping is not None and not isinstance(mapping, Mapping) and Path(str(mapping)).is_file():
+        out.append(Path(str(mapping)))
+    if path.is_dir():
+        out += sorted(p for p in path.iterdir() if p.is_file())
+        return out
+    try:
+        kind = log_kind(path)
+        if kind == "rostopic_csv":
+            if mapping is None:
+                return out
+            out += [p for p in rostopic_csv.resolve_files(path, load_mapping(mapping).files).values() if p != path]
+    except (OSError, LogImportError, MappingError):
+        pass
+    return out
+
+
 def motor_evidence(mapping: Mapping, streams: dict) -> OutputEvidence | None:
     """:func:`~udrobot_ctrl.io.mavlink.classify_outputs` of the first ``[motors]`` source in the log with any
     logged output (None without one)."""

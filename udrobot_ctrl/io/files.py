@@ -11,6 +11,7 @@ from udrobot_files.output import (
     check_outputs,
     current_umask,
     is_private_dir,
+    not_regular,
     open_atomic,
     run_files,
     save_figure,
@@ -19,4 +20,4 @@ from udrobot_files.output import (
 )
 
 __all__ = ["OutputError", "atomic_write", "check_output_dir", "check_outputs", "current_umask", "is_private_dir",
-           "open_atomic", "run_files", "save_figure", "sidecar", "spec_files"]
+           "not_regular", "open_atomic", "run_files", "save_figure", "sidecar", "spec_files"]

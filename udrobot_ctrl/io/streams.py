@@ -5,6 +5,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .runlog import MAX_GAP_RATIO, MAX_GAP_S, MIN_RATIO_GAP_S
+
 
 class LogImportError(ValueError):
     """A log that cannot be imported completely: the message names the file and the byte offset or message index."""
@@ -37,10 +39,70 @@ class Stream:
     notes: list = field(default_factory=list)
 
 
-def finish_stream(name, times, columns, time_source, t_alternative=None, alternative_source="") -> Stream:
-    """Build a :class:`Stream` from per-message lists: sort by time (stable) and keep the last of equal stamps.
+def gap_limit(t) -> tuple:
+    """(limit, median step) of the clock-jump rule of run logs (``runlog.check_time_gaps``) for sorted times ``t``.
 
-    Sorting and de-duplication are recorded in ``notes`` (never silent).
+    An interval is a clock jump when it exceeds :data:`~udrobot_ctrl.io.runlog.MAX_GAP_S` (6 h), or both
+    :data:`~udrobot_ctrl.io.runlog.MAX_GAP_RATIO` (1e4) median steps and
+    :data:`~udrobot_ctrl.io.runlog.MIN_RATIO_GAP_S` (60 s).
+    """
+    med = float(np.median(np.diff(t)))
+    return min(MAX_GAP_S, max(MAX_GAP_RATIO * med, MIN_RATIO_GAP_S)), med
+
+
+def clock_jump_segment(name, t, time_source) -> tuple:
+    """The stretch of sorted times ``t`` to keep when clock jumps split it: the one with the most samples.
+
+    A few corrupt bytes in a time stamp (a flipped bit in a dataflash ``TimeUS``, a damaged tlog receive time)
+    put a record hours or days away from the others; a conversion onto a uniform grid across that gap would
+    allocate in proportion to it. The stream is cut at every interval over the run-log limit (:func:`gap_limit`)
+    and only its largest stretch is kept.
+
+    Parameters
+    ----------
+    name : str
+        The stream, for the note.
+    t : (m,) ndarray
+        Sorted times, s.
+    time_source : str
+        What ``t`` is, for the note.
+
+    Returns
+    -------
+    (slice, str or None)
+        The samples to keep and a note saying what was dropped (which stream, how many records, the jumps and
+        the limit), or ``(slice(None), None)`` when nothing is dropped.
+    """
+    if t.size < 3:
+        return slice(None), None
+    limit, med = gap_limit(t)
+    cuts = np.flatnonzero(np.diff(t) > limit)
+    if not cuts.size:
+        return slice(None), None
+    bounds = np.r_[0, cuts + 1, t.size]
+    k = int(np.argmax(np.diff(bounds)))
+    a, b = int(bounds[k]), int(bounds[k + 1])
+    before, after = a, t.size - b
+    biggest = float(np.diff(t)[cuts].max())
+    where = []
+    if before:
+        where.append(f"{before} before it ({t[0]:.6g}..{t[a - 1]:.6g} s)")
+    if after:
+        where.append(f"{after} after it ({t[b]:.6g}..{t[-1]:.6g} s)")
+    note = (f"{name}: {before + after} of {t.size} records dropped ({' and '.join(where)}): clock jumps of up to "
+            f"{biggest:.6g} s in {time_source} (limit {limit:.6g} s: over 6 h, or over 1e4 median intervals of "
+            f"{med:.3g} s and 60 s, as for run logs) cut the stream into {len(cuts) + 1} stretches; the largest, "
+            f"{b - a} records at {t[a]:.6g}..{t[b - 1]:.6g} s, is kept. Corrupt time stamps, or a second session in "
+            f"the log (convert it separately)")
+    return slice(a, b), note
+
+
+def finish_stream(name, times, columns, time_source, t_alternative=None, alternative_source="") -> Stream:
+    """Build a :class:`Stream` from per-message lists: sort by time (stable), keep the last of equal stamps, and
+    drop records that clock jumps separate from the stream's largest stretch (:func:`clock_jump_segment`).
+
+    Sorting, de-duplication and dropped records are recorded in ``notes`` (never silent). An alternative clock
+    with a jump over the limit in the kept stretch is not used (noted).
     """
     t = np.asarray(times, dtype=float)
     fields = {k: np.asarray(v, dtype=float) for k, v in columns.items()}
@@ -60,5 +122,19 @@ def finish_stream(name, times, columns, time_source, t_alternative=None, alterna
             t = t[keep]
             fields = {k: v[keep] for k, v in fields.items()}
             alt = None if alt is None else alt[keep]
+    keep, note = clock_jump_segment(name, t, time_source)
+    if note:
+        notes.append(note)
+        t = t[keep]
+        fields = {k: v[keep] for k, v in fields.items()}
+        alt = None if alt is None else alt[keep]
+    if alt is not None and alt.size > 2:
+        d = np.diff(alt)
+        jump = np.flatnonzero(~np.isfinite(d) | (np.abs(d) > gap_limit(t)[0]))
+        if jump.size:
+            notes.append(f"{name}: {alternative_source} not used: it jumps by {d[jump[0]]:.6g} s at {time_source} "
+                         f"{t[jump[0] + 1]:.6g} s (over the clock-jump limit {gap_limit(t)[0]:.6g} s); "
+                         f"{time_source} is used throughout")
+            alt, alternative_source = None, ""
     return Stream(name=name, t=t, fields=fields, time_source=time_source, t_alternative=alt,
                   alternative_source=alternative_source, notes=notes)

@@ -30,7 +30,9 @@ import hashlib
 import io
 import json
 import os
+import re
 import secrets
+import stat
 from pathlib import Path
 
 import numpy as np
@@ -39,6 +41,9 @@ STUDY_FILE = "study.json"
 DESIGN_FILE = "design.npy"
 CHUNK_DIR = "chunks"
 LOCK_FILE = ".lock"
+#: the name of a temporary file this module writes, ``.NAME.PID.TOKEN.tmp`` (TOKEN: 12 hex digits); any other
+#: ``.*.tmp`` in a study folder is the user's and never removed
+TEMP_NAME = re.compile(r"^\.(?P<name>.+)\.(?P<pid>[0-9]+)\.(?P<token>[0-9a-f]{12})\.tmp$")
 
 
 class StudyMismatchError(ValueError):
@@ -133,15 +138,30 @@ def _pid_alive(pid: int) -> bool:
 
 
 def remove_stale_temp_files(folder) -> list:
-    """Remove ``.NAME.PID.TOKEN.tmp`` files of ``folder`` whose writer (PID) is gone; returns the removed paths.
+    """Remove the temporary files this module left in ``folder`` whose writer (PID) is gone.
 
-    A temporary file of a live writer is never touched (only its owner removes it).
+    Only files named as :func:`atomic_write_bytes` names them (:data:`TEMP_NAME`: ``.NAME.PID.TOKEN.tmp``, a
+    12-hex-digit token), regular files (not links) owned by this user, are candidates; a temporary file of a live
+    writer is never touched (only its owner removes it), and any other ``.*.tmp`` (the user's) stays.
+
+    Returns
+    -------
+    list of Path
+        The removed files.
     """
     removed = []
     for tmp in Path(folder).glob(".*.tmp"):
-        parts = tmp.name.split(".")
-        pid = int(parts[-3]) if len(parts) >= 4 and parts[-3].isdigit() else None
-        if pid is not None and (pid == os.getpid() or _pid_alive(pid)):
+        match = TEMP_NAME.match(tmp.name)
+        if match is None:
+            continue
+        pid = int(match["pid"])
+        if pid == os.getpid() or _pid_alive(pid):
+            continue
+        try:
+            st = os.lstat(tmp)
+        except FileNotFoundError:
+            continue
+        if not stat.S_ISREG(st.st_mode) or st.st_uid != os.getuid():
             continue
         tmp.unlink(missing_ok=True)
         removed.append(tmp)

@@ -96,7 +96,7 @@ def test_resume_after_a_killed_sweep_recomputes_only_missing_samples(tmp_path):
     proc.send_signal(signal.SIGKILL)  # hard interruption: no cleanup handlers run (the kernel drops its lock)
     proc.wait()
     store = ResultStore(out, {"method": "test"}, X, ["x1", "x2", "x3"], resume=True)
-    (out / "chunks" / ".c99999999-0008.csv.123.tmp").write_text("sample_id,x1\n5,0.1")  # a half-written chunk
+    (out / "chunks" / ".c99999999-0008.csv.123.0123456789ab.tmp").write_text("sample_id,x1\n5,0.1")  # half-written
     done_before = store.finished_ids()
     assert 0 < len(done_before) < len(X)
     table = store.table()  # the interrupted table is readable and consistent
@@ -198,9 +198,9 @@ def test_resume_refuses_another_seed_and_keeps_a_live_writers_temp_files(tmp_pat
         run_sobol(f, f.problem(), 8, executor=SweepExecutor(workers=1), out=out, seed=1, resume=True, progress=False)
     live = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
     try:
-        mine = out / "chunks" / f".c00000000-0008.csv.{live.pid}.a1b2c3.tmp"  # a running writer's temp file
+        mine = out / "chunks" / f".c00000000-0008.csv.{live.pid}.a1b2c3d4e5f6.tmp"  # a running writer's temp file
         mine.write_text("sample_id\n")
-        dead = out / "chunks" / ".c00000008-0008.csv.999999999.d4e5f6.tmp"  # its writer is gone
+        dead = out / "chunks" / ".c00000008-0008.csv.999999999.d4e5f6a7b8c9.tmp"  # its writer is gone
         dead.write_text("sample_id\n")
         run_sobol(f, f.problem(), 8, executor=SweepExecutor(workers=1), out=out, seed=0, resume=True, progress=False)
         assert mine.exists() and not dead.exists()
