@@ -28,6 +28,7 @@ COMMANDS = {
     "diagnose": "udrobot_ctrl.cli.diagnose",
     "sensitivity": "udrobot_ctrl.cli.sensitivity",
     "convert": "udrobot_ctrl.cli.convert",
+    "design": "udrobot_ctrl.cli.design",
 }
 
 DESCRIPTION = """\
@@ -44,6 +45,7 @@ commands, in the order of a typical job:
   diagnose     where a model disagrees with real runs, which unmodelled effect explains it, how much
   compare      LQR, PID and MPC designed on one model and flown on another, for every pair
   sensitivity  which coefficient matters to a controller (local, Sobol or Morris)
+  design       the vehicle's own ArduSub gains tuned on a model, written as a QGroundControl .params file
 
 Models: the UDrobot as SET:FORM (cfd:chin, cfd:morison, free_decay:morison, pendulum:chin, pendulum:morison),
 the BlueROV2 vehicles (bluerov2, bluerov2-heavy), or a udrobot-model/1 JSON or vehicle TOML file.

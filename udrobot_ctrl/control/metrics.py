@@ -109,6 +109,20 @@ def step_response(t, y, t_step, t_end, before, target, band_fraction=0.02):
     return over, float(tt[k] + frac * (tt[k + 1] - tt[k]) - t_step)
 
 
+def integral_abs_error(t, e) -> float:
+    """IAE: the integral of |e| dt over the samples ``t`` (s), trapezoid rule (error unit times s)."""
+    t, e = np.asarray(t, float), np.abs(np.asarray(e, float))
+    return float(np.sum(0.5 * (e[1:] + e[:-1]) * np.diff(t)))
+
+
+def at_thrust_limit(u, f_min, f_max) -> np.ndarray:
+    """Per sample: at least one thruster command ``u`` (..., k) is within :data:`SATURATION_TOL` of the thrust range
+    of its forward or reverse limit ``f_max`` / ``f_min`` (N), or beyond (the ``saturation_s`` definition)."""
+    u, f_min, f_max = np.asarray(u, float), np.asarray(f_min, float), np.asarray(f_max, float)
+    tol = SATURATION_TOL * (f_max - f_min)
+    return np.any((u >= f_max - tol) | (u <= f_min + tol), axis=-1)
+
+
 def _worst(values):
     if any(v is None for v in values):
         return None
@@ -142,8 +156,7 @@ def mission_metrics(res, mission: Mission, f_min, f_max) -> dict:
     out = {}
     total = 0.0
     for c in CHANNELS:
-        e = np.abs(err[c])
-        iae = float(np.sum(0.5 * (e[1:] + e[:-1]) * dt))  # trapezoid
+        iae = integral_abs_error(t, err[c])
         out[f"iae_{c}"] = iae
         total += iae / mission.step_scale(c)
     out["iae"] = total
@@ -162,8 +175,7 @@ def mission_metrics(res, mission: Mission, f_min, f_max) -> dict:
     out["settling_s"] = out["settling_z_s"]
     f = np.clip(u, f_min, f_max)
     out["energy_J"] = float(np.sum(np.sum(thrust_power(f), axis=-1) * dt[: len(f)]))
-    tol = SATURATION_TOL * (f_max - f_min)
-    sat = np.any((u >= f_max - tol) | (u <= f_min + tol), axis=-1)
+    sat = at_thrust_limit(u, f_min, f_max)
     out["saturation_s"] = float(np.sum(dt[: len(sat)] * sat))
     out["max_roll_deg"] = float(np.degrees(np.max(np.abs(x[:, 3]))))
     out["max_pitch_deg"] = float(np.degrees(np.max(np.abs(x[:, 4]))))

@@ -1,0 +1,193 @@
+"""``udrobot-ctrl design ardusub``: ArduSub's own gains designed on a model, written as a QGroundControl file."""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+from pathlib import Path
+
+from udrobot_ctrl.autopilot.design import (
+    LOOP_PARAMETERS,
+    LOOPS,
+    Specification,
+    design_ardusub,
+    plot_loop,
+    prediction_sensitivity,
+)
+from udrobot_ctrl.autopilot.params import run_log_params
+from udrobot_ctrl.autopilot.qgc_params import format_params, read_params
+from udrobot_ctrl.io.files import atomic_write, check_outputs, sidecar
+from udrobot_ctrl.io.runlog import read_metadata
+from udrobot_ctrl.vehicle import ALL_MODEL_NAMES
+
+
+def register(subparsers):
+    """Add ``design`` with the sub-command ``ardusub``."""
+    parser = subparsers.add_parser(
+        "design", help="design the vehicle's own autopilot gains on a model (ArduSub -> .params file)",
+        description="Design a vehicle autopilot's own gains on a model and write them in the autopilot's format.")
+    sub = parser.add_subparsers(dest="design_command", required=True, metavar="{ardusub}")
+    p = sub.add_parser(
+        "ardusub", help="ArduSub's attitude and depth gains -> QGroundControl .params",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        description="Tune ArduSub's cascaded gains (attitude angle P and rate PID for roll, pitch, yaw; depth\n"
+                    "position P, velocity P, acceleration PID) on model M with the emulated ArduSub in closed loop\n"
+                    "(udrobot_ctrl/autopilot/design.py), starting from the log's gains (--from) or ArduSub's\n"
+                    "defaults, for the specifications below and no thruster at its limit in a 1 m depth step or\n"
+                    "a 45 deg yaw step. The new gains are checked on the model's spread of coefficient sets\n"
+                    "(UDrobot: the five sets; BlueROV2: the Wu2018 alternative and a low-damping corner; a\n"
+                    "corrected model: with and without its effects). Writes only the parameters that change,\n"
+                    "in ArduSub's names and units, as a QGroundControl parameter file (Parameters > Tools >\n"
+                    "Load from file). Unsafe gains (unstable on a model of the spread, or saturating a\n"
+                    "thruster in the step) are reported and not written without --force.",
+        epilog="example: udrobot-ctrl design ardusub --model bluerov2-heavy --out gains.params --report design_out")
+    p.add_argument("--model", required=True, help=f"model name ({', '.join(ALL_MODEL_NAMES)}) or model file "
+                                                  f"(e.g. diagnose --out-model's corrected model)")
+    p.add_argument("--from", dest="from_", metavar="RUN.csv|GAINS.params",
+                   help="start from this vehicle's parameters: a converted run (its sidecar's autopilot_params, "
+                        "else autopilot_params_estimated) or a .params file; ArduSub's defaults otherwise")
+    p.add_argument("--out", required=True, help="the QGroundControl .params file to write")
+    p.add_argument("--report", metavar="DIR", help="folder for design.json, one step plot per loop and the "
+                                                   "sensitivity of the predictions (sensitivity.csv)")
+    p.add_argument("--loops", default=",".join(LOOPS), help=f"comma-separated loops to design (default "
+                                                            f"{','.join(LOOPS)})")
+    p.add_argument("--spread", action="append", default=[], metavar="MODEL",
+                   help="a further model the gains must stay safe on (repeatable)")
+    p.add_argument("--depth-settling", type=float, default=Specification.depth_settling_s, metavar="S",
+                   help="settling time (2 %%) of the 1 m depth step, s (default %(default)s)")
+    p.add_argument("--depth-overshoot", type=float, default=Specification.depth_overshoot_pct, metavar="PCT",
+                   help="overshoot of the depth step, %% (default %(default)s)")
+    p.add_argument("--yaw-settling", type=float, default=Specification.yaw_settling_s, metavar="S",
+                   help="settling time (5 %%) of the 45 deg yaw step, s (default %(default)s)")
+    p.add_argument("--yaw-overshoot", type=float, default=Specification.yaw_overshoot_pct, metavar="PCT",
+                   help="overshoot of the yaw step, %% (default %(default)s)")
+    p.add_argument("--loop-rate", type=float, default=100.0, metavar="HZ",
+                   help="the emulated autopilot's rate in the design flights (default %(default)s Hz)")
+    p.add_argument("--evaluations", type=int, default=30, metavar="N",
+                   help="flights per loop in the search (default %(default)s)")
+    p.add_argument("--no-sensitivity", action="store_true", help="with --report: skip the sensitivity study")
+    p.add_argument("--force", action="store_true",
+                   help="write the gains even when they are unsafe, and replace existing output files")
+    p.set_defaults(func=run)
+
+
+def _start_params(path) -> tuple:
+    """(parameters in ArduSub units, description) from a run CSV's sidecar or a .params file."""
+    path = Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f"--from {path}: no such file")
+    if path.suffix.lower() in (".params", ".param", ".parm"):
+        return read_params(path), f"the parameters of {path}"
+    meta_path = path if path.suffix.lower() == ".json" else sidecar(path)
+    if not meta_path.exists():
+        raise FileNotFoundError(f"--from {path}: its sidecar {meta_path} (udrobot-run/1 metadata) does not exist")
+    params, note = run_log_params(read_metadata(meta_path))
+    if not params:
+        raise ValueError(f"--from {path}: the sidecar {meta_path} holds no autopilot_params or "
+                         f"autopilot_params_estimated; run without --from to start from ArduSub's defaults")
+    return params, f"the log's parameters ({meta_path})" + (f"; {note}" if note else "")
+
+
+def _fmt(v) -> str:
+    if v is None:
+        return "-"
+    return f"{v:.2f}" if isinstance(v, float) and math.isfinite(v) else str(v)
+
+
+def run(args) -> int:
+    loops = tuple(lp.strip() for lp in args.loops.split(",") if lp.strip())
+    for lp in loops:
+        if lp not in LOOPS:
+            raise ValueError(f"--loops: unknown loop {lp!r} (expected some of {', '.join(LOOPS)})")
+    if args.evaluations < 1:
+        raise ValueError(f"--evaluations must be >= 1, got {args.evaluations}")
+    for name in ("depth_settling", "depth_overshoot", "yaw_settling", "yaw_overshoot"):
+        if not getattr(args, name) > 0:
+            raise ValueError(f"--{name.replace('_', '-')} must be > 0, got {getattr(args, name)}")
+    inputs = [args.from_] if args.from_ else []
+    outputs = [args.out]
+    if args.report:
+        outputs += [Path(args.report) / "design.json"] + [Path(args.report) / f"step_{lp}.png" for lp in LOOPS]
+    check_outputs(outputs, inputs, force=args.force)
+    log_params, origin = (_start_params(args.from_) if args.from_ else ({}, "ArduSub's defaults"))
+    spec = Specification(depth_settling_s=args.depth_settling, depth_overshoot_pct=args.depth_overshoot,
+                         yaw_settling_s=args.yaw_settling, yaw_overshoot_pct=args.yaw_overshoot)
+    design = design_ardusub(args.model, log_params, spec, loop_rate_hz=args.loop_rate, loops=loops,
+                            spread_extra=args.spread, max_evaluations=args.evaluations)
+    print(f"ArduSub gains for {design.model} (frame {design.frame_name}), from {origin}")
+    print(f"{'parameter':16s} {'old':>9s} {'new':>9s}")
+    for loop in LOOPS:
+        for name in LOOP_PARAMETERS[loop]:
+            d = design.loops[loop]
+            mark = "" if d.new[name] != d.old[name] else "   (unchanged)"
+            print(f"{name:16s} {d.old[name]:9.4g} {d.new[name]:9.4g}{mark}")
+    print(f"\n{'loop':6s} {'gains':4s} {'settling s':>15s} {'overshoot %':>15s} {'IAE s':>13s} {'max cmd':>11s} "
+          f"{'spread (new)':>14s}")
+    print("(old->new on the nominal model; settling: '-' = not settled in the flight)")
+    for loop, d in design.loops.items():
+        o, n = d.nominal_old.summary(), d.nominal_new.summary()
+        stable = sum(r.stable for r in d.spread_new)
+        if not d.designed:
+            print(f"{loop:6s} kept  not designed: {d.note}")
+            continue
+        kind = "new" if d.designed else "kept"
+        print(f"{loop:6s} {kind:4s} {_fmt(o['settling_s']):>7s}->{_fmt(n['settling_s']):>7s} "
+              f"{_fmt(o['overshoot_pct']):>7s}->{_fmt(n['overshoot_pct']):>7s} {_fmt(o['iae_s']):>6s}->"
+              f"{_fmt(n['iae_s']):>6s} {_fmt(o['max_command']):>5s}->{_fmt(n['max_command']):>5s} "
+              f"{stable}/{len(d.spread_new)} stable  spec {'met' if d.nominal_new.meets(design.spec) else 'NOT met'}"
+              + ("" if not d.note else f"  [{d.note}]"))
+    for note in design.notes:
+        print(f"note: {note}")
+    changed = design.changed_params()
+    if args.report:
+        report = Path(args.report)
+        report.mkdir(parents=True, exist_ok=True)
+        doc = design.to_dict()
+        doc["started_from"] = origin
+        if not args.no_sensitivity:
+            try:
+                sens = prediction_sensitivity(design, args.model)
+                doc["sensitivity"] = {"parameters": sens.names, "elasticity": {m: [_num(v) for v in e] for m, e in
+                                                                               sens.elasticity.items()},
+                                      "low": {m: [_num(v) for v in e] for m, e in sens.low.items()},
+                                      "high": {m: [_num(v) for v in e] for m, e in sens.high.items()},
+                                      "base": {m: _num(v) for m, v in sens.base.items()}}
+                _print_sensitivity(sens)
+            except ValueError as exc:
+                doc["sensitivity"] = {"skipped": str(exc)}
+                print(f"sensitivity: skipped ({exc})")
+        atomic_write(report / "design.json", json.dumps(doc, indent=1) + "\n", force=True)
+        for loop in LOOPS:
+            plot_loop(design, loop, report / f"step_{loop}.png")
+        print(f"report: {report}/design.json, step_<loop>.png for {', '.join(LOOPS)}")
+    if not design.safe:
+        for reason in design.refusal:
+            print(f"UNSAFE: {reason}")
+        if not args.force:
+            print(f"not written: {args.out} (the gains are unsafe on the model's spread; --force writes them anyway)")
+            return 1
+    if not changed:
+        print(f"no gain changes: the old gains already are the design; {args.out} not written")
+        return 0
+    comments = [f"ArduSub gains designed by udrobot-ctrl design ardusub on model {design.model} "
+                f"(frame {design.frame_name}), from {origin}",
+                "only the parameters that change; ArduSub's names and units"]
+    if not design.safe:
+        comments.append("UNSAFE (written with --force): " + "; ".join(design.refusal))
+    atomic_write(args.out, format_params(changed, comments=comments), force=True)
+    print(f"wrote {args.out}: {len(changed)} parameters")
+    return 0
+
+
+def _num(v):
+    return None if v is None or not math.isfinite(float(v)) else round(float(v), 4)
+
+
+def _print_sensitivity(sens) -> None:
+    print("\nsensitivity of the predictions with the new gains (metric at the low / high end of each coefficient):")
+    for metric in ("depth_settling_s", "depth_iae_s", "yaw_settling_s", "yaw_iae_s"):
+        if metric not in sens.base:
+            continue
+        parts = [f"{n} {_fmt(lo)}/{_fmt(hi)}" for n, lo, hi in zip(sens.names, sens.low[metric], sens.high[metric])
+                 if n.split(".")[0] == ("heave" if metric.startswith("depth") else "yaw")]
+        print(f"  {metric} (nominal {_fmt(sens.base[metric])}): " + ", ".join(parts))
