@@ -15,6 +15,7 @@ from pathlib import Path
 
 from udrobot_ctrl.gap.plots import plot_paths, write_plots
 from udrobot_ctrl.gap.report import corrected_model, diagnose, run_label, split_runs, summary, write_report
+from udrobot_ctrl.gap.shrink import check_window
 from udrobot_ctrl.io import load_any
 from udrobot_ctrl.io.files import check_output_dir, check_outputs, spec_files
 from udrobot_ctrl.vehicle import write_model_file
@@ -62,8 +63,7 @@ def run(args) -> int:
         check_outputs(plot_paths(args.plot, [run_label(r) for r in fit_s], [run_label(r) for r in hold_s]), inputs,
                       force=args.force, option="--plot")
     effects = [e.strip() for e in args.effects.split(",")] if args.effects else None
-    if args.window <= 0:
-        raise ValueError(f"--window must be > 0 s, got {args.window}")
+    check_window(args.window, ())
     log = None if args.quiet else (lambda s: print(s, file=sys.stderr))
     report, ctx = diagnose(args.model, fit, hold or None, window_s=args.window, effects=effects, log=log,
                            model_label=args.model)

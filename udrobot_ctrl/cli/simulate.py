@@ -29,6 +29,7 @@ from udrobot_ctrl.dynamics.plant import plant_parameters, state_derivative
 from udrobot_ctrl.dynamics.sim import Actuators, integrate_intervals, rk4_step
 from udrobot_ctrl.dynamics.thrusters import pwm_to_thrust
 from udrobot_ctrl.gap.replay import WindowedGap, windowed_gap
+from udrobot_ctrl.gap.shrink import check_window
 from udrobot_ctrl.io import load_any, runlog
 from udrobot_ctrl.io.files import atomic_write, check_outputs, run_files, spec_files
 from udrobot_ctrl.io.runlog import check_time_gaps
@@ -243,8 +244,7 @@ def run_windows(args) -> int:
     for src in srcs:
         if not src.exists():
             raise FileNotFoundError(f"input run {src} does not exist")
-    if not args.windows > 0:
-        raise ValueError(f"--windows must be > 0 s, got {args.windows}")
+    check_window(args.windows, (), "windows")
     inputs = [*srcs, *spec_files(args.model, getattr(args, "mapping", None))]
     if args.out and len(srcs) > 1:
         raise ValueError(f"--out writes one simulated run; {len(srcs)} --input runs were given (use --json for the "

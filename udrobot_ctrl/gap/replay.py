@@ -33,7 +33,7 @@ from udrobot_ctrl.dynamics.effects import wall_planes
 from udrobot_ctrl.dynamics.plant import plant_parameters
 from udrobot_ctrl.gap.data import Prepared, prepare
 from udrobot_ctrl.gap.effects import Actuation, plant_hooks
-from udrobot_ctrl.gap.shrink import gap, prepare_with_effects, simulate_windows
+from udrobot_ctrl.gap.shrink import check_window, gap, prepare_with_effects, simulate_windows
 from udrobot_ctrl.vehicle import load_model
 
 
@@ -132,8 +132,7 @@ def windowed_gap(model, runs, window_s: float = 8.0, names=None, scored=None) ->
         If ``window_s`` is not positive, or a run cannot be prepared (too short, inputs not matching the
         model's thrusters; the message names the run).
     """
-    if not window_s > 0:
-        raise ValueError(f"window must be > 0 s, got {window_s}")
+    window_s = check_window(window_s, (), "windows")
     vehicle = load_model(model)
     p = plant_parameters(vehicle.with_changes(effects=()))  # the nominal; every effect enters through its hooks
     labels = list(names) if names is not None else [
@@ -151,6 +150,7 @@ def windowed_gap(model, runs, window_s: float = 8.0, names=None, scored=None) ->
                 prep = replace(prep, surfaces=planes)
         preps.append(prep)
         sims.append(simulate_windows(prep, p, hooks, window_s))
+    check_window(window_s, preps, "windows")
     g = gap(preps, sims, scored)
     return WindowedGap(model=vehicle.name, effects=tuple(e.name for e in vehicle.effects), runs=tuple(labels),
                        window_s=float(window_s), value=g.value, per_channel=g.per_channel,

@@ -59,7 +59,7 @@ from udrobot_ctrl.gap.data import actuators, prepare
 from udrobot_ctrl.gap.effects import Actuation
 from udrobot_ctrl.gap.identifiability import Identifiability
 from udrobot_ctrl.gap.locate import Located, locate, noise_floor
-from udrobot_ctrl.gap.shrink import GapScore, gap, prepare_with_effects, simulate_windows
+from udrobot_ctrl.gap.shrink import GapScore, check_window, gap, prepare_with_effects, simulate_windows
 from udrobot_ctrl.io.files import atomic_write
 from udrobot_ctrl.io.runlog import Run
 from udrobot_ctrl.parallel import Background, fork_map
@@ -379,6 +379,7 @@ def prepare_inputs(model, runs, holdout, effects, window_s, model_label=None) ->
     fit_runs, ho_runs, split_note = split_runs(runs, holdout)
     preps = fork_map(lambda r: prepare(r, p, run_label(r)), [*fit_runs, *ho_runs], warm=True)  # a smoother each
     fit_p, ho_p = preps[:len(fit_runs)], preps[len(fit_runs):]
+    window_s = check_window(window_s, ho_p or fit_p)
     label = model_label or (str(model) if not hasattr(model, "name") else model.name)
     return Inputs(label, p, cat, names, fit_p, ho_p, [split_note] + [n for pr in fit_p + ho_p for n in pr.notes],
                   window_s, tuple(fit_runs) + tuple(ho_runs))

@@ -29,6 +29,7 @@ Definition used by the report (``metric: "nrmse"``):
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -60,6 +61,36 @@ ACCEL_ENVELOPE = 1e4
 #: clipped to it (module docstring)
 ERROR_CAP = {**dict.fromkeys(("u", "v", "w", "p", "q", "r"), VELOCITY_ENVELOPE),
              **dict.fromkeys(ANGLES, np.pi), "z": POSITION_ENVELOPE, **dict.fromkeys(ACCEL, ACCEL_ENVELOPE)}
+
+
+def check_window(window_s, preps, option: str = "window") -> float:
+    """The multiple-shooting window (s) checked against the prepared runs it will cut; returns it as a float.
+
+    Raises
+    ------
+    ValueError
+        If it is not a finite positive number, spans fewer than two samples of every run's grid (nothing to
+        integrate), or is so long that no run holds a quarter of it (no window fits: the gap would be undefined),
+        naming the limits.
+    """
+    try:
+        w = float(window_s)
+    except (TypeError, ValueError):
+        raise ValueError(f"--{option} must be a number of seconds, got {window_s!r}") from None
+    if not (math.isfinite(w) and w > 0):
+        raise ValueError(f"--{option} must be a finite number of seconds > 0, got {window_s!r}")
+    preps = list(preps)
+    if preps:
+        shortest = 2 * min(pr.dt for pr in preps)
+        longest = max(pr.t[-1] - pr.t[0] for pr in preps)
+        if w < shortest:
+            raise ValueError(f"--{option} {w:g} s is shorter than two samples of the runs' grid ({shortest:g} s): "
+                             f"nothing would be simulated; use a window of a few time constants (default 8 s)")
+        if w >= 4 * longest:  # window_starts opens a window only where a quarter of it fits in the run
+            raise ValueError(f"--{option} {w:g} s is longer than the longest run ({longest:.3g} s) can hold: no "
+                             f"window fits (a window needs a quarter of its length in the run); use at most "
+                             f"{longest:.3g} s")
+    return w
 
 
 def window_starts(prep: Prepared, window_s: float):

@@ -67,7 +67,7 @@ def test_out_writes_the_windowed_replay_on_the_runs_grid(files, tmp_path):
 
 @pytest.mark.parametrize("extra, message", [
     (["--json", "g.json"], "add --windows"),
-    (["--windows", "0"], "must be > 0"),
+    (["--windows", "0"], "seconds > 0"),
     (["--windows", "8", "--out", "a.csv"], "one simulated run"),
 ])
 def test_bad_windowed_options_are_refused(files, tmp_path, capsys, extra, message):
