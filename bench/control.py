@@ -167,11 +167,10 @@ def bench_ekf(v, n=1200):
     return {"ekf_step_us": med, "ekf_step_p99_us": p99}
 
 
-def bench_faults(v, t_final=12.0):
-    """Fault monitor (frozen-sensor test + thruster GLR windows) per control step, healthy closed loop."""
+def _fault_monitor_steps(v, t_final=12.0):
+    """(seconds of each fault-monitor step, the loop) over a healthy closed-loop LMPC + EKF mission."""
     m = standard_mission(quick=True)
-    ekf = UDrobotEKF(v, 0.05, x0=m.x0())
-    loop = EstimatorLoop(LinearMPC(v, m, dt=0.05, horizon=20), ekf, seed=0)
+    loop = EstimatorLoop(LinearMPC(v, m, dt=0.05, horizon=20), UDrobotEKF(v, 0.05, x0=m.x0()), seed=0)
     times = []
     step = loop.monitor.step
 
@@ -183,6 +182,12 @@ def bench_faults(v, t_final=12.0):
 
     loop.monitor.step = timed
     simulate(v, m.x0(), t_final, controller=loop, dt=0.01, control_dt=0.05)
+    return times, loop
+
+
+def bench_faults(v, t_final=12.0):
+    """Fault monitor (frozen-sensor test + thruster GLR windows) per control step, healthy closed loop."""
+    times, loop = _fault_monitor_steps(v, t_final)
     med, p99, mx = _stats(times, 1e6)
     print(f"Fault monitor (frozen test + thruster GLR, 1 s windows every 0.25 s): median {med:.0f} us, "
           f"p99 {p99:.0f} us, max {mx:.0f} us per control step; events {len(loop.report().events)}")
@@ -350,19 +355,7 @@ def bench_anchors(model, quick=False, repeats=3):
     e_med, fp_med = float(np.median(ekf_t)) * 1e6, float(np.median(fp_t)) * 1e6
     _ratio_line("EKF predict + update (gated)", e_med, "us", "filterpy EKF, same Jacobians", fp_med, 40)
     # fault monitor, healthy closed loop (figure vs the plain-OSQP step of this run and the goal)
-    ekf2 = UDrobotEKF(v, 0.05, x0=m.x0())
-    loop = EstimatorLoop(LinearMPC(v, m, dt=0.05, horizon=20), ekf2, seed=0)
-    times = []
-    step = loop.monitor.step
-
-    def timed(*a, **k):
-        t0 = time.perf_counter()
-        out = step(*a, **k)
-        times.append(time.perf_counter() - t0)
-        return out
-
-    loop.monitor.step = timed
-    simulate(v, m.x0(), 12.0, controller=loop, dt=0.01, control_dt=0.05)
+    times, loop = _fault_monitor_steps(v, 12.0)
     mon, mon99 = float(np.median(times)) * 1e6, float(np.percentile(times, 99)) * 1e6
     _ratio_line("fault monitor step", mon, "us", "plain OSQP step (no published anchor)", anchor, 50)
     print(f"    {'':<34} p99 {mon99:.0f} us, mean {np.mean(times) * 1e6:.0f} us (a window is evaluated every 0.25 s); "

@@ -20,7 +20,7 @@ of the plant and of its integrator), the plant's state at the log's first row as
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -214,10 +214,8 @@ def fly(model, run: Run, loop_rate_hz: float | None = None, t_final: float | Non
     log_params, estimated = run_log_params(run.metadata)
     params = ArduSubParameters.from_log_params(log_params, loop_rate_hz)
     k = fr.n_motors
-    motors = MotorParameters.from_log_params(log_params, k)
-    motors = MotorParameters(motors.pwm_min, motors.pwm_max, (1,) * k, motors.forward_vertical_coupling,
-                             motors.max_throttle, motors.bat_volt_max, motors.bat_volt_min, motors.bat_curr_max,
-                             motors.assumed)
+    # the run's pwm_i are motor-command PWM (the converter mirrored the reversed motors): every direction +1
+    motors = replace(MotorParameters.from_log_params(log_params, k), directions=(1,) * k)
     commands = LoggedCommands.from_run(run, fr, motors, p.supply_voltage)
     x0 = np.nan_to_num(run.state_matrix()[0])
     dt = 1.0 / params.loop_rate_hz

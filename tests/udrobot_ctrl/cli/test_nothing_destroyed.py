@@ -4,23 +4,17 @@ from __future__ import annotations
 import os
 import shutil
 import stat
-import struct
 from importlib import resources
 
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-from pymavlink.dialects.v20 import ardupilotmega as mav2
 
+from tests.udrobot_ctrl.cli.test_output_policy import _snapshot, _tlog
 from udrobot_ctrl.cli import main
 from udrobot_ctrl.cli.demo import write_index
 from udrobot_ctrl.io import files, log_input_files
 from udrobot_ctrl.sensitivity.results import TEMP_NAME, remove_stale_temp_files
-
-
-def _snapshot(folder):
-    return {p: p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file() and not p.is_symlink()
-            and not stat.S_ISFIFO(os.lstat(p).st_mode)}
 
 
 def _refused(argv, tmp_path, capsys, what="refusing to overwrite input data"):
@@ -32,16 +26,6 @@ def _refused(argv, tmp_path, capsys, what="refusing to overwrite input data"):
     assert ": error: " in err and what in err, err
     assert _snapshot(tmp_path) == before
     return err
-
-
-def _tlog(path):
-    """A small MAVLink telemetry log (ATTITUDE at 50 Hz, UNIX-time stamps)."""
-    mav = mav2.MAVLink(None, srcSystem=1, srcComponent=1)
-    with open(path, "wb") as fh:
-        for k in range(100):
-            msg = mav.attitude_encode(20 * k, 0.0, 0.1, 0.0, 0.0, 0.0, 0.0)
-            fh.write(struct.pack(">Q", int(round((1.7e9 + 0.02 * k) * 1e6))) + msg.pack(mav))
-    return path
 
 
 def test_demo_refuses_a_folder_with_a_readme_and_a_planted_link(tmp_path, capsys):

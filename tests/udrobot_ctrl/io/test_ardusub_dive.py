@@ -4,14 +4,11 @@ packed with pymavlink's own format table (DFReader.FORMAT_TO_STRUCT), tlogs with
 dive (../shared/data/guided_above_terrain) when present."""
 from __future__ import annotations
 
-import struct
-
 import numpy as np
 import pytest
-from pymavlink.DFReader import FORMAT_TO_STRUCT
 from pymavlink.dialects.v20 import ardupilotmega as mav2
 
-from tests.udrobot_ctrl.io.test_field_logs import SHARED, T0, _mav, write_events
+from tests.udrobot_ctrl.io.test_field_logs import SHARED, T0, _mav, write_df, write_events
 from udrobot_ctrl.cli.main import main
 from udrobot_ctrl.io import LogImportError, convert_log
 from udrobot_ctrl.io.runlog import read_run, write
@@ -62,25 +59,7 @@ LAYOUTS = {
 
 def write_dataflash(path, records):
     """FMT records for LAYOUTS, then the data records (name, values) in the given order."""
-    fmt_struct = struct.Struct("<BB4s16s64s")
-
-    def fmt_record(mtype, name, form, cols):
-        length = 3 + struct.calcsize("<" + "".join(FORMAT_TO_STRUCT[c][0] for c in form))
-        return b"\xa3\x95\x80" + fmt_struct.pack(mtype, length, name.encode(), form.encode(), cols.encode())
-
-    out = [fmt_record(128, "FMT", "BBnNZ", "Type,Length,Name,Format,Columns")]
-    codes = {}
-    for k, (name, spec) in enumerate(LAYOUTS.items()):
-        form, cols = spec.split(":")
-        codes[name] = (129 + k, form)
-        out.append(fmt_record(129 + k, name, form, cols))
-    for name, values in records:
-        mtype, form = codes[name]
-        packed = [v.encode() if isinstance(v, str) else v for v in values]
-        out.append(b"\xa3\x95" + bytes([mtype]) + struct.pack("<" + "".join(FORMAT_TO_STRUCT[c][0] for c in form),
-                                                               *packed))
-    path.write_bytes(b"".join(out))
-    return path
+    return write_df(path, records, LAYOUTS)
 
 
 def motor_pwm(t, n_motors):

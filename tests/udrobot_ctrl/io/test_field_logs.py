@@ -124,10 +124,11 @@ def test_damaged_tlog_bad_crc_garbage_and_cut_tail(tmp_path):
     np.testing.assert_allclose(np.nanmean(run.channels["phi"]), 0.1, atol=1e-6)
 
 
-def write_df(path, records):
-    """Dataflash bytes: FMT records for each type used, then the data records (name, values) in order."""
+def write_df(path, records, layouts=None):
+    """Dataflash bytes: FMT records for each type of ``layouts`` (name -> "format:columns"; these tests' own by
+    default), then the data records (name, values) in order, packed by pymavlink's FORMAT_TO_STRUCT."""
     formats = {"FMT": (128, "BBnNZ", "Type,Length,Name,Format,Columns")}
-    layouts = {"ATT": "Qfff:TimeUS,Roll,Pitch,Yaw", "BARO": "QBff:TimeUS,I,Alt,Press",
+    layouts = layouts or {"ATT": "Qfff:TimeUS,Roll,Pitch,Yaw", "BARO": "QBff:TimeUS,I,Alt,Press",
                "RCOU": "Q" + "H" * 14 + ":TimeUS," + ",".join(f"C{k}" for k in range(1, 15)),
                "PARM": "QNf:TimeUS,Name,Value", "MSG": "QZ:TimeUS,Message", "RFND": "QBf:TimeUS,Instance,Dist",
                "IMU": "QBffffff:TimeUS,I,GyrX,GyrY,GyrZ,AccX,AccY,AccZ", "CTUN": "Qf:TimeUS,Alt"}
