@@ -1308,13 +1308,17 @@ def unexcited_runs(runs, p: PlantParameters) -> list:
     """Per run, an :class:`Unexcited` when no actuator command leaves ``UNEXCITED_COMMAND`` of its capacity during
     the whole run (e.g. every PWM at 1500 us), else None. The capacity is each thruster's larger thrust limit
     (``thrust_i``, ``pwm_i`` converted by the thruster curve), or for a commanded wrench (``tau_*``) what the
-    thrusters together give along each DOF."""
+    thrusters together give along each DOF. An actuator whose capacity the model does not give (a wrench DOF of a
+    model without thrusters: a vehicle logged after its allocation) excites the run whenever it is not zero."""
     cap_t = np.maximum(p.f_max, -p.f_min)
     out = []
     for r in runs:
         f = np.abs(np.nan_to_num(actuators(r, p)[0]))
         cap = cap_t if r.input_kind in ("thrust", "pwm") else np.abs(p.T) @ cap_t
-        frac = float(np.max(f / np.where(cap > 0, cap, np.inf))) if f.size else 0.0
+        known = cap > 0
+        frac = float(np.max(f[:, known] / cap[known])) if f.size and known.any() else 0.0
+        if f.size and np.any(f[:, ~known] > 0):
+            frac = math.inf  # commanded, against a capacity the model does not know
         z = np.asarray(r.channels.get("z", np.zeros(0)), float)
         z = z[np.isfinite(z)]
         span = float(np.ptp(z)) if z.size else float("nan")

@@ -6,6 +6,7 @@ commanded, so there is no input for a model to answer.
 """
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 
@@ -80,3 +81,12 @@ def test_the_shared_bench_log_with_every_pwm_at_neutral_is_reported_unexcited():
     (u,) = report["unexcited_runs"]
     assert u["max_command_fraction"] == 0.0 and u["depth_span_m"] < 0.02
     assert report["verdict"].startswith("not diagnosed") and report["effects"] == []
+
+
+def test_a_wrench_on_a_model_without_thrusters_is_an_input():
+    """A vehicle logged after its allocation (tau_* on a model with no thrusters, as the Tartan AUV's): the model
+    gives no capacity to compare the wrench with, so any non-zero wrench excites the run; an all-zero one does not."""
+    no_thrusters = dataclasses.replace(P, T=np.zeros((6, 0)), f_min=np.zeros(0), f_max=np.zeros(0))
+    commanded, idle = _idle(kind="tau", k=6, level=2.0), _idle(kind="tau", k=6)
+    out = unexcited_runs([commanded, idle], no_thrusters)
+    assert out[0] is None and out[1] is not None and out[1].max_command == 0.0
