@@ -5,7 +5,8 @@ Usage: ``python bench/control.py [--json] [--quick]``. Prints median and p99 per
 ``--json``, ends with one JSON line holding ``lmpc_median_ms``, ``lmpc_p99_ms``, ``lmpc_first_move_err_N``,
 ``nmpc_median_ms``, ``nmpc_p99_ms``, ``ekf_step_us``, ``fault_monitor_median_us`` (plus the tolerance sweep and
 the LQR design times) and ``anchors``: per model (the UDrobot ``cfd:morison`` and ``bluerov2-heavy``) the linear
-MPC step, EKF step and fault-monitor step each beside its anchor measured in the same run, and the ratio.
+MPC step, NMPC RTI step, EKF step and fault-monitor step each beside its anchor measured in the same run, and the
+ratio.
 ``--only anchors,ekf,faults`` runs a subset (anchors, lmpc, nmpc, ekf, faults, lqr).
 
 Anchors (issue 38), measured in the same run, in passes alternating with the figure they anchor over the same
@@ -14,6 +15,8 @@ step against **plain OSQP** on the same QP written in a few lines (:class:`Plain
 formulation, casadi's own call for the linearisation, the constraint values gathered into the fixed CSC pattern
 and handed to ``OSQP.update``, warm-started); the EKF's predict + update against **filterpy's**
 :class:`~filterpy.kalman.ExtendedKalmanFilter` with the same casadi RK4 Jacobians (no gating).
+The NMPC's RTI step (dense backend) is shown against the same RTI on OSQP (the reference backend, the previous
+implementation; acados, the issue's anchor, does not install from wheels), with the closed-loop IAE of both.
 The fault monitor has no published anchor: its figure is shown against the plain-OSQP step of the same run and
 the issue's goal (50 us). Ratios below 1 mean faster than the anchor. No figure is asserted anywhere.
 
@@ -120,7 +123,7 @@ def bench_lmpc(v, mission, x0, t_final):
     ctrl, _ = lmpc_run(v, mission, x0, t_final, OSQPSettings(), with_exact=False)
     dense, derr = lmpc_run(v, mission, x0, t_final, OSQPSettings(), solver="dense")
     dmed, dp99, _ = _stats(dense.call_times, 1e3)
-    print(f"  dense backend (condensed QP, active set, warm-started): per call median {dmed:.3f} ms, "
+    print(f"  dense backend (Riccati active set, warm-started): per call median {dmed:.3f} ms, "
           f"p99 {dp99:.3f} ms; first move error max {derr.max():.2e} N; OSQP fallbacks {dense.stats['fast_fallbacks']}")
     med, p99, mx = _stats(ctrl.call_times, 1e3)
     smed, sp99, _ = _stats(ctrl.solve_times, 1e3)
@@ -137,17 +140,23 @@ def bench_lmpc(v, mission, x0, t_final):
 
 def bench_nmpc(v, mission, x0, t_final, n_ipopt):
     print("Nonlinear MPC, horizon 20, multiple shooting:")
-    ctrl = NonlinearMPC(v, mission, dt=0.05, horizon=20)
-    simulate(v, x0, t_final, controller=ctrl, dt=0.01, control_dt=0.05)
-    med, p99, mx = _stats(ctrl.call_times, 1e3)
-    print(f"  RTI-SQP (1 Gauss-Newton QP/call, compiled Jacobians, OSQP): median {med:.3f} ms, p99 {p99:.3f} ms, "
-          f"max {mx:.3f} ms, fallbacks {ctrl.stats['fallbacks']}")
+    out = {}
+    for solver in ("osqp", "dense"):
+        ctrl = NonlinearMPC(v, mission, dt=0.05, horizon=20, solver=solver)
+        simulate(v, x0, t_final, controller=ctrl, dt=0.01, control_dt=0.05)
+        med, p99, mx = _stats(ctrl.call_times, 1e3)
+        what = "Riccati active set" if solver == "dense" else "OSQP"
+        print(f"  RTI-SQP (1 Gauss-Newton QP/call, compiled QP data, {what}): median {med:.3f} ms, p99 {p99:.3f} ms, "
+              f"max {mx:.3f} ms, fallbacks {ctrl.stats['fallbacks']}")
+        out[solver] = (med, p99)
+    med, p99 = out["dense"]
     ipo = NonlinearMPC(v, mission, dt=0.05, horizon=20, method="ipopt")
     simulate(v, x0, n_ipopt * 0.05, controller=ipo, dt=0.01, control_dt=0.05)
     imed, ip99, _ = _stats(ipo.call_times, 1e3)
     print(f"  ipopt (reference, warm-started, {n_ipopt} calls): median {imed:.1f} ms, p99 {ip99:.1f} ms, "
           f"fallbacks {ipo.stats['fallbacks']}")
-    return {"nmpc_median_ms": med, "nmpc_p99_ms": p99, "nmpc_ipopt_median_ms": imed, "nmpc_ipopt_p99_ms": ip99}
+    return {"nmpc_median_ms": med, "nmpc_p99_ms": p99, "nmpc_osqp_median_ms": out["osqp"][0],
+            "nmpc_ipopt_median_ms": imed, "nmpc_ipopt_p99_ms": ip99}
 
 
 def bench_ekf(v, n=1200):
@@ -270,6 +279,18 @@ class _FilterpyPlant(ExtendedKalmanFilter):
         self.x = xn.full().ravel()
 
 
+def _iae(res, mission):
+    """Integrated absolute error (m s, rad s, m/s s) of depth, heading and surge (as tests/.../test_mpc_dense.py)."""
+    dt = np.diff(res.t)
+    out = {}
+    for ch, i in (("z", 2), ("psi", 5), ("u", 6)):
+        e = res.x[:, i] - np.array([mission.value(ch, t) for t in res.t])
+        if ch == "psi":
+            e = (e + np.pi) % (2 * np.pi) - np.pi
+        out[ch] = float(np.sum(np.abs(e[:-1]) * dt))
+    return out
+
+
 def _ratio_line(label, value, unit, anchor_label, anchor, goal=None):
     goal_txt = f"; goal <= {goal:g} {unit}" if goal is not None else ""
     print(f"    {label:<34} {value:9.1f} {unit} | {anchor_label:<36} {anchor:9.1f} {unit} | ratio {value / anchor:6.3f}"
@@ -321,6 +342,25 @@ def bench_anchors(model, quick=False, repeats=3):
     _ratio_line("linear MPC step, dense backend", lmpc, "us", "plain OSQP, same QP", anchor, 100)
     print(f"    {'(OSQP backend of the same class)':<34} {ours:9.1f} us | first move vs tight OSQP: max "
           f"{max(errs):.1e} N over {len(errs)} solves; fast-solve fallbacks {fast_fb}")
+    # NMPC RTI: dense backend against the same RTI on OSQP (the previous implementation), alternating passes over
+    # the same recorded states (each warm-started from its own shifted solution, as in a loop)
+    nmpc_t, nmpc_osqp_t, nmpc_fb = [], [], 0
+    for _ in range(repeats):
+        for solver, acc in (("dense", nmpc_t), ("osqp", nmpc_osqp_t)):
+            nm = NonlinearMPC(v, m, dt=0.05, horizon=20, solver=solver)
+            for t, x, _op in rec:
+                nm(t, x)
+            acc += nm.call_times
+            nmpc_fb += nm.stats["fast_fallbacks"]
+    nmpc, nmpc_anchor = (float(np.median(a)) * 1e6 for a in (nmpc_t, nmpc_osqp_t))
+    iae = {}
+    for solver in ("dense", "osqp"):  # closed loop, the whole mission: the same result
+        nm = NonlinearMPC(v, m, dt=0.05, horizon=20, solver=solver)
+        iae[solver] = _iae(simulate(v, m.x0(), m.t_final, controller=nm, dt=0.01, control_dt=0.05), m)
+    iae_diff = max(abs(iae["dense"][ch] / iae["osqp"][ch] - 1.0) for ch in iae["osqp"])
+    _ratio_line("NMPC RTI step, dense backend", nmpc, "us", "same RTI on OSQP (reference backend)", nmpc_anchor, 400)
+    print(f"    {'':<34} closed-loop IAE (z, psi, u) vs the OSQP backend: max relative difference {iae_diff:.1e}; "
+          f"fast-solve fallbacks {nmpc_fb}; acados RTI (issue: 0.3-0.7 ms) is not installable here")
     # EKF: ours and filterpy's on the same stream, step by step
     n = 400 if quick else 1200
     dt = 0.05
@@ -363,7 +403,9 @@ def bench_anchors(model, quick=False, repeats=3):
     return {"lmpc_us": lmpc, "lmpc_anchor_plain_osqp_us": anchor, "lmpc_ratio": lmpc / anchor,
             "lmpc_osqp_backend_us": ours, "lmpc_first_move_err_N": max(errs), "lmpc_fast_fallbacks": fast_fb,
             "ekf_us": e_med, "ekf_anchor_filterpy_us": fp_med, "ekf_ratio": e_med / fp_med,
-            "fault_monitor_us": mon, "fault_monitor_p99_us": mon99, "fault_monitor_ratio_to_plain_osqp": mon / anchor}
+            "fault_monitor_us": mon, "fault_monitor_p99_us": mon99, "fault_monitor_ratio_to_plain_osqp": mon / anchor,
+            "nmpc_us": nmpc, "nmpc_anchor_osqp_rti_us": nmpc_anchor, "nmpc_ratio": nmpc / nmpc_anchor,
+            "nmpc_iae_max_rel_diff": iae_diff, "nmpc_fast_fallbacks": nmpc_fb}
 
 
 def bench_lqr(v, repeats=50):

@@ -1,21 +1,35 @@
-"""Per-step fast paths of the controllers and estimators: compiled casadi calls and the condensed MPC QP.
+"""Per-step fast paths of the controllers and estimators: compiled casadi calls and the MPC QP solvers.
 
 * :class:`CompiledFunction`: a casadi Function (the plant's RK4 step and its Jacobians, generated from
   :mod:`udrobot_ctrl.dynamics.equations` through :mod:`udrobot_ctrl.dynamics.plant_casadi`, so there is one
   model) evaluated through its gcc-compiled C code with :mod:`ctypes` on preallocated numpy buffers. casadi's
   own Python call converts every argument and result (~30-40 us for the MPC's linearisation); the direct call
   costs ~2-3 us for the same C code. Falls back to the casadi Function when gcc is missing.
-* :class:`CondensedMPCQP`: the linear MPC's tracking QP with the states eliminated (inputs only, ``N nu``
-  variables), built by a numba kernel from the time-invariant affine model ``x_{k+1} = A x_k + B f_k + c``
-  and solved exactly by an active-set method warm-started with the working set of the shifted previous
-  solution: with thrust limits only (box constraints) a block-principal-pivoting active set (numba, one
-  Cholesky of the free variables' Hessian per iteration, usually one iteration warm); with state bounds
-  (general constraints) DAQP (Arnström et al., IEEE TAC 2022, a dual active-set solver made for MPC).
-  Measured (issue 38, N = 20, 4 thrusters): DAQP's ``update`` with a new Hessian refactorises for ~100 us,
-  the box solver ~15 us per iteration, so DAQP is kept for the general constraints only.
-* Kernels of the EKF update (:func:`ekf_update_all`) and of the fault monitor (:func:`frozen_statistics`,
-  :func:`propagate_windows`): the per-step arithmetic of :mod:`udrobot_ctrl.control.ekf` and
-  :mod:`udrobot_ctrl.control.faults` without Python overhead.
+* :class:`CondensedMPCQP`: the MPC tracking QP (thrust limits, optional state bounds), solved exactly by an
+  active-set method warm-started with the working set of the shifted previous solution. With thrust limits
+  only (box constraints; the linear MPC and the RTI NMPC): a block-principal-pivoting active set whose every
+  iteration is one Riccati recursion over the horizon with the inputs of the working set fixed at their bounds
+  (:func:`_riccati_box_qp`, numba; ``O(N (nx + nu)^3)``, usually one iteration warm), for one affine model
+  ``x_{k+1} = A x_k + B f_k + c`` or one per stage. With state bounds (general constraints): the QP condensed
+  to the thrusts (:func:`_condense`) and solved by DAQP (Arnström et al., IEEE TAC 2022, a dual active-set
+  solver made for MPC).
+  Measured (issue 38, N = 20, bluerov2-heavy: 10 states, 8 thrusters, 160 variables): condensing ~67 us and
+  the Cholesky of the 160 x 160 condensed Hessian ~135 us per iteration against ~55 us for the Riccati
+  iteration (no condensing); for the UDrobot (4 thrusters) ~57 us against ~40 us. DAQP's ``update`` with a
+  new Hessian refactorises for ~100 us, so DAQP is kept for the general constraints only.
+* Kernels of the EKF update (:func:`ekf_update_all`), of the fault monitor (:func:`frozen_statistics`,
+  :func:`window_inputs`, :func:`advance_windows`, :func:`open_window`) and of the MPC's reference preview
+  (:func:`preview_table`): the per-step arithmetic of :mod:`udrobot_ctrl.control.ekf`,
+  :mod:`udrobot_ctrl.control.faults` and :mod:`udrobot_ctrl.control.mpc` without Python overhead.
+
+Riccati active-set iteration (working set fixed; ``f_b`` the bound inputs, ``f_f`` the free ones of stage k)::
+
+    S_k = R_ff + B_f' P_{k+1} B_f,  L_k = B_f' P_{k+1} A,  K_k = -S_k^-1 L_k,  P_k = Q + A' P_{k+1} A - L_k' S_k^-1 L_k
+    p_k = -Q r_k + A' (P_{k+1} d_k + p_{k+1}),   d_k = B_b f_b + c + B_f k_k,   P_N = Q_N,  p_N = -Q_N r_N
+
+then ``f_f = K_k x_k + k_k`` forward, and the condensed gradient of every input by the adjoint sweep
+(``R (f_k - f_trim_k) + B' mu_{k+1}``, ``mu_k = Q e_k + A' mu_{k+1}``) for the bound inputs' multipliers: the
+same KKT test and working-set changes as the condensed solver (:func:`_box_qp`), to the same tolerances.
 
 Condensing (``G_m = A^m B``, ``Qw_k = Q`` for ``k < N``, ``Q_N`` at ``k = N``)::
 
@@ -78,6 +92,9 @@ class CompiledFunction:
         True when the C code is called directly.
     outputs : tuple of ndarray
         Views into the output buffers ((n,) for a column, (n, m) otherwise); overwritten by the next call.
+    input_buffers, output_buffers : tuple of ndarray
+        The flat (column-major) buffers themselves: a caller may write the inputs in place and call with no
+        arguments (nothing is copied), and read the outputs in their memory order.
     """
 
     def __init__(self, fun: ca.Function, params: PlantParameters, *key, compile: bool = True):
@@ -93,6 +110,8 @@ class CompiledFunction:
         self._out = [np.zeros(a * b) for a, b in self._out_shapes]
         self.outputs = tuple(buf if b == 1 else buf.reshape(b, a).T for buf, (a, b) in zip(self._out,
                                                                                           self._out_shapes))
+        self.input_buffers = tuple(self._in)  # flat, column-major: write in place, then call with no arguments
+        self.output_buffers = tuple(self._out)
         self.compiled = False
         self._c = None
         if compile:
@@ -287,7 +306,8 @@ def _cholesky_solve(H, free, nf, rhs, L, y, out):
 @numba.njit(cache=True, fastmath=_FASTMATH)
 def _box_qp(H, g, lo, hi, state, u, max_iter):
     """``min 0.5 u' H u + g' u`` s.t. ``lo <= u <= hi`` (H positive definite, read on and below its diagonal)
-    by block principal pivoting.
+    by block principal pivoting: the condensed box solver, the reference of :func:`_riccati_box_qp` (which
+    applies the same working-set rules without forming ``H``; tests/udrobot_ctrl/control/test_mpc_dense.py).
 
     ``state`` (n,) int8: 0 free, 1 at the upper bound, -1 at the lower bound; on entry the warm-start
     working set, on exit the optimal one. Júdice-Pires block pivoting: every variable violating its KKT
@@ -375,6 +395,337 @@ def _box_qp(H, g, lo, hi, state, u, max_iter):
     return -1
 
 
+@numba.njit(cache=True)
+def _all_below(M, x0, Xr, Ft, limit):
+    """True when every entry of the QP data is finite and below ``limit`` in magnitude."""
+    return (np.all(np.abs(M) < limit) and np.all(np.abs(x0) < limit) and np.all(np.abs(Xr) < limit)
+            and np.all(np.abs(Ft) < limit))
+
+
+# ----------------------------------------------------------------------------- Riccati active set (box constraints)
+@numba.njit(cache=True, fastmath=_FASTMATH)
+def _riccati_pass(MT, A_all, x0, Xr, Ft, Q, QN, R, state, lo, hi, U, X, Gr, K, kff, fidx, nfree, scale):
+    """Solve the tracking QP with the inputs of the working set ``state`` fixed at their bounds (the others free)
+    by one backward Riccati recursion and one forward sweep; then the gradient of the condensed cost (halved) with
+    respect to every input by the adjoint sweep. ``U`` (N nu,) and ``X`` (N + 1, nx) receive the plan, ``Gr``
+    (N nu,) the gradient, ``scale[0]`` the largest magnitude of its two terms (``R (u - f_trim)``, ``B' mu``), at
+    least 1. Returns False if a stage Hessian ``R_ff + B_f' P B_f`` is not positive definite.
+
+    Stage ``k``'s model is ``MT[k]`` (``[A_k | B_k | c_k]`` transposed, (nx + nu + 1, nx)) and ``A_all[k] = A_k``;
+    one model for every stage when they hold one."""
+    N, nu = Ft.shape
+    nx = MT.shape[2]
+    one = MT.shape[0] == 1
+    P = np.empty((nx, nx))
+    Pn = QN.copy()
+    p = np.empty(nx)
+    pn = np.empty(nx)
+    for i in range(nx):
+        s = 0.0
+        for m in range(nx):
+            s -= QN[i, m] * Xr[N, m]
+        pn[i] = s
+    BtP = np.empty((nu, nx))
+    S = np.empty((nu, nu))
+    Lm = np.empty((nu, nx))
+    PA = np.empty((nx, nx))
+    h = np.empty(nu)
+    ub = np.empty(nu)
+    w = np.empty(nu)
+    d0 = np.empty(nx)
+    dk = np.empty(nx)
+    tmp = np.empty(nx)
+    for k in range(N - 1, -1, -1):
+        ks = 0 if one else k
+        A, At, Bt, c = A_all[ks], MT[ks, :nx], MT[ks, nx:nx + nu], MT[ks, nx + nu]
+        nf = 0
+        for j in range(nu):
+            s = state[k * nu + j]
+            if s == 0:
+                fidx[k, nf] = j
+                nf += 1
+                ub[j] = 0.0
+            elif s > 0:
+                ub[j] = hi[k * nu + j]
+            else:
+                ub[j] = lo[k * nu + j]
+            w[j] = ub[j] - Ft[k, j]
+        nfree[k] = nf
+        for i in range(nx):  # d0 = c + B u_bound
+            d0[i] = c[i]
+        for j in range(nu):
+            if ub[j] != 0.0:
+                for i in range(nx):
+                    d0[i] += Bt[j, i] * ub[j]
+        for a in range(nf):  # BtP = B_f' P  (nf, nx)
+            fa = fidx[k, a]
+            for i in range(nx):
+                BtP[a, i] = 0.0
+            for m in range(nx):
+                bm = Bt[fa, m]
+                for i in range(nx):
+                    BtP[a, i] += bm * Pn[m, i]
+        for a in range(nf):
+            fa = fidx[k, a]
+            for b in range(a + 1):  # S = R_ff + B_f' P B_f (lower)
+                fb = fidx[k, b]
+                s = R[fa, fb]
+                for i in range(nx):
+                    s += BtP[a, i] * Bt[fb, i]
+                S[a, b] = s
+            s = 0.0  # h = (R w)_f + B_f' (P d0 + p)
+            for j in range(nu):
+                s += R[fa, j] * w[j]
+            for i in range(nx):
+                s += BtP[a, i] * d0[i] + Bt[fa, i] * pn[i]
+            h[a] = s
+            for j in range(nx):  # L = B_f' P A
+                Lm[a, j] = 0.0
+            for m in range(nx):
+                bm = BtP[a, m]
+                for j in range(nx):
+                    Lm[a, j] += bm * A[m, j]
+        for a in range(nf):  # Cholesky S = Lc Lc' in place (lower)
+            s = S[a, a]
+            for b in range(a):
+                s -= S[a, b] * S[a, b]
+            if not s > 0.0:
+                return False
+            d = np.sqrt(s)
+            S[a, a] = d
+            for e in range(a + 1, nf):
+                s = S[e, a]
+                for b in range(a):
+                    s -= S[e, b] * S[a, b]
+                S[e, a] = s / d
+        # Y = Lc^-1 [L | h] (forward), stored in Lm / h
+        for a in range(nf):
+            for b in range(a):
+                sab = S[a, b]
+                for j in range(nx):
+                    Lm[a, j] -= sab * Lm[b, j]
+                h[a] -= sab * h[b]
+            inv = 1.0 / S[a, a]
+            for j in range(nx):
+                Lm[a, j] *= inv
+            h[a] *= inv
+        # P_k = Q + A' P A - Y' Y (Y = Lc^-1 L); PA = P A first
+        for i in range(nx):
+            for j in range(nx):
+                PA[i, j] = 0.0
+            for m in range(nx):
+                pim = Pn[i, m]
+                for j in range(nx):
+                    PA[i, j] += pim * A[m, j]
+        for i in range(nx):  # lower triangle (symmetric)
+            for j in range(i + 1):
+                P[i, j] = Q[i, j]
+            for m in range(nx):
+                ami = A[m, i]
+                for j in range(i + 1):
+                    P[i, j] += ami * PA[m, j]
+            for a in range(nf):
+                ya = Lm[a, i]
+                for j in range(i + 1):
+                    P[i, j] -= ya * Lm[a, j]
+        # K = -Lc^-T Y, kff = -Lc^-T y_h (backward), in place
+        for a in range(nf - 1, -1, -1):
+            for b in range(a + 1, nf):
+                sba = S[b, a]
+                for j in range(nx):
+                    Lm[a, j] -= sba * Lm[b, j]
+                h[a] -= sba * h[b]
+            inv = 1.0 / S[a, a]
+            for j in range(nx):
+                Lm[a, j] *= inv
+            h[a] *= inv
+        for a in range(nf):
+            for j in range(nx):
+                K[k, a, j] = -Lm[a, j]
+            kff[k, a] = -h[a]
+        # p_k = -Q r_k + A' (P_{k+1} d_k + p_{k+1}), d_k = d0 + B_f kff
+        for i in range(nx):
+            s = d0[i]
+            for a in range(nf):
+                s += Bt[fidx[k, a], i] * kff[k, a]
+            dk[i] = s
+        for i in range(nx):
+            s = pn[i]
+            for m in range(nx):
+                s += Pn[i, m] * dk[m]
+            tmp[i] = s
+        for i in range(nx):
+            s = 0.0
+            for m in range(nx):
+                s += At[i, m] * tmp[m] - Q[i, m] * Xr[k, m]
+            p[i] = s
+        for i in range(nx):
+            for j in range(i + 1):
+                Pn[i, j] = P[i, j]
+                Pn[j, i] = P[i, j]
+            pn[i] = p[i]
+    # forward sweep
+    for i in range(nx):
+        X[0, i] = x0[i]
+    for k in range(N):
+        ks = 0 if one else k
+        A, Bt, c = A_all[ks], MT[ks, nx:nx + nu], MT[ks, nx + nu]
+        for j in range(nu):
+            s = state[k * nu + j]
+            if s > 0:
+                U[k * nu + j] = hi[k * nu + j]
+            elif s < 0:
+                U[k * nu + j] = lo[k * nu + j]
+        for a in range(nfree[k]):
+            s = kff[k, a]
+            for j in range(nx):
+                s += K[k, a, j] * X[k, j]
+            U[k * nu + fidx[k, a]] = s
+        for i in range(nx):
+            s = c[i]
+            for j in range(nx):
+                s += A[i, j] * X[k, j]
+            for j in range(nu):
+                s += Bt[j, i] * U[k * nu + j]
+            X[k + 1, i] = s
+    # adjoint sweep: Gr_k = R (u_k - ft_k) + B' mu_{k+1}; mu_N = QN e_N, mu_k = Q e_k + A' mu_{k+1}
+    mu = np.empty(nx)
+    for i in range(nx):
+        s = 0.0
+        for m in range(nx):
+            s += QN[i, m] * (X[N, m] - Xr[N, m])
+        mu[i] = s
+    gs = 1.0
+    for k in range(N - 1, -1, -1):
+        ks = 0 if one else k
+        Bt = MT[ks, nx:nx + nu]
+        for j in range(nu):
+            s = 0.0
+            for q in range(nu):
+                s += R[j, q] * (U[k * nu + q] - Ft[k, q])
+            s2 = 0.0
+            for i in range(nx):
+                s2 += Bt[j, i] * mu[i]
+            gs = max(gs, abs(s), abs(s2))
+            Gr[k * nu + j] = s + s2
+        if k > 0:
+            At = MT[0 if one else k, :nx]  # mu_k = Q e_k + A_k' mu_{k+1}
+            for i in range(nx):
+                s = 0.0
+                for m in range(nx):
+                    s += At[i, m] * mu[m] + Q[i, m] * (X[k, m] - Xr[k, m])
+                tmp[i] = s
+            for i in range(nx):
+                mu[i] = tmp[i]
+    scale[0] = gs
+    return True
+
+
+@numba.njit(cache=True, fastmath=_FASTMATH)
+def _riccati_box_qp(MT, x0, Xr, Ft, Q, QN, R, lo, hi, state, U, X, limit, max_iter):
+    """The linear MPC's tracking QP with thrust limits only (box constraints), solved exactly without condensing:
+    the block-principal-pivoting active set of :func:`_box_qp` (same working-set rules and tolerances), each
+    iteration one Riccati recursion over the horizon with the inputs at their bounds fixed (``O(N (nx + nu)^3)``
+    instead of a Cholesky of the ``N nu`` condensed Hessian). ``MT`` (1 or N, nx + nu + 1, nx): the transposed
+    ``[A | B | c]`` of every stage (``x_{k+1} = A_k x_k + B_k f_k + c_k``), or one for all; ``state`` (N nu,) int8
+    working set (in: warm start, out: optimal); ``U`` (N nu,) and ``X`` (N + 1, nx) receive the plan.
+
+    Returns the number of iterations, -1 (iteration limit or a stage Hessian not positive definite) or -2 (data
+    non-finite or ``>= limit`` in magnitude)."""
+    N, nu = Ft.shape
+    nx = MT.shape[2]
+    if not _all_below(MT, x0, Xr, Ft, limit):
+        return -2
+    A_all = np.empty((MT.shape[0], nx, nx))
+    for k in range(MT.shape[0]):
+        for i in range(nx):
+            for j in range(nx):
+                A_all[k, i, j] = MT[k, j, i]
+    n = N * nu
+    Gr = np.empty(n)
+    K = np.empty((N, nu, nx))
+    kff = np.empty((N, nu))
+    fidx = np.empty((N, nu), np.int64)
+    nfree = np.empty(N, np.int64)
+    scale = np.ones(1)
+    for i in range(n):
+        if lo[i] == hi[i]:
+            state[i] = 1  # a fixed variable (a stuck thruster) is never freed
+    best, stall = n + 1, 0
+    dtol = 0.0
+    for it in range(max_iter):
+        if not _riccati_pass(MT, A_all, x0, Xr, Ft, Q, QN, R, state, lo, hi, U, X, Gr, K, kff, fidx, nfree, scale):
+            return -1
+        if it == 0:  # dual tolerance relative to the gradient's terms at the first iterate
+            if not scale[0] < limit:
+                return -2
+            dtol = 1e-10 * scale[0]
+        n_bad, last = 0, -1
+        for i in range(n):
+            tol = 1e-10 * (1.0 + abs(lo[i]) + abs(hi[i]))
+            if state[i] == 0:
+                bad = U[i] > hi[i] + tol or U[i] < lo[i] - tol
+            elif lo[i] == hi[i]:
+                bad = False
+            else:
+                bad = Gr[i] > dtol if state[i] > 0 else Gr[i] < -dtol
+            if bad:
+                n_bad += 1
+                last = i
+        if n_bad == 0:
+            for i in range(n):
+                if not np.isfinite(U[i]):
+                    return -1
+                U[i] = min(max(U[i], lo[i]), hi[i])
+            return it + 1
+        if n_bad < best:
+            best, stall = n_bad, 0
+        else:
+            stall += 1
+        for i in range(n):
+            if stall >= 3 and i != last:
+                continue
+            tol = 1e-10 * (1.0 + abs(lo[i]) + abs(hi[i]))
+            if state[i] == 0:
+                if U[i] > hi[i] + tol:
+                    state[i] = 1
+                elif U[i] < lo[i] - tol:
+                    state[i] = -1
+            elif lo[i] != hi[i]:
+                if (Gr[i] > dtol) if state[i] > 0 else (Gr[i] < -dtol):
+                    state[i] = 0
+    return -1
+
+
+
+@numba.njit(cache=True)
+def preview_table(times, rows, trim_rows, t, preview, psi, psi_col, r_out, ft_out):
+    """Fill the horizon's references ``r_out`` (N + 1, nx) and trim thrusts ``ft_out`` (N, nu) from a
+    piecewise-constant, right-continuous table (breakpoints ``times`` (m,), rows (m + 1, nx), trims (m + 1, nu)) at
+    the times ``t + preview``: ``numpy.searchsorted(times, t + preview, side="right")`` row lookups, the heading
+    column ``psi_col`` unwrapped to within pi of ``psi`` (``psi + wrap(r - psi)``, as
+    :meth:`udrobot_ctrl.control.mpc.LinearMPC.references`)."""
+    m = times.size
+    nx = rows.shape[1]
+    nu = trim_rows.shape[1]
+    for k in range(preview.size):
+        tk = t + preview[k]
+        lo, hi = 0, m  # first index with times[i] > tk
+        while lo < hi:
+            mid = (lo + hi) // 2
+            if times[mid] <= tk:
+                lo = mid + 1
+            else:
+                hi = mid
+        for i in range(nx):
+            r_out[k, i] = rows[lo, i]
+        if psi_col >= 0:
+            r_out[k, psi_col] = (rows[lo, psi_col] - psi + np.pi) % (2 * np.pi) - np.pi + psi
+        if k < ft_out.shape[0]:
+            for j in range(nu):
+                ft_out[k, j] = trim_rows[lo, j]
+
+
 def _factor(W):
     """``L`` (r, n) with ``W = L' L`` for a symmetric positive semi-definite ``W`` (zero-weight directions dropped)."""
     w, V = np.linalg.eigh(0.5 * (W + W.T))
@@ -411,10 +762,12 @@ _DAQP_FLAGS = {-1: "infeasible", -2: "cycling", -3: "unbounded", -4: "iteration 
 
 
 class CondensedMPCQP:
-    """The tracking QP of :class:`udrobot_ctrl.control.mpc.SparseMPCQP` with the states eliminated, on DAQP.
+    """The tracking QP of :class:`udrobot_ctrl.control.mpc.SparseMPCQP`, solved exactly by an active set.
 
-    Same problem (same weights, thrust limits, optional state bounds on ``x_1 .. x_N``), restricted to the
-    time-invariant affine model of the linear MPC; the minimiser is the same (DAQP solves to machine accuracy).
+    Same problem (same weights, thrust limits, optional state bounds on ``x_1 .. x_N``) and the same minimiser:
+    with thrust limits only, the Riccati active set (:func:`_riccati_box_qp`; one affine model for the horizon,
+    or one per stage: the RTI's Gauss-Newton QP); with state bounds, condensed to the thrusts for the
+    time-invariant model of the linear MPC and solved by DAQP (to machine accuracy).
 
     Parameters
     ----------
@@ -461,6 +814,7 @@ class CondensedMPCQP:
         self._u = np.zeros(self.n)
         self.max_iter = 4 * self.n
         self._model = None
+        self._data = None
         self._ready = False
 
     def set_thrust_bounds(self, j, lo, hi):
@@ -474,23 +828,55 @@ class CondensedMPCQP:
         self._have_state = False
 
     def update(self, ABc, x0, xref, uref):
-        """Condense for the model ``x_{k+1} = A x_k + B f_k + c`` (reduced states; ``ABc = [A | B | c]``,
-        (nx, nx + nu + 1)), initial state ``x0`` (nx,), references ``xref`` (N+1, nx) and trim thrusts ``uref``
-        (N, nu).
+        """Take the model ``x_{k+1} = A x_k + B f_k + c`` (reduced states; ``ABc = [A | B | c]``,
+        (nx, nx + nu + 1), or one per stage (N, nx, nx + nu + 1): thrust limits only), initial state ``x0`` (nx,),
+        references ``xref`` (N+1, nx) and trim thrusts ``uref`` (N, nu). With state bounds the QP is condensed here
+        (DAQP); with thrust limits only the data are kept for the Riccati active set of :meth:`solve` (nothing to
+        condense).
 
         Raises
         ------
         FloatingPointError
             If any of the data is non-finite or larger than :data:`QP_DATA_LIMIT` (nothing is changed).
         """
-        ok = _condense(np.ascontiguousarray(ABc, float), np.ascontiguousarray(x0, float),
-                       np.ascontiguousarray(xref, float), np.ascontiguousarray(uref, float), self.Q, self.QN, self.R,
-                       self._Lq, self._tn_scale, self._bnd_state, self._bnd_lo, self._bnd_hi, self._Gm, self.H,
-                       self.g, self._Ab, self._ab_lo, self._ab_hi, self._Xf, QP_DATA_LIMIT, self.m_general > 0)
+        M, x0 = np.asarray(ABc, float), np.ascontiguousarray(x0, float)
+        xref, uref = np.ascontiguousarray(xref, float), np.ascontiguousarray(uref, float)
+        if M.ndim == 3 and self.m_general:
+            raise ValueError("a model per stage needs thrust limits only (state bounds condense one model)")
+        if self.m_general == 0:
+            MT = np.ascontiguousarray(M.T[None] if M.ndim == 2 else M.transpose(0, 2, 1))
+            ok = _all_below(MT, x0, xref, uref, QP_DATA_LIMIT)
+            if ok:
+                self._data = (MT, x0, xref, uref)
+        else:
+            M = np.ascontiguousarray(M)
+            ok = _condense(M, x0, xref, uref, self.Q, self.QN, self.R, self._Lq, self._tn_scale, self._bnd_state,
+                           self._bnd_lo, self._bnd_hi, self._Gm, self.H, self.g, self._Ab, self._ab_lo, self._ab_hi,
+                           self._Xf, QP_DATA_LIMIT, True)
         if not ok:
             self._ready = False
             raise FloatingPointError(f"QP data is non-finite or larger than {QP_DATA_LIMIT:.0e}")
         self._ready = True
+
+    def update_transposed(self, MT, x0, xref, uref):
+        """:meth:`update` with the model(s) given transposed, ``MT[k] = [A_k | B_k | c_k]'`` (1 or N,
+        nx + nu + 1, nx) C-contiguous: the memory order of a casadi function's column-major output, used as it
+        is (kept by reference until :meth:`solve`). One model with state bounds is condensed as by :meth:`update`.
+        """
+        if self.m_general:
+            if MT.shape[0] != 1:
+                raise ValueError("a model per stage needs thrust limits only (state bounds condense one model)")
+            return self.update(MT[0].T, x0, xref, uref)
+        if not _all_below(MT, x0, xref, uref, QP_DATA_LIMIT):
+            self._ready = False
+            raise FloatingPointError(f"QP data is non-finite or larger than {QP_DATA_LIMIT:.0e}")
+        self._data = (MT, x0, xref, uref)
+        self._ready = True
+
+    @property
+    def states(self) -> np.ndarray:
+        """Predicted states (N + 1, nx) of the last box-constrained solve (a view, overwritten by the next)."""
+        return self._Xf
 
     def solve(self, shift=True) -> DenseSolve:
         """Solve the condensed QP from the working set of the previous solve, shifted by one stage when ``shift``
@@ -509,11 +895,14 @@ class CondensedMPCQP:
 
     def _solve_box(self):
         t0 = time.perf_counter()
-        it = _box_qp(self.H, self.g, self.lo, self.hi, self._state, self._u, self.max_iter)
+        M, x0, xref, uref = self._data
+        it = _riccati_box_qp(M, x0, xref, uref, self.Q, self.QN, self.R, self.lo, self.hi, self._state, self._u,
+                             self._Xf, QP_DATA_LIMIT, self.max_iter)
         dt = time.perf_counter() - t0
-        if it < 0 or not np.all(np.isfinite(self._u)):
+        if it < 0:  # the kernel checks the plan is finite
             self._have_state = False
-            return DenseSolve("active set failed (iteration limit or not positive definite)", None, dt, max(it, 0))
+            why = "data non-finite or too large" if it == -2 else "iteration limit or not positive definite"
+            return DenseSolve(f"active set failed ({why})", None, dt, max(it, 0))
         self._have_state = True
         return DenseSolve("solved", self._u.reshape(self.N, self.nu).copy(), dt, it)
 
@@ -707,21 +1096,83 @@ def frozen_statistics(buf, count, z, sigma, angle, frozen, threshold, stats, cha
     return n_change
 
 
+@numba.njit(cache=True)
+def window_inputs(f_cmd, gain, offset, f_min, f_max, fc, fc_slots):
+    """The thrust the thrusters produce for ``f_cmd`` with the detected faults applied (``clip(gain f + offset)``,
+    :meth:`udrobot_ctrl.control.faults.ThrusterFaultDetector.correct`) into ``fc`` (nu,) and every row of
+    ``fc_slots`` (W, nu) (the mapped linearisation's thrust input). Returns False (nothing written) when ``f_cmd``
+    is not finite."""
+    nu = f_cmd.size
+    for j in range(nu):
+        if not np.isfinite(f_cmd[j]):
+            return False
+    for j in range(nu):
+        fc[j] = min(max(gain[j] * f_cmd[j] + offset[j], f_min[j]), f_max[j])
+    for s in range(fc_slots.shape[0]):
+        for j in range(nu):
+            fc_slots[s, j] = fc[j]
+    return True
+
+
+@numba.njit(cache=True)
+def open_window(active, order, created, k, t0, x0, P0, x, Phi, G, C, E, Z, t, x_est, P_est):
+    """Open a detection window at ``t`` from the estimate ``x_est`` (12,), ``P_est`` (12, 12) in the first free slot
+    (or the oldest one when none is free): the bank of :class:`udrobot_ctrl.control.faults.ThrusterFaultDetector`.
+    ``created`` (1,) counts the windows opened. Returns the slot, or -1 (nothing opened) when the estimate is not
+    finite."""
+    for i in range(12):
+        if not np.isfinite(x_est[i]):
+            return -1
+        for j in range(12):
+            if not np.isfinite(P_est[i, j]):
+                return -1
+    w = -1
+    for s in range(active.size):
+        if not active[s]:
+            w = s
+            break
+    if w < 0:  # were none free, the oldest window would be dropped rather than stop the loop
+        w = 0
+        for s in range(1, active.size):
+            if order[s] < order[w]:
+                w = s
+    active[w] = True
+    created[0] += 1
+    order[w] = created[0]
+    k[w] = 0
+    t0[w] = t
+    for i in range(12):
+        x0[w, i] = x_est[i]
+        x[w, i] = x_est[i]
+        for j in range(12):
+            P0[w, i, j] = P_est[i, j]
+            Phi[w, 0, i, j] = 1.0 if i == j else 0.0
+        for j in range(G.shape[3]):
+            G[w, 0, i, j] = 0.0
+            C[w, 0, i, j] = 0.0
+    E[w] = np.nan
+    Z[w] = np.nan
+    return w
+
+
 @numba.njit(cache=True, fastmath=_FASTMATH)
-def propagate_windows(w, k, At, Bt, xn, fc, z, ch, st, angle, x, Phi, G, C, F, E, Z):
-    """One step of the open fault-detection windows ``w`` (slots; step counts ``k`` per slot, incremented):
+def advance_windows(active, k, At, Bt, xn, fc, z, exclude, chan_state, angle, n_steps, x, Phi, G, C, F, E, Z):
+    """One step of the open fault-detection windows (``active`` slots; step counts ``k`` per slot, incremented):
     ``Phi <- A Phi``, ``G <- A G + B``, ``C <- A C + B diag(fc)``, state ``x <- xn`` and the residuals
-    ``z[ch] - x[st]`` (angles wrapped) of the channels ``ch``. ``At`` (12 W, 12), ``Bt`` (nu W, 12) and ``xn``
-    (12, W) are the mapped linearisation's outputs, transposed (slot s: ``A_s = At[12 s:12 s + 12].T``)."""
+    ``z[c] - x[chan_state[c]]`` (angles wrapped) of the channels ``c`` with a finite sample not ``exclude`` d.
+    ``At`` (12 W, 12), ``Bt`` (nu W, 12) and ``xn`` (W, 12) are the mapped linearisation's output buffers
+    (slot s: ``A_s = At[12 s:12 s + 12].T``). Returns the number of open windows with ``n_steps`` steps (done)."""
     nu = fc.size
-    for a in range(w.size):
-        s = w[a]
+    n_done = 0
+    for s in range(active.size):
+        if not active[s]:
+            continue
         kk = k[s]
         P0, P1 = Phi[s, kk], Phi[s, kk + 1]
         G0, G1 = G[s, kk], G[s, kk + 1]
         C0, C1 = C[s, kk], C[s, kk + 1]
         for i in range(12):
-            x[s, i] = xn[i, s]
+            x[s, i] = xn[s, i]
             for j in range(12):
                 P1[i, j] = 0.0
             for j in range(nu):
@@ -737,10 +1188,15 @@ def propagate_windows(w, k, At, Bt, xn, fc, z, ch, st, angle, x, Phi, G, C, F, E
                     C1[i, j] += am * C0[m, j]
         for j in range(nu):
             F[s, kk, j] = fc[j]
-        for c in range(ch.size):
-            e = z[ch[c]] - x[s, st[c]]
+        for c in range(z.size):
+            if exclude[c] or not np.isfinite(z[c]):
+                continue
+            e = z[c] - x[s, chan_state[c]]
             if angle[c]:
                 e = (e + np.pi) % (2 * np.pi) - np.pi
-            E[s, kk + 1, ch[c]] = e
-            Z[s, kk + 1, ch[c]] = z[ch[c]]
+            E[s, kk + 1, c] = e
+            Z[s, kk + 1, c] = z[c]
         k[s] = kk + 1
+        if kk + 1 >= n_steps:
+            n_done += 1
+    return n_done

@@ -42,10 +42,14 @@ Detection (what runs on the vehicle; :class:`FaultMonitor` bundles them with the
   fault over a window.
 
 Per step (issue 38) the frozen-sensor test is one numba kernel over all channels
-(:func:`udrobot_ctrl.control.fastpath.frozen_statistics`) and the open thruster windows advance together: one
-call of the compiled linearisation mapped over the window slots and one kernel for the sensitivities and
-residuals (:func:`udrobot_ctrl.control.fastpath.propagate_windows`); ~60 us a step against ~0.6 ms, the GLR
-evaluation of a finished window (every ``stride_s``) ~0.5-1 ms.
+(:func:`udrobot_ctrl.control.fastpath.frozen_statistics`) and the open thruster windows advance together: the
+corrected thrust written into the input buffer of the compiled linearisation mapped over the window slots
+(:func:`udrobot_ctrl.control.fastpath.window_inputs`), one in-place call of it (the slots' states live in its
+input buffer, nothing is copied), and one kernel for the sensitivities, residuals and the count of finished
+windows (:func:`udrobot_ctrl.control.fastpath.advance_windows`); windows open by one kernel too
+(:func:`udrobot_ctrl.control.fastpath.open_window`). ~30-35 us a step (the mapped RK4 Jacobians ~14 us of it)
+against ~60 us with the per-step numpy glue and ~0.6 ms before; the GLR evaluation of a finished window (every
+``stride_s``) ~0.5-1 ms.
 
 All events are :class:`FaultEvent` (time of detection, kind, which sensor or thruster, estimated value).
 :class:`EstimatorLoop` closes the loop plant -> sensors (+ sensor faults) -> EKF -> controller -> thrusters
@@ -59,7 +63,13 @@ import numpy as np
 from scipy.stats import chi2
 
 from udrobot_ctrl.control.ekf import UDrobotEKF
-from udrobot_ctrl.control.fastpath import CompiledFunction, frozen_statistics, propagate_windows
+from udrobot_ctrl.control.fastpath import (
+    CompiledFunction,
+    advance_windows,
+    frozen_statistics,
+    open_window,
+    window_inputs,
+)
 from udrobot_ctrl.control.mpc import linearization_function
 from udrobot_ctrl.control.sensors import (
     ANGLE_CHANNELS,
@@ -264,47 +274,41 @@ class _WindowBank:
         self.t0 = np.zeros(n_slots)
         self.x0 = np.zeros((n_slots, 12))
         self.P0 = np.zeros((n_slots, 12, 12))
-        self.x = np.zeros((n_slots, 12))
+        # the mapped linearisation's buffers, in their memory order (column-major (12, W) is row-major (W, 12)):
+        # the states are propagated in its input buffer and it is evaluated in place, nothing is copied
+        xb, fb = lin_map.input_buffers
+        xnb, ab, bb = lin_map.output_buffers
+        self.x, self.fc_slots = xb.reshape(n_slots, 12), fb.reshape(n_slots, nu)
+        self._xn, self._At, self._Bt = xnb.reshape(n_slots, 12), ab.reshape(12 * n_slots, 12), bb.reshape(-1, 12)
+        self.fc = np.zeros(nu)
         self.Phi = np.zeros((n_slots, n + 1, 12, 12))
         self.G = np.zeros((n_slots, n + 1, 12, nu))
         self.C = np.zeros((n_slots, n + 1, 12, nu))
         self.F = np.zeros((n_slots, n, nu))
         self.E = np.full((n_slots, n + 1, len(CHANNELS)), np.nan)
         self.Z = np.full((n_slots, n + 1, len(CHANNELS)), np.nan)
-        self._created = 0
+        self._created = np.zeros(1, np.int64)
 
     def clear(self):
         self.active[:] = False
 
-    def open(self, t, x_est, P_est):
-        free = np.flatnonzero(~self.active)
-        # a window is evaluated and closed before the next one opens, so ceil(window / stride) slots suffice;
-        # were none free, the oldest window would be dropped rather than stop the loop
-        w = int(free[0]) if free.size else int(np.argmin(self.order))
-        self.active[w] = True
-        self._created += 1
-        self.order[w] = self._created
-        self.k[w] = 0
-        self.t0[w] = t
-        self.x0[w] = x_est
-        self.P0[w] = P_est
-        self.x[w] = x_est
-        self.Phi[w, 0] = np.eye(12)
-        self.G[w, 0] = 0.0
-        self.C[w, 0] = 0.0
-        self.E[w] = np.nan
-        self.Z[w] = np.nan
+    def open(self, t, x_est, P_est) -> int:
+        """Open a window at ``t`` from the estimate (a window is evaluated and closed before the next one opens, so
+        ``ceil(window / stride)`` slots suffice; were none free, the oldest would be dropped). Returns the slot, or
+        -1 when the estimate is not finite."""
+        return open_window(self.active, self.order, self._created, self.k, self.t0, self.x0, self.P0, self.x,
+                           self.Phi, self.G, self.C, self.E, self.Z, float(t), np.asarray(x_est, float),
+                           np.asarray(P_est, float))
 
-    def advance(self, fc, z_row, ch):
-        """One step of every open window with thrust ``fc``; residuals of the channels ``ch`` of ``z_row``."""
-        w = np.flatnonzero(self.active)
-        if w.size == 0:
-            return w
-        xn, A, B = self.lin_map(self.x.T, np.broadcast_to(fc[:, None], (self.nu, self.W)))
-        st = CHANNEL_STATE[ch]
-        propagate_windows(w, self.k, A.T, B.T, xn, fc, z_row, ch, st, ANGLE_CHANNELS[ch], self.x, self.Phi, self.G,
-                          self.C, self.F, self.E, self.Z)
-        return w
+    def advance(self, z_row, exclude, n_steps) -> int:
+        """One step of every open window with the thrust in :attr:`fc` (and :attr:`fc_slots`); residuals of the
+        finite, not excluded channels of ``z_row``. Returns the number of windows that reached ``n_steps``."""
+        if not self.active.any():
+            return 0
+        self.lin_map()  # on the buffers: x (propagated in place) and fc_slots
+        return advance_windows(self.active, self.k, self._At, self._Bt, self._xn, self.fc, z_row, exclude,
+                               CHANNEL_STATE, ANGLE_CHANNELS, n_steps, self.x, self.Phi, self.G, self.C, self.F,
+                               self.E, self.Z)
 
     def window(self, w) -> _Window:
         """Slot ``w`` as a :class:`_Window` (closes the slot)."""
@@ -380,6 +384,7 @@ class ThrusterFaultDetector:
         self._bank = _WindowBank(CompiledFunction(lin.map(n_slots), params, self.dt, "map", n_slots, compile=compile),
                                  n_slots, self.window_steps, self.nu)
         self._k = 0
+        self._no_exclusion = np.zeros(len(CHANNELS), bool)
         self.gain = np.ones(self.nu)  # thruster models: produced = gain * command + offset (gain 0 if faulty)
         self.offset = np.zeros(self.nu)
         self.reported = np.zeros(self.nu, bool)
@@ -397,24 +402,24 @@ class ThrusterFaultDetector:
         Returns the new :class:`FaultEvent` s.
         """
         events = []
-        f = np.asarray(f_cmd, float)
-        z_row = np.asarray(z_row, float)
-        ok = np.isfinite(z_row) if exclude is None else np.isfinite(z_row) & ~np.asarray(exclude, bool)
-        ch = np.flatnonzero(ok)
         bank = self._bank
-        if np.all(np.isfinite(f)):
-            w = bank.advance(self.correct(f), z_row, ch)
-            done = w[bank.k[w] >= self.window_steps]
-            for slot in done[np.argsort(bank.order[done])]:
-                ev = self._evaluate(t, bank.window(slot))
-                if ev is not None:
-                    events.append(ev)
-                    bank.clear()  # restart with the faulty thruster's identified model
-                    break
+        if window_inputs(np.asarray(f_cmd, float), self.gain, self.offset, self.params.f_min, self.params.f_max,
+                         bank.fc, bank.fc_slots):
+            z_row = np.asarray(z_row, float)
+            excl = self._no_exclusion if exclude is None else np.asarray(exclude, bool)
+            if bank.advance(z_row, excl, self.window_steps):
+                w = np.flatnonzero(bank.active)
+                done = w[bank.k[w] >= self.window_steps]
+                for slot in done[np.argsort(bank.order[done])]:
+                    ev = self._evaluate(t, bank.window(slot))
+                    if ev is not None:
+                        events.append(ev)
+                        bank.clear()  # restart with the faulty thruster's identified model
+                        break
         else:  # a non-finite command: the windows cannot be simulated
             bank.clear()
-        if self._k % self.stride_steps == 0 and np.all(np.isfinite(x_est)) and np.all(np.isfinite(P_est)):
-            bank.open(t, x_est, P_est)
+        if self._k % self.stride_steps == 0:
+            bank.open(t, x_est, P_est)  # not when the estimate is not finite
         self._k += 1
         return events
 

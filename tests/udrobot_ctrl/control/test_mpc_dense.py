@@ -1,8 +1,10 @@
-"""The dense (condensed, active-set) backend of LinearMPC against OSQP on the same QP (issue 38).
+"""The dense backend (Riccati / condensed active set) of LinearMPC and of NonlinearMPC's RTI against OSQP on the
+same QP (issue 38).
 
 Same solution: at every call of a closed-loop flight the dense backend's first move equals a tight-tolerance
 OSQP solve of the same QP (same linearisation point) within 0.02 N, on the UDrobot and on bluerov2-heavy; the
-closed-loop IAE of the two backends (OSQP at its default tolerances) agrees within 1 %. No timing is asserted.
+closed-loop IAE of the two backends (OSQP at its default tolerances) agrees within 1 %. The Riccati active set
+(thrust limits only) equals the condensed one on random problems. No timing is asserted.
 """
 from __future__ import annotations
 
@@ -11,9 +13,9 @@ import warnings
 import numpy as np
 import pytest
 
-from udrobot_ctrl.control.fastpath import CondensedMPCQP
+from udrobot_ctrl.control.fastpath import CondensedMPCQP, _box_qp, _condense, _factor, _riccati_box_qp
 from udrobot_ctrl.control.missions import standard_mission
-from udrobot_ctrl.control.mpc import LinearMPC, OSQPSettings, SparseMPCQP
+from udrobot_ctrl.control.mpc import LinearMPC, NonlinearMPC, OSQPSettings, SparseMPCQP
 from udrobot_ctrl.dynamics.plant import wrap_angle
 from udrobot_ctrl.dynamics.sim import simulate
 from udrobot_ctrl.vehicle import load_model
@@ -153,3 +155,95 @@ def test_condensed_qp_equals_the_sparse_qp_for_general_weights():
     U = sparse.split(z)[1]
     assert np.any(np.isclose(U, hi) | np.isclose(U, lo)) and not np.all(np.isclose(U, hi) | np.isclose(U, lo))
     np.testing.assert_allclose(sol.U, U, atol=1e-6)
+
+
+def _random_problem(rng, nx, nu, N):
+    A = np.eye(nx) + 0.1 * rng.normal(size=(nx, nx))
+    B, c = rng.normal(size=(nx, nu)), 0.1 * rng.normal(size=nx)
+    L = rng.normal(size=(nx, nx))
+    Q = L @ L.T / nx
+    QN = Q + np.diag(rng.uniform(0.5, 2.0, nx))
+    Lr = rng.normal(size=(nu, nu))
+    R = Lr @ Lr.T / nu + 0.3 * np.eye(nu)
+    lo, hi = -rng.uniform(0.2, 1.0, nu), rng.uniform(0.2, 1.0, nu)
+    x0, xr, ur = rng.normal(size=nx) * 3, rng.normal(size=(N + 1, nx)), rng.normal(size=(N, nu)) * 0.2
+    return np.column_stack([A, B, c]), Q, QN, R, lo, hi, x0, xr, ur
+
+
+def test_riccati_active_set_equals_the_condensed_active_set():
+    """Box constraints: one Riccati recursion per active-set iteration (no condensing) gives the minimiser and the
+    working set of the condensed Hessian's active set, active bounds and a fixed input (lo == hi) included."""
+    rng = np.random.default_rng(11)
+    n_active = 0
+    for trial in range(60):
+        nx, nu, N = int(rng.integers(2, 8)), int(rng.integers(1, 5)), int(rng.integers(2, 12))
+        M, Q, QN, R, lo, hi, x0, xr, ur = _random_problem(rng, nx, nu, N)
+        n = N * nu
+        LO, HI = np.tile(lo, N), np.tile(hi, N)
+        if trial % 5 == 0:
+            LO[nu] = HI[nu] = 0.1  # a stuck input at stage 1
+        H, g = np.zeros((n, n)), np.zeros(n)
+        assert _condense(M, x0, xr, ur, Q, QN, R, _factor(Q), np.nan, np.zeros(0, np.int64), np.zeros(0),
+                         np.zeros(0), np.zeros((nx, n)), H, g, np.zeros((0, n)), np.zeros(0), np.zeros(0),
+                         np.zeros((N + 1, nx)), 1e20, True)
+        s_ref, u_ref = np.zeros(n, np.int8), np.zeros(n)
+        it_ref = _box_qp(H, g, LO, HI, s_ref, u_ref, 4 * n)
+        state, U, X = np.zeros(n, np.int8), np.zeros(n), np.zeros((N + 1, nx))
+        it = _riccati_box_qp(np.ascontiguousarray(M.T[None]), x0, xr, ur, Q, QN, R, LO, HI, state, U, X, 1e20, 4 * n)
+        assert (it > 0) == (it_ref > 0), trial
+        if it > 0:
+            np.testing.assert_allclose(U, u_ref, rtol=0, atol=1e-9)
+            assert np.array_equal(state, s_ref)
+            n_active += bool(np.any(state != 0))
+    assert n_active > 30
+
+
+def test_per_stage_models_equal_the_sparse_qp():
+    """A model per stage (the RTI's Gauss-Newton QP) through ``update``: the sparse QP's minimiser (tight OSQP)."""
+    rng = np.random.default_rng(3)
+    nx, nu, N = 4, 2, 6
+    Q, QN, R = np.diag([1.0, 2.0, 0.5, 1.0]), np.diag([10.0, 20.0, 5.0, 10.0]), np.array([[1.0, 0.3], [0.3, 0.5]])
+    lo, hi = np.array([-1.0, -0.5]), np.array([1.0, 0.8])
+    for _ in range(5):
+        A = np.eye(nx) + 0.1 * rng.normal(size=(N, nx, nx))
+        B, c = rng.normal(size=(N, nx, nu)), 0.1 * rng.normal(size=(N, nx))
+        x0, xr, ur = rng.normal(size=nx) * 3, rng.normal(size=(N + 1, nx)), rng.normal(size=(N, nu)) * 0.2
+        dense = CondensedMPCQP(nx, nu, N, Q, QN, R, lo, hi)
+        dense.update(np.concatenate([A, B, c[:, :, None]], axis=2), x0, xr, ur)
+        sol = dense.solve()
+        sparse = SparseMPCQP(nx, nu, N, Q, QN, R, lo, hi, settings=EXACT)
+        sparse.update(A, B, c, x0, xr, ur)
+        status, z, _ = sparse.solve()
+        assert sol.status == "solved" and status == "solved"
+        np.testing.assert_allclose(sol.U, sparse.split(z)[1], atol=1e-6)
+        np.testing.assert_allclose(dense.states, sparse.split(z)[0], atol=1e-6)
+
+
+@pytest.mark.parametrize("model", MODELS)
+def test_nmpc_dense_rti_equals_osqp(model):
+    """NMPC RTI: every call's Gauss-Newton QP solved by the dense backend has a tight OSQP's first move (0.02 N),
+    and the closed-loop IAE of the two backends agrees within 1 %."""
+    v = load_model(model)
+    mission = standard_mission(quick=True)
+    ctrl = NonlinearMPC(v, mission, dt=0.05, horizon=20)
+    nx, nu, N = len(ctrl.idx), ctrl.nu, ctrl.N
+    exact = SparseMPCQP(nx, nu, N, ctrl.Q, ctrl.QN, ctrl.R, ctrl.f_min, ctrl.f_max, settings=EXACT)
+    errs = []
+
+    def loop(t, x):
+        f = ctrl(t, x)
+        MT, x0, xr, ft = ctrl.dense._data  # this call's QP
+        exact.update(MT[:, :nx].transpose(0, 2, 1), MT[:, nx:nx + nu].transpose(0, 2, 1), MT[:, nx + nu], x0, xr, ft)
+        status, z, _ = exact.solve()
+        assert status == "solved"
+        errs.append(np.max(np.abs(f - np.clip(exact.split(z)[1][0], ctrl.f_min, ctrl.f_max))))
+        return f
+
+    res = simulate(v, mission.x0(), mission.t_final, controller=loop, dt=0.01, control_dt=0.05)
+    assert ctrl.stats["fast_fallbacks"] == 0 and ctrl.stats["fallbacks"] == 0
+    assert max(errs) < 0.02, max(errs)
+    ref = NonlinearMPC(v, mission, dt=0.05, horizon=20, solver="osqp")
+    res_ref = simulate(v, mission.x0(), mission.t_final, controller=ref, dt=0.01, control_dt=0.05)
+    iae, iae_ref = _iae(res, mission), _iae(res_ref, mission)
+    for ch in ("z", "psi", "u"):
+        assert iae[ch] == pytest.approx(iae_ref[ch], rel=0.01), (ch, iae, iae_ref)
