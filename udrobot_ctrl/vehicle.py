@@ -546,7 +546,8 @@ def model_from_dict(doc: dict, source: str = "<dict>") -> Vehicle:
     check_against_model(effects, linear_damping=damping["linear_damping"],
                         quadratic_damping=damping["quadratic_damping"], buoyancy=scal["buoyancy"],
                         weight=scal["weight"], r_g=_matrix(doc, "r_g", (3,), source),
-                        r_b=_matrix(doc, "r_b", (3,), source), source=source)
+                        r_b=_matrix(doc, "r_b", (3,), source), source=source,
+                        thruster_positions=[t.position for t in thrusters])
     return Vehicle(
         name=str(doc.get("name", Path(source).stem)), mass=scal["mass"],
         inertia_cg=inertia, r_g=_matrix(doc, "r_g", (3,), source),

@@ -53,6 +53,15 @@ the plant in one of three ways:
                      -a_s exp(-h/lam) |V_t|^2 n, summed over the planes: the seabed at ``seabed_depth_m`` (NED z)
                      and up to four walls ``wall1_point_n_m`` ... ``wall1_normal_d`` (a point of the plane, NED m,
                      and its normal into the water) -- at least one plane.
+  ``drag_centre_offset``  the base model's translational damping force (linear + quadratic, the u v w block of
+                     D_L and Q) acts at the centre of pressure r_cp = (``x_cp_m y_cp_m z_cp_m``) from the CO: it is
+                     evaluated with the velocity of that point, v_cp = v_r + omega x r_cp, and adds the moment
+                     r_cp x F (:func:`drag_centre_force`); dissipative by construction (its power with the
+                     nominal translational drag it replaces is F . v_cp <= 0)
+
+  A tether (``tether_drag``) may be attached at a point r_a = (``attach_x_m attach_y_m attach_z_m``, optional,
+  default 0: the CO) of the hull: its drag is evaluated with that point's position and velocity and adds the moment
+  r_a x F (:func:`tether_unit_forces`).
 
 Each term is written once with the elementary functions of a backend (:class:`Backend`: numpy arrays of any
 batch shape, or casadi expressions), so the numpy plant, its casadi twin and the diagnoser evaluate the same
@@ -118,6 +127,18 @@ TETHER_WALK = ("walk_azimuth_rad", "walk_fraction")
 #: is fixed (lumped amplitudes), 1 a taut cable whose length is the straight-line distance to the top end (amplitudes
 #: per metre of it)
 TETHER_TAUT = "cable_taut"
+#: where the cable is tied to the hull (body frame, m from the CO; optional, default 0: the CO): the drag then acts
+#: there, with that point's velocity, and adds the moment r_a x F
+TETHER_ATTACH = ("attach_x_m", "attach_y_m", "attach_z_m")
+#: the centre of pressure of the translational drag (body frame, m from the CO), ``drag_centre_offset``
+DRAG_CENTRE = ("x_cp_m", "y_cp_m", "z_cp_m")
+#: the base model's translational damping a ``drag_centre_offset`` carries as a run-time force (filled in by
+#: :func:`fold_parameters`; not a model-file parameter): D_L and Q, rows and columns u v w
+DRAG_BLOCK_D = tuple(f"drag_D_{DOF[i]}{VEL[j]}" for i in range(3) for j in range(3))
+DRAG_BLOCK_Q = tuple(f"drag_Q_{DOF[i]}{VEL[j]}|{VEL[j]}|" for i in range(3) for j in range(3))
+#: the size (m) of a vehicle without thrusters, bounding a centre of pressure or a tether attachment from the CO
+#: (assumed: a small ROV is under 1 m long, so any point of its hull lies within 0.5 m of a CO inside it)
+ASSUMED_VEHICLE_SIZE_M = 0.5
 
 CATALOGUE = {k.name: k for k in (
     EffectKind("thrust_inflow_loss", "thrust falls with the axial inflow speed through the thruster", "thrust",
@@ -131,7 +152,7 @@ CATALOGUE = {k.name: k for k in (
     EffectKind("tether_drag", "umbilical cross-flow drag, normal to the cable", "force",
                ("k_quadratic_N_s2_per_m2", "k_linear_N_s_per_m") + TETHER_ANCHOR,
                alternatives=(("k_quadratic_N_s2_per_m2", "k_linear_N_s_per_m") + TETHER_FIXED_DIRECTION,),
-               optional=TETHER_WALK + (TETHER_TAUT,)),
+               optional=TETHER_WALK + (TETHER_TAUT,) + TETHER_ATTACH),
     EffectKind("wall_effect", "extra added mass and suction near the seabed or a wall", "force",
                ("decay_length_m", "added_mass_at_contact_kg", "suction_N_s2_per_m2"),
                optional=("seabed_depth_m",) + WALL_PARAMETERS),
@@ -149,11 +170,14 @@ CATALOGUE = {k.name: k for k in (
     EffectKind("buoyancy_offset", "net buoyancy differs from the model", "parameters", ("dB_N",)),
     EffectKind("cg_cb_offset", "restoring moment (CG-CB separation) differs from the model", "parameters",
                ("dBG_x_Nm", "dBG_y_Nm", "dBG_z_Nm")),
+    EffectKind("drag_centre_offset", "the translational drag acts at a centre of pressure off the CO", "force",
+               DRAG_CENTRE),
 )}
 EFFECT_NAMES = tuple(CATALOGUE)
 #: optional shape parameters (the thruster effects' exponents, the quadratic damping error's norm weight) and their
 #: value when a model file leaves them out (the forms before they existed)
-OPTIONAL_DEFAULTS = {"thrust_exponent": 1.0, "command_exponent": 1.0, "norm_weight": 0.0}
+OPTIONAL_DEFAULTS = {"thrust_exponent": 1.0, "command_exponent": 1.0, "norm_weight": 0.0,
+                     **dict.fromkeys(TETHER_ATTACH, 0.0)}
 #: the nominal quadratic damping a ``quadratic_damping_error`` with a norm weight carries as a run-time force
 #: (filled in by :func:`fold_parameters`; not a model-file parameter)
 NOMINAL_Q = tuple(f"nominal_Q_{d}{v}|{v}|" for d, v in zip(DOF, VEL))
@@ -173,6 +197,7 @@ _POS_M = (-1e7, 1e7, "m, a position within 10 000 km of the origin of the logged
 _NORMAL = (-1e6, 1e6, "-, a direction (normalised by the tool)")
 _SCALE = (-1.0, 10.0, "-, a relative error: -1 removes the term (it cannot change sign), 10 is 11 times it")
 _DAMPING = (-1e4, 1e4, "N s/m or N m s (the model's total must stay dissipative)")
+_HULL_POINT = (-5.0, 5.0, "m from the CO, a point of the hull (also within the vehicle's size, check_against_model)")
 PARAMETER_RANGES = {
     "thrust_inflow_loss": {"k1_per_mps": (0.0, 2.0, "1/(m/s), thrust lost per m/s of inflow"),
                            "k2_per_mps": (0.0, 2.0, "1/(m/s), thrust lost per m/s of inflow")},
@@ -191,7 +216,8 @@ PARAMETER_RANGES = {
                     "cable_elevation_rad": (-math.pi / 2, math.pi / 2, "rad, an angle above the horizontal"),
                     "walk_azimuth_rad": (-2 * math.pi, 2 * math.pi, "rad, an angle from north"),
                     "walk_fraction": (0.0, 1.0, "-, the fraction of the motion the top end follows"),
-                    TETHER_TAUT: (0.0, 1.0, "-, 0 slack, 1 taut")},
+                    TETHER_TAUT: (0.0, 1.0, "-, 0 slack, 1 taut"),
+                    **dict.fromkeys(TETHER_ATTACH, _HULL_POINT)},
     "wall_effect": {"decay_length_m": (1e-6, 100.0, "m, a length > 0"),
                     "added_mass_at_contact_kg": (0.0, 1e4, "kg, an added mass (>= 0)"),
                     "suction_N_s2_per_m2": (0.0, 1e5, "N s^2/m^2, a suction coefficient (>= 0)"),
@@ -208,6 +234,7 @@ PARAMETER_RANGES = {
     "buoyancy_offset": {"dB_N": (-1e6, 1e6, "N; also within +-0.5 W of the model, and B + dB >= 0")},
     "cg_cb_offset": {n: (-1e6, 1e6, "N m; also within +-0.1 W of the model (a 10 cm shift)")
                      for n in ("dBG_x_Nm", "dBG_y_Nm", "dBG_z_Nm")},
+    "drag_centre_offset": dict.fromkeys(DRAG_CENTRE, _HULL_POINT),
 }
 #: relative round-off allowed at the vehicle-relative limits (a fit that ends on the diagnoser's bound reads back)
 _REL_TOL = 1e-9
@@ -373,8 +400,17 @@ def parse_effects(docs, source: str = "<model>") -> tuple:
     return out
 
 
+def vehicle_size(thruster_positions=None) -> float:
+    """The vehicle's size (m): the largest distance of a thruster from the CO (thrusters are mounted on the hull,
+    at its extremities on the usual ROV frames: 0.25 m on the BlueROV2), or :data:`ASSUMED_VEHICLE_SIZE_M` for a
+    model without thrusters. A centre of pressure or a tether attachment lies within it on each body axis."""
+    pos = np.asarray(thruster_positions if thruster_positions is not None else [], float).reshape(-1, 3)
+    size = float(np.linalg.norm(pos, axis=1).max()) if len(pos) else 0.0
+    return size if size > 1e-3 else ASSUMED_VEHICLE_SIZE_M
+
+
 def check_against_model(effects, *, linear_damping, quadratic_damping, buoyancy, weight, r_g=(0, 0, 0),
-                        r_b=(0, 0, 0), source="<model>"):
+                        r_b=(0, 0, 0), source="<model>", thruster_positions=None):
     """Refuse effects that give the model impossible physics, as the loader refuses it in the base fields.
 
     Parameters
@@ -389,11 +425,15 @@ def check_against_model(effects, *, linear_damping, quadratic_damping, buoyancy,
         z_g W - z_b B (the diagnoser's bound) even where that exceeds 0.1 W.
     source : str
         The file, for messages.
+    thruster_positions : (n, 3) array_like, optional
+        The thrusters' positions (m, body frame): the vehicle's size (:func:`vehicle_size`) bounds a
+        ``drag_centre_offset`` and a tether's attachment point on each axis.
 
     Raises
     ------
     ValueError
-        Naming the file, the effect, the parameter and the accepted range: a total linear or quadratic damping
+        Naming the file, the effect, the parameter and the accepted range: a centre of pressure or a tether
+        attachment farther from the CO than the vehicle's size on some axis; a total linear or quadratic damping
         (base plus ``linear_damping``, ``quadratic_damping_error``, ``cross_coupled_damping``) with a negative
         diagonal or a symmetric part that is not positive semidefinite (some motion would gain energy); a
         ``buoyancy_offset`` beyond +-0.5 W or making the total buoyancy negative; a ``cg_cb_offset`` beyond
@@ -402,8 +442,15 @@ def check_against_model(effects, *, linear_damping, quadratic_damping, buoyancy,
     D = np.array(linear_damping, float)
     Q = np.array(quadratic_damping, float)
     where = {e.name: f"{source}: effects[{i}]" for i, e in enumerate(effects)}
+    size = vehicle_size(thruster_positions)
+    how = "assumed: the model has no thrusters" if thruster_positions is None or not len(thruster_positions) else \
+        "the largest distance of a thruster from the CO"
     for e in effects:
         q, at = e.params, where[e.name]
+        for k in (DRAG_CENTRE if e.name == "drag_centre_offset" else TETHER_ATTACH if e.name == "tether_drag" else ()):
+            if abs(q.get(k, 0.0)) > size * (1.0 + _REL_TOL):
+                raise ValueError(f"{at}: effect {e.name!r} parameter {k} = {q[k]:g} is outside [{-size:g}, {size:g}] "
+                                 f"m (a point of the hull: within the vehicle's size, {how})")
         if e.name == "linear_damping":
             for i, (d, v) in enumerate(zip(DOF, VEL)):
                 if D[i, i] + q[f"d_{d}{v}"] < -_REL_TOL * max(abs(D[i, i]), 1.0):  # the diagnoser's bound: -D_ii
@@ -485,6 +532,8 @@ def fold_parameters(p, effects):
             buoyancy += q["dB_N"]
         elif e.name == "cg_cb_offset":
             dBG += [q["dBG_x_Nm"], q["dBG_y_Nm"], q["dBG_z_Nm"]]
+        elif e.name == "drag_centre_offset":  # on the base model's translational damping (the diagnoser's replay)
+            runtime.append(replace(e, params={**q, **drag_block(p.D_L, p.Q)}))
         else:
             runtime.append(e)
     r_b = np.array(p.r_b, float)
@@ -500,6 +549,14 @@ def fold_parameters(p, effects):
                          f"(smallest eigenvalue {eig.min():.3g}); check added_mass_error")
     return replace(p, M=M, M_inv=np.linalg.inv(M), M_A=M_A, D_L=D_L, Q=Q, buoyancy=buoyancy, r_b=r_b,
                    effects=tuple(runtime))
+
+
+def drag_block(D_L, Q) -> dict:
+    """The translational damping block (rows and columns u v w of D_L and Q) as the run-time parameters of a
+    ``drag_centre_offset`` (:data:`DRAG_BLOCK_D`, :data:`DRAG_BLOCK_Q`)."""
+    D_L, Q = np.asarray(D_L, float), np.asarray(Q, float)
+    return {**dict(zip(DRAG_BLOCK_D, D_L[:3, :3].ravel().tolist())),
+            **dict(zip(DRAG_BLOCK_Q, Q[:3, :3].ravel().tolist()))}
 
 
 # ----------------------------------------------------------------------------------------- backends
@@ -852,12 +909,36 @@ def cable_length_factor(be, eta, nu, q):
     return (1.0 - t) + t * anchor_distance(be, eta[:3], tether_top_end(be, eta, nu, q)[0])
 
 
+def _cross(a, b):
+    return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
+
+
+def _attached(q) -> bool:
+    """Whether the tether parameters ``q`` tie the cable off the CO (a non-zero ``attach_*_m``)."""
+    return any(float(q.get(k, 0.0)) != 0.0 for k in TETHER_ATTACH)
+
+
+def _at_point(be, eta, nu, r):
+    """The pose and velocity of the hull point ``r`` (body, m): its NED position eta[:3] + R r with the vehicle's
+    attitude, and its body velocity v + omega x r with the vehicle's rotation rate."""
+    dp = _to_ned(_rotation(be, eta), r)
+    wr = _cross((nu[3], nu[4], nu[5]), r)
+    return (tuple(eta[i] + dp[i] for i in range(3)) + (eta[3], eta[4], eta[5]),
+            tuple(nu[i] + wr[i] for i in range(3)) + (nu[3], nu[4], nu[5]))
+
+
 def tether_unit_forces(be, eta, nu, q):
     """The tether force per unit of each amplitude (two 6-component body wrenches, N per N s^2/m^2 and per N s/m):
     R^T (-|V_n| V_n) and R^T (-V_n), from :func:`tether_cross_flow`; for a walking top end
     (:func:`tether_top_end`) the cable's drag integrated over its length (:func:`_walking_unit_forces`); both times
     :func:`cable_length_factor` (a taut cable's drag grows with its length). The force is linear in the
-    amplitudes, so these are its derivatives: the diagnoser's regressors."""
+    amplitudes, so these are its derivatives: the diagnoser's regressors.
+
+    A cable tied at r_a = (``attach_x_m attach_y_m attach_z_m``) off the CO drags with the position and velocity of
+    that point (:func:`_at_point`) and adds the moment r_a x F (its power F . (v + omega x r_a) <= 0)."""
+    r_a = tuple(float(q.get(k, 0.0)) for k in TETHER_ATTACH)
+    if _attached(q):
+        eta, nu = _at_point(be, eta, nu, r_a)
     if walking(q):
         R, fq, fl = _walking_unit_forces(be, eta, nu, q)
         ned = (fq, fl)
@@ -870,7 +951,8 @@ def tether_unit_forces(be, eta, nu, q):
     out = []
     for f in ned:
         fb = _to_body(R, f)
-        out.append((fb[0], fb[1], fb[2], 0.0 * fb[0], 0.0 * fb[0], 0.0 * fb[0]))
+        m = _cross(r_a, fb) if _attached(q) else (0.0 * fb[0], 0.0 * fb[0], 0.0 * fb[0])
+        out.append((fb[0], fb[1], fb[2], m[0], m[1], m[2]))
     return tuple(out)
 
 
@@ -976,12 +1058,54 @@ def speed_norm_drag(be, nu, params):
     return tuple(-a * params[f"scale_{d}{v}|{v}|"] * params[qn] * t for d, v, qn, t in zip(DOF, VEL, NOMINAL_Q, out))
 
 
+def translational_drag(v, q):
+    """The drag (3 components, N, body frame; a force on the vehicle) of the translational damping block carried
+    by a ``drag_centre_offset``'s parameters ``q`` at the body velocity ``v`` (3 components, m/s):
+    -(D v + Q_ij |v_j| v_j), D and Q the u v w rows and columns of D_L and Q (:func:`drag_block`)."""
+    out = []
+    for i in range(3):
+        acc = 0.0 * v[0]
+        for j in range(3):
+            acc = acc - q[DRAG_BLOCK_D[3 * i + j]] * v[j] - q[DRAG_BLOCK_Q[3 * i + j]] * abs(v[j]) * v[j]
+        out.append(acc)
+    return tuple(out)
+
+
+def drag_centre_force(be, nu, q):
+    """What a centre of pressure off the CO changes (6 components, N and N m, body frame; a force on the vehicle).
+
+    The translational drag F(v) = -(D v + Q |v| v) of the base model (:func:`translational_drag`) acts at r_cp =
+    (``x_cp_m y_cp_m z_cp_m``), evaluated with the velocity of that point, v_cp = v + omega x r_cp, and makes the
+    moment r_cp x F(v_cp). The nominal equations apply F(v) at the CO; this term is the difference:
+    [F(v_cp) - F(v); r_cp x F(v_cp)]. With the nominal drag it replaces, its power is
+    F(v_cp) . v + (r_cp x F(v_cp)) . omega = F(v_cp) . v_cp <= 0 for a dissipative D and Q: no energy is created.
+
+    Parameters
+    ----------
+    be : Backend
+        Unused (the term needs only ``abs``, ``+ - *``); kept for the signature of the other terms.
+    nu : sequence of 6 components
+        Body velocity relative to the water (m/s, rad/s): a current's :func:`relative_velocity`.
+    q : mapping
+        ``x_cp_m y_cp_m z_cp_m`` (m) and the damping block of :func:`drag_block` (:func:`fold_parameters`).
+    """
+    r = tuple(q[k] for k in DRAG_CENTRE)
+    v = (nu[0], nu[1], nu[2])
+    wr = _cross((nu[3], nu[4], nu[5]), r)
+    f_cp = translational_drag(tuple(v[i] + wr[i] for i in range(3)), q)
+    f_co = translational_drag(v, q)
+    m = _cross(r, f_cp)
+    return (f_cp[0] - f_co[0], f_cp[1] - f_co[1], f_cp[2] - f_co[2], m[0], m[1], m[2])
+
+
 def external_force(be, eta, nu, effects):
-    """Sum of the tether and wall suction forces and the speed-norm part of a quadratic damping error (6
-    components, N and N m, body frame)."""
+    """Sum of the tether and wall suction forces, the speed-norm part of a quadratic damping error and a drag centre
+    off the CO (6 components, N and N m, body frame)."""
     total = None
     for e in effects:
-        if e.name == "quadratic_damping_error":
+        if e.name == "drag_centre_offset":
+            term = drag_centre_force(be, relative_velocity(be, eta, nu, effects), e.params)
+        elif e.name == "quadratic_damping_error":
             term = speed_norm_drag(be, nu, e.params)
         elif e.name == "tether_drag":
             term = tether_force(be, eta, nu, e.params)

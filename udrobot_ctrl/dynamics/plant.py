@@ -175,6 +175,9 @@ class PlantParameters:
         return np.asarray(self.f_max, float), -np.asarray(self.f_min, float)
     supply_voltage: float = DEFAULT_SUPPLY_VOLTAGE  # V, thruster supply for pwm -> thrust (the vehicle's own)
     ardusub_frame: str | None = None  # the vehicle's ArduSub frame (its autopilot's mixer), None if it has none
+    #: the vehicle's size (m): the largest distance of a thruster from the CO (effects.vehicle_size), bounding a centre
+    #: of pressure or a tether attachment; None: unknown (effects.ASSUMED_VEHICLE_SIZE_M)
+    size_m: float | None = None
 
 
 def plant_parameters(vehicle: Vehicle) -> PlantParameters:
@@ -202,6 +205,7 @@ def plant_parameters(vehicle: Vehicle) -> PlantParameters:
         M_A=np.asarray(vehicle.added_mass, float),
         supply_voltage=float((vehicle.extras or {}).get("voltage", DEFAULT_SUPPLY_VOLTAGE)),
         ardusub_frame=(vehicle.extras or {}).get("ardusub_frame") or None,
+        size_m=fx.vehicle_size([t.position for t in vehicle.thrusters]),
     )
     return fx.fold_parameters(nominal, vehicle.effects) if vehicle.effects else nominal
 

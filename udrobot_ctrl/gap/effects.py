@@ -40,6 +40,10 @@ Templates (the diagnoser's lumped forms; a truth generator should use different 
 ``cross_coupled_damping``    off-diagonal linear and quadratic damping D_ij nu_j, Q_ij |nu_j| nu_j.
 ``buoyancy_offset``     net buoyancy B - W changed by dB (N).
 ``cg_cb_offset``        restoring moments (x_g W - x_b B, y_g W - y_b B, z_g W - z_b B) changed by dBG (N m).
+``drag_centre_offset``  the nominal translational drag F(v) = -(D v + Q |v| v) acts at a centre of pressure r_cp off
+                        the CO, with that point's velocity v + omega x r_cp, and makes the moment r_cp x F; the
+                        template is its expansion to first order in r_cp (linear in r_cp: least squares), the
+                        replay the plant's exact form.
 """
 from __future__ import annotations
 
@@ -728,6 +732,42 @@ class CgCbOffset(Effect):
 
 
 
+def _skew(a) -> np.ndarray:
+    """(n, 3, 3) matrices S(a) with S(a) b = a x b, for vectors a (n, 3)."""
+    S = np.zeros(a.shape[:-1] + (3, 3))
+    S[..., 0, 1], S[..., 0, 2], S[..., 1, 2] = -a[..., 2], a[..., 1], -a[..., 0]
+    S[..., 1, 0], S[..., 2, 0], S[..., 2, 1] = a[..., 2], -a[..., 1], a[..., 0]
+    return S
+
+
+class DragCentre(Effect):
+    """The nominal translational drag acting at a centre of pressure r_cp = (``x_cp_m y_cp_m z_cp_m``) off the CO:
+    the plant's :func:`~udrobot_ctrl.dynamics.effects.drag_centre_force`, [F(v + omega x r) - F(v); r x F(v + omega x
+    r)] with F(v) = -(D v + Q |v| v) the u v w block of the nominal damping. Its template is the expansion to first
+    order in r, linear in r (amplitudes, bounded least squares, no shape search):
+
+        [J(v) S(omega) r ; -S(F(v)) r],    J = dF/dv = -(D + 2 Q diag|v|),  S(a) b = a x b.
+
+    The second-order term it leaves out, r x (J (omega x r)), is |r| |omega| |J| |r| against |r| |F|: 2 % of the
+    moment for r = 3 cm on a BlueROV2 turning at 0.1 rad/s at 0.2 m/s. Bounds: each coordinate within the vehicle's
+    size (:func:`udrobot_ctrl.dynamics.effects.vehicle_size`, the largest distance of a thruster from the CO; 0.5 m
+    assumed for a model without thrusters): the centre of pressure is a point of the hull.
+    """
+
+    def design(self, s, shape):
+        D, Q = np.asarray(s.p.D_L, float)[:3, :3], np.asarray(s.p.Q, float)[:3, :3]
+        size = float(getattr(s.p, "size_m", None) or pfx.ASSUMED_VEHICLE_SIZE_M)
+
+        def cols(r):
+            v, w = r["nu"][:, :3], r["nu"][:, 3:6]
+            F = -(v @ D.T + (np.abs(v) * v) @ Q.T)
+            J = -(D[None] + 2.0 * Q[None] * np.abs(v)[:, None, :])
+            return np.concatenate([J @ _skew(w), -_skew(F)], axis=1)  # (n, 6, 3)
+        A = s.full(cols)
+        return Design(np.zeros((s.n, 6)), A, pfx.DRAG_CENTRE, np.full(3, -size), np.full(3, size))
+
+
+
 THRUSTERS_MOVING = "thruster commands that vary (armed thrusters driven through a range of commands)"
 
 
@@ -770,6 +810,10 @@ def catalogue() -> dict:
         CrossDamping("cross_coupled_damping", "off-diagonal damping couples DOFs"),
         BuoyancyOffset("buoyancy_offset", "net buoyancy differs from the model"),
         CgCbOffset("cg_cb_offset", "restoring moment (CG-CB separation) differs from the model"),
+        DragCentre("drag_centre_offset", "the translational drag acts at a centre of pressure off the CO",
+                   mimics=("cross_coupled_damping", "cg_cb_offset"),
+                   excited_by="translational motion through the water (surge, sway or heave at speed): its moment is "
+                              "the drag times the lever arm"),
     ]
     return {e.name: e for e in effects}
 
@@ -816,6 +860,12 @@ DISCRIMINATING_MANOEUVRE = {
     frozenset({"cross_coupled_damping", "quadratic_damping_error"}):
         "combined surge and heave runs at several ratios of the two speeds, besides single-axis runs (a drag on the "
         "vehicle's speed grows with the total speed, a cross-coupled term with the product of the two)",
+    frozenset({"drag_centre_offset", "cg_cb_offset"}):
+        "hold station, then runs at two or more speeds at the same attitude (a centre of pressure's moment grows with "
+        "the drag, a restoring offset acts at rest and follows the attitude)",
+    frozenset({"drag_centre_offset", "cross_coupled_damping"}):
+        "speed runs along two axes, surge and heave (one lever arm ties every moment to every drag: surge drag at a "
+        "height pitches, heave drag ahead pitches the other way; a cross-coupled term has one free coefficient each)",
     frozenset({"thruster_lag", "thruster_deadband"}):
         "small command steps around zero and large steps (a deadband removes the small ones, a lag delays all)",
 }

@@ -37,6 +37,7 @@ EXAMPLES = {
     "cross_coupled_damping": {"D_Xv": 2.0, "Q_Zu|u|": 5.0, "D_Nv": 0.5},
     "buoyancy_offset": {"dB_N": 3.0},
     "cg_cb_offset": {"dBG_x_Nm": 0.2, "dBG_y_Nm": -0.1, "dBG_z_Nm": 0.3},
+    "drag_centre_offset": {"x_cp_m": 0.04, "y_cp_m": -0.02, "z_cp_m": 0.06},
 }
 
 
