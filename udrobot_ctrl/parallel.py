@@ -20,11 +20,17 @@ it keeps what it computes (an effect's cached regressors), so that the work on s
 there, beside the caller's work on the others (the searches of the effects the runs cannot identify, fitted for the
 record and as look-alikes, while the caller fits the others). It holds one of the cores while calls sent to it are
 not yet collected.
+
+Killed runs: every worker ignores SIGINT (a Ctrl-C reaches the whole process group; the caller decides) and dies
+at SIGTERM without cleanup (:func:`worker_signals`, installed in every worker forked here); the caller stops them
+all with :func:`stop_workers` (``udrobot-ctrl`` does so at SIGINT and SIGTERM, see :mod:`udrobot_ctrl.cli.main`).
 """
 from __future__ import annotations
 
 import multiprocessing
 import os
+import signal
+import time
 from concurrent.futures import ProcessPoolExecutor
 
 JOBS_ENV = "UDROBOT_JOBS"
@@ -87,6 +93,51 @@ def in_worker() -> bool:
 def _mark_worker() -> None:
     global _in_worker
     _in_worker = True
+    worker_signals()
+
+
+def worker_signals() -> None:
+    """In a worker process: ignore SIGINT (a Ctrl-C at the terminal reaches every process of the group; the caller
+    stops its workers, and a worker's KeyboardInterrupt would only print a traceback) and die at SIGTERM (the
+    default action, whatever handler the caller had installed before forking).
+
+    Used as the initializer of every pool forked here and of the sensitivity executor's local pool.
+    """
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+
+
+def stop_workers(timeout: float = 2.0) -> int:
+    """Stop every worker process this process started (:mod:`multiprocessing` children: the pools and helpers of
+    this module, the sensitivity executor's pool): SIGTERM, then SIGKILL for those still alive after ``timeout``
+    seconds; each is reaped, so none is left behind.
+
+    Parameters
+    ----------
+    timeout : float
+        Seconds to wait for the workers to end after SIGTERM.
+
+    Returns
+    -------
+    int
+        The number of workers that were still running.
+    """
+    children = multiprocessing.active_children()
+    for child in children:
+        try:
+            child.terminate()
+        except (OSError, AttributeError, ValueError):  # already reaped, or closed
+            pass
+    deadline = time.monotonic() + timeout
+    for child in children:
+        try:
+            child.join(max(0.0, deadline - time.monotonic()))
+            if child.is_alive():
+                child.kill()
+                child.join(1.0)
+        except (OSError, AttributeError, ValueError):
+            pass
+    return len(children)
 
 
 def _forked_pool(n: int) -> ProcessPoolExecutor:
@@ -249,7 +300,7 @@ class Helper:
         if _jobs(jobs) > 1 and _may_fork():
             ctx = multiprocessing.get_context("fork")
             ours, theirs = ctx.Pipe()
-            self._proc = ctx.Process(target=_serve, args=(obj, theirs), daemon=True)
+            self._proc = ctx.Process(target=_serve, args=(obj, theirs), daemon=True)  # _serve: worker_signals
             self._proc.start()
             theirs.close()
             self._conn = ours

@@ -5,11 +5,16 @@
 Positional runs fit the effects' parameters; ``--holdout`` runs only score (one run per ``--holdout``; repeat
 the option for several). Without ``--holdout`` the last run is held out (a single run: its last third).
 Options may come before or after the runs. The report format is ``udrobot-diagnosis/1`` (docs/formats/diagnosis.md).
-Exit 0 whenever the diagnosis ran; 2 with a message on bad input.
+A holdout run may not be a fit run (the same file, or a copy with identical content), and ``--json``,
+``--out-model`` and the ``--plot`` files must be different files: both are refused before any work.
+Exit 0 whenever the diagnosis ran; 2 with a message on bad input; 130 / 143 when stopped by Ctrl-C / SIGTERM (the
+workers are stopped, no output is left half-written).
 """
 from __future__ import annotations
 
 import argparse
+import hashlib
+import os
 import sys
 from pathlib import Path
 
@@ -17,7 +22,7 @@ from udrobot_ctrl.gap.plots import plot_paths, write_plots
 from udrobot_ctrl.gap.report import corrected_model, diagnose, run_label, split_runs, summary, write_report
 from udrobot_ctrl.gap.shrink import check_window
 from udrobot_ctrl.io import load_any
-from udrobot_ctrl.io.files import check_output_dir, check_outputs, spec_files
+from udrobot_ctrl.io.files import check_distinct_outputs, check_output_dir, check_outputs, spec_files
 from udrobot_ctrl.vehicle import write_model_file
 
 
@@ -50,8 +55,51 @@ def _load(path, mapping):
     return load_any(path, mapping)
 
 
+def _digest(path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def check_holdout_not_fit(fit, holdout) -> None:
+    """Refuse a holdout run that is one of the fit runs: the same file (resolved path, symbolic or hard link) or
+    a copy of it (identical content, by SHA-256). Without ``--holdout`` the last fit run is held out, so it is
+    checked against the others.
+
+    Raises
+    ------
+    ValueError
+        Naming both files: a holdout that repeats a fit run scores the fit on its own data.
+    """
+    if not holdout:
+        fit, holdout = fit[:-1], fit[-1:]
+    fit = [Path(p) for p in fit]
+    digests = {}
+
+    def digest(p):
+        if p not in digests:
+            digests[p] = _digest(p)
+        return digests[p]
+
+    for h in map(Path, holdout):
+        for f in fit:
+            if not (h.exists() and f.exists()):
+                continue
+            if h.resolve() == f.resolve() or os.path.samefile(h, f):
+                how = "is the same file as"
+            elif h.stat().st_size == f.stat().st_size and digest(h) == digest(f):
+                how = "is a copy (identical content) of"
+            else:
+                continue
+            raise ValueError(f"holdout run {h} {how} the fit run {f}: a holdout must be data the fit has not seen; "
+                             f"give a different run as holdout")
+
+
 def run(args) -> int:
     inputs = [*args.runs, *args.holdout, *spec_files(args.model), *spec_files(args.mapping)]
+    check_distinct_outputs({"--json": args.json, "--out-model": args.out_model})
     check_outputs([args.json], inputs, force=args.force, option="--json")
     if args.out_model:
         check_outputs([args.out_model], inputs, force=args.force, option="--out-model")
@@ -60,10 +108,12 @@ def run(args) -> int:
     if args.plot:
         fit_s, hold_s, _ = split_runs(fit, hold or None)
         check_output_dir(args.plot, inputs, force=args.force, option="--plot")
-        check_outputs(plot_paths(args.plot, [run_label(r) for r in fit_s], [run_label(r) for r in hold_s]), inputs,
-                      force=args.force, option="--plot")
+        plots = plot_paths(args.plot, [run_label(r) for r in fit_s], [run_label(r) for r in hold_s])
+        check_distinct_outputs({"--json": args.json, "--out-model": args.out_model, "--plot": plots})
+        check_outputs(plots, inputs, force=args.force, option="--plot")
     effects = [e.strip() for e in args.effects.split(",")] if args.effects else None
     check_window(args.window, ())
+    check_holdout_not_fit(args.runs, args.holdout)
     log = None if args.quiet else (lambda s: print(s, file=sys.stderr))
     report, ctx = diagnose(args.model, fit, hold or None, window_s=args.window, effects=effects, log=log,
                            model_label=args.model)

@@ -6,17 +6,29 @@ Each subcommand module exposes ``register(subparsers)`` (adds its parser and set
 Errors: the expected ones (:data:`EXPECTED_ERRORS`: bad input, missing or unreadable files, logs or mappings
 that cannot be imported) are printed as one line ``udrobot-ctrl CMD: error: ...`` with exit status 2; anything
 else is a bug and keeps its traceback. Output piped into a reader that closes early (``| head``) ends quietly.
+
+Signals: SIGINT (Ctrl-C) and SIGTERM stop the command: its worker processes are stopped
+(:func:`udrobot_ctrl.parallel.stop_workers`), its temporary files removed
+(:func:`udrobot_files.output.remove_temporaries`; outputs already renamed into place stay), and it exits with
+128 + the signal number (130, 143) after one line ``udrobot-ctrl CMD: interrupted by SIGTERM ...``, no traceback.
 """
 from __future__ import annotations
 
 import argparse
 import difflib
 import importlib
+import multiprocessing
 import os
 import re
+import signal
 import sys
+import threading
+from pathlib import Path
 
 from udrobot_ctrl import __version__
+from udrobot_ctrl.parallel import stop_workers
+from udrobot_files.nesting import too_deep
+from udrobot_files.output import check_distinct_outputs, remove_temporaries, run_files
 
 # subcommand -> module defining register(subparsers)
 COMMANDS = {
@@ -76,6 +88,60 @@ EXPECTED_ERRORS = (CLIError, ValueError, FileNotFoundError, FileExistsError, Per
                    NotADirectoryError)
 
 
+class Interrupted(KeyboardInterrupt):
+    """The command was stopped by a signal (SIGINT or SIGTERM); a KeyboardInterrupt, so that code which lets a
+    Ctrl-C through lets it through too."""
+
+    def __init__(self, signum: int):
+        super().__init__(signal.Signals(signum).name)
+        self.signum = signum
+
+
+_STOPPING = {"pid": None, "signum": None}  # the CLI process and the first signal it received
+
+
+def _on_signal(signum, frame):
+    """SIGINT/SIGTERM handler of the CLI process: stop the workers at once (they may be what the caller waits for)
+    and raise :class:`Interrupted` there; later signals are ignored while it unwinds. A forked worker that still
+    carries this handler dies (SIGTERM) or leaves it to the caller (SIGINT)."""
+    if os.getpid() != _STOPPING["pid"]:
+        if signum == signal.SIGTERM:
+            signal.signal(signum, signal.SIG_DFL)
+            os.kill(os.getpid(), signum)
+        return
+    if _STOPPING["signum"] is not None:
+        return
+    _STOPPING["signum"] = signum
+    for child in multiprocessing.active_children():
+        try:
+            child.terminate()
+        except (OSError, ValueError):
+            pass
+    raise Interrupted(signum)
+
+
+def _install_signal_handlers() -> dict:
+    """Install :func:`_on_signal` for SIGINT and SIGTERM (main thread only); returns the previous handlers."""
+    if threading.current_thread() is not threading.main_thread():
+        return {}
+    _STOPPING.update(pid=os.getpid(), signum=None)
+    # a SIGINT ignored by whoever started us (a background job of a shell) stays ignored
+    return {sig: signal.signal(sig, _on_signal) for sig in (signal.SIGINT, signal.SIGTERM)
+            if signal.getsignal(sig) is not signal.SIG_IGN}
+
+
+def _stopped(command: str, signum: int) -> int:
+    """Stop the workers, remove the temporaries, say so in one line; the exit status 128 + ``signum``."""
+    stop_workers()
+    removed = remove_temporaries()
+    sys.stdout.flush()
+    name = signal.Signals(signum).name
+    print(f"udrobot-ctrl {command}: interrupted by {name}: workers stopped, "
+          f"{len(removed)} temporary file{'s' if len(removed) != 1 else ''} removed; outputs not yet written are "
+          f"missing", file=sys.stderr)
+    return 128 + signum
+
+
 def build_parser(only: str | None = None) -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="udrobot-ctrl", description=DESCRIPTION, epilog=EPILOG,
                                      usage="%(prog)s [-h] [--version] COMMAND [OPTIONS ...]",
@@ -127,6 +193,53 @@ def unknown_option(parser: argparse.ArgumentParser, argv: list) -> str | None:
     return None
 
 
+#: options that name an output file or folder, whatever the command (a bool --plot is a switch, not a path)
+OUTPUT_OPTIONS = ("json", "out", "out_model", "plot", "segment_dir", "report")
+
+
+def check_output_options(args) -> None:
+    """Refuse two output options of the command naming the same file (:func:`check_distinct_outputs`), for every
+    command, before it starts: a run CSV ``--out`` brings its sidecar ``NAME.json``.
+
+    Raises
+    ------
+    udrobot_files.output.OutputError
+        Naming both options and the file.
+    """
+    outputs = {}
+    for name in OUTPUT_OPTIONS:
+        value = getattr(args, name, None)
+        if isinstance(value, str) and value:
+            option = "--" + name.replace("_", "-")
+            outputs[option] = run_files(value) if value.lower().endswith(".csv") else value
+    if len(outputs) > 1:
+        check_distinct_outputs(outputs)
+
+
+_PATH_NAMES = ("path", "source", "src", "source_name", "study_path", "file", "filename")
+
+
+def _too_deep(exc: RecursionError) -> str:
+    """The message for a RecursionError that no reader turned into its own error: the file being read (the innermost
+    frame with a local variable naming an existing file), nested too deeply."""
+    found, tb = None, exc.__traceback__
+    while tb is not None:
+        for name in _PATH_NAMES:
+            value = tb.tb_frame.f_locals.get(name)
+            if isinstance(value, (str, Path)) and value and len(str(value)) < 4096:
+                try:
+                    if Path(value).is_file():
+                        found = value
+                        break
+                except (OSError, ValueError):
+                    pass
+        tb = tb.tb_next
+    if found is None:
+        return (f"an input nested too deeply to read (over about {sys.getrecursionlimit()} levels of brackets or "
+                f"tables): a damaged or wrong file")
+    return str(too_deep(found, "TOML" if str(found).lower().endswith(".toml") else "JSON"))
+
+
 def _quiet_broken_pipe() -> int:
     """The reader of stdout went away (``| head``): stop writing, without a traceback (Python docs' idiom)."""
     devnull = os.open(os.devnull, os.O_WRONLY)
@@ -137,6 +250,39 @@ def _quiet_broken_pipe() -> int:
 def main(argv=None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     first = next((a for a in argv if not a.startswith("-")), None)
+    previous = _install_signal_handlers()
+    unraisable = sys.unraisablehook
+    sys.unraisablehook = _quiet_interrupted(unraisable)
+    command = first if first in COMMANDS else ""
+    try:
+        status = _main(argv, first)
+        if _STOPPING["signum"] is not None:  # the Interrupted raised in the handler was lost (raised where Python
+            return _stopped(command, _STOPPING["signum"])  # ignores errors: an at-fork callback, a finaliser)
+        return status
+    except KeyboardInterrupt as exc:  # Interrupted, or a Ctrl-C before the handlers were installed
+        signum = exc.signum if isinstance(exc, Interrupted) else signal.SIGINT
+        return _stopped(command, signum)
+    except BaseException:
+        if _STOPPING["signum"] is None:
+            raise
+        return _stopped(command, _STOPPING["signum"])  # what the stopped workers left (a broken pool): the signal
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler if handler is not None else signal.SIG_DFL)
+        sys.unraisablehook = unraisable
+        _STOPPING.update(pid=None, signum=None)
+
+
+def _quiet_interrupted(hook):
+    """``sys.unraisablehook`` that says nothing of an :class:`Interrupted` raised where Python cannot propagate it
+    (a signal arriving in an at-fork callback or a finaliser): :func:`main` still ends as interrupted."""
+    def quiet(unraisable):
+        if not isinstance(unraisable.exc_value, Interrupted):
+            hook(unraisable)
+    return quiet
+
+
+def _main(argv: list, first: str | None) -> int:
     try:
         parser = build_parser(first if first in COMMANDS else None)
         if first in COMMANDS:
@@ -147,10 +293,17 @@ def main(argv=None) -> int:
                 command.error(message)
         args = parser.parse_args(argv)
         try:
+            check_output_options(args)
             status = int(args.func(args) or 0)
         except EXPECTED_ERRORS as exc:
+            if _STOPPING["signum"] is not None:  # a consequence of the stop (workers gone), not the user's input
+                raise Interrupted(_STOPPING["signum"]) from None
             sys.stdout.flush()
             print(f"udrobot-ctrl {args.command}: error: {exc}", file=sys.stderr)
+            return 2
+        except RecursionError as exc:  # a parser following a file nested too deeply (the readers name it first)
+            sys.stdout.flush()
+            print(f"udrobot-ctrl {args.command}: error: {_too_deep(exc)}", file=sys.stderr)
             return 2
         sys.stdout.flush()
         return status

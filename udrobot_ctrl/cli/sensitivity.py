@@ -5,11 +5,15 @@ Examples::
     udrobot-ctrl sensitivity --model cfd:morison --controller lqr --method local --out sens_local
     udrobot-ctrl sensitivity --model pendulum:chin --method sobol --samples 256 --workers 2 --out sens_sobol
     udrobot-ctrl sensitivity --method sobol --samples 1024 --scheduler tls://10.0.0.5:8786 --out s --resume
-
-A dask scheduler runs any code its clients send: use ``tls://`` with certificates (README, "Distributed sensitivity
-studies"), never a plain ``tcp://`` scheduler reachable by others.
     udrobot-ctrl sensitivity --method morris --samples 20 --params surge.CD,heave.CD,heave.added_mass \\
         --range surge.CD=1.2:2.6
+
+A dask scheduler runs any code its clients send: use ``tls://`` with certificates (README, "Distributed sensitivity
+studies"), never a plain ``tcp://`` scheduler reachable by others (a warning says so).
+
+Exit status: 0 when every run of the design was evaluated without an error; 1 when some runs failed (the tables are
+written, the failed runs with their error, and the last line says how many); 2 when all failed, fewer runs than the
+design were evaluated, or on bad input; 130 / 143 when stopped by Ctrl-C / SIGTERM (``--resume`` continues).
 """
 from __future__ import annotations
 
@@ -27,7 +31,7 @@ from udrobot_ctrl.control.compare import CONTROL_DT, SIM_DT
 from udrobot_ctrl.control.missions import standard_mission
 from udrobot_ctrl.io.files import atomic_write, check_output_dir, spec_files
 from udrobot_ctrl.sensitivity.evaluators import MissionEvaluator
-from udrobot_ctrl.sensitivity.executor import SweepExecutor
+from udrobot_ctrl.sensitivity.executor import SweepExecutor, scheduler_warning
 from udrobot_ctrl.sensitivity.global_ import run_monte_carlo, run_morris, run_sobol
 from udrobot_ctrl.sensitivity.local import local_sensitivity
 from udrobot_ctrl.sensitivity.parameters import default_space, parse_range, read_study_file
@@ -77,6 +81,10 @@ def register(subparsers):
     p.set_defaults(func=run)
 
 
+def _samples(args) -> int:
+    return DEFAULT_SAMPLES[args.method] if args.samples is None else args.samples
+
+
 def build_space(args):
     """The parameter space of the CLI arguments (model, margin, subset, user ranges)."""
     space = default_space(args.model, margin=args.margin, rotational=not args.no_rotational)
@@ -104,10 +112,56 @@ def build_evaluator(args, space):
                             sim_dt=args.dt, control_dt=args.control_dt)
 
 
+DEFAULT_SAMPLES = {"sobol": 256, "morris": 20, "montecarlo": 500}
+
+
+def check_samples(args) -> None:
+    """``--samples`` as the method reads it: refused when not a positive count (0 never means the default); a note
+    when ``--method local`` ignores it (its runs are 1 + 6 d)."""
+    if args.samples is None:
+        return
+    if args.samples < 1:
+        raise ValueError(f"--samples must be a positive number of samples, got {args.samples} (leave it out for the "
+                         f"method's default: sobol 256, morris 20, montecarlo 500)")
+    if args.method == "local":
+        print(f"udrobot-ctrl sensitivity: note: --samples {args.samples} is not used by --method local (it always runs "
+              f"1 + 6 d closed-loop runs: the nominal point and 6 per parameter)", file=sys.stderr)
+
+
+def run_outcome(res, requested: int) -> tuple:
+    """(exit status, message or None) of a finished study: 0 when every requested run was evaluated without an
+    error; 1 with a message naming how many runs failed (and the first error) otherwise, 2 when all failed.
+
+    Parameters
+    ----------
+    res : LocalResult, GlobalResult or MonteCarloResult
+        The study's result; its table of runs has one ``error`` entry per evaluated sample ("" when it ran).
+    requested : int
+        The runs the study's design asked for.
+    """
+    table = res.runs if hasattr(res, "runs") else res.table
+    errors = [str(e) for e in np.asarray(table.get("error", []), dtype=object) if str(e) not in ("", "nan")]
+    done = len(table.get("sample_id", ()))
+    if done < requested:
+        return 2, f"only {done} of the {requested} requested runs were evaluated"
+    if not errors:
+        return 0, None
+    first = errors[0] if len(errors[0]) <= 200 else errors[0][:200] + "..."
+    what = (f"{len(errors)} of the {requested} runs failed (first: {first}); the indices of metrics with failed runs "
+            f"are NaN, the failed runs are in the table with their error")
+    if len(errors) == requested:
+        return 2, f"every run failed (first: {first}): no result"
+    return 1, what
+
+
 def run(args) -> int:
     """Validate the arguments, then run the study holding the lock of its ``--out`` folder throughout."""
     if args.resume and not args.out:
         raise ValueError("--resume needs --out (the study directory to continue)")
+    check_samples(args)
+    note = scheduler_warning(args.scheduler)
+    if note:
+        print(f"udrobot-ctrl sensitivity: warning: {note}", file=sys.stderr)
     inputs = spec_files(args.model, args.ranges)
     if args.out:
         check_output_dir(args.out, inputs, force=True, option="--out", names=["space.json"])
@@ -140,15 +194,16 @@ def _run(args, space, evaluator, inputs) -> int:
             res = local_sensitivity(evaluator, space, executor=ex, out=args.out, resume=args.resume,
                                     progress=progress)
         elif args.method == "sobol":
-            res = run_sobol(evaluator, space, args.samples or 256, executor=ex, out=args.out, resume=args.resume,
+            res = run_sobol(evaluator, space, _samples(args), executor=ex, out=args.out, resume=args.resume,
                             seed=args.seed, progress=progress, transform="rank" if args.rank else None)
         elif args.method == "montecarlo":
-            res = run_monte_carlo(evaluator, space, args.samples or 500, executor=ex, out=args.out,
+            res = run_monte_carlo(evaluator, space, _samples(args), executor=ex, out=args.out,
                                   resume=args.resume, seed=args.seed, progress=progress)
         else:
-            res = run_morris(evaluator, space, args.samples or 20, executor=ex, out=args.out, resume=args.resume,
+            res = run_morris(evaluator, space, _samples(args), executor=ex, out=args.out, resume=args.resume,
                              seed=args.seed, progress=progress)
     wall = time.perf_counter() - t0
+    status, problem = run_outcome(res, res.n_runs)
     print(f"{res.n_runs} closed-loop runs in {wall:.1f} s")
     print(summary_text(res, args.method, args.top))
     for note in getattr(res, "warnings", []):
@@ -159,7 +214,11 @@ def _run(args, space, evaluator, inputs) -> int:
         if args.plot and args.method != "montecarlo":
             write_plots(res, args.method, out)
         print(f"tables in {out.resolve()}")
-    return 0
+    if problem:
+        sys.stdout.flush()
+        print(f"udrobot-ctrl sensitivity: {'error' if status == 2 else 'warning'}: study not run as asked: {problem}"
+              f" (exit status {status})", file=sys.stderr)
+    return status
 
 
 #: metrics of udrobot_ctrl.control.metrics (compare's) listed first and plotted

@@ -69,6 +69,7 @@ from udrobot_ctrl.io.runlog import (
     hold_previous,
     interpolate_linear,
 )
+from udrobot_files.nesting import too_deep
 
 from .streams import LogImportError, Stream
 
@@ -295,6 +296,8 @@ def parse_mapping(text: str, source_name: str = "mapping") -> Mapping:
         doc = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise MappingError(f"{source_name}: invalid TOML ({exc})") from exc
+    except RecursionError:
+        raise MappingError(str(too_deep(source_name, "TOML"))) from None
     head = doc.get("mapping")
     if not isinstance(head, dict):
         raise MappingError(f"{source_name}: missing [mapping] table")

@@ -469,7 +469,7 @@ def read_bin_streams(path, mapping, optional: dict | None = None) -> DecodedLog:
     facts = LogFacts()
     wanted = {name.split("[")[0] for name in data} | {"PARM", "MSG"}
     tally = {}
-    for index, offset, name, values in iter_dataflash(path, facts.damage, wanted, tally):
+    for _index, offset, name, values in iter_dataflash(path, facts.damage, wanted, tally):
         if name == "PARM":
             facts.params[str(values.get("Name", ""))] = float(values.get("Value", np.nan))
             continue
@@ -482,9 +482,12 @@ def read_bin_streams(path, mapping, optional: dict | None = None) -> DecodedLog:
             continue
         try:
             t = values["TimeUS"] * 1e-6
-        except (KeyError, TypeError) as exc:
-            raise LogImportError(f"{path}: message {index} at byte offset {offset} ({name}): no TimeUS "
-                                 f"(fields: {', '.join(values)})") from exc
+        except (KeyError, TypeError):
+            # the type's FMT record lost its TimeUS column to damage (a flipped byte in the name): its records have
+            # no time; skipped and counted (a stream left empty is named by the mapping step)
+            fields = ", ".join(values)[:80]
+            facts.damage.add(f"no TimeUS in {name} (damaged FMT record? fields: {fields})", offset, 0)
+            continue
         cols = entry["cols"]
         entry["t"].append(t)
         for f in entry["req"]:

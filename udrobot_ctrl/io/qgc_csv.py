@@ -16,12 +16,15 @@ from __future__ import annotations
 
 import csv
 import math
+import re
 from datetime import datetime
 from pathlib import Path
 
+from .runlog import non_ascii_digits
 from .streams import LogImportError, Stream, finish_stream
 
 HEADER_FIRST = "Timestamp"
+_NUMBER = re.compile(r"^[+-]?(\d+(\.\d*)?|\.\d+)([eE][+-]?\d+)?$", re.ASCII)  # digits 0-9 only (not '٣', '３')
 TIME_FORMATS = ("%Y-%m-%d %H:%M:%S.%f", "%Y-%m-%d %H:%M:%S", "%Y-%m-%dT%H:%M:%S.%f", "%Y-%m-%dT%H:%M:%S")
 
 
@@ -47,13 +50,14 @@ def _time(cell: str, where: str) -> float:
 
 
 def _cell(s: str) -> float:
+    """A cell's value: nan when empty, None when not a plain decimal number in ASCII digits (a text fact, or a
+    damaged cell)."""
     s = s.strip()
     if s == "":
         return math.nan
-    try:
-        return float(s)
-    except ValueError:
+    if not _NUMBER.match(s) and s.lower() not in ("nan", "+nan", "-nan"):
         return None
+    return float(s)
 
 
 def read_qgc_csv(path, name: str = "telemetry") -> Stream:
@@ -76,7 +80,7 @@ def read_qgc_csv(path, name: str = "telemetry") -> Stream:
         raise LogImportError(f"{path}: QGC telemetry CSV has a header but no data rows")
     times = []
     columns = {h: [] for h in header[1:]}
-    numeric = {h: True for h in header[1:]}
+    bad = {h: [] for h in header[1:]}  # (row, cell) of the cells that are not numbers, per column
     longer, first_longer, most = 0, None, len(header)
     for k, row in enumerate(data, start=2):
         if len(row) > len(header):  # QGC adds fact columns (a second battery) after writing its header
@@ -91,19 +95,33 @@ def read_qgc_csv(path, name: str = "telemetry") -> Stream:
         for h, cell in zip(header[1:], row[1:]):
             value = _cell(cell)
             if value is None:
-                numeric[h] = False
-            else:
-                columns[h].append(value)
-    fields = {h: v for h, v in columns.items() if numeric[h]}
+                bad[h].append((k, cell))
+                value = math.nan
+            columns[h].append(value)
+    # a text column (flight mode, hobbs meter hh:mm:ss) has no number at all; a numeric column with a few
+    # damaged cells keeps its other rows, each bad cell read as missing (nan) and counted
+    read = {h: sum(1 for v in columns[h] if not math.isnan(v)) for h in columns}
+    text = [h for h in columns if bad[h] and len(bad[h]) >= read[h]]
+    for h, cells in bad.items():
+        for k, cell in cells:
+            digit = non_ascii_digits(cell)
+            if digit and h not in text:
+                raise LogImportError(f"{path}: row {k}, column {h}: cell {cell.strip()[:40]!r}{digit}")
+    fields = {h: v for h, v in columns.items() if h not in text}
     stream = finish_stream(name, times, fields, "QGC wall-clock Timestamp (local time)")
     if longer:
         stream.notes.append(f"{path}: {longer} of {len(data)} rows have more cells than the header (first: row "
                             f"{first_longer}, up to {most} cells for {len(header)} header columns: facts QGC added "
                             f"after writing the header, e.g. a second battery); the cells beyond the header have no "
                             f"name and are ignored")
-    dropped = [h for h, ok in numeric.items() if not ok]
-    if dropped:
-        stream.notes.append(f"{path}: non-numeric QGC columns not read: {', '.join(dropped)}")
+    damaged = {h: cells for h, cells in bad.items() if cells and h not in text}
+    if damaged:
+        total = sum(len(c) for c in damaged.values())
+        detail = "; ".join(f"{h}: {len(c)} (first row {c[0][0]}, {c[0][1].strip()[:20]!r})" for h, c in damaged.items())
+        stream.notes.append(f"{path}: {total} cell{'s' if total != 1 else ''} not a number, read as missing (only "
+                            f"that cell of its row; the row's other columns are kept): {detail}")
+    if text:
+        stream.notes.append(f"{path}: non-numeric QGC columns not read: {', '.join(text)}")
     return stream
 
 

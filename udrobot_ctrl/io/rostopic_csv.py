@@ -12,9 +12,10 @@ import csv
 import re
 from pathlib import Path
 
+from .runlog import non_ascii_digits
 from .streams import LogImportError, Stream, finish_stream
 
-_NUM = re.compile(r"^[+-]?(\d+(\.\d*)?|\.\d+)([eE][+-]?\d+)?$")
+_NUM = re.compile(r"^[+-]?(\d+(\.\d*)?|\.\d+)([eE][+-]?\d+)?$", re.ASCII)  # digits 0-9 only
 
 
 def resolve_files(path, files: dict) -> dict:
@@ -39,7 +40,7 @@ def _number(cell: str, where: str) -> float:
         return value
     if s.lower() in ("", "nan"):
         return float("nan")
-    raise LogImportError(f"{where}: non-numeric cell {s[:40]!r}; expected a number")
+    raise LogImportError(f"{where}: non-numeric cell {s[:40]!r}{non_ascii_digits(s)}; expected a number")
 
 
 def read_topic_csv(path, name: str, fields, time: str = "header") -> Stream:

@@ -28,12 +28,14 @@ import csv
 import json
 import math
 import re
+import unicodedata
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 
 from udrobot_ctrl.io import files
+from udrobot_files.nesting import NestingError, loads_json
 
 FORMAT = "udrobot-run/1"
 STATE_CHANNELS = ("x", "y", "z", "phi", "theta", "psi", "u", "v", "w", "p", "q", "r")
@@ -45,7 +47,7 @@ INPUT_KINDS = ("thrust", "pwm", "tau")
 METADATA_KEYS = ("format", "vehicle", "water_density", "seabed_depth", "walls", "notes")
 
 _INDEXED_INPUT = re.compile(r"^(thrust|pwm)_(\d+)$")
-_NUMBER = re.compile(r"^[+-]?(\d+(\.\d*)?|\.\d+)([eE][+-]?\d+)?$")
+_NUMBER = re.compile(r"^[+-]?(\d+(\.\d*)?|\.\d+)([eE][+-]?\d+)?$", re.ASCII)  # ASCII digits only (not '٣', '３')
 _NAN = re.compile(r"^[+-]?nan$", re.IGNORECASE)
 _INF = re.compile(r"^[+-]?(inf|infinity)$", re.IGNORECASE)
 
@@ -152,6 +154,15 @@ def _where(path, row=None, line=None, column=None) -> str:
     if column is not None:
         parts.append(f"column '{column}'")
     return ": ".join(parts)
+
+
+def non_ascii_digits(text: str) -> str:
+    """``" (non-ASCII digit U+0663 ARABIC-INDIC DIGIT THREE)"`` for the first digit of ``text`` outside 0-9 (which
+    Python's ``float`` would read as a number, but no log writes), else ``""``: for error messages."""
+    for ch in text:
+        if ch.isdigit() and not ch.isascii():
+            return f" (non-ASCII digit U+{ord(ch):04X} {unicodedata.name(ch, '?')}: numbers must use the digits 0-9)"
+    return ""
 
 
 def _parse_cell(text: str):
@@ -291,8 +302,9 @@ def _column_values(path, rows, j: int, name: str, strict: bool) -> np.ndarray:
         if value is None:
             if not strict:
                 return np.array([f[j] for _, _, f in rows], dtype=object)
-            raise RunLogError(f"{_where(path, row=row, line=line, column=name)}: non-numeric cell {fields[j][:40]!r}; "
-                              f"expected a decimal number, or empty/nan when not measured")
+            raise RunLogError(f"{_where(path, row=row, line=line, column=name)}: non-numeric cell {fields[j][:40]!r}"
+                              f"{non_ascii_digits(fields[j])}; expected a decimal number, or empty/nan when not "
+                              f"measured")
         if strict and math.isinf(value):
             raise RunLogError(f"{_where(path, row=row, line=line, column=name)}: infinite value {fields[j][:40]!r}; "
                               f"expected a finite number, or empty/nan when not measured")
@@ -577,7 +589,9 @@ def read_metadata(path) -> dict:
     """Read and validate a sidecar ``NAME.json``."""
     path = Path(path)
     try:
-        meta = json.loads(path.read_text(encoding="utf-8"))
+        meta = loads_json(path.read_text(encoding="utf-8"), path)
+    except NestingError as exc:
+        raise RunLogError(str(exc)) from None
     except UnicodeDecodeError as exc:
         raise RunLogError(f"{path}: byte offset {exc.start}: not UTF-8 text; expected JSON metadata") from exc
     except json.JSONDecodeError as exc:

@@ -97,17 +97,75 @@ def clock_jump_segment(name, t, time_source) -> tuple:
     return slice(a, b), note
 
 
+SPIKE_STEPS = 100.0  # a stamp over this many median intervals (and SPIKE_MIN_S) from both neighbours is a spike
+SPIKE_MIN_S = 1.0  # s; below this an out-of-line stamp is jitter (bag header stamps), never dropped
+
+
+def time_spikes(t) -> np.ndarray:
+    """Mask of the isolated corrupt stamps of ``t`` (finite, in the order the log holds them): records more than
+    :data:`SPIKE_STEPS` median intervals (and :data:`SPIKE_MIN_S`) away from the median of the five records around
+    them (the first or last five at the ends; up to two corrupt records among five are found); at either end, where
+    a pause would look the same, only a record out of line into the stream (one of the first two later, one of the
+    last two earlier, than the median).
+
+    Such a record (a flipped byte in a dataflash ``TimeUS`` or a tlog receive time) would, once sorted, stretch
+    its stream by the size of the flip, and a conversion onto a grid across the stretch would allocate in
+    proportion; the clock-jump limit (:func:`clock_jump_segment`) allows up to 1e4 median intervals. The median of
+    five consecutive stamps of an ordered stream is the middle one, so a pause of any length is never a spike.
+    """
+    t = np.asarray(t, dtype=float)
+    n = t.size
+    spikes = np.zeros(n, dtype=bool)
+    if n < 3:
+        return spikes
+    limit = max(SPIKE_STEPS * float(np.median(np.abs(np.diff(t)))), SPIKE_MIN_S)
+    centre = np.empty(n)
+    if n >= 5:
+        centre[2:n - 2] = np.median(np.lib.stride_tricks.sliding_window_view(t, 5), axis=1)
+    for i in sorted({0, 1, n - 2, n - 1} | ({2, n - 3} if n < 5 else set())):  # the five records at that end
+        centre[i] = np.median(t[:5] if i < n / 2 else t[-5:])
+    off = t - centre
+    spikes = np.abs(off) > limit
+    # at either end a record before (after) a pause stays: the first, or the second if not earlier than the first
+    # (and the last, or the one before it if not later than the last)
+    pause = np.zeros(n, dtype=bool)
+    pause[0], pause[1] = off[0] < 0, off[1] < 0 and t[1] >= t[0]
+    pause[-1], pause[-2] = off[-1] > 0, off[-2] > 0 and t[-2] <= t[-1]
+    spikes &= ~pause
+    return spikes
+
+
 def finish_stream(name, times, columns, time_source, t_alternative=None, alternative_source="") -> Stream:
     """Build a :class:`Stream` from per-message lists: sort by time (stable), keep the last of equal stamps, and
     drop records that clock jumps separate from the stream's largest stretch (:func:`clock_jump_segment`).
 
-    Sorting, de-duplication and dropped records are recorded in ``notes`` (never silent). An alternative clock
+    Samples whose time stamp is not a finite number (NaN, inf) are dropped first, for that reason, then isolated
+    corrupt stamps (:func:`time_spikes`). Sorting,
+    de-duplication and dropped records are recorded in ``notes`` (never silent). An alternative clock
     with a jump over the limit in the kept stretch is not used (noted).
     """
     t = np.asarray(times, dtype=float)
     fields = {k: np.asarray(v, dtype=float) for k, v in columns.items()}
     alt = None if t_alternative is None else np.asarray(t_alternative, dtype=float)
     notes = []
+    bad = ~np.isfinite(t)
+    if bad.any():  # before sorting: a NaN stamp compares false with its neighbours and would pass as a duplicate
+        first = int(np.flatnonzero(bad)[0])
+        notes.append(f"{name}: {int(bad.sum())} of {t.size} samples dropped for a bad time stamp (not a finite "
+                     f"number in {time_source}; the first is message {first + 1}, value {t[first]!r}); their other "
+                     f"fields are not used")
+        t = t[~bad]
+        fields = {k: v[~bad] for k, v in fields.items()}
+        alt = None if alt is None else alt[~bad]
+    spikes = time_spikes(t)
+    if spikes.any():
+        first = int(np.flatnonzero(spikes)[0])
+        notes.append(f"{name}: {int(spikes.sum())} of {t.size} samples dropped for a corrupt time stamp out of line "
+                     f"with both neighbours (over {SPIKE_STEPS:g} median intervals and {SPIKE_MIN_S:g} s away, the "
+                     f"neighbours agreeing; the first is record {first + 1} at {t[first]:.6g} s in {time_source})")
+        t = t[~spikes]
+        fields = {k: v[~spikes] for k, v in fields.items()}
+        alt = None if alt is None else alt[~spikes]
     if t.size and np.any(np.diff(t) < 0):
         order = np.argsort(t, kind="stable")
         notes.append(f"{name}: {int(np.sum(np.diff(t) < 0))} out-of-order time stamps ({time_source}); sorted")

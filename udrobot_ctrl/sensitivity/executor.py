@@ -30,6 +30,8 @@ import time
 
 import numpy as np
 
+from udrobot_ctrl.parallel import worker_signals
+
 
 class _ImmediateExecutor(cf.Executor):
     """Runs each task at submit time in this process (a concurrent.futures Executor)."""
@@ -43,6 +45,46 @@ class _ImmediateExecutor(cf.Executor):
                 raise
             fut.set_exception(exc)
         return fut
+
+
+#: dask comm protocols that encrypt the link (TLS); any other (tcp://, ws://, a bare HOST:PORT) is plain text
+ENCRYPTED_PROTOCOLS = ("tls", "wss")
+
+
+def scheduler_warning(address: str | None) -> str | None:
+    """Why a dask scheduler address is unsafe, or None: a plain (unencrypted, unauthenticated) link.
+
+    dask runs whatever pickled code a client sends; over ``tcp://`` (dask's default when the address has no
+    ``PROTOCOL://``) anyone who reaches the port can send code to every worker and read the traffic. Only
+    ``tls://`` (or ``wss://``) with certificates encrypts and authenticates the link; ``inproc://`` stays inside
+    this process.
+
+    Parameters
+    ----------
+    address : str or None
+        The ``--scheduler`` address.
+
+    Returns
+    -------
+    str or None
+        The warning to print, naming the address and suggesting ``tls://``.
+    """
+    if not address:
+        return None
+    text = str(address).strip()
+    protocol, sep, rest = text.partition("://")
+    if not sep:
+        protocol, rest = "tcp", text
+    protocol = protocol.lower()
+    if protocol in ENCRYPTED_PROTOCOLS or protocol == "inproc":
+        return None
+    host = rest.rsplit(":", 1)[0].strip("[]").lower() if ":" in rest else rest.lower()
+    local = host in ("localhost", "::1") or host.startswith("127.")
+    who = ("every user of this machine who reaches the port (fine behind an SSH tunnel on a machine of your own)"
+           if local else "anyone on the network who reaches the port")
+    return (f"scheduler {text}: {protocol}:// is unencrypted and unauthenticated: the study's traffic can be read, and "
+            f"{who} can run code on every dask worker; use tls://{rest} with certificates (README, \"Distributed "
+            f"sensitivity studies\")")
 
 
 class SweepExecutor:
@@ -89,7 +131,9 @@ class SweepExecutor:
             if workers == 1:
                 self.executor, self.kind = _ImmediateExecutor(), "serial"
             else:
-                self.executor, self.kind = cf.ProcessPoolExecutor(max_workers=workers), "process"
+                # workers ignore Ctrl-C and die at SIGTERM: the caller stops them (parallel.stop_workers)
+                self.executor = cf.ProcessPoolExecutor(max_workers=workers, initializer=worker_signals)
+                self.kind = "process"
             self._own = True
 
     def submit(self, fn, *args, **kwargs):

@@ -134,7 +134,16 @@ def _sweep(evaluator, X, executor, out, resume, study, names, progress, chunk_si
             store.close()
         if own:
             ex.close()
+    done = len(table.get("sample_id", ())) if table else 0
+    if done < X.shape[0]:
+        kept = f"; the finished runs are kept in {out}: --resume computes the others" if out is not None else ""
+        raise StudyIncompleteError(f"{desc} study incomplete: {done} of the {X.shape[0]} requested runs were "
+                                   f"evaluated{kept}")
     return table, wall
+
+
+class StudyIncompleteError(ValueError):
+    """A sweep that evaluated fewer runs than its design asked for: no indices are computed from it."""
 
 
 def _metric_columns(table, names) -> list:

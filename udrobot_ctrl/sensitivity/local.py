@@ -17,7 +17,7 @@ threshold-crossing (settling) time jumps; the Richardson check is how the tool t
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -45,6 +45,8 @@ class LocalResult:
     low, high : dict
         ``{metric: (d,)}`` metric with parameter j at its range end, others nominal (OAT).
     bounds : (d, 2) ndarray
+    runs : dict
+        The sweep's table of runs (``sample_id``, metrics, ``error``), one row per evaluated sample.
     """
 
     names: list
@@ -59,6 +61,7 @@ class LocalResult:
     bounds: np.ndarray
     n_runs: int = 0
     wall_s: float = 0.0
+    runs: dict = field(default_factory=dict)
 
     @property
     def metrics(self) -> list:
@@ -156,7 +159,7 @@ def local_sensitivity(evaluator, space, rel_step: float = 1e-2, executor=None, o
         with np.errstate(divide="ignore", invalid="ignore"):
             ela[m] = der[m] * p / y0 if meaningful else np.full(d, np.nan)
         lo[m], hi[m] = Yr[:, 4], Yr[:, 5]
-    result = LocalResult(names, p, h, base, der, err, ela, lo, hi, bounds, X.shape[0], wall)
+    result = LocalResult(names, p, h, base, der, err, ela, lo, hi, bounds, X.shape[0], wall, table)
     if out is not None:
         write_table(f"{out}/local", result.table())
     return result

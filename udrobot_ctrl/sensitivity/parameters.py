@@ -33,6 +33,7 @@ import tomllib
 
 from identification.fossen import AXES, quadratic_from_drag_coefficient
 from udrobot_ctrl.vehicle import Vehicle, coefficient_set, load_model, vehicle_description
+from udrobot_files.nesting import loads_toml
 
 ROT_AXES = ("roll", "pitch", "yaw")
 SETS = ("cfd", "free_decay", "pendulum")
@@ -279,7 +280,7 @@ def read_study_file(path) -> dict:
     """
     path = Path(path)
     try:
-        doc = tomllib.loads(path.read_text())
+        doc = loads_toml(path.read_text(), path)
     except FileNotFoundError:
         raise FileNotFoundError(f"range file {path} does not exist") from None
     except tomllib.TOMLDecodeError as exc:

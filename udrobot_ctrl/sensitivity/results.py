@@ -37,6 +37,8 @@ from pathlib import Path
 
 import numpy as np
 
+from udrobot_files.nesting import loads_json
+
 STUDY_FILE = "study.json"
 DESIGN_FILE = "design.npy"
 CHUNK_DIR = "chunks"
@@ -317,7 +319,7 @@ class ResultStore:
             if not resume:
                 raise FileExistsError(f"{self.out} already holds a study ({STUDY_FILE}); pass --resume to continue it "
                                       "or choose another --out (results are never overwritten)")
-            old = json.loads(study_path.read_text())
+            old = loads_json(study_path.read_text(), study_path)
             diff = study_differences(old, self.study)
             if diff:
                 raise StudyMismatchError(f"{study_path}: the stored study differs from the requested one in "
