@@ -15,8 +15,12 @@ COEFF_LABELS = {"Cm": "C_m (-)", "CD": "C_D (-)", "KL": "K_L (N s/m)", "KQ": "K_
 MAX_POINTS = 400  # measured samples drawn per launch: enough to see the trace, cheap to lay out
 
 
-def _every(n: int) -> int:
-    return max(1, n // MAX_POINTS)
+MAX_MARKERS = 120  # measured samples drawn as markers over a fit: few enough to see the line between them
+
+
+def _every(n: int, most: int = MAX_POINTS) -> int:
+    """Stride that keeps at most ``most`` of ``n`` samples."""
+    return max(1, -(-n // most))
 
 
 def plot_fits(launches, axis, path, kind, title_note: str = "", protect=()) -> Path | None:
@@ -34,9 +38,11 @@ def plot_fits(launches, axis, path, kind, title_note: str = "", protect=()) -> P
         fit = e.get("_fit")
         graph = e.get("_graph")
         if fit is not None:
-            k = _every(len(fit.t))
-            ax.plot(fit.t[::k], fit.x[::k] * scale, ".", ms=1.5, color="0.5", label="measured")
-            ax.plot(fit.t, fit.model * scale, "-", lw=0.9, color="C0", label="fit")
+            # the fit line under the measured points, which are drawn last with open markers so both stay visible
+            k = _every(len(fit.t), MAX_MARKERS)
+            ax.plot(fit.t, fit.model * scale, "-", lw=0.9, color="C0", label="fit", zorder=2)
+            ax.plot(fit.t[::k], fit.x[::k] * scale, "o", ms=2.2, mfc="none", mew=0.6, color="C1", label="measured",
+                    zorder=3)
         elif graph is not None:
             launch, start, ext, _ = graph
             k = _every(len(launch.t))
@@ -57,8 +63,11 @@ def plot_fits(launches, axis, path, kind, title_note: str = "", protect=()) -> P
         if c == 0:
             ax.set_ylabel(unit, fontsize=7)
     axes[0, 0].legend(fontsize=6, loc="upper right")
-    what = "fit" if any(e.get("_fit") is not None for e in rows) else "turning points"
-    fig.suptitle(f"{kind} launches, {axis}: measurement (grey) and {what}{title_note}", fontsize=9)
+    if any(e.get("_fit") is not None for e in rows):
+        what = "measured (orange circles, on top) and fit (blue line)"
+    else:
+        what = "measurement (grey) and turning points"
+    fig.suptitle(f"{kind} launches, {axis}: {what}{title_note}", fontsize=9)
     # fixed margins: tight_layout on a 24-panel grid costs seconds per figure
     fig.subplots_adjust(left=0.06, right=0.99, bottom=0.5 / (1.9 * nrow + 0.6) + 0.04, top=1 - 0.5 / (1.9 * nrow + 0.6),
                         wspace=0.35, hspace=0.75)

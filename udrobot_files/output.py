@@ -8,6 +8,10 @@ Rules (the same for every command, see docs/files.md):
 - An existing output (or the sidecar a run output would write) is replaced only with ``force=True``; a device,
   named pipe or socket at an output path is never replaced (:func:`not_regular`).
 - The destination folder is checked for writability *before* the computation (:func:`check_outputs`).
+- A missing folder is created only for an option whose documented value is a folder (``demo --out DIR``,
+  ``compare --out DIR``, ``--plot DIR``, :func:`check_output_dir`). A file option (``simulate --out SIM.csv``)
+  whose folder does not exist is refused with ``create_folders=False``, naming the folder: a mistyped path should
+  not grow a tree of folders silently.
 - Files are written atomically (:func:`atomic_write`, :func:`open_atomic`): into an unpredictable temporary
   file created exclusively (``O_EXCL | O_NOFOLLOW``, so never through a planted symlink) in the destination
   folder, then renamed over the target; the temporary file is removed on any failure. The final mode is
@@ -24,6 +28,28 @@ from pathlib import Path
 
 class OutputError(ValueError):
     """An output path that would destroy user data or cannot be written; the message names the file."""
+
+
+#: temporary files of :func:`open_atomic` not yet renamed into place or removed, in this process
+_TEMPORARIES: set = set()
+
+
+def remove_temporaries() -> list:
+    """Remove the temporary files :func:`open_atomic` has created in this process and not yet renamed or removed
+    (a run stopped by a signal mid-write: ``udrobot-ctrl`` calls this before it exits).
+
+    Returns
+    -------
+    list of str
+        The files removed.
+    """
+    removed = []
+    for tmp in list(_TEMPORARIES):
+        with contextlib.suppress(FileNotFoundError):
+            os.unlink(tmp)
+            removed.append(tmp)
+        _TEMPORARIES.discard(tmp)
+    return removed
 
 
 def sidecar(path) -> Path:
@@ -88,9 +114,13 @@ def current_umask() -> int:
     return mask
 
 
-def _check_folder(path: Path, option: str) -> None:
-    """The folder that will hold ``path`` exists (or can be created) and is writable."""
+def _check_folder(path: Path, option: str, create: bool = True) -> None:
+    """The folder that will hold ``path`` exists (or, with ``create``, can be created) and is writable."""
     parent = path.parent if str(path.parent) else Path(".")
+    if not create and not parent.is_dir():
+        what = "is not a folder" if parent.exists() else "does not exist"
+        raise OutputError(f"{option} {path}: folder {parent} {what}; create it first or choose another path "
+                          f"({option} names a file and creates no folder)")
     probe = parent
     while not probe.exists():
         if probe.is_symlink():
@@ -118,7 +148,8 @@ def not_regular(path) -> str | None:
     return next((what for test, what in kinds if test(mode)), "not a regular file")
 
 
-def check_outputs(outputs, inputs=(), *, force: bool = False, option: str = "--out") -> list:
+def check_outputs(outputs, inputs=(), *, force: bool = False, option: str = "--out",
+                  create_folders: bool = True) -> list:
     """Refuse outputs that would destroy an input or replace a file without ``force``; check the folders.
 
     Parameters
@@ -131,6 +162,9 @@ def check_outputs(outputs, inputs=(), *, force: bool = False, option: str = "--o
         Allow replacing existing outputs (never inputs).
     option : str
         The option naming the outputs, for messages (e.g. ``--json``).
+    create_folders : bool
+        True: a missing folder of an output is created when it is written (an output inside a folder option,
+        ``--plot DIR``). False, for an option whose value is a file: a missing folder is refused, naming it.
 
     Returns
     -------
@@ -141,7 +175,8 @@ def check_outputs(outputs, inputs=(), *, force: bool = False, option: str = "--o
     ------
     OutputError
         Naming the output and the input it would destroy, the existing file (without ``force``), a device, pipe
-        or socket at the output path (whatever ``force``), or the unwritable folder.
+        or socket at the output path (whatever ``force``), the unwritable folder, or (``create_folders`` False)
+        the missing folder.
     """
     outs = [Path(o) for o in outputs if o is not None]
     ins = [fam for i in inputs if i is not None for fam in _input_family(i)]
@@ -162,8 +197,47 @@ def check_outputs(outputs, inputs=(), *, force: bool = False, option: str = "--o
                               f"replaces files), choose a file name")
         if (o.exists() or o.is_symlink()) and not force:
             raise OutputError(f"{option} {o}: exists; pass --force to replace it")
-        _check_folder(o, option)
+        _check_folder(o, option, create_folders)
     return outs
+
+
+def check_distinct_outputs(outputs) -> None:
+    """Refuse two output options of one command that name the same file (``--json X --out-model X``).
+
+    Every command passes all its outputs at once, before any computation: the same path given twice, through a
+    different spelling, a symbolic link or a hard link, would have the second write destroy the first.
+
+    Parameters
+    ----------
+    outputs : mapping or iterable of (option, paths)
+        Each option (e.g. ``"--json"``) with the file or files it writes (a path, or a list of paths such as
+        :func:`run_files`' CSV and sidecar); None entries and options are ignored.
+
+    Raises
+    ------
+    OutputError
+        Naming both options and the file they share.
+    """
+    items = outputs.items() if hasattr(outputs, "items") else outputs
+    seen = []  # (option, given path, resolved path)
+    for option, paths in items:
+        if paths is None:
+            continue
+        if isinstance(paths, (str, os.PathLike)):
+            paths = [paths]
+        for k, path in enumerate(paths):
+            if path is None:
+                continue
+            path = Path(path)
+            resolved = path.resolve()
+            label = option if k == 0 else f"{option}'s {'sidecar' if path.suffix == '.json' else 'companion file'}"
+            for other_label, other, other_resolved in seen:
+                if resolved == other_resolved or _same_file(path, other):
+                    same = str(path) if str(path) == str(other) else f"{other} and {path}"
+                    what = f"{other_label} and {label}" if other_label != label else f"{label} (twice)"
+                    raise OutputError(f"{what} name the same file ({same}); the second write would destroy the "
+                                      f"first: give each output its own file")
+            seen.append((label, path, resolved))
 
 
 def check_output_dir(folder, inputs=(), *, force: bool = False, option: str = "--out", names=()) -> Path:
@@ -221,6 +295,7 @@ def open_atomic(path, mode: str = "w", *, force: bool = True, protect=(), encodi
         raise OutputError(f"{path}: exists; pass --force to replace it")
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    _TEMPORARIES.add(tmp)  # until renamed or removed: remove_temporaries() at a signal
     try:
         os.fchmod(fd, (0o666 & ~current_umask()) if file_mode is None else file_mode)
         if mode == "wb":
@@ -241,6 +316,8 @@ def open_atomic(path, mode: str = "w", *, force: bool = True, protect=(), encodi
         with contextlib.suppress(FileNotFoundError):
             os.unlink(tmp)
         raise
+    finally:
+        _TEMPORARIES.discard(tmp)
 
 
 def atomic_write(path, data, *, force: bool = True, protect=(), file_mode: int | None = None) -> Path:

@@ -29,8 +29,10 @@ def register(subparsers):
                     "B's simulated sensors. Shows how much a controller suffers when the coefficients it was\n"
                     "designed with are wrong.\n\n" + TABLE_LEGEND,
         epilog="example: udrobot-ctrl compare --quick --controllers lqr,pid --out compare_out")
-    p.add_argument("--out", help="folder for CSV, text tables (with a legend), full JSON and plots")
-    p.add_argument("--json", help="write the JSON report (models, results, ekf; NaN as null) here")
+    p.add_argument("--out", help="folder for CSV, text tables (with a legend), full JSON and plots (created if "
+                                 "missing)")
+    p.add_argument("--json", help="write the JSON report (models, results, ekf; NaN as null) here (its folder must "
+                                  "exist)")
     p.add_argument("--controllers", default=",".join(CONTROLLER_KINDS),
                    help="comma-separated subset of lqr,pid,lmpc,nmpc (default all)")
     p.add_argument("--models", default=",".join(MODEL_NAMES),
@@ -53,7 +55,7 @@ def run(args) -> int:
         raise ValueError(f"--workers must be >= 1, got {args.workers}")
     inputs = spec_files(*models)
     if args.json:
-        check_outputs([args.json], inputs, force=args.force, option="--json")
+        check_outputs([args.json], inputs, force=args.force, option="--json", create_folders=False)
     if args.out:
         check_output_dir(args.out, inputs, force=args.force, option="--out", names=output_names(controllers))
     result = compare(models, controllers, quick=args.quick, workers=args.workers, keep_trajectories=bool(args.out),

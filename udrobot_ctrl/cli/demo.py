@@ -26,7 +26,7 @@ from identification import cfd, free_decay, synthetic
 from identification.identify import RigOptions, coefficient_set_values, identify_files
 from identification.plots import plot_report
 from identification.sets import write_coefficient_set
-from udrobot_ctrl.control.compare import TABLE_LEGEND, compare, contract_json, text_table, write_outputs
+from udrobot_ctrl.control.compare import MPC_PREVIEW, TABLE_LEGEND, compare, contract_json, text_table, write_outputs
 from udrobot_ctrl.dynamics.sim import simulate
 from udrobot_ctrl.io.files import OutputError, atomic_write, check_output_dir, open_atomic, save_figure
 from udrobot_ctrl.vehicle import MODEL_NAMES, coefficient_set, full_size_vehicle, load_model, write_model_file
@@ -190,11 +190,21 @@ def munk_critical_speed(v) -> float:
     return float(np.sqrt(max(k_restoring, 0.0) / d_ma))
 
 
+#: |pitch| beyond which an open-loop run is marked as diverged (deg); the same threshold as the console note.
+PITCH_DIVERGED_DEG = 30.0
+
+
+def divergence_index(pitch_deg) -> int | None:
+    """Index of the first sample with ``|pitch| > PITCH_DIVERGED_DEG`` (deg), or None when it never diverges."""
+    over = np.flatnonzero(np.abs(np.asarray(pitch_deg, float)) > PITCH_DIVERGED_DEG)
+    return int(over[0]) if over.size else None
+
+
 def step_open_loop(out: Path) -> dict:
     """Full forward thrust on both horizontal thrusters: top speed per model, with a plot."""
 
-    fig = Figure(figsize=(7, 4))
-    ax = fig.subplots()
+    fig = Figure(figsize=(7, 6))
+    ax, ax_pitch = fig.subplots(2, 1, sharex=True)
     result = {}
     for name in MODEL_NAMES:
         v = load_model(name)
@@ -214,16 +224,33 @@ def step_open_loop(out: Path) -> dict:
         result[name] = {"top_speed_sim": float(u[-1]), "top_speed_pred": float(u_pred),
                         "max_pitch_deg": max_pitch, "munk_critical_speed": u_munk}
         note = ""
-        if max_pitch > 30.0:
+        if max_pitch > PITCH_DIVERGED_DEG:
             note = (f"  <- pitch diverges ({max_pitch:.0f} deg): Munk moment (Z_wdot - X_udot) u w exceeds the "
                     f"restoring moment above {u_munk:.2f} m/s (pitch is passive in this layout)")
         print(f"{name:<20} top surge speed {u[-1]:.3f} m/s (F = K_L u + K_Q u^2 predicts {u_pred:.3f}){note}")
-        ax.plot(r.t, u, label=name)
-    ax.set_xlabel("t (s)")
+        (line,) = ax.plot(r.t, u, label=name)
+        pitch = np.degrees(r.x[:, 4])
+        ax_pitch.plot(r.t, np.clip(pitch, -PITCH_DIVERGED_DEG * 3, PITCH_DIVERGED_DEG * 3), color=line.get_color())
+        k = divergence_index(pitch)
+        if k is not None:
+            result[name]["pitch_diverges_at_s"] = float(r.t[k])
+            for a, y in ((ax, u[k]), (ax_pitch, np.sign(pitch[k]) * PITCH_DIVERGED_DEG)):
+                a.plot(r.t[k], y, "X", ms=10, mec="k", color=line.get_color(), zorder=4,
+                       label=f"{name}: pitch diverges" if a is ax else None)
+            ax.annotate(f"{name}: |pitch| > {PITCH_DIVERGED_DEG:g} deg at {r.t[k]:.1f} s (Munk moment);\n"
+                        f"its speed after this is not a top speed", (r.t[k], u[k]), xytext=(0.3, 0.5),
+                        textcoords="axes fraction", fontsize=7, arrowprops={"arrowstyle": "->", "lw": 0.6},
+                        bbox={"boxstyle": "round", "fc": "w", "ec": "0.6", "lw": 0.5})
     ax.set_ylabel("u (m/s)")
     ax.set_title("Full forward thrust (2 x 36.4 N): surge speed per coefficient set")
     ax.grid(True)
-    ax.legend()
+    ax.legend(fontsize=7)
+    ax_pitch.axhline(PITCH_DIVERGED_DEG, color="0.5", lw=0.6, ls="--")
+    ax_pitch.axhline(-PITCH_DIVERGED_DEG, color="0.5", lw=0.6, ls="--")
+    ax_pitch.set_ylabel(f"pitch (deg, clipped at +-{3 * PITCH_DIVERGED_DEG:g})")
+    ax_pitch.set_xlabel("t (s)")
+    ax_pitch.set_title(f"pitch (passive in this layout); X: first |pitch| > {PITCH_DIVERGED_DEG:g} deg", fontsize=9)
+    ax_pitch.grid(True)
     fig.tight_layout()
     save_figure(fig, out / "open_loop_surge.png", dpi=120)
     return result
@@ -248,11 +275,12 @@ def step_controllers(out: Path, full: bool = False, workers: int | None = None) 
 # (file or glob relative to --out, what it is); the first entries are what to open first
 INDEX = (
     ("compare/compare_missions.png", "start here: each controller flying the mission on the model it was designed "
-                                     "on (dashed: the reference)"),
+                                     f"on (dashed: the reference). Why the MPCs move first: {MPC_PREVIEW}"),
     ("compare/compare_iae_*.png", "tracking error (IAE) of each controller designed on model A and flown on plant "
                                   "B: how much a wrong model costs"),
     ("compare/compare.txt", "the controller and EKF tables with their legend"),
-    ("open_loop_surge.png", "full forward thrust: top surge speed per coefficient set"),
+    ("open_loop_surge.png", "full forward thrust: top surge speed and pitch per coefficient set; an X marks where "
+                            "a model's pitch diverges (its later speed is not a top speed)"),
     ("identification/plots/*_fits.png", "identification of the SYNTHETIC launches: measurement and fitted decay"),
     ("identification/plots/*_vs_reynolds.png", "identified coefficients (95 % intervals) vs Reynolds number"),
     ("identification/plots/cfd_regressions.png", "CFD force tables (SYNTHETIC) and the Chin / Morison regressions"),
@@ -263,27 +291,46 @@ INDEX = (
                             "udrobot-ctrl identify"),
     ("models/*.json", "the five models as udrobot-model/1 (docs/formats/model.md)"),
     ("compare/compare.csv", "every controller metric, one row per (controller, design, plant)"),
+    ("compare/compare_ekf.csv", "the EKF metrics, one row per (filter model, plant): RMSE of z, psi, u and the mean "
+                                "NIS"),
     ("compare/compare.json", "the compare report (models, results, ekf)"),
+    ("compare/compare_full.json", "everything compare computed: every metric of every row, the mission, the run "
+                                  "time"),
     ("demo_summary.json", "the numbers printed on screen"),
 )
+#: Description of a written file no :data:`INDEX` entry matches (listed all the same: the index omits nothing).
+OTHER = "also written by the demo (not described above)"
 
 
 def write_index(out: Path, failed=()) -> Path:
-    """``out/README.md``: every file the demo wrote, what it is, what to open first; returns its path."""
+    """``out/README.md``: every file the demo wrote, what it is, what to open first; returns its path.
+
+    Files matched by :data:`INDEX` are listed in its order with its description; a folder entry (``raw/``) covers
+    everything under it; any other file in ``out`` is listed last (:data:`OTHER`), so the index names every file
+    in the folder but itself.
+    """
     lines = ["# udrobot-ctrl demo output", "",
              f"Written by `udrobot-ctrl demo` on {time.strftime('%Y-%m-%d %H:%M')}.", "",
              f"**Note:** {SYNTHETIC_NOTE}.", ""]
     if failed:
         lines += [f"**Failed steps:** {', '.join(failed)} (see the console output); their files are missing.", ""]
     lines += ["| file | what it is |", "|---|---|"]
+    listed, folders = {out / INDEX_FILE}, []
     for pattern, what in INDEX:
         if pattern.endswith("/"):
             paths = [out / pattern] if (out / pattern).is_dir() else []
+            folders += paths
         else:
-            paths = sorted(out.glob(pattern))
+            paths = [p for p in sorted(out.glob(pattern)) if p not in listed]
         if paths:
+            listed.update(paths)
             rels = [p.relative_to(out).as_posix() + ("/" if p.is_dir() else "") for p in paths]
             lines.append(f"| {', '.join(f'[{r}]({r})' for r in rels)} | {what} |")
+    others = [p for p in sorted(out.rglob("*")) if (p.is_file() or p.is_symlink()) and p not in listed
+              and not any(f in p.parents for f in folders)]
+    if others:
+        rels = [p.relative_to(out).as_posix() for p in others]
+        lines.append(f"| {', '.join(f'[{r}]({r})' for r in rels)} | {OTHER} |")
     path = out / INDEX_FILE
     atomic_write(path, "\n".join(lines) + "\n")  # replaces a planted link by a file, never writes through it
     return path

@@ -31,7 +31,7 @@ from udrobot_ctrl.dynamics.thrusters import pwm_to_thrust
 from udrobot_ctrl.gap.replay import WindowedGap, windowed_gap
 from udrobot_ctrl.gap.shrink import check_window
 from udrobot_ctrl.io import load_any, runlog
-from udrobot_ctrl.io.files import atomic_write, check_outputs, run_files, spec_files
+from udrobot_ctrl.io.files import atomic_write, check_distinct_outputs, check_outputs, run_files, spec_files
 from udrobot_ctrl.io.runlog import check_time_gaps
 from udrobot_ctrl.vehicle import ALL_MODEL_NAMES, STATE_NAMES, load_model
 
@@ -50,13 +50,14 @@ def register(subparsers):
     parser.add_argument("--input", required=True, nargs="+", metavar="RUN",
                         help="run to replay (udrobot-run/1 CSV or a log io can convert); with --windows, one or more")
     parser.add_argument("--out", help="simulated run to write (udrobot-run/1 CSV); required without --windows; with "
-                                      "--windows (one run) the windowed replay, empty cells between windows")
+                                      "--windows (one run) the windowed replay, empty cells between windows; its "
+                                      "folder must exist")
     parser.add_argument("--windows", type=float, nargs="?", const=8.0, default=None, metavar="S",
                         help="windowed replay and NRMSE gap of diagnose (windows of S s from the measured state; "
                              "S = 8 s, diagnose's default, when omitted)")
     parser.add_argument("--json", metavar="GAP.json",
                         help="with --windows: write the gap (the report's gap object plus model, effects, runs, "
-                             "window_s)")
+                             "window_s; its folder must exist)")
     parser.add_argument("--method", choices=("rk4", "solve_ivp"), default="rk4",
                         help="integrator: fixed-step RK4 sub-steps (default) or scipy solve_ivp (adaptive)")
     parser.add_argument("--max-step", type=float, default=0.01, help="largest RK4 sub-step, s (default 0.01)")
@@ -249,10 +250,13 @@ def run_windows(args) -> int:
     if args.out and len(srcs) > 1:
         raise ValueError(f"--out writes one simulated run; {len(srcs)} --input runs were given (use --json for the "
                          f"gap of several runs)")
+    check_distinct_outputs({"--json": args.json, "--out": run_files(args.out) if args.out else None})
     if args.json:
-        check_outputs([args.json], inputs, force=getattr(args, "force", False), option="--json")
+        check_outputs([args.json], inputs, force=getattr(args, "force", False), option="--json",
+                      create_folders=False)
     if args.out:
-        check_outputs(run_files(args.out), inputs, force=getattr(args, "force", False), option="--out")
+        check_outputs(run_files(args.out), inputs, force=getattr(args, "force", False), option="--out",
+                      create_folders=False)
     runs = [read_input_run(src, getattr(args, "mapping", None)) for src in srcs]
     g = windowed_gap(args.model, runs, args.windows, names=[src.name for src in srcs])
     print(_format_gap(g))
@@ -277,7 +281,8 @@ def run_closed_loop(args) -> int:
     if not src.exists():
         raise FileNotFoundError(f"input run {src} does not exist")
     inputs = [src, *spec_files(args.model, getattr(args, "mapping", None))]
-    check_outputs(run_files(out), inputs, force=getattr(args, "force", False), option="--out")
+    check_outputs(run_files(out), inputs, force=getattr(args, "force", False), option="--out",
+                      create_folders=False)
     if args.loop_rate is not None and not 10.0 <= args.loop_rate <= 2000.0:
         raise ValueError(f"--loop-rate must be between 10 and 2000 Hz (ArduSub runs 100-400 Hz), got {args.loop_rate}")
     rn = read_input_run(src, getattr(args, "mapping", None))
@@ -323,7 +328,8 @@ def run(args) -> int:
     if not src.exists():
         raise FileNotFoundError(f"input run {src} does not exist")
     inputs = [src, *spec_files(args.model, getattr(args, "mapping", None))]
-    check_outputs(run_files(out), inputs, force=getattr(args, "force", False), option="--out")
+    check_outputs(run_files(out), inputs, force=getattr(args, "force", False), option="--out",
+                      create_folders=False)
     if not args.max_step > 0:
         raise ValueError(f"--max-step must be > 0, got {args.max_step}")
     vehicle = load_model(args.model)

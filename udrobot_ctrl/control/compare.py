@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import json
 import os
+import textwrap
 import time
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
@@ -269,6 +270,21 @@ def contract_json(result) -> dict:
                      "nis_mean": e["nis_mean"]} for e in result["ekf"]]})
 
 
+def _preview_s() -> float:
+    """How far ahead the MPCs see the mission's reference: their default horizon times the control period, s."""
+    import inspect
+
+    from udrobot_ctrl.control.mpc import LinearMPC
+
+    return inspect.signature(LinearMPC.__init__).parameters["horizon"].default * CONTROL_DT
+
+
+#: Why the MPCs move before each reference step (printed under every table and in the demo's index).
+MPC_PREVIEW = (f"lmpc and nmpc see the mission's reference {_preview_s():g} s ahead (their horizon): they start "
+               f"each manoeuvre before its reference step, where the LQR and PID only react to the current error; "
+               f"part of their lower IAE is this preview, which a real mission has only when its next set point "
+               f"is known in advance")
+
 TABLE_LEGEND = """\
 legend (controller table): ctrl = controller (lqr: gain-scheduled LQR, pid: decoupled PID, lmpc: linear MPC,
   nmpc: nonlinear MPC); design A = model the controller was designed on; plant B = model it flew on;
@@ -280,7 +296,8 @@ legend (controller table): ctrl = controller (lqr: gain-scheduled LQR, pid: deco
   column = no value (the run failed: see status).
 legend (EKF table): EKF model A = model inside the filter; plant B = model that made the data; z m, psi rad,
   u m/s = RMS estimation error of depth, heading and surge speed; NIS = mean normalised innovation squared
-  (about the number of measured components when the filter is consistent)."""
+  (about the number of measured components when the filter is consistent).
+preview: """ + "\n  ".join(textwrap.wrap(MPC_PREVIEW + ".", 108))
 
 
 def _f(v, fmt):
@@ -291,8 +308,22 @@ def _f(v, fmt):
     return format(v, fmt)
 
 
+#: Width of the status column; a longer reason wraps at word boundaries onto indented continuation lines.
+STATUS_WIDTH = 60
+
+
+def _with_status(prefix: str, status: str) -> list:
+    """``prefix`` + ``status``, the status wrapped (never cut) at :data:`STATUS_WIDTH` under its column."""
+    parts = textwrap.wrap(status or "", STATUS_WIDTH, break_long_words=False, break_on_hyphens=False) or [""]
+    return [prefix + parts[0]] + [" " * len(prefix) + part for part in parts[1:]]
+
+
 def text_table(results, ekf_rows=()) -> str:
-    """Readable fixed-width tables of the controller rows (and the EKF rows); see :data:`TABLE_LEGEND`."""
+    """Readable fixed-width tables of the controller rows (and the EKF rows); see :data:`TABLE_LEGEND`.
+
+    The status (``ok`` or the reason a design or flight failed) is printed in full: a reason longer than
+    :data:`STATUS_WIDTH` characters continues on indented lines below its row, wrapped between words.
+    """
     names = [r[k] for r in results for k in ("design", "plant")] + [e[k] for e in ekf_rows for k in
                                                                       ("filter_model", "plant")]
     w = max([19, *map(len, names)])
@@ -301,18 +332,18 @@ def text_table(results, ekf_rows=()) -> str:
     lines = [hdr, "-" * len(hdr)]
     for r in results:
         e = r.get("energy_J")
-        lines.append(f"{r['controller']:<5} {r['design']:<{w}} {r['plant']:<{w}} {_f(r.get('iae'), '7.3f')} "
-                     f"{_f(r.get('overshoot'), '6.1f')} {_f(r.get('settling_s'), '6.2f')} "
-                     f"{_f(None if e is None else e / 1000, '6.2f')} {_f(r.get('saturation_s'), '6.2f')} "
-                     f"{_f(r.get('max_pitch_deg'), '6.1f')}  {r.get('status', '')[:60]}")
+        lines += _with_status(f"{r['controller']:<5} {r['design']:<{w}} {r['plant']:<{w}} {_f(r.get('iae'), '7.3f')} "
+                              f"{_f(r.get('overshoot'), '6.1f')} {_f(r.get('settling_s'), '6.2f')} "
+                              f"{_f(None if e is None else e / 1000, '6.2f')} {_f(r.get('saturation_s'), '6.2f')} "
+                              f"{_f(r.get('max_pitch_deg'), '6.1f')}  ", r.get("status", ""))
     if ekf_rows:
         h2 = f"\n{'EKF model A':<{w}} {'plant B':<{w}} {'z m':>8} {'psi rad':>8} {'u m/s':>8} {'NIS':>7}  status"
         lines += [h2, "-" * len(h2)]
         for e in ekf_rows:
             rm = e["rmse"]
-            lines.append(f"{e['filter_model']:<{w}} {e['plant']:<{w}} {_f(rm['z'], '8.4f')} "
-                         f"{_f(rm['psi'], '8.4f')} {_f(rm['u'], '8.4f')} {_f(e['nis_mean'], '7.2f')}  "
-                         f"{e.get('status', '')[:60]}")
+            lines += _with_status(f"{e['filter_model']:<{w}} {e['plant']:<{w}} {_f(rm['z'], '8.4f')} "
+                                  f"{_f(rm['psi'], '8.4f')} {_f(rm['u'], '8.4f')} {_f(e['nis_mean'], '7.2f')}  ",
+                                  e.get("status", ""))
     return "\n".join(lines)
 
 

@@ -1,4 +1,5 @@
-"""Figures of a diagnosis: residuals per channel with the located windows shaded; simulated vs measured.
+"""Figures of a diagnosis: residuals per channel with the located windows shaded; simulated vs measured, with
+an X where a replay window diverges (the rest of that window is scored at the error cap).
 
 The replay columns of a channel (:data:`COLUMN`): the state for ``u v w p q r z phi theta psi``, the specific force
 for the accelerometer ``ax ay az`` (scored on runs without a DVL), compared with the measurement minus the
@@ -9,9 +10,10 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
+import numpy as np
 from matplotlib.figure import Figure
 
-from udrobot_ctrl.gap.shrink import ACCEL, accel_bias, errors
+from udrobot_ctrl.gap.shrink import ACCEL, accel_bias, diverged_samples, errors
 from udrobot_ctrl.io.files import save_figure
 from udrobot_ctrl.vehicle import STATE_INDEX
 
@@ -29,6 +31,13 @@ def measured(prep, c):
     if c in ACCEL and bias is not None:
         return prep.meas[c] - bias[ACCEL.index(c)]
     return prep.meas[c]
+
+
+def divergence_starts(sim) -> np.ndarray:
+    """Sample indices where a replay's window diverges: the first sample of each diverged stretch (the window
+    column turns negative, :func:`udrobot_ctrl.gap.shrink.diverged_samples`)."""
+    bad = diverged_samples(sim)
+    return np.flatnonzero(bad & ~np.concatenate([[False], bad[:-1]]))
 
 
 def located_windows(report) -> dict:
@@ -93,13 +102,21 @@ def write_plots(ctx, report, outdir, protect=()):
         for ax, c in zip(axes[:, 0], chans):
             ax.plot(prep.t, measured(prep, c), "k.", ms=1.5,
                     label="measured" + (" (bias removed)" if c in ACCEL else ""))
-            ax.plot(prep.t, s0[:, COLUMN[c]], lw=0.8, label="nominal")
-            if s1 is not s0:
-                ax.plot(prep.t, s1[:, COLUMN[c]], lw=0.8, label="with significant effects")
+            replays = [(s0, "nominal")] + ([(s1, "with significant effects")] if s1 is not s0 else [])
+            for sim, label in replays:
+                (line,) = ax.plot(prep.t, sim[:, COLUMN[c]], lw=0.8, label=label)
+                starts = divergence_starts(sim)
+                if starts.size:  # at the top edge: a diverged replay's values are off any useful scale
+                    ax.plot(prep.t[starts], np.ones(starts.size), "X", ms=7, mec="k", color=line.get_color(),
+                            transform=ax.get_xaxis_transform(), clip_on=False, zorder=4,
+                            label=f"{label}: replay diverges ({starts.size} windows)")
             ax.set_ylabel(f"{c} ({UNITS.get(c, '')})")
         axes[0, 0].legend(loc="upper right", fontsize=7)
         axes[-1, 0].set_xlabel("t (s)")
-        fig.suptitle(f"holdout {prep.name}: multiple-shooting replay before/after")
+        diverged = any(divergence_starts(sim).size for sim in (s0, s1))
+        fig.suptitle(f"holdout {prep.name}: multiple-shooting replay before/after"
+                     + ("; X: a replay window diverges (the rest of the window is scored at the error cap)"
+                        if diverged else ""))
         p = save_figure(fig, out / f"overlay_{file_label(prep.name)}.png", protect=protect, dpi=90)
         paths.append(p)
     return paths

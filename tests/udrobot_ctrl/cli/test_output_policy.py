@@ -213,3 +213,31 @@ def test_unwritable_folder_is_reported_before_any_work(tmp_path, capsys):
     locked.mkdir(mode=0o500)
     _refused(["simulate", "--model", "cfd:chin", "--input", run, "--out", locked / "s.csv"], tmp_path, capsys,
              what="not writable")
+
+
+def test_a_file_output_in_a_missing_folder_is_refused_naming_the_folder(tmp_path, capsys):
+    """``simulate --out /missing/dir/x.csv`` names the missing folder (exit 2) and creates nothing."""
+    run = _run(tmp_path / "run.csv")
+    missing = tmp_path / "missing" / "dir"
+    for argv in (["simulate", "--model", "cfd:chin", "--input", run, "--out", missing / "x.csv"],
+                 ["simulate", "--model", "cfd:chin", "--windows", "--input", run, "--json", missing / "gap.json"],
+                 ["compare", "--models", "cfd:chin", "--controllers", "pid", "--json", missing / "r.json"]):
+        err = _refused(argv, tmp_path, capsys, what=f"folder {missing} does not exist")
+        assert "--out" in err or "--json" in err
+        assert not (tmp_path / "missing").exists()
+    # a file where the folder should be is named too
+    (tmp_path / "afile").write_text("x")
+    _refused(["simulate", "--model", "cfd:chin", "--input", run, "--out", tmp_path / "afile" / "x.csv"], tmp_path,
+             capsys, what=f"folder {tmp_path / 'afile'} is not a folder")
+
+
+def test_a_folder_option_still_creates_its_folder(tmp_path):
+    """Options whose value is a folder (demo/compare ``--out DIR``, ``--plot DIR``) create it when written."""
+    folder = tmp_path / "new" / "plots"
+    assert files.check_output_dir(folder, names=["a.png"]) == folder
+    assert files.check_outputs([folder / "a.png"], option="--plot") == [folder / "a.png"]  # default: folder option
+    with pytest.raises(files.OutputError, match="does not exist"):
+        files.check_outputs([folder / "a.png"], option="--json", create_folders=False)
+    assert not (tmp_path / "new").exists()  # checking creates nothing
+    files.atomic_write(folder / "a.png", b"png")
+    assert (folder / "a.png").read_bytes() == b"png"

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from udrobot_ctrl.cli import main
-from udrobot_ctrl.control.compare import RESULT_KEYS
+from udrobot_ctrl.control.compare import MPC_PREVIEW, RESULT_KEYS
 from udrobot_ctrl.control.metrics import T200_POWER_12V, fit_t200_power, thrust_power
 from udrobot_ctrl.control.missions import CONTROLLER_KINDS, SafeController
 
@@ -67,6 +67,9 @@ def test_outputs_written(report):
               "compare_missions.png"):
         assert (out / f).exists(), f
     assert len((out / "compare.csv").read_text().splitlines()) == 1 + len(MODELS) ** 2 * len(CONTROLLER_KINDS)
+    # the MPCs' preview (they move before each reference step) is explained where the comparison is shown
+    text = " ".join((out / "compare.txt").read_text().split())
+    assert "preview: " + MPC_PREVIEW in text
 
 
 def test_cli_rejects_unknown_controller(capsys):
@@ -98,3 +101,20 @@ def test_safe_controller_never_throws():
         assert np.allclose(safe(0.06, np.zeros(12)), [1, 1, 36.42, 0])  # non-finite -> last good
         assert np.allclose(safe(0.2, np.zeros(12)), [1, 1, 36.42, 0])
     assert safe.fallbacks == 2 and "solver exploded" in safe.last_error
+
+
+def test_text_table_wraps_a_long_failure_reason_instead_of_cutting_it():
+    """The whole reason is printed, wrapped between words under the status column (issue 42: ``...cg_cb_o``)."""
+    from udrobot_ctrl.control.compare import STATUS_WIDTH, text_table
+
+    status = ("design failed: ValueError: model 'tartan-auv-nominal+cg_cb_offset+thruster_lag' has a thruster_lag "
+              "effect: the casadi plant works on the static plant (no actuator states) and does not represent it")
+    rows = [{"controller": "lqr", "design": "a.json", "plant": "b.json", "status": status},
+            {"controller": "pid", "design": "a.json", "plant": "b.json", "status": "ok"}]
+    body = text_table(rows).splitlines()[2:]
+    col = body[0].index("design failed")
+    wrapped = [body[0][col:]] + [line[col:] for line in body[1:-1]]
+    assert all(line[:col].strip() == "" for line in body[1:-1]), body  # continuation lines: indented, no cells
+    assert " ".join(wrapped) == status
+    assert all(len(part) <= STATUS_WIDTH for part in wrapped) and len(wrapped) > 1
+    assert body[-1].startswith("pid ") and body[-1].endswith("  ok")

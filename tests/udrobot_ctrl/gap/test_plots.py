@@ -77,3 +77,31 @@ def test_the_overlay_draws_the_accelerometer_and_the_residuals_shade_the_located
 def test_write_plots_with_nothing_diagnosed_writes_nothing(tmp_path):
     report = {"location": [], "gap_before": {"scored": []}}
     assert plots.write_plots(DiagnosisContext([], 0, [], [], [], []), report, tmp_path) == []
+
+
+def test_the_overlay_marks_where_a_replay_window_diverges(tmp_path, monkeypatch):
+    """Issue 42.5: a replay that runs away is marked (an X at the first diverged sample of each window)."""
+    from types import SimpleNamespace
+
+    from udrobot_ctrl.gap.shrink import WINDOW
+
+    t = np.arange(100) * 0.1
+    nominal = np.zeros((100, 16))
+    nominal[:, WINDOW] = np.repeat([1.0, 2.0], 50)
+    nominal[70:, WINDOW] = -2.0  # the second window diverges at t = 7.0 s
+    nominal[70:, COLUMN["u"]] = 1e6
+    after = nominal.copy()
+    after[:, WINDOW] = np.repeat([1.0, 2.0], 50)  # with the effects, nothing diverges
+    assert list(plots.divergence_starts(nominal)) == [70] and plots.divergence_starts(after).size == 0
+    prep = SimpleNamespace(t=t, meas={"u": np.zeros(100)}, name="run.csv", smoothed=None)
+    ctx = SimpleNamespace(preps=[prep], nominal_sims=[nominal], after_sims=[after], n_fit=0)
+    report = {"location": [], "gap_before": {"scored": ["u"]}}
+    figures = {}
+    monkeypatch.setattr(plots, "errors", lambda prep, sim: {})  # no residual figure: only the overlay
+    monkeypatch.setattr(plots, "save_figure", lambda fig, path, **kw: figures.setdefault(path.name, fig) and path)
+    plots.write_plots(ctx, report, tmp_path)
+    ax = figures["overlay_run.png"].axes[0]
+    marks = [line for line in ax.get_lines() if "replay diverges" in line.get_label()]
+    assert len(marks) == 1 and marks[0].get_label().startswith("nominal")
+    assert list(np.ravel(marks[0].get_xdata())) == [7.0]
+    assert "diverges" in figures["overlay_run.png"]._suptitle.get_text()
