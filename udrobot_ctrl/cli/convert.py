@@ -43,7 +43,7 @@ def run(args) -> int:
         raise ValueError("nothing to do: give --out RUN.csv and/or --segment CHANNEL")
     inputs = log_input_files(args.input, args.mapping)  # the log, its mapping file, a rostopic set's other files
     if args.out:
-        check_outputs(run_files(args.out), inputs, force=args.force, option="--out")
+        check_outputs(run_files(args.out), inputs, force=args.force, option="--out", create_folders=False)
     if args.segment_dir:
         check_output_dir(args.segment_dir, inputs, option="--segment-dir")
     run_ = convert_log(args.input, args.mapping, require_inputs=not args.allow_missing_inputs, vehicle=args.vehicle,

@@ -105,10 +105,11 @@ def run(args) -> int:
         if not getattr(args, name) > 0:
             raise ValueError(f"--{name.replace('_', '-')} must be > 0, got {getattr(args, name)}")
     inputs = [args.from_] if args.from_ else []
-    outputs = [args.out]
+    check_outputs([args.out], inputs, force=args.force, create_folders=False)
+    outputs = []
     if args.report:
         outputs += [Path(args.report) / "design.json"] + [Path(args.report) / f"step_{lp}.png" for lp in LOOPS]
-    check_outputs(outputs, inputs, force=args.force)
+    check_outputs(outputs, inputs, force=args.force, option="--report")
     log_params, origin = (_start_params(args.from_) if args.from_ else ({}, "ArduSub's defaults"))
     spec = Specification(depth_settling_s=args.depth_settling, depth_overshoot_pct=args.depth_overshoot,
                          yaw_settling_s=args.yaw_settling, yaw_overshoot_pct=args.yaw_overshoot)

@@ -100,9 +100,10 @@ def check_holdout_not_fit(fit, holdout) -> None:
 def run(args) -> int:
     inputs = [*args.runs, *args.holdout, *spec_files(args.model), *spec_files(args.mapping)]
     check_distinct_outputs({"--json": args.json, "--out-model": args.out_model})
-    check_outputs([args.json], inputs, force=args.force, option="--json")
+    check_outputs([args.json], inputs, force=args.force, option="--json", create_folders=False)
     if args.out_model:
-        check_outputs([args.out_model], inputs, force=args.force, option="--out-model")
+        check_outputs([args.out_model], inputs, force=args.force, option="--out-model",
+                      create_folders=False)
     fit = [_load(p, args.mapping) for p in args.runs]
     hold = [_load(p, args.mapping) for p in args.holdout]
     if args.plot:

@@ -103,8 +103,8 @@ def run(args) -> int:
     files = expand_files(args.files)
     inputs = [*files, *spec_files(args.base)]
     force = getattr(args, "force", False)
-    check_outputs([args.out], inputs, force=force, option="--out")
-    check_outputs([args.json], inputs, force=force, option="--json")
+    check_outputs([args.out], inputs, force=force, option="--out", create_folders=False)
+    check_outputs([args.json], inputs, force=force, option="--json", create_folders=False)
     if args.json and args.out:
         check_outputs([args.json, args.out], option="--json/--out", force=True)
     if args.plot:

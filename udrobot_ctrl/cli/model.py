@@ -52,7 +52,8 @@ def run_export(args) -> int:
     """Write ``args.model`` to ``args.out`` atomically; refuses to overwrite without ``--force``."""
     out = Path(args.out)
     inputs = spec_files(args.model)
-    check_outputs([out], inputs, force=getattr(args, "force", False), option="--out")
+    check_outputs([out], inputs, force=getattr(args, "force", False), option="--out",
+                  create_folders=False)
     vehicle = load_model(args.model)
     write_model_file(vehicle, out, protect=inputs)
     print(f"wrote {out} ({vehicle.name}, udrobot-model/1)")

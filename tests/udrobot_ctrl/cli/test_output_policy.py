@@ -221,9 +221,14 @@ def test_a_file_output_in_a_missing_folder_is_refused_naming_the_folder(tmp_path
     missing = tmp_path / "missing" / "dir"
     for argv in (["simulate", "--model", "cfd:chin", "--input", run, "--out", missing / "x.csv"],
                  ["simulate", "--model", "cfd:chin", "--windows", "--input", run, "--json", missing / "gap.json"],
-                 ["compare", "--models", "cfd:chin", "--controllers", "pid", "--json", missing / "r.json"]):
+                 ["compare", "--models", "cfd:chin", "--controllers", "pid", "--json", missing / "r.json"],
+                 ["model", "export", "--model", "cfd:chin", "--out", missing / "m.json"],
+                 ["diagnose", "--model", "cfd:chin", run, "--json", missing / "d.json"],
+                 ["design", "ardusub", "--model", "bluerov2", "--out", missing / "gains.params"],
+                 ["identify", "cfd", run, "--out", missing / "set.toml"],
+                 ["convert", _tlog(tmp_path / "t.tlog"), "--mapping", "ardusub", "--out", missing / "r.csv"]):
         err = _refused(argv, tmp_path, capsys, what=f"folder {missing} does not exist")
-        assert "--out" in err or "--json" in err
+        assert "--out" in err or "--json" in err, argv
         assert not (tmp_path / "missing").exists()
     # a file where the folder should be is named too
     (tmp_path / "afile").write_text("x")
