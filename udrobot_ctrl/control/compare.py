@@ -24,6 +24,7 @@ saturation_s}], "ekf": [{filter_model, plant, rmse: {z, psi, u}, nis_mean}]}``; 
 """
 from __future__ import annotations
 
+import inspect
 import json
 import os
 import textwrap
@@ -38,6 +39,7 @@ from tqdm.auto import tqdm
 from udrobot_ctrl.control.ekf import ekf_on_trajectory
 from udrobot_ctrl.control.metrics import mission_metrics
 from udrobot_ctrl.control.missions import CONTROLLER_KINDS, make_controller, run_mission, standard_mission
+from udrobot_ctrl.control.mpc import LinearMPC
 from udrobot_ctrl.dynamics.sim import as_parameters
 from udrobot_ctrl.io.files import atomic_write, save_figure
 from udrobot_ctrl.vehicle import MODEL_NAMES
@@ -272,10 +274,6 @@ def contract_json(result) -> dict:
 
 def _preview_s() -> float:
     """How far ahead the MPCs see the mission's reference: their default horizon times the control period, s."""
-    import inspect
-
-    from udrobot_ctrl.control.mpc import LinearMPC
-
     return inspect.signature(LinearMPC.__init__).parameters["horizon"].default * CONTROL_DT
 
 

@@ -272,6 +272,7 @@ class MemberTest:
     windows_worse: float = float("nan")  # fraction of holdout windows whose replay error rises when it is dropped
     fit_delta_bic: float = float("nan")  # fit-run BIC of the set minus that of the set without it (nan: unchecked)
     windows_p: float = float("nan")  # one-sided sign-test p of that many windows worse (nan: unchecked)
+    set_diverged: int = 0  # holdout windows in which the replay of the whole set (with it) diverges
 
     @property
     def passed_equation_error(self) -> bool:
@@ -315,7 +316,10 @@ class MemberTest:
                        f"without it)")
         if not self.passed_equation_error:
             why.append(f"holdout equation-error likelihood ratio {self.holdout_lr:.1f} <= {HOLDOUT_CHI2:g}")
-        if self.gap_contribution <= REPLAY_MATERIAL:
+        if self.gap_contribution <= REPLAY_MATERIAL and self.set_diverged:
+            why.append(f"the set with it diverges in {self.set_diverged} holdout window"
+                       f"{'s' if self.set_diverged > 1 else ''}, so its replay gap says nothing of this member")
+        elif self.gap_contribution <= REPLAY_MATERIAL:
             why.append(f"dropping it changes the holdout replay gap by {100 * self.gap_contribution:+.1f}% of "
                        f"gap_before (<= {100 * REPLAY_MATERIAL:g}%)")
         elif not self.passed_replay:
@@ -382,6 +386,100 @@ class Elimination:
         return None
 
 
+@dataclass(frozen=True)
+class Separation:
+    """The holdout replay of a confirmed set against the same set with one member swapped for a look-alike (both
+    fitted on the fit runs): whether the runs tell the two apart.
+
+    The swap is judged as a dropped member is (:attr:`MemberTest.passed_replay`): the runs separate the member from
+    its look-alike when the swapped set's holdout gap is higher by more than ``REPLAY_MATERIAL`` of gap_before and,
+    below ``REPLAY_LARGE``, consistently over the windows (one-sided p < ``REPLAY_P``, more than half of them worse).
+    Otherwise the two fits score equally on the holdout and the runs cannot say which acts.
+
+    Attributes
+    ----------
+    member, rival : str
+        The confirmed member and its look-alike.
+    gap_member, gap_rival : float
+        Holdout replay gap (NRMSE) of the confirmed set and of the swapped set.
+    rise : float
+        ``(gap_rival - gap_member) / gap_before``.
+    p : float
+        One-sided window-by-window p of the rise (:func:`paired_rise`).
+    windows_worse : float
+        Fraction of the holdout windows (that change) worse with the rival.
+    """
+
+    member: str
+    rival: str
+    gap_member: float
+    gap_rival: float
+    rise: float
+    p: float
+    windows_worse: float
+
+    @property
+    def separated(self) -> bool:
+        """The swapped set is materially and consistently worse on the holdout (see the class docstring)."""
+        consistent = self.p < REPLAY_P and self.windows_worse > 0.5
+        return self.rise > REPLAY_MATERIAL and (consistent or self.rise > REPLAY_LARGE)
+
+    @property
+    def verdict(self) -> str:
+        """``"separated"`` (the member scores materially better), ``"rival better"`` (the swapped set's gap is lower
+        by more than ``REPLAY_LARGE`` of gap_before) or ``"equal"``."""
+        if self.separated:
+            return "separated"
+        return "rival better" if -self.rise > REPLAY_LARGE else "equal"
+
+    def describe(self) -> str:
+        """The two holdout scores, for the report's reasons and the console."""
+        return (f"holdout gap {self.gap_member:.4g} with {self.member}, {self.gap_rival:.4g} with {self.rival} in its "
+                f"place ({100 * self.rise:+.1f}% of gap_before, p {self.p:.2g}, {100 * self.windows_worse:.0f}% of "
+                f"the windows worse)")
+
+
+def separations(att: Attributor, members, pairs, full: Replay, before: GapScore, replayer: Replayer, window_s,
+                preps, shapes=None) -> list:
+    """:class:`Separation` of each (member, rival) in ``pairs``: the set ``members`` with the member swapped for the
+    rival, refitted on the fit runs (shapes too) and replayed on the holdout against ``full`` (the set's replay).
+
+    Parameters
+    ----------
+    att : Attributor
+        Fit-run stack.
+    members : sequence of str
+        The confirmed set.
+    pairs : sequence of (str, str)
+        (member, rival); the rival is not in ``members``.
+    full : Replay
+        Holdout replay of the confirmed set.
+    before : GapScore
+        The nominal holdout gap (``gap_before``).
+    replayer : Replayer
+    window_s : float
+        Replay window, s.
+    preps : list of Prepared
+        Holdout runs.
+    shapes : dict, optional
+        Name -> shape seeding the refit (the confirmed set's).
+    """
+    if not pairs:
+        return []
+    sets = [tuple(r if m == k else m for m in members) for k, r in pairs]
+    fits = [refit(att, s, shapes) for s in sets]
+    replays = replayer.many(list(zip(fits, sets)))
+    e_full = window_energy(preps, full.sims, full.gap, window_s)
+    out = []
+    for (k, r), rep in zip(pairs, replays):
+        e_swap = window_energy(preps, rep.sims, rep.gap, window_s)
+        _, pval = paired_rise(e_swap, e_full)
+        rise = (rep.gap.value - full.gap.value) / before.value if before.value > 0 else 0.0
+        out.append(Separation(k, r, float(full.gap.value), float(rep.gap.value), float(rise), float(pval),
+                              rise_fraction(e_swap, e_full)))
+    return out
+
+
 def check_members(att: Attributor, att_h: Attributor, combo: Combination, full: Replay, before: GapScore,
                   replay_rest, window_s, preps, alone=None) -> tuple:
     """:class:`MemberTest` of every member of ``combo`` (see the module docstring).
@@ -401,7 +499,8 @@ def check_members(att: Attributor, att_h: Attributor, combo: Combination, full: 
         t, pval = paired_rise(e_rest, e_full)
         contrib = (r_rest.gap.value - full.gap.value) / before.value if before.value > 0 else 0.0
         tests.append(MemberTest(n, lr, float(contrib), t, pval, alone.get(n), rise_fraction(e_rest, e_full),
-                                float(att.bic(combo.fit) - att.bic(fit_rest)), sign_p(e_rest, e_full)))
+                                float(att.bic(combo.fit) - att.bic(fit_rest)), sign_p(e_rest, e_full),
+                                int(full.gap.n_diverged)))
     return tuple(tests)
 
 
@@ -456,9 +555,10 @@ def _eliminate(att, att_h, combo, full, names, before, replay_fit, window_s, pre
             for t in tests:
                 verdict = "dropped: " + t.reason() if worst and t.name == worst.name else (
                     "kept" if t.passed else "fails (" + t.reason() + "); weaker ones first")
-                log(f"  holdout check {len(rounds)}: {t.name}: LR {t.holdout_lr:.1f}, replay gap "
-                    f"{100 * t.gap_contribution:+.1f}% (p {t.replay_p:.2g}, {100 * t.windows_worse:.0f}% of windows "
-                    f"worse) -> {verdict}")
+                rise = (f"the set diverges in {t.set_diverged} holdout windows" if t.set_diverged else
+                        f"replay gap {100 * t.gap_contribution:+.1f}%")
+                log(f"  holdout check {len(rounds)}: {t.name}: LR {t.holdout_lr:.1f}, {rise} (p {t.replay_p:.2g}, "
+                    f"{100 * t.windows_worse:.0f}% of windows worse) -> {verdict}")
         if worst is None:
             break
         # refit what remains (its parameters were shared with the dropped effect); look-alikes once at the end

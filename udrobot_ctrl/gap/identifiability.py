@@ -277,6 +277,10 @@ class Identifiability:
     #: confirmed effects that may stand in for the untested part of a partly identified effect with one of their
     #: look-alikes (name -> :class:`StandIn`; :meth:`with_stand_in`)
     stand_in: dict = field(default_factory=dict)
+    #: confirmed effects whose identifiable look-alikes were swapped in and replayed on the holdout (name -> tuple of
+    #: :class:`udrobot_ctrl.gap.confirm.Separation`): those it did not separate are named in the reason with both
+    #: scores; those it did are look-alikes no more (:meth:`with_separations`)
+    separations: dict = field(default_factory=dict)
 
     def observed_dofs(self) -> list:
         """Names of the observed (scored) DOFs."""
@@ -325,6 +329,10 @@ class Identifiability:
     def with_stand_in(self, stand_in: dict) -> Identifiability:
         """A copy that also lists ``stand_in`` (name -> :class:`StandIn`) as unidentifiable."""
         return replace(self, stand_in={**self.stand_in, **stand_in})
+
+    def with_separations(self, separations: dict) -> Identifiability:
+        """A copy that also holds ``separations`` (name -> tuple of holdout look-alike swaps, for the reasons)."""
+        return replace(self, separations={**self.separations, **separations})
 
     def with_hinged(self, hinged: dict) -> Identifiability:
         """A copy that also lists ``hinged`` (name -> :class:`Hinged`) as unidentifiable."""
@@ -377,9 +385,23 @@ class Identifiability:
                 f"matched as well by {', '.join(alts)}")
         if hidden:
             line += f" ({', '.join(hidden)}: not identifiable from these channels)"
+        scores = self._holdout_scores(name, [a for a in alts if a not in hidden])
+        if scores:
+            line += f" (not separated on the holdout: {scores})"
         fixes = [self.effects[hidden[0]].reason()] if hidden else []
         fixes += [f"to tell it from {a}: {fx.discriminating_manoeuvre(name, a)}" for a in alts if a not in hidden]
         return line + ", so the runs cannot say which acts; " + "; ".join(fixes)
+
+    def _holdout_scores(self, name, alts) -> str:
+        """The holdout scores of ``name``'s look-alike swaps with ``alts`` (either effect the confirmed member)."""
+        out = []
+        for a in alts:
+            sp = next((s for s in self.separations.get(name, ()) if s.rival == a), None) or \
+                next((s for s in self.separations.get(a, ()) if s.rival == name), None)
+            if sp is not None:
+                out.append(sp.describe() + {"equal": ": equal", "rival better": f": better with {sp.rival}",
+                                            "separated": ""}[sp.verdict])
+        return "; ".join(out)
 
     def report(self) -> list:
         """The report's ``unidentifiable`` list: ``[{"name", "reason"}]``."""

@@ -54,6 +54,7 @@ from udrobot_ctrl.gap.confirm import (
     backward_eliminate,
     fitted_hooks,
     replay_sets,
+    separations,
 )
 from udrobot_ctrl.gap.data import actuators, prepare
 from udrobot_ctrl.gap.effects import Actuation
@@ -531,6 +532,9 @@ def set_aside_ambiguous(inp: Inputs, stacks: Stacks, where: Where, elim: Elimina
     (without a DVL, an inflow loss and a linear damping that the equation error on the reconstructed surge speed
     ranks below a quadratic-damping error, which alone explains less of the holdout than either of them).
 
+    On reconstructed runs an identifiable look-alike must also be shown on the holdout (:func:`_holdout_separated`):
+    swapped in for the member and replayed, it sets the member aside only when the two sets score equally there.
+
     On reconstructed runs a member may also be the look-alike of an effect in the form the channels cannot test
     (:func:`form_alikes`). It is listed as unidentifiable with that reason, and so is that effect unless it is
     confirmed in the form the search kept (then it stays significant).
@@ -556,6 +560,7 @@ def set_aside_ambiguous(inp: Inputs, stacks: Stacks, where: Where, elim: Elimina
     amb = {k: [a for a in dict.fromkeys([*elim.combination.indistinguishable.get(k, ()), *prior.get(k, ()), *rivals])
                if any_alike or a in hidden] for k in elim.kept}
     amb = {k: v for k, v in amb.items() if v}
+    amb, seps = _holdout_separated(inp, stacks, where, elim, amb, hidden, prior, log)
     forms = {**{k: a for k, a in prior_forms.items() if k in elim.kept},
              **(form_alikes(elim, stacks.identifiability, stacks.fit, inp.catalogue, inp.names) if any_alike
                 else {})}
@@ -580,8 +585,47 @@ def set_aside_ambiguous(inp: Inputs, stacks: Stacks, where: Where, elim: Elimina
             if a.held_by_rival:
                 log(f"  set aside: {k} (its fit is matched as well by {a.rival} with {a.form} = {a.other:g}, a form "
                     f"these channels cannot test: BIC {a.delta_bic:+.0f} when swapped; the runs cannot say which acts)")
-    ident = stacks.identifiability.with_ambiguous(amb).with_form_alike(forms)
+    ident = stacks.identifiability.with_ambiguous(amb).with_form_alike(forms).with_separations(seps)
     return replace(elim, kept=tuple(rest), combination=combo, after=after), replace(stacks, identifiability=ident)
+
+
+def _holdout_separated(inp: Inputs, stacks: Stacks, where: Where, elim: Elimination, amb: dict, hidden, prior, log):
+    """Keep, of each confirmed member's look-alikes, those the holdout replay cannot tell from it.
+
+    An identifiable look-alike (the channels identify it: its regressors act in the observed DOFs without hinging on
+    a reconstructed velocity) is swapped in for the member, the set refitted on the fit runs and replayed on the
+    holdout (:func:`~udrobot_ctrl.gap.confirm.separations`). When the swapped set scores materially and consistently
+    worse, the runs do separate the two (a CG-CB offset's restoring moment and an added-mass error in roll and pitch:
+    the held angles of the holdout runs tell them apart, the fit-run BIC of free oscillations does not) and it is no
+    longer a look-alike. Otherwise the two fits score equally on the holdout and the member stays set aside, its
+    reason giving both scores. Unidentifiable look-alikes (their fit hinges on what no sensor measures) and those of
+    the first reconstruction pass (``prior``) are kept without the test.
+
+    Returns
+    -------
+    amb : dict
+        Name -> look-alikes left.
+    seps : dict
+        Name -> tuple of :class:`~udrobot_ctrl.gap.confirm.Separation` (those the holdout did not separate, kept for
+        the reason; and those it did, for the record).
+    """
+    pairs = [(k, a) for k, alts in amb.items() for a in alts
+             if a not in hidden and a not in elim.kept and a not in prior.get(k, ())]
+    if not pairs or not where.before.value > 0:
+        return amb, {}
+    found = separations(stacks.fit, elim.kept, pairs, elim.after, where.before,
+                        _replayer(inp, stacks, where.before.scored), inp.window_s, inp.holdout,
+                        shapes=elim.combination.fit.shapes)
+    seps = {}
+    for sp in found:
+        seps.setdefault(sp.member, []).append(sp)
+        if log:
+            log(f"  look-alike check: {sp.member} vs {sp.rival}: {sp.describe()} -> "
+                + {"separated": "the holdout separates them", "equal": "equal on the holdout",
+                   "rival better": f"the holdout prefers {sp.rival}"}[sp.verdict])
+    gone = {(sp.member, sp.rival) for sp in found if sp.separated}
+    out = {k: [a for a in v if (k, a) not in gone] for k, v in amb.items()}
+    return {k: v for k, v in out.items() if v}, {k: tuple(v) for k, v in seps.items()}
 
 
 def form_alikes(elim: Elimination, ident: Identifiability, att: Attributor, catalogue, names) -> dict:
