@@ -47,8 +47,8 @@ def register(subparsers):
     p = subparsers.add_parser(
         "demo", help="identify, build the five models, run the controllers, write plots",
         formatter_class=argparse.RawDescriptionHelpFormatter,
-        description="The whole chain on the UDrobot of Cely et al. 2019 (Sensors 19, 3631): about 30 s on two\n"
-                    "cores, 1.5-2 min the first time on a machine (its kernels are compiled once):\n"
+        description="The whole chain on the UDrobot of Cely et al. 2019 (Sensors 19, 3631): about 20 s on two\n"
+                    "cores, about 1 min the first time on a machine (its kernels are compiled once):\n"
                     "  1. identification of SYNTHETIC launch logs and CFD tables generated from the paper's\n"
                     "     coefficients (its raw data are not public): checks the method, not the vehicle;\n"
                     "  2. the five shipped models (cfd, free_decay, pendulum coefficient sets) as udrobot-model/1;\n"

@@ -48,8 +48,8 @@ Control design for small underwater robots from identified hydrodynamic coeffici
 sim-to-real gap of a model against pool logs.
 
 commands, in the order of a typical job:
-  demo         start here: the whole chain on the shipped UDrobot data (about 30 s; the first run on a machine
-               compiles its kernels once, 1.5-2 min):
+  demo         start here: the whole chain on the shipped UDrobot data (about 20 s; the first run on a machine
+               compiles its kernels once, about 1 min):
                identification, five models, controllers on every design/plant pair, plots and an index
   identify     coefficients with 95 % intervals from free-decay spring or pendulum launches, or CFD tables
   model        export a model as udrobot-model/1 JSON, or show its masses, damping and thrusters

@@ -70,12 +70,20 @@ def runs(tmp_path_factory):
     return paths
 
 
+def _default_signals():
+    """In the child before exec: SIGINT and SIGTERM at their defaults, as under a terminal. A shell without job
+    control starts background jobs with SIGINT ignored, and a command started so keeps ignoring it (as it should)."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+
+
 def _interrupt(argv, signum, cwd, group=False, wait_for_workers=True, ready=None, delay=0.5):
     """Start ``udrobot-ctrl argv``, send ``signum`` once its workers run (or ``ready`` is printed); return
     (exit status, seconds to exit, stderr, workers seen, workers still alive)."""
     env = {**os.environ, "UDROBOT_JOBS": "2", "PYTHONUNBUFFERED": "1"}
     proc = subprocess.Popen([sys.executable, "-m", "udrobot_ctrl.cli", *argv], cwd=cwd, env=env, text=True,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True)
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True,
+                            preexec_fn=_default_signals)
     try:
         t0 = time.monotonic()
         seen = []
@@ -181,7 +189,7 @@ def test_a_signal_mid_write_leaves_no_temporary_file(tmp_path, signum):
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}
     proc = subprocess.Popen([sys.executable, str(script), "model", "export", "--model", "pendulum:chin", "--out",
                              str(out / "m.json")], cwd=tmp_path, env=env, text=True, stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, start_new_session=True)
+                            stderr=subprocess.PIPE, start_new_session=True, preexec_fn=_default_signals)
     try:
         assert proc.stdout.readline().strip() == "writing", proc.stderr.read()
         assert len(list(out.iterdir())) == 1  # the hidden temporary file
