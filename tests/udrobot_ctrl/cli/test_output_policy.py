@@ -246,3 +246,11 @@ def test_a_folder_option_still_creates_its_folder(tmp_path):
     assert not (tmp_path / "new").exists()  # checking creates nothing
     files.atomic_write(folder / "a.png", b"png")
     assert (folder / "a.png").read_bytes() == b"png"
+
+
+def test_a_json_inside_the_folder_compare_creates_is_written(tmp_path):
+    """``compare --out DIR --json DIR/r.json``: the folder --out creates holds the --json file (no refusal)."""
+    out = tmp_path / "cmp"
+    assert main(["compare", "--models", "pendulum:chin", "--controllers", "pid", "--quick", "--no-ekf",
+                 "--workers", "1", "--out", str(out), "--json", str(out / "r.json")]) == 0
+    assert (out / "r.json").is_file() and (out / "compare.csv").is_file()

@@ -66,6 +66,8 @@ def test_a_different_holdout_is_accepted_by_the_check(run, tmp_path):
       "{d}/s.csv"], "--json and --out name the same file"),
     (["simulate", "--windows", "--model", "pendulum:chin", "--input", "{run}", "--json", "{d}/s.json", "--out",
       "{d}/s.csv"], "--json and --out's sidecar name the same file"),
+    (["compare", "--models", "pendulum:chin", "--controllers", "pid", "--quick", "--out", "{d}/cmp", "--json",
+      "{d}/cmp/compare_full.json"], "--out and --json name the same file"),
 ])
 @pytest.mark.parametrize("force", [False, True])
 def test_two_outputs_naming_one_file_are_refused(run, tmp_path, capsys, argv, words, force):
