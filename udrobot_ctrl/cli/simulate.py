@@ -273,16 +273,24 @@ def run_windows(args) -> int:
     return 0
 
 
-def run_closed_loop(args) -> int:
-    """``--closed-loop``: fly ``args.model`` under the emulated ArduSub from the run's logged pilot inputs and modes."""
+def _one_run_in_one_out(args, what: str, hint: str = "") -> tuple:
+    """The single ``--input`` run and the ``--out`` run of a replay, checked: exactly one input (``what``, got N,
+    ``hint``), that exists, and an output that destroys no input (its folder must exist). Returns (src, out,
+    inputs): the files the writes must protect."""
     if len(args.input) != 1:
-        raise ValueError(f"--closed-loop flies one --input run, got {len(args.input)}")
+        raise ValueError(f"{what}, got {len(args.input)}{hint}")
     src, out = Path(args.input[0]), Path(args.out)
     if not src.exists():
         raise FileNotFoundError(f"input run {src} does not exist")
     inputs = [src, *spec_files(args.model, getattr(args, "mapping", None))]
     check_outputs(run_files(out), inputs, force=getattr(args, "force", False), option="--out",
-                      create_folders=False)
+                  create_folders=False)
+    return src, out, inputs
+
+
+def run_closed_loop(args) -> int:
+    """``--closed-loop``: fly ``args.model`` under the emulated ArduSub from the run's logged pilot inputs and modes."""
+    src, out, inputs = _one_run_in_one_out(args, "--closed-loop flies one --input run")
     if args.loop_rate is not None and not 10.0 <= args.loop_rate <= 2000.0:
         raise ValueError(f"--loop-rate must be between 10 and 2000 Hz (ArduSub runs 100-400 Hz), got {args.loop_rate}")
     rn = read_input_run(src, getattr(args, "mapping", None))
@@ -321,15 +329,8 @@ def run(args) -> int:
         return run_closed_loop(args)
     if getattr(args, "loop_rate", None) is not None:
         raise ValueError("--loop-rate sets the emulated autopilot's rate; add --closed-loop")
-    if len(args.input) != 1:
-        raise ValueError(f"the open-loop replay takes one --input run, got {len(args.input)} "
-                         f"(--windows scores several)")
-    src, out = Path(args.input[0]), Path(args.out)
-    if not src.exists():
-        raise FileNotFoundError(f"input run {src} does not exist")
-    inputs = [src, *spec_files(args.model, getattr(args, "mapping", None))]
-    check_outputs(run_files(out), inputs, force=getattr(args, "force", False), option="--out",
-                      create_folders=False)
+    src, out, inputs = _one_run_in_one_out(args, "the open-loop replay takes one --input run",
+                                           " (--windows scores several)")
     if not args.max_step > 0:
         raise ValueError(f"--max-step must be > 0, got {args.max_step}")
     vehicle = load_model(args.model)

@@ -135,6 +135,11 @@ def time_spikes(t) -> np.ndarray:
     return spikes
 
 
+def _select(t, fields, alt, idx):
+    """The samples ``idx`` (mask or index array) of a stream's time stamps, fields and alternative clock (or None)."""
+    return t[idx], {k: v[idx] for k, v in fields.items()}, None if alt is None else alt[idx]
+
+
 def finish_stream(name, times, columns, time_source, t_alternative=None, alternative_source="") -> Stream:
     """Build a :class:`Stream` from per-message lists: sort by time (stable), keep the last of equal stamps, and
     drop records that clock jumps separate from the stream's largest stretch (:func:`clock_jump_segment`).
@@ -154,38 +159,28 @@ def finish_stream(name, times, columns, time_source, t_alternative=None, alterna
         notes.append(f"{name}: {int(bad.sum())} of {t.size} samples dropped for a bad time stamp (not a finite "
                      f"number in {time_source}; the first is message {first + 1}, value {t[first]!r}); their other "
                      f"fields are not used")
-        t = t[~bad]
-        fields = {k: v[~bad] for k, v in fields.items()}
-        alt = None if alt is None else alt[~bad]
+        t, fields, alt = _select(t, fields, alt, ~bad)
     spikes = time_spikes(t)
     if spikes.any():
         first = int(np.flatnonzero(spikes)[0])
         notes.append(f"{name}: {int(spikes.sum())} of {t.size} samples dropped for a corrupt time stamp out of line "
                      f"with both neighbours (over {SPIKE_STEPS:g} median intervals and {SPIKE_MIN_S:g} s away, the "
                      f"neighbours agreeing; the first is record {first + 1} at {t[first]:.6g} s in {time_source})")
-        t = t[~spikes]
-        fields = {k: v[~spikes] for k, v in fields.items()}
-        alt = None if alt is None else alt[~spikes]
+        t, fields, alt = _select(t, fields, alt, ~spikes)
     if t.size and np.any(np.diff(t) < 0):
         order = np.argsort(t, kind="stable")
         notes.append(f"{name}: {int(np.sum(np.diff(t) < 0))} out-of-order time stamps ({time_source}); sorted")
-        t = t[order]
-        fields = {k: v[order] for k, v in fields.items()}
-        alt = None if alt is None else alt[order]
+        t, fields, alt = _select(t, fields, alt, order)
     if t.size > 1:
         keep = np.append(np.diff(t) > 0, True)
         if not keep.all():
             notes.append(f"{name}: {int((~keep).sum())} samples share a time stamp with the next one; "
                          f"the last of each group is kept")
-            t = t[keep]
-            fields = {k: v[keep] for k, v in fields.items()}
-            alt = None if alt is None else alt[keep]
+            t, fields, alt = _select(t, fields, alt, keep)
     keep, note = clock_jump_segment(name, t, time_source)
     if note:
         notes.append(note)
-        t = t[keep]
-        fields = {k: v[keep] for k, v in fields.items()}
-        alt = None if alt is None else alt[keep]
+        t, fields, alt = _select(t, fields, alt, keep)
     if alt is not None and alt.size > 2:
         d = np.diff(alt)
         jump = np.flatnonzero(~np.isfinite(d) | (np.abs(d) > gap_limit(t)[0]))

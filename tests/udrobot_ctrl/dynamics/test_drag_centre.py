@@ -6,6 +6,7 @@ import casadi as ca
 import numpy as np
 import pytest
 
+from tests.udrobot_ctrl.dynamics.test_effects_plant import assert_refused_on_load
 from udrobot_ctrl.dynamics import effects as fx
 from udrobot_ctrl.dynamics import plant_casadi
 from udrobot_ctrl.dynamics.plant import generalized_forces, plant_parameters
@@ -151,13 +152,7 @@ def test_model_file_round_trips_a_centre_of_pressure_and_an_attached_tether(tmp_
      r"tether_drag.*attach_x_m = -0.3 is outside \[-0.2488.*\] m"),
 ])
 def test_out_of_range_points_are_refused_on_load(tmp_path, entry, message):
-    doc = to_model_dict(BASE)
-    doc["effects"] = [entry]
-    path = tmp_path / "m.json"
-    path.write_text(json.dumps(doc))
-    with pytest.raises(ValueError, match=message) as err:
-        read_model_file(path)
-    assert "effects[0]" in str(err.value) and str(path) in str(err.value)
+    assert_refused_on_load(tmp_path, BASE, entry, message)
 
 
 def test_a_model_without_thrusters_takes_the_assumed_size():

@@ -511,7 +511,13 @@ def test_model_file_round_trips_effects(tmp_path, tether):
                                         "cable_azimuth_rad": 1.0}}, "misses parameter.*cable_elevation_rad"),
 ])
 def test_bad_effects_are_refused_naming_the_entry(tmp_path, entry, message):
-    doc = to_model_dict(NOMINAL)
+    assert_refused_on_load(tmp_path, NOMINAL, entry, message)
+
+
+def assert_refused_on_load(tmp_path, vehicle, entry, message):
+    """A model file of ``vehicle`` with the one effect ``entry`` is refused on load, the error matching ``message``
+    and naming the file and the entry."""
+    doc = to_model_dict(vehicle)
     doc["effects"] = [entry]
     path = tmp_path / "m.json"
     path.write_text(json.dumps(doc))
