@@ -444,6 +444,82 @@ def attribute(stacks: Stacks, names, log=None) -> Selection:
     return sel
 
 
+@dataclass(frozen=True)
+class ReplaySupport:
+    """Step 2b: whether the forward-selected set replays the fit runs it was fitted on, and the effects that joined
+    the candidates because alone they replay the fit runs better (:func:`replay_supported`)."""
+
+    fit_gap_before: float  # nominal replay gap of the fit runs
+    set_shrink: float | None  # the forward-selected set's shrink of that gap (None: nothing was selected)
+    set_diverged: int  # fit-run windows in which the set's replay diverged
+    tried: dict = field(default_factory=dict)  # name -> shrink of the fit runs' gap with the effect alone
+    added: tuple = ()  # the effects that joined the candidates
+
+    @property
+    def triggered(self) -> bool:
+        """The set does not replay its own fit runs: it diverges, or shrinks their gap by no more than
+        ``REPLAY_MATERIAL``."""
+        return self.set_shrink is None or self.set_diverged > 0 or not self.set_shrink > REPLAY_MATERIAL
+
+    def to_json(self) -> dict:
+        """The report's ``replay_support`` object."""
+        return {"fit_gap_before": self.fit_gap_before, "set_shrink": self.set_shrink,
+                "set_diverged_windows": self.set_diverged, "triggered": self.triggered,
+                "tried": self.tried, "added": list(self.added)}
+
+
+def replay_supported(inp: Inputs, stacks: Stacks, sel: Selection, where: Where, log=None):
+    """Step 2b, on the fit runs only: when the forward-selected set does not replay the runs it was fitted on (its
+    replay diverges in some window, or shrinks their replay gap by no more than ``REPLAY_MATERIAL``), the equation
+    error was not a trustworthy guide on these runs, and every identifiable effect whose single fit lowers the fit-run
+    BIC by more than ``BIC_STRONG`` and alone shrinks the fit runs' replay gap by more than ``REPLAY_LARGE`` (without
+    diverging) joins the candidates; the set is fitted again jointly and goes to the holdout check like any other.
+
+    Why: under a closed-loop autopilot the equation error is dominated by the fast attitude loop's residual, while a
+    small steady moment (a drag centre away from the origin) shows as a slow drift that only a replay integrates;
+    on the shared sea dive, the selected set diverged in 16 of its fit-run windows while a drag centre alone shrank
+    their gap by 31 %. The holdout is not read here: it only scores the candidates afterwards.
+
+    Returns
+    -------
+    sel : Selection
+        ``sel`` with the joined effects among its candidates (unchanged when nothing joined).
+    support : ReplaySupport
+    """
+    nf = len(inp.fit)
+    before = gap(inp.fit, where.nominal_sims[:nf])
+    if not before.value > 0:
+        return sel, ReplaySupport(float(before.value), None, 0)
+
+    def run(sets):
+        return replay_sets(inp.fit, inp.p, sets, inp.catalogue, stacks.actuation, inp.window_s, before.scored)
+    rest = [n for n in inp.names if n not in sel.proposed and n not in stacks.identifiability.names
+            and sel.delta_bic[n] < -BIC_STRONG]
+    if sel.proposed:
+        set_replay = run([(sel.candidates.fit, sel.proposed)])[0]
+        support = ReplaySupport(float(before.value), float(1 - set_replay.gap.value / before.value),
+                                set_replay.gap.n_diverged)
+    else:
+        support = ReplaySupport(float(before.value), None, 0)
+    if not support.triggered or not rest:
+        return sel, support
+    reps = run([(sel.singles[n], (n,)) for n in rest])
+    tried = {n: float(1 - r.gap.value / before.value) for n, r in zip(rest, reps)}
+    added = tuple(n for n, r in zip(rest, reps) if r.gap.n_diverged == 0 and tried[n] > REPLAY_LARGE)
+    support = replace(support, tried=tried, added=added)
+    if log:
+        state = ("nothing was selected" if support.set_shrink is None else
+                 f"its replay diverges in {support.set_diverged} fit-run windows" if support.set_diverged else
+                 f"it shrinks their replay gap by {100 * support.set_shrink:.0f}%")
+        log(f"  replay check on the fit runs: the selected set does not replay them ({state}); "
+            + (f"joining the candidates, alone shrinking the fit runs' replay gap by more than "
+               f"{100 * REPLAY_LARGE:.0f}%: " + ", ".join(f"{n} ({100 * tried[n]:.0f}%)" for n in added)
+               if added else f"no other effect alone shrinks it by more than {100 * REPLAY_LARGE:.0f}%"))
+    if not added:
+        return sel, support
+    return replace(sel, candidates=finalize(stacks.fit, (*sel.proposed, *added), inp.names)), support
+
+
 def _replayer(inp: Inputs, stacks: Stacks, scored) -> Replayer:
     """The holdout :class:`~udrobot_ctrl.gap.confirm.Replayer` of fitted effect sets."""
     return Replayer(lambda sets: replay_sets(inp.holdout, inp.p, sets, inp.catalogue, stacks.actuation,
@@ -949,7 +1025,9 @@ def effect_verdicts(inp: Inputs, stacks: Stacks, sel: Selection, elim: Eliminati
         if n in at_bound:
             note = at_bound[n].reason()
         elif n in dropped:
-            note = ("a forward-selection candidate, dropped by the backward check on the holdout: "
+            origin = ("a forward-selection candidate" if n in steps and steps[n].accepted else
+                      "a candidate of the fit-run replay check")
+            note = (origin + ", dropped by the backward check on the holdout: "
                     + dropped[n].reason() + ("; listed under unidentifiable: the replay lacks its parameters "
                                              "these channels cannot identify"
                                              if n in stacks.identifiability.unconfirmed else "; not significant"))
@@ -1078,7 +1156,7 @@ def ranked_like(listed, verdicts) -> list:
 
 
 def report_json(inp: Inputs, where: Where, stacks: Stacks, sel: Selection, elim: Elimination, verdicts, verdict,
-                elapsed_s) -> dict:
+                elapsed_s, support: ReplaySupport | None = None) -> dict:
     """The ``udrobot-diagnosis/1`` report (docs/formats/diagnosis.md) of the diagnosis' steps (not yet rounded)."""
     before, after = where.before, elim.after.gap
     return {
@@ -1099,6 +1177,7 @@ def report_json(inp: Inputs, where: Where, stacks: Stacks, sel: Selection, elim:
                   "sigma_residual_per_dof": dict(zip(fx.DOF, elim.combination.noise_sigma))},
         "method": _method(inp.window_s) | {"split": inp.notes[0]},
         "selection_steps": [asdict(s) for s in sel.steps],
+        "replay_support": support.to_json() if support is not None else None,
         "backward_elimination": [r.to_json() for r in elim.rounds],
         "notes": inp.notes,
         "elapsed_s": elapsed_s,
@@ -1125,6 +1204,7 @@ class Pass:
     confirmed: Elimination  # what the holdout confirmed, before the ambiguous effects were set aside
     at_bound: Mapping = field(default_factory=dict)  # name -> AtBound: confirmed, set aside at the edge of its range
     singles: Mapping = field(default_factory=dict)  # name -> its single-effect holdout Replay (OnDemand)
+    support: ReplaySupport | None = None  # step 2b: the fit-run replay check of the selected set
 
 
 def diagnosis_pass(inp: Inputs, say, t0, prior_ambiguous=None, prior_forms=None, prior_stand_ins=None) -> Pass:
@@ -1156,6 +1236,7 @@ def _diagnosis_steps(inp: Inputs, say, t0, locating: Background, stacks: Stacks,
                          f"channels do not measure; see its not_identified entry)")
     sel = attribute(stacks, inp.names, log=lines.append)
     where = locating.result()
+    sel, support = replay_supported(inp, stacks, sel, where, log=lines.append)
     say("where: " + (", ".join(_where_line(x) for x in where.located.locations) or "no channel above its noise floor"))
     for line in lines:
         say(line)
@@ -1175,7 +1256,7 @@ def _diagnosis_steps(inp: Inputs, say, t0, locating: Background, stacks: Stacks,
     stacks = set_aside_unconfirmed(stacks, sel, where, elim, log=say)
     elim, stacks = set_aside_stand_ins(inp, stacks, where, elim, log=say, prior=prior_stand_ins)
     elim, at_bound = set_aside_at_bound(inp, stacks, where, elim, log=say)
-    return Pass(where, stacks, sel, shrink, elim, confirmed, at_bound, singles)
+    return Pass(where, stacks, sel, shrink, elim, confirmed, at_bound, singles, support)
 
 
 @dataclass(frozen=True)
@@ -1315,7 +1396,8 @@ def diagnose(model, runs, holdout=None, window_s=8.0, effects=None, log=None, mo
 
     location = [x.to_json() for x in where.located.locations]
     inp = replace(inp, notes=inp.notes + [f"not diagnosed (no excitation): {u.reason()}" for u in idle])
-    report = report_json(inp, where, stacks, sel, elim, verdicts, verdict, time.perf_counter() - t0)
+    report = report_json(inp, where, stacks, sel, elim, verdicts, verdict, time.perf_counter() - t0,
+                         support=res.support)
     report["unexcited_runs"] = [u.to_json() for u in idle]
     after_sims = elim.after.sims if elim.kept else where.nominal_sims[len(inp.fit):]
     ctx = DiagnosisContext(inp.runs, len(inp.fit), where.nominal_sims, after_sims, where.residuals, location)
