@@ -62,3 +62,17 @@ def test_an_effect_the_equation_error_missed_joins_when_it_replays_the_fit_runs(
     # the joined set is fitted jointly on the fit runs: the drag centre's parameters are those of a joint fit
     assert set(out.candidates.fit.params) >= set(support.added)
     assert any("replay check on the fit runs" in line and "drag_centre_offset" in line for line in lines)
+
+
+@pytest.mark.slow
+def test_runs_whose_velocities_were_reconstructed_are_not_checked():
+    """Without a DVL the smoother reconstructs surge and sway with the plant being checked, so the fit runs' replay
+    favours it: the check is skipped and says so, and the selection is left as it is."""
+    runs = generate({"drag_centre_offset": {"r": (0.012, 0.0, 0.015)}}, n_runs=2, duration=40.0, seed=3,
+                    sensors="stock")
+    inp = R.prepare_inputs(MODEL, runs[:1], runs[1:], NAMES, 8.0)
+    assert R.reconstructed(inp)
+    sentinel = object()
+    out, support = R.replay_supported(inp, None, sentinel, R.locate_gap(inp))
+    assert out is sentinel and support.skipped and not support.triggered
+    assert support.to_json()["skipped"] is True and support.added == ()
