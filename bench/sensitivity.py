@@ -4,7 +4,12 @@
 i.e. N (d + 2) closed-loop simulations: with the default 12 coefficients of the cfd:morison space
 (3 added masses, 3 C_D, 6 rotational scale factors) that is 14,336 runs of ``compare``'s gain-scheduled LQR
 (designed on the nominal model) on the standard quick mission (23 s, RK4 at 0.01 s = 2,300 steps, controller
-at 0.05 s, as ``compare``), batched 256 vehicles per task (one stacked simulation, the LQR law vectorised).
+at 0.05 s, as ``compare``), batched 256 vehicles per task (one compiled call flies the whole mission of every
+vehicle, law and RK4: ``udrobot_ctrl.sensitivity.batch``; the metrics of the batch at once).
+
+Also printed: the first evaluation in this process (loading the numba kernels, or compiling them on a fresh
+machine, and the nominal LQR design; run with an empty ``NUMBA_CACHE_DIR`` to measure the cold compile) and the
+CPU time of the local run (this process and its workers), to compare on a loaded machine.
 
 Wall times are measured for (a) 2 local worker processes (ProcessPoolExecutor) and (b) a
 2-worker dask LocalCluster (processes, 1 thread each); the cluster start-up is reported separately and
@@ -26,6 +31,14 @@ import numpy as np
 # library (bench/control.py hides python-control): drop it, this script imports only installed packages
 _HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path[:] = [p for p in sys.path if os.path.abspath(p or os.curdir) != _HERE]
+
+
+def _cpu_s() -> float:
+    """CPU time (user + system, s) of this process and of its finished child processes (the pool's workers)."""
+    import resource
+
+    me, kids = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+    return me.ru_utime + me.ru_stime + kids.ru_utime + kids.ru_stime
 
 
 def main(argv=None) -> int:
@@ -50,19 +63,28 @@ def main(argv=None) -> int:
           f"({ev.mission.t_final:g} s mission, dt {ev.sim_dt:g} s, control {ev.control_dt:g} s); "
           f"machine: {os.cpu_count()} CPUs")
 
-    # single-batch cost, for the per-run figure
+    # first call: loads (or, on a fresh machine, compiles) the numba kernels and designs the nominal LQR
+    t0, c0 = time.perf_counter(), time.process_time()
     X1 = np.tile(space.nominal, (ev.max_chunk, 1))
-    ev(X1[:2])  # warm the design cache
-    t0 = time.perf_counter()
+    ev(X1[:2])  # warm the design cache (the forked workers inherit it and the loaded kernels)
+    warm_s, warm_cpu_s = time.perf_counter() - t0, time.process_time() - c0
+    print(f"first evaluation (kernel load or compile, LQR design): {warm_s:.1f} s wall, {warm_cpu_s:.1f} s CPU")
+    # single-batch cost, for the per-run figure
+    t0, c0 = time.perf_counter(), time.process_time()
     ev(X1)
     per_run_ms = (time.perf_counter() - t0) / len(X1) * 1e3
-    print(f"one {len(X1)}-vehicle batch (one task): {per_run_ms:.2f} ms per closed-loop run (in-process)")
+    per_run_cpu_ms = (time.process_time() - c0) / len(X1) * 1e3
+    print(f"one {len(X1)}-vehicle batch (one task): {per_run_ms:.2f} ms per closed-loop run in-process "
+          f"({per_run_cpu_ms:.2f} ms CPU)")
 
+    cpu0 = _cpu_s()
     t0 = time.perf_counter()
     with SweepExecutor(workers=args.workers) as ex:
         res_local = run_sobol(ev, space, args.N, executor=ex, seed=1, progress=False)
     local_s = time.perf_counter() - t0
-    print(f"local ProcessPool, {args.workers} workers: {local_s:.1f} s ({res_local.n_runs / local_s:.0f} runs/s)")
+    local_cpu_s = _cpu_s() - cpu0
+    print(f"local ProcessPool, {args.workers} workers: {local_s:.1f} s ({res_local.n_runs / local_s:.0f} runs/s; "
+          f"{local_cpu_s:.1f} s CPU of this process and its workers, load average {os.getloadavg()[0]:.1f})")
 
     dask_s = startup_s = None
     same = None
@@ -97,7 +119,9 @@ def main(argv=None) -> int:
                                                      for j in top))
     lost = int(np.nansum(res_local.table["lost_control"]))
     print(f"  runs that lost pitch control (|theta| > 45 deg): {lost} of {res_local.n_runs}")
-    figures = {"sobol_1024_local_s": round(local_s, 2),
+    figures = {"sobol_1024_local_s": round(local_s, 2), "sobol_1024_local_cpu_s": round(local_cpu_s, 2),
+               "first_evaluation_s": round(warm_s, 2), "first_evaluation_cpu_s": round(warm_cpu_s, 2),
+               "per_run_cpu_ms_in_process": round(per_run_cpu_ms, 3),
                "sobol_1024_dask_s": None if dask_s is None else round(dask_s, 2),
                "dask_cluster_startup_s": None if startup_s is None else round(startup_s, 2),
                "base_N": args.N, "d": d, "model_runs": n_runs, "workers": args.workers,

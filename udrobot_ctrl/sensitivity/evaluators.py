@@ -12,7 +12,9 @@ the standard quick mission, ``compare --quick``), on the plant of :mod:`udrobot_
 :func:`udrobot_ctrl.control.metrics.mission_metrics`. A chunk of samples is flown as one batch
 (:func:`udrobot_ctrl.control.missions.run_mission_batch`: one stacked simulation, the LQR and PID laws
 vectorised over vehicles, the MPCs one solver per vehicle), which gives each vehicle the same trajectory
-as a run of its own.
+as a run of its own. Scheduled LQRs take a compiled path that flies the same batch in one call
+(:func:`udrobot_ctrl.sensitivity.batch.fly_lqr_batch`, equal up to rounding) and scores it at once
+(:func:`udrobot_ctrl.sensitivity.batch.batch_metrics`, equal to :func:`flat_metrics`).
 """
 from __future__ import annotations
 
@@ -20,6 +22,7 @@ import numpy as np
 
 from udrobot_ctrl.control.compare import CONTROL_DT, SIM_DT
 from udrobot_ctrl.control.linearize import held_rows
+from udrobot_ctrl.control.lqr import ScheduledLQR
 from udrobot_ctrl.control.metrics import mission_metrics
 from udrobot_ctrl.control.missions import (
     CONTROLLER_KINDS,
@@ -30,6 +33,7 @@ from udrobot_ctrl.control.missions import (
 )
 from udrobot_ctrl.dynamics.plant import plant_parameters
 from udrobot_ctrl.dynamics.sim import SimResult, simulate, stack_parameters
+from udrobot_ctrl.sensitivity.batch import batch_metrics, fly_lqr_batch
 from udrobot_ctrl.sensitivity.parameters import ParameterSpace, apply_sample
 
 #: assumed threshold: beyond |theta| = 45 deg a mission is counted as having lost (passive) pitch control
@@ -237,6 +241,18 @@ class MissionEvaluator:
         if ok and self.runtime_effects:
             for ctrl, i in zip(ctrls, ok):
                 rows[i] = self._fly_alone(ctrl, vehicles[i], errors, i)
+        elif ok and all(isinstance(c, ScheduledLQR) for c in ctrls):
+            plants = [plant_parameters(vehicles[i]) for i in ok]
+            # the whole mission of every vehicle in one compiled call, the metrics of the batch at once
+            p = stack_parameters(plants)
+            t, x, u, hold, diverged, fallbacks = fly_lqr_batch(ctrls, p, self.mission, self.sim_dt, self.control_dt)
+            met = batch_metrics(t, x, u, self.mission, p.f_min, p.f_max, hold)
+            for j, i in enumerate(ok):
+                if diverged[j] >= 0:
+                    errors[i] = f"diverged at t = {t[diverged[j]]:.2f} s"
+                    rows[i] = {"lost_control": 1.0}
+                    continue
+                rows[i] = {**{k: float(v[j]) for k, v in met.items()}, "fallbacks": float(fallbacks[j])}
         elif ok:
             plants = [plant_parameters(vehicles[i]) for i in ok]
             # serial kernel: the executor runs chunks in parallel processes; threads inside them oversubscribe
