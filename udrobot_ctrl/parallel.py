@@ -21,6 +21,13 @@ there, beside the caller's work on the others (the searches of the effects the r
 record and as look-alikes, while the caller fits the others). It holds one of the cores while calls sent to it are
 not yet collected.
 
+BLAS threads: the work is spread over processes, one per core, so a multithreaded BLAS (numpy's OpenBLAS starts a
+thread per core) would only oversubscribe the cores: a threaded dot product of a long series, waiting on a thread
+the other processes hold off its core, costs a thousand times its arithmetic on a loaded machine. So every worker
+forked here runs its BLAS on one thread, and so does the caller while a :class:`Background` job or a
+:class:`Helper` call holds a core beside it (its BLAS threads are restored when none does); the results do not
+change (:func:`blas_threads`).
+
 Killed runs: every worker ignores SIGINT (a Ctrl-C reaches the whole process group; the caller decides) and dies
 at SIGTERM without cleanup (:func:`worker_signals`, installed in every worker forked here); the caller stops them
 all with :func:`stop_workers` (``udrobot-ctrl`` does so at SIGINT and SIGTERM, see :mod:`udrobot_ctrl.cli.main`).
@@ -33,12 +40,15 @@ import signal
 import time
 from concurrent.futures import ProcessPoolExecutor
 
+from threadpoolctl import ThreadpoolController
+
 JOBS_ENV = "UDROBOT_JOBS"
 
 _task = None  # (func, items) of the running fork_map, inherited by its workers
 _in_worker = False
 _background = {}  # id -> func of the Background jobs being started (inherited by their worker)
 _running = 0  # Background jobs computing and Helpers with calls not collected: each takes a core fork_map would use
+_blas_before = None  # the caller's BLAS threads (blas_threads()) while _running > 0, restored when it returns to 0
 
 
 def default_jobs() -> int:
@@ -94,6 +104,38 @@ def _mark_worker() -> None:
     global _in_worker
     _in_worker = True
     worker_signals()
+    blas_threads(1)  # one core per worker (module docstring)
+
+
+def blas_threads(n=None) -> dict:
+    """Set the threads of every BLAS library loaded in this process (numpy's and scipy's own copies, found by
+    threadpoolctl) to ``n`` (an int for all, or a dict as returned here, per library file) and return their previous
+    counts ({} when none is found: nothing is changed). The thread count changes how fast BLAS runs, not what it
+    computes at the diagnoser's sizes."""
+    before = {}
+    for lib in ThreadpoolController().select(user_api="blas").lib_controllers:
+        before[lib.filepath] = int(lib.num_threads)
+        want = n.get(lib.filepath) if isinstance(n, dict) else n
+        if want is not None and want != before[lib.filepath]:
+            lib.set_num_threads(int(want))
+    return before
+
+
+def _take_core() -> None:
+    """A Background job or a Helper call now holds a core beside the caller: one BLAS thread here meanwhile."""
+    global _running, _blas_before
+    _running += 1
+    if _running == 1 and not _in_worker:
+        _blas_before = blas_threads(1)
+
+
+def _give_core() -> None:
+    """The core taken by :func:`_take_core` is given back (the caller's BLAS threads restored with the last)."""
+    global _running, _blas_before
+    _running -= 1
+    if _running == 0 and _blas_before is not None:
+        blas_threads(_blas_before)
+        _blas_before = None
 
 
 def worker_signals() -> None:
@@ -204,7 +246,6 @@ class Background:
     """
 
     def __init__(self, func, jobs: int | None = None):
-        global _running
         self._func, self._pool, self._future, self._outcome = func, None, None, None
         if workers(jobs) <= 1:
             return
@@ -216,7 +257,7 @@ class Background:
         finally:
             _background.pop(key, None)
         self._func = None
-        _running += 1
+        _take_core()
 
     def result(self):
         """The value of ``func()`` (waits for the worker); an exception in it is raised here, every time."""
@@ -239,9 +280,8 @@ class Background:
         return value
 
     def _release(self, wait: bool) -> None:
-        global _running
         if self._future is not None:
-            _running -= 1
+            _give_core()
             self._future = None
             self._pool.shutdown(wait=wait, cancel_futures=True)
 
@@ -312,20 +352,18 @@ class Helper:
 
     def submit(self, method: str, *args) -> int:
         """Send ``getattr(obj, method)(*args)`` to the worker; returns the call's token for :meth:`result`."""
-        global _running
         token = self._sent
         self._sent += 1
         self._calls[token] = (method, args)
         if self._conn is not None:
             if self._sent - self._got == 1:  # the first call not collected: the worker now holds a core
-                _running += 1
+                _take_core()
             self._conn.send((method, args))
         return token
 
     def result(self, token: int):
         """The value of the call ``token`` (waits for the worker; the replies before it are kept). A call the worker
         did not answer (closed, or its process ended) is computed in the caller."""
-        global _running
         while self._conn is not None and token in self._calls and token not in self._replies:
             try:
                 reply = self._conn.recv()
@@ -335,7 +373,7 @@ class Helper:
             self._replies[self._got] = reply
             self._got += 1
             if self._got == self._sent:
-                _running -= 1
+                _give_core()
         if token not in self._calls:
             raise KeyError(f"helper: no call {token} pending")
         method, args = self._calls.pop(token)
@@ -349,12 +387,11 @@ class Helper:
     def close(self) -> None:
         """Stop the worker and give its core back; calls it has not answered are computed in the caller if their
         results are asked for."""
-        global _running
         if self._conn is None or os.getpid() != self._pid:  # a forked child never stops its parent's helper
             return
         busy = self._got < self._sent
         if busy:
-            _running -= 1
+            _give_core()
         conn, self._conn = self._conn, None
         if busy:  # calls still running: not waited for
             self._proc.terminate()

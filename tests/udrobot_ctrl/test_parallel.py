@@ -8,7 +8,7 @@ import sys
 import numpy as np
 import pytest
 
-from udrobot_ctrl.parallel import JOBS_ENV, Background, Helper, can_fork, default_jobs, fork_map, workers
+from udrobot_ctrl.parallel import JOBS_ENV, Background, Helper, blas_threads, can_fork, default_jobs, fork_map, workers
 
 
 def test_results_in_order_from_a_closure_over_large_data():
@@ -193,3 +193,24 @@ def test_a_helper_without_workers_computes_in_the_caller(monkeypatch):
     assert helper.result(t) == 42 and calls == [os.getpid()]
     with pytest.raises(KeyError):
         helper.result(t)  # collected once
+
+
+def _blas_counts(_):
+    return sorted(set(blas_threads().values()))
+
+
+@pytest.mark.skipif(not can_fork(), reason="needs fork")
+def test_workers_run_blas_on_one_thread_and_the_caller_gets_its_threads_back(monkeypatch):
+    """A threaded BLAS in each of one-per-core workers only oversubscribes the cores (parallel.py docstring)."""
+    monkeypatch.setenv(JOBS_ENV, "2")
+    np.linalg.svd(np.ones((4, 4)))  # BLAS loaded
+    before = blas_threads()
+    if not before:
+        pytest.skip("no BLAS library threadpoolctl can control")
+    assert fork_map(_blas_counts, [0, 1]) == [[1], [1]]
+    job = Background(lambda: sorted(set(blas_threads().values())))
+    assert job.result() == [1]
+    assert blas_threads() == before  # restored once the job's core is given back
+    previous = blas_threads(1)
+    assert previous == before and set(blas_threads(previous).values()) == {1}
+    assert blas_threads() == before

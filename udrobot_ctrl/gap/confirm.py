@@ -44,6 +44,7 @@ took its share (a quadratic damping error next to a tether that is kept for want
 """
 from __future__ import annotations
 
+from collections import OrderedDict
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 
@@ -114,9 +115,42 @@ def replay(preps, p, fit: Fit | None, members, catalogue, actuation: Actuation, 
     return replay_sets(preps, p, [(fit, members)], catalogue, actuation, window_s, scored)[0]
 
 
+#: the most recent replays (:func:`replay_sets`), kept: the diagnosis replays some sets again (a member's rest in the
+#: backward check is its single fit, the set left after a drop the rest just replayed, the empty set)
+REPLAYS_KEPT = 32
+_replays = OrderedDict()  # key -> (the key's objects, held so that their ids stay theirs, Replay)
+
+
+def _replay_key(preps, p, fit, members, catalogue, actuation, window_s, scored):
+    """The key of one replay: what it is computed from (the objects by identity, the members' parameters by value)
+    and those objects."""
+    objs = (tuple(preps), p, catalogue, actuation)
+    params = tuple((n, tuple(sorted(fit.params[n].items()))) for n in members) if members else ()
+    return (tuple(map(id, objs[0])), *map(id, objs[1:]), float(window_s), tuple(scored), tuple(members), params), objs
+
+
 def replay_sets(preps, p, sets, catalogue, actuation: Actuation, window_s, scored) -> list:
     """:func:`replay` of several sets at once: ``sets`` is a sequence of (fit, members); one :class:`Replay` each, in
-    order, integrated together (:func:`udrobot_ctrl.gap.shrink.simulate_windows_sets`)."""
+    order, integrated together (:func:`udrobot_ctrl.gap.shrink.simulate_windows_sets`). A set replayed lately on
+    the same runs with the same parameters is not replayed again (:data:`REPLAYS_KEPT`): the same Replay."""
+    keys = [_replay_key(preps, p, fit, members, catalogue, actuation, window_s, scored) for fit, members in sets]
+    out = [_replays[k][1] if k in _replays else None for k, _ in keys]
+    todo = [i for i, r in enumerate(out) if r is None]
+    if todo:
+        for i, r in zip(todo, _replay_sets(preps, p, [sets[i] for i in todo], catalogue, actuation, window_s,
+                                           scored)):
+            out[i] = r
+            _replays[keys[i][0]] = (keys[i][1], r)
+    for k, _ in keys:
+        if k in _replays:
+            _replays.move_to_end(k)
+    while len(_replays) > REPLAYS_KEPT:
+        _replays.popitem(last=False)
+    return out
+
+
+def _replay_sets(preps, p, sets, catalogue, actuation: Actuation, window_s, scored) -> list:
+    """:func:`replay_sets` computed."""
     hook_sets = [fitted_hooks(catalogue, p, actuation, fit, members) for fit, members in sets]
     # one piece of work per run and share of the sets, spread over the cores (a set's replay is its own either way)
     shares = [(r, part) for r in range(len(preps)) for part in _shares(len(sets), workers())]

@@ -46,7 +46,7 @@ from udrobot_ctrl.dynamics import plant_casadi as pc
 from udrobot_ctrl.dynamics.effects import CASADI
 from udrobot_ctrl.dynamics.fastsim import compile_function, parameter_hash
 from udrobot_ctrl.dynamics.integrators import rk4_step
-from udrobot_ctrl.dynamics.plant import PlantParameters, rotation_zyx, wrap_angle
+from udrobot_ctrl.dynamics.plant import PlantParameters, rotation_zyx
 from udrobot_ctrl.gap import smoother_kernels as kernels
 
 CHANNELS = ("x", "y", "z", "phi", "theta", "psi", "u", "v", "w", "p", "q", "r", "ax", "ay", "az")
@@ -347,21 +347,18 @@ def smooth_run(t, meas: dict, tau, p: PlantParameters, settings: SmootherSetting
     Ps_p[0] = P
     P_end = np.empty((ns, ns))  # the prediction past the last sample (not kept)
     finite = np.isfinite(Z)
-    patterns = {}
+    measured = finite.any(axis=1)
+    angle_rows = np.array(ANGLE_ROWS)
+    lo = sl.start
+    # one compiled call per sample for the update (the innovation of its logged channels) and one for the
+    # prediction; the casadi plant is called from here (kernels.forward_update, kernels.forward_predict)
     for k in range(m):
         xs_p[k] = x
-        ok = finite[k]
-        if ok.any():
-            key = ok.tobytes()
-            if key not in patterns:
-                r_ok = rows[ok]
-                patterns[key] = (r_ok, np.flatnonzero(np.isin(r_ok, ANGLE_ROWS)), Rdiag[ok])
-            r_ok, ang, r_k = patterns[key]
+        if measured[k]:
             hk, Hk = f_meas(x, tau_c[k])
-            H = np.ascontiguousarray(Hk[r_ok, sl])
-            y = Z[k, ok] - hk[r_ok]
-            y[ang] = wrap_angle(y[ang])
-            if not kernels.kalman_update(x[sl], Ps_p[k], H, y, r_k, Ps_f[k]):  # rounding left S indefinite
+            if not kernels.forward_update(x, lo, Ps_p[k], hk, Hk, Z[k], finite[k], rows, angle_rows, Rdiag, Ps_f[k]):
+                # rounding left S indefinite: the general solver
+                H, y, r_k = kernels.innovation(lo, hk, Hk, Z[k], finite[k], rows, angle_rows, Rdiag)
                 PHt = Ps_p[k] @ H.T
                 K = spd_solve(H @ PHt + np.diag(r_k), PHt.T).T
                 x[sl] += K @ y
@@ -371,10 +368,7 @@ def smooth_run(t, meas: dict, tau, p: PlantParameters, settings: SmootherSetting
             Ps_f[k] = Ps_p[k]
         xs_f[k] = x
         xn, Fk = f_step(x, tau_c[k])
-        Fs[k] = Fk[sl, sl]
-        x = xn.copy()
-        if not (kernels.predict_covariance(Fs[k], Ps_f[k], Q, Ps_p[k + 1] if k + 1 < m else P_end)
-                and np.isfinite(x).all()):
+        if not kernels.forward_predict(x, xn, Fk, lo, Fs[k], Ps_f[k], Q, Ps_p[k + 1] if k + 1 < m else P_end):
             raise SmootherError(f"{label}: the smoother's forward pass diverged at t = {t[idx[k]]:.2f} s "
                                 f"(non-finite covariance or state)")
     xs_p = np.vstack([xs_p[1:], x])  # prediction of step k+1 from step k

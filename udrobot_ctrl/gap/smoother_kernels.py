@@ -96,6 +96,55 @@ def predict_covariance(F, P, Q, P_out) -> bool:
 
 
 @numba.njit(cache=True)
+def innovation(lo, h, Hfull, z, ok, rows, angle_rows, rdiag):
+    """(H, y, r) of one sample's logged channels: the rows ``rows[ok]`` of the measurement Jacobian ``Hfull`` on the
+    filter's state components ``lo:`` (C-contiguous), the innovation ``z[ok] - h[rows[ok]]`` (angles wrapped to
+    [-pi, pi) as :func:`udrobot_ctrl.dynamics.plant.wrap_angle`) and the noise variances ``rdiag[ok]``."""
+    nr = 0
+    for i in range(ok.size):
+        if ok[i]:
+            nr += 1
+    ns = Hfull.shape[1] - lo
+    H = np.empty((nr, ns))
+    y = np.empty(nr)
+    r = np.empty(nr)
+    j = 0
+    for i in range(ok.size):
+        if ok[i]:
+            row = rows[i]
+            for c in range(ns):
+                H[j, c] = Hfull[row, lo + c]
+            y[j] = z[i] - h[row]
+            for a in angle_rows:
+                if row == a:
+                    y[j] = (y[j] + np.pi) % (2 * np.pi) - np.pi
+            r[j] = rdiag[i]
+            j += 1
+    return H, y, r
+
+
+@numba.njit(cache=True)
+def forward_update(x, lo, P, h, Hfull, z, ok, rows, angle_rows, rdiag, P_out) -> bool:
+    """The forward pass's measurement update of one sample: :func:`kalman_update` of the filter's state ``x[lo:]``
+    with the sample's logged channels (:func:`innovation`); False (nothing written) as :func:`kalman_update`."""
+    H, y, r = innovation(lo, h, Hfull, z, ok, rows, angle_rows, rdiag)
+    return kalman_update(x[lo:], P, H, y, r, P_out)
+
+
+@numba.njit(cache=True)
+def forward_predict(x, x_next, Ffull, lo, F_out, P, Q, P_out) -> bool:
+    """The forward pass's prediction of one sample: ``x = x_next``, ``F_out`` = the transition Jacobian ``Ffull`` on
+    the filter's state components ``lo:``, :func:`predict_covariance` into ``P_out``; False when the covariance or
+    the state is not finite."""
+    x[:] = x_next
+    n = F_out.shape[0]
+    for i in range(n):
+        for j in range(n):
+            F_out[i, j] = Ffull[lo + i, lo + j]
+    return predict_covariance(F_out, P, Q, P_out) and bool(np.all(np.isfinite(x)))
+
+
+@numba.njit(cache=True)
 def rts_pass(xs, xs_f, xs_p, Ps, Ps_f, Ps_p, Fs, lo, k_start) -> int:
     """Backward Rauch-Tung-Striebel pass from step ``k_start`` down to 0, in place on ``xs`` and ``Ps``.
 

@@ -301,3 +301,30 @@ def test_an_effect_tried_back_is_not_readmitted_when_the_gap_is_not_lower(monkey
     ], stays_out={"c"})
     out = _eliminate(["a", "b", "c"], explains={"a": 0.5, "b": 0.0, "c": 0.0})
     assert out.kept == ("a",) and all(r.readmitted is None for r in out.rounds)
+
+
+def test_a_set_replayed_again_is_the_same_replay_and_equals_a_fresh_one():
+    """replay_sets keeps its recent replays: the same set with the same parameters on the same runs is not
+    integrated again, and what it returns is what the integration gives."""
+    from udrobot_ctrl.gap import effects as fx
+    from udrobot_ctrl.gap.effects import Actuation
+
+    prep = _prepared_run()
+    p = plant_parameters(load_model("pendulum:chin"))
+    cat = fx.catalogue()
+    act = Actuation(prep.B, prep.inflow, prep.f_ref, np.asarray(p.M_A, float))
+    fit = Fit(("buoyancy_offset",), {"buoyancy_offset": ()}, {"buoyancy_offset": {"dB_N": 1.5}}, np.ones(1), 1, 0.0)
+    other = Fit(("buoyancy_offset",), {"buoyancy_offset": ()}, {"buoyancy_offset": {"dB_N": -1.0}}, np.ones(1), 1,
+                0.0)
+    scored = ["w", "z"]
+    first = confirm.replay_sets([prep], p, [(fit, ("buoyancy_offset",)), (None, ())], cat, act, 6.0, scored)
+    again = confirm.replay_sets([prep], p, [(other, ("buoyancy_offset",)), (fit, ("buoyancy_offset",))], cat, act,
+                                6.0, scored)
+    assert again[1] is first[0]
+    assert again[0].gap.value != first[0].gap.value  # other parameters: replayed
+    fresh = confirm._replay_sets([prep], p, [(fit, ("buoyancy_offset",))], cat, act, 6.0, scored)[0]
+    assert fresh.gap == first[0].gap
+    np.testing.assert_array_equal(fresh.sims[0], first[0].sims[0])
+    # another run (another object) is replayed, whatever its contents
+    prep2 = _prepared_run()
+    assert confirm.replay_sets([prep2], p, [(fit, ("buoyancy_offset",))], cat, act, 6.0, scored)[0] is not first[0]

@@ -66,3 +66,41 @@ def test_rts_pass_matches_the_numpy_recursion_and_stops_at_an_indefinite_predict
     Ps_p[3] = -Ps_p[3]  # step 2 needs it: the pass hands that step back
     xs, Ps = xs_f.copy(), Ps_f.copy()
     assert rts_pass(xs, xs_f, xs_p, Ps, Ps_f, Ps_p, Fs, 2, m - 2) == 2
+
+
+def test_forward_steps_are_the_numpy_innovation_update_and_prediction():
+    """The forward pass's fused kernels give bit for bit what the numpy steps they replace give."""
+    from udrobot_ctrl.dynamics.plant import wrap_angle
+    from udrobot_ctrl.gap.smoother_kernels import forward_predict, forward_update, innovation
+
+    n_full, lo, n_meas = 21, 2, 15
+    ns = n_full - lo
+    rows = np.arange(n_meas)
+    ok = np.ones(n_meas, bool)
+    ok[[0, 1, 7, 13]] = False
+    angle_rows = np.array([3, 4, 5])
+    h, Hfull = RNG.normal(size=n_meas), np.asfortranarray(RNG.normal(size=(n_meas, n_full)))
+    z, rdiag = RNG.normal(size=n_meas) * 4.0, RNG.uniform(0.01, 0.1, n_meas)
+    z[3:6] = [3.1, -3.1, 6.0]  # innovations that wrap
+    H, y, r = innovation(lo, h, Hfull, z, ok, rows, angle_rows, rdiag)
+    r_ok = rows[ok]
+    y_np = z[ok] - h[r_ok]
+    ang = np.flatnonzero(np.isin(r_ok, angle_rows))
+    y_np[ang] = wrap_angle(y_np[ang])
+    assert np.array_equal(H, np.ascontiguousarray(Hfull[r_ok, lo:])) and H.flags.c_contiguous
+    assert np.array_equal(y, y_np) and np.array_equal(r, rdiag[ok])
+
+    P, x = _spd(ns), RNG.normal(size=n_full)
+    x1, P1 = x.copy(), np.empty((ns, ns))
+    x2, P2 = x.copy(), np.empty((ns, ns))
+    assert forward_update(x1, lo, P, h, Hfull, z, ok, rows, angle_rows, rdiag, P1)
+    assert kalman_update(x2[lo:], P, np.ascontiguousarray(Hfull[r_ok, lo:]), y_np, rdiag[ok], P2)
+    assert np.array_equal(x1, x2) and np.array_equal(P1, P2)
+
+    Ffull, Q, x_next = np.asfortranarray(RNG.normal(size=(n_full, n_full))), _spd(ns), RNG.normal(size=n_full)
+    F_out, P_out, P_ref = np.empty((ns, ns)), np.empty((ns, ns)), np.empty((ns, ns))
+    assert forward_predict(x1, x_next, Ffull, lo, F_out, P1, Q, P_out)
+    assert predict_covariance(np.ascontiguousarray(Ffull[lo:, lo:]), P1, Q, P_ref)
+    assert np.array_equal(x1, x_next) and np.array_equal(F_out, Ffull[lo:, lo:]) and np.array_equal(P_out, P_ref)
+    x_next[4] = np.nan  # a non-finite state is refused
+    assert not forward_predict(x1, x_next, Ffull, lo, F_out, P1, Q, P_out)
