@@ -111,6 +111,12 @@ class Stack:
         chain = _chained(filters)
         return replace(self, runs=[{**r, "f": chain(r["f"], r["dt"])} for r in self.runs])
 
+    def only_actuators(self, keep) -> Stack:
+        """This stack with the commands of every actuator not in ``keep`` (indices) set to zero: the part of a
+        per-actuator effect (:attr:`Effect.per_actuator`) that the actuators ``keep`` make."""
+        mask = np.isin(np.arange(self.f.shape[1]), np.asarray(keep, int)).astype(float)
+        return replace(self, f=self.f * mask, runs=[{**r, "f": r["f"] * mask} for r in self.runs])
+
     def followed_by(self, filters) -> Stack:
         """This stack with ``filters`` (``(df (n, k), dt) -> df``, linear, in order) recorded as what a static map's
         thrust change goes through before it acts (``run["after"]``; :meth:`Effect.change_filter`)."""
@@ -215,6 +221,10 @@ class Effect:
     #: a static map of the command (deadband, asymmetry): the thrust it changes passes through the input filters
     #: that follow it in the plant (a lag), see :meth:`change_filter`
     maps_command: ClassVar[bool] = False
+    #: its force is a sum over the actuators of a term that reads that actuator's own command only (a thruster map, a
+    #: lag, an inflow loss), so each actuator's part is the design on a stack with the others' commands at zero
+    #: (:meth:`Stack.only_actuators`)
+    per_actuator: ClassVar[bool] = False
 
     def change_filter(self, shape):
         """The linear filter ``(df (n, k), dt) -> df_delivered`` a thrust change made upstream of this effect's input
@@ -342,6 +352,7 @@ def plant_hooks(e: PlantEffect, p: PlantParameters, actuation: Actuation) -> Hoo
 
 # ------------------------------------------------------------------------------------------- thrusters
 class InflowLoss(Effect):
+    per_actuator = True
     reads_delivered = True  # the plant's inflow loss acts on the clipped, mapped and lagged thrust
 
     def design(self, s, shape):
@@ -397,6 +408,7 @@ class Deadband(Effect):
     error or a constant offset in disguise. For a commanded wrench the shift is per DOF (see ``WRENCH_DOF_NOTE``).
     """
 
+    per_actuator = True
     maps_command = True
 
     def design(self, s, shape):
@@ -423,6 +435,7 @@ class Asymmetry(Effect):
     """Reverse thrust ``(1 - reverse_loss) f`` for f < 0, reverse_loss in [-0.5, 0.7] (a reversed propeller
     gives 30 % to 150 % of its forward thrust; the T200's is about 80 %). Per DOF for a commanded wrench."""
 
+    per_actuator = True
     maps_command = True
 
     def design(self, s, shape):
@@ -444,6 +457,8 @@ class Lag(Effect):
     the thrust's rise from rest for the same T (63 % at 1.59 T for k = 2) and the faster its fall. Shape only
     (both parameters), no amplitude.
     """
+
+    per_actuator = True
 
     def command_filter(self, shape):
         T, k = shape

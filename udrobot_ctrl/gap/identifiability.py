@@ -24,6 +24,15 @@ An effect identified in part stays testable with its non-identified amplitude pa
 (:meth:`Identifiability.restrict`). With every DOF observed and nothing reconstructed, the only possible
 finding is a vanishing regressor.
 
+A *per-actuator* effect (``Effect.per_actuator``: a thruster map, a lag, an inflow loss) has parameters shared by
+every actuator, so it is judged on what the observed DOFs see of it: when the whole leaves a parameter unidentified,
+the actuators are grouped by the observed DOFs their force acts on and each group's part is checked alone. If some
+groups identify it and the others, acting on other observed DOFs, identify nothing (without a DVL, the surge
+thrusters' inflow loss lies mostly in the unobserved surge and its yaw moment hinges on the reconstructed surge speed,
+while the vertical thrusters' acts on the observed heave and roll), the effect is identified and fitted on the part of
+the groups that identify it (:class:`ActuatorCheck`, :meth:`Identifiability.restrict`); its replay still applies the
+fitted parameters to every actuator. An effect none of whose groups identifies anything keeps the whole's verdict.
+
 A *form* parameter (``Effect.physical_ends``: each end of its range is a physical form, e.g. a quadratic damping
 error on each axis' speed or on the vehicle's speed) is checked at each end: when the effect is identified in
 one form and not in the other (the speed-norm drag of heave hinges on the surge speed, which a stock vehicle does
@@ -42,7 +51,7 @@ from udrobot_ctrl.gap.smoother import SmootherSettings
 
 #: a parameter with less than a quarter of its noise-normalised regressor energy in observed DOFs is not identified:
 #: the observed part is then a side effect of what it does where nothing is measured (a thruster parameter shared by
-#: horizontal and vertical thrusters keeps about half of its energy in observed DOFs, and is identified there)
+#: horizontal and vertical thrusters is judged on the thrusters whose part the observed DOFs see: :func:`_by_actuator`)
 SHARE_MIN = 0.25
 #: a regressor that changes by more than 30 % (RMS, observed DOFs) when a reconstructed state moves by its
 #: reconstruction error hinges on that reconstruction: its fitted amplitude would be off by as much
@@ -124,6 +133,35 @@ class FormCheck:
     other: float
     causes: tuple = ()
     dof_share: tuple = ()
+
+
+@dataclass(frozen=True)
+class ActuatorCheck:
+    """A per-actuator effect (:attr:`udrobot_ctrl.gap.effects.Effect.per_actuator`) judged on the part of it that the
+    observed DOFs see: its parameters are shared by every actuator, and the fit reads only the groups of actuators
+    (by the observed DOFs they act on) whose part identifies them.
+
+    Attributes
+    ----------
+    kept : tuple of int
+        The actuators (indices) whose part the fit reads.
+    left : tuple of int
+        The active actuators whose part identifies nothing (it acts where nothing is measured, or hinges on a
+        reconstructed state); the fitted parameters still act on them in a replay.
+    causes : tuple of str
+        Keys of :data:`MISSING` that make the ``left`` actuators' parts non-identified.
+    """
+
+    kept: tuple
+    left: tuple
+    causes: tuple = ()
+
+    def describe(self) -> str:
+        """One line for the console: which actuators the fit reads, and why not the others."""
+        why = "; ".join(MISSING[k][0] for k in self.causes if k in MISSING)
+        return (f"fitted on actuators {', '.join(f'T{j + 1}' for j in self.kept)} only (the part of "
+                f"{', '.join(f'T{j + 1}' for j in self.left)} is not identified: {why or 'it vanishes'}); the fitted "
+                f"parameters act on every actuator in the replays")
 
 
 @dataclass(frozen=True)
@@ -212,6 +250,8 @@ class EffectCheck:
     excited_by: str = "manoeuvres in which it acts"  # what the runs lack when its regressors vanish
     #: form parameter -> :class:`FormCheck` (the search keeps the identified form)
     forms: dict = field(default_factory=dict)
+    #: a per-actuator effect the observed DOFs see through some actuators only: :class:`ActuatorCheck` (else None)
+    actuators: ActuatorCheck | None = None
 
     @property
     def identified(self) -> bool:
@@ -424,15 +464,18 @@ class Identifiability:
             frozen = tuple(c.name for c in chk.params if not c.identified) if chk is not None and chk.identified \
                 else ()
             forms = {k: f.kept for k, f in chk.forms.items()} if chk is not None and chk.identified else {}
-            out[n] = Restricted(eff, frozen, forms) if frozen or forms else eff
+            kept = chk.actuators.kept if chk is not None and chk.identified and chk.actuators is not None else None
+            out[n] = Restricted(eff, frozen, forms, kept) if frozen or forms or kept is not None else eff
         return out
 
 
 class Restricted(fx.Effect):
-    """A catalogue effect with some amplitude parameters frozen at zero (their columns removed from the design) and
-    some form parameters kept at one end of their range (``forms``: name -> value)."""
+    """A catalogue effect with some amplitude parameters frozen at zero (their columns removed from the design), some
+    form parameters kept at one end of their range (``forms``: name -> value) and, for a per-actuator effect, its
+    design read from the actuators ``actuators`` only (indices; None: all). Its replay (:meth:`hooks`) is the inner
+    effect's: the fitted parameters act on every actuator."""
 
-    def __init__(self, inner: fx.Effect, frozen, forms=None):
+    def __init__(self, inner: fx.Effect, frozen, forms=None, actuators=None):
         super().__init__(inner.name, inner.meaning, inner.shape_names, inner.shape_grid, inner.shape_bounds,
                          inner.refine, inner.mimics, inner.excited_by, inner.physical_ends,
                          inner.physical_amplitudes)
@@ -440,8 +483,12 @@ class Restricted(fx.Effect):
         self.reads_delivered, self.maps_command = inner.reads_delivered, inner.maps_command
         self.frozen = tuple(frozen)
         self.forms = dict(forms or {})
+        self.per_actuator = inner.per_actuator
+        self.actuators = None if actuators is None else tuple(actuators)
 
     def design(self, s, shape):
+        if self.actuators is not None:
+            s = s.only_actuators(self.actuators)
         b0, A, names, lo, hi = self.inner.design(s, shape)
         keep = np.array([nm not in self.frozen for nm in names], float)
         return b0, A * keep, names, lo, hi
@@ -575,11 +622,61 @@ def assess(stack, r, dofs, preps, catalogue: dict, names=None) -> Identifiabilit
             kept = Restricted(eff, (), {k: f.kept for k, f in forms.items()})
             raw[n] = _energies(eff, stack, stacks, _shapes(kept, stack), sigma, observed)
         checks = _checks(raw[n], top, observed)
+        acts = None
+        if eff.per_actuator and not all(c.identified for c in checks):
+            shapes = _shapes(Restricted(eff, (), {k: f.kept for k, f in forms.items()}), stack)
+            acts, checks = _by_actuator(eff, stack, stacks, shapes, sigma, observed, top, checks)
         if not checks:  # no amplitude column and a shape term that is zero at every probed shape
             checks.append(ParameterCheck(",".join(eff.shape_names) or n, float("nan"), float("nan"), False,
                                          ("vanishes",)))
-        out[n] = EffectCheck(n, checks, eff.excited_by, forms)
+        out[n] = EffectCheck(n, checks, eff.excited_by, forms, acts)
     return Identifiability(out, observed, reconstructed)
+
+
+def _only(stack, stacks, keep):
+    """``stack`` and its reconstruction moves ``stacks`` with only the actuators ``keep`` commanded."""
+    return stack.only_actuators(keep), {m: st.only_actuators(keep) for m, st in stacks.items()}
+
+
+def _groups(B, observed, active) -> dict:
+    """The ``active`` actuators grouped by the observed DOFs their force acts on (non-zero rows of ``B``): observed DOF
+    indices -> actuator indices."""
+    out = {}
+    for j in active:
+        out.setdefault(tuple(int(i) for i in np.flatnonzero(observed & (np.abs(B[:, j]) > 1e-9))), []).append(j)
+    return {k: tuple(v) for k, v in out.items()}
+
+
+def _by_actuator(eff, stack, stacks, shapes, sigma, observed, top, checks):
+    """A per-actuator effect judged on what the observed DOFs see of it: (:class:`ActuatorCheck` or None, the
+    parameter checks).
+
+    Its parameters are shared by every actuator, so the observed DOFs identify them when the part of some actuators
+    does, however much energy the others put where nothing is measured (an inflow loss of the horizontal thrusters
+    in the unobserved surge) or however much their part hinges on a reconstruction (their inflow speed is the
+    reconstructed surge speed). The actuators are judged in groups that act on the same observed DOFs (:func:`_groups`;
+    within a group their forces add and cancel there, e.g. two surge thrusters' yaw moments), each group's part with
+    :func:`_checks`. When some groups identify a parameter and the others none, and the two act on disjoint observed
+    DOFs (the part left out of the fit stays in DOFs the kept part does not read, so it cannot bias it), the effect is
+    judged, and fitted, on the kept groups' part: the result names them if that identifies more parameters than the
+    whole (``checks``). Otherwise the whole stands (None, ``checks``).
+    """
+    active = [j for j in range(stack.f.shape[1]) if np.any(stack.f[:, j])]
+    groups = _groups(np.asarray(stack.B, float), observed, active)
+    alone = {g: _checks(_energies(eff, *_only(stack, stacks, acts), shapes, sigma, observed), top, observed)
+             for g, acts in groups.items()}
+    seen = [g for g in groups if any(c.identified for c in alone[g])]
+    unseen = [g for g in groups if g not in seen]
+    if not seen or not unseen or set().union(*seen) & set().union(*unseen):
+        return None, checks
+    kept = tuple(sorted(j for g in seen for j in groups[g]))
+    part = _checks(_energies(eff, *_only(stack, stacks, kept), shapes, sigma, observed), top, observed)
+    before, after = ({c.name for c in cs if c.identified} for cs in (checks, part))
+    if not before < after:
+        return None, checks
+    left = tuple(sorted(j for g in unseen for j in groups[g]))
+    causes = tuple(dict.fromkeys(k for g in unseen for c in alone[g] for k in c.causes))
+    return ActuatorCheck(kept, left, causes), part
 
 
 def _energies(eff, stack, stacks, shapes, sigma, observed) -> dict:

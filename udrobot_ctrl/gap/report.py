@@ -1240,6 +1240,8 @@ def _diagnosis_steps(inp: Inputs, say, t0, locating: Background, stacks: Stacks,
         lines.append(f"not identifiable from the observed channels ({', '.join(stacks.identifiability.observed_dofs())}"
                      f"): {', '.join(unidentifiable)} (never significant; see the report's unidentifiable list)")
     for n, chk in stacks.identifiability.effects.items():
+        if chk.actuators is not None:
+            lines.append(f"{n}: {chk.actuators.describe()}")
         for k, form in chk.forms.items():
             lines.append(f"{n}: searched with {k} = {form.kept:g} only (at {form.other:g} it hinges on a velocity the "
                          f"channels do not measure; see its not_identified entry)")

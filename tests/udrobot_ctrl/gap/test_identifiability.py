@@ -11,6 +11,8 @@ from udrobot_ctrl.gap import effects as fx
 from udrobot_ctrl.gap.attribute import build_stack
 from udrobot_ctrl.gap.data import prepare
 from udrobot_ctrl.gap.identifiability import (
+    SHARE_MIN,
+    ActuatorCheck,
     EffectCheck,
     FormCheck,
     Hinged,
@@ -18,11 +20,16 @@ from udrobot_ctrl.gap.identifiability import (
     ParameterCheck,
     Restricted,
     StandIn,
+    _checks,
+    _energies,
+    _groups,
     assess,
+    noise_scale,
     sensors,
 )
 from udrobot_ctrl.vehicle import load_model
 
+from . import stock_sim
 from .stock_sim import STATE, STOCK, simulate
 
 P = plant_parameters(load_model("pendulum:chin"))
@@ -244,3 +251,59 @@ def test_a_confirmed_stand_in_for_an_untested_part_is_listed_with_its_partner_an
     form = replace(stand, partner_form="norm_weight = 1")
     assert "with norm_weight = 1 (a form these channels cannot test)" in ident.with_stand_in(
         {"thrust_inflow_loss": form}).reason("thrust_inflow_loss")
+
+
+def _vertical_scaled(monkeypatch, scale):
+    """Stock runs of :mod:`stock_sim` with the vertical thrusters' commands (T3, T4: heave and roll) scaled by
+    ``scale``: at 0.25 the surge thrusters' inflow loss in the unobserved surge dominates the effect's energy, at 0
+    no thruster acting on heave or roll is commanded."""
+    commands = stock_sim.commands
+
+    def scaled(t, f_max):
+        f = commands(t, f_max)
+        f[:, 2:] *= scale
+        return f
+    monkeypatch.setattr(stock_sim, "commands", scaled)
+    return _assess(STOCK)
+
+
+def test_thrusters_are_grouped_by_the_observed_dofs_they_act_on():
+    observed = np.array([0, 0, 1, 1, 1, 1], bool)
+    assert _groups(P.T, observed, [0, 1, 2, 3]) == {(5,): (0, 1), (2, 3): (2, 3)}
+    assert _groups(P.T, observed, [0, 1]) == {(5,): (0, 1)}
+
+
+def test_a_shared_thruster_parameter_is_judged_on_the_thrusters_the_observed_dofs_see(monkeypatch):
+    """Without a DVL an inflow loss of the surge thrusters puts most of its energy in the unobserved surge, and its
+    yaw moment hinges on the reconstructed surge speed; that of the vertical thrusters acts on the observed heave
+    and roll, through the heave speed that depth pins down. Its parameters are shared by every thruster, so the
+    observed DOFs identify them: the effect is identified, fitted on T3 and T4 (the surge thrusters' part, which
+    stays in DOFs the vertical thrusters' part does not read, left out), and replayed on all four."""
+    ident, preps = _vertical_scaled(monkeypatch, 0.25)
+    inflow = ident.effects["thrust_inflow_loss"]
+    assert inflow.identified and "thrust_inflow_loss" not in ident.names
+    assert inflow.not_identified == [] and ident.entry("thrust_inflow_loss") == {}
+    assert inflow.actuators == ActuatorCheck((2, 3), (0, 1), ("horizontal",))
+    assert all(c.share == pytest.approx(1.0) for c in inflow.params)
+    line = inflow.actuators.describe()
+    assert "T3, T4 only" in line and "T1, T2" in line and "horizontal velocity is not observed" in line
+    cat = ident.restrict(fx.catalogue())
+    st, _, _ = build_stack(preps, P, P.M_A)
+    _, A, _, _, _ = cat["thrust_inflow_loss"].design(st, ())
+    assert not A[:, [0, 5]].any() and A[:, 2].any()  # no surge thruster in the fit: no surge force, no yaw moment
+    _, A_all, _, _, _ = fx.catalogue()["thrust_inflow_loss"].design(st, ())
+    assert A_all[:, 0].any() and np.allclose(A[:, 2:5], A_all[:, 2:5])
+    # judged whole, the surge thrusters' part dominates its energy: less than SHARE_MIN of it in observed DOFs
+    whole = _checks(_energies(fx.catalogue()["thrust_inflow_loss"], st, {}, [()], noise_scale(st, preps),
+                              ident.observed), 0.0, ident.observed)
+    assert any(c.share < SHARE_MIN for c in whole), whole
+
+
+def test_a_thruster_effect_acting_only_where_nothing_is_measured_stays_unidentifiable(monkeypatch):
+    """With the vertical thrusters never commanded, the inflow loss acts through the surge thrusters only: in the
+    unobserved surge, and in yaw through the reconstructed surge speed. It is declined with that reason."""
+    ident, _ = _vertical_scaled(monkeypatch, 0.0)
+    inflow = ident.effects["thrust_inflow_loss"]
+    assert not inflow.identified and inflow.actuators is None
+    assert "thrust_inflow_loss" in ident.names
+    assert "horizontal velocity is not observed" in ident.reason("thrust_inflow_loss")
