@@ -28,12 +28,17 @@ configure_numba_cache()  # before the decorators below choose their cache folder
 import numba  # noqa: E402
 import numpy as np  # noqa: E402
 
-from udrobot_ctrl.control.lqr import BatchScheduledLQR  # noqa: E402
+from udrobot_ctrl.control.linearize import REDUCED_INDEX  # noqa: E402
+from udrobot_ctrl.control.lqr import PSI_R, BatchScheduledLQR  # noqa: E402
 from udrobot_ctrl.control.metrics import at_thrust_limit, thrust_power  # noqa: E402
 from udrobot_ctrl.control.missions import CHANNEL_INDEX, CHANNELS  # noqa: E402
 from udrobot_ctrl.dynamics.plant import wrap_angle  # noqa: E402
 from udrobot_ctrl.dynamics.sim import _kernel_arrays, require_nominal  # noqa: E402
 from udrobot_ctrl.dynamics.sim_kernels import _state_derivative  # noqa: E402
+
+#: assumed threshold: beyond |theta| = 45 deg a mission is counted as having lost (passive) pitch control; the one
+#: definition, used by :mod:`udrobot_ctrl.sensitivity.evaluators` too
+LOST_PITCH_DEG = 45.0
 
 
 @numba.njit(cache=True, inline="always")
@@ -214,9 +219,6 @@ def fly_lqr_batch(controllers, plant, mission, dt: float, control_dt: float):
     fallbacks : (N,) ndarray of int
         Substitutions of the safe wrapper per vehicle.
     """
-    from udrobot_ctrl.control.linearize import REDUCED_INDEX
-    from udrobot_ctrl.control.lqr import PSI_R
-
     require_nominal(plant, "the compiled LQR batch")
     law = BatchScheduledLQR(controllers)
     n_veh = len(law)
@@ -294,8 +296,6 @@ def batch_metrics(t, x, u, mission, f_min, f_max, hold: int = 1) -> dict:
     definitions and numpy operations as :func:`~udrobot_ctrl.control.metrics.mission_metrics`, so the same numbers
     (tested); a settling time that is not reached is censored at ``mission.t_final`` and counted in ``unsettled``.
     """
-    from udrobot_ctrl.sensitivity.evaluators import LOST_PITCH_DEG
-
     t, x, u = np.asarray(t, float), np.asarray(x, float), np.asarray(u, float)
     f_min, f_max = np.asarray(f_min, float), np.asarray(f_max, float)
     dt = np.diff(t)

@@ -33,11 +33,8 @@ from udrobot_ctrl.control.missions import (
 )
 from udrobot_ctrl.dynamics.plant import plant_parameters
 from udrobot_ctrl.dynamics.sim import SimResult, simulate, stack_parameters
-from udrobot_ctrl.sensitivity.batch import batch_metrics, fly_lqr_batch
+from udrobot_ctrl.sensitivity.batch import LOST_PITCH_DEG, batch_metrics, fly_lqr_batch
 from udrobot_ctrl.sensitivity.parameters import ParameterSpace, apply_sample
-
-#: assumed threshold: beyond |theta| = 45 deg a mission is counted as having lost (passive) pitch control
-LOST_PITCH_DEG = 45.0
 
 
 def runtime_effects(space: ParameterSpace) -> tuple:
