@@ -10,12 +10,12 @@ and the per-vehicle :func:`~udrobot_ctrl.control.metrics.mission_metrics` cost a
 * :func:`fly_lqr_batch` flies the whole mission of every vehicle in one compiled call: the scheduled-LQR law
   of :class:`~udrobot_ctrl.control.lqr.BatchScheduledLQR` with :class:`~udrobot_ctrl.control.missions.SafeBatch`'s
   fallback and clipping, the clipped thrust allocation ``tau = T sat(f)`` and the RK4 steps of
-  :mod:`udrobot_ctrl.dynamics.sim_kernels` (its derivative, compiled from :mod:`udrobot_ctrl.dynamics.equations`:
-  the one definition of the plant, inlined here so that the step carries no call or reference-counting
-  overhead). A vehicle that diverges is frozen at NaN (``on_divergence="freeze"``) and then commanded its trim,
-  as in the numpy loop. The trajectories equal ``run_mission_batch``'s up to rounding (the law's dot products
-  are summed in another order than numpy's ``einsum`` and BLAS; the RK4 steps themselves are bit-for-bit those of
-  ``integrate_rk4``: tested).
+  :func:`udrobot_ctrl.dynamics.sim_kernels.rk4_step` (the compiled RK4 step of ``integrate_rk4``, its derivative
+  compiled from :mod:`udrobot_ctrl.dynamics.equations`: the one definition of the plant), called from compiled code,
+  so that the step carries no Python call or reference-counting overhead. A vehicle that diverges is frozen at NaN
+  (``on_divergence="freeze"``) and then commanded its trim, as in the numpy loop. The trajectories equal
+  ``run_mission_batch``'s up to rounding (the law's dot products are summed in another order than numpy's
+  ``einsum`` and BLAS; the RK4 steps are ``integrate_rk4``'s own).
 * :func:`batch_metrics` computes :func:`udrobot_ctrl.sensitivity.evaluators.flat_metrics` of every vehicle of the
   batch at once, with the same numpy operations on a vehicle axis (tested equal).
 """
@@ -34,55 +34,11 @@ from udrobot_ctrl.control.metrics import at_thrust_limit, thrust_power  # noqa: 
 from udrobot_ctrl.control.missions import CHANNEL_INDEX, CHANNELS  # noqa: E402
 from udrobot_ctrl.dynamics.plant import wrap_angle  # noqa: E402
 from udrobot_ctrl.dynamics.sim import _kernel_arrays, require_nominal  # noqa: E402
-from udrobot_ctrl.dynamics.sim_kernels import _state_derivative  # noqa: E402
+from udrobot_ctrl.dynamics.sim_kernels import rk4_step  # noqa: E402
 
 #: assumed threshold: beyond |theta| = 45 deg a mission is counted as having lost (passive) pitch control; the one
 #: definition, used by :mod:`udrobot_ctrl.sensitivity.evaluators` too
 LOST_PITCH_DEG = 45.0
-
-
-@numba.njit(cache=True, inline="always")
-def _rk4_step(x, tau, dt, M, Minv, DL, Q, W, B, rg, rb, xt, k1, k2, k3, k4):
-    """:func:`udrobot_ctrl.dynamics.sim_kernels.rk4_step` (same arithmetic, same order: the same numbers) with the
-    derivative inlined, once: the four stages loop over one copy of it (four copies took ~20 s more to compile)."""
-    for j in range(12):
-        xt[j] = x[j]
-    finite = True
-    for stage in range(4):
-        d = _state_derivative(xt, tau, M, Minv, DL, Q, W, B, rg, rb)
-        if stage < 3:
-            k = k1 if stage == 0 else (k2 if stage == 1 else k3)
-            c = dt if stage == 2 else 0.5 * dt  # x + 0.5 dt k1, x + 0.5 dt k2, x + dt k3
-            for j in range(12):
-                k[j] = d[j]
-                xt[j] = x[j] + c * k[j]
-        else:
-            for j in range(12):
-                k4[j] = d[j]
-                x[j] = x[j] + dt / 6.0 * (k1[j] + 2.0 * k2[j] + 2.0 * k3[j] + k4[j])
-                if not np.isfinite(x[j]):
-                    finite = False
-    return finite
-
-
-@numba.njit(cache=True)
-def rk4_rows(x0, taus, nsteps, dt, M, Minv, DL, Q, W, B, rg, rb, out):
-    """RK4 of N vehicles with a constant wrench each (``taus`` (N, 6)); ``out`` (N, nsteps + 1, 12) with row 0 = x0.
-
-    Parameters with a leading vehicle axis of length N (stacked). The check of :func:`_rk4_step` against
-    :func:`udrobot_ctrl.dynamics.sim.integrate_rk4` (bit-for-bit equal states)."""
-    xt = np.empty(12)
-    k1 = np.empty(12)
-    k2 = np.empty(12)
-    k3 = np.empty(12)
-    k4 = np.empty(12)
-    for i in range(x0.shape[0]):
-        x = x0[i].copy()
-        out[i, 0] = x
-        for k in range(nsteps):
-            _rk4_step(x, taus[i], dt, M[i], Minv[i], DL[i], Q[i], W[i], B[i], rg[i], rb[i], xt, k1, k2, k3, k4)
-            for j in range(12):
-                out[i, k + 1, j] = x[j]
 
 
 @numba.njit(cache=True)
@@ -176,7 +132,7 @@ def _fly(x0, refs, trim_id, trims, speeds, gains, top, f_min, f_max, T, hold, ns
                     for j in range(12):
                         xs[j, i, k + 1] = np.nan
                     continue
-                finite = _rk4_step(x, tau, dt, Mi, Minvi, DLi, Qi, Wi, Bi, rgi, rbi, xt, k1, k2, k3, k4)
+                finite = rk4_step(x, tau, dt, Mi, Minvi, DLi, Qi, Wi, Bi, rgi, rbi, xt, k1, k2, k3, k4)
                 if finite:
                     for j in range(12):
                         xs[j, i, k + 1] = x[j]

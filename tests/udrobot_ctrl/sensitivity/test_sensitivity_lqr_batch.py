@@ -8,8 +8,8 @@ import pytest
 
 from udrobot_ctrl.control.missions import batch_controller
 from udrobot_ctrl.dynamics.plant import plant_parameters
-from udrobot_ctrl.dynamics.sim import SimResult, _kernel_arrays, integrate_rk4, simulate, stack_parameters
-from udrobot_ctrl.sensitivity.batch import batch_metrics, fly_lqr_batch, rk4_rows
+from udrobot_ctrl.dynamics.sim import SimResult, simulate, stack_parameters
+from udrobot_ctrl.sensitivity.batch import batch_metrics, fly_lqr_batch
 from udrobot_ctrl.sensitivity.evaluators import MissionEvaluator, _vehicles, flat_metrics
 from udrobot_ctrl.sensitivity.global_ import sobol_first_total, sobol_samples
 from udrobot_ctrl.sensitivity.parameters import default_space
@@ -21,19 +21,6 @@ def batch():
     X = sobol_samples(space.salib_problem(), 8, seed=1)[:12]
     plants = [plant_parameters(v) for v in _vehicles(space, X)[0]]
     return space, X, stack_parameters(plants)
-
-
-def test_inlined_rk4_step_is_bit_for_bit_the_kernel_of_integrate_rk4(batch):
-    _, _, p = batch
-    n = p.M.shape[0]
-    rng = np.random.default_rng(0)
-    x0 = np.tile([0.0, 0.0, 0.5, 0.05, -0.02, 0.1, 0.2, 0.0, 0.05, 0.1, 0.0, 0.05], (n, 1))
-    tau = rng.normal(scale=5.0, size=(n, 6))
-    ref, status = integrate_rk4(p, x0, tau[None], 0.01, 300, tau_every=1000, parallel=False)
-    out = np.empty((n, 301, 12))
-    rk4_rows(x0, tau, 300, 0.01, *_kernel_arrays(p), out)
-    assert (status == -1).all()
-    assert np.array_equal(out, np.moveaxis(ref, 1, 0))
 
 
 def _numpy_path(ev, p):
