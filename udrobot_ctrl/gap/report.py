@@ -500,8 +500,7 @@ def replay_supported(inp: Inputs, stacks: Stacks, sel: Selection, where: Where, 
     if not before.value > 0 or reconstructed(inp):
         return sel, ReplaySupport(float(before.value), None, 0, skipped=reconstructed(inp))
 
-    def run(sets):
-        return replay_sets(inp.fit, inp.p, sets, inp.catalogue, stacks.actuation, inp.window_s, before.scored)
+    run = _replayer(inp, stacks, before.scored, runs=inp.fit).many
     rest = [n for n in inp.names if n not in sel.proposed and n not in stacks.identifiability.names
             and sel.delta_bic[n] < -BIC_STRONG]
     if sel.proposed:
@@ -529,10 +528,10 @@ def replay_supported(inp: Inputs, stacks: Stacks, sel: Selection, where: Where, 
     return replace(sel, candidates=finalize(stacks.fit, (*sel.proposed, *added), inp.names)), support
 
 
-def _replayer(inp: Inputs, stacks: Stacks, scored) -> Replayer:
-    """The holdout :class:`~udrobot_ctrl.gap.confirm.Replayer` of fitted effect sets."""
-    return Replayer(lambda sets: replay_sets(inp.holdout, inp.p, sets, inp.catalogue, stacks.actuation,
-                                             inp.window_s, scored))
+def _replayer(inp: Inputs, stacks: Stacks, scored, runs=None) -> Replayer:
+    """The :class:`~udrobot_ctrl.gap.confirm.Replayer` of fitted effect sets on ``runs`` (default: the holdout)."""
+    runs = inp.holdout if runs is None else runs
+    return Replayer(lambda sets: replay_sets(runs, inp.p, sets, inp.catalogue, stacks.actuation, inp.window_s, scored))
 
 
 class OnDemand(Mapping):
