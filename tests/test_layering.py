@@ -66,6 +66,7 @@ def test_imports_follow_the_data_flow(package):
     assert not wrong, "imports against the data flow:\n" + "\n".join(wrong)
 
 
+@pytest.mark.slow
 def test_importing_identification_loads_no_udrobot_ctrl():
     """Importing every identification module (at run time, re-exports included) loads no udrobot_ctrl module."""
     names = sorted(f"identification.{p.stem}" for p in _modules("identification") if p.stem != "__init__")
@@ -78,6 +79,7 @@ def test_importing_identification_loads_no_udrobot_ctrl():
     assert res.stdout.strip() == "[]"
 
 
+@pytest.mark.slow
 def test_project_imports_are_at_the_top_or_justified():
     """Imports of the project's own modules inside functions carry a ``# local import: reason`` comment."""
     hidden = []

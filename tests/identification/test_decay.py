@@ -157,6 +157,7 @@ _cell = st.one_of(st.floats(allow_nan=True, allow_infinity=True).map(repr), st.t
                   st.integers(-10**6, 10**6).map(str), st.just(""), st.just('"'))
 
 
+@pytest.mark.slow
 @settings(max_examples=150, deadline=None, derandomize=True, suppress_health_check=list(HealthCheck))
 @given(header=st.sampled_from(["t,y", "t,counts", "t,theta", "speed,force", "T, Y", "y,t", "t", ""]),
        rows=st.lists(st.lists(_cell, max_size=4), max_size=30), tail=st.binary(max_size=40))

@@ -127,6 +127,7 @@ def test_heavier_model_and_stiffer_spring():
     assert res["KL"] == pytest.approx(c - 3.0, rel=0.20)  # fluid part after the rig's damping
 
 
+@pytest.mark.slow
 def test_graphical_method_agrees_on_Cm_and_its_CD_carries_the_rig_damping():
     """The paper's peak method: C_m as the output-error fit; C_D biased by linear damping unless it is given.
 

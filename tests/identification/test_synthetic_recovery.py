@@ -52,6 +52,7 @@ def _aggregate_like_report(rows: list, kind: str, keys) -> dict:
 
 
 # ----------------------------------------------------------------------------- spring, through files
+@pytest.mark.slow
 def test_spring_protocol_files_identified_back(tmp_path):
     """72 launch files (counts) -> identify_files: every launch fitted, aggregates within tolerance, CIs cover."""
     truth = synthetic.paper_spring_truth()
@@ -123,6 +124,7 @@ def _pendulum_rig(tr, **kw):
     return pendulum.PendulumRig(tr.mass, tr.volume, tr.length, tr.area, tr.rho, tr.g, **kw)
 
 
+@pytest.mark.slow
 def test_pendulum_protocol_files_chin_and_morison(tmp_path):
     """Chin-law launches give C_m, K_L, K_Q; Morison-law launches give C_D (Table 10 structure)."""
     chin = synthetic.paper_pendulum_truth()

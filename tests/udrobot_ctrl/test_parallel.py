@@ -49,6 +49,7 @@ print("ok")
 """
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not hasattr(os, "fork"), reason="no fork on this platform: everything runs in the caller")
 def test_warm_runs_the_first_item_here_and_nesting_stays_in_the_worker():
     """In a fresh interpreter (this one may have run numba's OpenMP layer, after which nothing is forked): the first
@@ -100,6 +101,7 @@ print("ok")
 """
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not hasattr(os, "fork"), reason="no fork on this platform: everything runs in the caller")
 def test_a_background_job_runs_beside_the_caller_and_holds_one_core():
     """In a fresh interpreter with two jobs: the job's result (computed in a forked worker, over data it inherits)
@@ -167,6 +169,7 @@ print("ok")
 """
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not hasattr(os, "fork"), reason="no fork on this platform: everything runs in the caller")
 def test_a_helper_serves_calls_beside_the_caller_and_keeps_its_state():
     """In a fresh interpreter with two jobs: calls sent to the helper run in one forked worker that keeps what it
@@ -207,6 +210,8 @@ def test_workers_run_blas_on_one_thread_and_the_caller_gets_its_threads_back(mon
     before = blas_threads()
     if not before:
         pytest.skip("no BLAS library threadpoolctl can control")
+    if not can_fork():  # checked again now: a threaded numba kernel run earlier in this process forbids forking
+        pytest.skip("a threaded (OpenMP) numba kernel ran in this process: fork_map runs in the caller")
     assert fork_map(_blas_counts, [0, 1]) == [[1], [1]]
     job = Background(lambda: sorted(set(blas_threads().values())))
     assert job.result() == [1]

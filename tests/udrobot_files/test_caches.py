@@ -175,6 +175,7 @@ def _plant_index(folder, marker):
     return planted
 
 
+@pytest.mark.slow
 def test_planted_pickle_in_a_world_writable_numba_cache_does_not_run(tmp_path):
     script = tmp_path / "kernel.py"
     script.write_text(NUMBA_SCRIPT)

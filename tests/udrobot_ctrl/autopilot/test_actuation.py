@@ -47,6 +47,7 @@ def heavy():
     return _simulated_run("bluerov2-heavy")
 
 
+@pytest.mark.slow
 def test_agrees_on_every_excited_dof_and_thruster(heavy):
     vehicle, run = heavy
     check = actuation_check(run, vehicle)
@@ -59,6 +60,7 @@ def test_agrees_on_every_excited_dof_and_thruster(heavy):
     assert all(d.verdict in VERDICTS for d in check.dofs)
 
 
+@pytest.mark.slow
 def test_one_flipped_thruster_is_named_reversed(heavy):
     vehicle, run = heavy
     check = actuation_check(_flipped(run, [4]), vehicle)
@@ -69,6 +71,7 @@ def test_one_flipped_thruster_is_named_reversed(heavy):
     assert check.dof("Z").gain_ratio < 0.5 * actuation_check(run, vehicle).dof("Z").gain_ratio
 
 
+@pytest.mark.slow
 def test_all_thrusters_flipped_reverses_every_excited_dof(heavy):
     vehicle, run = heavy
     check = actuation_check(_flipped(run, range(8)), vehicle)
@@ -85,6 +88,7 @@ def test_not_excited_and_bad_input():
         actuation_check(run, load_model("bluerov2-heavy"))
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not (SHARED / "ardusub_log_tools" / "small.tlog").exists(), reason="shared data absent")
 def test_runs_on_a_real_bluerov2_heavy_tlog(tmp_path):
     out = tmp_path / "small.csv"

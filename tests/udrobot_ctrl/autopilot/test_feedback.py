@@ -64,6 +64,7 @@ def logged_dive():
     return flight, run
 
 
+@pytest.mark.slow
 def test_the_flight_follows_the_pilot(logged_dive):
     flight, _ = logged_dive
     u = flight.x[:, 6]
@@ -76,6 +77,7 @@ def test_the_flight_follows_the_pilot(logged_dive):
     assert flight.x[-1, 5] > np.radians(5)  # the yaw stick turned it right (positive yaw)
 
 
+@pytest.mark.slow
 def test_a_10hz_log_is_replayed_closed_loop_and_stays_level(logged_dive):
     _, run = logged_dive
     p = plant_parameters(load_model(MODEL))
@@ -95,6 +97,7 @@ def test_a_10hz_log_is_replayed_closed_loop_and_stays_level(logged_dive):
     assert rms(closed["u"]) < 0.05  # m/s: and the logged forward/lateral still drive the translation
 
 
+@pytest.mark.slow
 def test_manual_runs_and_fast_logs_replay_open_loop(logged_dive):
     _, run = logged_dive
     p = plant_parameters(load_model(MODEL))

@@ -129,6 +129,7 @@ def test_a_bug_keeps_its_traceback(monkeypatch):
         main(["model"])
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("argv", [["--help"], ["model", "show", "--model", "pendulum:chin"]])
 def test_closed_pipe_ends_quietly(argv):
     env = dict(os.environ, MPLBACKEND="Agg", PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))

@@ -22,7 +22,9 @@ from udrobot_ctrl.dynamics.sim import simulate
 from udrobot_ctrl.io.runlog import write_run
 from udrobot_ctrl.vehicle import STATE_NAMES, load_model
 
-pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc to find the workers")
+# subprocesses that import the package and are signalled mid-run: seconds each, so out of the fast lane
+pytestmark = [pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc to find the workers"),
+              pytest.mark.slow]
 
 RATE = 20.0  # Hz
 

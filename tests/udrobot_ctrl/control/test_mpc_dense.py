@@ -79,6 +79,7 @@ def test_dense_closed_loop_iae_matches_osqp(model):
         assert iae["dense"][ch] == pytest.approx(iae["osqp"][ch], rel=0.01), (ch, iae)
 
 
+@pytest.mark.slow
 def test_state_bounds_use_general_constraints_and_match_osqp():
     """A depth ceiling that binds along the horizon (general constraints: DAQP) gives OSQP's first move."""
     v = load_model("cfd:morison")
@@ -219,6 +220,7 @@ def test_per_stage_models_equal_the_sparse_qp():
         np.testing.assert_allclose(dense.states, sparse.split(z)[0], atol=1e-6)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("model", MODELS)
 def test_nmpc_dense_rti_equals_osqp(model):
     """NMPC RTI: every call's Gauss-Newton QP solved by the dense backend has a tight OSQP's first move (0.02 N),

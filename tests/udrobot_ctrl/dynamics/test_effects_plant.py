@@ -538,6 +538,7 @@ def test_simulation_paths_agree_with_thrust_lag_and_force_effects():
     assert np.abs(a.x[-1, 6:]).max() > 0.05  # it moved
 
 
+@pytest.mark.slow
 def test_simulate_command_replays_a_corrected_model_like_the_simulator(tmp_path):
     from udrobot_ctrl.cli.simulate import input_wrenches, replay
     from udrobot_ctrl.io.runlog import Run

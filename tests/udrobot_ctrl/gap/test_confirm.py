@@ -47,6 +47,7 @@ def test_paired_rise_is_the_smaller_of_signed_rank_and_t_bonferroni():
 
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("n", [2, 5, 9, 13, 14, 30])
 def test_signed_rank_equals_scipy_with_and_without_ties(n):
     """The direct exact test gives scipy's W+ and p: tied window changes (repeated values, as rounding leaves them)

@@ -239,6 +239,7 @@ def test_cli_end_to_end(tmp_path):
     assert any((tmp_path / "fig").glob("overlay_*.png"))
 
 
+@pytest.mark.slow
 def test_cli_bad_input(tmp_path):
     bad = tmp_path / "bad.csv"
     bad.write_text("t,u\n0,1\n")

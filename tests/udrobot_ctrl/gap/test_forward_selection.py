@@ -35,11 +35,13 @@ def attributors():
     return tuple(Attributor(st, r, dofs, fx.catalogue()) for st, r, _ in stacks)
 
 
+@pytest.mark.slow
 def test_both_effects_are_proposed_when_the_holdout_supports_them(attributors):
     sel = forward_select(*attributors, NAMES)
     assert sel.proposed[:2] == ("thruster_lag", "buoyancy_offset")
 
 
+@pytest.mark.slow
 def test_a_pick_the_holdout_rejects_does_not_hide_the_next_effect(attributors, monkeypatch):
     real = attribute.holdout_lr
     # the holdout rejects every set holding the lag (as the bench log's holdout rejected its CG-CB offset)

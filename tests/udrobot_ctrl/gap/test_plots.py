@@ -27,6 +27,7 @@ def stock_runs():
                     sensors="stock")
 
 
+@pytest.mark.slow
 def test_plot_writes_its_figures_on_runs_without_a_dvl(stock_runs, tmp_path):
     paths = []
     for i, r in enumerate(stock_runs):

@@ -60,6 +60,7 @@ def test_runs_with_logged_velocities_are_not_prepared_again():
     assert prepare_with_effects(run, P, prep, _hooks(prep, PlantEffect("buoyancy_offset", {"dB_N": DB})), "b") is prep
 
 
+@pytest.mark.slow
 def test_known_force_leaves_the_unmodelled_acceleration_free_of_it():
     """Stock runs of a vehicle 2 N more buoyant than its model, depth held by the controller: reconstructed with the
     nominal plant, the smoother's heave disturbance d_Z carries that force (dB / M_33 on average); with the buoyancy

@@ -82,6 +82,7 @@ def _convert_damaged(tmp, name, data, clean):
     return status, out
 
 
+@pytest.mark.slow
 @needs_shared
 def test_flipped_timeus_in_the_last_records_is_dropped_and_named(tmp_path, capsys):
     duration, clean_s, clean_peak = clean = _clean("small.BIN", tmp_path)
@@ -99,6 +100,7 @@ def test_flipped_timeus_in_the_last_records_is_dropped_and_named(tmp_path, capsy
     assert abs(_duration(out) - duration) < 1.0
 
 
+@pytest.mark.slow
 @needs_shared
 @pytest.mark.parametrize("name,flips", [("small.BIN", 1000), ("small.BIN", 20), ("small.tlog", 1000)])
 def test_random_byte_flips_with_a_fixed_seed_finish_in_bounded_time_and_memory(tmp_path, name, flips):
@@ -110,6 +112,7 @@ def test_random_byte_flips_with_a_fixed_seed_finish_in_bounded_time_and_memory(t
     _convert_damaged(tmp_path, name, data, clean)
 
 
+@pytest.mark.slow
 @needs_shared
 @SETTINGS
 @given(flips=st.lists(st.tuples(st.floats(0.0, 1.0, exclude_max=True), st.integers(0, 7)), min_size=1,

@@ -212,6 +212,7 @@ _columns = st.lists(st.sampled_from(["x", "y", "z", "phi", "psi", "u", "q", "alt
                     unique=True, max_size=5)
 
 
+@pytest.mark.slow
 @FUZZ
 @given(data=st.data(), n=st.integers(1, 30), k=st.integers(1, 6), kind=st.sampled_from(["thrust", "pwm", "tau"]),
        cols=_columns)
@@ -255,6 +256,7 @@ _cell = st.one_of(st.sampled_from(["", "nan", "NaN", "inf", "-inf", "1e400", "ab
                   st.text(alphabet=string.printable, max_size=6), _finite.map(repr))
 
 
+@pytest.mark.slow
 @FUZZ
 @given(header=st.lists(st.sampled_from(["t", "thrust_1", "thrust_2", "pwm_1", "z", "psi", "tau_X", "", "x", "t "]),
                        min_size=1, max_size=6),

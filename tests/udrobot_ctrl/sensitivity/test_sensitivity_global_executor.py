@@ -15,6 +15,7 @@ from udrobot_ctrl.sensitivity.global_ import Ishigami, run_morris, run_sobol
 from udrobot_ctrl.sensitivity.results import ResultStore, read_csv_table
 
 
+@pytest.mark.slow
 def test_sobol_recovers_ishigami_indices_within_ci_on_local_processes(tmp_path):
     f = Ishigami()
     with SweepExecutor(workers=2) as ex:
@@ -82,6 +83,7 @@ _CHILD = textwrap.dedent("""
 """)
 
 
+@pytest.mark.slow
 def test_resume_after_a_killed_sweep_recomputes_only_missing_samples(tmp_path):
     X = np.random.default_rng(0).uniform(-np.pi, np.pi, (400, 3))
     np.save(tmp_path / "design_in.npy", X)
@@ -162,6 +164,7 @@ _HOLDER = textwrap.dedent("""
 """)
 
 
+@pytest.mark.slow
 def test_a_second_run_on_a_locked_study_folder_fails_at_once(tmp_path, capsys):
     from udrobot_ctrl.cli import main
     from udrobot_ctrl.sensitivity.results import StudyLockedError
@@ -222,6 +225,7 @@ def test_sobol_with_seed_0_is_reproducible_and_a_tiny_sample_warns():
     assert any("N = 16" in w for w in runs[0].warnings)
 
 
+@pytest.mark.slow
 def test_the_lock_ends_with_the_run_not_with_its_pool_workers(tmp_path):
     from udrobot_ctrl.sensitivity.results import StudyLock
 
