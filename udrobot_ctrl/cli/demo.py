@@ -26,9 +26,18 @@ from identification import cfd, free_decay, synthetic
 from identification.identify import RigOptions, coefficient_set_values, identify_files
 from identification.plots import plot_report
 from identification.sets import write_coefficient_set
-from udrobot_ctrl.control.compare import MPC_PREVIEW, TABLE_LEGEND, compare, contract_json, text_table, write_outputs
+from udrobot_ctrl.control.compare import (
+    MPC_PREVIEW,
+    TABLE_LEGEND,
+    compare,
+    compile_kernels,
+    contract_json,
+    text_table,
+    write_outputs,
+)
 from udrobot_ctrl.dynamics.sim import simulate
 from udrobot_ctrl.io.files import OutputError, atomic_write, check_output_dir, open_atomic, save_figure
+from udrobot_ctrl.parallel import Background
 from udrobot_ctrl.vehicle import MODEL_NAMES, coefficient_set, full_size_vehicle, load_model, write_model_file
 
 SYNTHETIC_NOTE = ("the identification data are SYNTHETIC: launch logs and CFD tables generated from the "
@@ -359,18 +368,33 @@ def check_demo_folder(out: Path, force: bool) -> None:
                               f"choose a new folder")
 
 
+def _kernels_compiled(job: Background) -> None:
+    """Wait for the kernels compiled beside the earlier steps (:func:`compile_kernels`); if that failed, say so and
+    go on: the controllers step compiles what it needs itself (and reports its own failures)."""
+    try:
+        job.result()
+    except Exception as exc:  # noqa: BLE001 - only a warm-up: the step itself raises what matters
+        print(f"note: compiling the controllers' kernels ahead failed ({type(exc).__name__}: {exc}); "
+              "the controllers step compiles them itself", flush=True)
+
+
 def run(args) -> int:
     out = Path(args.out)
     check_demo_folder(out, getattr(args, "force", False))
     (out / "models").mkdir(parents=True, exist_ok=True)
     summary, failed = {}, []
     t_start = time.perf_counter()
+    workers = getattr(args, "workers", None)
+    # the controllers' kernels compiled once beside identification, not by every pool worker at once (first run)
+    kernels = Background(compile_kernels) if workers != 1 else None
     for i, (name, fn) in enumerate(STEPS, 1):
         _banner(f"demo step {i}/{len(STEPS)}: {name}")
         t0 = time.perf_counter()
         try:
+            if name == "controllers" and kernels is not None:
+                _kernels_compiled(kernels)
             if name == "controllers":
-                summary[name] = fn(out, full=args.full, workers=getattr(args, "workers", None))
+                summary[name] = fn(out, full=args.full, workers=workers)
             else:
                 summary[name] = fn(out)
         except Exception as exc:  # noqa: BLE001 - the demo prints the traceback, lists the step as failed, goes on

@@ -148,6 +148,28 @@ def run_filter(design, plants, quick):
     return [_estimate(design, b, mission) for b in plants]
 
 
+def compile_kernels(model=MODEL_NAMES[0], controllers=CONTROLLER_KINDS, ekf: bool = True) -> int:
+    """Fly each of ``controllers`` designed on ``model`` on that one plant (quick mission), and the EKF on its data,
+    so that every compiled kernel a :func:`compare` job uses (numba, casadi) is in the on-disk caches; the results
+    are discarded.
+
+    A :func:`compare` pool starts its workers at once, and on a machine that has not compiled them yet every worker
+    compiles the same kernels at the same time. Run beside other work (the demo runs it in a
+    :class:`udrobot_ctrl.parallel.Background` job during identification), this compiles them once, on an otherwise
+    idle core; once compiled it costs one design flown per controller.
+
+    Returns
+    -------
+    int
+        The jobs flown (controllers, plus one for the EKF).
+    """
+    for kind in controllers:
+        run_design(kind, model, [model], True, False)
+    if ekf:
+        run_filter(model, [model], True)
+    return len(controllers) + int(ekf)
+
+
 # CPU seconds of one job (a design flown on the five plants, quick mission; the EKF on five data sets), measured
 # once on the development machine; only their order matters: the longest jobs start first
 _JOB_COST = {"nmpc": 2.5, "lmpc": 1.7, "lqr": 0.35, "pid": 0.27, "ekf": 0.4}
