@@ -96,6 +96,8 @@ class ReplayFeedback:
         Roll, pitch, yaw loops closed (an axis the frame cannot actuate stays open).
     assumed : tuple of str
         Parameters taken from ArduSub's defaults and other assumptions, for the report.
+    interval : float
+        Median interval between the logged outputs, s (:func:`command_interval`; nan when not known).
     """
 
     frame: Frame
@@ -108,6 +110,7 @@ class ReplayFeedback:
     stabilised: np.ndarray
     axes: np.ndarray
     assumed: tuple = ()
+    interval: float = float("nan")
     base_inputs: np.ndarray = field(init=False, repr=False)
     base_pwm: np.ndarray = field(init=False, repr=False)
     base_thrust: np.ndarray = field(init=False, repr=False)
@@ -241,7 +244,7 @@ def replay_feedback(run: Run, p: PlantParameters, label: str = "run") -> Feedbac
     fb = ReplayFeedback(frame=fr, motors=replace(MotorParameters.from_log_params(log_params, k), directions=(1,) * k),
                         attitude=params.attitude, pwm=np.asarray(run.inputs, float), voltage=voltage,
                         f_min=np.asarray(p.f_min, float), f_max=np.asarray(p.f_max, float), stabilised=stabilised,
-                        axes=axes, assumed=tuple(assumed))
+                        axes=axes, assumed=tuple(assumed), interval=interval)
     closed = ", ".join(n for n, a in zip(("roll", "pitch", "yaw"), axes) if a)
     note = (f"replay: closed loop in {closed} ({label}: ArduSub's outputs logged every {interval * 1e3:.0f} ms, a "
             f"stale sample of its {params.loop_rate_hz:.0f} Hz attitude loop; the emulated loop (frame {fr.name}, "

@@ -330,11 +330,44 @@ def prepare(run: Run, p: PlantParameters, name=None, window_s=0.8, dt=None, know
                          f"reconstructed by the model-based smoother from {', '.join(smoothed.channels)} and the "
                          f"thrusts" + (f" plus the force of {known_as}" if known_wrench is not None else "")
                          + ("; x, y dead-reckoned" if not (_logged(meas, "x") or _logged(meas, "y")) else ""))
-    dof_ok = observed & np.isfinite(nu).any(axis=0)
+    dof_ok, note = without_stabilised(observed & np.isfinite(nu).any(axis=0), loop.feedback, label)
+    if note:
+        notes.append(note)
     return Prepared(name=label, t=t, dt=dt, meas=meas, eta=eta, nu=nu, nu_dot=nu_dot, f=f, B=B, inflow=inflow,
                     f_ref=ref, input_kind=run.input_kind, surfaces=_surfaces(run, meas, n, label, notes), dof_ok=dof_ok,
                     notes=notes, window_s=window_s, observed=observed, reconstructed=reconstructed,
                     smoothed=smoothed, feedback=loop.feedback)
+
+
+def without_stabilised(dof_ok, feedback: ReplayFeedback | None, label: str = "run") -> tuple:
+    """The DOFs whose equation error can be scored on a run replayed closed loop: not the attitude DOFs ArduSub
+    stabilised when its outputs were logged more slowly than its attitude loop responds (interval longer than the
+    angle loop's time constant 1 / ATC_ANG_*_P, 0.17 s at ArduSub's default P of 6: QGC's 2 Hz SERVO_OUTPUT_RAW;
+    a dataflash log's 10 Hz RCOU is kept). There the moment the loop applied between the logged samples is not in
+    the log, and the equation error would hand its unlogged corrections (which oppose the rates, like damping) to
+    the effects (on a synthetic 2 Hz STABILIZE / ALT_HOLD dive, tests/udrobot_ctrl/gap/field_dive.py: a pitch
+    quadratic-damping scale at its bound of 10). The closed-loop replay still scores their channels. Kept when no
+    other DOF would be left.
+
+    Returns
+    -------
+    dof_ok : (6,) bool ndarray
+    note : str
+        Empty when nothing was left out.
+    """
+    dof_ok = np.asarray(dof_ok, bool)
+    if feedback is None:
+        return dof_ok, ""
+    slow = feedback.interval > 1.0 / np.maximum(np.asarray(feedback.attitude.angle_p, float), 1e-9)
+    held = np.zeros(6, bool)
+    held[3:6] = np.asarray(feedback.axes, bool) & dof_ok[3:6] & slow
+    if not held.any() or not (dof_ok & ~held).any():
+        return dof_ok, ""
+    names = ", ".join(n for n, h in zip(("X", "Y", "Z", "K", "M", "N"), held) if h)
+    return dof_ok & ~held, (f"{label}: equation error without {names}: ArduSub stabilised them, and its outputs "
+                            f"logged every {feedback.interval * 1e3:.0f} ms miss the moment its attitude loop (time "
+                            f"constant 1 / angle P) applied between samples (the closed-loop replay still scores "
+                            f"their channels)")
 
 
 def _logged(meas, c) -> bool:

@@ -75,6 +75,11 @@ MISSING = {
     "position": ("the horizontal position is not observed (only dead-reckoned)", "log x, y (USBL)"),
 }
 DOF_GROUP = ("horizontal", "horizontal", "heave", "roll", "pitch", "yaw")
+#: an attitude DOF a sensor observes but the equation error leaves out (gap.data.without_stabilised)
+MISSING["stabilised"] = ("the autopilot stabilised the attitude and its outputs are logged slower than its loop, so "
+                         "the moment it applied between samples is not in the log (equation error without that DOF)",
+                         "log the motor outputs faster than the attitude loop's time constant 1 / ATC_ANG_*_P "
+                         "(dataflash RCOU at 10 Hz, or a faster SERVO_OUTPUT_RAW stream), or fly a stretch in MANUAL")
 #: a DOF observed through an integral only (depth for heave, x/y for the horizontal) still has its velocity
 #: reconstructed by the smoother: a regressor that hinges on that reconstruction gets this cause, not "not observed"
 VELOCITY_SENSOR = {"horizontal": "u, v (DVL)", "heave": "w (DVL)", "roll": "p (gyro)", "pitch": "q (gyro)",
@@ -606,6 +611,8 @@ def assess(stack, r, dofs, preps, catalogue: dict, names=None) -> Identifiabilit
     names = list(names or catalogue)
     observed = np.asarray(dofs, bool)
     reconstructed = np.logical_or.reduce([pr.reconstructed for pr in preps])
+    sensed = np.logical_and.reduce([pr.observed for pr in preps])
+    held = {DOF_GROUP[i] for i in range(3, 6) if sensed[i] and not observed[i]}
     sigma = noise_scale(stack, preps)
     moves = [i for i in range(6) if reconstructed[i]]
     if any(pr.smoothed is not None and not any(c in pr.meas and np.isfinite(pr.meas[c]).any() for c in "xy")
@@ -629,8 +636,22 @@ def assess(stack, r, dofs, preps, catalogue: dict, names=None) -> Identifiabilit
         if not checks:  # no amplitude column and a shape term that is zero at every probed shape
             checks.append(ParameterCheck(",".join(eff.shape_names) or n, float("nan"), float("nan"), False,
                                          ("vanishes",)))
-        out[n] = EffectCheck(n, checks, eff.excited_by, forms, acts)
+        out[n] = _stabilised_causes(EffectCheck(n, checks, eff.excited_by, forms, acts), held)
     return Identifiability(out, observed, reconstructed)
+
+
+def _stabilised_causes(chk: EffectCheck, held) -> EffectCheck:
+    """``chk`` with the cause of the attitude DOF groups in ``held`` (sensed, but left out of the equation error on
+    closed-loop runs) named ``"stabilised"`` instead of "not observed"."""
+    if not held:
+        return chk
+
+    def swap(causes):
+        return tuple(dict.fromkeys("stabilised" if c in held else c for c in causes))
+    params = [replace(c, causes=swap(c.causes)) for c in chk.params]
+    forms = {k: replace(f, causes=swap(f.causes)) for k, f in chk.forms.items()}
+    acts = None if chk.actuators is None else replace(chk.actuators, causes=swap(chk.actuators.causes))
+    return replace(chk, params=params, forms=forms, actuators=acts)
 
 
 def _only(stack, stacks, keep):
@@ -733,7 +754,8 @@ def _forms(eff, stack, stacks, sigma, observed, top) -> dict:
     """Form parameters of ``eff`` (``physical_ends``) at whose one end the channels identify more of its amplitude
     parameters than at the other (a strict superset), the others failing because their regressor hinges on a
     reconstructed state (sensitivity), not because it acts less in the observed DOFs (share): name ->
-    :class:`FormCheck`. Each end is probed with the other shape parameters at the middle of the effect's grid."""
+    :class:`FormCheck`. A parameter whose regressor vanishes on the data at either end is left out of the
+    comparison. Each end is probed with the other shape parameters at the middle of the effect's grid."""
     grid, bounds = eff.search_space(stack)
     grid = list(grid)
     if not eff.physical_ends or not grid or not bounds:
@@ -750,8 +772,11 @@ def _forms(eff, stack, stacks, sigma, observed, top) -> dict:
         if len(ends) != 2:
             continue
         (e1, c1), (e2, c2) = ends.items()
-        ok1 = {n for n, c in c1.items() if c.identified}
-        ok2 = {n for n, c in c2.items() if c.identified}
+        # a parameter whose regressor vanishes at an end (a regulated rate's drag at the own-axis end) tells neither
+        # form apart: compared, it would make the two sets incomparable and leave the hinging form searched
+        idle = {n for c in (c1, c2) for n, chk in c.items() if "vanishes" in chk.causes}
+        ok1 = {n for n, c in c1.items() if c.identified and n not in idle}
+        ok2 = {n for n, c in c2.items() if c.identified and n not in idle}
         if ok1 == ok2 or not (ok1 < ok2 or ok2 < ok1):
             continue  # the same parameters in both forms, or neither form better: the search keeps both
         good, bad, lost = (e2, c1, ok2 - ok1) if ok1 < ok2 else (e1, c2, ok1 - ok2)

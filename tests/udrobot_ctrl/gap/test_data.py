@@ -1,11 +1,13 @@
 """Preparing runs for the diagnoser: which surfaces a run knows its distance to."""
 from __future__ import annotations
 
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 
 from udrobot_ctrl.dynamics.plant import plant_parameters
-from udrobot_ctrl.gap.data import ALTITUDE_VALID_MIN, prepare
+from udrobot_ctrl.gap.data import ALTITUDE_VALID_MIN, prepare, without_stabilised
 from udrobot_ctrl.io.runlog import Run
 from udrobot_ctrl.vehicle import load_model
 
@@ -46,3 +48,23 @@ def test_a_mostly_invalid_altitude_is_reported_not_used(p):
     assert [s[2] for s in prep.surfaces] == ["seabed"]
     assert prep.surfaces[0][0] == pytest.approx(3.0 - prep.eta[:, 2])
     assert any("seabed_depth is used instead" in note for note in prep.notes)
+
+
+def test_a_stabilised_attitude_logged_slower_than_its_loop_leaves_the_equation_error():
+    """ArduSub's angle loop (P 6 -> time constant 0.17 s): outputs every 0.5 s (QGC's 2 Hz) miss its corrections
+    between samples, so K, M, N leave the equation error; every 0.1 s (dataflash RCOU) they stay; an open-loop
+    replay, or a run with no other DOF, keeps them."""
+    ok = np.ones(6, bool)
+    ok[:2] = False  # no DVL: X, Y not observed
+
+    def loop(interval, axes=(True, True, True)):
+        return SimpleNamespace(interval=interval, axes=np.array(axes), attitude=SimpleNamespace(angle_p=(6, 6, 6)))
+    dofs, note = without_stabilised(ok, loop(0.5), "dive")
+    np.testing.assert_array_equal(dofs, [False, False, True, False, False, False])
+    assert note.startswith("dive: equation error without K, M, N") and "500 ms" in note
+    dofs, note = without_stabilised(ok, loop(0.5, (True, True, False)))  # a frame without a yaw loop
+    np.testing.assert_array_equal(dofs, [False, False, True, False, False, True])
+    for fast in (without_stabilised(ok, loop(0.1)), without_stabilised(ok, None),
+                 without_stabilised(np.array([0, 0, 0, 1, 1, 1], bool), loop(0.5))):
+        assert fast[1] == ""
+    np.testing.assert_array_equal(without_stabilised(ok, loop(0.1))[0], ok)

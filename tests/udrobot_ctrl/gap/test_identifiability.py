@@ -307,3 +307,22 @@ def test_a_thruster_effect_acting_only_where_nothing_is_measured_stays_unidentif
     assert not inflow.identified and inflow.actuators is None
     assert "thrust_inflow_loss" in ident.names
     assert "horizontal velocity is not observed" in ident.reason("thrust_inflow_loss")
+
+
+def test_a_regressor_vanishing_at_one_form_end_does_not_unsettle_the_form_check(stock):
+    """A roll the autopilot holds level (p = 0): the own-axis roll drag |p| p vanishes at norm_weight 0 but not at
+    1 (there the rotational speed norm holds q and r). Left in the comparison it would make the two ends'
+    identified sets incomparable, the form would be searched whole and the heave scale judged on the unmeasured
+    surge speed (issue 37's synthetic 2 Hz dive lost its heave drag error that way): the form stays held at 0."""
+    _, preps = stock
+    level = []
+    for pr in preps:
+        nu, nu_dot = pr.nu.copy(), pr.nu_dot.copy()
+        nu[:, 3] = nu_dot[:, 3] = 0.0
+        level.append(replace(pr, nu=nu, nu_dot=nu_dot, meas={**pr.meas, "p": np.zeros(pr.n)}))
+    st, r, dofs = build_stack(level, P, P.M_A)
+    quad = assess(st, r, dofs, level, fx.catalogue(), ["quadratic_damping_error"]).effects["quadratic_damping_error"]
+    assert set(quad.forms) == {"norm_weight"} and quad.forms["norm_weight"].kept == 0.0
+    checks = {c.name: c for c in quad.params}
+    assert checks["scale_Zw|w|"].identified
+    assert checks["scale_Kp|p|"].causes == ("vanishes",)

@@ -1,0 +1,126 @@
+"""A synthetic field dive as the users' real BlueROV2 dives were logged (issue 37): a QGroundControl tlog of a
+vehicle flown by a pilot under ArduSub in STABILIZE and ALT_HOLD, without a DVL, whose heave drag differs from the
+published model.
+
+Truth: the ``bluerov2-heavy`` model with its heave quadratic drag Z_w|w| scaled by ``1 + HEAVE_DRAG_SCALE`` (half the
+published value: the size the users' fits suggested), flown by the emulated ArduSub
+(:func:`udrobot_ctrl.autopilot.fly.fly`) from a pilot's RC inputs: climbs and descents at +-300 us throttle,
+forward runs at +200 us, some yaw, first in STABILIZE then in ALT_HOLD.
+
+The tlog holds what QGroundControl's default ArduSub stream rates give (rates assumed from QGC's defaults and the
+issue's description of the real logs): HEARTBEAT 1 Hz (custom_mode, armed), ATTITUDE 10 Hz, VFR_HUD 4 Hz,
+SCALED_PRESSURE2 2 Hz, GLOBAL_POSITION_INT 3 Hz, SERVO_OUTPUT_RAW 2 Hz (instantaneous samples of the 200 Hz loop's
+outputs), RC_CHANNELS 4 Hz, SYS_STATUS 1 Hz. No DVL, no position, no accelerometer. Sensor noise (assumed,
+typical of the class): depth 1 cm (pressure and the EKF's depths), attitude 0.2 deg, gyro 0.3 deg/s.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from pymavlink.dialects.v20 import ardupilotmega as mav2
+
+from tests.udrobot_ctrl.io.test_field_logs import RHO_G, write_events
+from udrobot_ctrl.autopilot.fly import ClosedLoopFlight, fly
+from udrobot_ctrl.autopilot.modes import Mode
+from udrobot_ctrl.io.runlog import Run
+from udrobot_ctrl.vehicle import Vehicle, load_model
+
+MODEL = "bluerov2-heavy"
+HEAVE_DRAG_SCALE = -0.5  # the withheld effect: Z_w|w| x (1 + s), s = -0.5 (half the published heave drag)
+DEPTH_NOISE = 0.01  # m, assumed (Bar30 and the EKF's depth)
+ATTITUDE_NOISE = np.radians(0.2)  # rad, assumed
+GYRO_NOISE = np.radians(0.3)  # rad/s, assumed
+START_DEPTH = 10.0  # m
+STATE = ("x", "y", "z", "phi", "theta", "psi", "u", "v", "w", "p", "q", "r")
+
+
+@dataclass(frozen=True)
+class Leg:
+    """One pilot action: from ``start`` to ``end`` (s) the named stick sits at ``1500 + offset`` us."""
+
+    start: float
+    end: float
+    stick: str
+    offset: float
+
+
+RC_INDEX = {"throttle": 2, "yaw": 3, "forward": 4, "lateral": 5}  # ArduSub's channel order, 0-based
+
+
+def legs(t0: float) -> tuple:
+    """The pilot's 90 s pattern from ``t0`` (s): descend, climb, forward and back, yaw, climb and descend again."""
+    return (Leg(t0 + 4, t0 + 14, "throttle", -300.0), Leg(t0 + 20, t0 + 30, "throttle", 300.0),
+            Leg(t0 + 36, t0 + 46, "forward", 200.0), Leg(t0 + 50, t0 + 56, "forward", -200.0),
+            Leg(t0 + 58, t0 + 61, "yaw", 150.0), Leg(t0 + 64, t0 + 72, "throttle", 300.0),
+            Leg(t0 + 76, t0 + 86, "throttle", -300.0))
+
+
+def pilot_plan(duration: float = 180.0, dt: float = 0.02) -> Run:
+    """The pilot's inputs and modes as a run for :func:`fly`: STABILIZE for the first half, ALT_HOLD after."""
+    t = np.arange(0.0, duration, dt)
+    rc = np.full((t.size, 8), 1500.0)
+    for leg in legs(0.0) + legs(duration / 2):
+        rc[(t >= leg.start) & (t < leg.end), RC_INDEX[leg.stick]] = 1500.0 + leg.offset
+    mode = np.where(t < duration / 2, float(Mode.STABILIZE), float(Mode.ALT_HOLD))
+    x0 = np.zeros(12)
+    x0[2] = START_DEPTH
+    channels = {name: np.full(t.size, x0[i]) for i, name in enumerate(STATE)}
+    extra = {"mode": mode, **{f"rcin_{i + 1}": rc[:, i] for i in range(8)}}
+    return Run(path="pilot.csv", t=t, channels=channels, input_kind="pwm", inputs=np.full((t.size, 8), 1500.0),
+               extra=extra, metadata={"vehicle": MODEL})
+
+
+def truth_vehicle(scale: float = HEAVE_DRAG_SCALE) -> Vehicle:
+    """The published model with its heave quadratic drag Z_w|w| scaled by ``1 + scale``."""
+    v = load_model(MODEL)
+    q = np.array(v.quadratic_damping, float)
+    q[2, 2] *= 1.0 + scale
+    return v.with_changes(quadratic_damping=q)
+
+
+def flight(duration: float = 180.0, scale: float = HEAVE_DRAG_SCALE) -> tuple:
+    """The truth flown under the emulated ArduSub at 200 Hz. Returns (ClosedLoopFlight, pilot plan Run)."""
+    plan = pilot_plan(duration)
+    return fly(truth_vehicle(scale), plan, loop_rate_hz=200.0), plan
+
+
+def _at(f: ClosedLoopFlight, t: float) -> int:
+    return int(min(np.searchsorted(f.t, t), f.t.size - 1))
+
+
+def write_tlog(path, f: ClosedLoopFlight, plan: Run, seed: int = 0):
+    """Log ``f`` as QGroundControl would (the streams and rates in the module docstring), with sensor noise."""
+    rng = np.random.default_rng(seed)
+    mav = mav2.MAVLink(None, srcSystem=1, srcComponent=1)
+    end = float(f.t[-1])
+    ev = []
+    mode = plan.extra["mode"]
+    for t in np.arange(0.0, end, 1.0):
+        m = int(mode[min(np.searchsorted(plan.t, t), plan.n - 1)])
+        ev.append((t, mav.heartbeat_encode(12, 3, 81 | 128, m, 4)))  # armed, custom_mode = ArduSub mode
+        ev.append((t + 0.3, mav.sys_status_encode(0, 0, 0, 500, 16000, 500, 90, 0, 0, 0, 0, 0, 0)))
+    for t in np.arange(0.01, end, 0.1):
+        x = f.x[_at(f, t)]
+        att = x[3:6] + rng.normal(0.0, ATTITUDE_NOISE, 3)
+        rates = x[9:12] + rng.normal(0.0, GYRO_NOISE, 3)
+        yaw = (att[2] + np.pi) % (2 * np.pi) - np.pi
+        ev.append((t, mav.attitude_encode(int(t * 1000), att[0], att[1], yaw, *rates)))
+    for t in np.arange(0.02, end, 0.5):
+        depth = f.x[_at(f, t), 2] + rng.normal(0.0, DEPTH_NOISE)
+        ev.append((t, mav.scaled_pressure2_encode(int(t * 1000), (101325.0 + RHO_G * depth) / 100.0, 0.0, 1200)))
+    for t in np.arange(0.03, end, 0.25):
+        depth = f.x[_at(f, t), 2] + rng.normal(0.0, DEPTH_NOISE)
+        ev.append((t, mav.vfr_hud_encode(0.0, 0.0, int(np.degrees(f.x[_at(f, t), 5])) % 360, 0, -depth, 0.0)))
+    for t in np.arange(0.04, end, 1.0 / 3.0):
+        k = _at(f, t)
+        depth = f.x[k, 2] + rng.normal(0.0, DEPTH_NOISE)
+        ev.append((t, mav.global_position_int_encode(int(t * 1000), 0, 0, int(-depth * 1000), int(-depth * 1000),
+                                                     0, 0, int(100 * f.x[k, 8]), 65535)))
+    for t in np.arange(0.05, end, 0.5):
+        servo = [int(round(v)) for v in f.pwm[_at(f, t)]] + [0] * 8  # 8 motors
+        ev.append((t, mav.servo_output_raw_encode(int(t * 1e6), 0, *servo)))
+    for t in np.arange(0.06, end, 0.25):
+        rc = [int(plan.extra[f"rcin_{i + 1}"][min(np.searchsorted(plan.t, t), plan.n - 1)]) for i in range(8)]
+        ev.append((t, mav.rc_channels_encode(int(t * 1000), 8, *rc, *[0] * 10, 255)))
+    return write_events(path, mav, ev)
