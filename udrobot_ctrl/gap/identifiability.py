@@ -73,13 +73,13 @@ MISSING = {
     "pitch": ("pitch rate is not observed", "log q (gyro) or theta (attitude)"),
     "yaw": ("yaw rate is not observed", "log r (gyro) or psi (heading)"),
     "position": ("the horizontal position is not observed (only dead-reckoned)", "log x, y (USBL)"),
+    # an attitude DOF a sensor observes but the equation error leaves out (gap.data.without_stabilised)
+    "stabilised": ("the autopilot stabilised the attitude and its outputs are logged slower than its loop, so "
+                   "the moment it applied between samples is not in the log (equation error without that DOF)",
+                   "log the motor outputs faster than the attitude loop's time constant 1 / ATC_ANG_*_P "
+                   "(dataflash RCOU at 10 Hz, or a faster SERVO_OUTPUT_RAW stream), or fly a stretch in MANUAL"),
 }
 DOF_GROUP = ("horizontal", "horizontal", "heave", "roll", "pitch", "yaw")
-#: an attitude DOF a sensor observes but the equation error leaves out (gap.data.without_stabilised)
-MISSING["stabilised"] = ("the autopilot stabilised the attitude and its outputs are logged slower than its loop, so "
-                         "the moment it applied between samples is not in the log (equation error without that DOF)",
-                         "log the motor outputs faster than the attitude loop's time constant 1 / ATC_ANG_*_P "
-                         "(dataflash RCOU at 10 Hz, or a faster SERVO_OUTPUT_RAW stream), or fly a stretch in MANUAL")
 #: a DOF observed through an integral only (depth for heave, x/y for the horizontal) still has its velocity
 #: reconstructed by the smoother: a regressor that hinges on that reconstruction gets this cause, not "not observed"
 VELOCITY_SENSOR = {"horizontal": "u, v (DVL)", "heave": "w (DVL)", "roll": "p (gyro)", "pitch": "q (gyro)",
