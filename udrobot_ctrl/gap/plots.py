@@ -13,7 +13,8 @@ from pathlib import Path
 import numpy as np
 from matplotlib.figure import Figure
 
-from udrobot_ctrl.gap.shrink import ACCEL, accel_bias, diverged_samples, errors
+from udrobot_ctrl.dynamics.plant import wrap_angle
+from udrobot_ctrl.gap.shrink import ACCEL, ANGLES, accel_bias, diverged_samples, errors
 from udrobot_ctrl.io.files import save_figure
 from udrobot_ctrl.vehicle import STATE_INDEX
 
@@ -31,6 +32,17 @@ def measured(prep, c):
     if c in ACCEL and bias is not None:
         return prep.meas[c] - bias[ACCEL.index(c)]
     return prep.meas[c]
+
+
+def replayed(prep, sim, c):
+    """A replay's channel ``c`` as the overlay draws it: the state or specific-force column, an angle drawn on the
+    measurement's branch (measured + the wrapped error, as the gap scores it), so that a replay that integrated
+    through +-pi and a logged angle that wrapped do not look 2 pi apart."""
+    y = sim[:, COLUMN[c]]
+    if c in ANGLES:
+        m = measured(prep, c)
+        return m + wrap_angle(y - m)
+    return y
 
 
 def divergence_starts(sim) -> np.ndarray:
@@ -104,7 +116,7 @@ def write_plots(ctx, report, outdir, protect=()):
                     label="measured" + (" (bias removed)" if c in ACCEL else ""))
             replays = [(s0, "nominal")] + ([(s1, "with significant effects")] if s1 is not s0 else [])
             for sim, label in replays:
-                (line,) = ax.plot(prep.t, sim[:, COLUMN[c]], lw=0.8, label=label)
+                (line,) = ax.plot(prep.t, replayed(prep, sim, c), lw=0.8, label=label)
                 starts = divergence_starts(sim)
                 if starts.size:  # at the top edge: a diverged replay's values are off any useful scale
                     ax.plot(prep.t[starts], np.ones(starts.size), "X", ms=7, mec="k", color=line.get_color(),

@@ -6,12 +6,14 @@ for the DOFs located by their residual force (no replayed channel, hence no wind
 """
 from __future__ import annotations
 
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 
 from udrobot_ctrl.cli.main import main
 from udrobot_ctrl.gap import plots
-from udrobot_ctrl.gap.plots import COLUMN, located_windows
+from udrobot_ctrl.gap.plots import COLUMN, located_windows, replayed
 from udrobot_ctrl.gap.report import DiagnosisContext, diagnose
 from udrobot_ctrl.gap.shrink import ACCEL
 from udrobot_ctrl.io.runlog import write_run
@@ -106,3 +108,17 @@ def test_the_overlay_marks_where_a_replay_window_diverges(tmp_path, monkeypatch)
     assert len(marks) == 1 and marks[0].get_label().startswith("nominal")
     assert list(np.ravel(marks[0].get_xdata())) == [7.0]
     assert "diverges" in figures["overlay_run.png"]._suptitle.get_text()
+
+
+def test_the_overlay_draws_a_replayed_angle_on_the_measurement_branch():
+    """A heading logged wrapped to (-pi, pi] and a replay that turned through pi: drawn 2 pi apart before, the replay
+    is drawn on the logged branch, its error (what the gap scores) unchanged."""
+    t = np.linspace(0.0, 4.0, 201)
+    psi_true = 2.9 + 0.1 * t  # through pi at t = 2.4 s
+    logged = np.angle(np.exp(1j * psi_true))  # wrapped as a log has it
+    sim = np.zeros((t.size, COLUMN["psi"] + 1))
+    sim[:, COLUMN["psi"]] = psi_true + 0.02  # the replay integrates on, 0.02 rad ahead
+    prep = SimpleNamespace(meas={"psi": logged}, smoothed=None)
+    drawn = replayed(prep, sim, "psi")
+    assert np.max(np.abs(drawn - logged - 0.02)) < 1e-12
+    assert np.max(np.abs(sim[:, COLUMN["psi"]] - logged)) > 6.0  # what was drawn before
