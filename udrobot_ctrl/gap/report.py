@@ -63,7 +63,7 @@ from udrobot_ctrl.gap.locate import Located, locate, noise_floor
 from udrobot_ctrl.gap.shrink import GapScore, check_window, gap, prepare_with_effects, simulate_windows
 from udrobot_ctrl.io.files import atomic_write
 from udrobot_ctrl.io.runlog import Run
-from udrobot_ctrl.parallel import Background, fork_map
+from udrobot_ctrl.parallel import Background, fork_map, one_blas_thread
 from udrobot_ctrl.vehicle import load_model
 
 FORMAT = "udrobot-diagnosis/1"
@@ -1343,7 +1343,18 @@ def diagnose(model, runs, holdout=None, window_s=8.0, effects=None, log=None, mo
         The ``udrobot-diagnosis/1`` report (JSON-ready).
     ctx : DiagnosisContext
         What the figures need.
+
+    Notes
+    -----
+    BLAS runs on one thread throughout (:func:`~udrobot_ctrl.parallel.one_blas_thread`): the work is spread over
+    worker processes instead, and the report does not depend on how many there are.
     """
+    with one_blas_thread():
+        return _diagnose(model, runs, holdout, window_s, effects, log, model_label)
+
+
+def _diagnose(model, runs, holdout, window_s, effects, log, model_label):
+    """:func:`diagnose` computed."""
     t0 = time.perf_counter()
     say = log or (lambda s: None)
     idle = unexcited_runs([*runs, *(holdout or [])], plant_parameters(load_model(model)))
