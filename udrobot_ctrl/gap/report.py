@@ -49,6 +49,7 @@ from udrobot_ctrl.gap.confirm import (
     Elimination,
     MemberTest,
     Replay,
+    ReplayCache,
     Replayer,
     alone_tests,
     backward_eliminate,
@@ -292,6 +293,8 @@ class Stacks:
     holdout: Attributor
     actuation: Actuation
     identifiability: Identifiability  # what the observed channels can identify (all of it with every DOF measured)
+    #: this pass's recent replays (:func:`_replayer`); copies made with ``replace`` share it
+    replays: ReplayCache = field(default_factory=ReplayCache, repr=False, compare=False)
 
 
 @dataclass(frozen=True)
@@ -531,7 +534,8 @@ def replay_supported(inp: Inputs, stacks: Stacks, sel: Selection, where: Where, 
 def _replayer(inp: Inputs, stacks: Stacks, scored, runs=None) -> Replayer:
     """The :class:`~udrobot_ctrl.gap.confirm.Replayer` of fitted effect sets on ``runs`` (default: the holdout)."""
     runs = inp.holdout if runs is None else runs
-    return Replayer(lambda sets: replay_sets(runs, inp.p, sets, inp.catalogue, stacks.actuation, inp.window_s, scored))
+    return Replayer(lambda sets: replay_sets(runs, inp.p, sets, inp.catalogue, stacks.actuation, inp.window_s, scored,
+                                             cache=stacks.replays))
 
 
 class OnDemand(Mapping):
