@@ -618,8 +618,8 @@ class TetherDrag(Effect):
 
 
 def _surface_geometry(eta, nu, nu_dot, dist, normal):
-    """The decay length's factors of one surface's terms: body normal (n, 3), tangential speed^2 (n,), distance h
-    (n, m; inf where unmeasured) and the acceleration along the normal (n,)."""
+    """What a surface's terms share whatever the decay length: body normal (n, 3), tangential speed^2 (n,), distance
+    h (n,; inf where unmeasured) and the acceleration along the normal (n,)."""
     R = rotation_zyx(eta[..., 3], eta[..., 4], eta[..., 5])
     nb = _to_body(R, np.broadcast_to(normal, eta.shape[:-1] + (3,)))
     vn = np.sum(nu[..., :3] * nb, -1)
