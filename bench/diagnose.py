@@ -8,7 +8,8 @@ time of the diagnosis (this process and its reaped workers) is printed too: on a
 positioning): the velocities are then reconstructed by the model-based smoother, whose time is printed too, and
 once an effect is significant, smoothed again with it and diagnosed a second time (both passes are counted).
 The diagnosis spreads its independent work over ``--jobs`` worker processes (default: the cores this process may
-use, :mod:`udrobot_ctrl.parallel`); ``--jobs 1`` measures it on one core.
+use, :mod:`udrobot_ctrl.parallel`); ``--jobs 1`` measures it on one core. ``--report PATH`` writes the diagnosis
+report (udrobot-diagnosis/1 JSON, as ``udrobot-ctrl diagnose --json`` does) to compare reports across code changes.
 """
 from __future__ import annotations
 
@@ -40,12 +41,13 @@ def main(argv=None) -> int:
     ap.add_argument("--duration", type=float, default=200.0, help="seconds per run (3 runs)")
     ap.add_argument("--sensors", default="full", choices=("full", "stock"), help="sensor set of the logs")
     ap.add_argument("--jobs", type=int, default=None, help="worker processes (default: the cores)")
+    ap.add_argument("--report", type=Path, default=None, metavar="PATH", help="write the diagnosis JSON report here")
     args = ap.parse_args(argv)
     if args.jobs is not None:
         os.environ[JOBS_ENV] = str(args.jobs)
     from truth import generate
 
-    from udrobot_ctrl.gap.report import diagnose
+    from udrobot_ctrl.gap.report import diagnose, write_report
 
     t0 = time.perf_counter()
     runs = generate({"buoyancy_offset": {"dB0": 2.0, "beta": 0.1}}, n_runs=3, duration=args.duration, rate=50.0,
@@ -55,6 +57,8 @@ def main(argv=None) -> int:
     lines = []
     report, _ = diagnose("pendulum:chin", runs[:2], runs[2:], log=lines.append)
     t_diag, c_diag = time.perf_counter() - t0, cpu_seconds() - c0
+    if args.report is not None:
+        write_report(report, args.report)
     sig = [e["name"] for e in report["effects"] if e["significant"]]
     minutes = 3 * args.duration / 60.0
     print(f"generated {minutes:.1f} min of 50 Hz logs ({args.sensors} sensors) in {t_gen:.1f} s (not counted)")

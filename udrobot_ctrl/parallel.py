@@ -25,8 +25,11 @@ BLAS threads: the work is spread over processes, one per core, so a multithreade
 thread per core) would only oversubscribe the cores: a threaded dot product of a long series, waiting on a thread
 the other processes hold off its core, costs a thousand times its arithmetic on a loaded machine. So every worker
 forked here runs its BLAS on one thread, and so does the caller while a :class:`Background` job or a
-:class:`Helper` call holds a core beside it (its BLAS threads are restored when none does); the results do not
-change (:func:`blas_threads`).
+:class:`Helper` call holds a core beside it (its BLAS threads are restored when none does). A whole computation
+spread this way (a diagnosis) runs in :func:`one_blas_thread`, so that its BLAS does not depend on the number of
+workers: OpenBLAS splits a long dot product (from 2e4 terms) over its threads, which sums it in another order (the
+last bits) and, on a machine whose cores are busy, costs a thousand times its arithmetic (measured: 1.3 s of CPU
+for the 200 lags of one integrated autocorrelation time of 3e4 samples on two threads, 5 ms on one).
 
 Killed runs: every worker ignores SIGINT (a Ctrl-C reaches the whole process group; the caller decides) and dies
 at SIGTERM without cleanup (:func:`worker_signals`, installed in every worker forked here); the caller stops them
@@ -39,6 +42,7 @@ import os
 import signal
 import time
 from concurrent.futures import ProcessPoolExecutor
+from contextlib import contextmanager
 
 from threadpoolctl import ThreadpoolController
 
@@ -111,7 +115,7 @@ def blas_threads(n=None) -> dict:
     """Set the threads of every BLAS library loaded in this process (numpy's and scipy's own copies, found by
     threadpoolctl) to ``n`` (an int for all, or a dict as returned here, per library file) and return their previous
     counts ({} when none is found: nothing is changed). The thread count changes how fast BLAS runs, not what it
-    computes at the diagnoser's sizes."""
+    computes, except for the order of a long dot product's sum (:func:`one_blas_thread`)."""
     before = {}
     for lib in ThreadpoolController().select(user_api="blas").lib_controllers:
         before[lib.filepath] = int(lib.num_threads)
@@ -119,6 +123,17 @@ def blas_threads(n=None) -> dict:
         if want is not None and want != before[lib.filepath]:
             lib.set_num_threads(int(want))
     return before
+
+
+@contextmanager
+def one_blas_thread():
+    """Run the body with every BLAS library on one thread (:func:`blas_threads`), restoring their threads after:
+    the work is spread over processes (module docstring), and the body computes what it would in a worker."""
+    before = blas_threads(1)
+    try:
+        yield
+    finally:
+        blas_threads(before)
 
 
 def _take_core() -> None:

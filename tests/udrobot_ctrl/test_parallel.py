@@ -8,7 +8,17 @@ import sys
 import numpy as np
 import pytest
 
-from udrobot_ctrl.parallel import JOBS_ENV, Background, Helper, blas_threads, can_fork, default_jobs, fork_map, workers
+from udrobot_ctrl.parallel import (
+    JOBS_ENV,
+    Background,
+    Helper,
+    blas_threads,
+    can_fork,
+    default_jobs,
+    fork_map,
+    one_blas_thread,
+    workers,
+)
 
 
 def test_results_in_order_from_a_closure_over_large_data():
@@ -218,4 +228,20 @@ def test_workers_run_blas_on_one_thread_and_the_caller_gets_its_threads_back(mon
     assert blas_threads() == before  # restored once the job's core is given back
     previous = blas_threads(1)
     assert previous == before and set(blas_threads(previous).values()) == {1}
+    assert blas_threads() == before
+
+
+def test_one_blas_thread_holds_every_blas_on_one_thread_and_restores_them_even_on_error():
+    """A diagnosis runs in one_blas_thread: its BLAS does not depend on the number of workers (module docstring)."""
+    np.linalg.svd(np.ones((4, 4)))  # BLAS loaded
+    before = blas_threads()
+    if not before:
+        pytest.skip("no BLAS library threadpoolctl can control")
+    with one_blas_thread():
+        assert set(blas_threads().values()) == {1}
+        job = Background(lambda: sorted(set(blas_threads().values())))  # a core taken and given back inside
+        assert job.result() == [1] and set(blas_threads().values()) == {1}
+    assert blas_threads() == before
+    with pytest.raises(RuntimeError), one_blas_thread():
+        raise RuntimeError("the body failed")
     assert blas_threads() == before

@@ -115,10 +115,44 @@ def replay(preps, p, fit: Fit | None, members, catalogue, actuation: Actuation, 
     return replay_sets(preps, p, [(fit, members)], catalogue, actuation, window_s, scored)[0]
 
 
-#: the most recent replays (:func:`replay_sets`), kept: the diagnosis replays some sets again (a member's rest in the
+#: the most recent replays a :class:`ReplayCache` keeps: the diagnosis replays some sets again (a member's rest in the
 #: backward check is its single fit, the set left after a drop the rest just replayed, the empty set)
 REPLAYS_KEPT = 32
-_replays = OrderedDict()  # key -> (the key's objects, held so that their ids stay theirs, Replay)
+
+
+class ReplayCache:
+    """The most recent replays of one diagnosis (:func:`replay_sets`), at most ``kept``: a set replayed again on the
+    same runs with the same parameters is the same :class:`Replay`. Owned by what runs the diagnosis (its
+    :class:`~udrobot_ctrl.gap.report.Stacks`), so that it and the runs it holds go with it; keys name the runs, the
+    plant, the catalogue and the actuation by identity, and the cache holds those objects so that their ids stay
+    theirs.
+
+    Parameters
+    ----------
+    kept : int
+        The oldest replays are dropped beyond this many.
+    """
+
+    def __init__(self, kept=REPLAYS_KEPT):
+        self.kept = int(kept)
+        self._items = OrderedDict()  # key -> (the key's objects, Replay)
+
+    def __len__(self) -> int:
+        return len(self._items)
+
+    def get(self, key):
+        """The Replay kept under ``key`` (now the most recent), or None."""
+        if key not in self._items:
+            return None
+        self._items.move_to_end(key)
+        return self._items[key][1]
+
+    def put(self, key, objs, replay: Replay) -> None:
+        """Keep ``replay`` under ``key`` with the objects its key names (the oldest dropped beyond ``kept``)."""
+        self._items[key] = (objs, replay)
+        self._items.move_to_end(key)
+        while len(self._items) > self.kept:
+            self._items.popitem(last=False)
 
 
 def _replay_key(preps, p, fit, members, catalogue, actuation, window_s, scored):
@@ -129,23 +163,23 @@ def _replay_key(preps, p, fit, members, catalogue, actuation, window_s, scored):
     return (tuple(map(id, objs[0])), *map(id, objs[1:]), float(window_s), tuple(scored), tuple(members), params), objs
 
 
-def replay_sets(preps, p, sets, catalogue, actuation: Actuation, window_s, scored) -> list:
+def replay_sets(preps, p, sets, catalogue, actuation: Actuation, window_s, scored, cache: ReplayCache | None = None
+                ) -> list:
     """:func:`replay` of several sets at once: ``sets`` is a sequence of (fit, members); one :class:`Replay` each, in
-    order, integrated together (:func:`udrobot_ctrl.gap.shrink.simulate_windows_sets`). A set replayed lately on
-    the same runs with the same parameters is not replayed again (:data:`REPLAYS_KEPT`): the same Replay."""
+    order, integrated together (:func:`udrobot_ctrl.gap.shrink.simulate_windows_sets`). With a ``cache``, a set it
+    keeps (the same runs, the same parameters) is not replayed again: the same Replay."""
+    if cache is None:
+        return _replay_sets(preps, p, sets, catalogue, actuation, window_s, scored)
     keys = [_replay_key(preps, p, fit, members, catalogue, actuation, window_s, scored) for fit, members in sets]
-    out = [_replays[k][1] if k in _replays else None for k, _ in keys]
+    out = [cache.get(k) for k, _ in keys]
     todo = [i for i, r in enumerate(out) if r is None]
     if todo:
         for i, r in zip(todo, _replay_sets(preps, p, [sets[i] for i in todo], catalogue, actuation, window_s,
                                            scored)):
             out[i] = r
-            _replays[keys[i][0]] = (keys[i][1], r)
-    for k, _ in keys:
-        if k in _replays:
-            _replays.move_to_end(k)
-    while len(_replays) > REPLAYS_KEPT:
-        _replays.popitem(last=False)
+            cache.put(*keys[i], r)
+    for k, _ in keys:  # every set asked for is now among the most recent, as it was asked
+        cache.get(k)
     return out
 
 

@@ -89,10 +89,25 @@ class Stack:
     p: PlantParameters
     M_A: np.ndarray
     virtual: bool = False  # tau_* inputs: six virtual wrench actuators (B = I)
+    #: terms of a run's arrays that every shape of an effect reads alike (:meth:`kept`); shared by the copies
+    #: ``replace`` makes, keyed by the arrays' identity
+    memo: dict = field(default_factory=dict, repr=False, compare=False)
 
     @property
     def n(self) -> int:
         return int(self.nu.shape[0])
+
+    def kept(self, what: str, arrays, compute):
+        """``compute(*arrays)`` for a run's full-rate ``arrays``, computed once per stack (and its copies): a
+        shape-independent term of a design (a surface's body-frame normal, the rotation of the attitude) that a grid
+        search and refinement would otherwise compute again for every shape. Keyed by ``what`` and the arrays'
+        identity; the entry holds the arrays, so that their ids stay theirs (a copy with moved velocities,
+        :func:`udrobot_ctrl.gap.identifiability._perturbed`, has arrays of its own)."""
+        key = (what, *map(id, arrays))
+        hit = self.memo.get(key)
+        if hit is None or any(a is not b for a, b in zip(hit[0], arrays)):
+            hit = self.memo[key] = (tuple(arrays), compute(*arrays))
+        return hit[1]
 
     def full(self, func, held=False, filt=True):
         """Evaluate func(run) -> (n_full, ...) on each run at its full rate (raw logged state, held commands),
@@ -602,14 +617,15 @@ class TetherDrag(Effect):
 
 
 
-def _surface_terms(eta, nu, nu_dot, dist, normal, lam):
-    """exp(-h/lam), body normal (n,3), tangential speed^2 (n,) for one surface."""
+def _surface_geometry(eta, nu, nu_dot, dist, normal):
+    """What a surface's terms share whatever the decay length: body normal (n, 3), tangential speed^2 (n,), distance
+    h (n,; inf where unmeasured) and the acceleration along the normal (n,)."""
     R = rotation_zyx(eta[..., 3], eta[..., 4], eta[..., 5])
     nb = _to_body(R, np.broadcast_to(normal, eta.shape[:-1] + (3,)))
     vn = np.sum(nu[..., :3] * nb, -1)
     vt2 = np.maximum(np.sum(nu[..., :3] ** 2, -1) - vn ** 2, 0.0)
     h = np.where(np.isfinite(dist), np.maximum(dist, 0.0), np.inf)
-    return np.exp(-h / lam), nb, vt2, vn
+    return nb, vt2, h, np.sum(nu_dot[:, :3] * nb, -1)
 
 
 class WallEffect(Effect):
@@ -619,9 +635,10 @@ class WallEffect(Effect):
         def col(r, which):
             out = np.zeros(r["nu"].shape[:1] + (6,))
             for dist, normal in r["surfaces"]:
-                e, nb, vt2, _ = _surface_terms(r["eta"], r["nu"], None, dist, normal, lam)
+                nb, vt2, h, an = s.kept("surface", (r["eta"], r["nu"], r["nu_dot"], dist, normal), _surface_geometry)
+                e = np.exp(-h / lam)
                 if which == 0:
-                    out[:, :3] += -(e * np.sum(r["nu_dot"][:, :3] * nb, -1))[:, None] * nb
+                    out[:, :3] += -(e * an)[:, None] * nb
                 else:
                     out[:, :3] += -(e * vt2)[:, None] * nb
             return out
@@ -635,8 +652,15 @@ def _damping_force(nu, p):
     return nu @ p.D_L.T + (np.abs(nu) * nu) @ p.Q.T
 
 
-def _current_force(eta, nu, c, p, M_A):
-    R = rotation_zyx(eta[..., 3], eta[..., 4], eta[..., 5])
+def _rotation(eta):
+    """(n, 3, 3) body-to-NED rotations of the attitudes of ``eta`` (n, 6)."""
+    return rotation_zyx(eta[..., 3], eta[..., 4], eta[..., 5])
+
+
+def _current_force(eta, nu, c, p, M_A, R=None):
+    """(n, 6) generalised force of a steady NED current ``c`` (3,): the nominal damping and added-mass Coriolis terms
+    on the water-relative velocity minus those on ``nu`` (``R``: the rotations of ``eta``, when known)."""
+    R = _rotation(eta) if R is None else R
     nu_r = nu.copy()
     nu_r[..., :3] = nu[..., :3] - _to_body(R, np.broadcast_to(c, nu.shape[:-1] + (3,)))
     return (_damping_force(nu, p) - _damping_force(nu_r, p)
@@ -646,7 +670,8 @@ def _current_force(eta, nu, c, p, M_A):
 class Current(Effect):
     def design(self, s, shape):
         c = np.array(shape, float)
-        b0 = s.full(lambda r: _current_force(r["eta"], r["nu"], c, s.p, s.M_A))
+        b0 = s.full(lambda r: _current_force(r["eta"], r["nu"], c, s.p, s.M_A, s.kept("rotation", (r["eta"],),
+                                                                                      _rotation)))
         return Design(b0, np.zeros((s.n, 6, 0)), (), np.zeros(0), np.zeros(0))
 
 

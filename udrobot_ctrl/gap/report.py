@@ -49,6 +49,7 @@ from udrobot_ctrl.gap.confirm import (
     Elimination,
     MemberTest,
     Replay,
+    ReplayCache,
     Replayer,
     alone_tests,
     backward_eliminate,
@@ -63,7 +64,7 @@ from udrobot_ctrl.gap.locate import Located, locate, noise_floor
 from udrobot_ctrl.gap.shrink import GapScore, check_window, gap, prepare_with_effects, simulate_windows
 from udrobot_ctrl.io.files import atomic_write
 from udrobot_ctrl.io.runlog import Run
-from udrobot_ctrl.parallel import Background, fork_map
+from udrobot_ctrl.parallel import Background, fork_map, one_blas_thread
 from udrobot_ctrl.vehicle import load_model
 
 FORMAT = "udrobot-diagnosis/1"
@@ -292,6 +293,8 @@ class Stacks:
     holdout: Attributor
     actuation: Actuation
     identifiability: Identifiability  # what the observed channels can identify (all of it with every DOF measured)
+    #: this pass's recent replays (:func:`_replayer`); copies made with ``replace`` share it
+    replays: ReplayCache = field(default_factory=ReplayCache, repr=False, compare=False)
 
 
 @dataclass(frozen=True)
@@ -531,7 +534,8 @@ def replay_supported(inp: Inputs, stacks: Stacks, sel: Selection, where: Where, 
 def _replayer(inp: Inputs, stacks: Stacks, scored, runs=None) -> Replayer:
     """The :class:`~udrobot_ctrl.gap.confirm.Replayer` of fitted effect sets on ``runs`` (default: the holdout)."""
     runs = inp.holdout if runs is None else runs
-    return Replayer(lambda sets: replay_sets(runs, inp.p, sets, inp.catalogue, stacks.actuation, inp.window_s, scored))
+    return Replayer(lambda sets: replay_sets(runs, inp.p, sets, inp.catalogue, stacks.actuation, inp.window_s, scored,
+                                             cache=stacks.replays))
 
 
 class OnDemand(Mapping):
@@ -1343,7 +1347,18 @@ def diagnose(model, runs, holdout=None, window_s=8.0, effects=None, log=None, mo
         The ``udrobot-diagnosis/1`` report (JSON-ready).
     ctx : DiagnosisContext
         What the figures need.
+
+    Notes
+    -----
+    BLAS runs on one thread throughout (:func:`~udrobot_ctrl.parallel.one_blas_thread`): the work is spread over
+    worker processes instead, and the report does not depend on how many there are.
     """
+    with one_blas_thread():
+        return _diagnose(model, runs, holdout, window_s, effects, log, model_label)
+
+
+def _diagnose(model, runs, holdout, window_s, effects, log, model_label):
+    """:func:`diagnose` computed."""
     t0 = time.perf_counter()
     say = log or (lambda s: None)
     idle = unexcited_runs([*runs, *(holdout or [])], plant_parameters(load_model(model)))

@@ -305,8 +305,8 @@ def test_an_effect_tried_back_is_not_readmitted_when_the_gap_is_not_lower(monkey
 
 
 def test_a_set_replayed_again_is_the_same_replay_and_equals_a_fresh_one():
-    """replay_sets keeps its recent replays: the same set with the same parameters on the same runs is not
-    integrated again, and what it returns is what the integration gives."""
+    """A ReplayCache keeps one diagnosis's recent replays: the same set with the same parameters on the same runs
+    is not integrated again, and what it returns is what the integration gives; without a cache nothing is kept."""
     from udrobot_ctrl.gap import effects as fx
     from udrobot_ctrl.gap.effects import Actuation
 
@@ -318,14 +318,23 @@ def test_a_set_replayed_again_is_the_same_replay_and_equals_a_fresh_one():
     other = Fit(("buoyancy_offset",), {"buoyancy_offset": ()}, {"buoyancy_offset": {"dB_N": -1.0}}, np.ones(1), 1,
                 0.0)
     scored = ["w", "z"]
-    first = confirm.replay_sets([prep], p, [(fit, ("buoyancy_offset",)), (None, ())], cat, act, 6.0, scored)
+    cache = confirm.ReplayCache()
+    first = confirm.replay_sets([prep], p, [(fit, ("buoyancy_offset",)), (None, ())], cat, act, 6.0, scored, cache)
     again = confirm.replay_sets([prep], p, [(other, ("buoyancy_offset",)), (fit, ("buoyancy_offset",))], cat, act,
-                                6.0, scored)
-    assert again[1] is first[0]
+                                6.0, scored, cache)
+    assert again[1] is first[0] and len(cache) == 3
     assert again[0].gap.value != first[0].gap.value  # other parameters: replayed
-    fresh = confirm._replay_sets([prep], p, [(fit, ("buoyancy_offset",))], cat, act, 6.0, scored)[0]
-    assert fresh.gap == first[0].gap
+    fresh = confirm.replay_sets([prep], p, [(fit, ("buoyancy_offset",))], cat, act, 6.0, scored)[0]  # no cache
+    assert fresh is not first[0] and fresh.gap == first[0].gap
     np.testing.assert_array_equal(fresh.sims[0], first[0].sims[0])
-    # another run (another object) is replayed, whatever its contents
+    # another run (another object) is replayed, whatever its contents; another cache keeps nothing of this one
     prep2 = _prepared_run()
-    assert confirm.replay_sets([prep2], p, [(fit, ("buoyancy_offset",))], cat, act, 6.0, scored)[0] is not first[0]
+    assert confirm.replay_sets([prep2], p, [(fit, ("buoyancy_offset",))], cat, act, 6.0, scored, cache)[0] \
+        is not first[0]
+    assert confirm.replay_sets([prep], p, [(fit, ("buoyancy_offset",))], cat, act, 6.0, scored,
+                               confirm.ReplayCache())[0] is not first[0]
+    small = confirm.ReplayCache(kept=1)  # the oldest replay goes beyond ``kept``
+    a = confirm.replay_sets([prep], p, [(fit, ("buoyancy_offset",))], cat, act, 6.0, scored, small)[0]
+    confirm.replay_sets([prep], p, [(other, ("buoyancy_offset",))], cat, act, 6.0, scored, small)
+    assert len(small) == 1
+    assert confirm.replay_sets([prep], p, [(fit, ("buoyancy_offset",))], cat, act, 6.0, scored, small)[0] is not a

@@ -1,4 +1,6 @@
 """Physics of the tether template: cross-flow drag normal to the cable, towards an anchor or along a fixed direction."""
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -223,3 +225,36 @@ def test_wall_replay_hooks_are_the_plants_suction_and_added_mass_over_every_surf
     assert not np.allclose(hooks.mass(turned, ctx), mass)
     np.testing.assert_array_equal(hooks.mass(turned, ctx), hooks.mass(turned, {"surfaces": ctx["surfaces"]}))
     np.testing.assert_array_equal(hooks.force(x, None, ctx), hooks.force(x, None, {"surfaces": ctx["surfaces"]}))
+
+
+def _surface_stack(x, p, nu_dot, dist):
+    """:func:`_stack` with a seabed at distance ``dist`` and the accelerations ``nu_dot`` (a fresh memo)."""
+    s = _stack(x, p)
+    run = {**s.runs[0], "nu_dot": nu_dot, "surfaces": [(dist, np.array([0.0, 0.0, 1.0]))]}
+    return replace(s, runs=[run], memo={})
+
+
+def test_designs_that_keep_shape_free_terms_equal_fresh_ones_on_copies_with_moved_velocities():
+    """A stack keeps a wall's surface geometry and a current's rotations per run arrays (Stack.kept): every decay
+    length and current reads them, and a copy whose velocities or pose moved (identifiability's perturbed stacks)
+    gets its own, not the original's."""
+    rng = np.random.default_rng(3)
+    p = plant_parameters(load_model("pendulum:chin"))
+    x = _state(rng, 80)
+    nu_dot, dist = rng.normal(0, 0.3, (80, 6)), rng.uniform(0.05, 1.0, 80)
+    wall, current = catalogue()["wall_effect"], catalogue()["water_current"]
+    s = _surface_stack(x, p, nu_dot, dist)
+    for lam in (0.1, 0.33):  # the second decay length reads what the first kept
+        np.testing.assert_array_equal(wall.design(s, (lam,)).A, wall.design(_surface_stack(x, p, nu_dot, dist),
+                                                                            (lam,)).A)
+    assert np.abs(wall.design(s, (0.33,)).A).max() > 0  # near the seabed: the wall acts
+    np.testing.assert_array_equal(current.design(s, (0.1, -0.1, 0.0)).b0,
+                                  current.design(_surface_stack(x, p, nu_dot, dist), (0.1, -0.1, 0.0)).b0)
+    moved = x.copy()
+    moved[:, 6] += 0.2
+    moved[:, 3] += 0.1
+    copy = replace(s, runs=[dict(s.runs[0], nu=moved[:, 6:], eta=moved[:, :6])])  # shares s's memo
+    fresh = _surface_stack(moved, p, nu_dot, dist)
+    np.testing.assert_array_equal(wall.design(copy, (0.33,)).A, wall.design(fresh, (0.33,)).A)
+    np.testing.assert_array_equal(current.design(copy, (0.1, -0.1, 0.0)).b0, current.design(fresh, (0.1, -0.1, 0.0)).b0)
+    assert not np.array_equal(current.design(copy, (0.1, -0.1, 0.0)).b0, current.design(s, (0.1, -0.1, 0.0)).b0)
