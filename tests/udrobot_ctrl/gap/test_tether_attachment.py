@@ -22,11 +22,13 @@ from .truth import anchored_tether, generate
 MODEL = "pendulum:chin"
 #: tied at the top rear of the hull (body frame, m: 15 cm aft, 10 cm up), within pendulum:chin's 0.18 m size
 TOP_REAR = (-0.15, 0.0, -0.10)
-#: the attachment's tolerance in standard errors of the lever arm (:func:`lever_arm_resolution`); seeds 2-4 were
-#: within 1.6 of them (0.2-3.6 mm off), the rest is the 20-node truth against the 3-point template
+#: the attachment's tolerance: this many standard errors of the lever arm from the noise (:func:`lever_arm_resolution`,
+#: 0.5-0.7 mm on these runs) ...
 STANDARD_ERRORS = 5.0
-#: and at least this much (m): half a centimetre, a tenth of the CG-CB separation's scale on a small ROV
-ATTACH_FLOOR_M = 0.005
+#: ... plus this allowance (m) for the template's form error (estimated: the truth integrates the taut cable's drag
+#: over 20 nodes, the template over 3 Gauss points with its lumped amplitudes): measured errors over seeds 2-4 were
+#: 0.2-3.6 mm, the largest (seed 2, x) 5.0 standard errors. A drag centre standing in for the moment is 15 cm off.
+FORM_ALLOWANCE_M = 0.005
 POSE = ("x", "y", "z", "phi", "theta", "psi")
 RATES = ("u", "v", "w", "p", "q", "r")
 
@@ -70,13 +72,13 @@ def at_the_co():
 @pytest.mark.slow
 def test_a_tether_tied_at_the_top_rear_is_named_alone_with_its_attachment(top_rear):
     """The tether is named, no drag centre beside it standing in for its moment, and the fitted attachment is the
-    hull point within ``STANDARD_ERRORS`` of the noise's resolution (at least ``ATTACH_FLOOR_M``)."""
+    hull point within ``STANDARD_ERRORS`` of the noise's resolution plus ``FORM_ALLOWANCE_M``."""
     truth, runs, report = top_rear
     sig = _significant(report)
     assert set(sig) == {"tether_drag"}, {e["name"]: (e["significant"], e["shrink"]) for e in report["effects"]}
     q = sig["tether_drag"]["params"]
     fitted = np.array([q[k] for k in TETHER_ATTACH])
-    tol = np.maximum(STANDARD_ERRORS * lever_arm_resolution(report, runs), ATTACH_FLOOR_M)
+    tol = STANDARD_ERRORS * lever_arm_resolution(report, runs) + FORM_ALLOWANCE_M
     assert np.all(np.abs(fitted - truth["attach"]) < tol), (fitted, truth["attach"], tol)
     assert sig["tether_drag"]["shrink"] >= 0.5
 
@@ -103,7 +105,7 @@ def test_a_tether_at_the_co_is_fitted_at_the_co(at_the_co):
     assert set(sig) == {"tether_drag"}, {e["name"]: (e["significant"], e["shrink"]) for e in report["effects"]}
     q = sig["tether_drag"]["params"]
     fitted = np.array([q[k] for k in TETHER_ATTACH])
-    tol = np.maximum(STANDARD_ERRORS * lever_arm_resolution(report, runs), ATTACH_FLOOR_M)
+    tol = STANDARD_ERRORS * lever_arm_resolution(report, runs) + FORM_ALLOWANCE_M
     assert np.all(np.abs(fitted) < tol), (fitted, tol)
 
 
@@ -115,6 +117,7 @@ def test_a_cable_tied_beyond_the_hull_is_listed_at_the_size_bound_not_named():
     size = vehicle_size([t.position for t in load_model(MODEL).thrusters])
     e = next(x for x in report["effects"] if x["name"] == "tether_drag")
     assert not e["significant"], e
-    assert e["at_bound"]["attach_x_m"] == {"value": pytest.approx(-size, abs=1e-6), "bound": pytest.approx(-size, abs=1e-6)}
+    aft = pytest.approx(-size, abs=1e-6)  # the report's six decimals
+    assert e["at_bound"]["attach_x_m"] == {"value": aft, "bound": aft}
     v, _ = corrected_model(MODEL, report, runs)
     assert "tether_drag" not in [x.name for x in v.effects]
