@@ -29,7 +29,8 @@ Templates (the diagnoser's lumped forms; a truth generator should use different 
                         shape: its NED position), e the unit vector towards it: F_ned = -(k_q |V_n| + k_l) V_n,
                         V_n = V - (V.e) e. The direction turns as the vehicle moves; a far anchor is a fixed
                         direction (a cable straight up gives horizontal drag). The top end may walk with the
-                        vehicle, and the cable be slack (lumped) or taut (drag per metre of the straight line).
+                        vehicle, and the cable be slack (lumped) or taut (drag per metre of the straight line);
+                        it is tied at a hull point r_a (shape), with that point's velocity and the moment r_a x F.
 ``wall_effect``         per surface at distance h with normal n: added mass a_m exp(-h/lam) n n^T and a
                         suction force -a_s exp(-h/lam) |V_t|^2 n (V_t the speed along the surface).
 ``water_current``       steady NED current (c_N, c_E, c_D): damping acts on nu - R^T c.
@@ -523,6 +524,15 @@ ANCHOR_LATTICE_MAX = 7
 WALK_AZIMUTHS = tuple(np.radians((0.0, 45.0, 90.0, 135.0)))
 WALK_BACK_M = (-4.0, -1.5, 1.5, 4.0)
 WALK_LINES = 5
+#: the refinement's first step (m) on each coordinate of a tether's attachment point: a tenth of a small ROV's
+#: 0.5 m length (assumed: the hull points a cable is tied to lie 0.1-0.3 m from the CO)
+ATTACH_STEP_M = 0.05
+
+
+def hull_size(s: Stack) -> float:
+    """The vehicle's size (m) bounding a point of its hull from the CO on each body axis: the model's
+    ``size_m`` (:func:`udrobot_ctrl.dynamics.effects.vehicle_size`), or ``ASSUMED_VEHICLE_SIZE_M`` without it."""
+    return float(getattr(s.p, "size_m", None) or pfx.ASSUMED_VEHICLE_SIZE_M)
 
 
 class TetherDrag(Effect):
@@ -550,6 +560,12 @@ class TetherDrag(Effect):
     slack cable's paid-out length is fixed and its amplitudes are lumped; a taut one is as long as the straight line
     to its top end and drags in proportion. Each near anchor and walking line is searched in both forms (far
     anchors only slack: their distance does not change); the form is held at its grid value in the refinement.
+
+    The cable is tied to the hull at r_a = (``attach_x_m attach_y_m attach_z_m``, body frame, m from the CO; the
+    plant's :func:`udrobot_ctrl.dynamics.effects.tether_unit_forces`): the drag acts with that point's position and
+    velocity and adds the moment r_a x F (a cable tied at the top rear of a hull pitches the vehicle when it drags).
+    The grid searches it at the CO; the refinement moves it with the anchor (steps of ``ATTACH_STEP_M``), each
+    coordinate within the vehicle's size (:func:`hull_size`): a point of the hull.
     """
 
     def search_space(self, s):
@@ -581,26 +597,30 @@ class TetherDrag(Effect):
         slack = [g + (0.0,) for g in grid]  # cable_taut 0: a fixed paid-out length
         taut = [g + (1.0,) for i, g in enumerate(grid) if i not in far]  # cable_taut 1: as long as the line
         span = 2.0 * FAR_ANCHOR_M
+        size = hull_size(s)
         bounds = ((c[0] - span, c[0] + span), (c[1] - span, c[1] + span), (zc - span, zc + span),
-                  (-0.5 * np.pi, np.pi), (0.0, 1.0), (0.0, 1.0))
-        return tuple(tuple(float(v) for v in g) for g in slack + taut), bounds
+                  (-0.5 * np.pi, np.pi), (0.0, 1.0), (0.0, 1.0)) + ((-size, size),) * len(pfx.TETHER_ATTACH)
+        at_co = (0.0,) * len(pfx.TETHER_ATTACH)  # the grid ties the cable at the CO; the refinement moves it
+        return tuple(tuple(float(v) for v in g + at_co) for g in slack + taut), bounds
 
     def refine_step(self, s, x0):
-        """30 % of the anchor's distance from the runs' centre on each coordinate (at least 0.5 m) and, for a walking
-        top end, 0.3 rad on the walk's azimuth; the walk fraction is held at its grid value (0: a fixed anchor, 1: a
-        top end that walks with the vehicle -- the two physical forms; in between, a single-effect fit would use it
-        to soak up what another effect does), and so is ``cable_taut`` (slack or taut)."""
+        """30 % of the anchor's distance from the runs' centre on each coordinate (at least 0.5 m), for a walking
+        top end 0.3 rad on the walk's azimuth, and ``ATTACH_STEP_M`` on each coordinate of the attachment; the walk
+        fraction is held at its grid value (0: a fixed anchor, 1: a top end that walks with the vehicle -- the two
+        physical forms; in between, a single-effect fit would use it to soak up what another effect does), and so
+        is ``cable_taut`` (slack or taut)."""
         x0 = np.asarray(x0, float)
         centre = np.r_[np.median(s.eta[:, :2], axis=0), np.median(s.eta[:, 2])]
         step = max(0.5, 0.3 * float(np.linalg.norm(x0[:3] - centre)))
-        return np.r_[np.full(3, step), 0.3 if x0[4] > 0 else 0.0, 0.0, 0.0]
+        return np.r_[np.full(3, step), 0.3 if x0[4] > 0 else 0.0, 0.0, 0.0,
+                     np.full(len(pfx.TETHER_ATTACH), ATTACH_STEP_M)]
 
     def design(self, s, shape):
         return self.designs(s, [shape])[0]
 
     def designs(self, s, shapes):
-        """The designs of many anchors at once (:func:`_tether_columns`, one call per cable form); the same numbers
-        as one anchor at a time."""
+        """The designs of many anchors at once (:func:`_tether_columns`, one call per cable form and attachment
+        point); the same numbers as one anchor at a time."""
         shapes = [tuple(float(v) for v in sh) for sh in shapes]
         forms = {}
         for i, sh in enumerate(shapes):
@@ -796,7 +816,7 @@ class DragCentre(Effect):
 
     def design(self, s, shape):
         D, Q = np.asarray(s.p.D_L, float)[:3, :3], np.asarray(s.p.Q, float)[:3, :3]
-        size = float(getattr(s.p, "size_m", None) or pfx.ASSUMED_VEHICLE_SIZE_M)
+        size = hull_size(s)
 
         def cols(r):
             v, w = r["nu"][:, :3], r["nu"][:, 3:6]
@@ -831,7 +851,7 @@ def catalogue() -> dict:
             lag_grid, ((0.005, 1.0), pfx.EXPONENT_RANGE), refine=True, mimics=("added_mass_error",),
             excited_by=THRUSTERS_MOVING, physical_ends=("thrust_exponent",)),
         TetherDrag("tether_drag", "umbilical cross-flow drag, normal to the cable",
-                   pfx.TETHER_ANCHOR + pfx.TETHER_WALK + (pfx.TETHER_TAUT,), (), (),
+                   pfx.TETHER_ANCHOR + pfx.TETHER_WALK + (pfx.TETHER_TAUT,) + pfx.TETHER_ATTACH, (), (),
                    refine=True, mimics=("quadratic_damping_error", "linear_damping", "thrust_inflow_loss")),
         WallEffect("wall_effect", "extra added mass and suction near the seabed or a wall", ("decay_length_m",),
                    wall_grid, ((0.01, 2.0),), refine=True,

@@ -94,10 +94,13 @@ def _stack(x, p):
 
 
 WALKING = {**ANCHOR, "walk_azimuth_rad": 0.7, "walk_fraction": 1.0}
+#: tied at the top rear of the hull (body frame, m), within pendulum:chin's 0.18 m size
+ATTACHED = {**ANCHOR, "attach_x_m": -0.15, "attach_y_m": 0.02, "attach_z_m": -0.1}
 
 
-@pytest.mark.parametrize("geometry", [ANCHOR, WALKING, {"cable_azimuth_rad": 2.5, "cable_elevation_rad": 0.4}],
-                         ids=["anchor", "walking", "fixed-direction"])
+@pytest.mark.parametrize("geometry", [ANCHOR, WALKING, ATTACHED, {**WALKING, **ATTACHED, "cable_taut": 1.0},
+                                      {"cable_azimuth_rad": 2.5, "cable_elevation_rad": 0.4}],
+                         ids=["anchor", "walking", "attached", "walking-taut-attached", "fixed-direction"])
 def test_tether_regressor_is_the_derivative_of_the_plant_force(geometry):
     """b0 + A a of the diagnoser's design is the corrected plant's own force (the effect it writes to a model)."""
     rng = np.random.default_rng(1)
@@ -141,6 +144,11 @@ def test_tether_search_covers_anchors_around_the_runs_and_the_fixed_directions()
     assert np.hypot(*(g[near, :2] - centre).T).max() > np.hypot(*(x[:, :2] - centre).T).max()  # and beyond them
     np.testing.assert_allclose(dist[~near], FAR_ANCHOR_M, rtol=1e-9)  # the fixed-direction limit
     assert any(np.allclose(r[:2], centre) and r[2] < -0.99 * FAR_ANCHOR_M for r in g)
+    names = catalogue()["tether_drag"].shape_names
+    attach = [names.index(k) for k in fx.TETHER_ATTACH]
+    assert np.all(g_all[:, attach] == 0.0)  # the grid ties the cable at the CO; the refinement moves it
+    size = fx.vehicle_size([t.position for t in load_model("pendulum:chin").thrusters])
+    assert [bounds[i] for i in attach] == [(-size, size)] * 3  # a point of the hull
 
 
 @pytest.mark.parametrize("a", [0.0, 0.4, 1.0])
@@ -181,13 +189,16 @@ def test_tether_designs_of_many_anchors_are_each_anchors_own():
     p0 = plant_parameters(load_model("pendulum:chin"))
     st = _stack(_anchored_states(rng), p0)
     eff = catalogue()["tether_drag"]
-    shapes = [(3.0, -2.0, 0.0, 0.0, 0.0, 0.0), (-1.0, 4.0, 0.0, 0.7, 1.0, 1.0), (8.0, 1.0, -0.5, 0.0, 0.0, 1.0),
-              (0.5, 0.5, 0.0, 0.7, 1.0, 1.0), (-6.0, 2.0, 0.0, 0.0, 0.0, 0.0)]
+    co, aft = (0.0, 0.0, 0.0), (-0.15, 0.0, -0.1)  # tied at the CO, or at the top rear
+    shapes = [(3.0, -2.0, 0.0, 0.0, 0.0, 0.0) + co, (-1.0, 4.0, 0.0, 0.7, 1.0, 1.0) + co,
+              (8.0, 1.0, -0.5, 0.0, 0.0, 1.0) + aft, (0.5, 0.5, 0.0, 0.7, 1.0, 1.0) + aft,
+              (-6.0, 2.0, 0.0, 0.0, 0.0, 0.0) + co, (3.0, -2.0, 0.0, 0.0, 0.0, 0.0) + aft]
     together = eff.designs(st, shapes)
     for shape, d in zip(shapes, together):
         alone = eff.designs(st, [shape])[0]
         assert np.array_equal(d.A, alone.A) and np.array_equal(d.b0, alone.b0)
     assert not np.allclose(together[0].A, together[4].A)  # the anchors differ
+    assert not np.allclose(together[0].A, together[5].A)  # and so do the attachments
 
 
 def test_wall_replay_hooks_are_the_plants_suction_and_added_mass_over_every_surface():

@@ -12,7 +12,8 @@ means the physics was recovered, not a formula matched:
   20 nodes with each node's velocity, weighted by its share carried by the vehicle end; or (``anchor`` given,
   :func:`anchored_tether`) the same cable from a fixed point on a deck at the pool edge, its drag growing with the
   straight-line length (a taut cable); with ``slack_length`` given, that paid-out length (m) instead, whatever the
-  distance (the template: a drag per metre of the straight line, or lumped, integrated over 3 Gauss points);
+  distance (the template: a drag per metre of the straight line, or lumped, integrated over 3 Gauss points); with
+  ``attach`` given (body frame, m), tied at that hull point: its position and velocity, and the moment r_a x F;
 * wall_effect: method-of-images sphere laws, added mass ~ (a/h)^3, suction ~ (a/h)^4;
 * water_current: a 1/7-power boundary-layer profile over the pool depth;
 * linear_damping: a |nu|^1.1 skin-friction law; quadratic_damping_error: drag on the speed *norm*;
@@ -163,17 +164,21 @@ class Truth:
             else:  # a handler walking along the pool edge, c["back"] m behind the vehicle
                 anchor = np.stack([x[:, 0] - c["back"], np.full(R_, WALL_Y), np.zeros(R_)], 1)
                 a_dot = np.stack([vned[:, 0], np.zeros(R_), np.zeros(R_)], 1)
-            vec = x[:, :3] - anchor
+            r_a = np.asarray(c.get("attach", (0.0, 0.0, 0.0)), float)  # where the cable is tied (body, m)
+            tied = x[:, :3] + Rm @ r_a  # that hull point's NED position and velocity
+            v_tied = vned + np.einsum("nij,nj->ni", Rm, np.cross(nu[:, 3:6], r_a))
+            vec = tied - anchor
             L = np.linalg.norm(vec, axis=1, keepdims=True)
             eh = vec / L
             s = ((np.arange(20) + 0.5) / 20)[None, :, None]  # 20 nodes from the anchor (0) to the vehicle (1)
-            ve = a_dot[:, None] + s * (vned - a_dot)[:, None]
+            ve = a_dot[:, None] + s * (v_tied - a_dot)[:, None]
             vn = ve - np.sum(ve * eh[:, None], -1, keepdims=True) * eh[:, None]
             length = L if "slack_length" not in c else np.full_like(L, c["slack_length"])
             speed = np.linalg.norm(vn, axis=-1, keepdims=True)
             dF = -0.5 * RHO * c["cd"] * c["d"] * (length[:, None] / 20) * speed * vn
-            tot = np.sum(s * dF, axis=1)
-            F[:, :3] += np.einsum("nji,nj->ni", Rm, tot)
+            tot = np.einsum("nji,nj->ni", Rm, np.sum(s * dF, axis=1))  # body frame, at the hull point
+            F[:, :3] += tot
+            F[:, 3:] += np.cross(r_a, tot)
         if "wall_effect" in e:
             c = e["wall_effect"]
             a = c["a"]
