@@ -391,9 +391,9 @@ def run(args) -> int:
         _banner(f"demo step {i}/{len(STEPS)}: {name}")
         t0 = time.perf_counter()
         try:
-            if name == "controllers" and kernels is not None:
-                _kernels_compiled(kernels)
             if name == "controllers":
+                if kernels is not None:
+                    _kernels_compiled(kernels)
                 summary[name] = fn(out, full=args.full, workers=workers)
             else:
                 summary[name] = fn(out)

@@ -105,10 +105,9 @@ class Stack:
         identity; the entry holds the arrays, so that their ids stay theirs (a copy with moved velocities,
         :func:`udrobot_ctrl.gap.identifiability._perturbed`, has arrays of its own)."""
         key = (what, *map(id, arrays))
-        hit = self.memo.get(key)
-        if hit is None or any(a is not b for a, b in zip(hit[0], arrays)):
-            hit = self.memo[key] = (tuple(arrays), compute(*arrays))
-        return hit[1]
+        if key not in self.memo:  # the entry holds the arrays: an id in a key is never another array's
+            self.memo[key] = (tuple(arrays), compute(*arrays))
+        return self.memo[key][1]
 
     def full(self, func, held=False, filt=True):
         """Evaluate func(run) -> (n_full, ...) on each run at its full rate (raw logged state, held commands),
@@ -640,8 +639,7 @@ class TetherDrag(Effect):
 def _surface_geometry(eta, nu, nu_dot, dist, normal):
     """What a surface's terms share whatever the decay length: body normal (n, 3), tangential speed^2 (n,), distance
     h (n,; inf where unmeasured) and the acceleration along the normal (n,)."""
-    R = rotation_zyx(eta[..., 3], eta[..., 4], eta[..., 5])
-    nb = _to_body(R, np.broadcast_to(normal, eta.shape[:-1] + (3,)))
+    nb = _to_body(_rotation(eta), np.broadcast_to(normal, eta.shape[:-1] + (3,)))
     vn = np.sum(nu[..., :3] * nb, -1)
     vt2 = np.maximum(np.sum(nu[..., :3] ** 2, -1) - vn ** 2, 0.0)
     h = np.where(np.isfinite(dist), np.maximum(dist, 0.0), np.inf)
