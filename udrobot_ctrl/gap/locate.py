@@ -8,11 +8,11 @@ measured start state of each window and the passive modes (an unactuated roll os
 excites in an open-loop replay all count. A channel whose motion is small against its noise (roll rate of a
 vehicle that barely rolls) shows a large NRMSE with no unmodelled effect at all. :func:`noise_floor` estimates
 that floor per channel by replaying the nominal model under the logged noise: the nominal multiple-shooting replay
-is taken as a synthetic truth, each logged channel gets white noise of its own measured level
-(:func:`udrobot_ctrl.gap.shrink.channel_noise`), the windows restart from the synthetic measurement (pose) and its
-Savitzky-Golay smoothed value (velocities: truth, the smoother's estimated bias and the filtered noise) as the real
-replay does, and the NRMSE of that replay against the noisy
-synthetic measurement is the floor (``FLOOR_DRAWS`` seeded Monte Carlo draws).
+is taken as a synthetic truth, each logged channel gets noise of its own measured level and logging rate (white
+at its own samples, interpolated onto the grid as the log is: :func:`udrobot_ctrl.gap.smoother.noise_model`), the
+windows restart from the synthetic measurement (pose) and its Savitzky-Golay smoothed value (velocities: truth, the
+smoother's estimated bias and the filtered noise) as the real replay does, and the NRMSE of that replay against the
+noisy synthetic measurement is the floor (``FLOOR_DRAWS`` seeded Monte Carlo draws).
 
 Ranking. A replay spreads an unmodelled force through the dynamics' coupling: a surge/heave disturbance also
 disturbs the replayed roll rate (through the centripetal terms), and relative to the roll rate's small spread that
@@ -39,7 +39,8 @@ from scipy.signal import savgol_coeffs
 from udrobot_ctrl.dynamics.plant import PlantParameters
 from udrobot_ctrl.gap.attribute import residual, tau_int
 from udrobot_ctrl.gap.data import OBSERVING, POSE, VEL, Prepared, smooth_derivative
-from udrobot_ctrl.gap.shrink import ACCEL, accel_bias, channel_noise, errors, simulate_windows, window_starts
+from udrobot_ctrl.gap.shrink import ACCEL, accel_bias, errors, simulate_windows, window_starts
+from udrobot_ctrl.gap.smoother import noise_draw, noise_model
 from udrobot_ctrl.parallel import fork_map
 
 FLOOR_DRAWS = 2
@@ -163,8 +164,7 @@ def synthetic_run(prep: Prepared, sim, window_s, rng) -> Prepared:
         m = prep.meas.get(c)
         if m is None or not np.isfinite(m).any():
             continue
-        sigma = channel_noise(m)
-        noise[c] = rng.normal(0.0, sigma if np.isfinite(sigma) else 0.0, prep.n)
+        noise[c] = noise_draw(noise_model(m), prep.n, rng)
         meas[c] = np.where(np.isfinite(m), y + noise[c], np.nan)
     eta, nu, bias = prep.eta.copy(), prep.nu.copy(), smoothing_bias(prep)
     for i, c in enumerate(POSE):
@@ -228,8 +228,7 @@ def _renoised(prep: Prepared, rng) -> Prepared:
         m = prep.meas.get(c)
         if m is None or not np.isfinite(m).any():
             continue
-        sigma = channel_noise(m)
-        added[c] = e = rng.normal(0.0, sigma if np.isfinite(sigma) else 0.0, prep.n)
+        added[c] = e = noise_draw(noise_model(m), prep.n, rng)
         meas[c] = m + e
         if i < 6:
             eta[:, i] += e

@@ -230,16 +230,181 @@ def _functions(p: PlantParameters, s: SmootherSettings, dt: float, compile: bool
     return _CACHE[key]
 
 
-def channel_noise(y):
-    """Sensor-noise std of a channel from its sample-to-sample differences (robust MAD), same units."""
-    d = np.diff(y[np.isfinite(y)])
+#: a row lies on the straight line through its neighbours when its second difference is within this share of its
+#: two differences (the relative rounding of a linear interpolation on time stamps of up to ~1e9 s at a 0.02 s grid
+#: is ~1e-5; two differences of a sampled channel with noise agree that closely with a chance of ~1e-4)
+LINE_RELATIVE = 1e-4
+#: ... plus this many double-precision rounding units of the channel's largest value, plus twice the decimal step of
+#: values written with few decimals (the absolute rounding of the interpolation and of the file)
+LINE_ULPS = 64
+#: decimals beyond which values are taken as written in full (not rounded to a fixed number of decimals)
+DECIMALS_MAX = 12
+#: share of a channel's moving rows (not flat) that lie on straight lines above which it is taken as linearly
+#: interpolated from a slower stream: a sampled channel with noise has almost none (three noisy samples in line by
+#: chance), one interpolated from knots k >= 3 rows apart has 1 - 2/k or more (assumed threshold, between the two)
+INTERPOLATED_SHARE = 0.3
+#: straight-line segments needed before a knot interval is estimated from them (fewer: taken as sampled)
+MIN_SEGMENTS = 10
+
+
+@dataclass(frozen=True)
+class ChannelNoise:
+    """A logged channel's sensor noise, as the data show it.
+
+    Attributes
+    ----------
+    sigma : float
+        Noise std of the channel's own samples, same units as the channel.
+    interval : float
+        Grid rows between the channel's own samples: 1 for a channel sampled at the grid's rate; k for one logged
+        k times slower and linearly interpolated onto the grid (its knots, which may fall between rows).
+    """
+
+    sigma: float
+    interval: float = 1.0
+
+    @property
+    def interpolated(self) -> bool:
+        """Whether the channel is interpolated onto the grid from a slower stream."""
+        return self.interval > 1.5
+
+
+def _mad_noise(d) -> float:
+    """Noise std from differences of consecutive samples (robust MAD; the difference of two has variance 2 s^2)."""
+    d = d[np.isfinite(d)]
     if d.size < 5:
         return np.nan
     return float(1.4826 * np.median(np.abs(d - np.median(d))) / np.sqrt(2.0))
 
 
-def measurement_noise(meas: dict, channels) -> dict:
-    """Noise std per channel: sample-to-sample MAD of the logged data (angles unwrapped), floored."""
+def _decimal_step(y) -> float:
+    """Rounding step of values written with a fixed number of decimals (0 when they are written in full)."""
+    v = y[np.isfinite(y)][:4096]
+    if v.size == 0:
+        return 0.0
+    need = np.full(v.size, DECIMALS_MAX + 1)
+    for k in range(DECIMALS_MAX + 1):
+        x = v * 10.0 ** k
+        whole = (np.abs(x) < 1e14) & (np.abs(x - np.round(x)) <= 8 * np.finfo(float).eps * np.maximum(np.abs(x), 1))
+        need[whole & (need > DECIMALS_MAX)] = k
+    k99 = float(np.percentile(need, 99))
+    return 0.0 if k99 > DECIMALS_MAX else 10.0 ** -k99
+
+
+def _line_segments(y):
+    """Maximal runs of rows that lie on the straight line through their neighbours: (first row, last row) pairs and
+    the mask of moving rows (neither difference beside them zero) and of those on lines."""
+    d = np.diff(y)
+    d2 = d[1:] - d[:-1]
+    finite = np.isfinite(y)
+    big = float(np.max(np.abs(y[finite]))) if finite.any() else 0.0
+    atol = 2 * _decimal_step(y) + LINE_ULPS * np.finfo(float).eps * big
+    with np.errstate(invalid="ignore"):
+        line = np.abs(d2) <= LINE_RELATIVE * (np.abs(d[:-1]) + np.abs(d[1:])) + atol
+        flat = (np.abs(d[:-1]) <= atol) & (np.abs(d[1:]) <= atol)
+    moving = np.isfinite(d2) & ~flat
+    edges = np.diff(np.concatenate(([0], line.astype(np.int8), [0])))
+    first, last = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1) - 1
+    return first + 1, last + 1, moving, line & moving
+
+
+def _knots(y, first, last):
+    """The samples a linearly interpolated channel was drawn through: where neighbouring straight segments meet.
+
+    Segment j (rows ``first[j]..last[j]`` on its line, slope ``d[first[j]]`` per row) and segment j+1 meet at a
+    knot between rows ``last[j]`` and ``first[j+1]`` when at most two rows lie between them (one knot: a knot on a
+    row breaks one line, one between rows breaks two). Returns (row positions, values, whether the knot follows
+    the previous one directly), the positions clipped to those rows (two nearly parallel segments meet anywhere).
+    """
+    d = np.diff(y)
+    slope = d[first]
+    b0 = y[first] - slope * first  # y = b0 + slope * row on each segment
+    with np.errstate(divide="ignore", invalid="ignore"):
+        k = (b0[1:] - b0[:-1]) / (slope[:-1] - slope[1:])
+    k = np.clip(np.nan_to_num(k, nan=0.5 * (last[:-1] + first[1:])), last[:-1], first[1:])
+    value = b0[:-1] + slope[:-1] * k
+    joined = first[1:] - last[:-1] <= 3
+    return k[joined], value[joined], np.concatenate(([False], (joined[1:] & joined[:-1])[joined[1:]]))
+
+
+def noise_model(y) -> ChannelNoise:
+    """Noise of a logged channel on a uniform grid, at the channel's own logging rate.
+
+    A channel logged slower than the grid and linearly interpolated onto it (e.g. a 10 Hz attitude on a 50 Hz
+    grid) lies on straight lines between its own samples (knots, which may fall between rows): differences of
+    consecutive rows are then a fraction of the noise, and measuring it from them underestimates it by about
+    the interval. Such a channel is recognised by the share of its moving rows whose second difference vanishes
+    (to the rounding of the values: full double precision, or the decimal step of values written with a fixed
+    number of decimals); a sampled channel, quantised or not, has almost none (flat stretches of a quantised
+    channel are not counted). Its knots are recovered where neighbouring segments meet, the interval is their
+    median spacing, and the noise is measured on each knot's deviation from the chord of its two neighbours
+    (robust MAD; white noise gives it variance s^2 (1 + a^2 + b^2), a + b = 1 the chord's weights): between
+    samples logged slowly the motion is large, a steady climb is not noise, and the stamps' jitter is kept.
+
+    Parameters
+    ----------
+    y : (n,) ndarray
+        The channel on the grid (nan where absent), its units; angles unwrapped by the caller if they wrap.
+
+    Returns
+    -------
+    ChannelNoise
+        ``sigma`` nan when fewer than five differences are finite.
+    """
+    y = np.asarray(y, float)
+    sampled = ChannelNoise(_mad_noise(np.diff(y[np.isfinite(y)])))
+    if y.size < 3:
+        return sampled
+    first, last, moving, on_line = _line_segments(y)
+    if first.size < MIN_SEGMENTS or on_line.sum() < INTERPOLATED_SHARE * max(moving.sum(), 1):
+        return sampled
+    k, v, after = _knots(y, first, last)
+    step = np.diff(k)[after[1:]]
+    if step.size < MIN_SEGMENTS or np.median(step) <= 1.5:
+        return sampled
+    # knot i with both neighbours directly beside it: its deviation from their chord
+    mid = np.flatnonzero(after[1:-1] & after[2:]) + 1
+    if mid.size < 5:
+        return sampled
+    h0, h1 = k[mid] - k[mid - 1], k[mid + 1] - k[mid]
+    a, b = h1 / (h0 + h1), h0 / (h0 + h1)
+    e = (v[mid] - a * v[mid - 1] - b * v[mid + 1]) / np.sqrt(1.0 + a ** 2 + b ** 2)
+    return ChannelNoise(float(1.4826 * np.median(np.abs(e - np.median(e)))), float(np.median(step)))
+
+
+def channel_noise(y) -> float:
+    """Sensor-noise std of a channel at its own logging rate (:func:`noise_model`), same units."""
+    return noise_model(y).sigma
+
+
+def noise_draw(model: ChannelNoise, n: int, rng) -> np.ndarray:
+    """One draw of a channel's noise on ``n`` grid rows: white at the grid rate for a sampled channel; for one
+    interpolated onto the grid, white at its knots (random phase) and linearly interpolated between them, as the
+    log's own noise is.
+
+    Parameters
+    ----------
+    model : ChannelNoise
+    n : int
+        Grid rows.
+    rng : numpy.random.Generator
+
+    Returns
+    -------
+    (n,) ndarray, the channel's units (zeros when ``sigma`` is not finite).
+    """
+    sigma = model.sigma if np.isfinite(model.sigma) else 0.0
+    if not model.interpolated:
+        return rng.normal(0.0, sigma, n)
+    knots = rng.uniform(-model.interval, 0.0) + model.interval * np.arange(int(np.ceil(n / model.interval)) + 2)
+    return np.interp(np.arange(n), knots, rng.normal(0.0, sigma, knots.size))
+
+
+def measurement_noise(meas: dict, channels, step: int = 1) -> dict:
+    """Noise std per channel for a filter that takes every ``step``-th grid row as an independent measurement:
+    the noise at the channel's own rate (angles unwrapped, :func:`noise_model`), floored, and inflated by the
+    square root of the rows per own sample where the channel is interpolated more finely than the filter's rate
+    (the filter would otherwise count one sample's information that many times)."""
     out = {}
     for c in channels:
         y = np.asarray(meas[c], float)
@@ -247,8 +412,9 @@ def measurement_noise(meas: dict, channels) -> dict:
             ok = np.isfinite(y)
             y = y.copy()
             y[ok] = np.unwrap(y[ok])
-        sd = channel_noise(y)
-        out[c] = float(max(sd if np.isfinite(sd) else 0.0, NOISE_FLOOR[c]))
+        model = noise_model(y)
+        sd = model.sigma if np.isfinite(model.sigma) else 0.0
+        out[c] = float(max(sd, NOISE_FLOOR[c]) * np.sqrt(max(1.0, model.interval / step)))
     return out
 
 
@@ -310,7 +476,7 @@ def smooth_run(t, meas: dict, tau, p: PlantParameters, settings: SmootherSetting
     chans = tuple(c for c in CHANNELS if c in meas and np.isfinite(np.asarray(meas[c], float)).any())
     if not chans:
         raise SmootherError(f"{label}: no channel of {', '.join(CHANNELS)} is logged; nothing to smooth")
-    noise = measurement_noise(meas, chans)
+    noise = measurement_noise(meas, chans, step)
     rows = np.array([CHANNELS.index(c) for c in chans])
     Z = np.column_stack([np.asarray(meas[c], float)[idx] for c in chans])
     Rdiag = np.array([noise[c] ** 2 for c in chans])
