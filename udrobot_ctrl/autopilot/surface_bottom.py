@@ -26,12 +26,15 @@ Sources (ArduPilot):
       elif at_bottom: pos_target_z = MAX(inertial_nav.get_position_z_up_cm() + 10, pos_target_z)   // 10 cm up
 
   then ``set_pos_target_z_from_climb_rate_cm`` and ``update_z_controller`` as without the clamps. The pilot's
-  climb is *not* limited at the surface in 4.1.1-4.5 (only the centred-stick clamp above). ArduSub 4.1.0's
-  ``control_depth`` (the "depth hold at arbitrary attitudes" form, replaced in 4.1.1, "Improve Depth hold behavior
-  when surface/bottom is reached") also capped the pilot's climb rate at 0 while surfacing and the descent at 0
-  on the bottom, with ``set_alt_target_with_slew``: that variant is not emulated. Neither is the surface throttle
-  limit ``SURFACE_MAX_THR`` (``motors.set_max_throttle`` in ``control_depth``), which came with ArduPilot PR
-  #29995 (May 2025), after Sub-4.5.3.
+  climb is *not* limited at the surface in 4.1.1-4.5 (only the centred-stick clamp above). Forks built on the
+  4.1.0 betas' "depth hold at arbitrary attitudes" rework carry another ``control_depth`` (earth-frame stick
+  inputs; climb capped at 0 while ``at_surface`` or the target is above ``SURFACE_DEPTH``, descent at 0 on the
+  bottom, the clamps through ``set_alt_target_with_slew``), which 4.1.1's release note "Improve Depth hold
+  behavior when surface/bottom is reached" would have replaced (``ArduSub/ReleaseNotes.txt``; ArduPilot's own
+  4.1.0 tag was not read): that variant is not emulated. Neither is the surface throttle limit
+  ``SURFACE_MAX_THR`` (``motors.set_max_throttle`` in ``control_depth``), which came with ArduPilot PR #29995
+  (May 2025), after Sub-4.5.3. SURFTRAK's ``ModeSurftrak::control_range`` (4.5) applies the same two clamps, then
+  resets its rangefinder target; SURFTRAK itself is not emulated (:mod:`.fly`).
 
 The detector reads the depth and the velocity the controllers read (the emulation's :class:`VehicleState`); in
 ArduSub the surface test reads the barometer and the clamp the EKF's altitude, which agree for a sub whose
