@@ -6,6 +6,8 @@
     motors_output()            mixer inputs: roll/pitch/yaw just computed, throttle (through the motors'
                                throttle low-pass) and forward/lateral from the previous tick's mode update
     update_flight_mode()       the mode: attitude targets -> next rate demand, throttle, forward, lateral
+    update_surface_and_bottom_detector()   ap.at_surface / ap.at_bottom for the next tick's mode
+                               (:mod:`~udrobot_ctrl.autopilot.surface_bottom`)
 
 so :meth:`ArduSubAutopilot.step` returns :class:`MixerInputs` -- ``(roll, pitch, yaw, throttle, forward,
 lateral)``, :data:`~udrobot_ctrl.autopilot.motors.MIXER_INPUTS` order -- for
@@ -17,10 +19,16 @@ depth-holding modes).
 Modes: MANUAL, STABILIZE, ALT_HOLD (pilot), GUIDED and SURFTRAK (attitude and depth targets given, as logged
 or commanded, see :class:`~udrobot_ctrl.autopilot.modes.Targets`; ``Targets(shaped=True)`` takes a log's
 already-shaped ATT Des* targets with their rates as feed-forward); ACRO, AUTO, POSHOLD, CIRCLE, SURFACE are not
-emulated and raise. Not emulated either: ALT_HOLD's surface and bottom clamps of the depth target
-(``SURFACE_DEPTH``, ``ap.at_surface`` / ``at_bottom``) and the surface throttle limit (``set_max_throttle``, the
-mixer's ``max_throttle``), SURFTRAK's rangefinder -> depth-target law (give the depth target), the
-``SET_ATTITUDE_TARGET`` override of ALT_HOLD, failsafes.
+emulated and raise. ALT_HOLD has ArduSub 4.1.1-4.5's surface and bottom handling: the detector's ``at_surface``
+(shallower than ``SURFACE_DEPTH``) and ``at_bottom`` (throttle at its lower limit and no vertical speed for 400
+ticks) and, with the throttle stick centred, the depth target held at least 5 cm below ``SURFACE_DEPTH`` or
+raised to 10 cm above a bottomed vehicle (:mod:`~udrobot_ctrl.autopilot.surface_bottom`, which also lists the
+variants that are not emulated). The detector's ``motors.limit.throttle_lower`` is the autopilot's own (its
+filtered throttle at 0, ``AP_Motors6DOF::output_armed_stabilizing``) or the ``limits`` given; the depth loop's
+integrators see only the ``limits`` given (ArduSub also stops them at its own throttle clamp: not emulated, as
+before). Not emulated: the surface throttle limit ``SURFACE_MAX_THR`` (after 4.5), SURFTRAK's rangefinder ->
+depth-target law (``ModeSurftrak::control_range``, ArduSub 4.5 only: give the depth target, e.g. the logged one),
+the ``SET_ATTITUDE_TARGET`` override of ALT_HOLD, failsafes.
 
 Closed loop (the plant's 12-state ``x``, NED, body velocities)::
 
@@ -45,6 +53,7 @@ from udrobot_ctrl.autopilot.modes import YAW_HOLD_DELAY, Mode, PilotInput, Targe
 from udrobot_ctrl.autopilot.motors import throttle_bidirectional
 from udrobot_ctrl.autopilot.params import ArduSubParameters
 from udrobot_ctrl.autopilot.pid import PIDTerms, lowpass_alpha
+from udrobot_ctrl.autopilot.surface_bottom import SurfaceBottomDetector, althold_depth_target
 
 SUPPORTED_MODES = (Mode.MANUAL, Mode.STABILIZE, Mode.ALT_HOLD, Mode.GUIDED, Mode.SURFTRAK)
 
@@ -166,6 +175,10 @@ class ArduSubAutopilot:
         """Back to power-on: no mode yet, controllers reset, neutral outputs."""
         self.attitude = AttitudeController(self.params.attitude)
         self.depth = DepthController(self.params.depth)
+        self.surface_bottom = SurfaceBottomDetector(self.params.depth.surface_depth)
+        #: ticks on which ALT_HOLD's surface / bottom clamp moved the depth target
+        self.surface_clamps = 0
+        self.bottom_clamps = 0
         self.mode: Mode | None = None
         self.time = 0.0
         self._throttle_in = 0.5
@@ -250,11 +263,21 @@ class ArduSubAutopilot:
                 self._forward, self._lateral = cmd.norm["forward"], cmd.norm["lateral"]
         else:  # ALT_HOLD, SURFTRAK without targets (ALT_HOLD's depth hold)
             self._pilot_attitude(state, cmd, dt)
+            self._clamp_depth_target(state, cmd.climb_rate)
             self.depth.set_pos_target_from_climb_rate(cmd.climb_rate, dt)
             self._forward, self._lateral = cmd.norm["forward"], cmd.norm["lateral"]
         self._throttle_in = self.depth.update(state.depth, state.vel_down, state.accel_down, dt,
                                               limits.throttle_lower, limits.throttle_upper)
         self._throttle_cutoff = p.depth.throttle_cutoff_hz
+
+    def _clamp_depth_target(self, state: VehicleState, climb_rate: float) -> None:
+        """``control_depth``'s surface / bottom clamp of the depth target (:func:`.althold_depth_target`)."""
+        det = self.surface_bottom
+        clamp = althold_depth_target(self.depth.pos_target, state.depth, climb_rate, det.at_surface, det.at_bottom,
+                                     self.params.depth.surface_depth)
+        self.depth.pos_target = clamp.target
+        self.surface_clamps += clamp.reason == "surface"
+        self.bottom_clamps += clamp.reason == "bottom"
 
     def attitude_lean_limit(self) -> float:
         """ALT_HOLD's lean limit (rad): ``get_althold_lean_angle_max`` is at least 10 deg and ``ANGLE_MAX`` at
@@ -280,7 +303,8 @@ class ArduSubAutopilot:
         targets : Targets, optional
             GUIDED / SURFTRAK attitude, depth and horizontal targets.
         limits : MotorLimits, optional
-            Mixer saturation flags of the previous output (none if None).
+            Mixer saturation flags of the previous output (none if None); the surface/bottom detector also sets
+            ``throttle_lower`` from the autopilot's own throttle at 0.
         armed : bool
             False: outputs neutral, controllers relaxed (``relax_attitude_controllers``, depth relaxed).
 
@@ -295,6 +319,7 @@ class ArduSubAutopilot:
         if not armed:
             self.attitude.relax(state.quaternion(), state.rates)
             self.depth.relax(state.depth, 0.5)
+            self.surface_bottom.update(state.depth, state.vel_down, False, armed=False)
             self._throttle_in = self._throttle_out = 0.5
             self._forward = self._lateral = 0.0
             self.mode = mode
@@ -319,6 +344,9 @@ class ArduSubAutopilot:
                           self._lateral)
         # 3. flight mode update for the next tick
         self._update_flight_mode(dt, state, pilot, targets, limits)
+        # 4. surface and bottom detector (read by the next tick's mode); motors.limit.throttle_lower is the mixer's
+        # throttle clamp (throttle_thrust at -_throttle_thrust_max = -1: the filtered throttle at 0)
+        self.surface_bottom.update(state.depth, state.vel_down, limits.throttle_lower or self._throttle_out <= 0.0)
         self.time += dt
         return out
 

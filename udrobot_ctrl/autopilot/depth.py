@@ -28,7 +28,10 @@ Version differences (``AC_PosControl``):
   Here the pilot's climb-rate shaping is simplified to an acceleration-limited ramp of ``vel_desired``
   (``PILOT_ACCEL_Z``) integrated into ``pos_target`` -- exact in the steady state (sticks centred: the target
   holds), approximate during stick transients. GUIDED and SURFTRAK take the logged or commanded targets as they
-  are (:meth:`DepthController.set_targets`).
+  are (:meth:`DepthController.set_targets`). Not emulated either: the ``_limit_vector`` of ``update_z_controller``
+  (``update_pos_vel_accel`` stops moving the target towards a throttle limit), so a target the vehicle cannot
+  follow (pushed into the seabed) keeps moving with ``vel_desired`` until that has ramped to zero. ALT_HOLD's
+  surface and bottom clamps of ``pos_target`` are in :mod:`.surface_bottom`.
 """
 from __future__ import annotations
 

@@ -8,9 +8,15 @@ simulated state and the log's own inputs to the autopilot, and its mixer output
 battery voltage. What the log gives the autopilot, per mode:
 
 * MANUAL, STABILIZE, ALT_HOLD: the pilot's RC inputs (``rcin_1`` .. ``rcin_8``), shaped as ArduSub shapes them;
-* GUIDED and SURFTRAK: the logged attitude targets (``roll_target``, ``pitch_target``, ``yaw_target``) and depth
+  ALT_HOLD with its surface and bottom handling (:mod:`~udrobot_ctrl.autopilot.surface_bottom`: ``SURFACE_DEPTH``
+  from the log, else ArduSub's -10 cm, and the result says which and how often a clamp moved the target);
+* GUIDED: the logged attitude targets (``roll_target``, ``pitch_target``, ``yaw_target``) and depth
   target (``z_target``), with forward and lateral as the logged motor outputs hold them (the mixer inverse of
   ``pwm_i``: ArduSub does not log them);
+* SURFTRAK (ArduSub 4.5 only, added in Sub-4.5.0-beta2): *not emulated* -- its rangefinder -> depth-target law
+  (``ModeSurftrak::control_range`` / ``update_surface_offset``) would need the seabed under the simulated vehicle.
+  It is flown on the logged depth and attitude targets like GUIDED, with the pilot's forward/lateral (as the mode
+  takes them), and the result says so; without a logged depth target the depth target stays where it was;
 * every other mode (POSHOLD, AUTO, ...), which is not emulated: flown like GUIDED on its logged targets, and the
   result says so.
 
@@ -36,7 +42,8 @@ from udrobot_ctrl.vehicle import load_model
 
 #: modes the emulation flies from the pilot's inputs
 PILOT_MODES = (Mode.MANUAL, Mode.STABILIZE, Mode.ALT_HOLD)
-#: modes flown on the logged targets (GUIDED and SURFTRAK are emulated this way; the others stand in for them)
+#: modes flown on the logged targets (GUIDED is emulated this way; SURFTRAK's own depth law is not emulated and is
+#: flown so as a stand-in, and so are the other modes, see :func:`mode_notes`)
 TARGET_MODES = (Mode.GUIDED, Mode.SURFTRAK)
 
 
@@ -185,6 +192,35 @@ class ClosedLoopFlight:
     notes: tuple
 
 
+def mode_notes(modes: np.ndarray, params: ArduSubParameters, autopilot: ArduSubAutopilot,
+               has_depth_target: bool) -> list:
+    """The result's notes on ALT_HOLD's surface / bottom handling and on SURFTRAK, for the modes flown.
+
+    Parameters
+    ----------
+    modes : ndarray
+        The mode flown at each step.
+    params : ArduSubParameters
+    autopilot : ArduSubAutopilot
+        After the flight (its clamp counts).
+    has_depth_target : bool
+        The run has a logged depth target (``z_target``).
+    """
+    notes = []
+    flown = set(int(m) for m in np.unique(modes))
+    if int(Mode.ALT_HOLD) in flown:
+        source = ("ArduSub's default, not in the log" if "SURFACE_DEPTH" in params.assumed else "from the log")
+        notes.append(f"closed loop: ALT_HOLD's surface/bottom handling (ArduSub 4.1.1-4.5) with SURFACE_DEPTH "
+                     f"{-100.0 * params.depth.surface_depth:g} cm ({source}); the depth target was clamped "
+                     f"{autopilot.surface_clamps} tick(s) at the surface and {autopilot.bottom_clamps} on the bottom")
+    if int(Mode.SURFTRAK) in flown:
+        how = ("flown on the logged depth and attitude targets like GUIDED, with the pilot's forward/lateral"
+               if has_depth_target else "no logged depth target: the depth target stays where it was")
+        notes.append(f"closed loop: SURFTRAK is not emulated (its rangefinder depth-target law, ArduSub 4.5's "
+                     f"ModeSurftrak::control_range, needs the seabed under the simulated vehicle); {how}")
+    return notes
+
+
 def fly(model, run: Run, loop_rate_hz: float | None = None, t_final: float | None = None) -> ClosedLoopFlight:
     """Fly ``model`` under the emulated ArduSub from ``run``'s logged pilot inputs, modes and targets.
 
@@ -239,7 +275,8 @@ def fly(model, run: Run, loop_rate_hz: float | None = None, t_final: float | Non
         names = ", ".join(Mode(v).name if v in Mode._value2member_map_ else str(v) for v in sorted(pilot.stand_ins))
         notes.append(f"closed loop: mode(s) {names} are not emulated; flown like GUIDED on their logged attitude and "
                      f"depth targets and logged forward/lateral")
+    notes.extend(mode_notes(modes, params, pilot.autopilot, commands.z_target is not None))
     notes.append(f"closed loop: ArduSub at {params.loop_rate_hz:g} Hz, frame {fr.name}, from the log's pilot inputs "
-                 f"(MANUAL/STABILIZE/ALT_HOLD) and targets (GUIDED/SURFTRAK); forward/lateral of GUIDED from the "
-                 f"logged PWM (mixer inverse)")
+                 f"(MANUAL/STABILIZE/ALT_HOLD) and targets (GUIDED, SURFTRAK's stand-in); forward/lateral of GUIDED "
+                 f"from the logged PWM (mixer inverse)")
     return ClosedLoopFlight(t=res.t, x=res.x, pwm=pwm, mode=modes, notes=tuple(notes))

@@ -34,7 +34,7 @@ Defaults (ArduPilot source, ArduSub 4.1-4.5):
 * ``ArduSub/config.h`` and ``ArduSub/Parameters.cpp``: ``ANGLE_MAX`` 4500 cdeg (``DEFAULT_ANGLE_MAX``),
   ``ACRO_YAW_P`` 3.375 (the value in the stored ``config.h``; older trees had 4.5),
   ``PILOT_SPEED_DN`` 0 (= up), ``PILOT_ACCEL_Z`` 100 cm/s^2 (``PILOT_ACCEL_Z_DEFAULT``), ``THR_DZ`` 100
-  (``THR_DZ_DEFAULT``), ``PILOT_THR_FILT`` 0 (off).
+  (``THR_DZ_DEFAULT``), ``PILOT_THR_FILT`` 0 (off), ``SURFACE_DEPTH`` -10 cm (``SURFACE_DEPTH_DEFAULT``).
 * ``libraries/RC_Channel/RC_Channel.cpp``: ``RCn_MIN`` 1100, ``RCn_MAX`` 1900, ``RCn_TRIM`` 1500, ``RCn_DZ`` 0
   except where ArduSub's ``radio.cpp`` sets a default dead zone (roll, pitch, yaw: 30 us).
 
@@ -186,6 +186,9 @@ class DepthParameters:
         ``PILOT_ACCEL_Z`` (m/s^2), the z acceleration limit of the position shaping and sqrt controller.
     throttle_cutoff_hz : float
         Motors' throttle low-pass when the position controller drives it (``POSCONTROL_THROTTLE_CUTOFF_FREQ_HZ``).
+    surface_depth : float
+        ``-SURFACE_DEPTH / 100`` (m, positive down): shallower than this ArduSub's detector sets ``at_surface``
+        and ALT_HOLD holds its target 5 cm deeper (:mod:`.surface_bottom`). ``SURFACE_DEPTH`` is in cm, up.
     """
 
     pos_p: float = 1.0
@@ -196,6 +199,7 @@ class DepthParameters:
     speed_down: float = 0.0
     accel_max: float = 1.0
     throttle_cutoff_hz: float = 2.0
+    surface_depth: float = 0.10
 
     @property
     def speed_down_effective(self) -> float:
@@ -334,7 +338,7 @@ class ArduSubParameters:
             pos_p=get("PSC_POSZ_P", 1.0), vel=vel_pid, accel=accel_pid,
             throttle_hover=get("MOT_THST_HOVER", 0.5),
             speed_up=get("PILOT_SPEED_UP", 100.0, 0.01), speed_down=get("PILOT_SPEED_DN", 0.0, 0.01),
-            accel_max=get("PILOT_ACCEL_Z", 100.0, 0.01))
+            accel_max=get("PILOT_ACCEL_Z", 100.0, 0.01), surface_depth=get("SURFACE_DEPTH", -10.0, -0.01))
         default_pilot = PilotParameters()
         channels = {}
         for name, number in RC_MAP.items():

@@ -227,7 +227,7 @@ def apply_motor_directions(run: Run, params: dict) -> str:
 #: ArduSub parameter prefixes kept in the sidecar's ``autopilot_params`` (the controllers, the mixer, the pilot input)
 AUTOPILOT_PARAM_PREFIXES = ("ATC_", "PSC_", "MOT_", "PILOT_", "RC1_", "RC2_", "RC3_", "RC4_", "RC5_", "RC6_",
                             "RC7_", "RC8_", "RCMAP_", "JS_", "SURFTRAK_", "WPNAV_", "FRAME_", "SERVO")
-AUTOPILOT_PARAM_NAMES = ("ANGLE_MAX", "SCHED_LOOP_RATE", "BARO_SPEC_GRAV")
+AUTOPILOT_PARAM_NAMES = ("ANGLE_MAX", "SCHED_LOOP_RATE", "BARO_SPEC_GRAV", "SURFACE_DEPTH", "THR_DZ", "ACRO_YAW_P")
 #: a direction pattern is inferred only when it explains the logged PWM this well (RMS of the normalised
 #: command, 1 = full scale) and clearly better than the runner-up: ArduSub truncates its PWM to whole us, 0.0025
 #: of full scale, so a right pattern fits to about 0.001 while a wrong one leaves residuals of the command's size
