@@ -42,6 +42,9 @@ DAY_US = 86_400 * 1_000_000
 # receive times outside 2000-01-01 .. 2100-01-01 are not a tlog stamp (used to resynchronise over garbage)
 STAMP_MIN_US, STAMP_MAX_US = 946_684_800 * 1_000_000, 4_102_444_800 * 1_000_000
 MAV_TYPE_GCS = 6
+# messages a ground station sends, read from their sender (every other stream leaves ground stations out): the
+# joystick as QGroundControl sent it (QGC logs its outgoing messages), with the sender's ids
+GCS_STREAMS = {"MANUAL_CONTROL": ("x", "y", "z", "r")}
 
 
 # ------------------------------------------------------------------------------------------------ damage
@@ -276,7 +279,8 @@ def read_tlog_streams(path, mapping, optional: dict | None = None) -> DecodedLog
     -------
     DecodedLog
         Streams plus parameters, texts and damage. Messages from ground stations (systems whose HEARTBEAT
-        says MAV_TYPE_GCS) are left out of the streams.
+        says MAV_TYPE_GCS) are left out of the streams, except the :data:`GCS_STREAMS` a ground station sends
+        (MANUAL_CONTROL: fields x, y, z, r, src_system, src_component), read from whichever system sent them.
     """
     needs = mapping.needs()
     optional = optional or {}
@@ -286,6 +290,11 @@ def read_tlog_streams(path, mapping, optional: dict | None = None) -> DecodedLog
         opt = [(f, *_split_field(f)) for f in sorted(set(optional.get(name, ())) - set(needs.get(name, ())))]
         data[name] = {"t": [], "boot": [], "req": req, "opt": opt,
                       "cols": {f: [] for f, _, _ in req + opt}}
+    for name, fields in GCS_STREAMS.items():
+        req = [(f, f, None) for f in fields]
+        data.setdefault(name, {"t": [], "boot": [], "req": req, "opt": [], "cols": {f: [] for f in fields}})
+        data[name]["sender"] = True
+        data[name]["cols"].update({"src_system": [], "src_component": []})
     facts = LogFacts()
     gcs = set()
     unknown = 0
@@ -305,9 +314,12 @@ def read_tlog_streams(path, mapping, optional: dict | None = None) -> DecodedLog
             text = msg.text if isinstance(msg.text, str) else msg.text.decode("latin-1")
             facts.texts.append(text.rstrip("\0"))
         entry = data.get(mtype)
-        if entry is None or msg.get_srcSystem() in gcs:
+        if entry is None or (msg.get_srcSystem() in gcs and "sender" not in entry):
             continue
         cols = entry["cols"]
+        if "sender" in entry:
+            cols["src_system"].append(float(msg.get_srcSystem()))
+            cols["src_component"].append(float(msg.get_srcComponent()))
         try:
             for f, name, idx in entry["req"]:
                 cols[f].append(_tlog_value(msg, name, idx))
