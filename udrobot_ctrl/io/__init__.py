@@ -174,7 +174,8 @@ def convert_log(path, mapping=None, require_inputs: bool = True, vehicle: str | 
                          f"servo {', '.join(map(str, servos))} assumed")
         streams = decoded.streams
         if "MANUAL_CONTROL" in streams and any(r.stream == PILOT_STREAM for r in mapping.rules):
-            pilot = pilot_input(streams["MANUAL_CONTROL"], streams.get("RC_CHANNELS"), facts.params)
+            pilot = pilot_input(streams["MANUAL_CONTROL"], streams.get("RC_CHANNELS"), facts.params,
+                                facts.named.get("PilotGain"))
             streams = {**streams, PILOT_STREAM: pilot.stream}
             notes += pilot.notes
         run = assemble_run(mapping, streams, str(path), extra_notes=notes, require_inputs=require_inputs,

@@ -44,6 +44,7 @@ ARDUSUB_DEFAULTS = {"JS_GAIN_DEFAULT": 0.5, "JS_GAIN_MIN": 0.25, "JS_GAIN_MAX": 
                     "JS_THR_GAIN": 1.0, "RC_OVERRIDE_TIME": 3.0}  # ArduSub's documented parameter defaults
 MATCH_WINDOW_S = 0.3  # s, assumed: an RC_CHANNELS sample reflects a MANUAL_CONTROL sent at most this long before it
 # (measured on the shared BlueROV2 tlog: the latest matching message 0 .. 52 ms before, median 20 ms; 6x margin)
+PAIR_CHUNK = 512  # (RC sample, candidate) pairs evaluated at once (512 x G x 4 float32: ~7 MB on the default grid)
 MIN_SUPPORT = 2  # RC_CHANNELS samples that must pin a stretch's gain (one odd sample does not make a gain change)
 
 
@@ -156,10 +157,14 @@ def consistent_gains(mc_t, mc_axes, rc_t, rc_joy, grid, throttle_gain, window=MA
     out = np.zeros((rc_t.size, grid.size), bool)
     hi = np.searchsorted(mc_t, rc_t, side="right")
     lo = np.searchsorted(mc_t, rc_t - window, side="left")
-    for k in np.flatnonzero(hi > lo):
-        cand = mc_axes[lo[k]:hi[k], :, None]  # (c, 4, 1) against the (G,) grid
+    count = hi - lo
+    k_of = np.repeat(np.arange(rc_t.size), count)  # (RC sample, MANUAL_CONTROL candidate) pairs
+    j_of = np.arange(k_of.size) - np.repeat(np.cumsum(count) - count, count) + np.repeat(lo, count)
+    for a in range(0, k_of.size, PAIR_CHUNK):
+        k, j = k_of[a:a + PAIR_CHUNK], j_of[a:a + PAIR_CHUNK]
+        cand = mc_axes[j][:, :, None]  # (c, 4, 1) against the (G,) grid
         pred = rc_override(cand[:, 0], cand[:, 1], cand[:, 2], cand[:, 3], grid, throttle_gain)  # (c, G, 4)
-        out[k] = np.all(pred == rc_joy[k], axis=-1).any(axis=0)
+        np.logical_or.at(out, k, np.all(pred == rc_joy[k][:, None, :], axis=-1))
     return out
 
 
@@ -306,7 +311,27 @@ def _agreement_notes(mc_t, pwm, rc_t, rc_joy) -> list:
     return out
 
 
-def pilot_input(mc: Stream, rc: Stream | None, params: dict) -> JoystickRC:
+def _reported_gain_notes(mc_t, gain_at, reported) -> list:
+    """``pilot input: check:`` line comparing the gain used with ArduSub's own NAMED_VALUE_FLOAT ``PilotGain``
+    reports ((times, values); none -> no line)."""
+    if reported is None or len(reported[0]) == 0:
+        return []
+    rt, rv = np.asarray(reported[0], float), np.asarray(reported[1], float)
+    used = hold_previous(mc_t, gain_at, rt)
+    inside = np.isfinite(used)
+    if not inside.any():
+        return []
+    same = np.abs(used[inside] - rv[inside]) < GAIN_STEP
+    line = (f"pilot input: check: ArduSub's own NAMED_VALUE_FLOAT PilotGain (values "
+            f"{', '.join(f'{v:g}' for v in np.unique(rv[inside]))}) equals the gain used at {int(same.sum())} of "
+            f"{int(inside.sum())} reports")
+    if not same.all():
+        first = rt[inside][~same][:5] - mc_t[0]
+        line += f"; differs at {', '.join(f'{x:.1f}' for x in first)}{' ...' if (~same).sum() > 5 else ''} s"
+    return [line]
+
+
+def pilot_input(mc: Stream, rc: Stream | None, params: dict, reported_gain=None) -> JoystickRC:
     """rcin channels 1..8 from MANUAL_CONTROL (channels 3..6) with the gain calibrated on RC_CHANNELS.
 
     Parameters
@@ -317,6 +342,8 @@ def pilot_input(mc: Stream, rc: Stream | None, params: dict) -> JoystickRC:
         RC_CHANNELS (fields chan1_raw .. chan8_raw), the overrides ArduSub reports.
     params : dict
         The log's parameters (JS_GAIN_*, JS_THR_GAIN, RC_OVERRIDE_TIME).
+    reported_gain : (times, values) or None
+        ArduSub's NAMED_VALUE_FLOAT ``PilotGain`` reports, compared with the gain used (a check in the notes only).
 
     Returns
     -------
@@ -363,6 +390,7 @@ def pilot_input(mc: Stream, rc: Stream | None, params: dict) -> JoystickRC:
         pwm = rc_override(*axes.T, gain_at, jp.throttle_gain)
         for c, ch in enumerate(JOYSTICK_CHANNELS):
             fields[RC_FIELDS[ch - 1]] = pwm[:, c]
+        notes += _reported_gain_notes(t, gain_at, reported_gain)
         live = ~_inside(t, fallback)
         return JoystickRC(Stream("PILOT_RC", t[live], {f: v[live] for f, v in fields.items()}, mc.time_source),
                           notes)
@@ -425,6 +453,6 @@ def pilot_input(mc: Stream, rc: Stream | None, params: dict) -> JoystickRC:
                  f"RC_CHANNELS")
     ok = live_rc.copy()
     ok[bad] = False
-    notes += _agreement_notes(t, pwm, rc.t[ok], rc_joy[ok])
+    notes += _agreement_notes(t, pwm, rc.t[ok], rc_joy[ok]) + _reported_gain_notes(t, gain_at, reported_gain)
     return JoystickRC(Stream("PILOT_RC", times, fields, mc.time_source), notes, tuple(supported),
                       tuple(changes))

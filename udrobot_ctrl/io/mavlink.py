@@ -45,6 +45,8 @@ MAV_TYPE_GCS = 6
 # messages a ground station sends, read from their sender (every other stream leaves ground stations out): the
 # joystick as QGroundControl sent it (QGC logs its outgoing messages), with the sender's ids
 GCS_STREAMS = {"MANUAL_CONTROL": ("x", "y", "z", "r")}
+# NAMED_VALUE_FLOAT values kept in LogFacts.named: ArduSub's current pilot gain (sent with the other joystick state)
+NAMED_FLOATS = ("PilotGain",)
 
 
 # ------------------------------------------------------------------------------------------------ damage
@@ -106,6 +108,8 @@ class LogFacts:
         Last logged value of every parameter (``PARAM_VALUE`` / ``PARM``).
     texts : list of str
         ``STATUSTEXT`` / ``MSG`` texts in log order.
+    named : dict of str -> (times s, values) lists
+        The autopilot's ``NAMED_VALUE_FLOAT`` values named in :data:`NAMED_FLOATS` (tlogs only).
     damage : Damage
     decoded : int
         Frames / records with valid framing (and CRC).
@@ -115,6 +119,7 @@ class LogFacts:
 
     params: dict = field(default_factory=dict)
     texts: list = field(default_factory=list)
+    named: dict = field(default_factory=dict)
     damage: Damage = field(default_factory=Damage)
     decoded: int = 0
     notes: list = field(default_factory=list)
@@ -299,7 +304,7 @@ def read_tlog_streams(path, mapping, optional: dict | None = None) -> DecodedLog
     gcs = set()
     unknown = 0
     tally = {}
-    wanted = set(data) | {"HEARTBEAT", "PARAM_VALUE", "STATUSTEXT"}
+    wanted = set(data) | {"HEARTBEAT", "PARAM_VALUE", "STATUSTEXT", "NAMED_VALUE_FLOAT"}
     for index, offset, t, msg in iter_tlog(path, facts.damage, wanted, tally):
         if msg is None:
             unknown += 1
@@ -313,6 +318,12 @@ def read_tlog_streams(path, mapping, optional: dict | None = None) -> DecodedLog
         elif mtype == "STATUSTEXT":
             text = msg.text if isinstance(msg.text, str) else msg.text.decode("latin-1")
             facts.texts.append(text.rstrip("\0"))
+        elif mtype == "NAMED_VALUE_FLOAT" and msg.get_srcSystem() not in gcs:
+            key = (msg.name if isinstance(msg.name, str) else msg.name.decode("latin-1")).rstrip("\0")
+            if key in NAMED_FLOATS:
+                times, values = facts.named.setdefault(key, ([], []))
+                times.append(t)
+                values.append(float(msg.value))
         entry = data.get(mtype)
         if entry is None or (msg.get_srcSystem() in gcs and "sender" not in entry):
             continue

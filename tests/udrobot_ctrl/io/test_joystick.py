@@ -67,6 +67,8 @@ def joystick_events(program, rc=True, hold=True, seed=4):
             if hold and HOLD[0] <= t < HOLD[1]:
                 ch[4] = 1700
             ev.append((t, mav.rc_channels_encode(int(t * 1000), 8, *ch, *[0] * 10, 255)))
+            gain = float(gain_at(t - DOWNLINK))  # ArduSub's own report of its pilot gain
+            ev.append((t + 0.001, mav.named_value_float_encode(int(t * 1000), b"PilotGain", gain)))
     return ev, t_mc
 
 
@@ -139,7 +141,8 @@ def test_gain_and_its_change_are_recovered(tmp_path):
     mapping = load_mapping("ardusub")
     decoded = read_tlog_streams(path, mapping, mapping.optional_needs())
     rc = decoded.streams["RC_CHANNELS"]
-    pilot = pilot_input(decoded.streams["MANUAL_CONTROL"], rc, decoded.facts.params)
+    pilot = pilot_input(decoded.streams["MANUAL_CONTROL"], rc, decoded.facts.params,
+                        decoded.facts.named["PilotGain"])
     gains = [s.gain for s in pilot.stretches]
     assert gains == [0.5, 0.75]
     for s, true in zip(pilot.stretches, (0.5, 0.75)):
@@ -149,6 +152,9 @@ def test_gain_and_its_change_are_recovered(tmp_path):
     assert a - T0 < GAIN_CHANGE + UPLINK + DOWNLINK < b - T0 + 1e-9 and b - a <= 1.0 / RC_RATE + 1e-6
     notes = "\n".join(pilot.notes)
     assert "gain changed from 0.5 to 0.75" in notes and "an ArduSub gain setting" in notes
+    # ArduSub's own gain reports agree except, at most, the one report between the last old and first new sample
+    used = re.search(r"PilotGain \(values 0.5, 0.75\) equals the gain used at (\d+) of (\d+) reports", notes)
+    assert used and int(used.group(2)) - 1 <= int(used.group(1)) < int(used.group(2)) + 1
 
 
 def test_rc_channels_only_log_converts_as_before(tmp_path):
