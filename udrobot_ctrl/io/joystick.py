@@ -43,7 +43,7 @@ GAIN_STEP = 0.001  # grid step of the gain search (a full-stick sample pins the 
 ARDUSUB_DEFAULTS = {"JS_GAIN_DEFAULT": 0.5, "JS_GAIN_MIN": 0.25, "JS_GAIN_MAX": 1.0, "JS_GAIN_STEPS": 4.0,
                     "JS_THR_GAIN": 1.0, "RC_OVERRIDE_TIME": 3.0}  # ArduSub's documented parameter defaults
 MATCH_WINDOW_S = 0.3  # s, assumed: an RC_CHANNELS sample reflects a MANUAL_CONTROL sent at most this long before it
-# (measured on the shared BlueROV2 tlog: the latest matching message 0 .. 52 ms before, median 20 ms; 6x margin)
+# (measured on the shared BlueROV2 tlogs: the latest matching message 0 .. 82 ms before, median 20-22 ms)
 PAIR_CHUNK = 512  # (RC sample, candidate) pairs evaluated at once (512 x G x 4 float32: ~7 MB on the default grid)
 MIN_SUPPORT = 2  # RC_CHANNELS samples that must pin a stretch's gain (one odd sample does not make a gain change)
 
@@ -376,6 +376,12 @@ def pilot_input(mc: Stream, rc: Stream | None, params: dict, reported_gain=None)
     if gaps.size:
         notes.append(f"pilot input: {gaps.size} MANUAL_CONTROL silence(s) longer than RC_OVERRIDE_TIME = "
                      f"{jp.override_time:g} s (the overrides expire): RC_CHANNELS alone there")
+    if rc is not None and rc.t.size:
+        before, after = int((rc.t < t[0]).sum()), int((rc.t >= t[-1] + jp.override_time).sum())
+        if before or after:
+            notes.append(f"pilot input: RC_CHANNELS alone for its {before} sample(s) before the first MANUAL_CONTROL "
+                         f"and {after} from RC_OVERRIDE_TIME = {jp.override_time:g} s after the last (the overrides "
+                         f"are not the joystick's there)")
     gain_at = np.full(t.size, jp.default_gain)
     default_src = "JS_GAIN_DEFAULT from the log" if "JS_GAIN_DEFAULT" not in jp.assumed else \
         "ArduSub's default JS_GAIN_DEFAULT"
