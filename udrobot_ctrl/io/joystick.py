@@ -331,6 +331,129 @@ def _reported_gain_notes(mc_t, gain_at, reported) -> list:
     return [line]
 
 
+def override_fallback(t, rc_t, override_time) -> tuple:
+    """Spans (s) where ArduSub's overrides are not the joystick's: before the first MANUAL_CONTROL, from
+    ``override_time`` (RC_OVERRIDE_TIME) after the last, and inside silences longer than it; with their notes."""
+    gaps = np.flatnonzero(np.diff(t) > override_time)
+    spans = [(-np.inf, t[0]), (t[-1] + override_time, np.inf)] + [(t[k] + override_time, t[k + 1]) for k in gaps]
+    notes = []
+    if gaps.size:
+        notes.append(f"pilot input: {gaps.size} MANUAL_CONTROL silence(s) longer than RC_OVERRIDE_TIME = "
+                     f"{override_time:g} s (the overrides expire): RC_CHANNELS alone there")
+    if rc_t is not None and rc_t.size:
+        before, after = int((rc_t < t[0]).sum()), int((rc_t >= t[-1] + override_time).sum())
+        if before or after:
+            notes.append(f"pilot input: RC_CHANNELS alone for its {before} sample(s) before the first MANUAL_CONTROL "
+                         f"and {after} from RC_OVERRIDE_TIME = {override_time:g} s after the last (the overrides "
+                         f"are not the joystick's there)")
+    return spans, notes
+
+
+@dataclass(frozen=True)
+class GainFit:
+    """The pilot gain over a log (:func:`fit_gains`).
+
+    Attributes
+    ----------
+    stretches : tuple of GainStretch
+        Supported stretches (indices into RC_CHANNELS), in time order.
+    changes : tuple of (float, float)
+        For each pair of consecutive stretches, the times (s) of the last sample pinning the old gain and the first
+        pinning the new one.
+    bad : tuple of int
+        RC_CHANNELS samples the joystick does not reproduce at one supported gain.
+    """
+
+    stretches: tuple
+    changes: tuple
+    bad: tuple
+
+    def gain_at(self, t, default: float) -> np.ndarray:
+        """The gain at times ``t`` (s): each stretch's from half-way through the change before it; ``default`` for a
+        stretch that never pins its gain."""
+        out = np.full(np.shape(t), default, dtype=float)
+        for k, s in enumerate(self.stretches):
+            start = -np.inf if k == 0 else 0.5 * sum(self.changes[k - 1])
+            out[np.asarray(t) >= start] = s.gain if s.pinned else default
+        return out
+
+
+def _joystick_channels(rc: Stream) -> np.ndarray:
+    """RC_CHANNELS channels 3, 4, 5, 6 (us), shape (m, 4)."""
+    return np.stack([rc.fields[RC_FIELDS[ch - 1]] for ch in JOYSTICK_CHANNELS], axis=1)
+
+
+def fit_gains(t, axes, rc: Stream, jp: JoystickParams, live_rc) -> GainFit:
+    """Fit the pilot gain on the RC_CHANNELS samples ``live_rc`` (mask) from MANUAL_CONTROL times ``t`` and axes
+    (x, y, z, r) by ArduSub's conversion (:func:`consistent_gains`, :func:`gain_stretches`)."""
+    rc_joy = _joystick_channels(rc)
+    idx = np.flatnonzero(live_rc)
+    grid = gain_grid(jp.settings)
+    sub = consistent_gains(t, axes, rc.t[idx], rc_joy[idx], grid, jp.throttle_gain)
+    supported, unsupported, unexplained = gain_stretches(sub, grid, jp.settings)
+    stretches = tuple(GainStretch(int(idx[s.first]), int(idx[s.last]), tuple(int(idx[p]) for p in s.pinned), s.lo,
+                                  s.hi, s.gain, s.setting) for s in supported)
+    bad = [int(idx[k]) for k in unexplained]
+    bad += [int(idx[k]) for s in unsupported for k in range(s.first, s.last + 1)]
+    changes = tuple((rc.t[a.pinned[-1]] if a.pinned else rc.t[a.last], rc.t[b.pinned[0]] if b.pinned else rc.t[b.first])
+                    for a, b in zip(stretches[:-1], stretches[1:]))
+    return GainFit(stretches, changes, tuple(sorted(bad)))
+
+
+def _fit_notes(fit: GainFit, rc_t, t0, default: float, default_src: str) -> list:
+    """``pilot input:`` lines for each gain stretch, gain change and unexplained sample (times s after ``t0``)."""
+    notes = []
+    for s in fit.stretches:
+        what = (f"gain {s.gain:g} ({'an ArduSub gain setting' if s.setting else 'not one of ArduSub gain settings'}; "
+                f"gains reproducing every sample: {s.lo:.3f}..{s.hi:.3f} on a {GAIN_STEP:g} grid)" if s.pinned else
+                f"gain not pinned (the sticks sat at neutral at every RC_CHANNELS sample): {default:g} "
+                f"ASSUMED ({default_src})")
+        notes.append(f"pilot input: {what}, fitted on RC_CHANNELS samples {s.first + 1}..{s.last + 1} "
+                     f"({rc_t[s.first] - t0:.1f}..{rc_t[s.last] - t0:.1f} s; {len(s.pinned)} of them pin the gain), "
+                     f"each reproduced exactly by a MANUAL_CONTROL sent up to {MATCH_WINDOW_S:g} s before it")
+    for (a, b), s, prev in zip(fit.changes, fit.stretches[1:], fit.stretches[:-1]):
+        if s.gain != prev.gain:
+            notes.append(f"pilot input: gain changed from {prev.gain:g} to {s.gain:g} between {a - t0:.2f} and "
+                         f"{b - t0:.2f} s (a joystick button), placed at {0.5 * (a + b) - t0:.2f} s")
+    if fit.bad:
+        shown = ", ".join(f"{rc_t[k] - t0:.1f}" for k in fit.bad[:8]) + (" ..." if len(fit.bad) > 8 else "")
+        notes.append(f"pilot input: {len(fit.bad)} RC_CHANNELS sample(s) (at {shown} s) not reproduced by the joystick "
+                     f"at one gain (input hold, roll/pitch mode, a lone odd sample, an RC receiver): RC_CHANNELS alone "
+                     f"from the sample before each to the one after it")
+    return notes
+
+
+def _merged_fields(t, pwm, rc: Stream, fallback) -> tuple:
+    """(times, fields, note): channels 3..6 from the converted joystick ``pwm`` (held) outside ``fallback``, from
+    RC_CHANNELS (held) inside it; channels 1, 2, 7, 8 from RC_CHANNELS (held); at the joystick times outside the
+    fallback, every RC_CHANNELS time and each fallback start."""
+    live = ~_inside(t, fallback)
+    starts = np.array([a for a, _ in fallback if np.isfinite(a)])
+    times = np.unique(np.r_[t[live], rc.t, starts])
+    from_rc = _inside(times, fallback)
+    fields = {}
+    for n, f in enumerate(RC_FIELDS, start=1):
+        fields[f] = hold_previous(rc.t, rc.fields[f], times)
+        if n in JOYSTICK_CHANNELS:
+            joy = hold_previous(t, pwm[:, JOYSTICK_CHANNELS.index(n)], times)
+            fields[f][~from_rc] = joy[~from_rc]
+    note = (f"pilot input: rcin_1, rcin_2, rcin_7, rcin_8 (pitch, roll, camera) from RC_CHANNELS held; channels 3..6 "
+            f"at {int((~from_rc).sum())} sample times from MANUAL_CONTROL, at {int(from_rc.sum())} from RC_CHANNELS")
+    return times, fields, note
+
+
+def _joystick_only(t, pwm, fallback) -> tuple:
+    """(times, fields) without RC_CHANNELS: channels 3..6 from ``pwm``, 1 and 2 at 1500 us (trims zero, assumed),
+    7 and 8 nan; joystick times outside ``fallback``."""
+    live = ~_inside(t, fallback)
+    fields = {f: np.full(int(live.sum()), np.nan) for f in RC_FIELDS}
+    for ch in TRIM_CHANNELS:
+        fields[RC_FIELDS[ch - 1]][:] = PWM_CENTER
+    for c, ch in enumerate(JOYSTICK_CHANNELS):
+        fields[RC_FIELDS[ch - 1]] = pwm[live, c]
+    return t[live], fields
+
+
 def pilot_input(mc: Stream, rc: Stream | None, params: dict, reported_gain=None) -> JoystickRC:
     """rcin channels 1..8 from MANUAL_CONTROL (channels 3..6) with the gain calibrated on RC_CHANNELS.
 
@@ -348,117 +471,49 @@ def pilot_input(mc: Stream, rc: Stream | None, params: dict, reported_gain=None)
     Returns
     -------
     JoystickRC
-        A stream named ``PILOT_RC`` with fields chan1_raw .. chan8_raw: at MANUAL_CONTROL times channels 3..6 by
-        ArduSub's conversion and 1, 2, 7, 8 held from RC_CHANNELS (nan without it); where the joystick does not
-        explain RC_CHANNELS (and outside the overrides' span), the RC_CHANNELS samples themselves.
+        A stream named ``PILOT_RC`` with fields chan1_raw .. chan8_raw, us: channels 3..6 by ArduSub's conversion of
+        the joystick, except where it does not explain RC_CHANNELS (and outside the overrides' span: RC_CHANNELS
+        there); 1, 2, 7, 8 held from RC_CHANNELS (without RC_CHANNELS: 1, 2 at 1500 us assumed, 7, 8 nan).
     """
     keep, sender = _senders(mc)
-    stream_notes = list(mc.notes)
     t = mc.t[keep]
     axes = np.stack([mc.fields[f][keep] for f in ("x", "y", "z", "r")], axis=1)
     jp = joystick_params(params)
     rate = (t.size - 1) / (t[-1] - t[0]) if t.size > 1 else float("nan")
-    t0 = t[0]
     notes = [f"pilot input: rcin_3..rcin_6 (throttle, yaw, forward, lateral) from MANUAL_CONTROL z, r, x, y as the "
              f"ground station sent it ({sender}; {t.size} messages, {rate:.1f} Hz; times below are s after the first "
              f"one) through ArduSub's conversion (joystick.cpp transform_manual_control_to_rc_override: ch5 = 1500 + "
              f"0.4 gain x, ch6 = 1500 + 0.4 gain y, ch4 = 1500 + 0.4 gain r, ch3 = int(1500 - 400 gain JS_THR_GAIN) "
              f"+ 0.8 gain JS_THR_GAIN z, truncated to whole us and clamped to 1100..1900; input-hold trims zero); "
-             f"stamped at the ground station's send time (the uplink delay is not in the log)"] + stream_notes
+             f"stamped at the ground station's send time (the uplink delay is not in the log)"] + list(mc.notes)
     if jp.assumed:
         notes.append(f"pilot input: {', '.join(jp.assumed)} not in the log: ArduSub's defaults assumed ("
                      + ", ".join(f"{n} = {ARDUSUB_DEFAULTS[n]:g}" for n in jp.assumed) + ")")
-    # spans where ArduSub's overrides follow the joystick: from the first message to RC_OVERRIDE_TIME after the last,
-    # not across silences longer than RC_OVERRIDE_TIME
-    gaps = np.flatnonzero(np.diff(t) > jp.override_time)
-    fallback = [(-np.inf, t[0]), (t[-1] + jp.override_time, np.inf)]
-    fallback += [(t[k] + jp.override_time, t[k + 1]) for k in gaps]
-    if gaps.size:
-        notes.append(f"pilot input: {gaps.size} MANUAL_CONTROL silence(s) longer than RC_OVERRIDE_TIME = "
-                     f"{jp.override_time:g} s (the overrides expire): RC_CHANNELS alone there")
-    if rc is not None and rc.t.size:
-        before, after = int((rc.t < t[0]).sum()), int((rc.t >= t[-1] + jp.override_time).sum())
-        if before or after:
-            notes.append(f"pilot input: RC_CHANNELS alone for its {before} sample(s) before the first MANUAL_CONTROL "
-                         f"and {after} from RC_OVERRIDE_TIME = {jp.override_time:g} s after the last (the overrides "
-                         f"are not the joystick's there)")
-    gain_at = np.full(t.size, jp.default_gain)
+    has_rc = rc is not None and rc.t.size > 0
+    fallback, span_notes = override_fallback(t, rc.t if has_rc else None, jp.override_time)
+    notes += span_notes
     default_src = "JS_GAIN_DEFAULT from the log" if "JS_GAIN_DEFAULT" not in jp.assumed else \
         "ArduSub's default JS_GAIN_DEFAULT"
-    if rc is None or rc.t.size == 0:
+    if not has_rc:
         notes.append(f"pilot input: no RC_CHANNELS to calibrate the pilot gain on: gain {jp.default_gain:g} ASSUMED "
                      f"({default_src}; the pilot may have changed it with buttons); rcin_1, rcin_2 (pitch, roll) "
                      f"1500 us ASSUMED (ArduSub's 1500 + trim, the trims zero as at boot); rcin_7, rcin_8 not in the "
                      f"log (nan)")
-        fields = {f: np.full(t.size, np.nan) for f in RC_FIELDS}
-        for ch in TRIM_CHANNELS:
-            fields[RC_FIELDS[ch - 1]][:] = PWM_CENTER
-        pwm = rc_override(*axes.T, gain_at, jp.throttle_gain)
-        for c, ch in enumerate(JOYSTICK_CHANNELS):
-            fields[RC_FIELDS[ch - 1]] = pwm[:, c]
+        gain_at = np.full(t.size, jp.default_gain)
+        times, fields = _joystick_only(t, rc_override(*axes.T, gain_at, jp.throttle_gain), fallback)
         notes += _reported_gain_notes(t, gain_at, reported_gain)
-        live = ~_inside(t, fallback)
-        return JoystickRC(Stream("PILOT_RC", t[live], {f: v[live] for f, v in fields.items()}, mc.time_source),
-                          notes)
-
-    rc_joy = np.stack([rc.fields[RC_FIELDS[ch - 1]] for ch in JOYSTICK_CHANNELS], axis=1)
+        return JoystickRC(Stream("PILOT_RC", times, fields, mc.time_source), notes)
     live_rc = ~_inside(rc.t, fallback)
-    idx = np.flatnonzero(live_rc)
-    grid = gain_grid(jp.settings)
-    consistent = np.zeros((rc.t.size, grid.size), bool)
-    consistent[idx] = consistent_gains(t, axes, rc.t[idx], rc_joy[idx], grid, jp.throttle_gain)
-    sub = consistent[idx]
-    supported, unsupported, unexplained = gain_stretches(sub, grid, jp.settings)
-    supported = [GainStretch(int(idx[s.first]), int(idx[s.last]), tuple(int(idx[p]) for p in s.pinned), s.lo, s.hi,
-                             s.gain, s.setting) for s in supported]
-    bad = [int(idx[k]) for k in unexplained]
-    bad += [int(idx[k]) for s in unsupported for k in range(s.first, s.last + 1)]
-    # gains on the joystick's clock: each stretch from the middle between its first pinning sample and the last
-    # pinning sample before it (the change happened between the two)
-    changes = []
-    for a, b in zip(supported[:-1], supported[1:]):
-        t_a = rc.t[a.pinned[-1]] if a.pinned else rc.t[a.last]
-        t_b = rc.t[b.pinned[0]] if b.pinned else rc.t[b.first]
-        changes.append((t_a, t_b))
-    for k, s in enumerate(supported):
-        start = -np.inf if k == 0 else 0.5 * sum(changes[k - 1])
-        gain_at[t >= start] = s.gain if s.pinned else jp.default_gain
-    for s in supported:
-        what = (f"gain {s.gain:g} ({'an ArduSub gain setting' if s.setting else 'not one of ArduSub gain settings'}; "
-                f"gains reproducing every sample: {s.lo:.3f}..{s.hi:.3f} on a {GAIN_STEP:g} grid)" if s.pinned else
-                f"gain not pinned (the sticks sat at neutral at every RC_CHANNELS sample): {jp.default_gain:g} "
-                f"ASSUMED ({default_src})")
-        notes.append(f"pilot input: {what}, fitted on RC_CHANNELS samples {s.first + 1}..{s.last + 1} "
-                     f"({rc.t[s.first] - t0:.1f}..{rc.t[s.last] - t0:.1f} s; {len(s.pinned)} of them pin the gain), "
-                     f"each reproduced exactly by a MANUAL_CONTROL sent up to {MATCH_WINDOW_S:g} s before it")
-    for (a, b), s, prev in zip(changes, supported[1:], supported[:-1]):
-        if s.gain == prev.gain:
-            continue
-        notes.append(f"pilot input: gain changed from {prev.gain:g} to {s.gain:g} between {a - t0:.2f} and "
-                     f"{b - t0:.2f} s (a joystick button), placed at {0.5 * (a + b) - t0:.2f} s")
-    spans = [(rc.t[k - 1] if k > 0 else -np.inf, rc.t[k + 1] if k + 1 < rc.t.size else np.inf) for k in sorted(bad)]
-    if bad:
-        shown = ", ".join(f"{rc.t[k] - t0:.1f}" for k in sorted(bad)[:8]) + (" ..." if len(bad) > 8 else "")
-        notes.append(f"pilot input: {len(bad)} RC_CHANNELS sample(s) (at {shown} s) not reproduced by the joystick at "
-                     f"one gain (input hold, roll/pitch mode, a lone odd sample, an RC receiver): RC_CHANNELS alone "
-                     f"from the sample before each to the one after it")
+    fit = fit_gains(t, axes, rc, jp, live_rc)
+    notes += _fit_notes(fit, rc.t, t[0], jp.default_gain, default_src)
+    spans = [(rc.t[k - 1] if k > 0 else -np.inf, rc.t[k + 1] if k + 1 < rc.t.size else np.inf) for k in fit.bad]
     fallback = _merge(fallback + spans)
+    gain_at = fit.gain_at(t, jp.default_gain)
     pwm = rc_override(*axes.T, gain_at, jp.throttle_gain)
-    live = ~_inside(t, fallback)
-    starts = np.array([a for a, _ in fallback if np.isfinite(a)])
-    times = np.unique(np.r_[t[live], rc.t, starts])  # RC_CHANNELS times too: channels 1, 2, 7, 8 change there
-    from_rc = _inside(times, fallback)
-    fields = {}
-    for n, f in enumerate(RC_FIELDS, start=1):
-        fields[f] = hold_previous(rc.t, rc.fields[f], times)
-        if n in JOYSTICK_CHANNELS:
-            joy = hold_previous(t, pwm[:, JOYSTICK_CHANNELS.index(n)], times)
-            fields[f][~from_rc] = joy[~from_rc]
-    notes.append(f"pilot input: rcin_1, rcin_2, rcin_7, rcin_8 (pitch, roll, camera) from RC_CHANNELS held; channels "
-                 f"3..6 at {int((~from_rc).sum())} sample times from MANUAL_CONTROL, at {int(from_rc.sum())} from "
-                 f"RC_CHANNELS")
+    times, fields, note = _merged_fields(t, pwm, rc, fallback)
+    notes.append(note)
     ok = live_rc.copy()
-    ok[bad] = False
+    ok[list(fit.bad)] = False
+    rc_joy = _joystick_channels(rc)
     notes += _agreement_notes(t, pwm, rc.t[ok], rc_joy[ok]) + _reported_gain_notes(t, gain_at, reported_gain)
-    return JoystickRC(Stream("PILOT_RC", times, fields, mc.time_source), notes, tuple(supported),
-                      tuple(changes))
+    return JoystickRC(Stream("PILOT_RC", times, fields, mc.time_source), notes, fit.stretches, fit.changes)
