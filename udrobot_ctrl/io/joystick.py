@@ -506,6 +506,9 @@ def pilot_input(mc: Stream, rc: Stream | None, params: dict, reported_gain=None)
     live_rc = ~_inside(rc.t, fallback)
     fit = fit_gains(t, axes, rc, jp, live_rc)
     notes += _fit_notes(fit, rc.t, t[0], jp.default_gain, default_src)
+    if not fit.stretches:
+        notes.append(f"pilot input: no RC_CHANNELS sample the joystick explains: gain {jp.default_gain:g} ASSUMED "
+                     f"({default_src})")
     spans = [(rc.t[k - 1] if k > 0 else -np.inf, rc.t[k + 1] if k + 1 < rc.t.size else np.inf) for k in fit.bad]
     fallback = _merge(fallback + spans)
     gain_at = fit.gain_at(t, jp.default_gain)
