@@ -14,6 +14,7 @@ from udrobot_ctrl.autopilot.params import ESTIMATED_PARAMS, gain_log_params
 from udrobot_ctrl.io.runlog import Run, read_run
 
 from . import mavlink, qgc_csv, rosbag, rostopic_csv
+from .joystick import pilot_input
 from .mapping import Mapping, MappingError, assemble_run, load_mapping, motor_rules, rule_stream
 from .mavlink import (
     DecodedLog,
@@ -28,6 +29,7 @@ from .qgc_csv import is_qgc_csv
 from .streams import LogImportError
 from .stretches import cut_run
 
+PILOT_STREAM = "PILOT_RC"  # the pilot-input stream built from MANUAL_CONTROL (udrobot_ctrl.io.joystick)
 DEFAULT_MAPPINGS = {"ros": "bluerov2-mavros", "mavlink": "ardusub", "qgc_csv": "qgc-csv"}
 
 
@@ -170,7 +172,13 @@ def convert_log(path, mapping=None, require_inputs: bool = True, vehicle: str | 
             notes.append(f"vehicle: the log does not say which vehicle it is (no FRAME_CONFIG, no 'Frame:' text); "
                          f"mapping default vehicle {mapping.metadata.get('vehicle', '(none)')!r} with motors on "
                          f"servo {', '.join(map(str, servos))} assumed")
-        run = assemble_run(mapping, decoded.streams, str(path), extra_notes=notes, require_inputs=require_inputs,
+        streams = decoded.streams
+        if "MANUAL_CONTROL" in streams and any(r.stream == PILOT_STREAM for r in mapping.rules):
+            pilot = pilot_input(streams["MANUAL_CONTROL"], streams.get("RC_CHANNELS"), facts.params,
+                                facts.named.get("PilotGain"))
+            streams = {**streams, PILOT_STREAM: pilot.stream}
+            notes += pilot.notes
+        run = assemble_run(mapping, streams, str(path), extra_notes=notes, require_inputs=require_inputs,
                            log_params=facts.params, extra_rules=motor_rules(mapping, servos))
         if vehicle.name is not None:
             run.metadata["vehicle"] = vehicle.name

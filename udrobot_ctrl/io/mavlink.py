@@ -42,6 +42,11 @@ DAY_US = 86_400 * 1_000_000
 # receive times outside 2000-01-01 .. 2100-01-01 are not a tlog stamp (used to resynchronise over garbage)
 STAMP_MIN_US, STAMP_MAX_US = 946_684_800 * 1_000_000, 4_102_444_800 * 1_000_000
 MAV_TYPE_GCS = 6
+# messages a ground station sends, read from their sender (every other stream leaves ground stations out): the
+# joystick as QGroundControl sent it (QGC logs its outgoing messages), with the sender's ids
+GCS_STREAMS = {"MANUAL_CONTROL": ("x", "y", "z", "r")}
+# NAMED_VALUE_FLOAT values kept in LogFacts.named: ArduSub's current pilot gain (sent with the other joystick state)
+NAMED_FLOATS = ("PilotGain",)
 
 
 # ------------------------------------------------------------------------------------------------ damage
@@ -103,6 +108,8 @@ class LogFacts:
         Last logged value of every parameter (``PARAM_VALUE`` / ``PARM``).
     texts : list of str
         ``STATUSTEXT`` / ``MSG`` texts in log order.
+    named : dict of str -> (times s, values) lists
+        The autopilot's ``NAMED_VALUE_FLOAT`` values named in :data:`NAMED_FLOATS` (tlogs only).
     damage : Damage
     decoded : int
         Frames / records with valid framing (and CRC).
@@ -112,6 +119,7 @@ class LogFacts:
 
     params: dict = field(default_factory=dict)
     texts: list = field(default_factory=list)
+    named: dict = field(default_factory=dict)
     damage: Damage = field(default_factory=Damage)
     decoded: int = 0
     notes: list = field(default_factory=list)
@@ -276,7 +284,8 @@ def read_tlog_streams(path, mapping, optional: dict | None = None) -> DecodedLog
     -------
     DecodedLog
         Streams plus parameters, texts and damage. Messages from ground stations (systems whose HEARTBEAT
-        says MAV_TYPE_GCS) are left out of the streams.
+        says MAV_TYPE_GCS) are left out of the streams, except the :data:`GCS_STREAMS` a ground station sends
+        (MANUAL_CONTROL: fields x, y, z, r, src_system, src_component), read from whichever system sent them.
     """
     needs = mapping.needs()
     optional = optional or {}
@@ -286,11 +295,16 @@ def read_tlog_streams(path, mapping, optional: dict | None = None) -> DecodedLog
         opt = [(f, *_split_field(f)) for f in sorted(set(optional.get(name, ())) - set(needs.get(name, ())))]
         data[name] = {"t": [], "boot": [], "req": req, "opt": opt,
                       "cols": {f: [] for f, _, _ in req + opt}}
+    for name, fields in GCS_STREAMS.items():
+        req = [(f, f, None) for f in fields]
+        data.setdefault(name, {"t": [], "boot": [], "req": req, "opt": [], "cols": {f: [] for f in fields}})
+        data[name]["sender"] = True
+        data[name]["cols"].update({"src_system": [], "src_component": []})
     facts = LogFacts()
     gcs = set()
     unknown = 0
     tally = {}
-    wanted = set(data) | {"HEARTBEAT", "PARAM_VALUE", "STATUSTEXT"}
+    wanted = set(data) | {"HEARTBEAT", "PARAM_VALUE", "STATUSTEXT", "NAMED_VALUE_FLOAT"}
     for index, offset, t, msg in iter_tlog(path, facts.damage, wanted, tally):
         if msg is None:
             unknown += 1
@@ -304,10 +318,19 @@ def read_tlog_streams(path, mapping, optional: dict | None = None) -> DecodedLog
         elif mtype == "STATUSTEXT":
             text = msg.text if isinstance(msg.text, str) else msg.text.decode("latin-1")
             facts.texts.append(text.rstrip("\0"))
+        elif mtype == "NAMED_VALUE_FLOAT" and msg.get_srcSystem() not in gcs:
+            key = (msg.name if isinstance(msg.name, str) else msg.name.decode("latin-1")).rstrip("\0")
+            if key in NAMED_FLOATS:
+                times, values = facts.named.setdefault(key, ([], []))
+                times.append(t)
+                values.append(float(msg.value))
         entry = data.get(mtype)
-        if entry is None or msg.get_srcSystem() in gcs:
+        if entry is None or (msg.get_srcSystem() in gcs and "sender" not in entry):
             continue
         cols = entry["cols"]
+        if "sender" in entry:
+            cols["src_system"].append(float(msg.get_srcSystem()))
+            cols["src_component"].append(float(msg.get_srcComponent()))
         try:
             for f, name, idx in entry["req"]:
                 cols[f].append(_tlog_value(msg, name, idx))
