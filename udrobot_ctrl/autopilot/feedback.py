@@ -21,18 +21,39 @@ integrators. The mixer input of the logged PWM comes from :func:`udrobot_ctrl.au
 corrected one goes back through :func:`udrobot_ctrl.autopilot.motors.mix` (so the frame's saturation and
 normalisation act on the total) and the T-200 curve. Exact for the PID and its filters; linearised for the sqrt
 controller of the angle loop (linear below ``ACCEL_MAX / ANG_P^2``, 0.53 rad at ArduSub's defaults) and for the
-integrator limit. Throttle, forward and lateral stay as logged: the depth and position loops are slow next to the
-log rate, and their logged outputs are what a replay tests the heave, surge and sway dynamics against.
+integrator limit. Throttle stays as logged: the depth loop is slow next to the log rate, and its logged output is
+what a replay tests the heave dynamics against.
+
+Between two logged output samples the real autopilot kept reacting to the motion and the pilot, and a log often has
+both far more often than the outputs (QGroundControl: ATTITUDE at 20 Hz and the pilot's MANUAL_CONTROL at ~24 Hz,
+SERVO_OUTPUT_RAW at 2 Hz, in the same tlog). Holding a sample of a fast loop's output through a transient (a pitch
+kick at a forward-stick reversal) drives the replay with a correction the real vehicle applied for a tenth of the
+hold. So the held sample is **refreshed**: the emulated ArduSub (:class:`~udrobot_ctrl.autopilot.fly.LoggedPilot`,
+the one emulation ``simulate --closed-loop`` flies) is stepped once per grid row on the *measured* states with the
+log's modes, pilot inputs and targets, and its output's change since the sample was logged is added::
+
+    mixer input = logged mixer input[k0] + (emulated[k] - emulated[k0])      roll, pitch, yaw, forward, lateral
+
+(``k0`` the row where the held output was logged). At the samples this is the log itself; between them it follows
+the autopilot's own reaction to what was measured (the pilot's sticks pass straight through in MANUAL, STABILIZE
+and ALT_HOLD; GUIDED's forward and lateral are held as logged), and whatever the emulation gets wrong slowly (an
+integrator, a trim) cancels in the difference. Throttle is not refreshed: in ALT_HOLD it is the depth loop's
+output on a depth logged as slowly as the outputs (2 Hz in a tlog), which the emulation would differentiate.
+The closed loop above then acts on the replay's departure from the measured attitude.
 
 Where the autopilot did not stabilise (``MANUAL`` mode, disarmed) the correction is zero: the logged command is
 then the pilot's own, and the open-loop replay is the truth.
 """
 from __future__ import annotations
 
+import hashlib
+from collections import OrderedDict
 from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from udrobot_ctrl.autopilot.ardusub import ArduSubAutopilot
+from udrobot_ctrl.autopilot.fly import LoggedCommands, LoggedPilot
 from udrobot_ctrl.autopilot.modes import Mode
 from udrobot_ctrl.autopilot.motors import Frame, MotorParameters, frame, from_pwm, mix, to_pwm, unmix
 from udrobot_ctrl.autopilot.params import ArduSubParameters, AttitudeParameters, run_log_params
@@ -98,6 +119,9 @@ class ReplayFeedback:
         Parameters taken from ArduSub's defaults and other assumptions, for the report.
     interval : float
         Median interval between the logged outputs, s (:func:`command_interval`; nan when not known).
+    refresh : (n, 6) ndarray or None
+        Mixer-input change of the emulated autopilot since each row's held output was logged (:func:`output_refresh`;
+        None: the outputs are held as logged).
     """
 
     frame: Frame
@@ -111,6 +135,7 @@ class ReplayFeedback:
     axes: np.ndarray
     assumed: tuple = ()
     interval: float = float("nan")
+    refresh: np.ndarray | None = None
     base_inputs: np.ndarray = field(init=False, repr=False)
     base_pwm: np.ndarray = field(init=False, repr=False)
     base_thrust: np.ndarray = field(init=False, repr=False)
@@ -152,6 +177,8 @@ class ReplayFeedback:
             if self.axes[axis]:
                 out = pid.update_all(rate_target[:, axis], rate_dev[:, axis], dt)
                 d_in[:, axis] = np.where(active & np.isfinite(out), out, 0.0)
+        if self.refresh is not None:
+            d_in += self.refresh[k]
         pwm = self.pwm[k] + to_pwm(mix(self.frame, self.base_inputs[k] + d_in, self.motors), self.motors,
                                    integer=False) - self.base_pwm[k]
         return self._thrust(pwm, k) - self.base_thrust[k]
@@ -165,15 +192,94 @@ class FeedbackState:
     rows: int
 
 
+def changed_rows(run: Run) -> np.ndarray:
+    """Rows where a run's logged commands change: where each logged output sample lands on the grid (a converted
+    log holds each command on its grid, zero-order hold)."""
+    u = np.asarray(run.inputs, float)
+    return np.flatnonzero(np.any(np.diff(u, axis=0) != 0, axis=1)) + 1
+
+
 def command_interval(run: Run) -> float:
     """Median interval (s) between changes of a run's logged commands (the log's own output rate, not the grid's).
 
     A converted log holds each logged command on its grid (zero-order hold), so the interval between the rows where
     any input changes is the rate at which the autopilot's outputs were logged; nan with fewer than 3 changes.
     """
-    u = np.asarray(run.inputs, float)
-    changed = np.flatnonzero(np.any(np.diff(u, axis=0) != 0, axis=1)) + 1
+    changed = changed_rows(run)
     return float(np.median(np.diff(run.t[changed]))) if changed.size >= 3 else float("nan")
+
+
+#: mixer inputs refreshed between logged output samples (module docstring): roll, pitch, yaw, forward, lateral
+REFRESHED = (0, 1, 2, 4, 5)
+
+
+def emulated_mixer_inputs(run: Run, params: ArduSubParameters, fr: Frame, motors: MotorParameters,
+                          p: PlantParameters) -> np.ndarray | None:
+    """Mixer inputs (n, 6) of the emulated ArduSub stepped once per grid row on the run's measured states.
+
+    The log's modes, armed state, pilot inputs (``rcin_i``) and targets drive
+    :class:`~udrobot_ctrl.autopilot.fly.LoggedPilot` (the emulation ``simulate --closed-loop`` flies) at the grid's
+    step; the measured pose and rates are its state (unlogged components 0). None when the run has no ``mode``.
+    """
+    try:
+        commands = LoggedCommands.from_run(run, fr, motors, p.supply_voltage)
+    except ValueError:
+        return None
+    dt = float(np.median(np.diff(run.t)))
+    pilot = LoggedPilot(commands, ArduSubAutopilot(params), fr, motors, p, dt)
+    x = np.nan_to_num(run.state_matrix())
+    return np.array([pilot.mixer_inputs(float(t - run.t[0]), xk) for t, xk in zip(run.t, x)])
+
+
+#: refreshes kept in memory (:func:`output_refresh`): a diagnosis prepares the same run several times (fit and
+#: holdout parts, the second reconstruction pass), and the emulation costs ~0.2 ms a row
+REFRESHES_KEPT = 8
+_REFRESHES: OrderedDict = OrderedDict()
+
+
+def _refresh_key(run: Run, params: ArduSubParameters, fr: Frame, motors: MotorParameters) -> bytes:
+    """Digest of everything the emulation on the measured states reads (the model does not enter it)."""
+    h = hashlib.blake2b(digest_size=16)
+    for name, a in (("t", run.t), ("inputs", run.inputs), ("states", run.state_matrix()),
+                    *sorted(run.extra.items())):
+        h.update(name.encode())
+        h.update(np.ascontiguousarray(np.asarray(a, float)).tobytes())
+    h.update(repr((params, fr.name, motors)).encode())
+    return h.digest()
+
+
+def output_refresh(run: Run, params: ArduSubParameters, fr: Frame, motors: MotorParameters,
+                   p: PlantParameters) -> np.ndarray | None:
+    """Change (n, 6) of the emulated autopilot's mixer inputs since each row's held output was logged (module
+    docstring): roll, pitch, yaw, forward, lateral; zero while disarmed. None when the run has no ``mode`` or the
+    change is zero throughout (outputs logged at the grid's rate). Computed once per run content (kept in memory,
+    :data:`REFRESHES_KEPT`)."""
+    key = _refresh_key(run, params, fr, motors)
+    if key not in _REFRESHES:
+        _REFRESHES[key] = _output_refresh(run, params, fr, motors, p)
+        while len(_REFRESHES) > REFRESHES_KEPT:
+            _REFRESHES.popitem(last=False)
+    _REFRESHES.move_to_end(key)
+    return _REFRESHES[key]
+
+
+def _output_refresh(run: Run, params: ArduSubParameters, fr: Frame, motors: MotorParameters,
+                    p: PlantParameters) -> np.ndarray | None:
+    emulated = emulated_mixer_inputs(run, params, fr, motors, p)
+    if emulated is None:
+        return None
+    k0 = np.zeros(run.n, int)
+    changed = changed_rows(run)
+    k0[changed] = changed
+    k0 = np.maximum.accumulate(k0)  # the row of the output sample each row holds
+    out = np.zeros((run.n, 6))
+    out[:, REFRESHED] = (emulated - emulated[k0])[:, REFRESHED]
+    armed = run.extra.get("armed")
+    if armed is not None:
+        out[np.nan_to_num(armed, nan=1.0) == 0] = 0.0
+    out = np.nan_to_num(out)
+    out.setflags(write=False)  # shared by every replay of the run (output_refresh keeps it)
+    return out if np.any(out) else None
 
 
 @dataclass(frozen=True)
@@ -241,14 +347,19 @@ def replay_feedback(run: Run, p: PlantParameters, label: str = "run") -> Feedbac
     voltage = (p.supply_voltage if volts is None or not np.isfinite(volts).any()
                else np.nan_to_num(volts, nan=p.supply_voltage)[:, None])
     axes = np.array([np.any(fr.factors[:, a]) for a in range(3)])
-    fb = ReplayFeedback(frame=fr, motors=replace(MotorParameters.from_log_params(log_params, k), directions=(1,) * k),
+    motors = replace(MotorParameters.from_log_params(log_params, k), directions=(1,) * k)
+    refresh = output_refresh(run, params, fr, motors, p)
+    fb = ReplayFeedback(frame=fr, motors=motors,
                         attitude=params.attitude, pwm=np.asarray(run.inputs, float), voltage=voltage,
                         f_min=np.asarray(p.f_min, float), f_max=np.asarray(p.f_max, float), stabilised=stabilised,
-                        axes=axes, assumed=tuple(assumed), interval=interval)
+                        axes=axes, assumed=tuple(assumed), interval=interval, refresh=refresh)
     closed = ", ".join(n for n, a in zip(("roll", "pitch", "yaw"), axes) if a)
+    held = ("roll, pitch, yaw, forward and lateral refreshed between output samples by the emulated autopilot run on "
+            "the measured states and the pilot's inputs, throttle as logged" if refresh is not None
+            else "throttle, forward and lateral as logged")
     note = (f"replay: closed loop in {closed} ({label}: ArduSub's outputs logged every {interval * 1e3:.0f} ms, a "
             f"stale sample of its {params.loop_rate_hz:.0f} Hz attitude loop; the emulated loop (frame {fr.name}, "
             f"angle P {', '.join(f'{g:g}' for g in params.attitude.angle_p)}) acts on the replay's departure from "
-            f"the measured attitude, on {100 * stabilised.mean():.0f}% of the samples; throttle, forward and lateral "
-            f"as logged)" + (f"; assumed: {'; '.join(assumed)}" if assumed else ""))
+            f"the measured attitude, on {100 * stabilised.mean():.0f}% of the samples; {held})"
+            + (f"; assumed: {'; '.join(assumed)}" if assumed else ""))
     return FeedbackChoice(fb, note)

@@ -146,7 +146,9 @@ class LoggedPilot:
                        depth=None if z is None else float(z), forward=float(c.horizontal[k, 0]),
                        lateral=float(c.horizontal[k, 1]), shaped=True)  # logged targets: ArduSub shaped them
 
-    def __call__(self, t: float, x) -> np.ndarray:
+    def mixer_inputs(self, t: float, x) -> np.ndarray:
+        """One autopilot tick at time ``t`` (s from the run's first row) on the plant state ``x`` (12): the mixer
+        inputs (roll, pitch, yaw, throttle, forward, lateral; :data:`~udrobot_ctrl.autopilot.motors.MIXER_INPUTS`)."""
         c = self.commands
         k = c.index(t)
         state0 = VehicleState.from_plant(x)
@@ -160,11 +162,14 @@ class LoggedPilot:
         pilot = PilotInput(tuple(float(v) for v in c.rcin[k])) if c.rcin is not None else PilotInput.centred()
         targets = self._targets(k) if mode in TARGET_MODES else None
         inputs = self.autopilot.step(self.dt, state, pilot, mode, targets, MotorLimits(), bool(c.armed[k]))
-        command = mix(self.frame, inputs.as_array(), self.motors)
+        self.modes.append(int(mode))
+        return inputs.as_array()
+
+    def __call__(self, t: float, x) -> np.ndarray:
+        command = mix(self.frame, self.mixer_inputs(t, x), self.motors)
         pwm = to_pwm(command, self.motors, integer=False)
         self.pwm.append(pwm)
-        self.modes.append(int(mode))
-        return np.clip(pwm_to_thrust(pwm, c.voltage[k]), self.p.f_min, self.p.f_max)
+        return np.clip(pwm_to_thrust(pwm, self.commands.voltage[self.commands.index(t)]), self.p.f_min, self.p.f_max)
 
 
 @dataclass(frozen=True)

@@ -7,11 +7,14 @@ published value: the size the users' fits suggested), flown by the emulated Ardu
 (:func:`udrobot_ctrl.autopilot.fly.fly`) from a pilot's RC inputs: climbs and descents at +-300 us throttle,
 forward runs at +200 us, some yaw, first in STABILIZE then in ALT_HOLD.
 
-The tlog holds what QGroundControl's default ArduSub stream rates give (rates assumed from QGC's defaults and the
-issue's description of the real logs): HEARTBEAT 1 Hz (custom_mode, armed), ATTITUDE 10 Hz, VFR_HUD 4 Hz,
-SCALED_PRESSURE2 2 Hz, GLOBAL_POSITION_INT 3 Hz, SERVO_OUTPUT_RAW 2 Hz (instantaneous samples of the 200 Hz loop's
-outputs), RC_CHANNELS 4 Hz, SYS_STATUS 1 Hz. No DVL, no position, no accelerometer. Sensor noise (assumed,
-typical of the class): depth 1 cm (pressure and the EKF's depths), attitude 0.2 deg, gyro 0.3 deg/s.
+The tlog holds the streams at the rates measured in a real BlueROV2 QGroundControl tlog (``../shared/data/
+ardusub_log_tools/2023-04-18 11-03-34.tlog``, MIT): HEARTBEAT 1 Hz (custom_mode, armed), ATTITUDE 20 Hz, VFR_HUD
+10 Hz, GLOBAL_POSITION_INT 3 Hz, SCALED_PRESSURE2 2 Hz, SERVO_OUTPUT_RAW 2 Hz (instantaneous samples of the 200 Hz
+loop's outputs), RC_CHANNELS 2 Hz (ArduSub's RC overrides), SYS_STATUS 1 Hz, and the MANUAL_CONTROL that QGC sent
+(system 255, component 190) at 23.6 Hz: the pilot's joystick, converted to RC overrides by ArduSub's
+``transform_manual_control_to_rc_override`` (:func:`udrobot_ctrl.io.joystick.rc_override`) at pilot gain
+``PILOT_GAIN``. No DVL, no position, no accelerometer. Sensor noise (assumed, typical of the class): depth 1 cm
+(pressure and the EKF's depths), attitude 0.2 deg, gyro 0.3 deg/s.
 """
 from __future__ import annotations
 
@@ -23,6 +26,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mav2
 from tests.udrobot_ctrl.io.test_field_logs import RHO_G, write_events
 from udrobot_ctrl.autopilot.fly import ClosedLoopFlight, fly
 from udrobot_ctrl.autopilot.modes import Mode
+from udrobot_ctrl.io.joystick import rc_override
 from udrobot_ctrl.io.runlog import Run
 from udrobot_ctrl.vehicle import Vehicle, load_model
 
@@ -32,6 +36,8 @@ DEPTH_NOISE = 0.01  # m, assumed (Bar30 and the EKF's depth)
 ATTITUDE_NOISE = np.radians(0.2)  # rad, assumed
 GYRO_NOISE = np.radians(0.3)  # rad/s, assumed
 START_DEPTH = 10.0  # m
+PILOT_GAIN = 1.0  # assumed: ArduSub's JS_GAIN_MAX, where the +-300 us climbs are a full throttle stick
+JOYSTICK_HZ = 23.6  # MANUAL_CONTROL rate measured in the real tlog above
 STATE = ("x", "y", "z", "phi", "theta", "psi", "u", "v", "w", "p", "q", "r")
 
 
@@ -56,12 +62,25 @@ def legs(t0: float) -> tuple:
             Leg(t0 + 76, t0 + 86, "throttle", -300.0))
 
 
+def joystick(t: np.ndarray, duration: float) -> np.ndarray:
+    """The pilot's joystick (N, 4) at times ``t``: MANUAL_CONTROL x (forward), y (lateral), z (throttle, 500
+    neutral), r (yaw), each leg's stick offset (us) divided by ArduSub's scale at ``PILOT_GAIN``."""
+    axes = np.zeros((np.size(t), 4))
+    axes[:, 2] = 500.0
+    column = {"forward": 0, "lateral": 1, "throttle": 2, "yaw": 3}
+    for leg in legs(0.0) + legs(duration / 2):
+        scale = (0.8 if leg.stick == "throttle" else 0.4) * PILOT_GAIN
+        axes[(t >= leg.start) & (t < leg.end), column[leg.stick]] += leg.offset / scale
+    return axes
+
+
 def pilot_plan(duration: float = 180.0, dt: float = 0.02) -> Run:
-    """The pilot's inputs and modes as a run for :func:`fly`: STABILIZE for the first half, ALT_HOLD after."""
+    """The pilot's inputs and modes as a run for :func:`fly`: STABILIZE for the first half, ALT_HOLD after; the RC
+    inputs are ArduSub's overrides of the joystick (channels 3-6), 1500 us elsewhere."""
     t = np.arange(0.0, duration, dt)
     rc = np.full((t.size, 8), 1500.0)
-    for leg in legs(0.0) + legs(duration / 2):
-        rc[(t >= leg.start) & (t < leg.end), RC_INDEX[leg.stick]] = 1500.0 + leg.offset
+    js = joystick(t, duration)
+    rc[:, 2:6] = rc_override(js[:, 0], js[:, 1], js[:, 2], js[:, 3], PILOT_GAIN)
     mode = np.where(t < duration / 2, float(Mode.STABILIZE), float(Mode.ALT_HOLD))
     x0 = np.zeros(12)
     x0[2] = START_DEPTH
@@ -100,7 +119,7 @@ def write_tlog(path, f: ClosedLoopFlight, plan: Run, seed: int = 0):
         m = int(mode[min(np.searchsorted(plan.t, t), plan.n - 1)])
         ev.append((t, mav.heartbeat_encode(12, 3, 81 | 128, m, 4)))  # armed, custom_mode = ArduSub mode
         ev.append((t + 0.3, mav.sys_status_encode(0, 0, 0, 500, 16000, 500, 90, 0, 0, 0, 0, 0, 0)))
-    for t in np.arange(0.01, end, 0.1):
+    for t in np.arange(0.01, end, 0.05):
         x = f.x[_at(f, t)]
         att = x[3:6] + rng.normal(0.0, ATTITUDE_NOISE, 3)
         rates = x[9:12] + rng.normal(0.0, GYRO_NOISE, 3)
@@ -109,7 +128,7 @@ def write_tlog(path, f: ClosedLoopFlight, plan: Run, seed: int = 0):
     for t in np.arange(0.02, end, 0.5):
         depth = f.x[_at(f, t), 2] + rng.normal(0.0, DEPTH_NOISE)
         ev.append((t, mav.scaled_pressure2_encode(int(t * 1000), (101325.0 + RHO_G * depth) / 100.0, 0.0, 1200)))
-    for t in np.arange(0.03, end, 0.25):
+    for t in np.arange(0.03, end, 0.1):
         depth = f.x[_at(f, t), 2] + rng.normal(0.0, DEPTH_NOISE)
         ev.append((t, mav.vfr_hud_encode(0.0, 0.0, int(np.degrees(f.x[_at(f, t), 5])) % 360, 0, -depth, 0.0)))
     for t in np.arange(0.04, end, 1.0 / 3.0):
@@ -120,7 +139,11 @@ def write_tlog(path, f: ClosedLoopFlight, plan: Run, seed: int = 0):
     for t in np.arange(0.05, end, 0.5):
         servo = [int(round(v)) for v in f.pwm[_at(f, t)]] + [0] * 8  # 8 motors
         ev.append((t, mav.servo_output_raw_encode(int(t * 1e6), 0, *servo)))
-    for t in np.arange(0.06, end, 0.25):
+    for t in np.arange(0.06, end, 0.5):
         rc = [int(plan.extra[f"rcin_{i + 1}"][min(np.searchsorted(plan.t, t), plan.n - 1)]) for i in range(8)]
         ev.append((t, mav.rc_channels_encode(int(t * 1000), 8, *rc, *[0] * 10, 255)))
+    gcs = mav2.MAVLink(None, srcSystem=255, srcComponent=190)
+    t_js = np.arange(0.007, end, 1.0 / JOYSTICK_HZ)
+    for t, (x, y, z, r) in zip(t_js, joystick(t_js, plan.t[-1] + plan.t[1])):
+        ev.append((t, gcs.manual_control_encode(1, int(x), int(y), int(z), int(r), 0).pack(gcs)))
     return write_events(path, mav, ev)
