@@ -36,6 +36,7 @@ measured channels only.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import lru_cache
 
 import casadi as ca
 import numpy as np
@@ -241,9 +242,16 @@ LINE_ULPS = 64
 DECIMALS_MAX = 12
 #: share of a channel's moving rows (not flat) that lie on straight lines above which it is taken as linearly
 #: interpolated from a slower stream: a sampled channel with noise has almost none (three noisy samples in line by
-#: chance), one interpolated from knots k >= 3 rows apart has 1 - 2/k or more (assumed threshold, between the two)
-INTERPOLATED_SHARE = 0.3
-#: straight-line segments needed before a knot interval is estimated from them (fewer: taken as sampled)
+#: chance), one interpolated from knots k rows apart about 1 - 2/k (knots between rows break two lines each): 0.2 at
+#: 20 Hz on a 50 Hz grid, 0.6 at 10 Hz (assumed threshold, below the 20 Hz streams of a QGC tlog)
+INTERPOLATED_SHARE = 0.1
+#: ... and at least this many times the share that equal differences would have by chance (the sum of the squared
+#: frequencies of the differences' values: a channel quantised to a few steps per sample has equal differences
+#: often without any interpolation)
+CHANCE_MARGIN = 3.0
+#: knots recovered where neighbouring segments meet that are needed to measure the noise on them; fewer (knots
+#: under ~3 rows apart leave too few rows on each line): the grid-to-grid estimate, scaled by what interpolation at
+#: that interval does to it (:func:`_interpolation_factor`)
 MIN_SEGMENTS = 10
 
 
@@ -323,8 +331,17 @@ def _knots(y, first, last):
         k = (b0[1:] - b0[:-1]) / (slope[:-1] - slope[1:])
     k = np.clip(np.nan_to_num(k, nan=0.5 * (last[:-1] + first[1:])), last[:-1], first[1:])
     value = b0[:-1] + slope[:-1] * k
-    joined = first[1:] - last[:-1] <= 3
-    return k[joined], value[joined], np.concatenate(([False], (joined[1:] & joined[:-1])[joined[1:]]))
+    joined = np.flatnonzero(first[1:] - last[:-1] <= 3)
+    return k[joined], value[joined], np.concatenate(([False], np.diff(joined) == 1))
+
+
+@lru_cache(maxsize=64)
+def _interpolation_factor(interval: float) -> float:
+    """How much the grid-to-grid noise estimate (:func:`_mad_noise` of differences of consecutive rows)
+    underestimates the noise of a channel interpolated from knots ``interval`` rows apart: the estimate of unit
+    noise drawn at such knots (:func:`noise_draw`, random phase; seeded, 40 000 rows), inverted."""
+    e = noise_draw(ChannelNoise(1.0, interval), 40_000, np.random.default_rng(0))
+    return 1.0 / _mad_noise(np.diff(e))
 
 
 def noise_model(y) -> ChannelNoise:
@@ -335,11 +352,14 @@ def noise_model(y) -> ChannelNoise:
     consecutive rows are then a fraction of the noise, and measuring it from them underestimates it by about
     the interval. Such a channel is recognised by the share of its moving rows whose second difference vanishes
     (to the rounding of the values: full double precision, or the decimal step of values written with a fixed
-    number of decimals); a sampled channel, quantised or not, has almost none (flat stretches of a quantised
-    channel are not counted). Its knots are recovered where neighbouring segments meet, the interval is their
-    median spacing, and the noise is measured on each knot's deviation from the chord of its two neighbours
-    (robust MAD; white noise gives it variance s^2 (1 + a^2 + b^2), a + b = 1 the chord's weights): between
-    samples logged slowly the motion is large, a steady climb is not noise, and the stamps' jitter is kept.
+    number of decimals), at least :data:`INTERPOLATED_SHARE` and :data:`CHANCE_MARGIN` times what equal
+    differences give by chance (a sampled channel, quantised or not, has almost none; flat stretches are not
+    counted). Its knots are recovered where neighbouring segments meet, the interval is their median spacing, and
+    the noise is measured on each knot's deviation from the chord of its two neighbours (robust MAD; white noise
+    gives it variance s^2 (1 + a^2 + b^2), a + b = 1 the chord's weights): between samples logged slowly the
+    motion is large, a steady climb is not noise, and the stamps' jitter is kept. Knots too close to recover
+    (under ~3 rows apart: a 20 Hz stream on a 50 Hz grid) give the interval from the share (``2 / (1 - share)``)
+    and the noise from the grid-to-grid differences scaled by :func:`_interpolation_factor`.
 
     Parameters
     ----------
@@ -352,19 +372,24 @@ def noise_model(y) -> ChannelNoise:
         ``sigma`` nan when fewer than five differences are finite.
     """
     y = np.asarray(y, float)
-    sampled = ChannelNoise(_mad_noise(np.diff(y[np.isfinite(y)])))
+    raw = _mad_noise(np.diff(y[np.isfinite(y)]))
+    sampled = ChannelNoise(raw)
     if y.size < 3:
         return sampled
     first, last, moving, on_line = _line_segments(y)
-    if first.size < MIN_SEGMENTS or on_line.sum() < INTERPOLATED_SHARE * max(moving.sum(), 1):
+    d = np.diff(y)
+    _, counts = np.unique(d[1:][moving], return_counts=True)
+    chance = float(np.sum((counts / max(counts.sum(), 1)) ** 2))
+    share = on_line.sum() / max(moving.sum(), 1)
+    if first.size < MIN_SEGMENTS or share < max(INTERPOLATED_SHARE, CHANCE_MARGIN * chance):
         return sampled
     k, v, after = _knots(y, first, last)
     step = np.diff(k)[after[1:]]
-    if step.size < MIN_SEGMENTS or np.median(step) <= 1.5:
-        return sampled
-    # knot i with both neighbours directly beside it: its deviation from their chord
-    mid = np.flatnonzero(after[1:-1] & after[2:]) + 1
-    if mid.size < 5:
+    mid = np.flatnonzero(after[1:-1] & after[2:]) + 1  # knots with both neighbours directly beside them
+    if step.size < MIN_SEGMENTS or mid.size < MIN_SEGMENTS:
+        interval = float(2.0 / (1.0 - share))
+        return ChannelNoise(raw * _interpolation_factor(round(interval, 1)), interval) if interval > 1.5 else sampled
+    if np.median(step) <= 1.5:
         return sampled
     h0, h1 = k[mid] - k[mid - 1], k[mid + 1] - k[mid]
     a, b = h1 / (h0 + h1), h0 / (h0 + h1)
