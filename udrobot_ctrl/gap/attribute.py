@@ -144,11 +144,14 @@ def row_filter(prep: Prepared, at):
         y = np.asarray(y, float)
         flat = y.reshape(n, -1)
         live = np.flatnonzero(np.any(flat != 0.0, axis=0))  # a regressor that is zero throughout filters to zero
-        out = np.zeros((at.size, flat.shape[1]))
-        if live.size:
-            yl = flat[:, live]
-            yi = yl[:-1] if held else 0.5 * (yl[:-1] + yl[1:])
-            out[:, live] = W @ yi
+        if live.size and live.size == flat.shape[1]:  # every column live (a tether's anchors): no copy, no scatter
+            out = W @ (flat[:-1] if held else 0.5 * (flat[:-1] + flat[1:]))
+        else:
+            out = np.zeros((at.size, flat.shape[1]))
+            if live.size:
+                yl = flat[:, live]
+                yi = yl[:-1] if held else 0.5 * (yl[:-1] + yl[1:])
+                out[:, live] = W @ yi
         out[~ok] = np.nan
         return out.reshape((at.size,) + y.shape[1:])
     return apply
@@ -394,6 +397,15 @@ class Attributor:
             self._keep_design(key, fx.Design(*self.cat[name].design(s, tuple(shape))))
         return self._cache[key]
 
+    def keep_designs(self, designs) -> None:
+        """Keep designs computed elsewhere on this attributor's stack with its own catalogue entries, ``(name, shape)
+        -> Design`` (the identifiability probes of :func:`udrobot_ctrl.gap.identifiability.assess`): the searches
+        read them as if computed here."""
+        for (name, shape), d in designs.items():
+            key = _design_key(name, shape)
+            if key not in self._cache:
+                self._keep_design(key, fx.Design(*d))
+
     def _keep_design(self, key, d: fx.Design) -> None:
         self._cache[key] = d._replace(b0=np.nan_to_num(d.b0), A=np.nan_to_num(d.A))
 
@@ -573,8 +585,8 @@ class Attributor:
         energy = np.einsum("sikk->sk", G / sig[:, :, None, None] ** 2)
         active = energy > 1e-12 * np.maximum(1.0, energy.max(axis=1, keepdims=True))
         eye = np.eye(k)
-        a = np.zeros((S, k))
-        for _ in range(iters):
+        a, pred = np.zeros((S, k)), None
+        for it in range(iters):
             w = 1.0 / sig ** 2
             Gw = np.einsum("sikl,si->skl", G, w)
             hw = np.einsum("sik,si->sk", h, w)
@@ -592,9 +604,10 @@ class Attributor:
                 z[s_, on] = bounded_normal_solve(Gn[s_][np.ix_(on, on)], rhs[s_, on], lo[on] * scale[s_, on],
                                                  hi[on] * scale[s_, on])
             a = np.where(active, z / scale, 0.0)
-            e = y - prediction(a)
-            sig = np.sqrt(np.mean(e ** 2, axis=2)) + 1e-12
-        return _Solution(a, prediction(a), active, names, owner, b0)
+            pred = prediction(a)
+            if it + 1 < iters:  # the weights of the next pass (the last pass's prediction is the fit's)
+                sig = np.sqrt(np.mean((y - pred) ** 2, axis=2)) + 1e-12
+        return _Solution(a, prediction(a) if pred is None else pred, active, names, owner, b0)
 
     def free_shapes(self, name) -> int:
         """Number of shape parameters of ``name`` the search moves (a form held at one end is not one)."""

@@ -757,14 +757,21 @@ class CrossDamping(Effect):
         for i, j in CROSS_PAIRS:
             names += [f"D_{DOF[i]}{VEL[j]}", f"Q_{DOF[i]}{VEL[j]}|{VEL[j]}|"]
 
-        def cols(r):
-            A = np.zeros(r["nu"].shape[:1] + (6, 2 * len(CROSS_PAIRS)))
-            for k, (i, j) in enumerate(CROSS_PAIRS):
-                A[:, i, 2 * k] = -r["nu"][:, j]
-                A[:, i, 2 * k + 1] = -np.abs(r["nu"][:, j]) * r["nu"][:, j]
-            return A
-        A = s.full(cols)
-        k = A.shape[-1]
+        vel = [j for _, j in CROSS_PAIRS]
+
+        def cols(r):  # pair k's two regressors (columns 2k, 2k + 1), each acting on one DOF, DOF i of the pair
+            nu_j = r["nu"][:, vel]
+            out = np.empty(nu_j.shape[:1] + (2 * len(CROSS_PAIRS),))
+            out[:, 0::2] = -nu_j
+            out[:, 1::2] = -np.abs(nu_j) * nu_j
+            return out
+        # filtered as they are (the filter acts column by column), then placed in their DOF's row: not a (n, 6, k)
+        # block whose other five rows are zero at the full rate
+        pairs = s.full(cols)
+        k = pairs.shape[-1]
+        A = np.zeros((s.n, 6, k))
+        for c, (i, _) in enumerate(CROSS_PAIRS):
+            A[:, i, 2 * c: 2 * c + 2] = pairs[:, 2 * c: 2 * c + 2]
         return Design(np.zeros((s.n, 6)), A, tuple(names), np.full(k, -1e4), np.full(k, 1e4))
 
 

@@ -42,6 +42,7 @@ identified with the reason.
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
+from typing import NamedTuple
 
 import numpy as np
 
@@ -529,9 +530,10 @@ def _shapes(eff: fx.Effect, stack):
     return [grid[0], grid[len(grid) // 2], grid[-1]]
 
 
-def _columns(eff, stack, shape):
-    """(n, 6, k) regressors of an effect at ``shape`` and their names: amplitude columns, then the shape term."""
-    b0, A, names, _, _ = eff.design(stack, tuple(shape))
+def _columns(eff, stack, shape, design=None):
+    """(n, 6, k) regressors of an effect at ``shape`` and their names: amplitude columns, then the shape term
+    (``design``: the effect's design on ``stack`` at ``shape``, when already computed)."""
+    b0, A, names, _, _ = eff.design(stack, tuple(shape)) if design is None else design
     cols, nm = [np.nan_to_num(A)], list(names)
     b0 = np.nan_to_num(b0)
     if eff.shape_names and np.any(b0):  # a shape-only form (lag, current, deadband's cut) acts through b0
@@ -592,7 +594,7 @@ def noise_scale(stack, preps) -> np.ndarray:
     return np.diag(stack.p.M) * np.where(np.isfinite(sig) & (sig > 0), sig, prior)
 
 
-def assess(stack, r, dofs, preps, catalogue: dict, names=None) -> Identifiability:
+def assess(stack, r, dofs, preps, catalogue: dict, names=None, designs=None) -> Identifiability:
     """Identifiability of each effect in ``names`` on the fit ``stack`` (see the module docstring).
 
     Parameters
@@ -607,6 +609,9 @@ def assess(stack, r, dofs, preps, catalogue: dict, names=None) -> Identifiabilit
         The fit runs, in the stack's order (their ``reconstructed`` DOFs and smoother std).
     catalogue : dict
         Name -> Effect.
+    designs : dict, optional
+        Receives the design on ``stack`` of each effect at each shape probed, (name, shape) ->
+        :class:`~udrobot_ctrl.gap.effects.Design` (a diagnosis hands them to its attributor).
     """
     names = list(names or catalogue)
     observed = np.asarray(dofs, bool)
@@ -619,15 +624,17 @@ def assess(stack, r, dofs, preps, catalogue: dict, names=None) -> Identifiabilit
            for pr in preps):
         moves.append("xy")
     stacks = {m: _perturbed(stack, preps, m) for m in moves}
-    raw = {n: _energies(catalogue[n], stack, stacks, _shapes(catalogue[n], stack), sigma, observed) for n in names}
+    memo = Probes(designs=designs)  # each probed shape's energies (the form checks probe some shapes again)
+    raw = {n: _energies(catalogue[n], stack, stacks, _shapes(catalogue[n], stack), sigma, observed, memo)
+           for n in names}
     top = max([a["all"] for acc in raw.values() for a in acc.values()], default=0.0)
     out = {}
     for n in names:
         eff = catalogue[n]
-        forms = _forms(eff, stack, stacks, sigma, observed, top)
+        forms = _forms(eff, stack, stacks, sigma, observed, top, memo)
         if forms:  # the parameters are judged in the form the search keeps
             kept = Restricted(eff, (), {k: f.kept for k, f in forms.items()})
-            raw[n] = _energies(eff, stack, stacks, _shapes(kept, stack), sigma, observed)
+            raw[n] = _energies(eff, stack, stacks, _shapes(kept, stack), sigma, observed, memo)
         checks = _checks(raw[n], top, observed)
         acts = None
         if eff.per_actuator and not all(c.identified for c in checks):
@@ -700,29 +707,70 @@ def _by_actuator(eff, stack, stacks, shapes, sigma, observed, top, checks):
     return ActuatorCheck(kept, left, causes), part
 
 
-def _energies(eff, stack, stacks, shapes, sigma, observed) -> dict:
+class ShapeEnergy(NamedTuple):
+    """One shape's part of :func:`_energies`: the parameters' names and, per parameter, its noise-normalised
+    regressor energy in the observed DOFs and in all DOFs, per DOF, and under each reconstruction move."""
+
+    names: list
+    obs: np.ndarray  # (k,)
+    all: np.ndarray  # (k,)
+    per_dof: list  # (k,) of (6,)
+    dev: dict  # move -> (k,)
+
+
+@dataclass
+class Probes:
+    """What one assessment computed on its fit stack, by effect name and shape: each probe's :class:`ShapeEnergy`
+    (the form checks probe some shapes again) and, when asked for (``designs`` not None), its design on the fit stack
+    (which the attributor's searches would compute again, :meth:`~udrobot_ctrl.gap.attribute.Attributor.keep_designs`).
+    """
+
+    energies: dict = field(default_factory=dict)  # (name, shape) -> ShapeEnergy
+    designs: dict | None = None  # (name, shape) -> effects.Design
+
+
+def _shape_energy(eff, stack, stacks, shape, sigma, observed, designs=None) -> ShapeEnergy:
+    """:class:`ShapeEnergy` of ``eff`` at one ``shape`` on ``stack`` and its reconstruction moves ``stacks``
+    (``designs``: a dict that receives the design on ``stack`` under (name, shape))."""
+    d = fx.Design(*eff.design(stack, tuple(shape)))
+    if designs is not None:
+        designs[(eff.name, tuple(shape))] = d
+    A, nm = _columns(eff, stack, shape, d)
+    An = A / sigma[None, :, None]
+    dev = {}
+    for m, st_m in stacks.items():
+        Am, _ = _columns(eff, st_m, shape)
+        dA = (Am - A) / sigma[None, :, None]
+        dev[m] = np.sum(dA[:, observed] ** 2, axis=(0, 1))
+    return ShapeEnergy(nm, np.sum(An[:, observed] ** 2, axis=(0, 1)), np.sum(An ** 2, axis=(0, 1)),
+                       [np.sum(An[:, :, j] ** 2, axis=0) for j in range(len(nm))], dev)
+
+
+def _energies(eff, stack, stacks, shapes, sigma, observed, memo=None) -> dict:
     """Per parameter of ``eff``, summed over ``shapes``: its noise-normalised regressor energy in the observed DOFs
     (``obs``), in all DOFs (``all``) and per DOF (``per_dof``), and the energy of its change in the observed DOFs
-    under each reconstruction move (``dev``: move -> energy)."""
+    under each reconstruction move (``dev``: move -> energy).
+
+    ``memo`` (optional :class:`Probes`, for one ``stack``, ``stacks``, ``sigma`` and ``observed``): each shape's
+    :class:`ShapeEnergy` kept by effect name and shape, so that the probes of one assessment that meet again (a
+    form's end that is a grid shape, the kept form's shapes) are computed once."""
     acc = {}
     for shape in shapes:
-        A, nm = _columns(eff, stack, shape)
-        An = A / sigma[None, :, None]
-        e_obs = np.sum(An[:, observed] ** 2, axis=(0, 1))
-        e_all = np.sum(An ** 2, axis=(0, 1))
-        dev = {}
-        for m, st_m in stacks.items():
-            Am, _ = _columns(eff, st_m, shape)
-            dA = (Am - A) / sigma[None, :, None]
-            dev[m] = np.sum(dA[:, observed] ** 2, axis=(0, 1))
-        for j, pname in enumerate(nm):
+        key = (eff.name, tuple(float(v) for v in shape))
+        if memo is not None and key in memo.energies:
+            part = memo.energies[key]
+        else:
+            part = _shape_energy(eff, stack, stacks, shape, sigma, observed, memo.designs if memo else None)
+            if memo is not None:
+                memo.energies[key] = part
+        for j, pname in enumerate(part.names):
             a = acc.setdefault(pname, {"obs": 0.0, "all": 0.0, "dev": dict.fromkeys(stacks, 0.0),
                                        "per_dof": np.zeros(6)})
-            a["obs"] += e_obs[j]
-            a["all"] += e_all[j]
-            a["per_dof"] += np.sum(An[:, :, j] ** 2, axis=0)
+            a["obs"] += part.obs[j]
+            a["all"] += part.all[j]
+            a["per_dof"] += part.per_dof[j]
             for m in stacks:
-                a["dev"][m] += dev[m][j]
+                a["dev"][m] += part.dev[m][j]
     return acc
 
 
@@ -750,12 +798,13 @@ def _checks(acc, top, observed) -> list:
     return checks
 
 
-def _forms(eff, stack, stacks, sigma, observed, top) -> dict:
+def _forms(eff, stack, stacks, sigma, observed, top, memo=None) -> dict:
     """Form parameters of ``eff`` (``physical_ends``) at whose one end the channels identify more of its amplitude
     parameters than at the other (a strict superset), the others failing because their regressor hinges on a
     reconstructed state (sensitivity), not because it acts less in the observed DOFs (share): name ->
     :class:`FormCheck`. A parameter whose regressor vanishes on the data at either end is left out of the
-    comparison. Each end is probed with the other shape parameters at the middle of the effect's grid."""
+    comparison. Each end is probed with the other shape parameters at the middle of the effect's grid (``memo``: as
+    :func:`_energies`'s)."""
     grid, bounds = eff.search_space(stack)
     grid = list(grid)
     if not eff.physical_ends or not grid or not bounds:
@@ -767,8 +816,8 @@ def _forms(eff, stack, stacks, sigma, observed, top) -> dict:
         ends = {}
         for end in bounds[i]:
             shape = tuple(middle[:i] + [end] + middle[i + 1:])
-            ends[float(end)] = {c.name: c for c in _checks(_energies(eff, stack, stacks, [shape], sigma, observed),
-                                                           top, observed)}
+            ends[float(end)] = {c.name: c for c in _checks(_energies(eff, stack, stacks, [shape], sigma, observed,
+                                                                     memo), top, observed)}
         if len(ends) != 2:
             continue
         (e1, c1), (e2, c2) = ends.items()

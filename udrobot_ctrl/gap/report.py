@@ -429,9 +429,12 @@ def build_stacks(inp: Inputs) -> Stacks:
     M_A = np.asarray(inp.p.M_A, float)
     st, r, dofs = build_stack(inp.fit, inp.p, M_A)
     st_h, r_h, dofs_h = build_stack(inp.holdout, inp.p, M_A)
-    ident = identifiability.assess(st, r, dofs & dofs_h, inp.fit, inp.catalogue, inp.names)
+    probed = {}
+    ident = identifiability.assess(st, r, dofs & dofs_h, inp.fit, inp.catalogue, inp.names, designs=probed)
     cat = ident.restrict(inp.catalogue)
     att = Attributor(st, r, dofs & dofs_h, cat)
+    # the probes' designs of the effects fitted as they are (not restricted) are the fits' own: not computed again
+    att.keep_designs({k: d for k, d in probed.items() if cat[k[0]] is inp.catalogue[k[0]]})
     att_h = Attributor(st_h, r_h, dofs & dofs_h, cat)
     h0 = inp.holdout[0]
     return Stacks(att, att_h, Actuation(h0.B, h0.inflow, st.f_ref, M_A), ident)

@@ -214,11 +214,12 @@ def simulate_windows_sets(prep: Prepared, p: PlantParameters, hook_sets, window_
     start_of = np.tile(starts, n_sets)
     nsub = max(1, int(np.ceil(prep.dt / 0.05)))
     h_dt = prep.dt / nsub
+    hooked = any(forces or masses for _, forces, masses in groups)  # else no surface is read (nominal replays)
 
     def deriv(xx, k, fk, tk, at_k):
-        surfaces = _surface_ctx(prep, k, xx, at_k)
         tot = tk - generalized_forces(xx, p)
         heavier = []  # (rows, mass matrices) of the sets whose effects add mass
+        surfaces = _surface_ctx(prep, k, xx, at_k) if hooked else []
         for rows, forces, masses in groups:
             if not (forces or masses):
                 continue
@@ -240,7 +241,7 @@ def simulate_windows_sets(prep: Prepared, p: PlantParameters, hook_sets, window_
 
     def inputs(k):  # per row of the batch: command, wrench and surfaces at sample k (N,) of its windows
         kk = np.tile(k, n_sets)
-        return f[set_of, kk], tau_seq[set_of, kk], kk, _surfaces_at(prep, kk)
+        return f[set_of, kk], tau_seq[set_of, kk], kk, _surfaces_at(prep, kk) if hooked else None
 
     window_id = np.tile(np.arange(1, N + 1, dtype=float), n_sets)  # the window column's value of each row
     sim[set_of, start_of, :12] = x

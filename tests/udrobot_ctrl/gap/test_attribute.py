@@ -105,6 +105,9 @@ def test_filtering_only_the_stacked_rows_gives_the_full_filter_there():
         assert np.isnan(full[200, 3]).all() and np.isfinite(full[200, 2]).all()
         inner = (at >= 40) & (at < prep.n - 40)
         assert np.all(part[inner, 4, 1] == 0.0) and np.all(part[inner, 4, 0] != 0.0)
+    live = np.random.default_rng(1).normal(size=(prep.n, 6, 2))  # every regressor live (a tether's anchors)
+    for held in (False, True):
+        np.testing.assert_array_equal(filter_forces(prep, live, held, at=at), filter_forces(prep, live, held)[at])
 
 
 def test_an_inflow_loss_behind_a_lag_is_fitted_on_the_lagged_thrust():

@@ -8,7 +8,7 @@ import pytest
 
 from udrobot_ctrl.dynamics.plant import plant_parameters
 from udrobot_ctrl.gap import effects as fx
-from udrobot_ctrl.gap.attribute import build_stack
+from udrobot_ctrl.gap.attribute import Attributor, build_stack
 from udrobot_ctrl.gap.data import prepare
 from udrobot_ctrl.gap.identifiability import (
     SHARE_MIN,
@@ -68,6 +68,23 @@ def test_stock_sensors_list_horizontal_velocity_effects_with_the_fix(stock):
     # per-DOF effects stay testable, with the surge/sway parameters named as not identified
     lin = ident.entry("linear_damping")["not_identified"]
     assert {"d_Xu", "d_Yv"} <= set(lin["params"]) and "d_Zw" not in lin["params"] and "d_Nr" not in lin["params"]
+
+
+def test_the_probed_designs_are_the_effects_own_and_spare_the_attributor_computing_them(stock):
+    _, preps = stock
+    st, r, dofs = build_stack(preps, P, P.M_A)
+    cat, probed = fx.catalogue(), {}
+    assess(st, r, dofs, preps, cat, designs=probed)
+    assert {name for name, _ in probed} == set(cat)
+    for (name, shape), d in probed.items():
+        again = cat[name].design(st, shape)
+        for got, want in zip(d[:2], again[:2]):
+            np.testing.assert_array_equal(got, want)
+    seeded, fresh = Attributor(st, r, dofs, cat), Attributor(st, r, dofs, cat)
+    seeded.keep_designs(probed)
+    for name in ("thruster_deadband", "buoyancy_offset", "wall_effect"):
+        a, b = seeded.best_shape(name, refine=False), fresh.best_shape(name, refine=False)
+        assert a.shapes == b.shapes and a.params == b.params and np.array_equal(a.rss, b.rss)
 
 
 def test_restricted_catalogue_freezes_only_unidentified_columns(stock):

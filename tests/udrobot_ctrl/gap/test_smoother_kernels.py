@@ -23,6 +23,17 @@ def test_cholesky_solve_matches_the_general_solver_and_refuses_an_indefinite_mat
     assert not cholesky_solve(indefinite, B, X)
 
 
+def test_cholesky_solve_of_many_right_hand_sides_solves_each_as_alone():
+    """The substitutions run over every right-hand side at once: each column's numbers are those of its own solve."""
+    A, B = _spd(19), RNG.normal(size=(19, 19))
+    X = np.empty_like(B)
+    assert cholesky_solve(A, B, X)
+    for j in range(B.shape[1]):
+        x = np.empty((19, 1))
+        assert cholesky_solve(A, np.ascontiguousarray(B[:, j:j + 1]), x)
+        assert np.array_equal(X[:, j], x[:, 0])
+
+
 def test_kalman_update_is_the_textbook_gain_and_covariance_update():
     ns, nr = 19, 7
     P, H, y, r = _spd(ns), RNG.normal(size=(nr, ns)), RNG.normal(size=nr), RNG.uniform(0.1, 1.0, nr)
