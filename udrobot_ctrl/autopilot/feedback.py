@@ -32,13 +32,16 @@ hold. So the held sample is **refreshed**: the emulated ArduSub (:class:`~udrobo
 the one emulation ``simulate --closed-loop`` flies) is stepped once per grid row on the *measured* states with the
 log's modes, pilot inputs and targets, and its output's change since the sample was logged is added::
 
-    mixer input = logged mixer input[k0] + (emulated[k] - emulated[k0])      roll, pitch, yaw, forward, lateral
+    mixer input = logged mixer input[k0] + (emulated[k] - emulated[a])      roll, pitch, yaw, forward, lateral
 
-(``k0`` the row where the held output was logged). At the samples this is the log itself; between them it follows
-the autopilot's own reaction to what was measured (the pilot's sticks pass straight through in MANUAL, STABILIZE
-and ALT_HOLD; GUIDED's forward and lateral are held as logged), and whatever the emulation gets wrong slowly (an
-integrator, a trim) cancels in the difference. Throttle is not refreshed: in ALT_HOLD it is the depth loop's
-output on a depth logged as slowly as the outputs (2 Hz in a tlog), which the emulation would differentiate.
+(``k0`` the row where the held output was logged, ``a`` the row beside it, within :data:`ANCHOR_ROWS`, where the
+emulation agrees best with that sample: the sample's instant is known to a row, and a stick step beside a sample
+must not be counted twice, once in the sample and once in the change). At the samples this is the log itself;
+between them it follows the autopilot's own reaction to what was measured (the pilot's sticks pass straight
+through in MANUAL, STABILIZE and ALT_HOLD; GUIDED's forward and lateral are held as logged), and whatever the
+emulation gets wrong slowly (an integrator, a trim) cancels in the difference. The throttle is refreshed where it is
+the pilot's stick (MANUAL, STABILIZE); in ALT_HOLD it is the depth loop's output on a depth logged as slowly as the
+outputs (2 Hz in a tlog), which the emulation would differentiate, and it stays as logged.
 The closed loop above then acts on the replay's departure from the measured attitude.
 
 Where the autopilot did not stabilise (``MANUAL`` mode, disarmed) the correction is zero: the logged command is
@@ -211,6 +214,13 @@ def command_interval(run: Run) -> float:
 
 #: mixer inputs refreshed between logged output samples (module docstring): roll, pitch, yaw, forward, lateral
 REFRESHED = (0, 1, 2, 4, 5)
+#: ... and the throttle (index 3) in the modes where it is the pilot's stick (``Sub::stabilize_run``,
+#: ``Sub::manual_run``: ``attitude_control.set_throttle_out(channel_throttle->norm_input(), ...)``), not the depth
+#: loop's
+THROTTLE = 3
+PILOT_THROTTLE_MODES = (int(Mode.MANUAL), int(Mode.STABILIZE))
+#: rows either side of a held sample's row where the emulation may be anchored to it (module docstring)
+ANCHOR_ROWS = 1
 
 
 def emulated_mixer_inputs(run: Run, params: ArduSubParameters, fr: Frame, motors: MotorParameters,
@@ -268,12 +278,28 @@ def _output_refresh(run: Run, params: ArduSubParameters, fr: Frame, motors: Moto
     emulated = emulated_mixer_inputs(run, params, fr, motors, p)
     if emulated is None:
         return None
-    k0 = np.zeros(run.n, int)
+    n = run.n
+    k0 = np.zeros(n, int)
     changed = changed_rows(run)
     k0[changed] = changed
     k0 = np.maximum.accumulate(k0)  # the row of the output sample each row holds
-    out = np.zeros((run.n, 6))
-    out[:, REFRESHED] = (emulated - emulated[k0])[:, REFRESHED]
+    # the sample's instant is known to a grid row (stamps, the converter's hold, the emulation's one-tick lag): the
+    # emulation is anchored, per input, at the row beside k0 where it agrees best with the logged sample, so that
+    # a stick step falling next to a sample is not counted twice (once in the sample, once in the change)
+    logged = unmix(fr, from_pwm(run.inputs, motors))
+    near = np.clip(k0[:, None] + np.arange(-ANCHOR_ROWS, ANCHOR_ROWS + 1), 0, n - 1)
+    rows = np.arange(n)[:, None]
+    out = np.zeros((n, 6))
+    mode = run.extra.get("mode")
+    pilot = (np.isin(np.nan_to_num(mode, nan=-1.0), PILOT_THROTTLE_MODES) if mode is not None
+             else np.zeros(n, bool))
+    for c in range(6):
+        if c not in REFRESHED and c != THROTTLE:
+            continue
+        anchor = near[rows[:, 0], np.argmin(np.abs(emulated[near, c] - logged[k0, c][:, None]), axis=1)]
+        out[:, c] = emulated[:, c] - emulated[anchor, c]
+        if c == THROTTLE:  # only where the throttle is the pilot's at both rows
+            out[~(pilot & pilot[k0]), c] = 0.0
     armed = run.extra.get("armed")
     if armed is not None:
         out[np.nan_to_num(armed, nan=1.0) == 0] = 0.0
@@ -355,7 +381,8 @@ def replay_feedback(run: Run, p: PlantParameters, label: str = "run") -> Feedbac
                         axes=axes, assumed=tuple(assumed), interval=interval, refresh=refresh)
     closed = ", ".join(n for n, a in zip(("roll", "pitch", "yaw"), axes) if a)
     held = ("roll, pitch, yaw, forward and lateral refreshed between output samples by the emulated autopilot run on "
-            "the measured states and the pilot's inputs, throttle as logged" if refresh is not None
+            "the measured states and the pilot's inputs, the throttle too where it is the pilot's (MANUAL, STABILIZE)"
+            if refresh is not None
             else "throttle, forward and lateral as logged")
     note = (f"replay: closed loop in {closed} ({label}: ArduSub's outputs logged every {interval * 1e3:.0f} ms, a "
             f"stale sample of its {params.loop_rate_hz:.0f} Hz attitude loop; the emulated loop (frame {fr.name}, "

@@ -8,9 +8,17 @@ import dataclasses
 import numpy as np
 import pytest
 
-from udrobot_ctrl.autopilot.feedback import OPEN_LOOP_MAX_INTERVAL, attitude_error, command_interval, replay_feedback
+from udrobot_ctrl.autopilot.feedback import (
+    OPEN_LOOP_MAX_INTERVAL,
+    attitude_error,
+    command_interval,
+    output_refresh,
+    replay_feedback,
+)
 from udrobot_ctrl.autopilot.fly import fly
 from udrobot_ctrl.autopilot.modes import Mode
+from udrobot_ctrl.autopilot.motors import MotorParameters, frame, from_pwm, mix, to_pwm, unmix
+from udrobot_ctrl.autopilot.params import ArduSubParameters
 from udrobot_ctrl.dynamics.plant import plant_parameters
 from udrobot_ctrl.gap.data import prepare
 from udrobot_ctrl.gap.shrink import errors, simulate_windows
@@ -144,3 +152,32 @@ def test_a_2hz_log_is_refreshed_between_its_samples_by_the_emulated_autopilot(lo
     for c in ("p", "q", "r"):
         assert rms(refreshed[c]) < rms(held[c]) / 3, c
     assert rms(refreshed["u"]) < 0.01 and rms(refreshed["u"]) < rms(held["u"]) / 3
+
+
+def test_a_stick_step_beside_a_logged_sample_is_not_counted_twice():
+    """Forward stick steps to +0.5 at a row where an output sample is logged (the sample holds it already) and to
+    0 again between two samples (the sample before does not): the refresh adds nothing to the first and the
+    whole step to the second, until the next sample takes over."""
+    p = plant_parameters(load_model(MODEL))
+    fr = frame(p.ardusub_frame)
+    motors = dataclasses.replace(MotorParameters(), directions=(1,) * fr.n_motors)
+    n, dt, every = 400, 0.02, 25  # a 2 Hz output log on a 50 Hz grid
+    t = np.arange(n) * dt
+    forward = np.where((np.arange(n) >= 100) & (np.arange(n) < 160), 0.5, 0.0)  # on at a sample, off between two
+    inputs = np.zeros((n, 6))
+    inputs[:, 4] = forward
+    pwm_true = to_pwm(mix(fr, inputs, motors), motors, integer=False)
+    samples = np.arange(0, n, every)
+    pwm = pwm_true[samples][np.searchsorted(samples, np.arange(n), side="right") - 1]
+    rc = np.full(n, 1500.0) + 400.0 * forward  # RC5 about its trim, full scale 400 us
+    extra = {"mode": np.full(n, float(Mode.STABILIZE)), **{f"rcin_{i}": np.full(n, 1500.0) for i in range(1, 9)}}
+    extra["rcin_5"] = rc
+    channels = {c: np.zeros(n) for c in ("x", "y", "z", "phi", "theta", "psi", "u", "v", "w", "p", "q", "r")}
+    channels["z"][:] = 5.0
+    run = Run(path="steps.csv", t=t, channels=channels, input_kind="pwm", inputs=pwm, extra=extra,
+              metadata={"vehicle": MODEL})
+    refresh = output_refresh(run, ArduSubParameters(), fr, motors, p)
+    held_plus_refresh = unmix(fr, from_pwm(pwm, motors))[:, 4] + refresh[:, 4]
+    # (the emulation passes a stick to the mixer one tick later, ArduSub's order: one grid row here)
+    np.testing.assert_allclose(held_plus_refresh[101:125], 0.5, atol=1e-6)  # the sample at row 100 has the step
+    np.testing.assert_allclose(held_plus_refresh[161:175], 0.0, atol=1e-6)  # released at 160, next sample at 175
