@@ -42,6 +42,7 @@ from udrobot_ctrl.vehicle import load_model
 
 #: modes the emulation flies from the pilot's inputs
 PILOT_MODES = (Mode.MANUAL, Mode.STABILIZE, Mode.ALT_HOLD)
+PWM_CENTRE = 1500.0  # us, a centred stick
 #: modes flown on the logged targets (GUIDED is emulated this way; SURFTRAK's own depth law is not emulated and is
 #: flown so as a stand-in, and so are the other modes, see :func:`mode_notes`)
 TARGET_MODES = (Mode.GUIDED, Mode.SURFTRAK)
@@ -60,7 +61,7 @@ class LoggedCommands:
     armed : (n,) bool ndarray
         Armed (all True when the log does not tell).
     rcin : (n, 8) ndarray or None
-        Pilot RC inputs, us.
+        Pilot RC inputs, us (1500, centred, where the run has no sample).
     attitude_target : (n, 3) ndarray or None
         Roll, pitch, yaw targets, rad.
     z_target : (n,) ndarray or None
@@ -101,6 +102,8 @@ class LoggedCommands:
         armed = np.ones(run.n, bool) if armed is None else np.nan_to_num(armed, nan=1.0) != 0
         rc = [run.extra.get(f"rcin_{i}") for i in range(1, 9)]
         rcin = np.column_stack(rc) if all(c is not None for c in rc) else None
+        if rcin is not None:  # no pilot sample yet (before the log's first, or in a gap): sticks centred, never nan
+            rcin = np.where(np.isfinite(rcin), rcin, PWM_CENTRE)  # (a nan stick would read as full stick)
         tg = [run.extra.get(c) for c in ("roll_target", "pitch_target", "yaw_target")]
         attitude = np.column_stack(tg) if all(c is not None for c in tg) else None
         volts = run.channels.get("voltage")

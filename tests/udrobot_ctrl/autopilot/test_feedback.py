@@ -12,10 +12,11 @@ from udrobot_ctrl.autopilot.feedback import (
     OPEN_LOOP_MAX_INTERVAL,
     attitude_error,
     command_interval,
+    emulated_mixer_inputs,
     output_refresh,
     replay_feedback,
 )
-from udrobot_ctrl.autopilot.fly import fly
+from udrobot_ctrl.autopilot.fly import LoggedCommands, fly
 from udrobot_ctrl.autopilot.modes import Mode
 from udrobot_ctrl.autopilot.motors import MotorParameters, frame, from_pwm, mix, to_pwm, unmix
 from udrobot_ctrl.autopilot.params import ArduSubParameters
@@ -181,3 +182,19 @@ def test_a_stick_step_beside_a_logged_sample_is_not_counted_twice():
     # (the emulation passes a stick to the mixer one tick later, ArduSub's order: one grid row here)
     np.testing.assert_allclose(held_plus_refresh[101:125], 0.5, atol=1e-6)  # the sample at row 100 has the step
     np.testing.assert_allclose(held_plus_refresh[161:175], 0.0, atol=1e-6)  # released at 160, next sample at 175
+
+
+def test_a_missing_pilot_sample_reads_as_a_centred_stick():
+    """Before a log's first RC sample the converter leaves rcin_i empty (nan): the autopilot must see the sticks
+    centred there (a nan through RC_Channel's clamps reads as a full stick), so a STABILIZE vehicle at rest gets no
+    forward command from it."""
+    p = plant_parameters(load_model(MODEL))
+    fr = frame(p.ardusub_frame)
+    motors = dataclasses.replace(MotorParameters(), directions=(1,) * fr.n_motors)
+    run = _pilot_run(duration=2.0)
+    for i in range(1, 9):
+        run.extra[f"rcin_{i}"][:20] = np.nan  # the first RC sample at 0.4 s
+    commands = LoggedCommands.from_run(run, fr, motors, p.supply_voltage)
+    assert np.all(commands.rcin[:20] == 1500.0)
+    emulated = emulated_mixer_inputs(run, ArduSubParameters(), fr, motors, p)
+    np.testing.assert_allclose(emulated[:20, 4:6], 0.0, atol=1e-12)  # no forward, no lateral from the gap
