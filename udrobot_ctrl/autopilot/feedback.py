@@ -21,8 +21,9 @@ integrators. The mixer input of the logged PWM comes from :func:`udrobot_ctrl.au
 corrected one goes back through :func:`udrobot_ctrl.autopilot.motors.mix` (so the frame's saturation and
 normalisation act on the total) and the T-200 curve. Exact for the PID and its filters; linearised for the sqrt
 controller of the angle loop (linear below ``ACCEL_MAX / ANG_P^2``, 0.53 rad at ArduSub's defaults) and for the
-integrator limit. Throttle stays as logged: the depth loop is slow next to the log rate, and its logged output is
-what a replay tests the heave dynamics against.
+integrator limit. The logged throttle, forward and lateral are not corrected by it: the depth and position loops
+are slow next to the log rate, and their logged outputs are what a replay tests the heave, surge and sway dynamics
+against (between samples they are refreshed, below).
 
 Between two logged output samples the real autopilot kept reacting to the motion and the pilot, and a log often has
 both far more often than the outputs (QGroundControl: ATTITUDE at 20 Hz and the pilot's MANUAL_CONTROL at ~24 Hz,
@@ -32,7 +33,7 @@ hold. So the held sample is **refreshed**: the emulated ArduSub (:class:`~udrobo
 the one emulation ``simulate --closed-loop`` flies) is stepped once per grid row on the *measured* states with the
 log's modes, pilot inputs and targets, and its output's change since the sample was logged is added::
 
-    mixer input = logged mixer input[k0] + (emulated[k] - emulated[a])      roll, pitch, yaw, forward, lateral
+    mixer input = logged mixer input[k0] + (emulated[k] - emulated[a])      each input (throttle: see below)
 
 (``k0`` the row where the held output was logged, ``a`` the row beside it, within :data:`ANCHOR_ROWS`, where the
 emulation agrees best with that sample: the sample's instant is known to a row, and a stick step beside a sample
@@ -212,11 +213,9 @@ def command_interval(run: Run) -> float:
     return float(np.median(np.diff(run.t[changed]))) if changed.size >= 3 else float("nan")
 
 
-#: mixer inputs refreshed between logged output samples (module docstring): roll, pitch, yaw, forward, lateral
-REFRESHED = (0, 1, 2, 4, 5)
-#: ... and the throttle (index 3) in the modes where it is the pilot's stick (``Sub::stabilize_run``,
+#: the throttle (mixer input 3) is refreshed only in the modes where it is the pilot's stick (``Sub::stabilize_run``,
 #: ``Sub::manual_run``: ``attitude_control.set_throttle_out(channel_throttle->norm_input(), ...)``), not the depth
-#: loop's
+#: loop's; every other mixer input is refreshed in every armed mode (module docstring)
 THROTTLE = 3
 PILOT_THROTTLE_MODES = (int(Mode.MANUAL), int(Mode.STABILIZE))
 #: rows either side of a held sample's row where the emulation may be anchored to it (module docstring)
@@ -261,9 +260,9 @@ def _refresh_key(run: Run, params: ArduSubParameters, fr: Frame, motors: MotorPa
 def output_refresh(run: Run, params: ArduSubParameters, fr: Frame, motors: MotorParameters,
                    p: PlantParameters) -> np.ndarray | None:
     """Change (n, 6) of the emulated autopilot's mixer inputs since each row's held output was logged (module
-    docstring): roll, pitch, yaw, forward, lateral; zero while disarmed. None when the run has no ``mode`` or the
-    change is zero throughout (outputs logged at the grid's rate). Computed once per run content (kept in memory,
-    :data:`REFRESHES_KEPT`)."""
+    docstring): roll, pitch, yaw, forward, lateral, and the throttle where it is the pilot's; zero while disarmed.
+    None when the run has no ``mode`` or the change is zero throughout (outputs logged at the grid's rate). Computed
+    once per run content (kept in memory, :data:`REFRESHES_KEPT`)."""
     key = _refresh_key(run, params, fr, motors)
     if key not in _REFRESHES:
         _REFRESHES[key] = _output_refresh(run, params, fr, motors, p)
@@ -287,19 +286,13 @@ def _output_refresh(run: Run, params: ArduSubParameters, fr: Frame, motors: Moto
     # emulation is anchored, per input, at the row beside k0 where it agrees best with the logged sample, so that
     # a stick step falling next to a sample is not counted twice (once in the sample, once in the change)
     logged = unmix(fr, from_pwm(run.inputs, motors))
-    near = np.clip(k0[:, None] + np.arange(-ANCHOR_ROWS, ANCHOR_ROWS + 1), 0, n - 1)
-    rows = np.arange(n)[:, None]
-    out = np.zeros((n, 6))
+    near = emulated[np.clip(k0[:, None] + np.arange(-ANCHOR_ROWS, ANCHOR_ROWS + 1), 0, n - 1)]  # (n, rows, 6)
+    best = np.argmin(np.abs(near - logged[k0][:, None, :]), axis=1)
+    out = emulated - np.take_along_axis(near, best[:, None, :], axis=1)[:, 0]
     mode = run.extra.get("mode")
     pilot = (np.isin(np.nan_to_num(mode, nan=-1.0), PILOT_THROTTLE_MODES) if mode is not None
              else np.zeros(n, bool))
-    for c in range(6):
-        if c not in REFRESHED and c != THROTTLE:
-            continue
-        anchor = near[rows[:, 0], np.argmin(np.abs(emulated[near, c] - logged[k0, c][:, None]), axis=1)]
-        out[:, c] = emulated[:, c] - emulated[anchor, c]
-        if c == THROTTLE:  # only where the throttle is the pilot's at both rows
-            out[~(pilot & pilot[k0]), c] = 0.0
+    out[~(pilot & pilot[k0]), THROTTLE] = 0.0  # only where the throttle is the pilot's at both rows
     armed = run.extra.get("armed")
     if armed is not None:
         out[np.nan_to_num(armed, nan=1.0) == 0] = 0.0

@@ -277,12 +277,17 @@ class ChannelNoise:
         return self.interval > 1.5
 
 
+def _robust_std(x) -> float:
+    """Standard deviation of normal data from the median absolute deviation (robust to outliers), same units."""
+    return float(1.4826 * np.median(np.abs(x - np.median(x))))
+
+
 def _mad_noise(d) -> float:
     """Noise std from differences of consecutive samples (robust MAD; the difference of two has variance 2 s^2)."""
     d = d[np.isfinite(d)]
     if d.size < 5:
         return np.nan
-    return float(1.4826 * np.median(np.abs(d - np.median(d))) / np.sqrt(2.0))
+    return _robust_std(d) / np.sqrt(2.0)
 
 
 def _decimal_step(y) -> float:
@@ -394,7 +399,7 @@ def noise_model(y) -> ChannelNoise:
     h0, h1 = k[mid] - k[mid - 1], k[mid + 1] - k[mid]
     a, b = h1 / (h0 + h1), h0 / (h0 + h1)
     e = (v[mid] - a * v[mid - 1] - b * v[mid + 1]) / np.sqrt(1.0 + a ** 2 + b ** 2)
-    return ChannelNoise(float(1.4826 * np.median(np.abs(e - np.median(e)))), float(np.median(step)))
+    return ChannelNoise(_robust_std(e), float(np.median(step)))
 
 
 def channel_noise(y) -> float:
