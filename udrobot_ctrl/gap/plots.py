@@ -14,13 +14,10 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from udrobot_ctrl.dynamics.plant import wrap_angle
-from udrobot_ctrl.gap.shrink import ACCEL, ANGLES, accel_bias, diverged_samples, errors
+from udrobot_ctrl.gap.shrink import ACCEL, ANGLES, UNITS, accel_bias, diverged_samples, errors
 from udrobot_ctrl.io.files import save_figure
 from udrobot_ctrl.vehicle import STATE_INDEX
 
-# units of the channels (udrobot-run/1): positions m, angles rad, velocities m/s and rad/s, specific force m/s^2
-UNITS = {"x": "m", "y": "m", "z": "m", "phi": "rad", "theta": "rad", "psi": "rad", "u": "m/s", "v": "m/s",
-         "w": "m/s", "p": "rad/s", "q": "rad/s", "r": "rad/s", "ax": "m/s^2", "ay": "m/s^2", "az": "m/s^2"}
 #: channel -> its column in a replay (:func:`udrobot_ctrl.gap.shrink.simulate_windows`)
 COLUMN = {**STATE_INDEX, **{c: 12 + j for j, c in enumerate(ACCEL)}}
 

@@ -61,7 +61,7 @@ from udrobot_ctrl.gap.data import actuators, prepare
 from udrobot_ctrl.gap.effects import Actuation
 from udrobot_ctrl.gap.identifiability import Identifiability
 from udrobot_ctrl.gap.locate import Located, locate, noise_floor
-from udrobot_ctrl.gap.shrink import GapScore, check_window, gap, prepare_with_effects, simulate_windows
+from udrobot_ctrl.gap.shrink import UNITS, GapScore, check_window, gap, prepare_with_effects, simulate_windows
 from udrobot_ctrl.io.files import atomic_write
 from udrobot_ctrl.io.runlog import Run
 from udrobot_ctrl.parallel import Background, fork_map, one_blas_thread
@@ -1162,6 +1162,106 @@ def _method(window_s) -> dict:
     }
 
 
+#: channel -> the rotational axis (0 roll, 1 pitch, 2 yaw) whose autopilot loop a closed-loop replay closes
+LOOP_AXIS = {"phi": 0, "p": 0, "theta": 1, "q": 1, "psi": 2, "r": 2}
+#: the console names the channels holding the gap after, largest first, until they hold this share of it
+REMAINING_SHOWN = 0.8
+
+
+@dataclass(frozen=True)
+class Remaining:
+    """One scored channel's part of the holdout gap that the significant effects leave (the report's ``remaining``):
+    the NRMSE back in the channel's units, so that a large NRMSE of a channel that hardly moved (a regulated attitude,
+    a steady transect's sway) reads as the small error it is.
+
+    Attributes
+    ----------
+    channel : str
+        Run-log channel name.
+    share : float
+        Its share of the gap after's summed NRMSE^2 (the shares sum to 1 over the scored channels).
+    nrmse : float
+        Its holdout NRMSE after.
+    rms_error : float
+        Its replay's RMS error on the holdout runs, channel units (``nrmse * spread``).
+    spread : float
+        Standard deviation of its measurement on the holdout runs (the NRMSE's denominator), channel units.
+    floor : float
+        Its replay noise floor (the NRMSE the nominal model scores from measurement noise, initial-state error and
+        passive modes alone); nan without one.
+    closed_loop : float
+        Share of the holdout samples on which the replay closed the vehicle's autopilot around this channel's axis
+        (0: replayed open loop).
+    unit : str
+        The channel's unit (SI).
+    """
+
+    channel: str
+    share: float
+    nrmse: float
+    rms_error: float
+    spread: float
+    floor: float
+    closed_loop: float
+    unit: str
+
+    def to_json(self) -> dict:
+        return asdict(self)
+
+
+def closed_loop_shares(holdout) -> dict:
+    """Channel -> share of the samples of the prepared ``holdout`` runs on which the replay closed the autopilot's
+    loop around the channel's axis (:data:`LOOP_AXIS`; its ``feedback``'s ``axes`` and ``stabilised`` samples)."""
+    n = sum(pr.n for pr in holdout)
+    out = {}
+    for c, axis in LOOP_AXIS.items():
+        closed = sum(float(np.count_nonzero(pr.feedback.stabilised)) for pr in holdout
+                     if pr.feedback is not None and pr.feedback.axes[axis])
+        out[c] = closed / n if n else 0.0
+    return out
+
+
+def remaining_gap(after: GapScore, floor: Mapping, closed: Mapping) -> list:
+    """The gap ``after`` the significant effects, channel by channel, largest share first (:class:`Remaining`).
+
+    Parameters
+    ----------
+    after : GapScore
+        The holdout gap with the significant effects (the nominal's when none is significant).
+    floor : mapping
+        Channel -> replay noise floor (NRMSE).
+    closed : mapping
+        Channel -> share of the holdout samples replayed in closed loop (:func:`closed_loop_shares`).
+
+    Returns
+    -------
+    list of Remaining
+        One per scored channel with a finite NRMSE.
+    """
+    chans = [c for c in after.scored if np.isfinite(after.per_channel.get(c, np.nan))]
+    total = sum(after.per_channel[c] ** 2 for c in chans)
+    out = [Remaining(c, after.per_channel[c] ** 2 / total if total > 0 else 0.0, after.per_channel[c],
+                     after.per_channel[c] * after.scale.get(c, np.nan), after.scale.get(c, np.nan),
+                     floor.get(c, np.nan), closed.get(c, 0.0), UNITS.get(c, ""))
+           for c in chans]
+    return sorted(out, key=lambda r: -r.share)
+
+
+def remaining_line(remaining) -> str | None:
+    """The console's account of the gap after: the channels holding ``REMAINING_SHOWN`` of it (report
+    ``remaining`` entries), each with its RMS error in its units against its measured spread."""
+    shown, held = [], 0.0
+    for r in remaining:
+        if held >= REMAINING_SHOWN or r["share"] is None:
+            break
+        held += r["share"]
+        loop = "; replayed in closed loop" if (r["closed_loop"] or 0) > 0.5 else ""
+        shown.append(f"{r['channel']} {100 * r['share']:.0f}% (RMS error {_num(r['rms_error'], '.3g')} "
+                     f"{r['unit']} against a measured spread of {_num(r['spread'], '.3g')} {r['unit']}, NRMSE "
+                     f"{_num(r['nrmse'], '.2f')}, floor {_num(r['floor'], '.2g')}{loop})")
+    return ("  what remains: " + ", ".join(shown)) if shown else None
+
+
 def ranked_like(listed, verdicts) -> list:
     """The ``unidentifiable`` entries (``{"name", "reason"}``) in the order of the ranked ``effects`` (most of the
     holdout gap explained first), so that a long list (stock channels that confirm nothing leave most of the
@@ -1186,6 +1286,8 @@ def report_json(inp: Inputs, where: Where, stacks: Stacks, sel: Selection, elim:
         "sensors": identifiability.sensors(inp.runs),
         "gap_after": after.to_json() | {"scored": before.scored},
         "unexplained": (after.value / before.value) if before.value > 0 else float("nan"),
+        "remaining": [r.to_json() for r in remaining_gap(after, where.located.floor,
+                                                          closed_loop_shares(inp.holdout))],
         "verdict": verdict,
         "location_detail": where.located.detail_json(),
         "noise": {"tau_int_samples": sel.tau_int, "n_eff": sel.n_eff, "n_samples": stacks.fit.N,
@@ -1564,6 +1666,9 @@ def summary(report) -> str:
             lines.append(f"  diverged windows {which} (scored at the error cap): " + ", ".join(
                 f"{r} {n} of {(g.get('windows') or {}).get(r, '?')}" for r, n in div.items()))
     lines.append(f"gap after {_num(ga['value'], '.3f')}; unexplained {_num(report['unexplained'], '.2f')}")
+    left = remaining_line(report.get("remaining") or [])
+    if left:
+        lines.append(left)
     lines.append(report["verdict"])
     return "\n".join(lines)
 

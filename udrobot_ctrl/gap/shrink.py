@@ -44,6 +44,9 @@ from udrobot_ctrl.vehicle import STATE_INDEX
 
 CHANNELS = ("u", "v", "w", "p", "q", "r", "z", "phi", "theta", "psi")
 ACCEL = ("ax", "ay", "az")
+#: units of the channels (udrobot-run/1): positions m, angles rad, velocities m/s and rad/s, specific force m/s^2
+UNITS = {"x": "m", "y": "m", "z": "m", "phi": "rad", "theta": "rad", "psi": "rad", "u": "m/s", "v": "m/s",
+         "w": "m/s", "p": "rad/s", "q": "rad/s", "r": "rad/s", "ax": "m/s^2", "ay": "m/s^2", "az": "m/s^2"}
 #: columns of a replay: the state (x y z phi theta psi u v w p q r), the specific force (ax ay az), then the window
 #: column (:data:`WINDOW`)
 SIM_COLUMNS = 16

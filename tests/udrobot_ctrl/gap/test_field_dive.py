@@ -75,3 +75,15 @@ def test_the_verdict_names_the_heave_drag_error(diagnosed):
     assert abs(qde["params"]["scale_Zw|w|"] - HEAVE_DRAG_SCALE) < SCALE_TOL
     assert [e["name"] for e in corrected["effects"]] == ["quadratic_damping_error"]
     assert report["unexplained"] < 0.9
+
+
+def test_what_remains_is_told_in_each_channels_units(diagnosed):
+    """The pilot flew STABILIZE and ALT_HOLD throughout: the attitude channels were replayed in closed loop, the
+    depth open loop; the depth error left after the heave drag is centimetres, a small fraction of the metres the
+    vehicle climbed (the true model replays z at NRMSE ~0.02)."""
+    report, _ = diagnosed
+    rem = {r["channel"]: r for r in report["remaining"]}
+    assert rem["z"]["closed_loop"] == 0.0
+    assert all(rem[c]["closed_loop"] > 0.9 for c in ("phi", "theta", "q") if c in rem)
+    assert rem["z"]["rms_error"] < 0.1 * rem["z"]["spread"]
+    assert sum(r["share"] for r in report["remaining"]) == pytest.approx(1.0, abs=1e-5)
