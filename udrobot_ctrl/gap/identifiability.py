@@ -296,6 +296,23 @@ class EffectCheck:
         return forms + "; ".join(f"{MISSING[k][0]}; {MISSING[k][1]}" for k in causes)
 
 
+@dataclass(frozen=True)
+class PassDisagreement:
+    """An effect the two reconstruction passes of a stock-sensor diagnosis judge differently.
+
+    Attributes
+    ----------
+    first : str
+        Its holdout evidence in the first pass (velocities reconstructed with the nominal plant), where it was
+        confirmed.
+    second : str
+        What the second pass (velocities reconstructed with the first pass' confirmed effects) did with it.
+    """
+
+    first: str
+    second: str
+
+
 @dataclass
 class Identifiability:
     """Per-effect identifiability on a fit stack (see the module docstring)."""
@@ -327,6 +344,10 @@ class Identifiability:
     #: :class:`udrobot_ctrl.gap.confirm.Separation`): those it did not separate are named in the reason with both
     #: scores; those it did are look-alikes no more (:meth:`with_separations`)
     separations: dict = field(default_factory=dict)
+    #: effects the holdout confirmed on velocities the smoother reconstructed with the nominal plant, and dropped once
+    #: they were reconstructed with the confirmed effects' force (name -> :class:`PassDisagreement`;
+    #: :meth:`with_pass_disagreement`)
+    pass_disagreement: dict = field(default_factory=dict)
 
     def observed_dofs(self) -> list:
         """Names of the observed (scored) DOFs."""
@@ -337,7 +358,7 @@ class Identifiability:
         """Names of the unidentifiable effects (the ambiguous and the unconfirmed ones included)."""
         return [n for n, e in self.effects.items()
                 if not e.identified or n in self.ambiguous or n in self.unconfirmed or n in self.not_excluded
-                or n in self.form_alike or n in self.hinged or n in self.stand_in]
+                or n in self.form_alike or n in self.hinged or n in self.stand_in or n in self.pass_disagreement]
 
     def with_ambiguous(self, ambiguous: dict) -> Identifiability:
         """A copy that also lists ``ambiguous`` (name -> look-alikes) as unidentifiable, and with each of them its
@@ -380,6 +401,10 @@ class Identifiability:
         """A copy that also holds ``separations`` (name -> tuple of holdout look-alike swaps, for the reasons)."""
         return replace(self, separations={**self.separations, **separations})
 
+    def with_pass_disagreement(self, disagreement: dict) -> Identifiability:
+        """A copy that also lists ``disagreement`` (name -> :class:`PassDisagreement`) as unidentifiable."""
+        return replace(self, pass_disagreement={**self.pass_disagreement, **disagreement})
+
     def with_hinged(self, hinged: dict) -> Identifiability:
         """A copy that also lists ``hinged`` (name -> :class:`Hinged`) as unidentifiable."""
         return replace(self, hinged={**self.hinged, **hinged})
@@ -419,6 +444,14 @@ class Identifiability:
                     f"({self.unconfirmed[name]}), but the holdout replay cannot confirm it with the parameters these "
                     f"channels identify ({', '.join(e.not_identified)} not identified, so not in the replay): "
                     + e.reason())
+        if name in self.pass_disagreement and name not in self.ambiguous:
+            d = self.pass_disagreement[name]
+            recon = [c for c, r in zip(VEL, self.reconstructed) if r]
+            return (f"the holdout confirmed it on the unlogged velocities ({', '.join(recon)}) as the smoother "
+                    f"reconstructed them with the nominal plant ({d.first}), but not once they were reconstructed with "
+                    f"the confirmed effects' force ({d.second}): whether it acts hinges on how those velocities are "
+                    f"reconstructed, so the runs cannot say; log {', '.join(recon)} (a DVL) to replay it on measured "
+                    f"velocities")
         if name in self.not_excluded and name not in self.ambiguous:
             e = self.effects[name]
             return (f"not excluded: {self.not_excluded[name]}; the part of it these channels identify does not "
@@ -458,7 +491,7 @@ class Identifiability:
         e = self.effects.get(name)
         if (e is None or not e.identified or not e.not_identified or name in self.ambiguous
                 or name in self.unconfirmed or name in self.not_excluded or name in self.form_alike
-                or name in self.hinged or name in self.stand_in):
+                or name in self.hinged or name in self.stand_in or name in self.pass_disagreement):
             return {}
         return {"not_identified": {"params": e.not_identified, "reason": e.reason()}}
 

@@ -1324,6 +1324,28 @@ class Pass:
     support: ReplaySupport | None = None  # step 2b: the fit-run replay check of the selected set
 
 
+def pass_disagreements(first: Elimination, second: Pass, skip=()) -> dict:
+    """Effects the two reconstruction passes judge differently: the first (``first``: velocities smoothed with the
+    nominal plant) confirmed it on the holdout; the ``second`` (smoothed with the confirmed effects' force) selected
+    it again and its replay still does better with it (dropping it raises the holdout gap), but not enough to
+    confirm it, and it neither lists it nor sets it aside at a bound. Where the second pass contradicts the first
+    (not selected, or the replay as good or better without it) the second, better reconstruction stands and nothing
+    is listed. Returns name -> :class:`~udrobot_ctrl.gap.identifiability.PassDisagreement`; ``skip``: names left
+    out (those the first pass set aside at a bound)."""
+    listed = second.stacks.identifiability
+    dropped = second.elim.dropped
+    out = {}
+    for n in first.kept:
+        t1, t2 = first.last_test(n), dropped.get(n)
+        if (t1 is None or t2 is None or not t2.gap_contribution > 0 or n in listed.names or n in second.at_bound
+                or n in skip):
+            continue
+        out[n] = identifiability.PassDisagreement(
+            f"dropping it raised the holdout replay gap by {100 * t1.gap_contribution:.1f}% of gap_before, "
+            f"p {t1.replay_p:.2g}", f"the holdout check dropped it: {t2.reason()}")
+    return out
+
+
 def diagnosis_pass(inp: Inputs, say, t0, prior_ambiguous=None, prior_forms=None, prior_stand_ins=None) -> Pass:
     """Steps 1-3 of :func:`diagnose` on ``inp``'s prepared runs (``prior_ambiguous``, ``prior_forms``,
     ``prior_stand_ins``: the effects the first reconstruction pass set aside, see :func:`set_aside_ambiguous` and
@@ -1489,7 +1511,7 @@ def _diagnose(model, runs, holdout, window_s, effects, log, model_label):
     # the force the holdout confirmed improves the reconstruction whichever effect it is named as (an ambiguous
     # effect is set aside from the verdict, not from the plant that smooths the velocities)
     if reconstructed(inp) and res.confirmed.kept:
-        first, nominal = res.confirmed, inp
+        first, nominal, first_at_bound = res.confirmed, inp, res.at_bound
         say(f"reconstruction, pass 2: the unlogged velocities smoothed again with the force of "
             f"{', '.join(first.kept)} added to the nominal plant; the diagnosis repeated on them")
         inp = reconstruct_with(inp, res.stacks.actuation, first.combination.fit, first.kept)
@@ -1508,6 +1530,12 @@ def _diagnose(model, runs, holdout, window_s, effects, log, model_label):
                 f"which of them and their look-alikes acts)")
             res = replace(res, stacks=replace(res.stacks, identifiability=listed.with_ambiguous(left)
                                               .with_form_alike(left_forms).with_stand_in(left_stand)))
+        disagree = pass_disagreements(first, res, skip=first_at_bound)
+        if disagree:
+            say(f"  listed, the two reconstruction passes disagree: {', '.join(disagree)} (confirmed on the holdout "
+                f"in pass 1, not in pass 2)")
+            res = replace(res, stacks=replace(res.stacks, identifiability=res.stacks.identifiability
+                                              .with_pass_disagreement(disagree)))
         inp = replace(inp, notes=inp.notes + [
             f"reconstruction: the unlogged velocities were smoothed twice, first with the nominal plant (confirmed "
             f"on the holdout then: {', '.join(first.kept)}), then with those effects' force added (significant: "
