@@ -30,6 +30,7 @@ from udrobot_ctrl.gap.attribute import (
     BIC_STRONG,
     HOLDOUT_CHI2,
     Attributor,
+    DesignStore,
     Fit,
     Selection,
     SelectionStep,
@@ -269,6 +270,9 @@ class Inputs:
     notes: list  # what preparing the runs did, the split first
     window_s: float  # multiple-shooting window, s
     sources: tuple = ()  # the Run of each prepared run, fit then holdout (to prepare them again)
+    #: the designs of this diagnosis by content, shared by its passes (copies made with ``replace`` share it): a
+    #: design whose inputs the second reconstruction pass did not change (a thruster map's) is not computed again
+    designs: DesignStore = field(default_factory=DesignStore, repr=False, compare=False)
 
     @property
     def runs(self) -> list:
@@ -430,12 +434,13 @@ def build_stacks(inp: Inputs) -> Stacks:
     st, r, dofs = build_stack(inp.fit, inp.p, M_A)
     st_h, r_h, dofs_h = build_stack(inp.holdout, inp.p, M_A)
     probed = {}
-    ident = identifiability.assess(st, r, dofs & dofs_h, inp.fit, inp.catalogue, inp.names, designs=probed)
+    ident = identifiability.assess(st, r, dofs & dofs_h, inp.fit, inp.catalogue, inp.names, designs=probed,
+                                   store=inp.designs)
     cat = ident.restrict(inp.catalogue)
-    att = Attributor(st, r, dofs & dofs_h, cat)
+    att = Attributor(st, r, dofs & dofs_h, cat, store=inp.designs)
     # the probes' designs of the effects fitted as they are (not restricted) are the fits' own: not computed again
     att.keep_designs({k: d for k, d in probed.items() if cat[k[0]] is inp.catalogue[k[0]]})
-    att_h = Attributor(st_h, r_h, dofs & dofs_h, cat)
+    att_h = Attributor(st_h, r_h, dofs & dofs_h, cat, store=inp.designs)
     h0 = inp.holdout[0]
     return Stacks(att, att_h, Actuation(h0.B, h0.inflow, st.f_ref, M_A), ident)
 
