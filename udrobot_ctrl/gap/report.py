@@ -62,7 +62,7 @@ from udrobot_ctrl.gap.data import actuators, prepare
 from udrobot_ctrl.gap.effects import Actuation
 from udrobot_ctrl.gap.identifiability import Identifiability
 from udrobot_ctrl.gap.locate import Located, locate, noise_floor
-from udrobot_ctrl.gap.shrink import GapScore, check_window, gap, prepare_with_effects, simulate_windows
+from udrobot_ctrl.gap.shrink import GapScore, check_window, gap, prepare_with_effects, simulate_windows_each
 from udrobot_ctrl.io.files import atomic_write
 from udrobot_ctrl.io.runlog import Run
 from udrobot_ctrl.parallel import Background, fork_map, one_blas_thread
@@ -418,7 +418,7 @@ def locate_gap(inp: Inputs) -> Where:
     """Nominal multiple-shooting replays of every run (the nominal model is fitted to nothing), their noise floor,
     where the gap lies above it, and the nominal holdout gap."""
     runs = inp.runs
-    sims = fork_map(lambda pr: simulate_windows(pr, inp.p, (), inp.window_s), runs)
+    sims = simulate_windows_each(runs, inp.p, (), inp.window_s)
     scale = gap(runs, sims).scale
     floor = noise_floor(runs, sims, inp.p, inp.window_s, scale)
     residuals = [residual(pr, inp.p) for pr in runs]
