@@ -127,10 +127,16 @@ def filter_forces(prep: Prepared, y, held=False, at=None):
     return out
 
 
+#: columns :func:`row_filter` filters at a time (a tether's grid has a thousand): their copies then stay small (128 at
+#: a time filtered 20 000 samples x 1068 columns in 0.7 of the time of all at once, measured on the 2-core machine)
+FILTER_COLUMNS = 128
+
+
 def row_filter(prep: Prepared, at):
     """:func:`filter_forces` at the sample indices ``at`` only, as a function ``(y, held=False) -> (len(at), ...)``:
     the kernel's rows for those samples held once as a sparse matrix (the stack samples a few rows of a long run and
-    filters every regressor there; the same sums, in the same order, as the full-rate filter)."""
+    filters every regressor there; the same sums, in the same order, as the full-rate filter), ``FILTER_COLUMNS``
+    columns at a time."""
     w = deriv_kernel(prep)
     m = w.size // 2
     n = prep.n
@@ -140,18 +146,23 @@ def row_filter(prep: Prepared, at):
     indices = (at[ok, None] - m + np.arange(2 * m)[None, :]).ravel()
     W = csr_matrix((np.tile(w, int(ok.sum())), indices, indptr), shape=(at.size, max(n - 1, 0)))
 
+    def columns(flat, held):  # the filtered rows of a block of columns (n, c)
+        live = np.flatnonzero(np.any(flat != 0.0, axis=0))  # a regressor that is zero throughout filters to zero
+        if live.size and live.size == flat.shape[1]:  # every column live (a tether's anchors): no copy, no scatter
+            return W @ (flat[:-1] if held else 0.5 * (flat[:-1] + flat[1:]))
+        out = np.zeros((at.size, flat.shape[1]))
+        if live.size:
+            yl = flat[:, live]
+            yi = yl[:-1] if held else 0.5 * (yl[:-1] + yl[1:])
+            out[:, live] = W @ yi
+        return out
+
     def apply(y, held=False):
         y = np.asarray(y, float)
         flat = y.reshape(n, -1)
-        live = np.flatnonzero(np.any(flat != 0.0, axis=0))  # a regressor that is zero throughout filters to zero
-        if live.size and live.size == flat.shape[1]:  # every column live (a tether's anchors): no copy, no scatter
-            out = W @ (flat[:-1] if held else 0.5 * (flat[:-1] + flat[1:]))
-        else:
-            out = np.zeros((at.size, flat.shape[1]))
-            if live.size:
-                yl = flat[:, live]
-                yi = yl[:-1] if held else 0.5 * (yl[:-1] + yl[1:])
-                out[:, live] = W @ yi
+        out = np.empty((at.size, flat.shape[1]))
+        for c in range(0, flat.shape[1], FILTER_COLUMNS):  # each column filtered on its own: the same sums
+            out[:, c:c + FILTER_COLUMNS] = columns(flat[:, c:c + FILTER_COLUMNS], held)
         out[~ok] = np.nan
         return out.reshape((at.size,) + y.shape[1:])
     return apply
