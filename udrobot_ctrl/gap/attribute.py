@@ -318,13 +318,16 @@ class DesignStore:
 
     def key(self, eff: fx.Effect, s: fx.Stack, shape, upstream=()):
         """The key of ``eff``'s design on ``s`` at ``shape`` (exact floats) behind the ``upstream`` ``(effect, shape)``
-        filters (:meth:`Attributor.upstream`), or None when ``eff`` does not declare what it reads."""
-        if eff.reads is None or any(u.reads is None for u, _ in upstream):
+        filters (:meth:`Attributor.upstream`), or None when ``eff`` does not declare what it reads or ``s`` not what
+        it holds (:func:`udrobot_ctrl.gap.effects.content_key`)."""
+        declared = eff.reads is not None and all(u.reads is not None for u, _ in upstream)
+        content = fx.content_key(s, eff.reads) if declared else None
+        if content is None:
             return None
         for obj in (eff, s.p, *(u for u, _ in upstream)):
             self._held[id(obj)] = obj
         filters = tuple((id(u), tuple(float(v) for v in sh)) for u, sh in upstream)
-        return id(eff), tuple(float(v) for v in shape), filters, fx.content_key(s, eff.reads)
+        return id(eff), tuple(float(v) for v in shape), filters, content
 
     def design(self, key, compute) -> fx.Design:
         """The design under ``key`` (:meth:`key`; None: not kept), ``compute()`` when it is not kept yet; its

@@ -145,12 +145,16 @@ def digest(a) -> tuple:
     return a.dtype.str, a.shape, hashlib.blake2b(a.tobytes(), digest_size=16).digest()
 
 
-def content_key(s: Stack, reads) -> tuple:
+def content_key(s: Stack, reads) -> tuple | None:
     """What a design that reads the run arrays ``reads`` (:attr:`Effect.reads`) is computed from on stack ``s``, by
     value: per run its length, sampling step, derivative filter window, stacked rows and the read arrays' contents;
     the actuators (B, inflow, f_ref), the nominal added mass and whether the inputs are a commanded wrench; and the
     nominal plant by identity (a key names the ``s.p`` its holder keeps). Each array is hashed once per stack and its
-    copies (:meth:`Stack.kept`)."""
+    copies (:meth:`Stack.kept`). None when a run does not say its filter window (a stack not made by
+    :func:`udrobot_ctrl.gap.attribute.build_stack`, whose filter may be anything)."""
+    if any("window_s" not in r for r in s.runs):
+        return None
+
     def hashed(a):
         return s.kept("digest", (a,), digest)
     runs = tuple((r["f"].shape[0], float(r["dt"]), float(r["window_s"]), hashed(r["idx"]),
