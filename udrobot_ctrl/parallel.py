@@ -90,6 +90,13 @@ def workers(jobs: int | None = None) -> int:
     return jobs if jobs > 1 and _may_fork() else 1
 
 
+def shares(n: int, parts: int) -> list:
+    """range(n) cut into at most ``parts`` contiguous, non-empty shares of near-equal size."""
+    parts = max(1, min(parts, n))
+    cuts = [round(i * n / parts) for i in range(parts + 1)]
+    return [tuple(range(a, b)) for a, b in zip(cuts, cuts[1:]) if b > a]
+
+
 def _jobs(jobs: int | None) -> int:
     return default_jobs() if jobs is None else int(jobs)
 

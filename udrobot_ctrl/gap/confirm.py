@@ -54,7 +54,7 @@ from scipy import stats
 from udrobot_ctrl.gap.attribute import HOLDOUT_CHI2, Attributor, Combination, Fit, finalize, holdout_lr, refit
 from udrobot_ctrl.gap.effects import Actuation
 from udrobot_ctrl.gap.shrink import GapScore, errors, gap, simulate_windows_sets, window_starts
-from udrobot_ctrl.parallel import fork_map, workers
+from udrobot_ctrl.parallel import fork_map, shares, workers
 
 REPLAY_MATERIAL = 0.02  # fraction of gap_before
 REPLAY_P = 0.1  # one-sided p of the per-window rise (signed-rank and t, Bonferroni) below REPLAY_LARGE
@@ -187,11 +187,11 @@ def _replay_sets(preps, p, sets, catalogue, actuation: Actuation, window_s, scor
     """:func:`replay_sets` computed."""
     hook_sets = [fitted_hooks(catalogue, p, actuation, fit, members) for fit, members in sets]
     # one piece of work per run and share of the sets, spread over the cores (a set's replay is its own either way)
-    shares = [(r, part) for r in range(len(preps)) for part in _shares(len(sets), workers())]
+    pieces = [(r, part) for r in range(len(preps)) for part in shares(len(sets), workers())]
     done = fork_map(lambda rp: simulate_windows_sets(preps[rp[0]], p, [hook_sets[v] for v in rp[1]], window_s),
-                    shares)
+                    pieces)
     per_run = [[None] * len(sets) for _ in preps]
-    for (r, part), sims in zip(shares, done):
+    for (r, part), sims in zip(pieces, done):
         for v, sim in zip(part, sims):
             per_run[r][v] = sim
     out = []
@@ -199,13 +199,6 @@ def _replay_sets(preps, p, sets, catalogue, actuation: Actuation, window_s, scor
         sims = [run_sims[v] for run_sims in per_run]
         out.append(Replay(tuple(members), gap(preps, sims, scored), sims))
     return out
-
-
-def _shares(n: int, parts: int) -> list:
-    """range(n) cut into at most ``parts`` contiguous, non-empty shares of near-equal size."""
-    parts = max(1, min(parts, n))
-    cuts = [round(i * n / parts) for i in range(parts + 1)]
-    return [tuple(range(a, b)) for a, b in zip(cuts, cuts[1:]) if b > a]
 
 
 def window_energy(preps, sims, score: GapScore, window_s) -> np.ndarray:

@@ -47,6 +47,7 @@ from typing import NamedTuple
 import numpy as np
 
 from udrobot_ctrl.gap import effects as fx
+from udrobot_ctrl.gap.attribute import DesignStore
 from udrobot_ctrl.gap.data import OBSERVING, VEL
 from udrobot_ctrl.gap.smoother import SmootherSettings
 
@@ -627,7 +628,8 @@ def noise_scale(stack, preps) -> np.ndarray:
     return np.diag(stack.p.M) * np.where(np.isfinite(sig) & (sig > 0), sig, prior)
 
 
-def assess(stack, r, dofs, preps, catalogue: dict, names=None, designs=None) -> Identifiability:
+def assess(stack, r, dofs, preps, catalogue: dict, names=None, designs=None, store: DesignStore | None = None
+           ) -> Identifiability:
     """Identifiability of each effect in ``names`` on the fit ``stack`` (see the module docstring).
 
     Parameters
@@ -645,6 +647,10 @@ def assess(stack, r, dofs, preps, catalogue: dict, names=None, designs=None) -> 
     designs : dict, optional
         Receives the design on ``stack`` of each effect at each shape probed, (name, shape) ->
         :class:`~udrobot_ctrl.gap.effects.Design` (a diagnosis hands them to its attributor).
+    store : DesignStore, optional
+        Where the probes' designs are kept by content (a diagnosis's, shared with its attributors): a design whose
+        effect does not read the state a reconstruction move changes is then computed once for the stack and its
+        moves. None: every design computed.
     """
     names = list(names or catalogue)
     observed = np.asarray(dofs, bool)
@@ -657,7 +663,7 @@ def assess(stack, r, dofs, preps, catalogue: dict, names=None, designs=None) -> 
            for pr in preps):
         moves.append("xy")
     stacks = {m: _perturbed(stack, preps, m) for m in moves}
-    memo = Probes(designs=designs)  # each probed shape's energies (the form checks probe some shapes again)
+    memo = Probes(designs=designs, store=store)  # each probed shape's energies (the form checks probe some again)
     raw = {n: _energies(catalogue[n], stack, stacks, _shapes(catalogue[n], stack), sigma, observed, memo)
            for n in names}
     top = max([a["all"] for acc in raw.values() for a in acc.values()], default=0.0)
@@ -672,7 +678,7 @@ def assess(stack, r, dofs, preps, catalogue: dict, names=None, designs=None) -> 
         acts = None
         if eff.per_actuator and not all(c.identified for c in checks):
             shapes = _shapes(Restricted(eff, (), {k: f.kept for k, f in forms.items()}), stack)
-            acts, checks = _by_actuator(eff, stack, stacks, shapes, sigma, observed, top, checks)
+            acts, checks = _by_actuator(eff, stack, stacks, shapes, sigma, observed, top, checks, store)
         if not checks:  # no amplitude column and a shape term that is zero at every probed shape
             checks.append(ParameterCheck(",".join(eff.shape_names) or n, float("nan"), float("nan"), False,
                                          ("vanishes",)))
@@ -708,7 +714,7 @@ def _groups(B, observed, active) -> dict:
     return {k: tuple(v) for k, v in out.items()}
 
 
-def _by_actuator(eff, stack, stacks, shapes, sigma, observed, top, checks):
+def _by_actuator(eff, stack, stacks, shapes, sigma, observed, top, checks, store=None):
     """A per-actuator effect judged on what the observed DOFs see of it: (:class:`ActuatorCheck` or None, the
     parameter checks).
 
@@ -720,18 +726,19 @@ def _by_actuator(eff, stack, stacks, shapes, sigma, observed, top, checks):
     :func:`_checks`. When some groups identify a parameter and the others none, and the two act on disjoint observed
     DOFs (the part left out of the fit stays in DOFs the kept part does not read, so it cannot bias it), the effect is
     judged, and fitted, on the kept groups' part: the result names them if that identifies more parameters than the
-    whole (``checks``). Otherwise the whole stands (None, ``checks``).
+    whole (``checks``). Otherwise the whole stands (None, ``checks``). ``store``: as :func:`_shape_energy`'s.
     """
     active = [j for j in range(stack.f.shape[1]) if np.any(stack.f[:, j])]
     groups = _groups(np.asarray(stack.B, float), observed, active)
-    alone = {g: _checks(_energies(eff, *_only(stack, stacks, acts), shapes, sigma, observed), top, observed)
+    alone = {g: _checks(_energies(eff, *_only(stack, stacks, acts), shapes, sigma, observed, store=store), top,
+                        observed)
              for g, acts in groups.items()}
     seen = [g for g in groups if any(c.identified for c in alone[g])]
     unseen = [g for g in groups if g not in seen]
     if not seen or not unseen or set().union(*seen) & set().union(*unseen):
         return None, checks
     kept = tuple(sorted(j for g in seen for j in groups[g]))
-    part = _checks(_energies(eff, *_only(stack, stacks, kept), shapes, sigma, observed), top, observed)
+    part = _checks(_energies(eff, *_only(stack, stacks, kept), shapes, sigma, observed, store=store), top, observed)
     before, after = ({c.name for c in cs if c.identified} for cs in (checks, part))
     if not before < after:
         return None, checks
@@ -760,40 +767,53 @@ class Probes:
 
     energies: dict = field(default_factory=dict)  # (name, shape) -> ShapeEnergy
     designs: dict | None = None  # (name, shape) -> effects.Design
+    store: DesignStore | None = None  # the designs by content (:func:`_shape_energy`)
 
 
-def _shape_energy(eff, stack, stacks, shape, sigma, observed, designs=None) -> ShapeEnergy:
+def _design(eff, stack, shape, store=None) -> fx.Design:
+    """``eff``'s design on ``stack`` at ``shape``, read from ``store`` when kept there (computed and kept else;
+    :class:`~udrobot_ctrl.gap.attribute.DesignStore`: its non-finite entries zeroed, as :func:`_columns` reads it)."""
+    if store is None:
+        return fx.Design(*eff.design(stack, tuple(shape)))
+    return store.design(store.key(eff, stack, shape), lambda: eff.design(stack, tuple(shape)))
+
+
+def _shape_energy(eff, stack, stacks, shape, sigma, observed, designs=None, store=None) -> ShapeEnergy:
     """:class:`ShapeEnergy` of ``eff`` at one ``shape`` on ``stack`` and its reconstruction moves ``stacks``
-    (``designs``: a dict that receives the design on ``stack`` under (name, shape))."""
-    d = fx.Design(*eff.design(stack, tuple(shape)))
+    (``designs``: a dict that receives the design on ``stack`` under (name, shape); ``store``: a
+    :class:`~udrobot_ctrl.gap.attribute.DesignStore` the designs are read from and kept in, so that a move that leaves
+    the arrays the effect reads unchanged costs no design)."""
+    d = _design(eff, stack, shape, store)
     if designs is not None:
         designs[(eff.name, tuple(shape))] = d
     A, nm = _columns(eff, stack, shape, d)
     An = A / sigma[None, :, None]
     dev = {}
     for m, st_m in stacks.items():
-        Am, _ = _columns(eff, st_m, shape)
+        Am, _ = _columns(eff, st_m, shape, _design(eff, st_m, shape, store))
         dA = (Am - A) / sigma[None, :, None]
         dev[m] = np.sum(dA[:, observed] ** 2, axis=(0, 1))
     return ShapeEnergy(nm, np.sum(An[:, observed] ** 2, axis=(0, 1)), np.sum(An ** 2, axis=(0, 1)),
                        [np.sum(An[:, :, j] ** 2, axis=0) for j in range(len(nm))], dev)
 
 
-def _energies(eff, stack, stacks, shapes, sigma, observed, memo=None) -> dict:
+def _energies(eff, stack, stacks, shapes, sigma, observed, memo=None, store=None) -> dict:
     """Per parameter of ``eff``, summed over ``shapes``: its noise-normalised regressor energy in the observed DOFs
     (``obs``), in all DOFs (``all``) and per DOF (``per_dof``), and the energy of its change in the observed DOFs
     under each reconstruction move (``dev``: move -> energy).
 
     ``memo`` (optional :class:`Probes`, for one ``stack``, ``stacks``, ``sigma`` and ``observed``): each shape's
     :class:`ShapeEnergy` kept by effect name and shape, so that the probes of one assessment that meet again (a
-    form's end that is a grid shape, the kept form's shapes) are computed once."""
+    form's end that is a grid shape, the kept form's shapes) are computed once; its ``store`` (or ``store``) keeps
+    the designs by content (:func:`_shape_energy`)."""
     acc = {}
     for shape in shapes:
         key = (eff.name, tuple(float(v) for v in shape))
         if memo is not None and key in memo.energies:
             part = memo.energies[key]
         else:
-            part = _shape_energy(eff, stack, stacks, shape, sigma, observed, memo.designs if memo else None)
+            part = _shape_energy(eff, stack, stacks, shape, sigma, observed, memo.designs if memo else None,
+                                 memo.store if memo is not None and memo.store is not None else store)
             if memo is not None:
                 memo.energies[key] = part
         for j, pname in enumerate(part.names):

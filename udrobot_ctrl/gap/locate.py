@@ -39,9 +39,8 @@ from scipy.signal import savgol_coeffs
 from udrobot_ctrl.dynamics.plant import PlantParameters
 from udrobot_ctrl.gap.attribute import residual, tau_int
 from udrobot_ctrl.gap.data import OBSERVING, POSE, VEL, Prepared, smooth_derivative
-from udrobot_ctrl.gap.shrink import ACCEL, accel_bias, errors, simulate_windows, window_starts
+from udrobot_ctrl.gap.shrink import ACCEL, accel_bias, errors, simulate_windows_each, window_starts
 from udrobot_ctrl.gap.smoother import noise_draw, noise_model
-from udrobot_ctrl.parallel import fork_map
 
 FLOOR_DRAWS = 2
 #: a DOF holding at least this share of the located gap is where the gap lies (:meth:`Located.gap_dofs`): a partly
@@ -210,7 +209,7 @@ def noise_floor(preps, sims, p: PlantParameters, window_s, scale, draws=FLOOR_DR
     rng = np.random.default_rng(seed)
     syns = [synthetic_run(prep, sim, window_s, rng) for _ in range(draws) for prep, sim in zip(preps, sims)]
     se, cnt = {}, {}
-    for syn, sim_syn in zip(syns, fork_map(lambda syn: simulate_windows(syn, p, (), window_s), syns)):
+    for syn, sim_syn in zip(syns, simulate_windows_each(syns, p, (), window_s)):
         for c, e in errors(syn, sim_syn).items():
             ok = np.isfinite(e)
             se[c] = se.get(c, 0.0) + float(np.sum(e[ok] ** 2))

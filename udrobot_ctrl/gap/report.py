@@ -30,6 +30,7 @@ from udrobot_ctrl.gap.attribute import (
     BIC_STRONG,
     HOLDOUT_CHI2,
     Attributor,
+    DesignStore,
     Fit,
     Selection,
     SelectionStep,
@@ -61,7 +62,7 @@ from udrobot_ctrl.gap.data import actuators, prepare
 from udrobot_ctrl.gap.effects import Actuation
 from udrobot_ctrl.gap.identifiability import Identifiability
 from udrobot_ctrl.gap.locate import Located, locate, noise_floor
-from udrobot_ctrl.gap.shrink import UNITS, GapScore, check_window, gap, prepare_with_effects, simulate_windows
+from udrobot_ctrl.gap.shrink import UNITS, GapScore, check_window, gap, prepare_with_effects, simulate_windows_each
 from udrobot_ctrl.io.files import atomic_write
 from udrobot_ctrl.io.runlog import Run
 from udrobot_ctrl.parallel import Background, fork_map, one_blas_thread
@@ -269,6 +270,9 @@ class Inputs:
     notes: list  # what preparing the runs did, the split first
     window_s: float  # multiple-shooting window, s
     sources: tuple = ()  # the Run of each prepared run, fit then holdout (to prepare them again)
+    #: the designs of this diagnosis by content, shared by its passes (copies made with ``replace`` share it): a
+    #: design whose inputs the second reconstruction pass did not change (a thruster map's) is not computed again
+    designs: DesignStore = field(default_factory=DesignStore, repr=False, compare=False)
 
     @property
     def runs(self) -> list:
@@ -414,7 +418,7 @@ def locate_gap(inp: Inputs) -> Where:
     """Nominal multiple-shooting replays of every run (the nominal model is fitted to nothing), their noise floor,
     where the gap lies above it, and the nominal holdout gap."""
     runs = inp.runs
-    sims = fork_map(lambda pr: simulate_windows(pr, inp.p, (), inp.window_s), runs)
+    sims = simulate_windows_each(runs, inp.p, (), inp.window_s)
     scale = gap(runs, sims).scale
     floor = noise_floor(runs, sims, inp.p, inp.window_s, scale)
     residuals = [residual(pr, inp.p) for pr in runs]
@@ -430,12 +434,13 @@ def build_stacks(inp: Inputs) -> Stacks:
     st, r, dofs = build_stack(inp.fit, inp.p, M_A)
     st_h, r_h, dofs_h = build_stack(inp.holdout, inp.p, M_A)
     probed = {}
-    ident = identifiability.assess(st, r, dofs & dofs_h, inp.fit, inp.catalogue, inp.names, designs=probed)
+    ident = identifiability.assess(st, r, dofs & dofs_h, inp.fit, inp.catalogue, inp.names, designs=probed,
+                                   store=inp.designs)
     cat = ident.restrict(inp.catalogue)
-    att = Attributor(st, r, dofs & dofs_h, cat)
+    att = Attributor(st, r, dofs & dofs_h, cat, store=inp.designs)
     # the probes' designs of the effects fitted as they are (not restricted) are the fits' own: not computed again
     att.keep_designs({k: d for k, d in probed.items() if cat[k[0]] is inp.catalogue[k[0]]})
-    att_h = Attributor(st_h, r_h, dofs & dofs_h, cat)
+    att_h = Attributor(st_h, r_h, dofs & dofs_h, cat, store=inp.designs)
     h0 = inp.holdout[0]
     return Stacks(att, att_h, Actuation(h0.B, h0.inflow, st.f_ref, M_A), ident)
 

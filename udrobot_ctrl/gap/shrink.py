@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 
@@ -40,6 +41,7 @@ from udrobot_ctrl.dynamics.plant import PlantParameters, generalized_forces, kin
 from udrobot_ctrl.gap.data import Prepared, prepare
 from udrobot_ctrl.gap.smoother import GRAVITY, accelerometer, channel_noise
 from udrobot_ctrl.io.runlog import Run
+from udrobot_ctrl.parallel import fork_map, shares, workers
 from udrobot_ctrl.vehicle import STATE_INDEX
 
 CHANNELS = ("u", "v", "w", "p", "q", "r", "z", "phi", "theta", "psi")
@@ -191,6 +193,19 @@ def simulate_windows(prep: Prepared, p: PlantParameters, hooks=(), window_s=8.0,
     return simulate_windows_sets(prep, p, [hooks], window_s)[0]
 
 
+def simulate_windows_each(preps, p: PlantParameters, hooks=(), window_s=8.0) -> list:
+    """:func:`simulate_windows` of each run of ``preps`` with the same effects ``hooks``, in order: the runs integrated
+    together (:func:`simulate_windows_runs`), in as many shares as there are workers (:func:`~udrobot_ctrl.parallel.
+    workers`; the same numbers whatever their number)."""
+    pieces = shares(len(preps), workers())
+    done = fork_map(lambda piece: simulate_windows_runs([preps[i] for i in piece], p, [hooks], window_s), pieces)
+    out = [None] * len(preps)
+    for piece, sims in zip(pieces, done):
+        for i, sim in zip(piece, sims):
+            out[i] = sim[0]
+    return out
+
+
 def simulate_windows_sets(prep: Prepared, p: PlantParameters, hook_sets, window_s=8.0) -> list:
     """:func:`simulate_windows` of one run for several sets of effects at once: one (n, :data:`SIM_COLUMNS`) array
     per set of ``hook_sets``, each as its own replay gives it.
@@ -199,75 +214,152 @@ def simulate_windows_sets(prep: Prepared, p: PlantParameters, hook_sets, window_
     of them per step; each set's effects on its own windows), so that replaying the holdout with each candidate
     effect alone costs little more than one replay: the step's fixed cost is paid once, not once per set.
     """
-    starts, w = window_starts(prep, window_s)
-    n_sets = len(hook_sets)
-    sim = np.full((n_sets, prep.n, SIM_COLUMNS), np.nan)
-    if starts.size == 0 or n_sets == 0:
-        return list(sim)
-    N = starts.size
-    groups = []  # per set: its rows of the batch, its force and added-mass hooks
-    for v, hooks in enumerate(hook_sets):
-        groups.append((slice(v * N, (v + 1) * N), [h.force for h in hooks if h.force is not None],
-                       [h.mass for h in hooks if h.mass is not None]))
-    f = np.stack([delivered_commands(prep, hooks) for hooks in hook_sets])  # (sets, n, k)
-    tau_seq = f @ prep.B.T
-    nu0 = np.where(np.isfinite(prep.nu), prep.nu, 0.0)
-    x = np.tile(np.concatenate([prep.eta[starts], nu0[starts]], axis=1), (n_sets, 1))
-    set_of = np.repeat(np.arange(n_sets), N)  # the set each row of the batch belongs to
-    start_of = np.tile(starts, n_sets)
-    nsub = max(1, int(np.ceil(prep.dt / 0.05)))
-    h_dt = prep.dt / nsub
-    hooked = any(forces or masses for _, forces, masses in groups)  # else no surface is read (nominal replays)
+    return simulate_windows_runs([prep], p, hook_sets, window_s)[0]
 
-    def deriv(xx, k, fk, tk, at_k):
+
+def batchable(preps, window_s) -> list:
+    """The prepared runs ``preps`` in groups (lists of their indices, in order) that :func:`simulate_windows_runs`
+    integrates as one batch: runs on the same time step (so the same window length in samples) replayed open loop;
+    a closed-loop run (its autopilot emulated, ``Prepared.feedback``) is a group of its own."""
+    groups, by_step = [], {}
+    for i, pr in enumerate(preps):
+        if pr.feedback is not None:
+            groups.append([i])
+            continue
+        key = (float(pr.dt), window_starts(pr, window_s)[1])
+        if key not in by_step:
+            by_step[key] = []
+            groups.append(by_step[key])
+        by_step[key].append(i)
+    return groups
+
+
+def simulate_windows_runs(preps, p: PlantParameters, hook_sets, window_s=8.0) -> list:
+    """:func:`simulate_windows_sets` of several runs at once: per run, one (n, :data:`SIM_COLUMNS`) array per set of
+    ``hook_sets``, each as its own replay gives it (the same numbers: every term is evaluated row by row, and the
+    inertia and surface products on each run's rows alone, as a replay of that run alone computes them).
+
+    The runs of one :func:`batchable` group are integrated as one batch: a nominal replay of the few windows of one
+    run costs the step's fixed cost more than the windows' arithmetic, and batching the runs pays it once per group
+    (the noise floor's synthetic runs, :func:`udrobot_ctrl.gap.locate.noise_floor`).
+    """
+    out = [None] * len(preps)
+    for group in batchable(preps, window_s):
+        for i, sims in zip(group, _simulate_batch([preps[i] for i in group], p, hook_sets, window_s)):
+            out[i] = sims
+    return out
+
+
+class _Block(NamedTuple):
+    """One run's rows of a batch of :func:`_simulate_batch`: its sets' windows, contiguous, set after set."""
+
+    run: int  # its index among the batch's runs
+    prep: Prepared
+    rows: slice  # its rows of the batch
+    starts: np.ndarray  # (N,) its windows' first samples
+    f: np.ndarray  # (sets, n, k) its delivered commands per set
+    tau: np.ndarray  # (sets, n, 6) their wrench
+    set_of: np.ndarray  # (sets N,) the set of each of its rows
+    start_of: np.ndarray  # (sets N,) the window start of each of its rows
+    groups: list  # per set: (its rows within the block, force hooks, added-mass hooks)
+    accel: bool  # its accelerometer is scored (the specific force is stored, :func:`accel_bias`)
+
+
+def _blocks(preps, hook_sets, window_s) -> list:
+    """The :class:`_Block` of each run of ``preps`` that has a window, in order."""
+    n_sets, blocks, row = len(hook_sets), [], 0
+    for i, pr in enumerate(preps):
+        starts, _ = window_starts(pr, window_s)
+        N = starts.size
+        if N == 0:
+            continue
+        groups = [(slice(v * N, (v + 1) * N), [h.force for h in hooks if h.force is not None],
+                   [h.mass for h in hooks if h.mass is not None]) for v, hooks in enumerate(hook_sets)]
+        f = np.stack([delivered_commands(pr, hooks) for hooks in hook_sets])  # (sets, n, k)
+        blocks.append(_Block(i, pr, slice(row, row + n_sets * N), starts, f, f @ pr.B.T,
+                             np.repeat(np.arange(n_sets), N), np.tile(starts, n_sets), groups,
+                             accel_bias(pr) is not None))
+        row += n_sets * N
+    return blocks
+
+
+def _simulate_batch(preps, p: PlantParameters, hook_sets, window_s) -> list:
+    """:func:`simulate_windows_runs` of one :func:`batchable` group of runs."""
+    n_sets = len(hook_sets)
+    sims = [np.full((n_sets, pr.n, SIM_COLUMNS), np.nan) for pr in preps]
+    blocks = _blocks(preps, hook_sets, window_s) if n_sets else []
+    if not blocks:
+        return [list(sim) for sim in sims]
+    w = window_starts(blocks[0].prep, window_s)[1]
+    x = np.concatenate([np.tile(np.concatenate([b.prep.eta[b.starts],
+                                                np.where(np.isfinite(b.prep.nu), b.prep.nu, 0.0)[b.starts]], axis=1),
+                                (n_sets, 1)) for b in blocks])
+    nsub = max(1, int(np.ceil(blocks[0].prep.dt / 0.05)))
+    h_dt = blocks[0].prep.dt / nsub
+    # else no surface is read (nominal replays)
+    hooked = any(h.force is not None or h.mass is not None for hooks in hook_sets for h in hooks)
+
+    def deriv(xx, ks, fk, tk, at_k):
         tot = tk - generalized_forces(xx, p)
-        heavier = []  # (rows, mass matrices) of the sets whose effects add mass
-        surfaces = _surface_ctx(prep, k, xx, at_k) if hooked else []
-        for rows, forces, masses in groups:
-            if not (forces or masses):
-                continue
-            ctx = {"surfaces": [(dist[rows], normal) for dist, normal in surfaces]}
-            for fo in forces:
-                tot[rows] = tot[rows] + fo(xx[rows], fk[rows], ctx)
-            if masses:
-                heavier.append((rows, p.M + sum(m(xx[rows], ctx) for m in masses)))
-        nd = tot @ p.M_inv.T
-        for rows, Mt in heavier:
-            nd[rows] = np.linalg.solve(Mt, tot[rows][..., None])[..., 0]
+        nd = np.empty_like(tot)
+        for b, k, at in zip(blocks, ks, at_k):  # a run's rows alone: its products are those of its own replay
+            xb, tb = xx[b.rows], tot[b.rows].copy()
+            heavier = []  # (rows, mass matrices) of the sets whose effects add mass
+            surfaces = _surface_ctx(b.prep, k, xb, at) if hooked else []
+            for rows, forces, masses in b.groups:
+                if not (forces or masses):
+                    continue
+                ctx = {"surfaces": [(dist[rows], normal) for dist, normal in surfaces]}
+                for fo in forces:
+                    tb[rows] = tb[rows] + fo(xb[rows], fk[b.rows][rows], ctx)
+                if masses:
+                    heavier.append((rows, p.M + sum(m(xb[rows], ctx) for m in masses)))
+            ndb = tb @ p.M_inv.T
+            for rows, Mt in heavier:
+                ndb[rows] = np.linalg.solve(Mt, tb[rows][..., None])[..., 0]
+            nd[b.rows] = ndb
         return np.concatenate([kinematics(xx[:, :6], xx[:, 6:]), nd], axis=1)
 
-    scores_accel = accel_bias(prep) is not None
+    def store_accel(xx, x_dot):  # the specific force of the states just stored, from the plant's x_dot
+        sf = None
+        for b, rows_b, which_b in zip(blocks, now, which):
+            if b.accel:
+                sf = specific_force(xx[:, :6], xx[:, 6:], x_dot[:, 6:]) if sf is None else sf
+                sims[b.run][b.set_of[which_b], rows_b, 12:WINDOW] = sf[b.rows][which_b]
 
-    def store_accel(rows, which, xx, x_dot):  # the specific force of the states just stored, from the plant's x_dot
-        if scores_accel:
-            sim[set_of[which], rows, 12:WINDOW] = specific_force(xx[:, :6], xx[:, 6:], x_dot[:, 6:])[which]
+    def inputs(j):  # per block: command, wrench and surfaces at its windows' sample j (the run's last, beyond it)
+        ks = [np.tile(np.minimum(b.starts + j, b.prep.n - 1), n_sets) for b in blocks]
+        fk = np.concatenate([b.f[b.set_of, k] for b, k in zip(blocks, ks)])
+        tk = np.concatenate([b.tau[b.set_of, k] for b, k in zip(blocks, ks)])
+        return fk, tk, ks, [_surfaces_at(b.prep, k) if hooked else None for b, k in zip(blocks, ks)]
 
-    def inputs(k):  # per row of the batch: command, wrench and surfaces at sample k (N,) of its windows
-        kk = np.tile(k, n_sets)
-        return f[set_of, kk], tau_seq[set_of, kk], kk, _surfaces_at(prep, kk) if hooked else None
-
-    window_id = np.tile(np.arange(1, N + 1, dtype=float), n_sets)  # the window column's value of each row
-    sim[set_of, start_of, :12] = x
-    sim[set_of, start_of, WINDOW] = window_id
+    start_of = np.concatenate([b.start_of for b in blocks])
+    n_of = np.concatenate([np.full(b.start_of.size, b.prep.n) for b in blocks])
+    window_id = np.concatenate([np.tile(np.arange(1, b.starts.size + 1, dtype=float), n_sets) for b in blocks])
+    for b in blocks:  # the window column's value of each row: its window's number in its run
+        sims[b.run][b.set_of, b.start_of, :12] = x[b.rows]
+        sims[b.run][b.set_of, b.start_of, WINDOW] = window_id[b.rows]
     x_start = x[:, :3].copy()
-    rows, which = start_of, np.ones(len(x), bool)  # rows of sim holding the current states, and which states
+    now = [b.start_of for b in blocks]  # per block: the samples holding its current states, and which states
+    which = [np.ones(b.start_of.size, bool) for b in blocks]
     alive = np.ones(len(x), bool)
-    loop = prep.feedback.start(len(x)) if prep.feedback is not None else None  # the autopilot's attitude loop
-    x_meas = np.nan_to_num(prep.state()) if loop is not None else None
+    fb = blocks[0].prep.feedback  # a closed-loop run is replayed alone (batchable)
+    loop = fb.start(len(x)) if fb is not None else None  # the autopilot's attitude loop
+    x_meas = np.nan_to_num(blocks[0].prep.state()) if loop is not None else None
     for j in range(1, w):
-        fk, tk, kk, at_k = inputs(np.minimum(starts + j - 1, prep.n - 1))
+        fk, tk, ks, at_k = inputs(j - 1)
         if loop is not None:  # closed-loop replay: the loop's reaction to the departure from the measured state
-            df = prep.feedback.delta_thrust(loop, x, x_meas[kk], kk, prep.dt)
-            fk, tk = fk + df, tk + df @ prep.B.T
+            df = fb.delta_thrust(loop, x, x_meas[ks[0]], ks[0], blocks[0].prep.dt)
+            fk, tk = fk + df, tk + df @ blocks[0].prep.B.T
 
         def step(_t, xx):
-            return deriv(xx, kk, fk, tk, at_k)  # noqa: B023 - used within this iteration
+            return deriv(xx, ks, fk, tk, at_k)  # noqa: B023 - used within this iteration
 
         # a window on its way out of the envelope overflows before the check below marks it diverged: its
         # non-finite arithmetic is expected, and scored (the error cap), not warned about
         with np.errstate(over="ignore", invalid="ignore"):
             x_dot = step(0.0, x)  # the first stage of the step is the acceleration the accelerometer reads now
-            store_accel(rows, which, x, x_dot)
+            store_accel(x, x_dot)
             for i_sub in range(nsub):
                 x = rk4_step(step, 0.0, x, h_dt, k1=x_dot if i_sub == 0 else None)
         with np.errstate(invalid="ignore"):
@@ -276,16 +368,18 @@ def simulate_windows_sets(prep: Prepared, p: PlantParameters, hook_sets, window_
         alive &= ~bad
         x[bad] = 0.0
         idx = start_of + j
-        keep = alive & (idx < prep.n)
-        sim[set_of[keep], idx[keep], :12] = x[keep]
-        dead = ~alive & (idx < prep.n)  # the rest of a diverged window: its samples score the error cap
-        sim[set_of[keep], idx[keep], WINDOW] = window_id[keep]
-        sim[set_of[dead], idx[dead], WINDOW] = -window_id[dead]
-        rows, which = idx[keep], keep
-    if scores_accel:  # the last sample of each window: its own command
-        fk, tk, kk, at_k = inputs(np.minimum(starts + w - 1, prep.n - 1))
-        store_accel(rows, which, x, deriv(x, kk, fk, tk, at_k))
-    return list(sim)
+        keep = alive & (idx < n_of)
+        dead = ~alive & (idx < n_of)  # the rest of a diverged window: its samples score the error cap
+        for i, b in enumerate(blocks):
+            sim, kp, dd, ix = sims[b.run], keep[b.rows], dead[b.rows], idx[b.rows]
+            sim[b.set_of[kp], ix[kp], :12] = x[b.rows][kp]
+            sim[b.set_of[kp], ix[kp], WINDOW] = window_id[b.rows][kp]
+            sim[b.set_of[dd], ix[dd], WINDOW] = -window_id[b.rows][dd]
+            now[i], which[i] = ix[kp], kp
+    if any(b.accel for b in blocks):  # the last sample of each window: its own command
+        fk, tk, ks, at_k = inputs(w - 1)
+        store_accel(x, deriv(x, ks, fk, tk, at_k))
+    return [list(sim) for sim in sims]
 
 
 def accel_bias(prep: Prepared):

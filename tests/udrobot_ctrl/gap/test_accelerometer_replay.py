@@ -15,9 +15,12 @@ from udrobot_ctrl.gap.locate import noise_floor
 from udrobot_ctrl.gap.shrink import (
     SIM_COLUMNS,
     accel_bias,
+    batchable,
     errors,
     gap,
     simulate_windows,
+    simulate_windows_each,
+    simulate_windows_runs,
     simulate_windows_sets,
     specific_force,
 )
@@ -100,3 +103,27 @@ def test_effect_sets_replayed_together_are_each_their_own_replay(stock_run):
     # and the sets do differ: each was replayed with its own effects
     for k in range(1, len(sets)):
         assert np.nanmax(np.abs(together[k][:, 8] - together[0][:, 8])) > 1e-3
+
+
+def test_runs_replayed_together_are_each_their_own_replay_bit_for_bit(stock_run):
+    """Runs of different lengths integrated as one batch give each run, with each set of effects, exactly what its
+    own replay gives (every term row by row, the inertia products on each run's rows alone): states, specific force
+    and window column, the same bits; a closed-loop run is batched with no other."""
+    prep, _ = stock_run
+    other = prepare(simulate(duration=27.0, seed=22, sensors=STOCK)[0], P)
+    act = Actuation(prep.B, prep.inflow, prep.f_ref, P.M_A)
+    heavier = PlantEffect("added_mass_error", {f"scale_{d}d{v}": 0.0 for d, v in zip("XYZKMN", "uvwpqr")}
+                          | {"scale_Xdu": 0.8, "scale_Zdw": 0.5})
+    hook_sets = [[plant_hooks(e, P, act) for e in effects]
+                 for effects in ([], [PlantEffect("buoyancy_offset", {"dB_N": 2.0})], [heavier])]
+    runs = [prep, other, prep]
+    assert batchable(runs, 8.0) == [[0, 1, 2]]
+    together = simulate_windows_runs(runs, P, hook_sets, 8.0)
+    for pr, sims in zip(runs, together):
+        for a, b in zip(sims, simulate_windows_sets(pr, P, hook_sets, 8.0)):
+            assert np.isfinite(a[:, 12]).any()  # the accelerometer is scored: its specific force is stored
+            np.testing.assert_array_equal(a, b)
+    for a, pr in zip(simulate_windows_each(runs, P, (), 8.0), runs):
+        np.testing.assert_array_equal(a, simulate_windows(pr, P, (), 8.0))
+    closed = replace(other, feedback=object())  # any loop: batchable only looks whether there is one
+    assert batchable([prep, closed, other], 8.0) == [[0, 2], [1]]

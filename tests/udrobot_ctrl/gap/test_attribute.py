@@ -8,7 +8,14 @@ from scipy.optimize import lsq_linear
 
 from udrobot_ctrl.dynamics.plant import plant_parameters
 from udrobot_ctrl.gap import effects as fx
-from udrobot_ctrl.gap.attribute import ArrayCache, Attributor, bounded_normal_solve, build_stack, filter_forces
+from udrobot_ctrl.gap.attribute import (
+    FILTER_COLUMNS,
+    ArrayCache,
+    Attributor,
+    bounded_normal_solve,
+    build_stack,
+    filter_forces,
+)
 from udrobot_ctrl.gap.data import prepare
 from udrobot_ctrl.gap.identifiability import Restricted
 from udrobot_ctrl.gap.shrink import delivered_commands, effect_wrench
@@ -108,6 +115,11 @@ def test_filtering_only_the_stacked_rows_gives_the_full_filter_there():
     live = np.random.default_rng(1).normal(size=(prep.n, 6, 2))  # every regressor live (a tether's anchors)
     for held in (False, True):
         np.testing.assert_array_equal(filter_forces(prep, live, held, at=at), filter_forces(prep, live, held)[at])
+    wide = np.random.default_rng(2).normal(size=(prep.n, 6, 50))  # columns filtered in blocks, some zero throughout
+    wide[:, :, ::7] = 0.0
+    assert wide[0].size > FILTER_COLUMNS
+    for held in (False, True):
+        np.testing.assert_array_equal(filter_forces(prep, wide, held, at=at), filter_forces(prep, wide, held)[at])
 
 
 def test_an_inflow_loss_behind_a_lag_is_fitted_on_the_lagged_thrust():

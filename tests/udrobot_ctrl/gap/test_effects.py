@@ -8,6 +8,7 @@ from udrobot_ctrl.dynamics import effects as fx
 from udrobot_ctrl.dynamics.effects import TETHER_SPEED_FLOOR, PlantEffect
 from udrobot_ctrl.dynamics.effects import cable_direction as _cable_direction
 from udrobot_ctrl.dynamics.plant import generalized_forces, plant_parameters, rotation_zyx
+from udrobot_ctrl.gap import effects as gap_effects
 from udrobot_ctrl.gap.effects import (
     FAR_ANCHOR_M,
     WALK_AZIMUTHS,
@@ -199,6 +200,21 @@ def test_tether_designs_of_many_anchors_are_each_anchors_own():
         assert np.array_equal(d.A, alone.A) and np.array_equal(d.b0, alone.b0)
     assert not np.allclose(together[0].A, together[4].A)  # the anchors differ
     assert not np.allclose(together[0].A, together[5].A)  # and so do the attachments
+
+
+def test_tether_columns_in_blocks_of_samples_are_the_whole_runs(monkeypatch):
+    """The cable terms are evaluated a block of samples at a time: blocks of any size give the numbers of the whole
+    run at once, for every cable form."""
+    rng = np.random.default_rng(5)
+    x = _anchored_states(rng)
+    run = {"eta": x[:, :6], "nu": x[:, 6:]}
+    names = fx.TETHER_ANCHOR + fx.TETHER_WALK + (fx.TETHER_TAUT,) + fx.TETHER_ATTACH
+    for form in ((0.0, 0.0, 0.0, 0.0, 0.0, 0.0), (0.7, 1.0, 1.0, -0.15, 0.0, -0.1)):
+        geometry = dict(zip(names, [rng.normal(size=3) * 4.0 for _ in range(3)] + list(form)))
+        monkeypatch.setattr(gap_effects, "TETHER_BLOCK", 10 ** 9)
+        whole = _tether_columns(run, geometry, 3)
+        monkeypatch.setattr(gap_effects, "TETHER_BLOCK", 3 * 7)  # blocks of 7 samples
+        np.testing.assert_array_equal(_tether_columns(run, geometry, 3), whole)
 
 
 def test_wall_replay_hooks_are_the_plants_suction_and_added_mass_over_every_surface():
