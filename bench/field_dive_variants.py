@@ -33,6 +33,11 @@ VARIANTS = {
     "slow_attitude": Variant(attitude_hz=10.0, vfr_hz=4.0),
     "seed7": Variant(seed=7),
     "scale_m03": Variant(scale=-0.3),
+    "scale_m03_seed5": Variant(scale=-0.3, seed=5),
+    "scale_m07": Variant(scale=-0.7),
+    "six_no_joystick": Variant(model="bluerov2", manual_control=False),
+    "combined": Variant(model="bluerov2", scale=-0.3, alt_hold_from=0.0, manual_control=False, attitude_hz=10.0,
+                        vfr_hz=4.0, seed=3),
 }
 
 
