@@ -74,6 +74,9 @@ class Variant:
         ``ATTITUDE`` and ``VFR_HUD`` rates (Hz).
     seed : int
         Sensor noise seed.
+    jitter : float
+        Receive-time delay of each message, uniform in [0, jitter] s (the telemetry link's latency; the messages'
+        own stamps stay exact); 0: none.
     duration : float
         Dive length (s).
     """
@@ -85,6 +88,7 @@ class Variant:
     attitude_hz: float = 20.0
     vfr_hz: float = 10.0
     seed: int = 0
+    jitter: float = 0.0
     duration: float = 180.0
 
 
@@ -151,9 +155,10 @@ def _at(f: ClosedLoopFlight, t: float) -> int:
 
 
 def write_tlog(path, f: ClosedLoopFlight, plan: Run, seed: int = 0, manual_control: bool = True,
-               attitude_hz: float = 20.0, vfr_hz: float = 10.0):
+               attitude_hz: float = 20.0, vfr_hz: float = 10.0, jitter: float = 0.0):
     """Log ``f`` as QGroundControl would (the streams and rates in the module docstring), with sensor noise;
-    ``MANUAL_CONTROL`` only if ``manual_control``, ATTITUDE and VFR_HUD at ``attitude_hz`` and ``vfr_hz`` (Hz)."""
+    ``MANUAL_CONTROL`` only if ``manual_control``, ATTITUDE and VFR_HUD at ``attitude_hz`` and ``vfr_hz`` (Hz), each
+    message received up to ``jitter`` s late (:class:`Variant`)."""
     rng = np.random.default_rng(seed)
     mav = mav2.MAVLink(None, srcSystem=1, srcComponent=1)
     end = float(f.t[-1])
@@ -192,10 +197,14 @@ def write_tlog(path, f: ClosedLoopFlight, plan: Run, seed: int = 0, manual_contr
         t_js = np.arange(0.007, end, 1.0 / JOYSTICK_HZ)
         for t, (x, y, z, r) in zip(t_js, joystick(t_js, plan.t[-1] + plan.t[1])):
             ev.append((t, gcs.manual_control_encode(1, int(x), int(y), int(z), int(r), 0).pack(gcs)))
+    if jitter > 0:
+        late = np.random.default_rng(seed + 1).uniform(0.0, jitter, len(ev))
+        ev = [(t + d, m) for (t, m), d in zip(ev, late)]
     return write_events(path, mav, ev)
 
 
 def write_variant(path, variant: Variant = Variant()):
     """Fly ``variant`` and write its tlog to ``path``. Returns the path."""
     f, plan = flight(variant.duration, variant.scale, variant.model, variant.alt_hold_from)
-    return write_tlog(path, f, plan, variant.seed, variant.manual_control, variant.attitude_hz, variant.vfr_hz)
+    return write_tlog(path, f, plan, variant.seed, variant.manual_control, variant.attitude_hz, variant.vfr_hz,
+                      variant.jitter)
