@@ -37,18 +37,18 @@ log's modes, pilot inputs and targets, and its output's change since the sample 
 
 (``k0`` the row where the held output was logged, ``a`` the row near it where the emulation agrees best with that
 sample: the sample's instant is known to a row, and a stick step beside a sample must not be counted twice, once in
-the sample and once in the change). ``a`` lies within :data:`ANCHOR_ROWS` of ``k0``, or up to one tick and
-:data:`ANCHOR_ROWS` past the first change of the pilot's inputs logged after the sample and before the next one
-(:func:`anchor_reach`): with the pilot only in a 2 Hz ``RC_CHANNELS`` (no ``MANUAL_CONTROL``) a sample may hold a
-stick step whose pilot sample is logged after it. Rows before an anchor that lies after the sample keep the sample.
-At the samples this is the log itself; between them it follows the autopilot's own reaction to what was measured
-(the pilot's sticks pass straight through in MANUAL, STABILIZE and ALT_HOLD; GUIDED's forward and lateral are held
-as logged), and whatever the emulation gets wrong slowly (an integrator, a trim) cancels in the difference. The
-throttle is refreshed so where it is the pilot's stick (MANUAL, STABILIZE). In the other armed modes (ALT_HOLD ...)
-it is the depth loop's output on a depth and climb rate logged too coarsely to emulate it from (a tlog: depth at
-2 Hz, no vertical speed); it is smooth next to the log rate (it brakes a climb over about a second), so between two
-samples logged in such modes it follows the straight line through them (:func:`throttle_interpolation`) instead of
-lagging it by half a sample interval, held.
+the sample and once in the change). ``a`` lies within :data:`ANCHOR_ROWS` of ``k0``, or within :data:`ANCHOR_ROWS`
+of the row where the emulation shows the first change of the pilot's inputs logged after the sample and before the
+next one (:func:`late_pilot_rows`): with the pilot only in a 2 Hz ``RC_CHANNELS`` (no ``MANUAL_CONTROL``) a sample
+may hold a stick step whose pilot sample is logged after it. Rows before an anchor that lies after the sample keep
+the sample. At the samples this is the log itself; between them it follows the autopilot's own reaction to what was
+measured (the pilot's sticks pass straight through in MANUAL, STABILIZE and ALT_HOLD; GUIDED's forward and lateral
+are held as logged), and whatever the emulation gets wrong slowly (an integrator, a trim) cancels in the difference.
+The throttle is refreshed so where it is the pilot's stick (MANUAL, STABILIZE). In the other armed modes (ALT_HOLD
+...) it is the depth loop's output on a depth and climb rate logged too coarsely to emulate it from (a tlog: depth
+at 2 Hz, no vertical speed); it is smooth next to the log rate (it brakes a climb over about a second), so between
+two samples logged in such modes it follows the straight line through them (:func:`throttle_interpolation`) instead
+of lagging it by half a sample interval, held.
 The closed loop above then acts on the replay's departure from the measured attitude.
 
 Where the autopilot did not stabilise (``MANUAL`` mode, disarmed) the correction is zero: the logged command is
@@ -293,39 +293,43 @@ def sample_rows(run: Run) -> tuple:
     return k0, k1
 
 
-def anchor_reach(run: Run, k0: np.ndarray, k1: np.ndarray) -> np.ndarray:
-    """Rows (n,) after each row's held output sample up to which its anchor may lie.
+def late_pilot_rows(run: Run, k0: np.ndarray, k1: np.ndarray) -> np.ndarray:
+    """Rows (n,) where the emulation first shows a change of the pilot's inputs logged after each row's held output
+    sample and before the next one, or -1.
 
     The sample holds the sticks up to its own instant, and the emulation shows a pilot sample one tick after its
-    row. So the anchor may lie up to one tick and :data:`ANCHOR_ROWS` past the first change of the pilot's inputs
-    from :data:`ANCHOR_ROWS` before the sample on, if that change is logged before the next output sample: with
-    the pilot's inputs logged as sparsely as the outputs (``RC_CHANNELS`` at 2 Hz) a sample may hold a stick step
-    whose pilot sample is logged after it. At least :data:`ANCHOR_ROWS`.
+    row: with the pilot's inputs logged as sparsely as the outputs (``RC_CHANNELS`` at 2 Hz) a sample may hold a
+    stick step whose pilot sample is logged after it (the first change from :data:`ANCHOR_ROWS` before the sample
+    on, when the emulation shows it more than :data:`ANCHOR_ROWS` after the sample).
     """
-    reach = np.full(run.n, ANCHOR_ROWS)
+    late = np.full(run.n, -1)
     rc = [run.extra.get(f"rcin_{i}") for i in range(1, 9)]
     if any(c is None for c in rc):
-        return reach
+        return late
     sticks = np.nan_to_num(np.column_stack(rc), nan=-1.0)
     moves = np.flatnonzero(np.any(np.diff(sticks, axis=0) != 0, axis=1)) + 1  # rows where the pilot's inputs change
     if moves.size == 0:
-        return reach
+        return late
     nxt = np.searchsorted(moves, k0 - ANCHOR_ROWS)
     ok = nxt < moves.size
     c = np.where(ok, moves[np.minimum(nxt, moves.size - 1)], -1)
-    late = ok & (c < k1)
-    reach[late] = np.maximum(c[late] + 1 + ANCHOR_ROWS - k0[late], ANCHOR_ROWS)
-    return reach
+    shown = c + 1  # the emulation's one tick
+    use = ok & (c < k1) & (shown > k0 + ANCHOR_ROWS)
+    late[use] = shown[use]
+    return late
 
 
-def anchors(emulated: np.ndarray, logged: np.ndarray, k0: np.ndarray, reach: np.ndarray) -> np.ndarray:
-    """Anchor rows (n, 6): per mixer input, the row from :data:`ANCHOR_ROWS` before each row's held sample ``k0``
-    to ``reach`` rows after it where ``emulated`` agrees best with the ``logged`` sample (ties: the earliest)."""
+def anchors(emulated: np.ndarray, logged: np.ndarray, k0: np.ndarray, late: np.ndarray) -> np.ndarray:
+    """Anchor rows (n, 6): per mixer input, the row within :data:`ANCHOR_ROWS` of each row's held sample ``k0``, or
+    of the row ``late`` where the emulation shows a pilot sample logged after it (-1: none), where ``emulated``
+    agrees best with the ``logged`` sample (ties: the earliest)."""
     n = emulated.shape[0]
+    near = np.arange(-ANCHOR_ROWS, ANCHOR_ROWS + 1)
     samples, which = np.unique(k0, return_inverse=True)
     best = np.empty((samples.size, emulated.shape[1]), int)
     for i, k in enumerate(samples):
-        rows = np.arange(max(k - ANCHOR_ROWS, 0), min(k + int(reach[k]), n - 1) + 1)
+        rows = k + near if late[k] < 0 else np.concatenate([k + near, late[k] + near])
+        rows = rows[(rows >= 0) & (rows < n)]
         best[i] = rows[np.argmin(np.abs(emulated[rows] - logged[k]), axis=0)]
     return best[which]
 
@@ -350,11 +354,11 @@ def _output_refresh(run: Run, params: ArduSubParameters, fr: Frame, motors: Moto
     k0, k1 = sample_rows(run)  # the row of the output sample each row holds, and of the next
     # the sample's instant is known to a grid row (stamps, the converter's hold, the emulation's one-tick lag) and a
     # stick step may reach the log's pilot inputs after the output sample that holds it: the emulation is anchored,
-    # per input, at the row near k0 (up to anchor_reach after it) where it agrees best with the logged sample, so that
+    # per input, at the row near k0 (or near a late pilot sample) where it agrees best with the logged sample, so that
     # a stick step next to a sample is not counted twice (once in the sample, once in the change); rows before an
     # anchor that lies after the sample keep the sample (the emulation has not reached it yet)
     logged = unmix(fr, from_pwm(run.inputs, motors))
-    anchor = anchors(emulated, logged, k0, anchor_reach(run, k0, k1))
+    anchor = anchors(emulated, logged, k0, late_pilot_rows(run, k0, k1))
     out = emulated - emulated[anchor, np.arange(emulated.shape[1])]
     out[np.arange(n)[:, None] < anchor] = 0.0
     mode = run.extra.get("mode")
