@@ -36,6 +36,10 @@ VARIANTS = {
     "scale_m03_seed5": Variant(scale=-0.3, seed=5),
     "scale_m07": Variant(scale=-0.7),
     "six_no_joystick": Variant(model="bluerov2", manual_control=False),
+    "six_slow_attitude": Variant(model="bluerov2", attitude_hz=10.0, vfr_hz=4.0),
+    "six_alt_hold": Variant(model="bluerov2", alt_hold_from=0.0),
+    "six_gentle": Variant(model="bluerov2", forward=60.0),  # no tumble (max pitch 52 deg; see Variant.forward)
+    "six_gentle_no_joystick": Variant(model="bluerov2", forward=60.0, manual_control=False),
     "jitter": Variant(jitter=0.05),
     "no_joystick_jitter": Variant(manual_control=False, jitter=0.05),
     "combined": Variant(model="bluerov2", scale=-0.3, alt_hold_from=0.0, manual_control=False, attitude_hz=10.0,

@@ -72,6 +72,10 @@ class Variant:
         Whether the tlog holds QGC's ``MANUAL_CONTROL`` at ``JOYSTICK_HZ`` (else only ``RC_CHANNELS`` at 2 Hz).
     attitude_hz, vfr_hz : float
         ``ATTITUDE`` and ``VFR_HUD`` rates (Hz).
+    forward : float
+        Forward stick of the forward legs (us about 1500). The 6-thruster model tumbles in pitch at the default
+        200 us: its horizontal thrusters sit 7.25 cm below CO and push 41 N, 2.97 N m of pitch against at most
+        1.13 N m of restoring moment (BG 1 cm; models/bluerov2.toml).
     seed : int
         Sensor noise seed.
     jitter : float
@@ -87,6 +91,7 @@ class Variant:
     manual_control: bool = True
     attitude_hz: float = 20.0
     vfr_hz: float = 10.0
+    forward: float = 200.0
     seed: int = 0
     jitter: float = 0.0
     duration: float = 180.0
@@ -95,34 +100,36 @@ class Variant:
 RC_INDEX = {"throttle": 2, "yaw": 3, "forward": 4, "lateral": 5}  # ArduSub's channel order, 0-based
 
 
-def legs(t0: float) -> tuple:
-    """The pilot's 90 s pattern from ``t0`` (s): descend, climb, forward and back, yaw, climb and descend again."""
+def legs(t0: float, forward: float = 200.0) -> tuple:
+    """The pilot's 90 s pattern from ``t0`` (s): descend, climb, forward and back (``forward`` us), yaw, climb and
+    descend again."""
     return (Leg(t0 + 4, t0 + 14, "throttle", -300.0), Leg(t0 + 20, t0 + 30, "throttle", 300.0),
-            Leg(t0 + 36, t0 + 46, "forward", 200.0), Leg(t0 + 50, t0 + 56, "forward", -200.0),
+            Leg(t0 + 36, t0 + 46, "forward", forward), Leg(t0 + 50, t0 + 56, "forward", -forward),
             Leg(t0 + 58, t0 + 61, "yaw", 150.0), Leg(t0 + 64, t0 + 72, "throttle", 300.0),
             Leg(t0 + 76, t0 + 86, "throttle", -300.0))
 
 
-def joystick(t: np.ndarray, duration: float) -> np.ndarray:
+def joystick(t: np.ndarray, duration: float, forward: float = 200.0) -> np.ndarray:
     """The pilot's joystick (N, 4) at times ``t``: MANUAL_CONTROL x (forward), y (lateral), z (throttle, 500
-    neutral), r (yaw), each leg's stick offset (us) divided by ArduSub's scale at ``PILOT_GAIN``."""
+    neutral), r (yaw), each leg's stick offset (us; forward legs ``forward``) divided by ArduSub's scale at
+    ``PILOT_GAIN``."""
     axes = np.zeros((np.size(t), 4))
     axes[:, 2] = 500.0
     column = {"forward": 0, "lateral": 1, "throttle": 2, "yaw": 3}
-    for leg in legs(0.0) + legs(duration / 2):
+    for leg in legs(0.0, forward) + legs(duration / 2, forward):
         scale = (0.8 if leg.stick == "throttle" else 0.4) * PILOT_GAIN
         axes[(t >= leg.start) & (t < leg.end), column[leg.stick]] += leg.offset / scale
     return axes
 
 
 def pilot_plan(duration: float = 180.0, dt: float = 0.02, model: str = MODEL,
-               alt_hold_from: float | None = None) -> Run:
+               alt_hold_from: float | None = None, forward: float = 200.0) -> Run:
     """The pilot's inputs and modes as a run for :func:`fly`: STABILIZE until ``alt_hold_from`` (s; None: half the
     duration), ALT_HOLD after; the RC inputs are ArduSub's overrides of the joystick (channels 3-6), 1500 us
     elsewhere."""
     t = np.arange(0.0, duration, dt)
     rc = np.full((t.size, 8), 1500.0)
-    js = joystick(t, duration)
+    js = joystick(t, duration, forward)
     rc[:, 2:6] = rc_override(js[:, 0], js[:, 1], js[:, 2], js[:, 3], PILOT_GAIN)
     switch = duration / 2 if alt_hold_from is None else alt_hold_from
     mode = np.where(t < switch, float(Mode.STABILIZE), float(Mode.ALT_HOLD))
@@ -144,9 +151,9 @@ def truth_vehicle(scale: float = HEAVE_DRAG_SCALE, model: str = MODEL) -> Vehicl
 
 
 def flight(duration: float = 180.0, scale: float = HEAVE_DRAG_SCALE, model: str = MODEL,
-           alt_hold_from: float | None = None) -> tuple:
+           alt_hold_from: float | None = None, forward: float = 200.0) -> tuple:
     """The truth flown under the emulated ArduSub at 200 Hz. Returns (ClosedLoopFlight, pilot plan Run)."""
-    plan = pilot_plan(duration, model=model, alt_hold_from=alt_hold_from)
+    plan = pilot_plan(duration, model=model, alt_hold_from=alt_hold_from, forward=forward)
     return fly(truth_vehicle(scale, model), plan, loop_rate_hz=200.0), plan
 
 
@@ -155,10 +162,10 @@ def _at(f: ClosedLoopFlight, t: float) -> int:
 
 
 def write_tlog(path, f: ClosedLoopFlight, plan: Run, seed: int = 0, manual_control: bool = True,
-               attitude_hz: float = 20.0, vfr_hz: float = 10.0, jitter: float = 0.0):
+               attitude_hz: float = 20.0, vfr_hz: float = 10.0, jitter: float = 0.0, forward: float = 200.0):
     """Log ``f`` as QGroundControl would (the streams and rates in the module docstring), with sensor noise;
     ``MANUAL_CONTROL`` only if ``manual_control``, ATTITUDE and VFR_HUD at ``attitude_hz`` and ``vfr_hz`` (Hz), each
-    message received up to ``jitter`` s late (:class:`Variant`)."""
+    message received up to ``jitter`` s late, the joystick's forward legs at ``forward`` us (:class:`Variant`)."""
     rng = np.random.default_rng(seed)
     mav = mav2.MAVLink(None, srcSystem=1, srcComponent=1)
     end = float(f.t[-1])
@@ -195,7 +202,7 @@ def write_tlog(path, f: ClosedLoopFlight, plan: Run, seed: int = 0, manual_contr
     if manual_control:
         gcs = mav2.MAVLink(None, srcSystem=255, srcComponent=190)
         t_js = np.arange(0.007, end, 1.0 / JOYSTICK_HZ)
-        for t, (x, y, z, r) in zip(t_js, joystick(t_js, plan.t[-1] + plan.t[1])):
+        for t, (x, y, z, r) in zip(t_js, joystick(t_js, plan.t[-1] + plan.t[1], forward)):
             ev.append((t, gcs.manual_control_encode(1, int(x), int(y), int(z), int(r), 0).pack(gcs)))
     if jitter > 0:
         late = np.random.default_rng(seed + 1).uniform(0.0, jitter, len(ev))
@@ -205,6 +212,6 @@ def write_tlog(path, f: ClosedLoopFlight, plan: Run, seed: int = 0, manual_contr
 
 def write_variant(path, variant: Variant = Variant()):
     """Fly ``variant`` and write its tlog to ``path``. Returns the path."""
-    f, plan = flight(variant.duration, variant.scale, variant.model, variant.alt_hold_from)
+    f, plan = flight(variant.duration, variant.scale, variant.model, variant.alt_hold_from, variant.forward)
     return write_tlog(path, f, plan, variant.seed, variant.manual_control, variant.attitude_hz, variant.vfr_hz,
-                      variant.jitter)
+                      variant.jitter, variant.forward)
