@@ -40,6 +40,7 @@ VARIANTS = {
     "six_alt_hold": Variant(model="bluerov2", alt_hold_from=0.0),
     "six_gentle": Variant(model="bluerov2", forward=60.0),  # no tumble (max pitch 52 deg; see Variant.forward)
     "six_gentle_no_joystick": Variant(model="bluerov2", forward=60.0, manual_control=False),
+    "six_gentle_servo10": Variant(model="bluerov2", forward=60.0, servo_hz=10.0),
     "jitter": Variant(jitter=0.05),
     "no_joystick_jitter": Variant(manual_control=False, jitter=0.05),
     "combined": Variant(model="bluerov2", scale=-0.3, alt_hold_from=0.0, manual_control=False, attitude_hz=10.0,

@@ -76,6 +76,8 @@ class Variant:
         Forward stick of the forward legs (us about 1500). The 6-thruster model tumbles in pitch at the default
         200 us: its horizontal thrusters sit 7.25 cm below CO and push 41 N, 2.97 N m of pitch against at most
         1.13 N m of restoring moment (BG 1 cm; models/bluerov2.toml).
+    servo_hz : float
+        ``SERVO_OUTPUT_RAW`` rate (Hz; QGC's default 2).
     seed : int
         Sensor noise seed.
     jitter : float
@@ -92,6 +94,7 @@ class Variant:
     attitude_hz: float = 20.0
     vfr_hz: float = 10.0
     forward: float = 200.0
+    servo_hz: float = 2.0
     seed: int = 0
     jitter: float = 0.0
     duration: float = 180.0
@@ -162,10 +165,12 @@ def _at(f: ClosedLoopFlight, t: float) -> int:
 
 
 def write_tlog(path, f: ClosedLoopFlight, plan: Run, seed: int = 0, manual_control: bool = True,
-               attitude_hz: float = 20.0, vfr_hz: float = 10.0, jitter: float = 0.0, forward: float = 200.0):
+               attitude_hz: float = 20.0, vfr_hz: float = 10.0, jitter: float = 0.0, forward: float = 200.0,
+               servo_hz: float = 2.0):
     """Log ``f`` as QGroundControl would (the streams and rates in the module docstring), with sensor noise;
     ``MANUAL_CONTROL`` only if ``manual_control``, ATTITUDE and VFR_HUD at ``attitude_hz`` and ``vfr_hz`` (Hz), each
-    message received up to ``jitter`` s late, the joystick's forward legs at ``forward`` us (:class:`Variant`)."""
+    message received up to ``jitter`` s late, the joystick's forward legs at ``forward`` us, SERVO_OUTPUT_RAW at
+    ``servo_hz`` (:class:`Variant`)."""
     rng = np.random.default_rng(seed)
     mav = mav2.MAVLink(None, srcSystem=1, srcComponent=1)
     end = float(f.t[-1])
@@ -192,7 +197,7 @@ def write_tlog(path, f: ClosedLoopFlight, plan: Run, seed: int = 0, manual_contr
         depth = f.x[k, 2] + rng.normal(0.0, DEPTH_NOISE)
         ev.append((t, mav.global_position_int_encode(int(t * 1000), 0, 0, int(-depth * 1000), int(-depth * 1000),
                                                      0, 0, int(100 * f.x[k, 8]), 65535)))
-    for t in np.arange(0.05, end, 0.5):
+    for t in np.arange(0.05, end, 1.0 / servo_hz):
         servo = [int(round(v)) for v in f.pwm[_at(f, t)]]
         servo += [0] * (16 - len(servo))  # unused outputs
         ev.append((t, mav.servo_output_raw_encode(int(t * 1e6), 0, *servo)))
@@ -214,4 +219,4 @@ def write_variant(path, variant: Variant = Variant()):
     """Fly ``variant`` and write its tlog to ``path``. Returns the path."""
     f, plan = flight(variant.duration, variant.scale, variant.model, variant.alt_hold_from, variant.forward)
     return write_tlog(path, f, plan, variant.seed, variant.manual_control, variant.attitude_hz, variant.vfr_hz,
-                      variant.jitter, variant.forward)
+                      variant.jitter, variant.forward, variant.servo_hz)
