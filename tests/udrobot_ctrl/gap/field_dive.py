@@ -78,6 +78,9 @@ class Variant:
         1.13 N m of restoring moment (BG 1 cm; models/bluerov2.toml).
     servo_hz : float
         ``SERVO_OUTPUT_RAW`` rate (Hz; QGC's default 2).
+    voltage : float
+        Battery voltage SYS_STATUS logs (V). The default 16 V is not the 14.8 V the truth is flown at (the model's
+        supply voltage): the diagnosis then computes the T200 thrusts at 16 V.
     seed : int
         Sensor noise seed.
     jitter : float
@@ -95,6 +98,7 @@ class Variant:
     vfr_hz: float = 10.0
     forward: float = 200.0
     servo_hz: float = 2.0
+    voltage: float = 16.0
     seed: int = 0
     jitter: float = 0.0
     duration: float = 180.0
@@ -166,11 +170,11 @@ def _at(f: ClosedLoopFlight, t: float) -> int:
 
 def write_tlog(path, f: ClosedLoopFlight, plan: Run, seed: int = 0, manual_control: bool = True,
                attitude_hz: float = 20.0, vfr_hz: float = 10.0, jitter: float = 0.0, forward: float = 200.0,
-               servo_hz: float = 2.0):
+               servo_hz: float = 2.0, voltage: float = 16.0):
     """Log ``f`` as QGroundControl would (the streams and rates in the module docstring), with sensor noise;
     ``MANUAL_CONTROL`` only if ``manual_control``, ATTITUDE and VFR_HUD at ``attitude_hz`` and ``vfr_hz`` (Hz), each
     message received up to ``jitter`` s late, the joystick's forward legs at ``forward`` us, SERVO_OUTPUT_RAW at
-    ``servo_hz`` (:class:`Variant`)."""
+    ``servo_hz``, SYS_STATUS's battery at ``voltage`` V (:class:`Variant`)."""
     rng = np.random.default_rng(seed)
     mav = mav2.MAVLink(None, srcSystem=1, srcComponent=1)
     end = float(f.t[-1])
@@ -179,7 +183,7 @@ def write_tlog(path, f: ClosedLoopFlight, plan: Run, seed: int = 0, manual_contr
     for t in np.arange(0.0, end, 1.0):
         m = int(mode[min(np.searchsorted(plan.t, t), plan.n - 1)])
         ev.append((t, mav.heartbeat_encode(12, 3, 81 | 128, m, 4)))  # armed, custom_mode = ArduSub mode
-        ev.append((t + 0.3, mav.sys_status_encode(0, 0, 0, 500, 16000, 500, 90, 0, 0, 0, 0, 0, 0)))
+        ev.append((t + 0.3, mav.sys_status_encode(0, 0, 0, 500, int(round(voltage * 1000)), 500, 90, 0, 0, 0, 0, 0, 0)))
     for t in np.arange(0.01, end, 1.0 / attitude_hz):
         x = f.x[_at(f, t)]
         att = x[3:6] + rng.normal(0.0, ATTITUDE_NOISE, 3)
@@ -219,4 +223,4 @@ def write_variant(path, variant: Variant = Variant()):
     """Fly ``variant`` and write its tlog to ``path``. Returns the path."""
     f, plan = flight(variant.duration, variant.scale, variant.model, variant.alt_hold_from, variant.forward)
     return write_tlog(path, f, plan, variant.seed, variant.manual_control, variant.attitude_hz, variant.vfr_hz,
-                      variant.jitter, variant.forward, variant.servo_hz)
+                      variant.jitter, variant.forward, variant.servo_hz, variant.voltage)
