@@ -35,14 +35,20 @@ log's modes, pilot inputs and targets, and its output's change since the sample 
 
     mixer input = logged mixer input[k0] + (emulated[k] - emulated[a])      each input (throttle: see below)
 
-(``k0`` the row where the held output was logged, ``a`` the row beside it, within :data:`ANCHOR_ROWS`, where the
-emulation agrees best with that sample: the sample's instant is known to a row, and a stick step beside a sample
-must not be counted twice, once in the sample and once in the change). At the samples this is the log itself;
-between them it follows the autopilot's own reaction to what was measured (the pilot's sticks pass straight
-through in MANUAL, STABILIZE and ALT_HOLD; GUIDED's forward and lateral are held as logged), and whatever the
-emulation gets wrong slowly (an integrator, a trim) cancels in the difference. The throttle is refreshed where it is
-the pilot's stick (MANUAL, STABILIZE); in ALT_HOLD it is the depth loop's output on a depth logged as slowly as the
-outputs (2 Hz in a tlog), which the emulation would differentiate, and it stays as logged.
+(``k0`` the row where the held output was logged, ``a`` the row near it where the emulation agrees best with that
+sample: the sample's instant is known to a row, and a stick step beside a sample must not be counted twice, once in
+the sample and once in the change). ``a`` lies within :data:`ANCHOR_ROWS` of ``k0``, or within :data:`ANCHOR_ROWS`
+of the row where the emulation shows the first change of the pilot's inputs logged after the sample and before the
+next one (:func:`late_pilot_rows`): with the pilot only in a 2 Hz ``RC_CHANNELS`` (no ``MANUAL_CONTROL``) a sample
+may hold a stick step whose pilot sample is logged after it. Rows before an anchor that lies after the sample keep
+the sample. At the samples this is the log itself; between them it follows the autopilot's own reaction to what was
+measured (the pilot's sticks pass straight through in MANUAL, STABILIZE and ALT_HOLD; GUIDED's forward and lateral
+are held as logged), and whatever the emulation gets wrong slowly (an integrator, a trim) cancels in the difference.
+The throttle is refreshed so where it is the pilot's stick (MANUAL, STABILIZE). In the other armed modes (ALT_HOLD
+...) it is the depth loop's output on a depth and climb rate logged too coarsely to emulate it from (a tlog: depth
+at 2 Hz, no vertical speed); it is smooth next to the log rate (it brakes a climb over about a second), so between
+two samples logged in such modes it follows the straight line through them (:func:`throttle_interpolation`) instead
+of lagging it by half a sample interval, held.
 The closed loop above then acts on the replay's departure from the measured attitude.
 
 Where the autopilot did not stabilise (``MANUAL`` mode, disarmed) the correction is zero: the logged command is
@@ -272,30 +278,98 @@ def output_refresh(run: Run, params: ArduSubParameters, fr: Frame, motors: Motor
     return _REFRESHES[key]
 
 
+def sample_rows(run: Run) -> tuple:
+    """(k0, k1): for each grid row, the row of the logged output sample it holds and the row of the next one (the
+    run's last row after the last sample)."""
+    n = run.n
+    changed = changed_rows(run)
+    k0 = np.zeros(n, int)
+    k0[changed] = changed
+    k0 = np.maximum.accumulate(k0)
+    k1 = np.full(n, n - 1)
+    after = np.searchsorted(changed, np.arange(n), side="right")
+    has_next = after < changed.size
+    k1[has_next] = changed[after[has_next]]
+    return k0, k1
+
+
+def late_pilot_rows(run: Run, k0: np.ndarray, k1: np.ndarray) -> np.ndarray:
+    """Rows (n,) where the emulation first shows a change of the pilot's inputs logged after each row's held output
+    sample and before the next one, or -1.
+
+    The sample holds the sticks up to its own instant, and the emulation shows a pilot sample one tick after its
+    row: with the pilot's inputs logged as sparsely as the outputs (``RC_CHANNELS`` at 2 Hz) a sample may hold a
+    stick step whose pilot sample is logged after it (the first change from :data:`ANCHOR_ROWS` before the sample
+    on, when the emulation shows it more than :data:`ANCHOR_ROWS` after the sample).
+    """
+    late = np.full(run.n, -1)
+    rc = [run.extra.get(f"rcin_{i}") for i in range(1, 9)]
+    if any(c is None for c in rc):
+        return late
+    sticks = np.nan_to_num(np.column_stack(rc), nan=-1.0)
+    moves = np.flatnonzero(np.any(np.diff(sticks, axis=0) != 0, axis=1)) + 1  # rows where the pilot's inputs change
+    if moves.size == 0:
+        return late
+    nxt = np.searchsorted(moves, k0 - ANCHOR_ROWS)
+    ok = nxt < moves.size
+    c = np.where(ok, moves[np.minimum(nxt, moves.size - 1)], -1)
+    shown = c + 1  # the emulation's one tick
+    use = ok & (c < k1) & (shown > k0 + ANCHOR_ROWS)
+    late[use] = shown[use]
+    return late
+
+
+def anchors(emulated: np.ndarray, logged: np.ndarray, k0: np.ndarray, late: np.ndarray) -> np.ndarray:
+    """Anchor rows (n, 6): per mixer input, the row within :data:`ANCHOR_ROWS` of each row's held sample ``k0``, or
+    of the row ``late`` where the emulation shows a pilot sample logged after it (-1: none), where ``emulated``
+    agrees best with the ``logged`` sample (ties: the earliest)."""
+    n = emulated.shape[0]
+    near = np.arange(-ANCHOR_ROWS, ANCHOR_ROWS + 1)
+    samples, which = np.unique(k0, return_inverse=True)
+    best = np.empty((samples.size, emulated.shape[1]), int)
+    for i, k in enumerate(samples):
+        rows = k + near if late[k] < 0 else np.concatenate([k + near, late[k] + near])
+        rows = rows[(rows >= 0) & (rows < n)]
+        best[i] = rows[np.argmin(np.abs(emulated[rows] - logged[k]), axis=0)]
+    return best[which]
+
+
+def throttle_interpolation(run: Run, logged: np.ndarray, k0: np.ndarray, k1: np.ndarray,
+                           loop: np.ndarray) -> np.ndarray:
+    """Change (n,) of the throttle mixer input from its held sample to the straight line between the samples either
+    side (module docstring), on rows where both samples were logged in a mode whose throttle is the depth loop's
+    (``loop``: bool per row), else 0."""
+    span = run.t[k1] - run.t[k0]
+    frac = np.where(span > 0, (run.t - run.t[k0]) / np.where(span > 0, span, 1.0), 0.0)
+    step = logged[k1, THROTTLE] - logged[k0, THROTTLE]
+    return np.where(loop[k0] & loop[k1] & (k1 > k0), frac * step, 0.0)
+
+
 def _output_refresh(run: Run, params: ArduSubParameters, fr: Frame, motors: MotorParameters,
                     p: PlantParameters) -> np.ndarray | None:
     emulated = emulated_mixer_inputs(run, params, fr, motors, p)
     if emulated is None:
         return None
     n = run.n
-    k0 = np.zeros(n, int)
-    changed = changed_rows(run)
-    k0[changed] = changed
-    k0 = np.maximum.accumulate(k0)  # the row of the output sample each row holds
-    # the sample's instant is known to a grid row (stamps, the converter's hold, the emulation's one-tick lag): the
-    # emulation is anchored, per input, at the row beside k0 where it agrees best with the logged sample, so that
-    # a stick step falling next to a sample is not counted twice (once in the sample, once in the change)
+    k0, k1 = sample_rows(run)  # the row of the output sample each row holds, and of the next
+    # the sample's instant is known to a grid row (stamps, the converter's hold, the emulation's one-tick lag) and a
+    # stick step may reach the log's pilot inputs after the output sample that holds it: the emulation is anchored,
+    # per input, at the row near k0 (or near a late pilot sample) where it agrees best with the logged sample, so that
+    # a stick step next to a sample is not counted twice (once in the sample, once in the change); rows before an
+    # anchor that lies after the sample keep the sample (the emulation has not reached it yet)
     logged = unmix(fr, from_pwm(run.inputs, motors))
-    near = emulated[np.clip(k0[:, None] + np.arange(-ANCHOR_ROWS, ANCHOR_ROWS + 1), 0, n - 1)]  # (n, rows, 6)
-    best = np.argmin(np.abs(near - logged[k0][:, None, :]), axis=1)
-    out = emulated - np.take_along_axis(near, best[:, None, :], axis=1)[:, 0]
+    anchor = anchors(emulated, logged, k0, late_pilot_rows(run, k0, k1))
+    out = emulated - emulated[anchor, np.arange(emulated.shape[1])]
+    out[np.arange(n)[:, None] < anchor] = 0.0
     mode = run.extra.get("mode")
-    pilot = (np.isin(np.nan_to_num(mode, nan=-1.0), PILOT_THROTTLE_MODES) if mode is not None
-             else np.zeros(n, bool))
+    known = np.nan_to_num(mode, nan=-1.0) if mode is not None else np.full(n, -1.0)
+    pilot = np.isin(known, PILOT_THROTTLE_MODES)
     out[~(pilot & pilot[k0]), THROTTLE] = 0.0  # only where the throttle is the pilot's at both rows
     armed = run.extra.get("armed")
-    if armed is not None:
-        out[np.nan_to_num(armed, nan=1.0) == 0] = 0.0
+    on = np.nan_to_num(armed, nan=1.0) != 0 if armed is not None else np.ones(n, bool)
+    loop = on & (known >= 0) & ~pilot  # the throttle of the depth loop: interpolated between its samples
+    out[:, THROTTLE] += throttle_interpolation(run, logged, k0, k1, loop)
+    out[~on] = 0.0
     out = np.nan_to_num(out)
     out.setflags(write=False)  # shared by every replay of the run (output_refresh keeps it)
     return out if np.any(out) else None
@@ -374,7 +448,8 @@ def replay_feedback(run: Run, p: PlantParameters, label: str = "run") -> Feedbac
                         axes=axes, assumed=tuple(assumed), interval=interval, refresh=refresh)
     closed = ", ".join(n for n, a in zip(("roll", "pitch", "yaw"), axes) if a)
     held = ("roll, pitch, yaw, forward and lateral refreshed between output samples by the emulated autopilot run on "
-            "the measured states and the pilot's inputs, the throttle too where it is the pilot's (MANUAL, STABILIZE)"
+            "the measured states and the pilot's inputs, the throttle too where it is the pilot's (MANUAL, STABILIZE), "
+            "elsewhere the straight line between its samples"
             if refresh is not None
             else "throttle, forward and lateral as logged")
     note = (f"replay: closed loop in {closed} ({label}: ArduSub's outputs logged every {interval * 1e3:.0f} ms, a "

@@ -184,6 +184,65 @@ def test_a_stick_step_beside_a_logged_sample_is_not_counted_twice():
     np.testing.assert_allclose(held_plus_refresh[161:175], 0.0, atol=1e-6)  # released at 160, next sample at 175
 
 
+def _sampled_run(inputs, rc5, mode, every=25, dt=0.02):
+    """A run whose mixer ``inputs`` (n, 6) are logged every ``every`` rows (a 2 Hz output log on a 50 Hz grid),
+    with RC5 ``rc5`` (n,) and ``mode`` (n,); returns (run, frame, motors, plant parameters)."""
+    p = plant_parameters(load_model(MODEL))
+    fr = frame(p.ardusub_frame)
+    motors = dataclasses.replace(MotorParameters(), directions=(1,) * fr.n_motors)
+    n = inputs.shape[0]
+    pwm_true = to_pwm(mix(fr, inputs, motors), motors, integer=False)
+    samples = np.arange(0, n, every)
+    pwm = pwm_true[samples][np.searchsorted(samples, np.arange(n), side="right") - 1]
+    extra = {"mode": np.asarray(mode, float), **{f"rcin_{i}": np.full(n, 1500.0) for i in range(1, 9)}}
+    extra["rcin_5"] = np.asarray(rc5, float)
+    channels = {c: np.zeros(n) for c in ("x", "y", "z", "phi", "theta", "psi", "u", "v", "w", "p", "q", "r")}
+    channels["z"][:] = 5.0
+    run = Run(path="steps.csv", t=np.arange(n) * dt, channels=channels, input_kind="pwm", inputs=pwm, extra=extra,
+              metadata={"vehicle": MODEL})
+    return run, fr, motors, p
+
+
+@pytest.mark.parametrize("rc_offset", [1, -3])
+def test_a_stick_step_whose_pilot_sample_is_logged_after_the_output_sample_is_not_counted_twice(rc_offset):
+    """Older QGC logs the pilot only in RC_CHANNELS, at the outputs' 2 Hz: a forward step between two samples is
+    held by the next output sample (row 100) but reaches the pilot's inputs only at the next RC sample, one row
+    later (RC sent after the outputs) or 22 rows later (RC sent 3 rows before them). The sample already holds the
+    step: the refresh must not add it again until the next output sample."""
+    n, every = 200, 25
+    rows = np.arange(n)
+    forward = np.where(rows >= 98, 0.5, 0.0)  # the true step, between the samples at rows 75 and 100
+    inputs = np.zeros((n, 6))
+    inputs[:, 4] = forward
+    rc_rows = np.arange(every + rc_offset, n, every)  # RC samples, as sparse as the outputs
+    rc = 1500.0 + 400.0 * forward[rc_rows][np.clip(np.searchsorted(rc_rows, rows, side="right") - 1, 0, None)]
+    rc[rows < rc_rows[0]] = 1500.0
+    run, fr, motors, p = _sampled_run(inputs, rc, np.full(n, float(Mode.STABILIZE)), every)
+    refresh = output_refresh(run, ArduSubParameters(), fr, motors, p)
+    held = unmix(fr, from_pwm(run.inputs, motors))[:, 4]
+    total = held + (refresh[:, 4] if refresh is not None else 0.0)
+    np.testing.assert_allclose(total[100:150], 0.5, atol=1e-6)
+
+
+def test_the_depth_loops_throttle_is_interpolated_between_its_samples():
+    """In ALT_HOLD the throttle is the depth loop's output: smooth next to the 2 Hz log (it brakes a 0.7 m/s climb
+    over about a second). Held, a 2 Hz sample lags it by a quarter second on average; between its samples it is
+    refreshed by the straight line through them, whose error on a 0.17 Hz swing of amplitude A is at most
+    A (2 pi f)^2 T^2 / 8 (T = 0.5 s), against A 2 pi f T held."""
+    n, dt, every, amp, f = 500, 0.02, 25, 0.3, 0.17  # (not 0.2 Hz: two equal samples would read as one)
+    t = np.arange(n) * dt
+    inputs = np.zeros((n, 6))
+    inputs[:, 3] = amp * np.sin(2 * np.pi * f * t)
+    run, fr, motors, p = _sampled_run(inputs, np.full(n, 1500.0), np.full(n, float(Mode.ALT_HOLD)), every, dt)
+    refresh = output_refresh(run, ArduSubParameters(), fr, motors, p)
+    held = unmix(fr, from_pwm(run.inputs, motors))[:, 3]
+    inside = t <= t[(n - 1) // every * every]  # rows before the last sample (after it there is nothing to join)
+    bound = amp * (2 * np.pi * f * every * dt) ** 2 / 8 + 2e-3  # + the PWM's 1 us rounding through the mixer
+    err = np.abs(held + refresh[:, 3] - inputs[:, 3])[inside]
+    assert err.max() < bound, (err.max(), bound)
+    assert np.abs(held - inputs[:, 3])[inside].max() > 5 * bound
+
+
 def test_a_missing_pilot_sample_reads_as_a_centred_stick():
     """Before a log's first RC sample the converter leaves rcin_i empty (nan): the autopilot must see the sticks
     centred there (a nan through RC_Channel's clamps reads as a full stick), so a STABILIZE vehicle at rest gets no

@@ -15,6 +15,11 @@ loop's outputs), RC_CHANNELS 2 Hz (ArduSub's RC overrides), SYS_STATUS 1 Hz, and
 ``transform_manual_control_to_rc_override`` (:func:`udrobot_ctrl.io.joystick.rc_override`) at pilot gain
 ``PILOT_GAIN``. No DVL, no position, no accelerometer. Sensor noise (assumed, typical of the class): depth 1 cm
 (pressure and the EKF's depths), attitude 0.2 deg, gyro 0.3 deg/s.
+
+:class:`Variant` changes what a real dive may do differently (the robustness study of the verdict,
+``bench/field_dive_variants.py``): the 6-thruster ``bluerov2``, the time ALT_HOLD starts, a log without
+``MANUAL_CONTROL`` (older QGC: the pilot only in the 2 Hz ``RC_CHANNELS``), other ATTITUDE / VFR_HUD rates, the noise
+seed and the withheld scale. Its defaults are the dive above.
 """
 from __future__ import annotations
 
@@ -51,65 +56,125 @@ class Leg:
     offset: float
 
 
+@dataclass(frozen=True)
+class Variant:
+    """A variant of the dive; the defaults are the module's dive.
+
+    Attributes
+    ----------
+    model : str
+        The vehicle flown and logged (``bluerov2-heavy`` or the 6-thruster ``bluerov2``).
+    scale : float
+        The withheld heave drag scale: Z_w|w| x (1 + scale).
+    alt_hold_from : float or None
+        Time (s) from which the pilot flies ALT_HOLD (STABILIZE before); None: half the duration.
+    manual_control : bool
+        Whether the tlog holds QGC's ``MANUAL_CONTROL`` at ``JOYSTICK_HZ`` (else only ``RC_CHANNELS`` at 2 Hz).
+    attitude_hz, vfr_hz : float
+        ``ATTITUDE`` and ``VFR_HUD`` rates (Hz).
+    forward : float
+        Forward stick of the forward legs (us about 1500). The 6-thruster model tumbles in pitch at the default
+        200 us: its horizontal thrusters sit 7.25 cm below CO and push 41 N, 2.97 N m of pitch against at most
+        1.13 N m of restoring moment (BG 1 cm; models/bluerov2.toml).
+    servo_hz : float
+        ``SERVO_OUTPUT_RAW`` rate (Hz; QGC's default 2).
+    voltage : float
+        Battery voltage SYS_STATUS logs (V). The default 16 V is not the 14.8 V the truth is flown at (the model's
+        supply voltage): the diagnosis then computes the T200 thrusts at 16 V.
+    seed : int
+        Sensor noise seed.
+    jitter : float
+        Receive-time delay of each message, uniform in [0, jitter] s (the telemetry link's latency; the messages'
+        own stamps stay exact); 0: none.
+    duration : float
+        Dive length (s).
+    """
+
+    model: str = MODEL
+    scale: float = HEAVE_DRAG_SCALE
+    alt_hold_from: float | None = None
+    manual_control: bool = True
+    attitude_hz: float = 20.0
+    vfr_hz: float = 10.0
+    forward: float = 200.0
+    servo_hz: float = 2.0
+    voltage: float = 16.0
+    seed: int = 0
+    jitter: float = 0.0
+    duration: float = 180.0
+
+
 RC_INDEX = {"throttle": 2, "yaw": 3, "forward": 4, "lateral": 5}  # ArduSub's channel order, 0-based
 
 
-def legs(t0: float) -> tuple:
-    """The pilot's 90 s pattern from ``t0`` (s): descend, climb, forward and back, yaw, climb and descend again."""
+def legs(t0: float, forward: float = 200.0) -> tuple:
+    """The pilot's 90 s pattern from ``t0`` (s): descend, climb, forward and back (``forward`` us), yaw, climb and
+    descend again."""
     return (Leg(t0 + 4, t0 + 14, "throttle", -300.0), Leg(t0 + 20, t0 + 30, "throttle", 300.0),
-            Leg(t0 + 36, t0 + 46, "forward", 200.0), Leg(t0 + 50, t0 + 56, "forward", -200.0),
+            Leg(t0 + 36, t0 + 46, "forward", forward), Leg(t0 + 50, t0 + 56, "forward", -forward),
             Leg(t0 + 58, t0 + 61, "yaw", 150.0), Leg(t0 + 64, t0 + 72, "throttle", 300.0),
             Leg(t0 + 76, t0 + 86, "throttle", -300.0))
 
 
-def joystick(t: np.ndarray, duration: float) -> np.ndarray:
+def joystick(t: np.ndarray, duration: float, forward: float = 200.0) -> np.ndarray:
     """The pilot's joystick (N, 4) at times ``t``: MANUAL_CONTROL x (forward), y (lateral), z (throttle, 500
-    neutral), r (yaw), each leg's stick offset (us) divided by ArduSub's scale at ``PILOT_GAIN``."""
+    neutral), r (yaw), each leg's stick offset (us; forward legs ``forward``) divided by ArduSub's scale at
+    ``PILOT_GAIN``."""
     axes = np.zeros((np.size(t), 4))
     axes[:, 2] = 500.0
     column = {"forward": 0, "lateral": 1, "throttle": 2, "yaw": 3}
-    for leg in legs(0.0) + legs(duration / 2):
+    for leg in legs(0.0, forward) + legs(duration / 2, forward):
         scale = (0.8 if leg.stick == "throttle" else 0.4) * PILOT_GAIN
         axes[(t >= leg.start) & (t < leg.end), column[leg.stick]] += leg.offset / scale
     return axes
 
 
-def pilot_plan(duration: float = 180.0, dt: float = 0.02) -> Run:
-    """The pilot's inputs and modes as a run for :func:`fly`: STABILIZE for the first half, ALT_HOLD after; the RC
-    inputs are ArduSub's overrides of the joystick (channels 3-6), 1500 us elsewhere."""
+def pilot_plan(duration: float = 180.0, dt: float = 0.02, model: str = MODEL,
+               alt_hold_from: float | None = None, forward: float = 200.0) -> Run:
+    """The pilot's inputs and modes as a run for :func:`fly`: STABILIZE until ``alt_hold_from`` (s; None: half the
+    duration), ALT_HOLD after; the RC inputs are ArduSub's overrides of the joystick (channels 3-6), 1500 us
+    elsewhere."""
     t = np.arange(0.0, duration, dt)
     rc = np.full((t.size, 8), 1500.0)
-    js = joystick(t, duration)
+    js = joystick(t, duration, forward)
     rc[:, 2:6] = rc_override(js[:, 0], js[:, 1], js[:, 2], js[:, 3], PILOT_GAIN)
-    mode = np.where(t < duration / 2, float(Mode.STABILIZE), float(Mode.ALT_HOLD))
+    switch = duration / 2 if alt_hold_from is None else alt_hold_from
+    mode = np.where(t < switch, float(Mode.STABILIZE), float(Mode.ALT_HOLD))
     x0 = np.zeros(12)
     x0[2] = START_DEPTH
     channels = {name: np.full(t.size, x0[i]) for i, name in enumerate(STATE)}
     extra = {"mode": mode, **{f"rcin_{i + 1}": rc[:, i] for i in range(8)}}
-    return Run(path="pilot.csv", t=t, channels=channels, input_kind="pwm", inputs=np.full((t.size, 8), 1500.0),
-               extra=extra, metadata={"vehicle": MODEL})
+    return Run(path="pilot.csv", t=t, channels=channels, input_kind="pwm",
+               inputs=np.full((t.size, len(load_model(model).thrusters)), 1500.0),
+               extra=extra, metadata={"vehicle": model})
 
 
-def truth_vehicle(scale: float = HEAVE_DRAG_SCALE) -> Vehicle:
+def truth_vehicle(scale: float = HEAVE_DRAG_SCALE, model: str = MODEL) -> Vehicle:
     """The published model with its heave quadratic drag Z_w|w| scaled by ``1 + scale``."""
-    v = load_model(MODEL)
+    v = load_model(model)
     q = np.array(v.quadratic_damping, float)
     q[2, 2] *= 1.0 + scale
     return v.with_changes(quadratic_damping=q)
 
 
-def flight(duration: float = 180.0, scale: float = HEAVE_DRAG_SCALE) -> tuple:
+def flight(duration: float = 180.0, scale: float = HEAVE_DRAG_SCALE, model: str = MODEL,
+           alt_hold_from: float | None = None, forward: float = 200.0) -> tuple:
     """The truth flown under the emulated ArduSub at 200 Hz. Returns (ClosedLoopFlight, pilot plan Run)."""
-    plan = pilot_plan(duration)
-    return fly(truth_vehicle(scale), plan, loop_rate_hz=200.0), plan
+    plan = pilot_plan(duration, model=model, alt_hold_from=alt_hold_from, forward=forward)
+    return fly(truth_vehicle(scale, model), plan, loop_rate_hz=200.0), plan
 
 
 def _at(f: ClosedLoopFlight, t: float) -> int:
     return int(min(np.searchsorted(f.t, t), f.t.size - 1))
 
 
-def write_tlog(path, f: ClosedLoopFlight, plan: Run, seed: int = 0):
-    """Log ``f`` as QGroundControl would (the streams and rates in the module docstring), with sensor noise."""
+def write_tlog(path, f: ClosedLoopFlight, plan: Run, seed: int = 0, manual_control: bool = True,
+               attitude_hz: float = 20.0, vfr_hz: float = 10.0, jitter: float = 0.0, forward: float = 200.0,
+               servo_hz: float = 2.0, voltage: float = 16.0):
+    """Log ``f`` as QGroundControl would (the streams and rates in the module docstring), with sensor noise;
+    ``MANUAL_CONTROL`` only if ``manual_control``, ATTITUDE and VFR_HUD at ``attitude_hz`` and ``vfr_hz`` (Hz), each
+    message received up to ``jitter`` s late, the joystick's forward legs at ``forward`` us, SERVO_OUTPUT_RAW at
+    ``servo_hz``, SYS_STATUS's battery at ``voltage`` V (:class:`Variant`)."""
     rng = np.random.default_rng(seed)
     mav = mav2.MAVLink(None, srcSystem=1, srcComponent=1)
     end = float(f.t[-1])
@@ -118,8 +183,8 @@ def write_tlog(path, f: ClosedLoopFlight, plan: Run, seed: int = 0):
     for t in np.arange(0.0, end, 1.0):
         m = int(mode[min(np.searchsorted(plan.t, t), plan.n - 1)])
         ev.append((t, mav.heartbeat_encode(12, 3, 81 | 128, m, 4)))  # armed, custom_mode = ArduSub mode
-        ev.append((t + 0.3, mav.sys_status_encode(0, 0, 0, 500, 16000, 500, 90, 0, 0, 0, 0, 0, 0)))
-    for t in np.arange(0.01, end, 0.05):
+        ev.append((t + 0.3, mav.sys_status_encode(0, 0, 0, 500, int(round(voltage * 1000)), 500, 90, 0, 0, 0, 0, 0, 0)))
+    for t in np.arange(0.01, end, 1.0 / attitude_hz):
         x = f.x[_at(f, t)]
         att = x[3:6] + rng.normal(0.0, ATTITUDE_NOISE, 3)
         rates = x[9:12] + rng.normal(0.0, GYRO_NOISE, 3)
@@ -128,7 +193,7 @@ def write_tlog(path, f: ClosedLoopFlight, plan: Run, seed: int = 0):
     for t in np.arange(0.02, end, 0.5):
         depth = f.x[_at(f, t), 2] + rng.normal(0.0, DEPTH_NOISE)
         ev.append((t, mav.scaled_pressure2_encode(int(t * 1000), (101325.0 + RHO_G * depth) / 100.0, 0.0, 1200)))
-    for t in np.arange(0.03, end, 0.1):
+    for t in np.arange(0.03, end, 1.0 / vfr_hz):
         depth = f.x[_at(f, t), 2] + rng.normal(0.0, DEPTH_NOISE)
         ev.append((t, mav.vfr_hud_encode(0.0, 0.0, int(np.degrees(f.x[_at(f, t), 5])) % 360, 0, -depth, 0.0)))
     for t in np.arange(0.04, end, 1.0 / 3.0):
@@ -136,14 +201,26 @@ def write_tlog(path, f: ClosedLoopFlight, plan: Run, seed: int = 0):
         depth = f.x[k, 2] + rng.normal(0.0, DEPTH_NOISE)
         ev.append((t, mav.global_position_int_encode(int(t * 1000), 0, 0, int(-depth * 1000), int(-depth * 1000),
                                                      0, 0, int(100 * f.x[k, 8]), 65535)))
-    for t in np.arange(0.05, end, 0.5):
-        servo = [int(round(v)) for v in f.pwm[_at(f, t)]] + [0] * 8  # 8 motors
+    for t in np.arange(0.05, end, 1.0 / servo_hz):
+        servo = [int(round(v)) for v in f.pwm[_at(f, t)]]
+        servo += [0] * (16 - len(servo))  # unused outputs
         ev.append((t, mav.servo_output_raw_encode(int(t * 1e6), 0, *servo)))
     for t in np.arange(0.06, end, 0.5):
         rc = [int(plan.extra[f"rcin_{i + 1}"][min(np.searchsorted(plan.t, t), plan.n - 1)]) for i in range(8)]
         ev.append((t, mav.rc_channels_encode(int(t * 1000), 8, *rc, *[0] * 10, 255)))
-    gcs = mav2.MAVLink(None, srcSystem=255, srcComponent=190)
-    t_js = np.arange(0.007, end, 1.0 / JOYSTICK_HZ)
-    for t, (x, y, z, r) in zip(t_js, joystick(t_js, plan.t[-1] + plan.t[1])):
-        ev.append((t, gcs.manual_control_encode(1, int(x), int(y), int(z), int(r), 0).pack(gcs)))
+    if manual_control:
+        gcs = mav2.MAVLink(None, srcSystem=255, srcComponent=190)
+        t_js = np.arange(0.007, end, 1.0 / JOYSTICK_HZ)
+        for t, (x, y, z, r) in zip(t_js, joystick(t_js, plan.t[-1] + plan.t[1], forward)):
+            ev.append((t, gcs.manual_control_encode(1, int(x), int(y), int(z), int(r), 0).pack(gcs)))
+    if jitter > 0:
+        late = np.random.default_rng(seed + 1).uniform(0.0, jitter, len(ev))
+        ev = [(t + d, m) for (t, m), d in zip(ev, late)]
     return write_events(path, mav, ev)
+
+
+def write_variant(path, variant: Variant = Variant()):
+    """Fly ``variant`` and write its tlog to ``path``. Returns the path."""
+    f, plan = flight(variant.duration, variant.scale, variant.model, variant.alt_hold_from, variant.forward)
+    return write_tlog(path, f, plan, variant.seed, variant.manual_control, variant.attitude_hz, variant.vfr_hz,
+                      variant.jitter, variant.forward, variant.servo_hz, variant.voltage)
