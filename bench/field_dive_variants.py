@@ -41,8 +41,7 @@ VARIANTS = {
     "six_gentle": Variant(model="bluerov2", forward=60.0),  # no tumble (max pitch 52 deg; see Variant.forward)
     "six_gentle_no_joystick": Variant(model="bluerov2", forward=60.0, manual_control=False),
     "six_gentle_servo10": Variant(model="bluerov2", forward=60.0, servo_hz=10.0),
-    "six_gentle_14v8": Variant(model="bluerov2", forward=60.0, voltage=14.8),  # the voltage the truth flew at
-    "default_14v8": Variant(voltage=14.8),
+    "default_16v": Variant(voltage=16.0),  # a battery logged 1.2 V above the one the truth flew at
     "jitter": Variant(jitter=0.05),
     "no_joystick_jitter": Variant(manual_control=False, jitter=0.05),
     "combined": Variant(model="bluerov2", scale=-0.3, alt_hold_from=0.0, manual_control=False, attitude_hz=10.0,

@@ -187,8 +187,9 @@ def actuators(run: Run, p: PlantParameters, f_raw=None):
             v0 = p.supply_voltage
             volts = run.channels.get("voltage")
             v = v0 if volts is None or not np.isfinite(volts).any() else np.nan_to_num(volts, nan=v0)[:, None]
-            if f_raw is not None and np.ndim(v):
-                v = v0
+            if np.ndim(v) and np.shape(v)[0] != f.shape[0]:
+                raise ValueError(f"{run.path or 'run'}: {np.shape(v)[0]} voltage samples for {f.shape[0]} rows of "
+                                 f"pwm_i (pass the run on the commands' grid)")
             f = pwm_to_thrust(f, v)
         f = np.clip(f, p.f_min, p.f_max)
         return f, p.T.copy(), p.T.copy(), np.maximum(p.f_max, -p.f_min)
@@ -299,7 +300,7 @@ def prepare(run: Run, p: PlantParameters, name=None, window_s=0.8, dt=None, know
     f_raw = np.asarray(r.inputs, float)
     if np.isnan(f_raw).any():
         f_raw = np.column_stack([_fill(c) for c in f_raw.T])
-    f, B, inflow, ref = actuators(run, p, f_raw)
+    f, B, inflow, ref = actuators(r, p, f_raw)  # r: the grid of f_raw and of its voltage
     loop = replay_feedback(replace(r, inputs=f_raw), p, label)
     if loop.note:
         notes.append(loop.note)

@@ -31,6 +31,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mav2
 from tests.udrobot_ctrl.io.test_field_logs import RHO_G, write_events
 from udrobot_ctrl.autopilot.fly import ClosedLoopFlight, fly
 from udrobot_ctrl.autopilot.modes import Mode
+from udrobot_ctrl.dynamics.plant import plant_parameters
 from udrobot_ctrl.io.joystick import rc_override
 from udrobot_ctrl.io.runlog import Run
 from udrobot_ctrl.vehicle import Vehicle, load_model
@@ -43,6 +44,8 @@ GYRO_NOISE = np.radians(0.3)  # rad/s, assumed
 START_DEPTH = 10.0  # m
 PILOT_GAIN = 1.0  # assumed: ArduSub's JS_GAIN_MAX, where the +-300 us climbs are a full throttle stick
 JOYSTICK_HZ = 23.6  # MANUAL_CONTROL rate measured in the real tlog above
+#: the battery voltage fly() runs the truth's thrusters at (the models' supply voltage; bluerov2 and the Heavy alike)
+FLOWN_VOLTAGE = plant_parameters(load_model(MODEL)).supply_voltage
 STATE = ("x", "y", "z", "phi", "theta", "psi", "u", "v", "w", "p", "q", "r")
 
 
@@ -79,8 +82,8 @@ class Variant:
     servo_hz : float
         ``SERVO_OUTPUT_RAW`` rate (Hz; QGC's default 2).
     voltage : float
-        Battery voltage SYS_STATUS logs (V). The default 16 V is not the 14.8 V the truth is flown at (the model's
-        supply voltage): the diagnosis then computes the T200 thrusts at 16 V.
+        Battery voltage SYS_STATUS logs (V). The default is the voltage the truth is flown at (``FLOWN_VOLTAGE``,
+        the model's supply voltage): the diagnosis computes the T200 thrusts at the logged voltage.
     seed : int
         Sensor noise seed.
     jitter : float
@@ -98,7 +101,7 @@ class Variant:
     vfr_hz: float = 10.0
     forward: float = 200.0
     servo_hz: float = 2.0
-    voltage: float = 16.0
+    voltage: float = FLOWN_VOLTAGE
     seed: int = 0
     jitter: float = 0.0
     duration: float = 180.0
@@ -170,7 +173,7 @@ def _at(f: ClosedLoopFlight, t: float) -> int:
 
 def write_tlog(path, f: ClosedLoopFlight, plan: Run, seed: int = 0, manual_control: bool = True,
                attitude_hz: float = 20.0, vfr_hz: float = 10.0, jitter: float = 0.0, forward: float = 200.0,
-               servo_hz: float = 2.0, voltage: float = 16.0):
+               servo_hz: float = 2.0, voltage: float = FLOWN_VOLTAGE):
     """Log ``f`` as QGroundControl would (the streams and rates in the module docstring), with sensor noise;
     ``MANUAL_CONTROL`` only if ``manual_control``, ATTITUDE and VFR_HUD at ``attitude_hz`` and ``vfr_hz`` (Hz), each
     message received up to ``jitter`` s late, the joystick's forward legs at ``forward`` us, SERVO_OUTPUT_RAW at

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from udrobot_ctrl.dynamics.plant import plant_parameters
+from udrobot_ctrl.dynamics.thrusters import pwm_to_thrust
 from udrobot_ctrl.gap.data import ALTITUDE_VALID_MIN, prepare, without_stabilised
 from udrobot_ctrl.io.runlog import Run
 from udrobot_ctrl.vehicle import load_model
@@ -68,3 +69,21 @@ def test_a_stabilised_attitude_logged_slower_than_its_loop_leaves_the_equation_e
                  without_stabilised(np.array([0, 0, 0, 1, 1, 1], bool), loop(0.5))):
         assert fast[1] == ""
     np.testing.assert_array_equal(without_stabilised(ok, loop(0.1))[0], ok)
+
+
+def test_pwm_thrust_follows_the_logged_battery_voltage():
+    """A 4S battery sags from 16.8 V to 13 V over a dive and a T200's thrust at a given PWM with it (about 30 %):
+    the diagnosis converts each sample at its own logged voltage, not at the model's supply voltage."""
+    hv = plant_parameters(load_model("bluerov2-heavy"))
+    n = 200
+    t = np.arange(n) * 0.02
+    volts = np.linspace(16.8, 13.0, n)
+    pwm = np.full((n, 8), 1500.0)
+    pwm[:, 4:] = 1700.0  # the four vertical thrusters pushing
+    ch = {c: np.zeros(n) for c in ("z", "phi", "theta", "psi", "p", "q", "r")}
+    ch["voltage"] = volts
+    run = Run(path="v.csv", t=t, channels=ch, input_kind="pwm", inputs=pwm, extra={}, metadata={})
+    prep = prepare(run, hv, "v.csv")
+    want = np.clip(pwm_to_thrust(pwm, volts[:, None]), hv.f_min, hv.f_max)
+    assert prep.f == pytest.approx(want, rel=1e-9)
+    assert prep.f[0, 4] > 1.2 * prep.f[-1, 4]  # the sag is in the thrust
