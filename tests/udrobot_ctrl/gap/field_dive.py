@@ -44,8 +44,6 @@ GYRO_NOISE = np.radians(0.3)  # rad/s, assumed
 START_DEPTH = 10.0  # m
 PILOT_GAIN = 1.0  # assumed: ArduSub's JS_GAIN_MAX, where the +-300 us climbs are a full throttle stick
 JOYSTICK_HZ = 23.6  # MANUAL_CONTROL rate measured in the real tlog above
-#: the battery voltage fly() runs the truth's thrusters at (the models' supply voltage; bluerov2 and the Heavy alike)
-FLOWN_VOLTAGE = plant_parameters(load_model(MODEL)).supply_voltage
 STATE = ("x", "y", "z", "phi", "theta", "psi", "u", "v", "w", "p", "q", "r")
 
 
@@ -81,9 +79,9 @@ class Variant:
         1.13 N m of restoring moment (BG 1 cm; models/bluerov2.toml).
     servo_hz : float
         ``SERVO_OUTPUT_RAW`` rate (Hz; QGC's default 2).
-    voltage : float
-        Battery voltage SYS_STATUS logs (V). The default is the voltage the truth is flown at (``FLOWN_VOLTAGE``,
-        the model's supply voltage): the diagnosis computes the T200 thrusts at the logged voltage.
+    voltage : float or None
+        Battery voltage SYS_STATUS logs (V); None: the voltage the truth is flown at, the model's supply voltage
+        (:attr:`logged_voltage`). The diagnosis computes the T200 thrusts at the logged voltage.
     seed : int
         Sensor noise seed.
     jitter : float
@@ -101,10 +99,16 @@ class Variant:
     vfr_hz: float = 10.0
     forward: float = 200.0
     servo_hz: float = 2.0
-    voltage: float = FLOWN_VOLTAGE
+    voltage: float | None = None
     seed: int = 0
     jitter: float = 0.0
     duration: float = 180.0
+
+    @property
+    def logged_voltage(self) -> float:
+        """The battery voltage SYS_STATUS logs (V): ``voltage``, or the one :func:`fly` runs the truth's thrusters at
+        (the model's supply voltage)."""
+        return self.voltage if self.voltage is not None else plant_parameters(load_model(self.model)).supply_voltage
 
 
 RC_INDEX = {"throttle": 2, "yaw": 3, "forward": 4, "lateral": 5}  # ArduSub's channel order, 0-based
@@ -171,14 +175,12 @@ def _at(f: ClosedLoopFlight, t: float) -> int:
     return int(min(np.searchsorted(f.t, t), f.t.size - 1))
 
 
-def write_tlog(path, f: ClosedLoopFlight, plan: Run, seed: int = 0, manual_control: bool = True,
-               attitude_hz: float = 20.0, vfr_hz: float = 10.0, jitter: float = 0.0, forward: float = 200.0,
-               servo_hz: float = 2.0, voltage: float = FLOWN_VOLTAGE):
-    """Log ``f`` as QGroundControl would (the streams and rates in the module docstring), with sensor noise;
-    ``MANUAL_CONTROL`` only if ``manual_control``, ATTITUDE and VFR_HUD at ``attitude_hz`` and ``vfr_hz`` (Hz), each
-    message received up to ``jitter`` s late, the joystick's forward legs at ``forward`` us, SERVO_OUTPUT_RAW at
-    ``servo_hz``, SYS_STATUS's battery at ``voltage`` V (:class:`Variant`)."""
-    rng = np.random.default_rng(seed)
+def write_tlog(path, f: ClosedLoopFlight, plan: Run, variant: Variant = Variant()):
+    """Log ``f`` (flown from ``plan``) as QGroundControl would (the streams and rates in the module docstring), with
+    sensor noise, the streams, rates, pilot inputs, battery and receive delays of ``variant`` (:class:`Variant`)."""
+    v = variant
+    rng = np.random.default_rng(v.seed)
+    battery_mv = int(round(v.logged_voltage * 1000))
     mav = mav2.MAVLink(None, srcSystem=1, srcComponent=1)
     end = float(f.t[-1])
     ev = []
@@ -186,8 +188,8 @@ def write_tlog(path, f: ClosedLoopFlight, plan: Run, seed: int = 0, manual_contr
     for t in np.arange(0.0, end, 1.0):
         m = int(mode[min(np.searchsorted(plan.t, t), plan.n - 1)])
         ev.append((t, mav.heartbeat_encode(12, 3, 81 | 128, m, 4)))  # armed, custom_mode = ArduSub mode
-        ev.append((t + 0.3, mav.sys_status_encode(0, 0, 0, 500, int(round(voltage * 1000)), 500, 90, 0, 0, 0, 0, 0, 0)))
-    for t in np.arange(0.01, end, 1.0 / attitude_hz):
+        ev.append((t + 0.3, mav.sys_status_encode(0, 0, 0, 500, battery_mv, 500, 90, 0, 0, 0, 0, 0, 0)))
+    for t in np.arange(0.01, end, 1.0 / v.attitude_hz):
         x = f.x[_at(f, t)]
         att = x[3:6] + rng.normal(0.0, ATTITUDE_NOISE, 3)
         rates = x[9:12] + rng.normal(0.0, GYRO_NOISE, 3)
@@ -196,7 +198,7 @@ def write_tlog(path, f: ClosedLoopFlight, plan: Run, seed: int = 0, manual_contr
     for t in np.arange(0.02, end, 0.5):
         depth = f.x[_at(f, t), 2] + rng.normal(0.0, DEPTH_NOISE)
         ev.append((t, mav.scaled_pressure2_encode(int(t * 1000), (101325.0 + RHO_G * depth) / 100.0, 0.0, 1200)))
-    for t in np.arange(0.03, end, 1.0 / vfr_hz):
+    for t in np.arange(0.03, end, 1.0 / v.vfr_hz):
         depth = f.x[_at(f, t), 2] + rng.normal(0.0, DEPTH_NOISE)
         ev.append((t, mav.vfr_hud_encode(0.0, 0.0, int(np.degrees(f.x[_at(f, t), 5])) % 360, 0, -depth, 0.0)))
     for t in np.arange(0.04, end, 1.0 / 3.0):
@@ -204,20 +206,20 @@ def write_tlog(path, f: ClosedLoopFlight, plan: Run, seed: int = 0, manual_contr
         depth = f.x[k, 2] + rng.normal(0.0, DEPTH_NOISE)
         ev.append((t, mav.global_position_int_encode(int(t * 1000), 0, 0, int(-depth * 1000), int(-depth * 1000),
                                                      0, 0, int(100 * f.x[k, 8]), 65535)))
-    for t in np.arange(0.05, end, 1.0 / servo_hz):
-        servo = [int(round(v)) for v in f.pwm[_at(f, t)]]
+    for t in np.arange(0.05, end, 1.0 / v.servo_hz):
+        servo = [int(round(us)) for us in f.pwm[_at(f, t)]]
         servo += [0] * (16 - len(servo))  # unused outputs
         ev.append((t, mav.servo_output_raw_encode(int(t * 1e6), 0, *servo)))
     for t in np.arange(0.06, end, 0.5):
         rc = [int(plan.extra[f"rcin_{i + 1}"][min(np.searchsorted(plan.t, t), plan.n - 1)]) for i in range(8)]
         ev.append((t, mav.rc_channels_encode(int(t * 1000), 8, *rc, *[0] * 10, 255)))
-    if manual_control:
+    if v.manual_control:
         gcs = mav2.MAVLink(None, srcSystem=255, srcComponent=190)
         t_js = np.arange(0.007, end, 1.0 / JOYSTICK_HZ)
-        for t, (x, y, z, r) in zip(t_js, joystick(t_js, plan.t[-1] + plan.t[1], forward)):
+        for t, (x, y, z, r) in zip(t_js, joystick(t_js, plan.t[-1] + plan.t[1], v.forward)):
             ev.append((t, gcs.manual_control_encode(1, int(x), int(y), int(z), int(r), 0).pack(gcs)))
-    if jitter > 0:
-        late = np.random.default_rng(seed + 1).uniform(0.0, jitter, len(ev))
+    if v.jitter > 0:
+        late = np.random.default_rng(v.seed + 1).uniform(0.0, v.jitter, len(ev))
         ev = [(t + d, m) for (t, m), d in zip(ev, late)]
     return write_events(path, mav, ev)
 
@@ -225,5 +227,4 @@ def write_tlog(path, f: ClosedLoopFlight, plan: Run, seed: int = 0, manual_contr
 def write_variant(path, variant: Variant = Variant()):
     """Fly ``variant`` and write its tlog to ``path``. Returns the path."""
     f, plan = flight(variant.duration, variant.scale, variant.model, variant.alt_hold_from, variant.forward)
-    return write_tlog(path, f, plan, variant.seed, variant.manual_control, variant.attitude_hz, variant.vfr_hz,
-                      variant.jitter, variant.forward, variant.servo_hz, variant.voltage)
+    return write_tlog(path, f, plan, variant)
