@@ -402,6 +402,7 @@ class InflowLoss(Effect):
     reads_delivered = True  # the plant's inflow loss acts on the clipped, mapped and lagged thrust
 
     reads = ("f", "nu")
+
     def design(self, s, shape):
         def cols(r):
             ua = r["nu"] @ s.inflow  # (n, k) axial advance speed
@@ -459,6 +460,7 @@ class Deadband(Effect):
     maps_command = True
 
     reads = ("f",)
+
     def design(self, s, shape):
         w, p = shape
         caps = None if _per_dof(s) else thruster_capacities(s.p, s.B)
@@ -487,6 +489,7 @@ class Asymmetry(Effect):
     maps_command = True
 
     reads = ("f",)
+
     def design(self, s, shape):
         x = crossing(s)
         if _per_dof(s):
@@ -510,6 +513,7 @@ class Lag(Effect):
     per_actuator = True
 
     reads = ("f",)
+
     def command_filter(self, shape):
         T, k = shape
         return lambda f, dt: pfx.first_order_lag(f, dt, T, thrust_exponent=k)
@@ -612,6 +616,7 @@ class TetherDrag(Effect):
     """
 
     reads = ("eta", "nu")
+
     def search_space(self, s):
         xy = s.eta[:, :2]
         lo, hi = np.percentile(xy, 1, axis=0) - ANCHOR_MARGIN_M, np.percentile(xy, 99, axis=0) + ANCHOR_MARGIN_M
@@ -732,6 +737,7 @@ def _current_force(eta, nu, c, p, M_A, R=None):
 
 class Current(Effect):
     reads = ("eta", "nu")
+
     def design(self, s, shape):
         c = np.array(shape, float)
         b0 = s.full(lambda r: _current_force(r["eta"], r["nu"], c, s.p, s.M_A, s.kept("rotation", (r["eta"],),
@@ -743,6 +749,7 @@ class Current(Effect):
 # ------------------------------------------------------------------------------------------- hydrodynamics
 class LinearDamping(Effect):
     reads = ("nu",)
+
     def design(self, s, shape):
         A = s.full(lambda r: -r["nu"][:, :, None] * np.eye(6)[None])
         lo = -np.diag(s.p.D_L).copy()
@@ -769,6 +776,7 @@ class QuadDampingError(Effect):
     the translational or rotational speed (1)."""
 
     reads = ("nu",)
+
     def design(self, s, shape):
         q = np.diag(s.p.Q)
         a = float(shape[0]) if len(shape) else 0.0
@@ -780,6 +788,7 @@ class QuadDampingError(Effect):
 
 class AddedMassError(Effect):
     reads = ("nu", "nu_dot")
+
     def design(self, s, shape):
         ma = np.diag(s.M_A)
         A = -s.full(lambda r: r["nu_dot"][:, :, None] * np.diag(ma)[None], filt=False)
@@ -802,6 +811,7 @@ CROSS_PAIRS = tuple((i, j) for i in range(6) for j in range(6) if i != j)
 
 class CrossDamping(Effect):
     reads = ("nu",)
+
     def design(self, s, shape):
         names = []
         for i, j in CROSS_PAIRS:
@@ -828,6 +838,7 @@ class CrossDamping(Effect):
 
 class BuoyancyOffset(Effect):
     reads = ("eta",)
+
     def design(self, s, shape):
         A = -s.full(lambda r: restoring_gradient(r["eta"], s.p, "B"))[..., None]
         return Design(np.zeros((s.n, 6)), A, ("dB_N",), np.array([-0.5 * s.p.weight]), np.array([0.5 * s.p.weight]))
@@ -839,6 +850,7 @@ class CgCbOffset(Effect):
     the righting moment z_g W - z_b B keeps at least 10 % of its modelled value (the vehicle floats upright)."""
 
     reads = ("eta",)
+
     def design(self, s, shape):
         A = -s.full(lambda r: np.stack([restoring_gradient(r["eta"], s.p, k) for k in ("BG_x", "BG_y", "BG_z")], -1))
         lo, hi = np.full(3, -0.1 * s.p.weight), np.full(3, 0.1 * s.p.weight)
@@ -872,6 +884,7 @@ class DragCentre(Effect):
     """
 
     reads = ("nu",)
+
     def design(self, s, shape):
         D, Q = np.asarray(s.p.D_L, float)[:3, :3], np.asarray(s.p.Q, float)[:3, :3]
         size = hull_size(s)
