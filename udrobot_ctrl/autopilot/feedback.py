@@ -132,6 +132,11 @@ class ReplayFeedback:
     refresh : (n, 6) ndarray or None
         Mixer-input change of the emulated autopilot since each row's held output was logged (:func:`output_refresh`;
         None: the outputs are held as logged).
+    thrust : (n, k) ndarray
+        Derived: the run's thrust, N: the logged PWM with ``refresh`` added through the mixer, through the T-200 curve
+        at ``voltage`` and clipped to the limits. The one thrust the diagnosis reads for the run (its equation
+        error, its smoother and the replays: :attr:`udrobot_ctrl.gap.data.Prepared.f`); the loop's
+        :meth:`delta_thrust` is relative to it.
     """
 
     frame: Frame
@@ -146,15 +151,24 @@ class ReplayFeedback:
     assumed: tuple = ()
     interval: float = float("nan")
     refresh: np.ndarray | None = None
-    base_inputs: np.ndarray = field(init=False, repr=False)
-    base_pwm: np.ndarray = field(init=False, repr=False)
-    base_thrust: np.ndarray = field(init=False, repr=False)
+    logged_inputs: np.ndarray = field(init=False, repr=False)
+    logged_mixed: np.ndarray = field(init=False, repr=False)
+    thrust: np.ndarray = field(init=False, repr=False)
 
     def __post_init__(self):
         inputs = unmix(self.frame, from_pwm(self.pwm, self.motors))
-        object.__setattr__(self, "base_inputs", inputs)
-        object.__setattr__(self, "base_pwm", to_pwm(mix(self.frame, inputs, self.motors), self.motors, integer=False))
-        object.__setattr__(self, "base_thrust", self._thrust(self.pwm, slice(None)))
+        object.__setattr__(self, "logged_inputs", inputs)
+        object.__setattr__(self, "logged_mixed", to_pwm(mix(self.frame, inputs, self.motors), self.motors,
+                                                        integer=False))
+        pwm = self.pwm if self.refresh is None else self._pwm(self.refresh, slice(None))
+        object.__setattr__(self, "thrust", self._thrust(pwm, slice(None)))
+
+    def _pwm(self, d_in, k):
+        """PWM (us) at samples ``k`` with the mixer inputs ``d_in`` added to the logged ones: the logged PWM plus
+        the change the mixer makes of it (the logged PWM itself where ``d_in`` is 0, whatever the mixer's round
+        trip)."""
+        return self.pwm[k] + to_pwm(mix(self.frame, self.logged_inputs[k] + d_in, self.motors), self.motors,
+                                    integer=False) - self.logged_mixed[k]
 
     def _thrust(self, pwm, k):
         v = self.voltage if np.ndim(self.voltage) == 0 else np.asarray(self.voltage)[k]
@@ -165,7 +179,8 @@ class ReplayFeedback:
         return FeedbackState([ACPID(g) for g in self.attitude.rate_pids()], rows)
 
     def delta_thrust(self, state: FeedbackState, x_sim, x_meas, k, dt: float) -> np.ndarray:
-        """(N, k) thrust (N) the closed attitude loop adds to the logged thrust at samples ``k`` (N,).
+        """(N, k) thrust (N) the closed attitude loop adds to the run's thrust :attr:`thrust` at samples ``k`` (N,):
+        zero while the replay follows the measured state.
 
         Parameters
         ----------
@@ -189,9 +204,7 @@ class ReplayFeedback:
                 d_in[:, axis] = np.where(active & np.isfinite(out), out, 0.0)
         if self.refresh is not None:
             d_in += self.refresh[k]
-        pwm = self.pwm[k] + to_pwm(mix(self.frame, self.base_inputs[k] + d_in, self.motors), self.motors,
-                                   integer=False) - self.base_pwm[k]
-        return self._thrust(pwm, k) - self.base_thrust[k]
+        return self._thrust(self._pwm(d_in, k), k) - self.thrust[k]
 
 
 @dataclass

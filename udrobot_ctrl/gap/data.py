@@ -8,7 +8,10 @@ Everything the diagnoser computes starts from a :class:`Prepared` run:
   logged are recovered from the Euler-angle rates when the attitude is logged;
 * the commanded inputs become *actuator commands* ``f`` (n, k) with an actuator matrix ``B`` (6 x k) so
   that the nominal wrench is ``B f``: per-thruster thrusts (``thrust_i``; ``pwm_i`` converted with a T200
-  curve) with the model's thruster matrix, or six virtual actuators (``tau_*``, ``B = I``);
+  curve) with the model's thruster matrix, or six virtual actuators (``tau_*``, ``B = I``); ArduSub outputs
+  logged more slowly than its attitude loop (a tlog's 2 Hz ``SERVO_OUTPUT_RAW``) are refreshed between their samples
+  by the emulated autopilot on the measured states (:mod:`udrobot_ctrl.autopilot.feedback`) before the T200 curve,
+  and that one thrust is what the equation error, the smoother and the replays read;
 * the distances to the seabed and to the walls come from the sidecar metadata (``seabed_depth``,
   ``walls``) and the logged position, or from the logged ``altitude``;
 * a run that logs no body velocity in some translational DOF (a stock ROV: no DVL) is passed through the
@@ -56,7 +59,10 @@ class Prepared:
     nu, nu_dot : (n, 6) ndarray
         Smoothed body velocities (m/s, rad/s) and their derivatives; nan where not available.
     f : (n, k) ndarray
-        Actuator commands (N for thrusters; N, N m for virtual wrench actuators), clipped to limits.
+        Actuator commands (N for thrusters; N, N m for virtual wrench actuators), clipped to limits. On a run
+        replayed closed loop (``feedback``), the logged outputs refreshed between their samples by the emulated
+        autopilot (:attr:`udrobot_ctrl.autopilot.feedback.ReplayFeedback.thrust`): the equation error, the smoother
+        and the replay read the same thrust.
     B : (6, k) ndarray
         Actuator matrix: nominal wrench = B f.
     inflow : (6, k) ndarray
@@ -304,6 +310,8 @@ def prepare(run: Run, p: PlantParameters, name=None, window_s=0.8, dt=None, know
     loop = replay_feedback(replace(r, inputs=f_raw), p, label)
     if loop.note:
         notes.append(loop.note)
+    if loop.feedback is not None:  # the logged outputs refreshed between their samples: one thrust for every step
+        f = loop.feedback.thrust
     observed = np.array([any(_logged(meas, c) for c in OBSERVING[i]) for i in range(6)])
     reconstructed = np.zeros(6, bool)
     smoothed = None

@@ -21,6 +21,7 @@ from udrobot_ctrl.autopilot.modes import Mode
 from udrobot_ctrl.autopilot.motors import MotorParameters, frame, from_pwm, mix, to_pwm, unmix
 from udrobot_ctrl.autopilot.params import ArduSubParameters
 from udrobot_ctrl.dynamics.plant import plant_parameters
+from udrobot_ctrl.dynamics.thrusters import pwm_to_thrust
 from udrobot_ctrl.gap.data import prepare
 from udrobot_ctrl.gap.shrink import errors, simulate_windows
 from udrobot_ctrl.io.runlog import Run, hold_previous
@@ -140,7 +141,8 @@ def test_a_2hz_log_is_refreshed_between_its_samples_by_the_emulated_autopilot(lo
     assert choice.feedback.refresh is not None and "refreshed between output samples" in choice.note
     prep = prepare(slow, p, "dive")
     refreshed = errors(prep, simulate_windows(prep, p, (), 8.0))
-    held_prep = dataclasses.replace(prep, feedback=dataclasses.replace(prep.feedback, refresh=None))
+    held_loop = dataclasses.replace(prep.feedback, refresh=None)  # the samples held, in the replay as in its thrust
+    held_prep = dataclasses.replace(prep, feedback=held_loop, f=held_loop.thrust)
     held = errors(held_prep, simulate_windows(held_prep, p, (), 8.0))
 
     def rms(e):
@@ -153,6 +155,11 @@ def test_a_2hz_log_is_refreshed_between_its_samples_by_the_emulated_autopilot(lo
     for c in ("p", "q", "r"):
         assert rms(refreshed[c]) < rms(held[c]) / 3, c
     assert rms(refreshed["u"]) < 0.01 and rms(refreshed["u"]) < rms(held["u"]) / 3
+    # the equation error and the smoother read the same refreshed thrust as the replay: between the 2 Hz samples
+    # it follows what the thrusters delivered (the flight's 200 Hz outputs at the grid's rows), the held one lags it
+    true = np.clip(pwm_to_thrust(flight.pwm[np.searchsorted(flight.t, run.t)], p.supply_voltage), p.f_min, p.f_max)
+    np.testing.assert_array_equal(prep.f, prep.feedback.thrust)
+    assert rms(prep.f - true) < rms(held_prep.f - true) / 3
 
 
 def test_a_stick_step_beside_a_logged_sample_is_not_counted_twice():
