@@ -271,6 +271,10 @@ class Effect:
     #: content (:class:`udrobot_ctrl.gap.attribute.DesignStore`: a thruster map's grid in both reconstruction passes,
     #: a restoring term's regressor under each move of the reconstructed velocities)
     reads: ClassVar[tuple | None] = None
+    #: its amplitudes are corrections of the nominal plant each acting in its own DOF and 0 at nominal (a damping or
+    #: an added-mass scale per DOF): one whose fit ends on its bound can be held at nominal while the others stand
+    #: (:func:`udrobot_ctrl.gap.report.hold_at_nominal`)
+    per_dof: ClassVar[bool] = False
 
     def change_filter(self, shape):
         """The linear filter ``(df (n, k), dt) -> df_delivered`` a thrust change made upstream of this effect's input
@@ -749,6 +753,7 @@ class Current(Effect):
 # ------------------------------------------------------------------------------------------- hydrodynamics
 class LinearDamping(Effect):
     reads = ("nu",)
+    per_dof = True
 
     def design(self, s, shape):
         A = s.full(lambda r: -r["nu"][:, :, None] * np.eye(6)[None])
@@ -776,6 +781,7 @@ class QuadDampingError(Effect):
     the translational or rotational speed (1)."""
 
     reads = ("nu",)
+    per_dof = True
 
     def design(self, s, shape):
         q = np.diag(s.p.Q)
@@ -788,6 +794,7 @@ class QuadDampingError(Effect):
 
 class AddedMassError(Effect):
     reads = ("nu", "nu_dot")
+    per_dof = True
 
     def design(self, s, shape):
         ma = np.diag(s.M_A)

@@ -523,8 +523,13 @@ class Restricted(fx.Effect):
         self.reads_delivered, self.maps_command = inner.reads_delivered, inner.maps_command
         self.frozen = tuple(frozen)
         self.forms = dict(forms or {})
-        self.per_actuator = inner.per_actuator
+        self.per_actuator, self.per_dof = inner.per_actuator, inner.per_dof
         self.actuators = None if actuators is None else tuple(actuators)
+
+    def freezing(self, names) -> Restricted:
+        """The same restriction with the amplitudes ``names`` frozen at zero too."""
+        return Restricted(self.inner, self.frozen + tuple(n for n in names if n not in self.frozen), self.forms,
+                          self.actuators)
 
     def design(self, s, shape):
         if self.actuators is not None:

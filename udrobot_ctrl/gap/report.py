@@ -54,6 +54,7 @@ from udrobot_ctrl.gap.confirm import (
     Replayer,
     alone_tests,
     backward_eliminate,
+    check_members,
     fitted_hooks,
     replay_sets,
     separations,
@@ -340,6 +341,8 @@ class EffectVerdict:
     at_bound: dict | None = None  # parameter -> (value, bound) of a confirmed fit that ended on a bound
     at_bound_reason: str | None = None  # why an effect at a bound is not significant
     replay_diverged_windows: int = 0  # holdout windows its single-effect replay diverged in
+    #: amplitudes of a named per-DOF effect held at nominal: parameter -> (value, bound) where their fit ended
+    held_at_nominal: dict | None = None
 
     def to_json(self) -> dict:
         out = {"name": self.name, "significant": self.significant, "params": self.params, "shrink": self.shrink,
@@ -358,6 +361,8 @@ class EffectVerdict:
             out["at_bound_reason"] = self.at_bound_reason
         if self.replay_diverged_windows:
             out["replay_diverged_windows"] = self.replay_diverged_windows
+        if self.held_at_nominal:
+            out["held_at_nominal"] = {k: {"fitted": v, "bound": b} for k, (v, b) in self.held_at_nominal.items()}
         return out
 
 
@@ -1026,13 +1031,16 @@ def _wall_entry(params, stack, p) -> dict:
 
 
 def effect_verdicts(inp: Inputs, stacks: Stacks, sel: Selection, elim: Elimination, shrink: Mapping,
-                    at_bound: Mapping | None = None, singles: Mapping | None = None) -> list:
+                    at_bound: Mapping | None = None, singles: Mapping | None = None,
+                    held: Mapping | None = None) -> list:
     """Step 4, report: one :class:`EffectVerdict` per tested effect, the significant ones first (by shrink), then
     the confirmed effects set aside at a bound (``at_bound``: name -> :class:`AtBound`), then the candidates the
     holdout dropped, then the rest. ``singles`` (name -> single-effect holdout Replay) gives the windows each
-    effect's replay alone diverged in."""
+    effect's replay alone diverged in; ``held`` (name -> :class:`HeldAtNominal`) the significant effects named with
+    some amplitudes held at nominal."""
     kept, dropped, combo = elim.kept, elim.dropped, elim.combination
     at_bound = dict(at_bound or {})
+    held = dict(held or {})
     shrink = dict(shrink.items())  # every effect's (an OnDemand replays the missing ones together)
     diverged = {n: singles[n].gap.n_diverged for n in inp.names} if singles else {}
     steps = {s.effect: s for s in sel.steps}
@@ -1042,7 +1050,9 @@ def effect_verdicts(inp: Inputs, stacks: Stacks, sel: Selection, elim: Eliminati
     for n in order:
         significant = n in kept
         note = None
-        if n in at_bound:
+        if n in held and significant:
+            note = held[n].reason()
+        elif n in at_bound:
             note = at_bound[n].reason()
         elif n in dropped:
             origin = ("a forward-selection candidate" if n in steps and steps[n].accepted else
@@ -1084,7 +1094,8 @@ def effect_verdicts(inp: Inputs, stacks: Stacks, sel: Selection, elim: Eliminati
             else None, not_identified=stacks.identifiability.entry(n).get("not_identified"),
             at_bound=at_bound[n].params if n in at_bound else None,
             at_bound_reason=at_bound[n].reason() if n in at_bound else None,
-            replay_diverged_windows=diverged.get(n, 0)))
+            replay_diverged_windows=diverged.get(n, 0),
+            held_at_nominal=held[n].params if n in held and significant else None))
     return out
 
 
@@ -1327,6 +1338,7 @@ class Pass:
     at_bound: Mapping = field(default_factory=dict)  # name -> AtBound: confirmed, set aside at the edge of its range
     singles: Mapping = field(default_factory=dict)  # name -> its single-effect holdout Replay (OnDemand)
     support: ReplaySupport | None = None  # step 2b: the fit-run replay check of the selected set
+    held: Mapping = field(default_factory=dict)  # name -> HeldAtNominal: named with amplitudes held at nominal
 
 
 def pass_disagreements(first: Elimination, second: Pass, skip=()) -> dict:
@@ -1401,8 +1413,8 @@ def _diagnosis_steps(inp: Inputs, say, t0, locating: Background, stacks: Stacks,
                                        prior_forms=prior_forms)
     stacks = set_aside_unconfirmed(stacks, sel, where, elim, log=say)
     elim, stacks = set_aside_stand_ins(inp, stacks, where, elim, log=say, prior=prior_stand_ins)
-    elim, at_bound = set_aside_at_bound(inp, stacks, where, elim, log=say)
-    return Pass(where, stacks, sel, shrink, elim, confirmed, at_bound, singles, support)
+    elim, at_bound, held, stacks = set_aside_at_bound(inp, stacks, where, elim, log=say)
+    return Pass(where, stacks, sel, shrink, elim, confirmed, at_bound, singles, support, held)
 
 
 @dataclass(frozen=True)
@@ -1421,11 +1433,70 @@ class AtBound:
                 f"significant and not written to a corrected model")
 
 
+@dataclass(frozen=True)
+class HeldAtNominal:
+    """Amplitudes of a named per-DOF effect (:attr:`~udrobot_ctrl.gap.effects.Effect.per_dof`) whose joint fit ended
+    on their bound, held at nominal while the rest of the effect stands (:func:`hold_at_nominal`)."""
+
+    params: dict  # parameter -> (value, bound) where its fit ended
+    test: MemberTest  # the effect's holdout check in the set, refitted with them held
+
+    def reason(self) -> str:
+        """The report's note on the effect."""
+        where = ", ".join(f"{k} (its fit ended at its bound {b:.4g})" for k, (_, b) in self.params.items())
+        return (f"held at nominal: {where}: a parameter at its bound is evidence of a missing term in its DOF, not "
+                f"a finding; refitted without it, the rest of the effect is confirmed on the holdout (dropping it "
+                f"raises the holdout replay gap by {100 * self.test.gap_contribution:.1f}% of gap_before, holdout "
+                f"equation-error likelihood ratio {self.test.holdout_lr:.1f}); the held parameters stay nominal in "
+                f"the corrected model")
+
+
+def hold_at_nominal(inp: Inputs, stacks: Stacks, where: Where, elim: Elimination, name, bound: dict, log=None):
+    """Step 3e, first: the confirmed per-DOF effect ``name`` (:attr:`~udrobot_ctrl.gap.effects.Effect.per_dof`: a
+    damping or added-mass scale per DOF) whose amplitudes ``bound`` (parameter -> (value, bound)) ended on their
+    bound, refitted with them held at nominal (frozen at zero: :class:`~udrobot_ctrl.gap.identifiability.Restricted`)
+    beside the set's other members, and checked on the holdout as any member is
+    (:func:`~udrobot_ctrl.gap.confirm.check_members`): a heave drag error need not be thrown away because the pitch
+    scale beside it ran to its bound.
+
+    Returns
+    -------
+    (Stacks, Elimination, MemberTest) or None
+        The stacks with the held form of the effect, the set refitted and replayed with it, and its test; None when
+        ``bound`` holds a shape parameter, nothing else of the effect was fitted, or the refitted effect fails the
+        holdout check.
+    """
+    eff = stacks.fit.cat[name]
+    params = elim.combination.fit.params[name]
+    amplitudes = stacks.fit.design(name, elim.combination.fit.shapes[name]).names
+    frozen = eff.frozen if isinstance(eff, identifiability.Restricted) else ()
+    rest = [a for a in amplitudes if a not in bound and a not in frozen and params.get(a, 0.0) != 0.0]
+    if not (eff.per_dof and set(bound) <= set(amplitudes) and rest):
+        return None
+    held = (eff.freezing(bound) if isinstance(eff, identifiability.Restricted)
+            else identifiability.Restricted(eff, tuple(bound)))
+    st = replace(stacks, fit=stacks.fit.with_effect(name, held), holdout=stacks.holdout.with_effect(name, held))
+    combo = finalize(st.fit, elim.kept, inp.names)
+    replayer = _replayer(inp, st, where.before.scored)
+    full = replayer(combo.fit, combo.members)
+    test = next(t for t in check_members(st.fit, st.holdout, combo, full, where.before, replayer, inp.window_s,
+                                         inp.holdout) if t.name == name)
+    if log:
+        log(f"  held at nominal: {', '.join(bound)} of {name} (its fit ended at its bound); refitted without it: "
+            + (f"confirmed ({', '.join(f'{a} = {combo.fit.params[name][a]:.4g}' for a in rest)})" if test.passed
+               else f"fails ({test.reason()})"))
+    if not test.passed:
+        return None
+    return st, replace(elim, combination=combo, after=full), test
+
+
 def set_aside_at_bound(inp: Inputs, stacks: Stacks, where: Where, elim: Elimination, log=None):
     """Step 3e: a confirmed effect whose joint fit ends on a bound of its search
     (:meth:`~udrobot_ctrl.gap.attribute.Attributor.at_bounds`: a dead band at 35 % of the command range, an added
-    mass at -90 %) is not significant: a parameter at its bound is evidence of a missing term, not a finding. It is
-    removed from the set, the rest refitted and replayed, until no member ends on a bound.
+    mass at -90 %) is not significant: a parameter at its bound is evidence of a missing term, not a finding. A
+    per-DOF effect whose parameters at a bound are some of its amplitudes is first refitted with those held at
+    nominal (:func:`hold_at_nominal`), and kept when the rest is confirmed on the holdout; else it is removed from
+    the set, the rest refitted and replayed, until no member ends on a bound.
 
     Returns
     -------
@@ -1433,14 +1504,28 @@ def set_aside_at_bound(inp: Inputs, stacks: Stacks, where: Where, elim: Eliminat
         Without the effects at a bound (unchanged when there are none).
     at_bound : dict
         Name -> :class:`AtBound`, in the order they were set aside.
+    held : dict
+        Name -> :class:`HeldAtNominal`: the members kept with some amplitudes held at nominal.
+    stacks : Stacks
+        With the held form of those members (the same stacks when none).
     """
-    found = {}
+    found, held = {}, {}
     while elim.kept:
         hits = {n: b for n in elim.kept if (b := stacks.fit.at_bounds(elim.combination.fit, n))}
         if not hits:
             break
+        kept_held = None
+        for n, b in hits.items():
+            kept_held = hold_at_nominal(inp, stacks, where, elim, n, b, log=log)
+            if kept_held is not None:
+                stacks, elim, test = kept_held
+                held[n] = HeldAtNominal({**(held[n].params if n in held else {}), **b}, test)
+                break
+        if kept_held is not None:  # the set was refitted: check its bounds again
+            continue
         for n, b in hits.items():
             found[n] = AtBound(b, dict(elim.combination.fit.params[n]))
+            held.pop(n, None)
             if log:
                 log(f"  set aside: {n} (its fit ends at the edge of its range: "
                     + ", ".join(f"{k} = {v:.4g}" for k, (v, _) in b.items())
@@ -1450,7 +1535,7 @@ def set_aside_at_bound(inp: Inputs, stacks: Stacks, where: Where, elim: Eliminat
         after = (_replayer(inp, stacks, where.before.scored)(combo.fit, combo.members) if rest else
                  Replay((), where.before, where.nominal_sims[len(inp.fit):]))
         elim = replace(elim, kept=tuple(rest), combination=combo, after=after)
-    return elim, found
+    return elim, found, held, stacks
 
 
 def diagnose(model, runs, holdout=None, window_s=8.0, effects=None, log=None, model_label=None):
@@ -1552,7 +1637,7 @@ def _diagnose(model, runs, holdout, window_s, effects, log, model_label):
     where, stacks, sel, elim, shrink = res.where, res.stacks, res.sel, res.elim, res.shrink
     after = elim.after.gap
     unexplained = (after.value / where.before.value) if where.before.value > 0 else float("nan")
-    verdicts = effect_verdicts(inp, stacks, sel, elim, shrink, res.at_bound, res.singles)
+    verdicts = effect_verdicts(inp, stacks, sel, elim, shrink, res.at_bound, res.singles, held=res.held)
     verdict = verdict_line(elim.kept, len(inp.names), where.before, unexplained, at_bound=res.at_bound,
                            verdicts=verdicts)
     say(f"{verdict} ({time.perf_counter() - t0:.1f} s)")
@@ -1679,10 +1764,14 @@ def summary(report) -> str:
                                                                 for k, v in e["at_bound"].items())
         if e.get("replay_diverged_windows"):
             extra += f"; alone its replay diverges in {e['replay_diverged_windows']} holdout windows"
+        if e.get("held_at_nominal"):
+            extra += "; held at nominal: " + ", ".join(e["held_at_nominal"])
         lines.append(f"  {e['name']:<26s} {tag:<11s} shrink {_num(e['shrink'], '+.2f')}  "
                      f"dBIC {_num(e['evidence']['delta_bic'], '.0f')}{extra}")
         if e["significant"]:
             lines.append("      params " + ", ".join(f"{k}={_num(v, '.4g')}" for k, v in e["params"].items()))
+            if e.get("held_at_nominal"):
+                lines.append("      " + e["evidence"].get("note", ""))
         elif e.get("at_bound_reason"):
             lines.append("      " + e["at_bound_reason"])
             lines.append("      fitted " + ", ".join(f"{k}={_num(v, '.4g')}"
