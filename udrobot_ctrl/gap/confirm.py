@@ -549,20 +549,25 @@ def check_members(att: Attributor, att_h: Attributor, combo: Combination, full: 
     ``alone`` maps names to their :class:`Alone` check.
     """
     alone = alone or {}
-    e_full = window_energy(preps, full.sims, full.gap, window_s)
     rests = [[m for m in combo.members if m != n] for n in combo.members]
     fits = [refit(att, rest, combo.fit.shapes) for rest in rests]  # amplitudes and shapes refitted without it
     replays = replay_rest.many(list(zip(fits, rests)))
-    tests = []
-    for n, fit_rest, r_rest in zip(combo.members, fits, replays):
-        lr = holdout_lr(att_h, fit_rest, combo.fit)
-        e_rest = window_energy(preps, r_rest.sims, r_rest.gap, window_s)
-        t, pval = paired_rise(e_rest, e_full)
-        contrib = (r_rest.gap.value - full.gap.value) / before.value if before.value > 0 else 0.0
-        tests.append(MemberTest(n, lr, float(contrib), t, pval, alone.get(n), rise_fraction(e_rest, e_full),
-                                float(att.bic(combo.fit) - att.bic(fit_rest)), sign_p(e_rest, e_full),
-                                int(full.gap.n_diverged)))
-    return tuple(tests)
+    return tuple(member_test(att, att_h, combo.fit, full, n, fit_rest, r_rest, before, window_s, preps, alone.get(n))
+                 for n, fit_rest, r_rest in zip(combo.members, fits, replays))
+
+
+def member_test(att: Attributor, att_h: Attributor, fit: Fit, full: Replay, name, fit_rest: Fit, r_rest: Replay,
+                before: GapScore, window_s, preps, alone: Alone | None = None) -> MemberTest:
+    """The :class:`MemberTest` of ``name``: the set's fit ``fit`` and holdout replay ``full`` against ``fit_rest``
+    and its replay ``r_rest``, the set without it (a member dropped, or a member's amplitude held at nominal:
+    :func:`udrobot_ctrl.gap.report.confirm_components`)."""
+    e_full = window_energy(preps, full.sims, full.gap, window_s)
+    e_rest = window_energy(preps, r_rest.sims, r_rest.gap, window_s)
+    t, pval = paired_rise(e_rest, e_full)
+    contrib = (r_rest.gap.value - full.gap.value) / before.value if before.value > 0 else 0.0
+    return MemberTest(name, holdout_lr(att_h, fit_rest, fit), float(contrib), t, pval, alone,
+                      rise_fraction(e_rest, e_full), float(att.bic(fit) - att.bic(fit_rest)), sign_p(e_rest, e_full),
+                      int(full.gap.n_diverged))
 
 
 def backward_eliminate(att: Attributor, att_h: Attributor, candidates: Combination, names, before: GapScore,

@@ -39,6 +39,7 @@ from udrobot_ctrl.gap.attribute import (
     forward_select,
     holdout_loglik,
     holdout_lr,
+    refit,
     residual,
 )
 from udrobot_ctrl.gap.confirm import (
@@ -56,6 +57,7 @@ from udrobot_ctrl.gap.confirm import (
     backward_eliminate,
     check_members,
     fitted_hooks,
+    member_test,
     replay_sets,
     separations,
 )
@@ -1414,6 +1416,7 @@ def _diagnosis_steps(inp: Inputs, say, t0, locating: Background, stacks: Stacks,
     stacks = set_aside_unconfirmed(stacks, sel, where, elim, log=say)
     elim, stacks = set_aside_stand_ins(inp, stacks, where, elim, log=say, prior=prior_stand_ins)
     elim, at_bound, held, stacks = set_aside_at_bound(inp, stacks, where, elim, log=say)
+    elim, held, stacks = confirm_components(inp, stacks, where, elim, held, log=say)
     return Pass(where, stacks, sel, shrink, elim, confirmed, at_bound, singles, support, held)
 
 
@@ -1435,20 +1438,113 @@ class AtBound:
 
 @dataclass(frozen=True)
 class HeldAtNominal:
-    """Amplitudes of a named per-DOF effect (:attr:`~udrobot_ctrl.gap.effects.Effect.per_dof`) whose joint fit ended
-    on their bound, held at nominal while the rest of the effect stands (:func:`hold_at_nominal`)."""
+    """Amplitudes of a named per-DOF effect (:attr:`~udrobot_ctrl.gap.effects.Effect.per_dof`) held at nominal while
+    the rest of the effect stands: their joint fit ended on their bound (:func:`hold_at_nominal`), or the holdout
+    does not confirm them on their own (:func:`confirm_components`)."""
 
-    params: dict  # parameter -> (value, bound) where its fit ended
+    params: dict  # parameter -> (fitted value, its bound where the fit ended on it, else None)
     test: MemberTest  # the effect's holdout check in the set, refitted with them held
+    components: dict = field(default_factory=dict)  # parameter -> MemberTest of holding it alone (the unconfirmed)
+
+    def held(self, more: dict, test: MemberTest, components=None) -> HeldAtNominal:
+        """These and ``more`` held, ``test`` the effect's check with all of them held."""
+        return HeldAtNominal({**self.params, **more}, test, {**self.components, **(components or {})})
 
     def reason(self) -> str:
         """The report's note on the effect."""
-        where = ", ".join(f"{k} (its fit ended at its bound {b:.4g})" for k, (_, b) in self.params.items())
-        return (f"held at nominal: {where}: a parameter at its bound is evidence of a missing term in its DOF, not "
-                f"a finding; refitted without it, the rest of the effect is confirmed on the holdout (dropping it "
-                f"raises the holdout replay gap by {100 * self.test.gap_contribution:.1f}% of gap_before, holdout "
-                f"equation-error likelihood ratio {self.test.holdout_lr:.1f}); the held parameters stay nominal in "
-                f"the corrected model")
+        why = []
+        for k, (v, b) in self.params.items():
+            if b is not None:
+                why.append(f"{k} (its fit ended at its bound {b:.4g}: evidence of a missing term in its DOF, not a "
+                           f"finding)")
+            else:
+                why.append(f"{k} (fitted {v:.4g}, not confirmed on the holdout on its own: "
+                           f"{self.components[k].reason()})")
+        return (f"held at nominal: {'; '.join(why)}; the rest of the effect, refitted without them, is confirmed on "
+                f"the holdout (dropping it raises the holdout replay gap by {100 * self.test.gap_contribution:.1f}% "
+                f"of gap_before, holdout equation-error likelihood ratio {self.test.holdout_lr:.1f}); the held "
+                f"parameters stay nominal in the corrected model")
+
+
+def _holding(stacks: Stacks, name, params) -> Stacks:
+    """``stacks`` with effect ``name``'s amplitudes ``params`` frozen at zero (held at nominal) in both attributors
+    (:class:`~udrobot_ctrl.gap.identifiability.Restricted`)."""
+    eff = stacks.fit.cat[name]
+    held = (eff.freezing(params) if isinstance(eff, identifiability.Restricted)
+            else identifiability.Restricted(eff, tuple(params)))
+    return replace(stacks, fit=stacks.fit.with_effect(name, held), holdout=stacks.holdout.with_effect(name, held))
+
+
+def _free_amplitudes(stacks: Stacks, elim: Elimination, name) -> list:
+    """The amplitudes of member ``name`` fitted non-zero and not frozen."""
+    eff = stacks.fit.cat[name]
+    params = elim.combination.fit.params[name]
+    frozen = eff.frozen if isinstance(eff, identifiability.Restricted) else ()
+    names = stacks.fit.design(name, elim.combination.fit.shapes[name]).names
+    return [a for a in names if a not in frozen and params.get(a, 0.0) != 0.0]
+
+
+def _effect_test(inp: Inputs, stacks: Stacks, where: Where, elim: Elimination, name) -> MemberTest:
+    """The member ``name``'s holdout check in ``elim``'s set (:func:`~udrobot_ctrl.gap.confirm.check_members`)."""
+    replayer = _replayer(inp, stacks, where.before.scored)
+    return next(t for t in check_members(stacks.fit, stacks.holdout, elim.combination, elim.after, where.before,
+                                         replayer, inp.window_s, inp.holdout) if t.name == name)
+
+
+def _refinalized(inp: Inputs, stacks: Stacks, where: Where, elim: Elimination) -> Elimination:
+    """``elim`` with its set fitted again on ``stacks`` and replayed on the holdout."""
+    combo = finalize(stacks.fit, elim.kept, inp.names)
+    return replace(elim, combination=combo,
+                   after=_replayer(inp, stacks, where.before.scored)(combo.fit, combo.members))
+
+
+def confirm_components(inp: Inputs, stacks: Stacks, where: Where, elim: Elimination, held: dict, log=None):
+    """Step 3f: each amplitude of a significant per-DOF effect (:attr:`~udrobot_ctrl.gap.effects.Effect.per_dof`)
+    with more than one fitted, checked on the holdout on its own: the set refitted with it held at nominal (the
+    other amplitudes free), replayed, and compared with the set as it is by the test that drops a member
+    (:func:`~udrobot_ctrl.gap.confirm.member_test`: fit-run BIC, holdout equation-error likelihood ratio, holdout
+    replay). The holdout confirms a member as a whole; without this a wrong component rides along with a right one
+    (a pitch drag scale of -0.83 beside the heave drag error of a 6-thruster dive whose truth has none). The
+    weakest amplitude that fails is held at nominal, and the check repeated, until every one left passes.
+
+    Returns
+    -------
+    elim : Elimination
+        The set refitted and replayed with the held amplitudes (unchanged when none).
+    held : dict
+        Name -> :class:`HeldAtNominal`, ``held`` with these added.
+    stacks : Stacks
+        With the held forms.
+    """
+    held = dict(held)
+    for n in elim.kept:
+        if not stacks.fit.cat[n].per_dof:
+            continue
+        while len(free := _free_amplitudes(stacks, elim, n)) > 1:
+            holding = {a: _holding(stacks, n, [a]) for a in free}
+            fits = {a: refit(st.fit, elim.kept, elim.combination.fit.shapes) for a, st in holding.items()}
+            replays = _replayer(inp, stacks, where.before.scored).many([(f, elim.kept) for f in fits.values()])
+            tests = {a: member_test(stacks.fit, stacks.holdout, elim.combination.fit, elim.after, a, fits[a], r,
+                                    where.before, inp.window_s, inp.holdout) for a, r in zip(free, replays)}
+            failing = [a for a in free if not tests[a].passed]
+            if log:
+                log(f"  component check: {n}: " + ", ".join(
+                    f"{a} {100 * tests[a].gap_contribution:+.1f}% ({'confirmed' if tests[a].passed else 'fails'})"
+                    for a in free))
+            if not failing:
+                break
+            weakest = min(failing, key=lambda a: tests[a].gap_contribution)
+            value = elim.combination.fit.params[n][weakest]
+            stacks = holding[weakest]
+            elim = _refinalized(inp, stacks, where, elim)
+            test = _effect_test(inp, stacks, where, elim, n)
+            more = {weakest: (value, None)}
+            held[n] = (held[n].held(more, test, {weakest: tests[weakest]}) if n in held
+                       else HeldAtNominal(more, test, {weakest: tests[weakest]}))
+            if log:
+                log(f"  held at nominal: {weakest} of {n} (fitted {value:.4g}; not confirmed on the holdout on its "
+                    f"own: {tests[weakest].reason()})")
+    return elim, held, stacks
 
 
 def hold_at_nominal(inp: Inputs, stacks: Stacks, where: Where, elim: Elimination, name, bound: dict, log=None):
@@ -1466,28 +1562,20 @@ def hold_at_nominal(inp: Inputs, stacks: Stacks, where: Where, elim: Elimination
         ``bound`` holds a shape parameter, nothing else of the effect was fitted, or the refitted effect fails the
         holdout check.
     """
-    eff = stacks.fit.cat[name]
-    params = elim.combination.fit.params[name]
     amplitudes = stacks.fit.design(name, elim.combination.fit.shapes[name]).names
-    frozen = eff.frozen if isinstance(eff, identifiability.Restricted) else ()
-    rest = [a for a in amplitudes if a not in bound and a not in frozen and params.get(a, 0.0) != 0.0]
-    if not (eff.per_dof and set(bound) <= set(amplitudes) and rest):
+    rest = [a for a in _free_amplitudes(stacks, elim, name) if a not in bound]
+    if not (stacks.fit.cat[name].per_dof and set(bound) <= set(amplitudes) and rest):
         return None
-    held = (eff.freezing(bound) if isinstance(eff, identifiability.Restricted)
-            else identifiability.Restricted(eff, tuple(bound)))
-    st = replace(stacks, fit=stacks.fit.with_effect(name, held), holdout=stacks.holdout.with_effect(name, held))
-    combo = finalize(st.fit, elim.kept, inp.names)
-    replayer = _replayer(inp, st, where.before.scored)
-    full = replayer(combo.fit, combo.members)
-    test = next(t for t in check_members(st.fit, st.holdout, combo, full, where.before, replayer, inp.window_s,
-                                         inp.holdout) if t.name == name)
+    st = _holding(stacks, name, bound)
+    trial = _refinalized(inp, st, where, elim)
+    test = _effect_test(inp, st, where, trial, name)
     if log:
         log(f"  held at nominal: {', '.join(bound)} of {name} (its fit ended at its bound); refitted without it: "
-            + (f"confirmed ({', '.join(f'{a} = {combo.fit.params[name][a]:.4g}' for a in rest)})" if test.passed
-               else f"fails ({test.reason()})"))
+            + (f"confirmed ({', '.join(f'{a} = {trial.combination.fit.params[name][a]:.4g}' for a in rest)})"
+               if test.passed else f"fails ({test.reason()})"))
     if not test.passed:
         return None
-    return st, replace(elim, combination=combo, after=full), test
+    return st, trial, test
 
 
 def set_aside_at_bound(inp: Inputs, stacks: Stacks, where: Where, elim: Elimination, log=None):
@@ -1519,7 +1607,7 @@ def set_aside_at_bound(inp: Inputs, stacks: Stacks, where: Where, elim: Eliminat
             kept_held = hold_at_nominal(inp, stacks, where, elim, n, b, log=log)
             if kept_held is not None:
                 stacks, elim, test = kept_held
-                held[n] = HeldAtNominal({**(held[n].params if n in held else {}), **b}, test)
+                held[n] = held[n].held(b, test) if n in held else HeldAtNominal(dict(b), test)
                 break
         if kept_held is not None:  # the set was refitted: check its bounds again
             continue

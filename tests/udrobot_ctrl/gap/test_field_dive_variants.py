@@ -13,7 +13,10 @@ before the output refresh learnt what they need (bench/field_dive_variants.py ta
   equation error, and there the heave drag error's pitch scale ran to its bound -0.95 beside the right heave scale
   (-0.496): the whole effect was set aside. Now a per-DOF amplitude at its bound is held at nominal and the rest
   refitted and checked on the holdout (``report.hold_at_nominal``): the heave scale is named, its pitch scale nominal
-  (the truth's).
+  (the truth's). With ``MANUAL_CONTROL`` the pitch scale fitted in range (-0.83) and was named with the heave scale: the
+  holdout confirmed the effect as a whole; now each amplitude of a per-DOF effect is checked on its own
+  (``report.confirm_components``) and the pitch scale, not confirmed (the holdout replay is 7.8 % of gap_before
+  better without it), is held at nominal.
 
 What must hold is test_field_dive.py's physics: the equation error selects the heave drag error first, its
 ``scale_Zw|w|`` within 0.1 of the withheld scale, nothing else is named and nothing at a bound. The verdict names it
@@ -37,6 +40,7 @@ pytestmark = pytest.mark.slow
 
 SCALE_TOL = 0.1  # as test_field_dive.py (its module docstring)
 VARIANTS = {"no_joystick": Variant(manual_control=False), "scale_m03": Variant(scale=-0.3),
+            "six_gentle": Variant(model="bluerov2", forward=60.0),
             "six_gentle_no_joystick": Variant(model="bluerov2", forward=60.0, manual_control=False)}
 
 
@@ -57,7 +61,7 @@ def test_the_verdict_names_the_withheld_heave_drag(name, tmp_path):
     assert abs(fitted["scale_Zw|w|"] - variant.scale) < SCALE_TOL, fitted
     if name != "scale_m03":
         assert qde["significant"]
-    if name == "six_gentle_no_joystick":  # the truth's pitch drag is the published one: held at nominal, or near it
+    if name.startswith("six_gentle"):  # the truth's pitch drag is the published one: held at nominal, or near it
         pitch = qde["params"]["scale_Mq|q|"]
         assert "scale_Mq|q|" in qde.get("held_at_nominal", {}) and pitch == 0.0 or abs(pitch) < 0.3, qde
     elif not qde["significant"]:  # see the module docstring: the replay prefers it, not consistently enough
