@@ -287,3 +287,27 @@ def test_searches_delegated_to_a_helper_equal_those_made_here(attributor, monkey
     finally:
         there.delegate(())
     assert workers() == 2 or not can_fork()  # the helper's core is back
+
+
+def test_an_amplitude_held_at_nominal_is_fitted_at_zero_and_the_others_as_alone(attributor):
+    """A per-DOF amplitude held at nominal (report.hold_at_nominal, report.confirm_components: frozen by
+    ``Restricted.freezing``) is inactive in the fit, exactly 0, one parameter fewer; each DOF's amplitude reads its
+    own regressor, so holding one leaves the others' estimates where a fit without it puts them; holding more
+    keeps the earlier ones held."""
+    cat = fx.catalogue()
+    quad = cat["quadratic_damping_error"]
+    assert quad.per_dof and cat["linear_damping"].per_dof and not cat["cg_cb_offset"].per_dof
+    free = attributor.fit([("quadratic_damping_error", (0.0,))])
+    active = [n for n, v in free.params["quadratic_damping_error"].items() if n.startswith("scale_") and v != 0.0]
+    assert len(active) >= 2, free.params
+    one = Restricted(quad, (active[0],))
+    held = attributor.with_effect("quadratic_damping_error", one).fit([("quadratic_damping_error", (0.0,))])
+    assert held.params["quadratic_damping_error"][active[0]] == 0.0 and held.k == free.k - 1
+    for n in active[1:]:  # the per-DOF regressors are orthogonal across DOFs: the others' values are unchanged
+        assert held.params["quadratic_damping_error"][n] == pytest.approx(free.params["quadratic_damping_error"][n],
+                                                                          rel=1e-6, abs=1e-9)
+    both = one.freezing(active[:2])
+    assert both.frozen == tuple(active[:2]) and both.per_dof and both.inner is quad
+    d = attributor.with_effect("quadratic_damping_error", both).design("quadratic_damping_error", (0.0,))
+    assert not np.any(d.A[..., [d.names.index(n) for n in active[:2]]])
+    assert all(np.any(d.A[..., d.names.index(n)]) for n in active[2:])
