@@ -1553,18 +1553,20 @@ def hold_at_nominal(inp: Inputs, stacks: Stacks, where: Where, elim: Elimination
     bound, refitted with them held at nominal (frozen at zero: :class:`~udrobot_ctrl.gap.identifiability.Restricted`)
     beside the set's other members, and checked on the holdout as any member is
     (:func:`~udrobot_ctrl.gap.confirm.check_members`): a heave drag error need not be thrown away because the pitch
-    scale beside it ran to its bound.
+    scale beside it ran to its bound. Only when at most half of its fitted amplitudes are at a bound: when most of an
+    effect's DOFs run to their bounds, the effect as a whole stands in for something the catalogue lacks (on a
+    BlueROV2 surface log, 4 of 6 added-mass scales at their bounds beside surge and sway scales of +190 % and +160 %).
 
     Returns
     -------
     (Stacks, Elimination, MemberTest) or None
         The stacks with the held form of the effect, the set refitted and replayed with it, and its test; None when
-        ``bound`` holds a shape parameter, nothing else of the effect was fitted, or the refitted effect fails the
-        holdout check.
+        ``bound`` holds a shape parameter, when fewer of the effect's other amplitudes were fitted, or the refitted
+        effect fails the holdout check.
     """
     amplitudes = stacks.fit.design(name, elim.combination.fit.shapes[name]).names
     rest = [a for a in _free_amplitudes(stacks, elim, name) if a not in bound]
-    if not (stacks.fit.cat[name].per_dof and set(bound) <= set(amplitudes) and rest):
+    if not (stacks.fit.cat[name].per_dof and set(bound) <= set(amplitudes) and len(bound) <= len(rest)):
         return None
     st = _holding(stacks, name, bound)
     trial = _refinalized(inp, st, where, elim)
