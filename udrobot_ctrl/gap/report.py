@@ -55,7 +55,6 @@ from udrobot_ctrl.gap.confirm import (
     Replayer,
     alone_tests,
     backward_eliminate,
-    check_members,
     fitted_hooks,
     member_test,
     replay_sets,
@@ -1485,10 +1484,14 @@ def _free_amplitudes(stacks: Stacks, elim: Elimination, name) -> list:
 
 
 def _effect_test(inp: Inputs, stacks: Stacks, where: Where, elim: Elimination, name) -> MemberTest:
-    """The member ``name``'s holdout check in ``elim``'s set (:func:`~udrobot_ctrl.gap.confirm.check_members`)."""
-    replayer = _replayer(inp, stacks, where.before.scored)
-    return next(t for t in check_members(stacks.fit, stacks.holdout, elim.combination, elim.after, where.before,
-                                         replayer, inp.window_s, inp.holdout) if t.name == name)
+    """The member ``name``'s holdout check in ``elim``'s set: the set refitted without it and replayed, against the
+    set (:func:`~udrobot_ctrl.gap.confirm.member_test`, as :func:`~udrobot_ctrl.gap.confirm.check_members` tests each
+    member)."""
+    rest = [m for m in elim.kept if m != name]
+    fit_rest = refit(stacks.fit, rest, elim.combination.fit.shapes)
+    r_rest = _replayer(inp, stacks, where.before.scored)(fit_rest, rest)
+    return member_test(stacks.fit, stacks.holdout, elim.combination.fit, elim.after, name, fit_rest, r_rest,
+                       where.before, inp.window_s, inp.holdout)
 
 
 def _refinalized(inp: Inputs, stacks: Stacks, where: Where, elim: Elimination) -> Elimination:
@@ -1505,7 +1508,8 @@ def confirm_components(inp: Inputs, stacks: Stacks, where: Where, elim: Eliminat
     (:func:`~udrobot_ctrl.gap.confirm.member_test`: fit-run BIC, holdout equation-error likelihood ratio, holdout
     replay). The holdout confirms a member as a whole; without this a wrong component rides along with a right one
     (a pitch drag scale of -0.83 beside the heave drag error of a 6-thruster dive whose truth has none). The
-    weakest amplitude that fails is held at nominal, and the check repeated, until every one left passes.
+    amplitudes that fail are held at nominal together (each acts in its own DOF), the set refitted, and the check
+    repeated on the rest until every one left passes.
 
     Returns
     -------
@@ -1531,19 +1535,18 @@ def confirm_components(inp: Inputs, stacks: Stacks, where: Where, elim: Eliminat
                 log(f"  component check: {n}: " + ", ".join(
                     f"{a} {100 * tests[a].gap_contribution:+.1f}% ({'confirmed' if tests[a].passed else 'fails'})"
                     for a in free))
-            if not failing:
+            if not failing or len(failing) == len(free):  # none to hold, or none would be left to name
                 break
-            weakest = min(failing, key=lambda a: tests[a].gap_contribution)
-            value = elim.combination.fit.params[n][weakest]
-            stacks = holding[weakest]
+            more = {a: (elim.combination.fit.params[n][a], None) for a in failing}
+            stacks = _holding(stacks, n, failing)
             elim = _refinalized(inp, stacks, where, elim)
             test = _effect_test(inp, stacks, where, elim, n)
-            more = {weakest: (value, None)}
-            held[n] = (held[n].held(more, test, {weakest: tests[weakest]}) if n in held
-                       else HeldAtNominal(more, test, {weakest: tests[weakest]}))
+            failed = {a: tests[a] for a in failing}
+            held[n] = held[n].held(more, test, failed) if n in held else HeldAtNominal(more, test, failed)
             if log:
-                log(f"  held at nominal: {weakest} of {n} (fitted {value:.4g}; not confirmed on the holdout on its "
-                    f"own: {tests[weakest].reason()})")
+                log(f"  held at nominal: {', '.join(failing)} of {n} (not confirmed on the holdout on their own); "
+                    f"the rest refitted: " + ", ".join(f"{a} = {elim.combination.fit.params[n][a]:.4g}"
+                                                       for a in free if a not in failing))
     return elim, held, stacks
 
 
