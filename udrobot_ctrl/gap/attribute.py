@@ -352,9 +352,10 @@ class DesignStore:
 
 
 def finite_design(d) -> fx.Design:
-    """Design ``d`` with its non-finite entries zeroed (``numpy.nan_to_num``): what the fits read."""
+    """Design ``d`` with its non-finite entries zeroed (``numpy.nan_to_num``; its arrays themselves when finite, as
+    :meth:`Stack.full <udrobot_ctrl.gap.effects.Stack.full>` makes them): what the fits read."""
     d = fx.Design(*d)
-    return d._replace(b0=np.nan_to_num(d.b0), A=np.nan_to_num(d.A))
+    return d._replace(b0=fx.finite_values(d.b0), A=fx.finite_values(d.A))
 
 
 @dataclass

@@ -119,7 +119,7 @@ class Stack:
         for r in self.runs:
             y = func(r)
             parts.append(r["smooth"](y, held=held) if filt else y[r["idx"]])
-        return np.nan_to_num(np.concatenate(parts, axis=0))
+        return finite_values(np.concatenate(parts, axis=0), own=True)
 
     def delivered(self, filters) -> Stack:
         """This stack with each run's command sequence passed through ``filters`` (``(f (n, k), dt) -> f``, in
@@ -137,6 +137,14 @@ class Stack:
         """This stack with ``filters`` (``(df (n, k), dt) -> df``, linear, in order) recorded as what a static map's
         thrust change goes through before it acts (``run["after"]``; :meth:`Effect.change_filter`)."""
         return replace(self, runs=[{**r, "after": _chained(filters)} for r in self.runs])
+
+
+def finite_values(a, own=False) -> np.ndarray:
+    """``numpy.nan_to_num(a)``: ``a`` itself when every entry is finite (no copy), else its non-finite entries
+    replaced (in place when ``own``: the caller owns ``a`` and nothing else reads it)."""
+    if np.isfinite(a).all():
+        return a
+    return np.nan_to_num(a, copy=not own)
 
 
 def digest(a) -> tuple:

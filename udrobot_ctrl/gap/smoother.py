@@ -548,23 +548,23 @@ def smooth_run(t, meas: dict, tau, p: PlantParameters, settings: SmootherSetting
     lo = sl.start
     # one compiled call per sample for the update (the innovation of its logged channels) and one for the
     # prediction; the casadi plant is called from here (kernels.forward_update, kernels.forward_predict)
-    for k in range(m):
-        xs_p[k] = x
-        if measured[k]:
-            hk, Hk = f_meas(x, tau_c[k])
-            if not kernels.forward_update(x, lo, Ps_p[k], hk, Hk, Z[k], finite[k], rows, angle_rows, Rdiag, Ps_f[k]):
-                # rounding left S indefinite: the general solver
-                H, y, r_k = kernels.innovation(lo, hk, Hk, Z[k], finite[k], rows, angle_rows, Rdiag)
-                PHt = Ps_p[k] @ H.T
-                K = spd_solve(H @ PHt + np.diag(r_k), PHt.T).T
-                x[sl] += K @ y
-                Pn = Ps_p[k] - K @ PHt.T
-                Ps_f[k] = 0.5 * (Pn + Pn.T)
-        else:
-            Ps_f[k] = Ps_p[k]
-        xs_f[k] = x
-        xn, Fk = f_step(x, tau_c[k])
-        if not kernels.forward_predict(x, xn, Fk, lo, Fs[k], Ps_f[k], Q, Ps_p[k + 1] if k + 1 < m else P_end):
+    # (kernels.update_sample, kernels.predict_sample: the per-sample bookkeeping compiled too)
+    hk, Hk = f_meas.a, f_meas.B  # its result buffers (filled by each call; an unmeasured sample reads neither)
+    for k, (tau_k, meas_k) in enumerate(zip(tau_c, measured.tolist())):
+        if meas_k:
+            hk, Hk = f_meas(x, tau_k)
+        if not kernels.update_sample(k, x, lo, hk, Hk, Z, finite, measured, rows, angle_rows, Rdiag, xs_p, xs_f, Ps_p,
+                                     Ps_f):
+            # rounding left S indefinite: the general solver
+            H, y, r_k = kernels.innovation(lo, hk, Hk, Z[k], finite[k], rows, angle_rows, Rdiag)
+            PHt = Ps_p[k] @ H.T
+            K = spd_solve(H @ PHt + np.diag(r_k), PHt.T).T
+            x[sl] += K @ y
+            Pn = Ps_p[k] - K @ PHt.T
+            Ps_f[k] = 0.5 * (Pn + Pn.T)
+            xs_f[k] = x
+        xn, Fk = f_step(x, tau_k)
+        if not kernels.predict_sample(k, x, xn, Fk, lo, Fs, Ps_f, Q, Ps_p, P_end):
             raise SmootherError(f"{label}: the smoother's forward pass diverged at t = {t[idx[k]]:.2f} s "
                                 f"(non-finite covariance or state)")
     xs_p = np.vstack([xs_p[1:], x])  # prediction of step k+1 from step k
