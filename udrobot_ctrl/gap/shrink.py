@@ -39,6 +39,7 @@ from udrobot_ctrl.dynamics.effects import NUMPY
 from udrobot_ctrl.dynamics.integrators import rk4_step
 from udrobot_ctrl.dynamics.plant import PlantParameters, generalized_forces, kinematics, wrap_angle
 from udrobot_ctrl.gap.data import Prepared, prepare
+from udrobot_ctrl.gap.effects import PLANT_FORCES, PlantForces
 from udrobot_ctrl.gap.smoother import GRAVITY, accelerometer, channel_noise
 from udrobot_ctrl.io.runlog import Run
 from udrobot_ctrl.parallel import fork_map, shares, workers
@@ -300,7 +301,8 @@ def _simulate_batch(preps, p: PlantParameters, hook_sets, window_s) -> list:
     hooked = any(h.force is not None or h.mass is not None for hooks in hook_sets for h in hooks)
 
     def deriv(xx, ks, fk, tk, at_k):
-        tot = tk - generalized_forces(xx, p)
+        plant = generalized_forces(xx, p)
+        tot = tk - plant
         nd = np.empty_like(tot)
         for b, k, at in zip(blocks, ks, at_k):  # a run's rows alone: its products are those of its own replay
             xb, tb = xx[b.rows], tot[b.rows].copy()
@@ -309,7 +311,8 @@ def _simulate_batch(preps, p: PlantParameters, hook_sets, window_s) -> list:
             for rows, forces, masses in b.groups:
                 if not (forces or masses):
                     continue
-                ctx = {"surfaces": [(dist[rows], normal) for dist, normal in surfaces]}
+                ctx = {"surfaces": [(dist[rows], normal) for dist, normal in surfaces],
+                       PLANT_FORCES: PlantForces(p, plant[b.rows][rows])}
                 for fo in forces:
                     tb[rows] = tb[rows] + fo(xb[rows], fk[b.rows][rows], ctx)
                 if masses:
