@@ -480,6 +480,31 @@ class GapScore:
                 "diverged_windows": self.diverged}
 
 
+class LoggedChannel(NamedTuple):
+    """What :func:`gap` reads of one logged channel whatever the replay: its finite samples (angles unwrapped) and
+    its sensor-noise std (:func:`~udrobot_ctrl.gap.smoother.channel_noise`), same units."""
+
+    finite: np.ndarray
+    noise: float
+
+
+_LOGGED: dict = {}  # id(array) -> (array, LoggedChannel), see logged_channel
+
+
+def logged_channel(c: str, m: np.ndarray) -> LoggedChannel:
+    """:class:`LoggedChannel` of channel ``c`` logged as ``m`` (n,), kept for the most recent arrays: a diagnosis
+    scores every replay of a run against the same logs (the entry holds ``m``, so its id is its own)."""
+    hit = _LOGGED.get(id(m))
+    if hit is not None and hit[0] is m:
+        return hit[1]
+    finite = m[np.isfinite(m)]
+    out = LoggedChannel(finite if c not in ANGLES else np.unwrap(finite), channel_noise(m))
+    if len(_LOGGED) >= 256:
+        _LOGGED.clear()
+    _LOGGED[id(m)] = (m, out)
+    return out
+
+
 def gap(preps, sims, scored=None) -> GapScore:
     """NRMSE gap over runs (see the module docstring); ``scored`` fixes the channels (default: those that move)."""
     acc, windows, diverged = {}, {}, {}
@@ -493,9 +518,9 @@ def gap(preps, sims, scored=None) -> GapScore:
             a = acc.setdefault(c, {"se": 0.0, "n": 0, "meas": [], "noise": []})
             a["se"] += float(np.sum(e[ok] ** 2))
             a["n"] += int(ok.sum())
-            m = prep.meas[c]
-            a["meas"].append(m[np.isfinite(m)] if c not in ANGLES else np.unwrap(m[np.isfinite(m)]))
-            a["noise"].append(channel_noise(m))
+            logged = logged_channel(c, prep.meas[c])
+            a["meas"].append(logged.finite)
+            a["noise"].append(logged.noise)
     per, scale, auto, undefined = {}, {}, [], {}
     for c, a in acc.items():
         if a["n"] == 0:
