@@ -40,7 +40,7 @@ from udrobot_ctrl.dynamics.integrators import rk4_step
 from udrobot_ctrl.dynamics.plant import PlantParameters, generalized_forces, kinematics, wrap_angle
 from udrobot_ctrl.gap.data import Prepared, prepare
 from udrobot_ctrl.gap.effects import PLANT_FORCES, PlantForces
-from udrobot_ctrl.gap.smoother import GRAVITY, accelerometer, channel_noise
+from udrobot_ctrl.gap.smoother import GRAVITY, accelerometer, logged_noise_model
 from udrobot_ctrl.io.runlog import Run
 from udrobot_ctrl.parallel import fork_map, shares, workers
 from udrobot_ctrl.vehicle import STATE_INDEX
@@ -482,7 +482,7 @@ class GapScore:
 
 class LoggedChannel(NamedTuple):
     """What :func:`gap` reads of one logged channel whatever the replay: its finite samples (angles unwrapped) and
-    its sensor-noise std (:func:`~udrobot_ctrl.gap.smoother.channel_noise`), same units."""
+    its sensor-noise std (:func:`~udrobot_ctrl.gap.smoother.logged_noise_model`), same units."""
 
     finite: np.ndarray
     noise: float
@@ -498,7 +498,7 @@ def logged_channel(c: str, m: np.ndarray) -> LoggedChannel:
     if hit is not None and hit[0] is m:
         return hit[1]
     finite = m[np.isfinite(m)]
-    out = LoggedChannel(finite if c not in ANGLES else np.unwrap(finite), channel_noise(m))
+    out = LoggedChannel(finite if c not in ANGLES else np.unwrap(finite), logged_noise_model(m).sigma)
     if len(_LOGGED) >= 256:
         _LOGGED.clear()
     _LOGGED[id(m)] = (m, out)
