@@ -635,7 +635,7 @@ class Attributor:
         names = [nm for dz in designs[0] for nm in dz.names]
         owner = [n for (n, _, _), dz in zip(first, designs[0]) for _ in dz.names]
         k = len(names)
-        b0 = np.stack([sum((dz.b0 for dz in dzs), np.zeros_like(self.r))[:, d] for dzs in designs])  # (S, n, nd)
+        b0 = np.stack(_fixed_parts(designs, self.r, d))  # (S, n, nd)
         y = (self.r[:, d][None] - b0).transpose(0, 2, 1)  # (S, nd, n)
         if k == 0:
             return _Solution(np.zeros((S, 0)), None, np.zeros((S, 0), bool), names, owner, b0)
@@ -661,9 +661,17 @@ class Attributor:
         lo = np.concatenate([dz.lower for dz in designs[0]])
         hi = np.concatenate([dz.upper for dz in designs[0]])
 
-        def prediction(a):  # A a per fit, (S, nd, n)
-            return sum(np.einsum("sk,sdkn->sdn", a[:, cuts[i]:cuts[i + 1]], At) if At.shape[0] == S
-                       else np.einsum("sk,dkn->sdn", a[:, cuts[i]:cuts[i + 1]], At[0]) for i, At in enumerate(Ats))
+        def prediction(a):  # A a per fit, (S, nd, n): the terms' products summed in place (einsum's sums start
+            # from +0.0, so starting from the first term, not from 0, gives the same numbers without a copy)
+            out = None
+            for i, At in enumerate(Ats):
+                part = (np.einsum("sk,sdkn->sdn", a[:, cuts[i]:cuts[i + 1]], At) if At.shape[0] == S
+                        else np.einsum("sk,dkn->sdn", a[:, cuts[i]:cuts[i + 1]], At[0]))
+                if out is None:
+                    out = part
+                else:
+                    out += part
+            return out
 
         sig = np.broadcast_to(np.sqrt(np.mean(self.r[:, d] ** 2, axis=0)) + 1e-12, (S, nd))
         energy = np.einsum("sikk->sk", G / sig[:, :, None, None] ** 2)
@@ -775,6 +783,18 @@ class Attributor:
         tau = float(np.median(taus)) if taus else 1.0
         self.n_eff = max(10.0, self.N / max(tau, 1.0))
         return tau, full
+
+
+def _fixed_parts(designs, r, dofs) -> list:
+    """Per fit of :meth:`Attributor._solve` (``designs``: its terms' designs), the sum of its terms' fixed parts b0
+    on the scored ``dofs`` (n, nd), from zero (shaped as the residual ``r``); computed once per distinct set of b0
+    arrays (a grid's shapes share one)."""
+    done = {}
+    for dzs in designs:
+        key = tuple(id(dz.b0) for dz in dzs)
+        if key not in done:  # the designs are held by the caller: their ids stay theirs
+            done[key] = sum((dz.b0 for dz in dzs), np.zeros_like(r))[:, dofs]
+    return [done[tuple(id(dz.b0) for dz in dzs)] for dzs in designs]
 
 
 def _search_key(name, fixed, refine, seeds) -> tuple:

@@ -588,8 +588,7 @@ def smooth_run(t, meas: dict, tau, p: PlantParameters, settings: SmootherSetting
 
     # backward RTS pass (compiled; a step whose predicted covariance the compiled Cholesky refuses is solved here by
     # spd_solve, as the forward pass's update)
-    xs = xs_f.copy()
-    Ps = Ps_f.copy()
+    xs, Ps = xs_f, Ps_f  # smoothed in place: step k reads its filtered values before it writes them
     k = kernels.rts_pass(xs, xs_f, xs_p, Ps, Ps_f, Ps_p, Fs, sl.start, m - 2)
     while k >= 0:
         Pp = Ps_p[k + 1]
