@@ -821,19 +821,20 @@ def bounded_normal_solve(G, h, lo, hi) -> np.ndarray:
         return z
     z = np.clip(z, lo, hi)
     free = (z > lo) & (z < hi)
+    tol = 1e-12 * (np.abs(h).max() + 1e-300)  # the KKT test's tolerance
     for _ in range(4 * k + 4):
         fixed = ~free
         target = z.copy()
         if free.any():
-            F = np.flatnonzero(free)
-            target[F] = np.linalg.solve(G[np.ix_(F, F)], h[F] - G[np.ix_(F, np.flatnonzero(fixed))] @ z[fixed])
-        inside = np.all(target >= lo) & np.all(target <= hi)
-        if inside:
+            # the free rows of the free and fixed columns, C-ordered as np.ix_ gives them (a matrix-vector product's
+            # sums follow the layout): columns first, then the rows
+            target[free] = np.linalg.solve(G[:, free][free], h[free] - G[:, fixed][free] @ z[fixed])
+        if (target >= lo).all() and (target <= hi).all():
             z = target
             grad = G @ z - h  # KKT: at a lower bound the objective must rise inwards (grad >= 0), at an upper one fall
             wrong = np.where(fixed & (z <= lo), -grad, 0.0) + np.where(fixed & (z >= hi), grad, 0.0)
             worst = int(np.argmax(wrong))
-            if wrong[worst] <= 1e-12 * (np.abs(h).max() + 1e-300):
+            if wrong[worst] <= tol:
                 return z
             free[worst] = True
             continue
