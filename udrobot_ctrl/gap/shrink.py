@@ -488,20 +488,23 @@ class LoggedChannel(NamedTuple):
     noise: float
 
 
-_LOGGED: dict = {}  # id(array) -> (array, LoggedChannel), see logged_channel
+_LOGGED: dict = {}  # (channel, id(array)) -> (array, LoggedChannel), see logged_channel
+#: logged arrays :func:`logged_channel` keeps at most (the oldest dropped all at once beyond it): a diagnosis's runs
+#: times their channels, both reconstruction passes
+LOGGED_KEPT = 64
 
 
 def logged_channel(c: str, m: np.ndarray) -> LoggedChannel:
     """:class:`LoggedChannel` of channel ``c`` logged as ``m`` (n,), kept for the most recent arrays: a diagnosis
     scores every replay of a run against the same logs (the entry holds ``m``, so its id is its own)."""
-    hit = _LOGGED.get(id(m))
+    hit = _LOGGED.get((c, id(m)))
     if hit is not None and hit[0] is m:
         return hit[1]
     finite = m[np.isfinite(m)]
     out = LoggedChannel(finite if c not in ANGLES else np.unwrap(finite), logged_noise_model(m).sigma)
-    if len(_LOGGED) >= 256:
+    if len(_LOGGED) >= LOGGED_KEPT:
         _LOGGED.clear()
-    _LOGGED[id(m)] = (m, out)
+    _LOGGED[(c, id(m))] = (m, out)
     return out
 
 

@@ -403,6 +403,9 @@ def noise_model(y) -> ChannelNoise:
 
 
 _NOISE_MODELS: dict = {}  # id(y) -> (y, ChannelNoise), see logged_noise_model
+#: logged arrays :func:`logged_noise_model` keeps at most (all dropped at once beyond it): a diagnosis's runs times
+#: their channels, both reconstruction passes
+NOISE_MODELS_KEPT = 64
 
 
 def logged_noise_model(y: np.ndarray) -> ChannelNoise:
@@ -413,7 +416,7 @@ def logged_noise_model(y: np.ndarray) -> ChannelNoise:
     if hit is not None and hit[0] is y:
         return hit[1]
     out = noise_model(y)
-    if len(_NOISE_MODELS) >= 256:
+    if len(_NOISE_MODELS) >= NOISE_MODELS_KEPT:
         _NOISE_MODELS.clear()
     _NOISE_MODELS[id(y)] = (y, out)
     return out
