@@ -757,8 +757,8 @@ class Attributor:
                 z[free] = zf
                 return np.clip(z, lo, hi)
 
-            def obj(zf):
-                return self.fit(list(fixed) + [(name, tuple(full_shape(zf)))], iters=2).loglik_n
+            def obj(zf):  # fit(...).loglik_n without the Fit (its parameters and prediction): the same sum
+                return float(self.losses(fixed, name, [tuple(full_shape(zf))], iters=2)[0])
 
             z0 = x0[free]
             simplex = np.vstack([z0] + [z0 + np.diag(step[free])[i] for i in range(z0.size)])
