@@ -352,9 +352,10 @@ class DesignStore:
 
 
 def finite_design(d) -> fx.Design:
-    """Design ``d`` with its non-finite entries zeroed (``numpy.nan_to_num``): what the fits read."""
+    """Design ``d`` with its non-finite entries zeroed (``numpy.nan_to_num``; its arrays themselves when finite, as
+    :meth:`Stack.full <udrobot_ctrl.gap.effects.Stack.full>` makes them): what the fits read."""
     d = fx.Design(*d)
-    return d._replace(b0=np.nan_to_num(d.b0), A=np.nan_to_num(d.A))
+    return d._replace(b0=fx.finite_values(d.b0), A=fx.finite_values(d.A))
 
 
 @dataclass
@@ -634,7 +635,7 @@ class Attributor:
         names = [nm for dz in designs[0] for nm in dz.names]
         owner = [n for (n, _, _), dz in zip(first, designs[0]) for _ in dz.names]
         k = len(names)
-        b0 = np.stack([sum((dz.b0 for dz in dzs), np.zeros_like(self.r))[:, d] for dzs in designs])  # (S, n, nd)
+        b0 = np.stack(_fixed_parts(designs, self.r, d))  # (S, n, nd)
         y = (self.r[:, d][None] - b0).transpose(0, 2, 1)  # (S, nd, n)
         if k == 0:
             return _Solution(np.zeros((S, 0)), None, np.zeros((S, 0), bool), names, owner, b0)
@@ -660,9 +661,17 @@ class Attributor:
         lo = np.concatenate([dz.lower for dz in designs[0]])
         hi = np.concatenate([dz.upper for dz in designs[0]])
 
-        def prediction(a):  # A a per fit, (S, nd, n)
-            return sum(np.einsum("sk,sdkn->sdn", a[:, cuts[i]:cuts[i + 1]], At) if At.shape[0] == S
-                       else np.einsum("sk,dkn->sdn", a[:, cuts[i]:cuts[i + 1]], At[0]) for i, At in enumerate(Ats))
+        def prediction(a):  # A a per fit, (S, nd, n): the terms' products summed in place (einsum's sums start
+            # from +0.0, so starting from the first term, not from 0, gives the same numbers without a copy)
+            out = None
+            for i, At in enumerate(Ats):
+                part = (np.einsum("sk,sdkn->sdn", a[:, cuts[i]:cuts[i + 1]], At) if At.shape[0] == S
+                        else np.einsum("sk,dkn->sdn", a[:, cuts[i]:cuts[i + 1]], At[0]))
+                if out is None:
+                    out = part
+                else:
+                    out += part
+            return out
 
         sig = np.broadcast_to(np.sqrt(np.mean(self.r[:, d] ** 2, axis=0)) + 1e-12, (S, nd))
         energy = np.einsum("sikk->sk", G / sig[:, :, None, None] ** 2)
@@ -748,8 +757,8 @@ class Attributor:
                 z[free] = zf
                 return np.clip(z, lo, hi)
 
-            def obj(zf):
-                return self.fit(list(fixed) + [(name, tuple(full_shape(zf)))], iters=2).loglik_n
+            def obj(zf):  # fit(...).loglik_n without the Fit (its parameters and prediction): the same sum
+                return float(self.losses(fixed, name, [tuple(full_shape(zf))], iters=2)[0])
 
             z0 = x0[free]
             simplex = np.vstack([z0] + [z0 + np.diag(step[free])[i] for i in range(z0.size)])
@@ -776,6 +785,18 @@ class Attributor:
         return tau, full
 
 
+def _fixed_parts(designs, r, dofs) -> list:
+    """Per fit of :meth:`Attributor._solve` (``designs``: its terms' designs), the sum of its terms' fixed parts b0
+    on the scored ``dofs`` (n, nd), from zero (shaped as the residual ``r``); computed once per distinct set of b0
+    arrays (a grid's shapes share one)."""
+    done = {}
+    for dzs in designs:
+        key = tuple(id(dz.b0) for dz in dzs)
+        if key not in done:  # the designs are held by the caller: their ids stay theirs
+            done[key] = sum((dz.b0 for dz in dzs), np.zeros_like(r))[:, dofs]
+    return [done[tuple(id(dz.b0) for dz in dzs)] for dzs in designs]
+
+
 def _search_key(name, fixed, refine, seeds) -> tuple:
     """The key of a :meth:`Attributor.best_shape` search (exact shapes)."""
     return name, _exact(fixed), bool(refine), _exact((name, sh) for sh in seeds)
@@ -800,19 +821,20 @@ def bounded_normal_solve(G, h, lo, hi) -> np.ndarray:
         return z
     z = np.clip(z, lo, hi)
     free = (z > lo) & (z < hi)
+    tol = 1e-12 * (np.abs(h).max() + 1e-300)  # the KKT test's tolerance
     for _ in range(4 * k + 4):
         fixed = ~free
         target = z.copy()
         if free.any():
-            F = np.flatnonzero(free)
-            target[F] = np.linalg.solve(G[np.ix_(F, F)], h[F] - G[np.ix_(F, np.flatnonzero(fixed))] @ z[fixed])
-        inside = np.all(target >= lo) & np.all(target <= hi)
-        if inside:
+            # the free rows of the free and fixed columns, C-ordered as np.ix_ gives them (a matrix-vector product's
+            # sums follow the layout): columns first, then the rows
+            target[free] = np.linalg.solve(G[:, free][free], h[free] - G[:, fixed][free] @ z[fixed])
+        if (target >= lo).all() and (target <= hi).all():
             z = target
             grad = G @ z - h  # KKT: at a lower bound the objective must rise inwards (grad >= 0), at an upper one fall
             wrong = np.where(fixed & (z <= lo), -grad, 0.0) + np.where(fixed & (z >= hi), grad, 0.0)
             worst = int(np.argmax(wrong))
-            if wrong[worst] <= 1e-12 * (np.abs(h).max() + 1e-300):
+            if wrong[worst] <= tol:
                 return z
             free[worst] = True
             continue

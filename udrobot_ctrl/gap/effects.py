@@ -119,7 +119,7 @@ class Stack:
         for r in self.runs:
             y = func(r)
             parts.append(r["smooth"](y, held=held) if filt else y[r["idx"]])
-        return np.nan_to_num(np.concatenate(parts, axis=0))
+        return finite_values(np.concatenate(parts, axis=0), own=True)
 
     def delivered(self, filters) -> Stack:
         """This stack with each run's command sequence passed through ``filters`` (``(f (n, k), dt) -> f``, in
@@ -137,6 +137,14 @@ class Stack:
         """This stack with ``filters`` (``(df (n, k), dt) -> df``, linear, in order) recorded as what a static map's
         thrust change goes through before it acts (``run["after"]``; :meth:`Effect.change_filter`)."""
         return replace(self, runs=[{**r, "after": _chained(filters)} for r in self.runs])
+
+
+def finite_values(a, own=False) -> np.ndarray:
+    """``numpy.nan_to_num(a)``: ``a`` itself when every entry is finite (no copy), else its non-finite entries
+    replaced (in place when ``own``: the caller owns ``a`` and nothing else reads it)."""
+    if np.isfinite(a).all():
+        return a
+    return np.nan_to_num(a, copy=not own)
 
 
 def digest(a) -> tuple:
@@ -224,6 +232,19 @@ class Actuation(NamedTuple):
     M_A: np.ndarray
 
 
+class PlantForces(NamedTuple):
+    """The nominal plant's generalised forces at the states a hook is given, as its caller already computed them
+    (the hook context's ``PLANT_FORCES`` entry, :class:`Hooks`): a parameter effect's hook then evaluates the plant
+    once, not twice."""
+
+    plant: PlantParameters  # the plant they were computed with (``generalized_forces(x, plant)``)
+    forces: np.ndarray  # (N, 6) N and N m, one row per state
+
+
+#: the key of a hook context's :class:`PlantForces` (optional)
+PLANT_FORCES = "plant_forces"
+
+
 @dataclass
 class Hooks:
     """How an effect enters a simulation: input filter, extra force, added-mass increment (any may be None)."""
@@ -231,8 +252,9 @@ class Hooks:
     input_filter: object = None  # (f (n,k), dt) -> f_act (n,k); applied to the whole command sequence
     force: object = None  # (x (N,12), f (N,k), ctx dict) -> (N,6)
     mass: object = None  # (x (N,12), ctx dict) -> (N,6,6)
-    # ctx: the surfaces' distances and normals at these states ("surfaces"); force and mass of one evaluation get the
-    # same ctx, in which a hook may keep terms both need (the wall's, keyed by its own identity and checked on x)
+    # ctx: the surfaces' distances and normals at these states ("surfaces") and, optionally, the nominal plant's forces
+    # there (PLANT_FORCES); force and mass of one evaluation get the same ctx, in which a hook may keep terms both need
+    # (the wall's, keyed by its own identity and checked on x)
     order: float = 0.0  # input filters run in increasing order (static maps in [0, 1) as the plant, lag 1)
 
 
@@ -396,7 +418,13 @@ def plant_hooks(e: PlantEffect, p: PlantParameters, actuation: Actuation) -> Hoo
         return Hooks(force=wall_force, mass=wall_mass)
     folded = pfx.fold_parameters(nominal, (e,))  # an effect on the nominal matrices
     dM = folded.M - nominal.M
-    return Hooks(force=lambda x, f, ctx: generalized_forces(x, nominal) - generalized_forces(x, folded),
+
+    def folded_force(x, f, ctx):  # the nominal plant's forces are p's (effects=(); M_A does not enter them)
+        known = ctx.get(PLANT_FORCES)
+        base = known.forces if known is not None and known.plant is p and not p.effects else generalized_forces(
+            x, nominal)
+        return base - generalized_forces(x, folded)
+    return Hooks(force=folded_force,
                  mass=(lambda x, ctx: np.broadcast_to(dM, np.shape(x)[:-1] + (6, 6))) if np.any(dM) else None)
 
 

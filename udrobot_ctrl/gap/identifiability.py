@@ -573,12 +573,12 @@ def _columns(eff, stack, shape, design=None):
     """(n, 6, k) regressors of an effect at ``shape`` and their names: amplitude columns, then the shape term
     (``design``: the effect's design on ``stack`` at ``shape``, when already computed)."""
     b0, A, names, _, _ = eff.design(stack, tuple(shape)) if design is None else design
-    cols, nm = [np.nan_to_num(A)], list(names)
-    b0 = np.nan_to_num(b0)
+    A, nm = fx.finite_values(A), list(names)  # no copy of a design the store already made finite
+    b0 = fx.finite_values(b0)
     if eff.shape_names and np.any(b0):  # a shape-only form (lag, current, deadband's cut) acts through b0
-        cols.append(b0[..., None])
         nm.append(",".join(eff.shape_names))
-    return np.concatenate(cols, axis=-1), nm
+        return np.concatenate([A, b0[..., None]], axis=-1), nm
+    return A, nm
 
 
 def reconstruction_error(pr, p) -> np.ndarray:
@@ -792,14 +792,19 @@ def _shape_energy(eff, stack, stacks, shape, sigma, observed, designs=None, stor
     if designs is not None:
         designs[(eff.name, tuple(shape))] = d
     A, nm = _columns(eff, stack, shape, d)
-    An = A / sigma[None, :, None]
+    An2 = (A / sigma[None, :, None]) ** 2
+    # the moves on the observed DOFs only (the same numbers as moving all six and keeping those)
+    A_obs, sigma_obs = A[:, observed], sigma[None, observed, None]
     dev = {}
     for m, st_m in stacks.items():
-        Am, _ = _columns(eff, st_m, shape, _design(eff, st_m, shape, store))
-        dA = (Am - A) / sigma[None, :, None]
-        dev[m] = np.sum(dA[:, observed] ** 2, axis=(0, 1))
-    return ShapeEnergy(nm, np.sum(An[:, observed] ** 2, axis=(0, 1)), np.sum(An ** 2, axis=(0, 1)),
-                       [np.sum(An[:, :, j] ** 2, axis=0) for j in range(len(nm))], dev)
+        d_m = _design(eff, st_m, shape, store)
+        if d_m is d or (d_m.A is d.A and d_m.b0 is d.b0):  # a move the effect does not read: no change
+            dev[m] = np.zeros(len(nm))
+            continue
+        Am, _ = _columns(eff, st_m, shape, d_m)
+        dev[m] = np.sum(((Am[:, observed] - A_obs) / sigma_obs) ** 2, axis=(0, 1))
+    return ShapeEnergy(nm, np.sum(An2[:, observed], axis=(0, 1)), np.sum(An2, axis=(0, 1)),
+                       [np.sum(An2[:, :, j], axis=0) for j in range(len(nm))], dev)
 
 
 def _energies(eff, stack, stacks, shapes, sigma, observed, memo=None, store=None) -> dict:

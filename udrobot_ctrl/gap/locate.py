@@ -40,7 +40,7 @@ from udrobot_ctrl.dynamics.plant import PlantParameters
 from udrobot_ctrl.gap.attribute import residual, tau_int
 from udrobot_ctrl.gap.data import OBSERVING, POSE, VEL, Prepared, smooth_derivative
 from udrobot_ctrl.gap.shrink import ACCEL, accel_bias, errors, simulate_windows_each, window_starts
-from udrobot_ctrl.gap.smoother import noise_draw, noise_model
+from udrobot_ctrl.gap.smoother import logged_noise_model, noise_draw
 
 FLOOR_DRAWS = 2
 #: a DOF holding at least this share of the located gap is where the gap lies (:meth:`Located.gap_dofs`): a partly
@@ -163,7 +163,7 @@ def synthetic_run(prep: Prepared, sim, window_s, rng) -> Prepared:
         m = prep.meas.get(c)
         if m is None or not np.isfinite(m).any():
             continue
-        noise[c] = noise_draw(noise_model(m), prep.n, rng)
+        noise[c] = noise_draw(logged_noise_model(m), prep.n, rng)
         meas[c] = np.where(np.isfinite(m), y + noise[c], np.nan)
     eta, nu, bias = prep.eta.copy(), prep.nu.copy(), smoothing_bias(prep)
     for i, c in enumerate(POSE):
@@ -227,7 +227,7 @@ def _renoised(prep: Prepared, rng) -> Prepared:
         m = prep.meas.get(c)
         if m is None or not np.isfinite(m).any():
             continue
-        added[c] = e = noise_draw(noise_model(m), prep.n, rng)
+        added[c] = e = noise_draw(logged_noise_model(m), prep.n, rng)
         meas[c] = m + e
         if i < 6:
             eta[:, i] += e

@@ -39,7 +39,8 @@ from udrobot_ctrl.dynamics.effects import NUMPY
 from udrobot_ctrl.dynamics.integrators import rk4_step
 from udrobot_ctrl.dynamics.plant import PlantParameters, generalized_forces, kinematics, wrap_angle
 from udrobot_ctrl.gap.data import Prepared, prepare
-from udrobot_ctrl.gap.smoother import GRAVITY, accelerometer, channel_noise
+from udrobot_ctrl.gap.effects import PLANT_FORCES, PlantForces
+from udrobot_ctrl.gap.smoother import GRAVITY, accelerometer, logged_noise_model
 from udrobot_ctrl.io.runlog import Run
 from udrobot_ctrl.parallel import fork_map, shares, workers
 from udrobot_ctrl.vehicle import STATE_INDEX
@@ -300,7 +301,8 @@ def _simulate_batch(preps, p: PlantParameters, hook_sets, window_s) -> list:
     hooked = any(h.force is not None or h.mass is not None for hooks in hook_sets for h in hooks)
 
     def deriv(xx, ks, fk, tk, at_k):
-        tot = tk - generalized_forces(xx, p)
+        plant = generalized_forces(xx, p)
+        tot = tk - plant
         nd = np.empty_like(tot)
         for b, k, at in zip(blocks, ks, at_k):  # a run's rows alone: its products are those of its own replay
             xb, tb = xx[b.rows], tot[b.rows].copy()
@@ -309,7 +311,8 @@ def _simulate_batch(preps, p: PlantParameters, hook_sets, window_s) -> list:
             for rows, forces, masses in b.groups:
                 if not (forces or masses):
                     continue
-                ctx = {"surfaces": [(dist[rows], normal) for dist, normal in surfaces]}
+                ctx = {"surfaces": [(dist[rows], normal) for dist, normal in surfaces],
+                       PLANT_FORCES: PlantForces(p, plant[b.rows][rows])}
                 for fo in forces:
                     tb[rows] = tb[rows] + fo(xb[rows], fk[b.rows][rows], ctx)
                 if masses:
@@ -477,6 +480,34 @@ class GapScore:
                 "diverged_windows": self.diverged}
 
 
+class LoggedChannel(NamedTuple):
+    """What :func:`gap` reads of one logged channel whatever the replay: its finite samples (angles unwrapped) and
+    its sensor-noise std (:func:`~udrobot_ctrl.gap.smoother.logged_noise_model`), same units."""
+
+    finite: np.ndarray
+    noise: float
+
+
+_LOGGED: dict = {}  # (channel, id(array)) -> (array, LoggedChannel), see logged_channel
+#: logged arrays :func:`logged_channel` keeps at most (the oldest dropped all at once beyond it): a diagnosis's runs
+#: times their channels, both reconstruction passes
+LOGGED_KEPT = 64
+
+
+def logged_channel(c: str, m: np.ndarray) -> LoggedChannel:
+    """:class:`LoggedChannel` of channel ``c`` logged as ``m`` (n,), kept for the most recent arrays: a diagnosis
+    scores every replay of a run against the same logs (the entry holds ``m``, so its id is its own)."""
+    hit = _LOGGED.get((c, id(m)))
+    if hit is not None and hit[0] is m:
+        return hit[1]
+    finite = m[np.isfinite(m)]
+    out = LoggedChannel(finite if c not in ANGLES else np.unwrap(finite), logged_noise_model(m).sigma)
+    if len(_LOGGED) >= LOGGED_KEPT:
+        _LOGGED.clear()
+    _LOGGED[(c, id(m))] = (m, out)
+    return out
+
+
 def gap(preps, sims, scored=None) -> GapScore:
     """NRMSE gap over runs (see the module docstring); ``scored`` fixes the channels (default: those that move)."""
     acc, windows, diverged = {}, {}, {}
@@ -490,9 +521,9 @@ def gap(preps, sims, scored=None) -> GapScore:
             a = acc.setdefault(c, {"se": 0.0, "n": 0, "meas": [], "noise": []})
             a["se"] += float(np.sum(e[ok] ** 2))
             a["n"] += int(ok.sum())
-            m = prep.meas[c]
-            a["meas"].append(m[np.isfinite(m)] if c not in ANGLES else np.unwrap(m[np.isfinite(m)]))
-            a["noise"].append(channel_noise(m))
+            logged = logged_channel(c, prep.meas[c])
+            a["meas"].append(logged.finite)
+            a["noise"].append(logged.noise)
     per, scale, auto, undefined = {}, {}, [], {}
     for c, a in acc.items():
         if a["n"] == 0:

@@ -402,6 +402,26 @@ def noise_model(y) -> ChannelNoise:
     return ChannelNoise(_robust_std(e), float(np.median(step)))
 
 
+_NOISE_MODELS: dict = {}  # id(y) -> (y, ChannelNoise), see logged_noise_model
+#: logged arrays :func:`logged_noise_model` keeps at most (all dropped at once beyond it): a diagnosis's runs times
+#: their channels, both reconstruction passes
+NOISE_MODELS_KEPT = 64
+
+
+def logged_noise_model(y: np.ndarray) -> ChannelNoise:
+    """:func:`noise_model` of a logged channel ``y`` (an array), kept for the most recent arrays: a diagnosis asks it
+    of the same logs for every replay it scores and every noise-floor draw (the entry holds ``y``, so its id is its
+    own)."""
+    hit = _NOISE_MODELS.get(id(y))
+    if hit is not None and hit[0] is y:
+        return hit[1]
+    out = noise_model(y)
+    if len(_NOISE_MODELS) >= NOISE_MODELS_KEPT:
+        _NOISE_MODELS.clear()
+    _NOISE_MODELS[id(y)] = (y, out)
+    return out
+
+
 def channel_noise(y) -> float:
     """Sensor-noise std of a channel at its own logging rate (:func:`noise_model`), same units."""
     return noise_model(y).sigma
@@ -548,31 +568,30 @@ def smooth_run(t, meas: dict, tau, p: PlantParameters, settings: SmootherSetting
     lo = sl.start
     # one compiled call per sample for the update (the innovation of its logged channels) and one for the
     # prediction; the casadi plant is called from here (kernels.forward_update, kernels.forward_predict)
-    for k in range(m):
-        xs_p[k] = x
-        if measured[k]:
-            hk, Hk = f_meas(x, tau_c[k])
-            if not kernels.forward_update(x, lo, Ps_p[k], hk, Hk, Z[k], finite[k], rows, angle_rows, Rdiag, Ps_f[k]):
-                # rounding left S indefinite: the general solver
-                H, y, r_k = kernels.innovation(lo, hk, Hk, Z[k], finite[k], rows, angle_rows, Rdiag)
-                PHt = Ps_p[k] @ H.T
-                K = spd_solve(H @ PHt + np.diag(r_k), PHt.T).T
-                x[sl] += K @ y
-                Pn = Ps_p[k] - K @ PHt.T
-                Ps_f[k] = 0.5 * (Pn + Pn.T)
-        else:
-            Ps_f[k] = Ps_p[k]
-        xs_f[k] = x
-        xn, Fk = f_step(x, tau_c[k])
-        if not kernels.forward_predict(x, xn, Fk, lo, Fs[k], Ps_f[k], Q, Ps_p[k + 1] if k + 1 < m else P_end):
+    # (kernels.update_sample, kernels.predict_sample: the per-sample bookkeeping compiled too)
+    hk, Hk = f_meas.a, f_meas.B  # its result buffers (filled by each call; an unmeasured sample reads neither)
+    for k, (tau_k, meas_k) in enumerate(zip(tau_c, measured.tolist())):
+        if meas_k:
+            hk, Hk = f_meas(x, tau_k)
+        if not kernels.update_sample(k, x, lo, hk, Hk, Z, finite, measured, rows, angle_rows, Rdiag, xs_p, xs_f, Ps_p,
+                                     Ps_f):
+            # rounding left S indefinite: the general solver
+            H, y, r_k = kernels.innovation(lo, hk, Hk, Z[k], finite[k], rows, angle_rows, Rdiag)
+            PHt = Ps_p[k] @ H.T
+            K = spd_solve(H @ PHt + np.diag(r_k), PHt.T).T
+            x[sl] += K @ y
+            Pn = Ps_p[k] - K @ PHt.T
+            Ps_f[k] = 0.5 * (Pn + Pn.T)
+            xs_f[k] = x
+        xn, Fk = f_step(x, tau_k)
+        if not kernels.predict_sample(k, x, xn, Fk, lo, Fs, Ps_f, Q, Ps_p, P_end):
             raise SmootherError(f"{label}: the smoother's forward pass diverged at t = {t[idx[k]]:.2f} s "
                                 f"(non-finite covariance or state)")
     xs_p = np.vstack([xs_p[1:], x])  # prediction of step k+1 from step k
 
     # backward RTS pass (compiled; a step whose predicted covariance the compiled Cholesky refuses is solved here by
     # spd_solve, as the forward pass's update)
-    xs = xs_f.copy()
-    Ps = Ps_f.copy()
+    xs, Ps = xs_f, Ps_f  # smoothed in place: step k reads its filtered values before it writes them
     k = kernels.rts_pass(xs, xs_f, xs_p, Ps, Ps_f, Ps_p, Fs, sl.start, m - 2)
     while k >= 0:
         Pp = Ps_p[k + 1]

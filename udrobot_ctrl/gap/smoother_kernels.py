@@ -154,6 +154,30 @@ def forward_predict(x, x_next, Ffull, lo, F_out, P, Q, P_out) -> bool:
 
 
 @numba.njit(cache=True)
+def update_sample(k, x, lo, h, Hfull, Z, finite, measured, rows, angle_rows, rdiag, xs_p, xs_f, Ps_p, Ps_f) -> bool:
+    """The forward pass at sample ``k``, the prediction ``x`` in hand: ``xs_p[k] = x``, then, when the sample has a
+    logged channel (``measured[k]``), :func:`forward_update` with its row of ``Z`` and ``finite`` into ``Ps_f[k]``
+    (else ``Ps_f[k] = Ps_p[k]``), and ``xs_f[k] = x``; the per-sample views taken here, not in Python. False
+    (``xs_f[k]`` and ``Ps_f[k]`` not written) when the innovation covariance is not numerically positive definite."""
+    xs_p[k] = x
+    if measured[k]:
+        if not forward_update(x, lo, Ps_p[k], h, Hfull, Z[k], finite[k], rows, angle_rows, rdiag, Ps_f[k]):
+            return False
+    else:
+        Ps_f[k] = Ps_p[k]
+    xs_f[k] = x
+    return True
+
+
+@numba.njit(cache=True)
+def predict_sample(k, x, x_next, Ffull, lo, Fs, Ps_f, Q, Ps_p, P_end) -> bool:
+    """:func:`forward_predict` of sample ``k`` into ``Fs[k]`` and ``Ps_p[k + 1]`` (``P_end`` past the last
+    sample); the per-sample views taken here, not in Python."""
+    P_out = Ps_p[k + 1] if k + 1 < Ps_p.shape[0] else P_end
+    return forward_predict(x, x_next, Ffull, lo, Fs[k], Ps_f[k], Q, P_out)
+
+
+@numba.njit(cache=True)
 def rts_pass(xs, xs_f, xs_p, Ps, Ps_f, Ps_p, Fs, lo, k_start) -> int:
     """Backward Rauch-Tung-Striebel pass from step ``k_start`` down to 0, in place on ``xs`` and ``Ps``.
 
