@@ -449,9 +449,7 @@ def replay_feedback(run: Run, p: PlantParameters, label: str = "run") -> Feedbac
     if gains:
         listed = ", ".join(gains[:4]) + (", ..." if len(gains) > 4 else "")
         assumed.append(f"ArduSub's defaults for {len(gains)} attitude parameters ({listed}): not in the log")
-    volts = run.channels.get("voltage")
-    voltage = (p.supply_voltage if volts is None or not np.isfinite(volts).any()
-               else np.nan_to_num(volts, nan=p.supply_voltage)[:, None])
+    voltage = run.battery_voltage(p.supply_voltage)[:, None]
     axes = np.array([np.any(fr.factors[:, a]) for a in range(3)])
     motors = replace(MotorParameters.from_log_params(log_params, k), directions=(1,) * k)
     refresh = output_refresh(run, params, fr, motors, p)

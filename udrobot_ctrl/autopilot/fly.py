@@ -106,9 +106,7 @@ class LoggedCommands:
             rcin = np.where(np.isfinite(rcin), rcin, PWM_CENTRE)  # (a nan stick would read as full stick)
         tg = [run.extra.get(c) for c in ("roll_target", "pitch_target", "yaw_target")]
         attitude = np.column_stack(tg) if all(c is not None for c in tg) else None
-        volts = run.channels.get("voltage")
-        voltage = (np.full(run.n, supply_voltage) if volts is None
-                   else np.nan_to_num(np.asarray(volts, float), nan=supply_voltage))
+        voltage = run.battery_voltage(supply_voltage)
         horizontal = unmix(fr, from_pwm(run.inputs, motors))[:, 4:6]
         return cls(t=np.asarray(run.t, float), mode=np.where(np.isfinite(mode), mode, first), armed=armed,
                    rcin=rcin, attitude_target=attitude, z_target=run.extra.get("z_target"),

@@ -114,10 +114,7 @@ def input_wrenches(run, p) -> tuple:
     if u.shape[1] != n_thr:
         raise ValueError(f"{run.path or 'run'}: {u.shape[1]} {kind} columns but the model has {n_thr} thrusters")
     if kind == "pwm":
-        volts = run.channels.get("voltage")
-        v0 = p.supply_voltage
-        volts = np.full(run.n, v0) if volts is None else np.where(np.isfinite(volts), volts, v0)
-        u = pwm_to_thrust(u, np.asarray(volts, float)[:, None])  # broadcasts: one voltage per row
+        u = pwm_to_thrust(u, run.battery_voltage(p.supply_voltage)[:, None])  # broadcasts: one voltage per row
     elif kind != "thrust":
         raise ValueError(f"{run.path or 'run'}: unknown input kind {kind!r}")
     f = np.clip(u, p.f_min, p.f_max)

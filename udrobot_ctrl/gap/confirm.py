@@ -542,18 +542,19 @@ def separations(att: Attributor, members, pairs, full: Replay, before: GapScore,
 
 
 def check_members(att: Attributor, att_h: Attributor, combo: Combination, full: Replay, before: GapScore,
-                  replay_rest, window_s, preps, alone=None) -> tuple:
-    """:class:`MemberTest` of every member of ``combo`` (see the module docstring).
+                  replay_rest, window_s, preps, alone=None, names=None) -> tuple:
+    """:class:`MemberTest` of every member of ``combo`` (see the module docstring), or of the members ``names``.
 
     ``replay_rest`` (:class:`Replayer`) replays the holdout with the rest of the set, every member's rest at once;
     ``alone`` maps names to their :class:`Alone` check.
     """
     alone = alone or {}
-    rests = [[m for m in combo.members if m != n] for n in combo.members]
+    tested = combo.members if names is None else tuple(names)
+    rests = [[m for m in combo.members if m != n] for n in tested]
     fits = [refit(att, rest, combo.fit.shapes) for rest in rests]  # amplitudes and shapes refitted without it
     replays = replay_rest.many(list(zip(fits, rests)))
     return tuple(member_test(att, att_h, combo.fit, full, n, fit_rest, r_rest, before, window_s, preps, alone.get(n))
-                 for n, fit_rest, r_rest in zip(combo.members, fits, replays))
+                 for n, fit_rest, r_rest in zip(tested, fits, replays))
 
 
 def member_test(att: Attributor, att_h: Attributor, fit: Fit, full: Replay, name, fit_rest: Fit, r_rest: Replay,

@@ -190,11 +190,9 @@ def actuators(run: Run, p: PlantParameters, f_raw=None):
             raise ValueError(f"{run.path or 'run'}: {f.shape[1]} {run.input_kind}_i columns but the model has {k} "
                              f"thrusters (columns must follow the model's thruster order)")
         if run.input_kind == "pwm":  # the fitted T-200 curve at the logged battery voltage (the model's if absent)
-            v0 = p.supply_voltage
-            volts = run.channels.get("voltage")
-            v = v0 if volts is None or not np.isfinite(volts).any() else np.nan_to_num(volts, nan=v0)[:, None]
-            if np.ndim(v) and np.shape(v)[0] != f.shape[0]:
-                raise ValueError(f"{run.path or 'run'}: {np.shape(v)[0]} voltage samples for {f.shape[0]} rows of "
+            v = run.battery_voltage(p.supply_voltage)[:, None]
+            if v.shape[0] != f.shape[0]:
+                raise ValueError(f"{run.path or 'run'}: {v.shape[0]} voltage samples for {f.shape[0]} rows of "
                                  f"pwm_i (pass the run on the commands' grid)")
             f = pwm_to_thrust(f, v)
         f = np.clip(f, p.f_min, p.f_max)

@@ -55,6 +55,7 @@ from udrobot_ctrl.gap.confirm import (
     Replayer,
     alone_tests,
     backward_eliminate,
+    check_members,
     fitted_hooks,
     member_test,
     replay_sets,
@@ -1465,12 +1466,16 @@ class HeldAtNominal:
                 f"parameters stay nominal in the corrected model")
 
 
-def _holding(stacks: Stacks, name, params) -> Stacks:
-    """``stacks`` with effect ``name``'s amplitudes ``params`` frozen at zero (held at nominal) in both attributors
+def _frozen(eff: fx.Effect, params) -> identifiability.Restricted:
+    """``eff`` with its amplitudes ``params`` frozen at zero (held at nominal) beside any restriction it has
     (:class:`~udrobot_ctrl.gap.identifiability.Restricted`)."""
-    eff = stacks.fit.cat[name]
-    held = (eff.freezing(params) if isinstance(eff, identifiability.Restricted)
+    return (eff.freezing(params) if isinstance(eff, identifiability.Restricted)
             else identifiability.Restricted(eff, tuple(params)))
+
+
+def _holding(stacks: Stacks, name, params) -> Stacks:
+    """``stacks`` with effect ``name``'s amplitudes ``params`` held at nominal (:func:`_frozen`) in both attributors."""
+    held = _frozen(stacks.fit.cat[name], params)
     return replace(stacks, fit=stacks.fit.with_effect(name, held), holdout=stacks.holdout.with_effect(name, held))
 
 
@@ -1484,14 +1489,9 @@ def _free_amplitudes(stacks: Stacks, elim: Elimination, name) -> list:
 
 
 def _effect_test(inp: Inputs, stacks: Stacks, where: Where, elim: Elimination, name) -> MemberTest:
-    """The member ``name``'s holdout check in ``elim``'s set: the set refitted without it and replayed, against the
-    set (:func:`~udrobot_ctrl.gap.confirm.member_test`, as :func:`~udrobot_ctrl.gap.confirm.check_members` tests each
-    member)."""
-    rest = [m for m in elim.kept if m != name]
-    fit_rest = refit(stacks.fit, rest, elim.combination.fit.shapes)
-    r_rest = _replayer(inp, stacks, where.before.scored)(fit_rest, rest)
-    return member_test(stacks.fit, stacks.holdout, elim.combination.fit, elim.after, name, fit_rest, r_rest,
-                       where.before, inp.window_s, inp.holdout)
+    """The member ``name``'s holdout check in ``elim``'s set (:func:`~udrobot_ctrl.gap.confirm.check_members`)."""
+    return check_members(stacks.fit, stacks.holdout, elim.combination, elim.after, where.before,
+                         _replayer(inp, stacks, where.before.scored), inp.window_s, inp.holdout, names=(name,))[0]
 
 
 def _refinalized(inp: Inputs, stacks: Stacks, where: Where, elim: Elimination) -> Elimination:
@@ -1525,8 +1525,9 @@ def confirm_components(inp: Inputs, stacks: Stacks, where: Where, elim: Eliminat
         if not stacks.fit.cat[n].per_dof:
             continue
         while len(free := _free_amplitudes(stacks, elim, n)) > 1:
-            holding = {a: _holding(stacks, n, [a]) for a in free}
-            fits = {a: refit(st.fit, elim.kept, elim.combination.fit.shapes) for a, st in holding.items()}
+            # each amplitude held alone, on the fit runs only (the holdout scores the fit's parameters as they are)
+            fits = {a: refit(stacks.fit.with_effect(n, _frozen(stacks.fit.cat[n], [a])), elim.kept,
+                             elim.combination.fit.shapes) for a in free}
             replays = _replayer(inp, stacks, where.before.scored).many([(f, elim.kept) for f in fits.values()])
             tests = {a: member_test(stacks.fit, stacks.holdout, elim.combination.fit, elim.after, a, fits[a], r,
                                     where.before, inp.window_s, inp.holdout) for a, r in zip(free, replays)}

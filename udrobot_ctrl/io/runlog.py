@@ -126,6 +126,15 @@ class Run:
         raise KeyError(f"{self.path or 'run'}: no column '{name}' (known channels: {', '.join(CHANNELS)}; "
                        f"inputs: {', '.join(names)}; extra: {', '.join(self.extra) or 'none'})")
 
+    def battery_voltage(self, default: float) -> np.ndarray:
+        """(n,) battery voltage, V: the logged ``voltage`` channel, ``default`` (the model's supply voltage) where a
+        sample is not finite or the run has no such column (the T-200 curve's voltage for the run's PWM)."""
+        v = self.channels.get("voltage")
+        if v is None:
+            return np.full(self.n, float(default))
+        v = np.asarray(v, float)
+        return np.where(np.isfinite(v), v, float(default))
+
     def state_matrix(self) -> np.ndarray:
         """(n, 12) state [x y z phi theta psi u v w p q r] (m, rad, m/s, rad/s); nan where not measured."""
         return np.column_stack([self.channel(name) for name in STATE_CHANNELS]) if self.n else np.zeros((0, 12))
