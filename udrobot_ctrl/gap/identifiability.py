@@ -221,21 +221,22 @@ class Hinged:
 
 @dataclass(frozen=True)
 class StandIn:
-    """A confirmed effect that may stand in for the untested part of a partly identified one with a look-alike.
+    """A confirmed effect that may stand in for the untested part of a partly identified one, alone or with a
+    look-alike.
 
     Attributes
     ----------
     on : str
         The partly identified effect.
     partner : str
-        The confirmed effect's look-alike fitted beside ``on``.
+        The confirmed effect's look-alike fitted beside ``on`` (empty: ``on`` alone takes the effect's place).
     delta_bic : float
         Fit-run BIC of the set with the effect replaced by ``on`` (untested part fitted) and ``partner``, minus that
         of the confirmed set.
     member_delta_bic : float
         Fit-run BIC change when the effect is added back beside them.
-    partner_support : Hinged
-        The partner's own support beside ``on`` (it is listed with it).
+    partner_support : Hinged or None
+        The partner's own support beside ``on`` (it is listed with it); None without a partner.
     partner_form : str
         The partner's form when it is one the channels cannot test (e.g. ``"norm_weight = 1"``), else empty.
     """
@@ -244,7 +245,7 @@ class StandIn:
     partner: str
     delta_bic: float
     member_delta_bic: float
-    partner_support: Hinged
+    partner_support: Hinged | None
     partner_form: str = ""
 
 
@@ -416,13 +417,14 @@ class Identifiability:
             st = self.stand_in[name]
             part = self.effects[st.on]
             return (f"with it replaced by {st.on}, its {', '.join(part.not_identified)} fitted as well (on the "
-                    f"velocities the smoother reconstructs), and {st.partner}"
+                    f"velocities the smoother reconstructs)" + (f", and {st.partner}" if st.partner else "")
                     + (f" with {st.partner_form} (a form these channels cannot test)" if st.partner_form else "")
                     + f", the fit runs' BIC changes by "
                     f"{st.delta_bic:+.0f} against the confirmed set, and it adds nothing beside them (dBIC "
                     f"{st.member_delta_bic:+.0f}): it may stand in for what these channels cannot test of {st.on}, so "
                     f"the runs cannot say which acts; " + part.reason()
-                    + f"; to tell it from {st.partner}: {fx.discriminating_manoeuvre(name, st.partner)}")
+                    + (f"; to tell it from {st.partner}: {fx.discriminating_manoeuvre(name, st.partner)}"
+                       if st.partner else ""))
         if name in self.hinged and name not in self.ambiguous:
             h = self.hinged[name]
             part = self.effects[h.on]

@@ -928,13 +928,15 @@ def hinging_on_untested(parts, elim: Elimination, ident: Identifiability, left: 
 
 
 def stand_ins(parts, elim: Elimination, att: Attributor, ident: Identifiability, catalogue, left: str) -> dict:
-    """Confirmed members that may stand in for the untested part of a listed, partly identified effect together with
-    one of their own look-alikes (``Effect.mimics``, in the form the search holds or in the form the channels cannot
-    test): with the member replaced by that effect, untested part fitted too (``parts``, :func:`freed_parts`), and
-    the look-alike, the fit-run BIC is lower than the confirmed set's, and the member added back fails the
-    forward-selection test. Without a DVL a heave added-mass error cannot be fitted (its Munk moments hinge on the
-    surge speed); what it leaves in heave and yaw, with a linear damping or a drag on the vehicle's speed, an inflow
-    loss on the hover thrust takes up better than the damping alone.
+    """Confirmed members that may stand in for the untested part of a listed, partly identified effect, alone or
+    together with one of their own look-alikes (``Effect.mimics``, in the form the search holds or in the form the
+    channels cannot test): with the member replaced by that effect, untested part fitted too (``parts``,
+    :func:`freed_parts`), and (when alone it does not) the look-alike, the fit-run BIC is lower than the confirmed
+    set's, and the member added back fails the forward-selection test. Without a DVL an added-mass error's Munk
+    moments hinge on the unmeasured surge and sway speeds; a dead band on the thrusters takes up the yaw moment a
+    surge added mass leaves, and the effect with its surge and sway parts fitted takes it back (the dead band then
+    adds nothing). What a heave added-mass error leaves in heave and yaw, with a linear damping or a drag on the
+    vehicle's speed, an inflow loss on the hover thrust takes up better than the damping alone.
 
     Returns
     -------
@@ -948,6 +950,12 @@ def stand_ins(parts, elim: Elimination, att: Attributor, ident: Identifiability,
         rest = [(n, shapes[n]) for n in elim.kept if n != m]
         for part in parts:
             alone = part.fit.best_shape(part.name, rest, refine=False)
+            if part.fit.bic(alone) < current:
+                _, d_m, lr_m = _supported(part.fit, part.holdout, alone, m)
+                if not (d_m < -BIC_STRONG and lr_m > HOLDOUT_CHI2):
+                    out[m] = identifiability.StandIn(part.name, "", float(part.fit.bic(alone) - current),
+                                                     float(d_m), None)
+                    break
             for x in catalogue[m].mimics:
                 chk = ident.effects.get(x)
                 if x in elim.kept or x == part.name or chk is None or not chk.identified:
@@ -1004,13 +1012,14 @@ def set_aside_stand_ins(inp: Inputs, stacks: Stacks, where: Where, elim: Elimina
         left = gap_left(where, elim) or left
         parts = freed_parts(stacks, elim, inp.catalogue) if left is not None else []
     ident = ident.with_stand_in(found)
-    partners = {s.partner: s.partner_support for s in found.values() if s.partner not in ident.names}
+    partners = {s.partner: s.partner_support for s in found.values() if s.partner and s.partner not in ident.names}
     ident = ident.with_hinged(partners)
     hinged = hinging_on_untested(parts, elim, ident, left) if parts else {}
     if log:
         for m, s in found.items():
-            log(f"  set aside: {m} (with {s.on}'s parameters these channels cannot identify fitted and {s.partner}"
-                + (f" with {s.partner_form}" if s.partner_form else "") + ", "
+            log(f"  set aside: {m} (with {s.on}'s parameters these channels cannot identify fitted"
+                + (f" and {s.partner}" if s.partner else "") + (f" with {s.partner_form}" if s.partner_form else "")
+                + ", "
                 f"BIC {s.delta_bic:+.0f} against the confirmed set; {m} added back: dBIC {s.member_delta_bic:.0f}; "
                 f"it may stand in for them)")
         for n, h in {**partners, **hinged}.items():

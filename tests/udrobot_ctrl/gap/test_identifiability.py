@@ -270,6 +270,19 @@ def test_a_confirmed_stand_in_for_an_untested_part_is_listed_with_its_partner_an
         {"thrust_inflow_loss": form}).reason("thrust_inflow_loss")
 
 
+def test_a_stand_in_without_a_partner_is_listed_with_what_would_test_the_part_it_may_stand_in_for():
+    """A thruster effect that the added-mass error takes back alone once its untested part is fitted: the reason gives
+    both BICs and the measurement, and names no look-alike (there is none to tell it from)."""
+    ident = _partial_added_mass()
+    stand = StandIn("added_mass_error", "", -203.5, 11.0, None)
+    listed = ident.with_stand_in({"thrust_inflow_loss": stand})
+    assert listed.names == ["thrust_inflow_loss"]
+    why = listed.reason("thrust_inflow_loss")
+    assert why.startswith("with it replaced by added_mass_error, its scale_Zdw fitted as well (on the velocities the "
+                          "smoother reconstructs), the fit runs' BIC changes by -204"), why
+    assert "(dBIC +11)" in why and "log u, v (DVL)" in why and "to tell it from" not in why
+
+
 def _vertical_scaled(monkeypatch, scale):
     """Stock runs of :mod:`stock_sim` with the vertical thrusters' commands (T3, T4: heave and roll) scaled by
     ``scale``: at 0.25 the surge thrusters' inflow loss in the unobserved surge dominates the effect's energy, at 0
