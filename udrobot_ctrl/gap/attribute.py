@@ -878,6 +878,12 @@ def holdout_loglik(att_h: Attributor, fit: Fit):
     return float(np.sum(np.log(np.sum(e ** 2, axis=0) / att_h.N + 1e-300)))
 
 
+def passes_forward_test(delta_bic: float, lr: float) -> bool:
+    """The forward-selection test of an addition: the fit-run BIC lower by more than ``BIC_STRONG`` and the holdout
+    equation-error likelihood ratio above ``HOLDOUT_CHI2``."""
+    return delta_bic < -BIC_STRONG and lr > HOLDOUT_CHI2
+
+
 def holdout_lr(att_h: Attributor, without: Fit, with_: Fit) -> float:
     """Holdout equation-error likelihood ratio 2 ln(L_with / L_without) = N_eff (ll(without) - ll(with)), with
     both fits' parameters frozen (N_eff of the holdout stack); chi^2-distributed under 'no improvement'."""
@@ -989,7 +995,7 @@ def forward_select(att: Attributor, att_h: Attributor, names=None, max_effects=4
                 fit_n = att.best_shape(n, fixed, refine=True)
             d_bic = att.bic(fit_n) - cur_bic
             lr = holdout_lr(att_h, current, fit_n)
-            ok = d_bic < -BIC_STRONG and lr > HOLDOUT_CHI2
+            ok = passes_forward_test(d_bic, lr)
             steps.append(SelectionStep(n, float(d_bic), float(lr), bool(ok)))
             if log:
                 log(f"  forward step {len(steps)}: {n} dBIC {d_bic:.1f}, holdout LR {lr:.1f} -> "

@@ -39,6 +39,7 @@ from udrobot_ctrl.gap.attribute import (
     forward_select,
     holdout_loglik,
     holdout_lr,
+    passes_forward_test,
     refit,
     residual,
 )
@@ -891,7 +892,7 @@ def freed_parts(stacks: Stacks, elim: Elimination, catalogue) -> list:
         fa, fa_h = att.with_effect(h, freed), att_h.with_effect(h, freed)
         held, free = att.best_shape(h, terms, refine=False), fa.best_shape(h, terms, refine=False)
         lr = att_h.n_eff * (holdout_loglik(att_h, held) - holdout_loglik(fa_h, free))
-        if fa.bic(free) - att.bic(held) < -BIC_STRONG and lr > HOLDOUT_CHI2:
+        if passes_forward_test(fa.bic(free) - att.bic(held), lr):
             out.append(FreedPart(h, fa, fa_h, free))
     return out
 
@@ -922,9 +923,19 @@ def hinging_on_untested(parts, elim: Elimination, ident: Identifiability, left: 
     for part in parts:
         for m in testable:
             _, d_bic, lr = _supported(part.fit, part.holdout, part.beside, m)
-            if d_bic < -BIC_STRONG and lr > HOLDOUT_CHI2 and (m not in out or d_bic < out[m].delta_bic):
+            if passes_forward_test(d_bic, lr) and (m not in out or d_bic < out[m].delta_bic):
                 out[m] = identifiability.Hinged(part.name, float(d_bic), float(lr), left)
     return out
+
+
+def _replaces(fa: Attributor, fa_h: Attributor, replacement: Fit, member, current: float) -> tuple | None:
+    """(BIC of ``replacement`` minus ``current``, the member's BIC change added back) when ``replacement`` (a fit on
+    ``fa`` without ``member``) has a fit-run BIC below ``current`` (the confirmed set's) and ``member`` added back
+    fails the forward-selection test; None otherwise."""
+    if not fa.bic(replacement) < current:
+        return None
+    _, d_m, lr_m = _supported(fa, fa_h, replacement, member)
+    return None if passes_forward_test(d_m, lr_m) else (float(fa.bic(replacement) - current), float(d_m))
 
 
 def stand_ins(parts, elim: Elimination, att: Attributor, ident: Identifiability, catalogue, left: str) -> dict:
@@ -950,12 +961,9 @@ def stand_ins(parts, elim: Elimination, att: Attributor, ident: Identifiability,
         rest = [(n, shapes[n]) for n in elim.kept if n != m]
         for part in parts:
             alone = part.fit.best_shape(part.name, rest, refine=False)
-            if part.fit.bic(alone) < current:
-                _, d_m, lr_m = _supported(part.fit, part.holdout, alone, m)
-                if not (d_m < -BIC_STRONG and lr_m > HOLDOUT_CHI2):
-                    out[m] = identifiability.StandIn(part.name, "", float(part.fit.bic(alone) - current),
-                                                     float(d_m), None)
-                    break
+            if (by := _replaces(part.fit, part.holdout, alone, m, current)) is not None:
+                out[m] = identifiability.StandIn(part.name, "", *by, None)
+                break
             for x in catalogue[m].mimics:
                 chk = ident.effects.get(x)
                 if x in elim.kept or x == part.name or chk is None or not chk.identified:
@@ -967,13 +975,9 @@ def stand_ins(parts, elim: Elimination, att: Attributor, ident: Identifiability,
                     for label, eff in untested.items()]
                 for form, fa, fa_h in forms:
                     alt, d_x, lr_x = _supported(fa, fa_h, alone, x)
-                    if not fa.bic(alt) < current:
-                        continue
-                    _, d_m, lr_m = _supported(fa, fa_h, alt, m)
-                    if not (d_m < -BIC_STRONG and lr_m > HOLDOUT_CHI2):
+                    if (by := _replaces(fa, fa_h, alt, m, current)) is not None:
                         out[m] = identifiability.StandIn(
-                            part.name, x, float(fa.bic(alt) - current), float(d_m),
-                            identifiability.Hinged(part.name, float(d_x), float(lr_x), left), form)
+                            part.name, x, *by, identifiability.Hinged(part.name, float(d_x), float(lr_x), left), form)
                         break
                 if m in out:
                     break
