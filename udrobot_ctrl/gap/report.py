@@ -18,7 +18,6 @@ import math
 import time
 from collections.abc import Mapping
 from dataclasses import asdict, dataclass, field, replace
-from pathlib import Path
 
 import numpy as np
 
@@ -62,10 +61,11 @@ from udrobot_ctrl.gap.confirm import (
     replay_sets,
     separations,
 )
-from udrobot_ctrl.gap.data import actuators, prepare
+from udrobot_ctrl.gap.data import prepare
 from udrobot_ctrl.gap.effects import Actuation
 from udrobot_ctrl.gap.identifiability import Identifiability
 from udrobot_ctrl.gap.locate import Located, locate, noise_floor
+from udrobot_ctrl.gap.screen import UNEXCITED_COMMAND, Unexcited, Unrepresented, run_label, screen_runs
 from udrobot_ctrl.gap.shrink import UNITS, GapScore, check_window, gap, prepare_with_effects, simulate_windows_each
 from udrobot_ctrl.io.files import atomic_write
 from udrobot_ctrl.io.runlog import Run
@@ -94,14 +94,6 @@ def split_runs(runs, holdout):
                    metadata=r.metadata)
     return [part(a, "first two thirds")], [part(b, "last third")], \
         f"no --holdout and one run: the first two thirds fit, the last third ({cut - r.t[0]:.1f} s on) is held out"
-
-
-def run_label(run):
-    """File name of a run; a split part keeps its tag (``a.csv[last 1/3]``, whose '/' is not a folder)."""
-    if not run.path:
-        return "run"
-    base, bracket, tag = run.path.partition("[")
-    return Path(base).name + bracket + tag
 
 
 def _clean(v):
@@ -1685,19 +1677,16 @@ def _diagnose(model, runs, holdout, window_s, effects, log, model_label):
     """:func:`diagnose` computed."""
     t0 = time.perf_counter()
     say = log or (lambda s: None)
-    idle = unexcited_runs([*runs, *(holdout or [])], plant_parameters(load_model(model)))
-    if any(idle):
-        for u in idle:
-            if u is not None:
-                say(f"not diagnosed: {u.reason()}")
-        fit_x = [r for r, u in zip(runs, idle) if u is None]
-        hold_x = [r for r, u in zip(holdout or [], idle[len(runs):]) if u is None]
-        idle = [u for u in idle if u is not None]
+    why = screen_runs([*runs, *(holdout or [])], plant_parameters(load_model(model)))  # per run, why not diagnosed
+    skipped = [u for reasons in why for u in reasons]
+    for u in skipped:
+        say(f"not diagnosed: {u.reason()}")
+    if skipped:
+        fit_x = [r for r, reasons in zip(runs, why) if not reasons]
+        hold_x = [r for r, reasons in zip(holdout or [], why[len(runs):]) if not reasons]
         if not fit_x and not hold_x:
-            return unexcited_report(model, runs, holdout or [], idle, model_label, time.perf_counter() - t0)
+            return not_diagnosed_report(model, runs, holdout or [], skipped, model_label, time.perf_counter() - t0)
         runs, holdout = (fit_x, hold_x) if fit_x and hold_x else (fit_x + hold_x, None)
-    else:
-        idle = []
     inp = prepare_inputs(model, runs, holdout, effects, window_s, model_label)
     say(f"prepared {len(inp.fit)} fit and {len(inp.holdout)} holdout runs ({time.perf_counter() - t0:.1f} s)")
     for note in dict.fromkeys(n.split(" (", 1)[0] for n in inp.notes if n.startswith("replay: ")):
@@ -1750,77 +1739,48 @@ def _diagnose(model, runs, holdout, window_s, effects, log, model_label):
     say(f"{verdict} ({time.perf_counter() - t0:.1f} s)")
 
     location = [x.to_json() for x in where.located.locations]
-    inp = replace(inp, notes=inp.notes + [f"not diagnosed (no excitation): {u.reason()}" for u in idle])
+    inp = replace(inp, notes=inp.notes + _not_diagnosed_notes(skipped))
     report = report_json(inp, where, stacks, sel, elim, verdicts, verdict, time.perf_counter() - t0,
                          support=res.support)
-    report["unexcited_runs"] = [u.to_json() for u in idle]
+    report.update(_not_diagnosed_fields(skipped))
     after_sims = elim.after.sims if elim.kept else where.nominal_sims[len(inp.fit):]
     ctx = DiagnosisContext(inp.runs, len(inp.fit), where.nominal_sims, after_sims, where.residuals, location)
     return _clean(report), ctx
 
 
-#: a run whose every actuator command stays within this fraction of its capacity for the whole run is unexcited:
-#: nothing was commanded, so whatever moved the vehicle (a hand, the cable, waves) is not in the log
-UNEXCITED_COMMAND = 0.01
+def _not_diagnosed_notes(skipped) -> list:
+    """The report's notes on the runs screened out (:func:`~udrobot_ctrl.gap.screen.screen_runs`)."""
+    return [f"not diagnosed ({u.kind}): {u.reason()}" for u in skipped]
 
 
-@dataclass(frozen=True)
-class Unexcited:
-    """A run with no commanded excitation (:func:`unexcited_runs`): reported, not diagnosed."""
-
-    run: str
-    max_command: float  # largest |command| over the run, as a fraction of the actuator's capacity
-    depth_span_m: float  # range of the logged depth, m (nan when z is not logged)
-
-    def reason(self) -> str:
-        depth = (f", depth moving {100 * self.depth_span_m:.1f} cm" if math.isfinite(self.depth_span_m) else "")
-        return (f"{self.run}: no excitation (the largest actuator command of the whole run is "
-                f"{100 * self.max_command:.2g}% of its capacity, at most {100 * UNEXCITED_COMMAND:g}% counts as none"
-                f"{depth}): nothing was commanded, so the log holds no input for a model "
-                f"to answer and whatever moved the vehicle is not in it; fly commanded manoeuvres (steps, sweeps) to "
-                f"diagnose, or use udrobot-ctrl identify for free-decay launches")
-
-    def to_json(self) -> dict:
-        return {"run": self.run, "max_command_fraction": self.max_command, "depth_span_m": self.depth_span_m,
-                "reason": self.reason()}
+def _not_diagnosed_fields(skipped) -> dict:
+    """The report's lists of the runs screened out, one field per kind (``unexcited_runs``, ``unrepresented_runs``;
+    each present, empty when no run is of that kind)."""
+    return {kind.field: [u.to_json() for u in skipped if isinstance(u, kind)] for kind in (Unexcited, Unrepresented)}
 
 
-def unexcited_runs(runs, p: PlantParameters) -> list:
-    """Per run, an :class:`Unexcited` when no actuator command leaves ``UNEXCITED_COMMAND`` of its capacity during
-    the whole run (e.g. every PWM at 1500 us), else None. The capacity is each thruster's larger thrust limit
-    (``thrust_i``, ``pwm_i`` converted by the thruster curve), or for a commanded wrench (``tau_*``) what the
-    thrusters together give along each DOF. An actuator whose capacity the model does not give (a wrench DOF of a
-    model without thrusters: a vehicle logged after its allocation) excites the run whenever it is not zero."""
-    cap_t = np.maximum(p.f_max, -p.f_min)
-    out = []
-    for r in runs:
-        f = np.abs(np.nan_to_num(actuators(r, p)[0]))
-        cap = cap_t if r.input_kind in ("thrust", "pwm") else np.abs(p.T) @ cap_t
-        known = cap > 0
-        frac = float(np.max(f[:, known] / cap[known])) if f.size and known.any() else 0.0
-        if f.size and np.any(f[:, ~known] > 0):
-            frac = math.inf  # commanded, against a capacity the model does not know
-        z = np.asarray(r.channels.get("z", np.zeros(0)), float)
-        z = z[np.isfinite(z)]
-        span = float(np.ptp(z)) if z.size else float("nan")
-        out.append(Unexcited(run_label(r), frac, span) if frac <= UNEXCITED_COMMAND else None)
-    return out
-
-
-def unexcited_report(model, runs, holdout, idle, model_label, elapsed_s):
-    """(report, context) when every run is unexcited: the report says so (``unexcited_runs``, ``verdict``) with no
-    gap, location or effect (nothing to diagnose), and the context holds no run (no figure)."""
+def not_diagnosed_report(model, runs, holdout, skipped, model_label, elapsed_s):
+    """(report, context) when every run is screened out (unexcited or not represented): the report says so (the
+    runs' fields, ``verdict``) with no gap, location or effect (nothing to diagnose), and the context holds no run
+    (no figure)."""
     label = model_label or (str(model) if not hasattr(model, "name") else model.name)
     empty = {"metric": "nrmse", "value": None, "per_channel": {}, "undefined": {}, "scored": [], "windows": {},
              "diverged_windows": {}}
-    verdict = (f"not diagnosed: no run is excited ({', '.join(u.run for u in idle)}: every actuator command within "
-               f"{100 * UNEXCITED_COMMAND:g}% of its capacity for the whole run), so there is no commanded input "
-               f"for a model to answer; fly commanded manoeuvres to diagnose")
+    if all(isinstance(u, Unexcited) for u in skipped):
+        verdict = (f"not diagnosed: no run is excited ({', '.join(u.run for u in skipped)}: every actuator command "
+                   f"within {100 * UNEXCITED_COMMAND:g}% of its capacity for the whole run), so there is no commanded "
+                   f"input for a model to answer; fly commanded manoeuvres to diagnose")
+    else:
+        kinds = {}
+        for u in skipped:
+            kinds.setdefault(u.run, []).append(u.kind)
+        each = "; ".join(f"{run}: {' and '.join(k)}" for run, k in kinds.items())
+        verdict = (f"not diagnosed: no run is left to diagnose ({each}); fly commanded manoeuvres of the submerged, "
+                   f"armed vehicle to diagnose")
     report = {"format": FORMAT, "model": label, "fit_runs": [run_label(r) for r in runs],
               "holdout_runs": [run_label(r) for r in holdout], "gap_before": dict(empty), "location": [],
               "effects": [], "unidentifiable": [], "gap_after": dict(empty), "unexplained": None, "verdict": verdict,
-              "unexcited_runs": [u.to_json() for u in idle],
-              "notes": [f"not diagnosed (no excitation): {u.reason()}" for u in idle], "elapsed_s": elapsed_s}
+              **_not_diagnosed_fields(skipped), "notes": _not_diagnosed_notes(skipped), "elapsed_s": elapsed_s}
     return _clean(report), DiagnosisContext([], 0, [], [], [], [])
 
 
@@ -1840,10 +1800,10 @@ def _num(value, spec: str, undefined: str = "undefined") -> str:
 def summary(report) -> str:
     """Human-readable summary of a report (undefined numbers, e.g. the gap of constant channels, say so)."""
     gb, ga = report["gap_before"], report["gap_after"]
-    if not report["effects"] and report.get("unexcited_runs"):  # nothing was diagnosed
+    skipped = [*report.get("unrepresented_runs", []), *report.get("unexcited_runs", [])]
+    if not report["effects"] and skipped:  # nothing was diagnosed
         return "\n".join([f"model {report['model']}: runs {', '.join(report['fit_runs'] + report['holdout_runs'])}"]
-                         + [f"  not diagnosed: {u['reason']}" for u in report["unexcited_runs"]]
-                         + [report["verdict"]])
+                         + [f"  not diagnosed: {u['reason']}" for u in skipped] + [report["verdict"]])
     why = gb.get("undefined") or {}
     per = [f"{c} {_num(v, '.2f')}" for c, v in gb["per_channel"].items() if c in gb["scored"]]
     per += [f"{c} undefined: channel constant" for c in why]
@@ -1887,7 +1847,7 @@ def summary(report) -> str:
             lines.append("      " + e["evidence"].get("note", "dropped on the holdout"))
     for u in report.get("unidentifiable", []):
         lines.append(f"  unidentifiable with these sensors: {u['name']} ({u['reason']})")
-    for u in report.get("unexcited_runs", []):
+    for u in skipped:
         lines.append(f"  not diagnosed: {u['reason']}")
     for which, g in (("before", gb), ("after", ga)):
         div = {r: n for r, n in (g.get("diverged_windows") or {}).items() if n}

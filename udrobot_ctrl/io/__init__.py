@@ -204,6 +204,7 @@ def convert_log(path, mapping=None, require_inputs: bool = True, vehicle: str | 
         result = cut_run(run, mapping.cut)
         run = result.run
         run.metadata["notes"] += "\n" + "\n".join(result.notes)
+        run.metadata["cut"] = result.record()
     run.path = str(path)
     return run
 

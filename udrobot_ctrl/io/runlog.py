@@ -591,7 +591,35 @@ def validate_metadata(meta, source="metadata") -> dict:
             if abs(wall["normal"][2]) > 1e-3:
                 raise RunLogError(f"{where}.normal: walls are vertical planes, the normal's z component must be 0 "
                                   f"(got {wall['normal'][2]!r})")
+    if "cut" in meta:
+        _check_cut(meta["cut"], f"{source}: field 'cut'")
     return out
+
+
+def _check_cut(cut, where: str) -> None:
+    """Check the sidecar's ``cut`` record (what a converter's cut kept; docs/formats/runlog.md)."""
+    if not isinstance(cut, dict) or not {"invalid_share", "kept"} <= set(cut):
+        raise RunLogError(f"{where}: expected an object with 'invalid_share' and 'kept', got {cut!r}")
+    share = cut["invalid_share"]
+    if not isinstance(share, dict) or not all(isinstance(k, str) and _finite_number(v) and 0 <= v <= 1
+                                              for k, v in share.items()):
+        raise RunLogError(f"{where}.invalid_share: expected an object of check -> fraction of the rows failing it "
+                          f"(0 to 1), got {share!r}")
+    kept = cut["kept"]
+    if kept is None:
+        return
+    if not isinstance(kept, dict) or not {"t_start", "t_stop", "rows", "of"} <= set(kept):
+        raise RunLogError(f"{where}.kept: expected null (no row kept) or an object with 't_start', 't_stop', 'rows' "
+                          f"and 'of', got {kept!r}")
+    if not (_finite_number(kept["t_start"]) and _finite_number(kept["t_stop"]) and kept["t_start"] <= kept["t_stop"]):
+        raise RunLogError(f"{where}.kept: 't_start' and 't_stop' must be finite times, s, t_start <= t_stop, got "
+                          f"{kept['t_start']!r}, {kept['t_stop']!r}")
+    rows, n = kept["rows"], kept["of"]
+    whole = [isinstance(v, int) and not isinstance(v, bool) for v in (rows if isinstance(rows, list) else [])]
+    if not (isinstance(rows, list) and len(rows) == 2 and all(whole) and isinstance(n, int)
+            and 0 <= rows[0] <= rows[1] < n):
+        raise RunLogError(f"{where}.kept: 'rows' must be [first, last] row indices of the converted log and 'of' its "
+                          f"row count (0 <= first <= last < of), got rows {rows!r}, of {n!r}")
 
 
 def read_metadata(path) -> dict:

@@ -10,7 +10,8 @@ surface, the boat deck, disarmed minutes and, rarely, a capsized vehicle. A row 
 
 The longest contiguous stretch of valid rows is kept as the run (t restarts at 0 there; the ``cut:`` notes give
 its log time); every stretch left out is listed with its times and reasons. A run without any valid row is kept
-whole with a prominent ``cut: WARNING`` note (a log entirely at the surface still converts).
+whole with a prominent ``cut: WARNING`` note (a log entirely at the surface still converts). The same verdict goes
+into the sidecar's ``cut`` field (:meth:`CutResult.record`), which ``diagnose`` reads to leave such a run out.
 """
 from __future__ import annotations
 
@@ -62,12 +63,26 @@ class CutResult:
         Stretches left out (invalid ones with reasons, shorter valid ones with reason ``shorter valid stretch``).
     notes : list of str
         ``cut:`` lines for the sidecar notes.
+    invalid_share : dict
+        Check -> fraction of the input run's rows failing it (every check applied, 0 for one no row fails).
+    n_rows : int
+        Rows of the input run.
     """
 
     run: Run
     kept: Stretch | None
     cut: tuple
     notes: list
+    invalid_share: dict
+    n_rows: int
+
+    def record(self) -> dict:
+        """The sidecar's ``cut`` field (docs/formats/runlog.md): the checks applied with the fraction of rows failing
+        each, and the stretch kept (``t_start``, ``t_stop`` in the converted log's t, s; ``rows`` [first, last];
+        ``of`` rows), or None when no row passes (the run kept whole, not represented by the plant)."""
+        kept = None if self.kept is None else {"t_start": self.kept.t_start, "t_stop": self.kept.t_stop,
+                                               "rows": [self.kept.start, self.kept.stop - 1], "of": self.n_rows}
+        return {"invalid_share": dict(self.invalid_share), "kept": kept}
 
 
 def _runs(mask: np.ndarray) -> list:
@@ -117,9 +132,10 @@ def cut_run(run: Run, spec: CutSpec) -> CutResult:
     for m in masks.values():
         bad |= m
     checks = ", ".join(masks) or "none applicable (no z, armed or attitude)"
+    share = {r: float(m.mean()) for r, m in masks.items()}
     if not bad.any():
         return CutResult(run, Stretch(0, run.n, float(run.t[0]), float(run.t[-1])), (),
-                         [f"cut: nothing cut; every row passes the checks ({checks})"])
+                         [f"cut: nothing cut; every row passes the checks ({checks})"], share, run.n)
 
     def stretch(a, b, reasons=()):
         return Stretch(int(a), int(b), float(run.t[a]), float(run.t[b - 1]), tuple(reasons))
@@ -135,7 +151,7 @@ def cut_run(run: Run, spec: CutSpec) -> CutResult:
         return CutResult(run, None, tuple(cut), [
             f"cut: WARNING: no row of this run passes the checks ({reasons}); the whole run is kept, but the plant "
             f"(a submerged, armed, upright vehicle) does not represent it: use it for the sensors, not for "
-            f"identification or a diagnosis of the dynamics"])
+            f"identification or a diagnosis of the dynamics (a diagnosis reports it, not diagnosed)"], share, run.n)
     kept = max(good, key=lambda s: (s.stop - s.start, -s.start))
     cut += [replace(s, reasons=("shorter valid stretch (the longest is kept)",)) for s in good if s is not kept]
     cut.sort(key=lambda s: s.start)
@@ -152,7 +168,7 @@ def cut_run(run: Run, spec: CutSpec) -> CutResult:
     for s in cut:
         notes.append(f"cut: left out t = {s.t_start:.2f}..{s.t_stop:.2f} s ({s.duration:.1f} s): "
                      f"{'; '.join(s.reasons)}")
-    return CutResult(new, kept, tuple(cut), notes)
+    return CutResult(new, kept, tuple(cut), notes, share, run.n)
 
 
 __all__ = ["CutResult", "Stretch", "cut_run", "invalid_rows"]

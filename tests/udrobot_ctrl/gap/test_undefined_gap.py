@@ -59,7 +59,7 @@ def test_summary_says_a_single_effect_replay_drifts_off_instead_of_a_huge_negati
 @pytest.mark.slow
 def test_diagnose_a_vehicle_holding_still(tmp_path, capsys):
     """A vehicle held still (in a clamp) while its thrusters are commanded: the commands are an input, but no channel
-    moves, so the gap is undefined. (With no command either, the run is unexcited: test_unexcited.py.)"""
+    moves, so the gap is undefined. (With no command either, the run is unexcited: test_screen.py.)"""
     t = np.arange(0, 60, 0.05)
     channels = {c: np.zeros(t.size) for c in ("z", "phi", "theta", "psi", "u", "v", "w", "p", "q", "r")}
     channels["z"][:] = 1.0

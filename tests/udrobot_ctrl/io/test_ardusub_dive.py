@@ -4,6 +4,8 @@ packed with pymavlink's own format table (DFReader.FORMAT_TO_STRUCT), tlogs with
 dive (../shared/data/guided_above_terrain) when present."""
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mav2
@@ -139,6 +141,12 @@ def test_dataflash_dive_heavy_from_outputs_dvl_context_and_cuts(tmp_path):
     assert "at or near the surface (z < 0.3 m, assumed threshold)" in notes
     assert notes.count("cut: left out") == 3 and "disarmed (armed = 0)" in notes
     assert "shorter valid stretch (the longest is kept)" in notes
+    # the same cut, recorded for the tools that read the sidecar: rows kept, of how many, share failing each check
+    cut = run.metadata["cut"]
+    first, last = cut["kept"]["rows"]
+    assert last - first + 1 == run.n and cut["kept"]["of"] > run.n
+    assert cut["kept"]["t_stop"] - cut["kept"]["t_start"] == pytest.approx(run.t[-1])
+    assert 0 < cut["invalid_share"]["disarmed (armed = 0)"] < 1
     np.testing.assert_allclose(run.channels["z"], depth_of(t), atol=0.06)  # t from the 10 Hz stamp: 0.1 s x 0.5 m/s
     # inputs: RCOU C1..C8 held (10 Hz) -> exactly the logged values of the RCOU sample in force
     stamp = run.extra["t_source"]
@@ -323,6 +331,35 @@ def test_log_entirely_at_the_surface_is_kept_with_a_warning(tmp_path):
     run = convert_log(write_events(tmp_path / "s.tlog", mav, ev), "ardusub")
     assert run.duration > 19.0
     assert "cut: WARNING: no row of this run passes the checks (at or near the surface" in run.metadata["notes"]
+    assert run.metadata["cut"]["kept"] is None
+    assert run.metadata["cut"]["invalid_share"]["at or near the surface (z < 0.3 m, assumed threshold)"] == 1.0
+
+
+def test_a_diagnosis_reports_a_log_the_plant_does_not_represent_not_diagnosed(tmp_path, capsys):
+    """A log entirely at the surface, thrusters swept: converted, it is kept whole with the cut's verdict in the
+    sidecar; `diagnose` reads that verdict and reports the run not diagnosed instead of naming an effect for the free
+    surface the plant lacks (ardusub_log_tools/small.tlog named a CG-CB offset that way)."""
+    mav = _mav()
+    ev = [(t, mav.heartbeat_encode(12, 3, 81 | 128, 19, 4)) for t in np.arange(0.0, 40.0, 1.0)]
+    ev += [(t, mav.attitude_encode(int(t * 1000), 0.02 * np.sin(t), 0.0, 0.0, 0.0, 0.0, 0.0))
+           for t in np.arange(0.01, 40, 0.05)]
+    ev += [(t, mav.scaled_pressure2_encode(int(t * 1000), 1013.25 + 0.5 * np.sin(t), 0.0, 1200))
+           for t in np.arange(0.02, 40, 0.1)]
+    ev += [(t, mav.servo_output_raw_encode(int(t * 1e6), 0, *[int(1500 + 200 * np.sin(t + k)) for k in range(8)]))
+           for t in np.arange(0.03, 40, 0.1)]
+    log = write_events(tmp_path / "surface.tlog", mav, ev)
+    csv = tmp_path / "surface.csv"
+    assert main(["convert", str(log), "--mapping", "ardusub", "--out", str(csv)]) == 0
+    assert read_run(csv).metadata["cut"]["kept"] is None  # the verdict survives the sidecar
+    out = tmp_path / "r.json"
+    assert main(["diagnose", "--model", "bluerov2-heavy", "--json", str(out), str(csv)]) == 0
+    report = json.loads(out.read_text())
+    assert report["effects"] == [] and report["gap_before"]["value"] is None
+    (u,) = report["unrepresented_runs"]
+    assert u["run"] == "surface.csv"
+    assert u["invalid_share"]["at or near the surface (z < 0.3 m, assumed threshold)"] == 1
+    assert report["verdict"].startswith("not diagnosed: no run is left to diagnose (surface.csv: not represented")
+    assert "not diagnosed: surface.csv: not represented by the plant" in capsys.readouterr().out
 
 
 def test_almost_all_invalid_rangefinder_readings_are_named(tmp_path):

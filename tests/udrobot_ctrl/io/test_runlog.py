@@ -68,7 +68,9 @@ def test_round_trip_bit_exact_with_metadata(tmp_path):
     channels["x"][::3] = np.nan
     tau = rng.normal(size=(n, 6)) * 10
     meta = {"vehicle": "udrobot", "water_density": 998.0, "seabed_depth": 3.0,
-            "walls": [{"point": [0.0, 2.0, 0.0], "normal": [0.0, -1.0, 0.0]}], "notes": "pool"}
+            "walls": [{"point": [0.0, 2.0, 0.0], "normal": [0.0, -1.0, 0.0]}], "notes": "pool",
+            "cut": {"invalid_share": {"disarmed (armed = 0)": 0.25}, "kept": {"t_start": 1.5, "t_stop": 9.0,
+                                                                               "rows": [12, 61], "of": 80}}}
     extra = {"t_source": t + 1e9, "label": np.array(["a"] * n)}
     path = write_run(tmp_path / "r.csv", t, channels, "tau", tau, metadata=meta, extra=extra)
     run = read_run(path)
@@ -172,6 +174,13 @@ def test_trailing_blank_lines_and_whitespace_accepted(tmp_path):
     ('{"walls": [{"point": [0, 0, 0]}]}', r"walls\[0\]'"),
     ('{"vehicle": 3}', "field 'vehicle'"),
     ('{"notes": ', r"line 1 column \d+: invalid JSON"),
+    ('{"cut": {"kept": null}}', "field 'cut': expected an object with 'invalid_share' and 'kept'"),
+    ('{"cut": {"invalid_share": {"disarmed": 1.5}, "kept": null}}', r"'cut'.invalid_share: .*\(0 to 1\)"),
+    ('{"cut": {"invalid_share": {}, "kept": {"t_start": 0}}}', r"'cut'.kept: expected null"),
+    ('{"cut": {"invalid_share": {}, "kept": {"t_start": 5, "t_stop": 1, "rows": [0, 9], "of": 10}}}',
+     r"'cut'.kept: 't_start' and 't_stop'"),
+    ('{"cut": {"invalid_share": {}, "kept": {"t_start": 0, "t_stop": 1, "rows": [0, 10], "of": 10}}}',
+     r"'cut'.kept: 'rows' must be \[first, last\]"),
 ])
 def test_bad_sidecar(tmp_path, meta, pattern):
     path = _good_csv(tmp_path)

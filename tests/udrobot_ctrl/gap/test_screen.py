@@ -1,5 +1,6 @@
-"""A run with no commanded excitation is reported as such, not diagnosed (issue 42.3).
+"""Runs a diagnosis cannot use are reported as such, not diagnosed.
 
+A run with no commanded excitation (issue 42.3):
 The shared bench log "2023-04-18 11-03-34.tlog" holds every PWM at 1500 us for 313 s while the depth moves 1.6 cm:
 the diagnoser named no effect while its own table showed a buoyancy offset shrinking the gap by 84 %. Nothing was
 commanded, so there is no input for a model to answer.
@@ -15,7 +16,8 @@ import pytest
 
 from udrobot_ctrl.cli.main import main
 from udrobot_ctrl.dynamics.plant import plant_parameters
-from udrobot_ctrl.gap.report import UNEXCITED_COMMAND, diagnose, summary, unexcited_runs
+from udrobot_ctrl.gap.report import diagnose, summary
+from udrobot_ctrl.gap.screen import UNEXCITED_COMMAND, unexcited_runs, unrepresented_runs
 from udrobot_ctrl.io.runlog import Run, write_run
 from udrobot_ctrl.vehicle import load_model
 
@@ -80,6 +82,9 @@ def test_the_shared_bench_log_with_every_pwm_at_neutral_is_reported_unexcited():
     report, _ = diagnose("bluerov2-heavy", [run])
     (u,) = report["unexcited_runs"]
     assert u["max_command_fraction"] == 0.0 and u["depth_span_m"] < 0.02
+    (s,) = report["unrepresented_runs"]  # and it lies at the surface the whole time: the converter kept no row
+    assert s["run"] == u["run"] and s["invalid_share"]["at or near the surface (z < 0.3 m, assumed threshold)"] == 1
+    assert "not represented by the plant and no excitation" in report["verdict"]
     assert report["verdict"].startswith("not diagnosed") and report["effects"] == []
 
 
@@ -90,3 +95,27 @@ def test_a_wrench_on_a_model_without_thrusters_is_an_input():
     commanded, idle = _idle(kind="tau", k=6, level=2.0), _idle(kind="tau", k=6)
     out = unexcited_runs([commanded, idle], no_thrusters)
     assert out[0] is None and out[1] is not None and out[1].max_command == 0.0
+
+
+SURFACE = "at or near the surface (z < 0.3 m, assumed threshold)"
+
+
+def test_a_run_the_converter_kept_no_stretch_of_is_left_out_of_a_diagnosis():
+    """A run whose sidecar says no row passed the converter's checks (``cut.kept`` null; ardusub_log_tools/small.tlog:
+    the whole log at the surface, 94 % disarmed) is reported, not diagnosed, however well its thrusters were swept;
+    a run with a kept stretch, or without a cut record (a pool CSV), is diagnosed."""
+    a, _ = simulate(duration=30.0, seed=1)
+    b, _ = simulate(duration=30.0, seed=2)
+    c, _ = simulate(duration=30.0, seed=3)
+    c = dataclasses.replace(c, path="surface.csv", metadata={
+        **c.metadata, "cut": {"invalid_share": {SURFACE: 1.0, "disarmed (armed = 0)": 0.94}, "kept": None}})
+    kept = dataclasses.replace(b, metadata={**b.metadata, "cut": {
+        "invalid_share": {SURFACE: 0.2}, "kept": {"t_start": 6.0, "t_stop": 36.0, "rows": [120, 720], "of": 900}}})
+    assert unrepresented_runs([a, kept]) == [None, None]
+    (u,) = unrepresented_runs([c])
+    assert u.run == "surface.csv" and "100 % of the rows" in u.reason() and "94 % of the rows" in u.reason()
+    report, _ = diagnose("pendulum:chin", [a, c], [b], effects=["buoyancy_offset"])
+    assert [x["run"] for x in report["unrepresented_runs"]] == ["surface.csv"] and report["unexcited_runs"] == []
+    assert report["fit_runs"] == ["nominal_1.csv"] and report["holdout_runs"] == ["nominal_2.csv"]
+    assert any(n.startswith("not diagnosed (not represented by the plant): surface.csv") for n in report["notes"])
+    assert "not diagnosed: surface.csv: not represented by the plant" in summary(report)
