@@ -29,6 +29,7 @@ from udrobot_ctrl.dynamics.plant import plant_parameters, state_derivative
 from udrobot_ctrl.dynamics.sim import Actuators, integrate_intervals, rk4_step
 from udrobot_ctrl.dynamics.thrusters import pwm_to_thrust
 from udrobot_ctrl.gap.replay import WindowedGap, windowed_gap
+from udrobot_ctrl.gap.screen import unrepresented_runs
 from udrobot_ctrl.gap.shrink import check_window
 from udrobot_ctrl.io import load_any, runlog
 from udrobot_ctrl.io.files import atomic_write, check_distinct_outputs, check_outputs, run_files, spec_files
@@ -74,16 +75,22 @@ def register(subparsers):
 
 
 def read_input_run(path, mapping=None):
-    """A Run from a udrobot-run/1 CSV (runlog.read_run) or any log udrobot_ctrl.io.load_any understands."""
+    """A Run from a udrobot-run/1 CSV (runlog.read_run) or any log udrobot_ctrl.io.load_any understands; a warning on
+    stderr when the converter kept no stretch of it (the plant does not represent it: a replay's gap there is not a
+    model error)."""
     path = Path(path)
+    run = None
     if path.suffix.lower() == ".csv":
         try:
-            return runlog.read_run(path)
+            run = runlog.read_run(path)
         except runlog.RunLogError:
             if mapping is None:
                 raise
-
-    return load_any(path, mapping=mapping)
+    run = run if run is not None else load_any(path, mapping=mapping)
+    for u in unrepresented_runs([run]):
+        if u is not None:
+            print(f"udrobot-ctrl simulate: warning: {u.reason()}", file=sys.stderr)
+    return run
 
 
 def initial_state(run) -> np.ndarray:

@@ -360,6 +360,9 @@ def test_a_diagnosis_reports_a_log_the_plant_does_not_represent_not_diagnosed(tm
     assert u["invalid_share"]["at or near the surface (z < 0.3 m, assumed threshold)"] == 1
     assert report["verdict"].startswith("not diagnosed: no run is left to diagnose (surface.csv: not represented")
     assert "not diagnosed: surface.csv: not represented by the plant" in capsys.readouterr().out
+    # a replay of it still runs, with the same warning: its gap is not a model error
+    assert main(["simulate", "--model", "bluerov2-heavy", "--input", str(csv), "--windows", "8"]) == 0
+    assert "warning: surface.csv: not represented by the plant" in capsys.readouterr().err
 
 
 def test_almost_all_invalid_rangefinder_readings_are_named(tmp_path):
