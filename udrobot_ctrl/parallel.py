@@ -40,8 +40,10 @@ from __future__ import annotations
 import multiprocessing
 import os
 import signal
+import threading
 import time
 from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures import process as _cf_process
 from contextlib import contextmanager
 
 from threadpoolctl import ThreadpoolController
@@ -201,7 +203,19 @@ def stop_workers(timeout: float = 2.0) -> int:
                 child.join(1.0)
         except (OSError, AttributeError, ValueError):
             pass
+    _join_pool_managers(max(0.0, deadline - time.monotonic()) + 1.0)
     return len(children)
+
+
+def _join_pool_managers(timeout: float) -> None:
+    """Wait (up to ``timeout`` s in all) for the manager threads of process pools whose workers were stopped: each
+    sees its pool broken and closes its wake-up pipe. Python 3.11's exit handler (``concurrent.futures.process.
+    _python_exit``) writes to every pool's pipe that is not closed yet; a manager closing it at that moment made the
+    interpreter print a traceback (``OSError: [Errno 9] Bad file descriptor``) after a command stopped by SIGTERM."""
+    deadline = time.monotonic() + timeout
+    for thread in list(getattr(_cf_process, "_threads_wakeups", {})):
+        if thread is not threading.current_thread():
+            thread.join(max(0.0, deadline - time.monotonic()))
 
 
 def _forked_pool(n: int) -> ProcessPoolExecutor:
