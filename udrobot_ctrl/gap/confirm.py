@@ -201,10 +201,11 @@ def _replay_sets(preps, p, sets, catalogue, actuation: Actuation, window_s, scor
     return out
 
 
-def window_energy(preps, sims, score: GapScore, window_s) -> np.ndarray:
+def window_energy(preps, sims, score: GapScore, window_s, weights=None) -> np.ndarray:
     """Each window's part of the squared gap: sum over the scored channels c of SE_c,window / (N_c scale_c^2 C),
     windows of all runs concatenated, so that they sum to ``score.value ** 2`` (N_c: the channel's scored samples,
-    C: the number of scored channels)."""
+    C: the number of scored channels). With ``weights`` (channel -> weight, summing to 1), each channel's part is
+    weighted by its weight instead of 1 / C (:func:`change_weights`: a member's rise is tested where it acts)."""
     chans = score.scored
     se = {c: [] for c in chans}
     count = dict.fromkeys(chans, 0)
@@ -219,7 +220,37 @@ def window_energy(preps, sims, score: GapScore, window_s) -> np.ndarray:
             se[c].append(np.array([e2[s: s + w].sum() for s in starts]))
     if not chans:
         return np.zeros(0)
-    return sum(np.concatenate(se[c]) / max(count[c], 1) for c in chans) / len(chans)
+    weight = weights or dict.fromkeys(chans, 1.0 / len(chans))
+    return sum(weight.get(c, 0.0) * np.concatenate(se[c]) / max(count[c], 1) for c in chans)
+
+
+def change_weights(preps, with_: Replay, without: Replay) -> dict | None:
+    """Channel weights for the window test of a member: where its replay changes, against the error there.
+
+    Each scored channel's squared difference between the holdout replays with the member (``with_``) and without it
+    (``without``), over its scored samples and gap scale squared, divided by the channel's squared NRMSE with it (a
+    matched filter: the change the member makes, whitened by the error it is measured against); normalised to sum
+    to 1. None (every channel alike) when the replays agree. The replay, not the force, says where a member acts (a
+    tether's sway force turns into roll and yaw motion); the error level keeps a channel the member barely moves
+    but whose error is large and noisy (a pitch rate at its floor) from swamping the windows' differences. The
+    weights use no measurement beyond the windows' initial states and the gap's per-channel level.
+    """
+    scored = with_.gap.scored
+    se, count = dict.fromkeys(scored, 0.0), dict.fromkeys(scored, 0)
+    for prep, a, b in zip(preps, with_.sims, without.sims):
+        ea, eb = errors(prep, a), errors(prep, b)
+        for c in scored:
+            if c in ea and c in eb:
+                d = ea[c] - eb[c]
+                ok = np.isfinite(d)
+                se[c] += float(np.sum(d[ok] ** 2))
+                count[c] += int(ok.sum())
+    level = {c: max(with_.gap.per_channel.get(c, 0.0) ** 2, 1e-12) for c in scored}
+    energy = {c: se[c] / max(count[c], 1) / with_.gap.scale[c] ** 2 / level[c] for c in scored}
+    total = sum(energy.values())
+    if not np.isfinite(total) or total <= 0:
+        return None
+    return {c: v / total for c, v in energy.items()}
 
 
 def window_changes(without: np.ndarray, with_: np.ndarray) -> np.ndarray:
@@ -562,8 +593,9 @@ def member_test(att: Attributor, att_h: Attributor, fit: Fit, full: Replay, name
     """The :class:`MemberTest` of ``name``: the set's fit ``fit`` and holdout replay ``full`` against ``fit_rest``
     and its replay ``r_rest``, the set without it (a member dropped, or a member's amplitude held at nominal:
     :func:`udrobot_ctrl.gap.report.confirm_components`)."""
-    e_full = window_energy(preps, full.sims, full.gap, window_s)
-    e_rest = window_energy(preps, r_rest.sims, r_rest.gap, window_s)
+    weights = change_weights(preps, full, r_rest)
+    e_full = window_energy(preps, full.sims, full.gap, window_s, weights)
+    e_rest = window_energy(preps, r_rest.sims, r_rest.gap, window_s, weights)
     t, pval = paired_rise(e_rest, e_full)
     contrib = (r_rest.gap.value - full.gap.value) / before.value if before.value > 0 else 0.0
     return MemberTest(name, holdout_lr(att_h, fit_rest, fit), float(contrib), t, pval, alone,

@@ -94,6 +94,44 @@ def test_windows_add_up_to_the_squared_gap():
     assert np.all(parts >= 0)
 
 
+def _sims(prep, sigma, shift=None, seed=4):
+    """A replay of ``prep``: the measurement plus white error of ``sigma`` per channel (default 0.02) and ``shift``
+    (channel -> constant offset)."""
+    rng = np.random.default_rng(seed)
+    sim = np.full((prep.n, 12), np.nan)
+    for c, i in STATE_INDEX.items():
+        if c in prep.meas:
+            sim[:, i] = prep.meas[c] + rng.normal(0, sigma.get(c, 0.02), prep.n) + (shift or {}).get(c, 0.0)
+    return sim
+
+
+def test_a_member_is_weighed_where_its_replay_changes_against_the_error_there():
+    """The window test's weights (``change_weights``): the change a member makes to the replay, channel by channel,
+    over the error it is measured against. A change in z alone weighs z alone; a change as large in q, whose error is
+    ten times z's, weighs a hundredth as much; replays that agree weigh every channel alike (None)."""
+    prep = _prepared_run()
+    sigma = {"q": 0.2}
+    with_ = _sims(prep, sigma)
+    full = Replay(("m",), gap([prep], [with_]), [with_])
+
+    def rest(shift):
+        sim = with_.copy()
+        for c, v in shift.items():
+            sim[:, STATE_INDEX[c]] += v
+        return Replay((), gap([prep], [sim]), [sim])
+
+    w = confirm.change_weights([prep], full, rest({"z": 0.05}))
+    assert w["z"] == pytest.approx(1.0) and sum(w.values()) == pytest.approx(1.0)
+    scale = full.gap.scale  # the same change in gap units in z and q
+    w = confirm.change_weights([prep], full, rest({"z": 0.05 * scale["z"], "q": 0.05 * scale["q"]}))
+    ratio = (full.gap.per_channel["z"] / full.gap.per_channel["q"]) ** 2
+    assert w["q"] / w["z"] == pytest.approx(ratio, rel=1e-6) and ratio < 0.05
+    assert confirm.change_weights([prep], full, rest({})) is None
+    # weighted, the windows decompose the weighted sum of the channels' squared gaps
+    parts = window_energy([prep], [with_], full.gap, 6.0, w)
+    assert parts.sum() == pytest.approx(sum(w[c] * full.gap.per_channel[c] ** 2 for c in w), rel=1e-9)
+
+
 def _fit(members):
     return Fit(tuple(members), {m: () for m in members}, {m: {} for m in members}, np.ones(1), 0, 0.0)
 
