@@ -65,7 +65,7 @@ from udrobot_ctrl.gap.data import prepare
 from udrobot_ctrl.gap.effects import Actuation
 from udrobot_ctrl.gap.identifiability import Identifiability
 from udrobot_ctrl.gap.locate import Located, locate, noise_floor
-from udrobot_ctrl.gap.screen import UNEXCITED_COMMAND, Unexcited, Unrepresented, run_label, screen_runs
+from udrobot_ctrl.gap.screen import KINDS, UNEXCITED_COMMAND, Unexcited, run_label, screen_runs
 from udrobot_ctrl.gap.shrink import UNITS, GapScore, check_window, gap, prepare_with_effects, simulate_windows_each
 from udrobot_ctrl.io.files import atomic_write
 from udrobot_ctrl.io.runlog import Run
@@ -1756,7 +1756,7 @@ def _not_diagnosed_notes(skipped) -> list:
 def _not_diagnosed_fields(skipped) -> dict:
     """The report's lists of the runs screened out, one field per kind (``unexcited_runs``, ``unrepresented_runs``;
     each present, empty when no run is of that kind)."""
-    return {kind.field: [u.to_json() for u in skipped if isinstance(u, kind)] for kind in (Unexcited, Unrepresented)}
+    return {kind.field: [u.to_json() for u in skipped if isinstance(u, kind)] for kind in KINDS}
 
 
 def not_diagnosed_report(model, runs, holdout, skipped, model_label, elapsed_s):
@@ -1800,7 +1800,7 @@ def _num(value, spec: str, undefined: str = "undefined") -> str:
 def summary(report) -> str:
     """Human-readable summary of a report (undefined numbers, e.g. the gap of constant channels, say so)."""
     gb, ga = report["gap_before"], report["gap_after"]
-    skipped = [*report.get("unrepresented_runs", []), *report.get("unexcited_runs", [])]
+    skipped = [u for kind in KINDS for u in report.get(kind.field, [])]
     if not report["effects"] and skipped:  # nothing was diagnosed
         return "\n".join([f"model {report['model']}: runs {', '.join(report['fit_runs'] + report['holdout_runs'])}"]
                          + [f"  not diagnosed: {u['reason']}" for u in skipped] + [report["verdict"]])

@@ -120,6 +120,10 @@ def unrepresented_runs(runs) -> list:
     return out
 
 
+#: the reasons a run is not diagnosed, in the order a run's reasons are listed (each kind names its report field)
+KINDS = (Unrepresented, Unexcited)
+
+
 def screen_runs(runs, p: PlantParameters) -> list:
     """Per run, the tuple of reasons it is not diagnosed (its :class:`Unrepresented`, then its :class:`Unexcited`:
     a log at the surface with every PWM at neutral is both), empty when it can be diagnosed."""
@@ -127,5 +131,5 @@ def screen_runs(runs, p: PlantParameters) -> list:
             for pair in zip(unrepresented_runs(runs), unexcited_runs(runs, p))]
 
 
-__all__ = ["UNEXCITED_COMMAND", "Unexcited", "Unrepresented", "run_label", "screen_runs", "unexcited_runs",
+__all__ = ["KINDS", "UNEXCITED_COMMAND", "Unexcited", "Unrepresented", "run_label", "screen_runs", "unexcited_runs",
            "unrepresented_runs"]
