@@ -63,6 +63,7 @@ from udrobot_ctrl.gap.confirm import (
 )
 from udrobot_ctrl.gap.data import prepare
 from udrobot_ctrl.gap.effects import Actuation
+from udrobot_ctrl.gap.heading import CURRENT, heading_coverage
 from udrobot_ctrl.gap.identifiability import Identifiability
 from udrobot_ctrl.gap.locate import Located, locate, noise_floor
 from udrobot_ctrl.gap.screen import KINDS, UNEXCITED_COMMAND, Unexcited, run_label, screen_runs
@@ -1311,6 +1312,7 @@ def report_json(inp: Inputs, where: Where, stacks: Stacks, sel: Selection, elim:
         "unexplained": (after.value / before.value) if before.value > 0 else float("nan"),
         "remaining": [r.to_json() for r in remaining_gap(after, where.located.floor,
                                                           closed_loop_shares(inp.holdout))],
+        "heading_coverage": (hc.to_json() if (hc := heading_coverage(inp.fit, inp.holdout)) is not None else None),
         "verdict": verdict,
         "location_detail": where.located.detail_json(),
         "noise": {"tau_int_samples": sel.tau_int, "n_eff": sel.n_eff, "n_samples": stacks.fit.N,
@@ -1845,6 +1847,8 @@ def summary(report) -> str:
                                                      for k, v in (e.get("fitted_params_if_added") or {}).items()))
         elif back:
             lines.append("      " + e["evidence"].get("note", "dropped on the holdout"))
+        if e["name"] == CURRENT and report.get("heading_coverage"):  # the current is world-fixed: turns with psi
+            lines.append("      headings: " + report["heading_coverage"]["text"])
     for u in report.get("unidentifiable", []):
         lines.append(f"  unidentifiable with these sensors: {u['name']} ({u['reason']})")
     for u in skipped:
