@@ -16,6 +16,8 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
+from udrobot_ctrl.dynamics.plant import wrap_angle
+
 #: runs whose headings spread less than this (circular standard deviation, deg) hold one heading: a world-fixed
 #: current is then a body-fixed force to within sin(20 deg) = 0.34 of its size across track. Assumed (a
 #: judgement of when a rotated current is still a look-alike of a constant force), not measured
@@ -114,7 +116,7 @@ def heading_coverage(fit, holdout) -> HeadingCoverage | None:
     both = headings([_psi(pr) for pr in list(fit) + list(holdout)])
     if f is None or h is None:
         return None
-    sep = abs((f.mean_deg - h.mean_deg + 180.0) % 360.0 - 180.0)
+    sep = math.degrees(abs(float(wrap_angle(math.radians(f.mean_deg - h.mean_deg)))))
     if both.std_deg < ONE_HEADING_STD_DEG:
         reading = READINGS[0]
         text = (f"every run holds one heading (mean {f.mean_deg:.0f} deg, spread {both.std_deg:.0f} deg): a steady "
