@@ -112,10 +112,11 @@ def heading_coverage(fit, holdout) -> HeadingCoverage | None:
     -------
     HeadingCoverage or None
     """
-    f, h = headings([_psi(pr) for pr in fit]), headings([_psi(pr) for pr in holdout])
-    both = headings([_psi(pr) for pr in list(fit) + list(holdout)])
+    psi_fit, psi_holdout = [_psi(pr) for pr in fit], [_psi(pr) for pr in holdout]
+    f, h = headings(psi_fit), headings(psi_holdout)
     if f is None or h is None:
         return None
+    both = headings(psi_fit + psi_holdout)
     sep = math.degrees(abs(float(wrap_angle(math.radians(f.mean_deg - h.mean_deg)))))
     if both.std_deg < ONE_HEADING_STD_DEG:
         reading = READINGS[0]
