@@ -7,7 +7,10 @@ Runs on other headings can, and a holdout flown on a heading far from the fit ru
 on the fit runs must pass (docs/formats/diagnosis.md, ``heading_coverage``).
 
 :func:`heading_coverage` reads the headings of the prepared fit and holdout runs and says which of the three
-applies (:data:`READINGS`).
+applies (:data:`READINGS`). :func:`current_parts` fits the current on the fit runs and on the holdout runs apart
+and says whether they share one (:data:`CURRENT_READINGS`): one steady current of one size and direction, two
+that point the same way off the bow while the vehicle turned (a body-fixed force that turns with the vehicle: a
+thrust bias or a drag error, not a current), or two that differ otherwise.
 """
 from __future__ import annotations
 
@@ -15,8 +18,10 @@ import math
 from dataclasses import asdict, dataclass
 
 import numpy as np
+from scipy.stats import chi2
 
 from udrobot_ctrl.dynamics.plant import wrap_angle
+from udrobot_ctrl.gap.attribute import Attributor, Fit, holdout_lr
 
 #: runs whose headings spread less than this (circular standard deviation, deg) hold one heading: a world-fixed
 #: current is then a body-fixed force to within sin(20 deg) = 0.34 of its size across track. Assumed (a
@@ -29,6 +34,24 @@ REVERSED_DEG = 90.0
 CURRENT = "water_current"
 #: the kinds of :class:`HeadingCoverage` reading
 READINGS = ("one heading", "holdout reversed", "headings vary")
+#: holdout likelihood ratio (chi-square, 0.99 quantile, 3 degrees of freedom: c_N, c_E, c_D) of the holdout runs'
+#: own current against none above which the holdout runs support a current at all
+CURRENT_CHI2 = float(chi2.ppf(0.99, 3))
+#: the share of the holdout's own current's likelihood gain there that the fit runs' current must reach for the two
+#: parts to share one current. Assumed: a current fitted on one part that does at least half of what the other
+#: part's own current does there is the same current, up to the difference a depth or time profile makes (a
+#: likelihood-ratio test of the two against each other rejects even equal currents on long runs: the equation
+#: error's model error, not its noise, sets how close two fits come)
+SAME_CURRENT_SHARE = 0.5
+#: horizontal currents slower than this (m/s) are given no direction. Assumed: a tenth of the weakest current the
+#: catalogue's tests draw (0.08 m/s) and about a DVL's velocity noise per sample; below it the angle is noise
+DIRECTION_SPEED = 0.01
+#: two parts' currents whose directions off the bow agree within this (deg), while the vehicle turned at least
+#: REVERSED_DEG between the parts, turn with the vehicle. Assumed: half of REVERSED_DEG, so that such currents are
+#: closer in the body frame than in the world
+BODY_FIXED_DEG = REVERSED_DEG / 2
+#: the kinds of :class:`CurrentParts` reading
+CURRENT_READINGS = ("one current", "no current", "turns with the vehicle", "not one current")
 
 
 @dataclass(frozen=True)
@@ -51,6 +74,67 @@ class Headings:
 
 
 @dataclass(frozen=True)
+class PartCurrent:
+    """A steady current fitted on one part of the runs (the fit runs, or the holdout runs).
+
+    Attributes
+    ----------
+    north, east, down : float
+        The current's NED components, m/s.
+    speed : float
+        Its horizontal speed, m/s.
+    toward_deg : float
+        The direction it flows toward, deg from north in (-180, 180] (nan below :data:`DIRECTION_SPEED`).
+    off_bow_deg : float
+        That direction less the part's mean heading, deg in (-180, 180]: where it flows in the body frame
+        (0 ahead, 180 aft; nan below :data:`DIRECTION_SPEED`).
+    """
+
+    north: float
+    east: float
+    down: float
+    speed: float
+    toward_deg: float
+    off_bow_deg: float
+
+
+@dataclass(frozen=True)
+class CurrentParts:
+    """The steady current fitted on the fit runs and on the holdout runs apart (``heading_coverage.currents``).
+
+    Attributes
+    ----------
+    fit, holdout : PartCurrent
+        Each part's current, fitted alone on its runs' equation error (the holdout's search starts from the fit
+        runs' current as well, so it is never worse there).
+    world_angle_deg : float
+        Angle between the two horizontal currents, deg in [0, 180] (nan when either is below
+        :data:`DIRECTION_SPEED`).
+    body_angle_deg : float
+        Angle between their directions off the bow, deg in [0, 180] (nan likewise).
+    holdout_lr : float
+        Holdout equation-error likelihood ratio of the holdout runs' own current against none (N_eff of the
+        holdout runs; :data:`CURRENT_CHI2`).
+    share : float
+        The fit runs' current's likelihood gain on the holdout runs (frozen) as a share of the holdout's own
+        current's (:data:`SAME_CURRENT_SHARE`); negative when it makes the holdout worse than none.
+    reading : str
+        One of :data:`CURRENT_READINGS`.
+    text : str
+        The reading in words, with both currents.
+    """
+
+    fit: PartCurrent
+    holdout: PartCurrent
+    world_angle_deg: float
+    body_angle_deg: float
+    holdout_lr: float
+    share: float
+    reading: str
+    text: str
+
+
+@dataclass(frozen=True)
 class HeadingCoverage:
     """What the headings of the runs let a diagnosis say of a steady current (the report's ``heading_coverage``).
 
@@ -68,6 +152,9 @@ class HeadingCoverage:
         ``headings vary``.
     text : str
         The reading in words, with the measurement that is missing when it is ``one heading``.
+    currents : CurrentParts or None
+        The current fitted on each part apart (:func:`current_parts`); None when the diagnosis did not fit one
+        that the channels identify.
     """
 
     fit: Headings
@@ -76,6 +163,7 @@ class HeadingCoverage:
     separation_deg: float
     reading: str
     text: str
+    currents: CurrentParts | None = None
 
     def to_json(self) -> dict:
         return asdict(self)
@@ -120,7 +208,7 @@ def heading_coverage(fit, holdout) -> HeadingCoverage | None:
     sep = math.degrees(abs(float(wrap_angle(math.radians(f.mean_deg - h.mean_deg)))))
     if both.std_deg < ONE_HEADING_STD_DEG:
         reading = READINGS[0]
-        text = (f"every run holds one heading (mean {f.mean_deg:.0f} deg, spread {both.std_deg:.0f} deg): a steady "
+        text = (f"every run holds one heading (mean {f.mean_deg:.0f} deg, spread {both.std_deg:.1f} deg): a steady "
                 "current is a body-fixed force on these runs, which a thrust bias or a drag error makes as well; "
                 "missing: a run on another heading (the reverse transect) or a velocity through the water")
     elif sep >= REVERSED_DEG:
@@ -130,6 +218,94 @@ def heading_coverage(fit, holdout) -> HeadingCoverage | None:
                 "the holdout tests its direction")
     else:
         reading = READINGS[2]
-        text = (f"the headings vary (spread {both.std_deg:.0f} deg; holdout {sep:.0f} deg from the fit runs): a "
+        text = (f"the headings vary (spread {both.std_deg:.1f} deg; holdout {sep:.0f} deg from the fit runs): a "
                 "steady current's body-frame force turns with them, which the fit can use")
     return HeadingCoverage(f, h, both.std_deg, sep, reading, text)
+
+
+def part_current(c, heading_deg: float) -> PartCurrent:
+    """A current ``c`` (NED, m/s) fitted on runs whose mean heading is ``heading_deg`` (deg)."""
+    north, east, down = (float(v) for v in c)
+    speed = math.hypot(north, east)
+    if speed < DIRECTION_SPEED:
+        return PartCurrent(north, east, down, speed, math.nan, math.nan)
+    toward = math.degrees(math.atan2(east, north))
+    return PartCurrent(north, east, down, speed, toward, _wrap_deg(toward - heading_deg))
+
+
+def _wrap_deg(a: float) -> float:
+    """``a`` (deg) wrapped into (-180, 180]."""
+    return math.degrees(float(wrap_angle(math.radians(a))))
+
+
+def _flow(c: PartCurrent) -> str:
+    """One part's current in words."""
+    where = (f"{c.speed:.3f} m/s toward {c.toward_deg % 360:03.0f} deg ({c.off_bow_deg:+.0f} deg off the bow)"
+             if math.isfinite(c.toward_deg) else f"{c.speed:.3f} m/s across")
+    return f"{where}, down {c.down:+.3f} m/s"
+
+
+def read_currents(fit: PartCurrent, holdout: PartCurrent, turned_deg: float, lr: float, share: float) -> tuple:
+    """What the fit and holdout runs' currents say, ``(reading, text, world_angle_deg, body_angle_deg)``.
+
+    Parameters
+    ----------
+    fit, holdout : PartCurrent
+        The current fitted on each part.
+    turned_deg : float
+        Angle between the two parts' mean headings, deg (:attr:`HeadingCoverage.separation_deg`).
+    lr : float
+        Holdout likelihood ratio of the holdout's own current against none (:data:`CURRENT_CHI2`).
+    share : float
+        The fit runs' current's gain on the holdout as a share of the holdout's own (:data:`SAME_CURRENT_SHARE`).
+
+    Returns
+    -------
+    tuple
+        One of :data:`CURRENT_READINGS`, its text, and the angles between the currents in the world and off the
+        bow (deg; nan when either is slower than :data:`DIRECTION_SPEED`).
+    """
+    world = abs(_wrap_deg(fit.toward_deg - holdout.toward_deg))
+    body = abs(_wrap_deg(fit.off_bow_deg - holdout.off_bow_deg))
+    both = f"fit runs {_flow(fit)}; holdout runs {_flow(holdout)}"
+    gain = f"the fit runs' current does {100 * share:.0f}% of what the holdout runs' own does there"
+    if lr <= CURRENT_CHI2:
+        return (CURRENT_READINGS[1], f"{both}: the holdout runs support no current (likelihood ratio of their own "
+                f"against none {lr:.1f} <= {CURRENT_CHI2:.1f})", world, body)
+    if share >= SAME_CURRENT_SHARE:
+        return CURRENT_READINGS[0], f"{both}: one current over both parts ({gain})", world, body
+    if turned_deg >= REVERSED_DEG and body <= BODY_FIXED_DEG:
+        return (CURRENT_READINGS[2], f"{both}: not one current ({gain}); off the bow they point the same way "
+                f"({body:.0f} deg apart) while the vehicle turned {turned_deg:.0f} deg, so the force fitted as a "
+                "current turns with the vehicle: a body-fixed force (a thrust bias or a drag error along the "
+                "track), not a steady current", world, body)
+    return (CURRENT_READINGS[3], f"{both}: not one current ({gain}); no steady current of one size and direction "
+            "fits both parts", world, body)
+
+
+def current_parts(att: Attributor, att_h: Attributor, fitted: Fit, coverage: HeadingCoverage) -> CurrentParts:
+    """The steady current fitted on the fit runs (``fitted``, the diagnosis' single fit on ``att``) set beside the
+    one fitted on the holdout runs (``att_h``), and whether they are one current (:func:`read_currents`).
+
+    Parameters
+    ----------
+    att, att_h : Attributor
+        The fit runs' and the holdout runs' equation-error stacks (``att_h.n_eff`` set).
+    fitted : Fit
+        The current alone fitted on the fit runs (its shape is the current, NED m/s).
+    coverage : HeadingCoverage
+        The two parts' headings.
+
+    Returns
+    -------
+    CurrentParts
+    """
+    c_fit = tuple(fitted.shapes[CURRENT])
+    own = att_h.best_shape(CURRENT, seeds=(c_fit,))
+    none, theirs = att_h.fit([]), att_h.fit([(CURRENT, c_fit)])
+    lr = holdout_lr(att_h, none, own)
+    share = holdout_lr(att_h, none, theirs) / lr if lr > 0 else math.nan
+    f = part_current(c_fit, coverage.fit.mean_deg)
+    h = part_current(own.shapes[CURRENT], coverage.holdout.mean_deg)
+    reading, text, world, body = read_currents(f, h, coverage.separation_deg, lr, share)
+    return CurrentParts(f, h, world, body, lr, share, reading, text)

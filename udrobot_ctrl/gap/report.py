@@ -63,7 +63,7 @@ from udrobot_ctrl.gap.confirm import (
 )
 from udrobot_ctrl.gap.data import prepare
 from udrobot_ctrl.gap.effects import Actuation
-from udrobot_ctrl.gap.heading import CURRENT, heading_coverage
+from udrobot_ctrl.gap.heading import CURRENT, HeadingCoverage, current_parts, heading_coverage
 from udrobot_ctrl.gap.identifiability import Identifiability
 from udrobot_ctrl.gap.locate import Located, locate, noise_floor
 from udrobot_ctrl.gap.screen import KINDS, UNEXCITED_COMMAND, Unexcited, run_label, screen_runs
@@ -1294,6 +1294,17 @@ def ranked_like(listed, verdicts) -> list:
     return sorted(listed, key=lambda e: rank.get(e["name"], len(rank)))
 
 
+def headings_and_currents(inp: Inputs, stacks: Stacks, sel: Selection) -> HeadingCoverage | None:
+    """The report's ``heading_coverage``: the headings of the fit and holdout runs and, when the channels identify
+    every parameter of a steady current and the diagnosis fitted one, that current fitted on each part apart
+    (:mod:`udrobot_ctrl.gap.heading`)."""
+    hc = heading_coverage(inp.fit, inp.holdout)
+    known = stacks.identifiability.effects.get(CURRENT)
+    if hc is None or CURRENT not in sel.singles or known is None or not known.identified or known.not_identified:
+        return hc
+    return replace(hc, currents=current_parts(stacks.fit, stacks.holdout, sel.singles[CURRENT], hc))
+
+
 def report_json(inp: Inputs, where: Where, stacks: Stacks, sel: Selection, elim: Elimination, verdicts, verdict,
                 elapsed_s, support: ReplaySupport | None = None) -> dict:
     """The ``udrobot-diagnosis/1`` report (docs/formats/diagnosis.md) of the diagnosis' steps (not yet rounded)."""
@@ -1312,7 +1323,7 @@ def report_json(inp: Inputs, where: Where, stacks: Stacks, sel: Selection, elim:
         "unexplained": (after.value / before.value) if before.value > 0 else float("nan"),
         "remaining": [r.to_json() for r in remaining_gap(after, where.located.floor,
                                                           closed_loop_shares(inp.holdout))],
-        "heading_coverage": (hc.to_json() if (hc := heading_coverage(inp.fit, inp.holdout)) is not None else None),
+        "heading_coverage": (hc.to_json() if (hc := headings_and_currents(inp, stacks, sel)) is not None else None),
         "verdict": verdict,
         "location_detail": where.located.detail_json(),
         "noise": {"tau_int_samples": sel.tau_int, "n_eff": sel.n_eff, "n_samples": stacks.fit.N,
@@ -1849,6 +1860,8 @@ def summary(report) -> str:
             lines.append("      " + e["evidence"].get("note", "dropped on the holdout"))
         if e["name"] == CURRENT and report.get("heading_coverage"):  # the current is world-fixed: turns with psi
             lines.append("      headings: " + report["heading_coverage"]["text"])
+            if report["heading_coverage"].get("currents"):
+                lines.append("      currents: " + report["heading_coverage"]["currents"]["text"])
     for u in report.get("unidentifiable", []):
         lines.append(f"  unidentifiable with these sensors: {u['name']} ({u['reason']})")
     for u in skipped:

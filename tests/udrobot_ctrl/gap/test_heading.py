@@ -7,7 +7,23 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from udrobot_ctrl.gap.heading import ONE_HEADING_STD_DEG, READINGS, REVERSED_DEG, heading_coverage, headings
+from udrobot_ctrl.gap.heading import (
+    CURRENT,
+    CURRENT_CHI2,
+    CURRENT_READINGS,
+    DIRECTION_SPEED,
+    ONE_HEADING_STD_DEG,
+    READINGS,
+    REVERSED_DEG,
+    SAME_CURRENT_SHARE,
+    heading_coverage,
+    headings,
+    part_current,
+    read_currents,
+)
+from udrobot_ctrl.gap.report import attribute, build_stacks, headings_and_currents, prepare_inputs
+
+from .truth import generate
 
 
 def _run(psi):
@@ -63,3 +79,63 @@ def test_runs_without_a_logged_heading_give_no_coverage():
     assert heading_coverage([_run(np.full(50, np.nan))], [_run(_noisy(0, 5))]) is None
     assert heading_coverage([SimpleNamespace(meas={})], [_run(_noisy(0, 5))]) is None
     assert headings([]) is None
+
+
+def test_a_current_is_given_its_direction_in_the_world_and_off_the_bow():
+    c = part_current((0.1, 0.1, -0.02), heading_deg=-90.0)  # flowing north-east, the vehicle heading west
+    assert c.speed == pytest.approx(math.hypot(0.1, 0.1)) and c.toward_deg == pytest.approx(45.0)
+    assert c.off_bow_deg == pytest.approx(135.0) and c.down == pytest.approx(-0.02)
+    slow = part_current((0.5 * DIRECTION_SPEED, 0.0, 0.1), heading_deg=0.0)  # too slow for a direction
+    assert math.isnan(slow.toward_deg) and math.isnan(slow.off_bow_deg)
+
+
+def test_currents_that_keep_their_bearing_off_the_bow_while_the_vehicle_reverses_turn_with_it():
+    """The shared sea dive's figures: the fit part's current flows 146 deg off the bow to port, the holdout's 167 deg,
+    while the vehicle turned 171 deg; the fit part's current makes the holdout worse than none."""
+    fit, hold = part_current((0.0225, 0.0444, -0.085), -151.0), part_current((-0.0240, -0.0296, -0.011), 38.0)
+    reading, text, world, body = read_currents(fit, hold, turned_deg=171.0, lr=54.0, share=-1.41)
+    assert reading == CURRENT_READINGS[2] and "body-fixed force" in text
+    assert world == pytest.approx(168.0, abs=1.0) and body == pytest.approx(21.0, abs=1.0)
+    # the same currents, the vehicle not turned: they disagree in the world and off the bow alike
+    assert read_currents(fit, hold, turned_deg=10.0, lr=54.0, share=-1.41)[0] == CURRENT_READINGS[3]
+
+
+def test_the_holdouts_support_decides_before_the_directions():
+    fit, hold = part_current((0.1, 0.0, 0.0), 0.0), part_current((0.1, 0.01, 0.0), 180.0)
+    assert read_currents(fit, hold, 180.0, lr=CURRENT_CHI2 - 0.1, share=0.9)[0] == CURRENT_READINGS[1]
+    one = read_currents(fit, hold, 180.0, lr=10 * CURRENT_CHI2, share=SAME_CURRENT_SHARE)
+    assert one[0] == CURRENT_READINGS[0] and one[2] == pytest.approx(5.7, abs=0.1)
+    # a current the holdout's own beats by more than half, pointing the same way in the world: not one current,
+    # and not a body-fixed force either (it did not keep its bearing off the bow)
+    assert read_currents(fit, hold, 180.0, lr=10 * CURRENT_CHI2, share=0.2)[0] == CURRENT_READINGS[3]
+
+
+def _split_headings(effects, seed=3):
+    """Fit runs flown north, the holdout run the reverse transect (south), with ``effects`` withheld; the report's
+    heading_coverage after the fit of the current alone."""
+    runs = generate(effects, n_runs=3, duration=60.0, seed=seed, headings=[0.0, 0.0, math.pi])
+    inp = prepare_inputs("pendulum:chin", runs, None, None, 8.0)  # the last run held out
+    stacks = build_stacks(inp)
+    return headings_and_currents(inp, stacks, attribute(stacks, [CURRENT]))
+
+
+@pytest.mark.slow
+def test_a_steady_current_is_found_in_both_parts_and_read_as_one():
+    """A 0.12 m/s current toward 034 deg (a 1/7-power profile over the pool depth: 0.09-0.11 m/s where the runs
+    fly), fitted on the northbound fit runs and on the southbound holdout apart: the same current twice."""
+    hc = _split_headings({"water_current": {"V0": 0.12, "dir": math.radians(34.0)}})
+    cur = hc.currents
+    assert hc.reading == READINGS[1] and cur.reading == CURRENT_READINGS[0]
+    for part in (cur.fit, cur.holdout):
+        assert 0.07 < part.speed < 0.13 and part.toward_deg == pytest.approx(34.0, abs=8.0)
+        assert abs(part.down) < 0.02  # no vertical current
+    assert cur.share > 0.8 and cur.world_angle_deg < 10.0 and cur.body_angle_deg > 150.0
+
+
+@pytest.mark.slow
+def test_a_constant_push_in_the_body_frame_is_no_current():
+    """The horizontal thrusters' ESCs trimmed 2 N off neutral: a body-fixed surge force that a current cannot make
+    while the vehicle hovers, surges and reverses; neither part fits a current, the holdout supports none."""
+    hc = _split_headings({"neutral_offset": {"X": -2.0}})
+    assert hc.currents.reading == CURRENT_READINGS[1]
+    assert hc.currents.fit.speed < 0.02 and hc.currents.holdout.speed < 0.02

@@ -22,7 +22,8 @@ means the physics was recovered, not a formula matched:
 * drag_centre_offset: the *quadratic* (form) drag alone acts at a centre of pressure r, with that point's velocity,
   while the linear (skin-friction) drag stays at the CO (the template moves the whole translational drag, linear
   and quadratic, to one point);
-* outside the catalogue: a periodic (wave) disturbance and a sensor delay.
+* outside the catalogue: a periodic (wave) disturbance, a sensor delay, and a neutral offset (the horizontal
+  thrusters' ESCs trimmed off their neutral: a constant surge force ``X`` in the body frame; no random draw).
 """
 from __future__ import annotations
 
@@ -239,6 +240,8 @@ class Truth:
             wv = c["A"] * np.sin(2 * np.pi * t / c["period"]) * np.exp(-x[:, 2] / 2.0)
             F[:, 0] += wv
             F[:, 2] += 0.7 * c["A"] * np.cos(2 * np.pi * t / c["period"]) * np.exp(-x[:, 2] / 2.0)
+        if "neutral_offset" in e:  # the horizontal thrusters' ESCs trimmed off neutral: a constant body-fixed push
+            F[:, 0] += e["neutral_offset"]["X"]
         return F, dM
 
     def deriv(self, x, f, t):
@@ -300,7 +303,7 @@ def specific_force(x, nu_dot, g=GRAVITY):
 
 
 def generate(effects=None, n_runs=3, duration=90.0, rate=20.0, seed=0, model="pendulum:chin", partial=False,
-             wall_distance=None, noise_scale=1.0, path="legs", sensors="full"):
+             wall_distance=None, noise_scale=1.0, path="legs", sensors="full", headings=None):
     """Simulate ``n_runs`` closed-loop pool runs with the withheld ``effects`` (name -> params dict).
 
     ``path``: ``"legs"`` (surge legs along the pool with yaw turns) or ``"loop"`` (the same legs as arcs of a steady
@@ -309,6 +312,8 @@ def generate(effects=None, n_runs=3, duration=90.0, rate=20.0, seed=0, model="pe
     ``"stock"`` logs what a stock small ROV has: depth, attitude, gyro rates and the accelerometer ``ax ay az``
     (specific force of the truth state, white noise ``ACCEL_NOISE`` plus a constant bias per axis and run drawn
     uniformly in +-``ACCEL_BIAS``), no u v w x y altitude.
+    ``headings``: each run's base heading (rad, default 0: every run flies its legs north along the wall); the
+    references turn by as much, so a run with pi flies the reverse transect.
 
     Returns a list of :class:`udrobot_ctrl.io.runlog.Run` (thrust_i inputs, noisy sensors, sidecar metadata
     with the seabed depth and the wall) -- the diagnoser sees nothing else.
@@ -335,8 +340,10 @@ def generate(effects=None, n_runs=3, duration=90.0, rate=20.0, seed=0, model="pe
     if path not in ("legs", "loop"):
         raise ValueError(f"path must be 'legs' or 'loop', got {path!r}")
     turn_rate = LOOP_TURN_RATE if path == "loop" else 0.0
+    psi0 = np.zeros(R_) if headings is None else np.asarray(headings, float) * np.ones(R_)
     x = np.zeros((R_, 12))
     x[:, 2] = z0
+    x[:, 5] = psi0
     x[:, 1] = WALL_Y + ywall
     s_state = np.zeros((R_, 4))
     A = _allocation(tr.T)
@@ -348,6 +355,7 @@ def generate(effects=None, n_runs=3, duration=90.0, rate=20.0, seed=0, model="pe
     for k in range(n):
         t = k * dt
         u_ref, psi_ref, z_ref, on = schedule(t, prm, turn_rate)
+        psi_ref = psi_ref + psi0
         u, w, r, phi, pp = x[:, 6], x[:, 8], x[:, 11], x[:, 3], x[:, 9]
         ez = z_ref - x[:, 2]
         iz = np.clip(iz + ez * dt, -2, 2)
