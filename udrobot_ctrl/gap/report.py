@@ -68,6 +68,7 @@ from udrobot_ctrl.gap.identifiability import Identifiability
 from udrobot_ctrl.gap.locate import Located, locate, noise_floor
 from udrobot_ctrl.gap.screen import KINDS, UNEXCITED_COMMAND, Unexcited, run_label, screen_runs
 from udrobot_ctrl.gap.shrink import UNITS, GapScore, check_window, gap, prepare_with_effects, simulate_windows_each
+from udrobot_ctrl.gap.top_end import TETHER, top_end
 from udrobot_ctrl.io.files import atomic_write
 from udrobot_ctrl.io.runlog import Run
 from udrobot_ctrl.parallel import Background, fork_map, one_blas_thread
@@ -339,6 +340,8 @@ class EffectVerdict:
     replay_diverged_windows: int = 0  # holdout windows its single-effect replay diverged in
     #: amplitudes of a named per-DOF effect held at nominal: parameter -> (value, bound) where their fit ended
     held_at_nominal: dict | None = None
+    #: tether_drag only: where its fitted top end lies (:class:`udrobot_ctrl.gap.top_end.TopEnd`)
+    top_end: dict | None = None
 
     def to_json(self) -> dict:
         out = {"name": self.name, "significant": self.significant, "params": self.params, "shrink": self.shrink,
@@ -353,6 +356,8 @@ class EffectVerdict:
             out["not_identified"] = self.not_identified
         if self.at_bound:
             out["at_bound"] = {k: {"value": v, "bound": b} for k, (v, b) in self.at_bound.items()}
+        if self.top_end:
+            out["top_end"] = self.top_end
         if self.at_bound_reason:
             out["at_bound_reason"] = self.at_bound_reason
         if self.replay_diverged_windows:
@@ -1092,18 +1097,20 @@ def effect_verdicts(inp: Inputs, stacks: Stacks, sel: Selection, elim: Eliminati
         ev = Evidence(sel.delta_bic[n], steps.get(n), elim.last_test(n), note)
         alts = tuple((a, fx.discriminating_manoeuvre(n, a)) for a in combo.indistinguishable.get(n, ())) \
             if significant else ()
+        shown = combo.fit.params[n] if significant else (at_bound[n].fitted if n in at_bound
+                                                         else sel.singles[n].params[n])
+        end = top_end(shown, stacks.fit.s.eta[:, :3]) if n == TETHER else None
         out.append(EffectVerdict(
-            name=n, significant=significant, params=combo.fit.params[n] if significant else {}, shrink=shrink[n],
-            evidence=ev, meaning=inp.catalogue[n].meaning,
-            fitted_params_if_added=None if significant else (at_bound[n].fitted if n in at_bound
-                                                             else sel.singles[n].params[n]),
+            name=n, significant=significant, params=shown if significant else {}, shrink=shrink[n],
+            evidence=ev, meaning=inp.catalogue[n].meaning, fitted_params_if_added=None if significant else shown,
             indistinguishable_from=alts,
             wall=_wall_entry(combo.fit.params[n], stacks.fit.s, inp.p) if significant and n == "wall_effect"
             else None, not_identified=stacks.identifiability.entry(n).get("not_identified"),
             at_bound=at_bound[n].params if n in at_bound else None,
             at_bound_reason=at_bound[n].reason() if n in at_bound else None,
             replay_diverged_windows=diverged.get(n, 0),
-            held_at_nominal=held[n].params if n in held and significant else None))
+            held_at_nominal=held[n].params if n in held and significant else None,
+            top_end=end.to_json() if end is not None else None))
     return out
 
 
@@ -1858,6 +1865,8 @@ def summary(report) -> str:
                                                      for k, v in (e.get("fitted_params_if_added") or {}).items()))
         elif back:
             lines.append("      " + e["evidence"].get("note", "dropped on the holdout"))
+        if e.get("top_end"):
+            lines.append("      top end: " + e["top_end"]["text"])
         if e["name"] == CURRENT and report.get("heading_coverage"):  # the current is world-fixed: turns with psi
             lines.append("      headings: " + report["heading_coverage"]["text"])
             if report["heading_coverage"].get("currents"):

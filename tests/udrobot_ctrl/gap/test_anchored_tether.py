@@ -74,6 +74,7 @@ def test_the_fitted_anchor_is_the_deck_point(alone):
     assert abs(fitted[2] - true[2]) < ANCHOR_TOLERANCE_M[1], (fitted, true)
     assert q["walk_fraction"] < 0.5, q  # a deck point: the top end stands still
     assert q["cable_taut"] > 0.5, q  # the truth's drag grows with the straight-line length
+    assert _significant(report)["tether_drag"]["top_end"]["reading"] == "at the surface"
 
 
 @pytest.mark.slow
