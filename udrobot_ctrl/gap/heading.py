@@ -21,7 +21,8 @@ import numpy as np
 from scipy.stats import chi2
 
 from udrobot_ctrl.dynamics.plant import wrap_angle
-from udrobot_ctrl.gap.attribute import Attributor, Fit, holdout_lr
+from udrobot_ctrl.gap.attribute import Attributor, Fit
+from udrobot_ctrl.gap.parts import Agreement, agreement
 
 #: runs whose headings spread less than this (circular standard deviation, deg) hold one heading: a world-fixed
 #: current is then a body-fixed force to within sin(20 deg) = 0.34 of its size across track. Assumed (a
@@ -37,12 +38,6 @@ READINGS = ("one heading", "holdout reversed", "headings vary")
 #: holdout likelihood ratio (chi-square, 0.99 quantile, 3 degrees of freedom: c_N, c_E, c_D) of the holdout runs'
 #: own current against none above which the holdout runs support a current at all
 CURRENT_CHI2 = float(chi2.ppf(0.99, 3))
-#: the share of the holdout's own current's likelihood gain there that the fit runs' current must reach for the two
-#: parts to share one current. Assumed: a current fitted on one part that does at least half of what the other
-#: part's own current does there is the same current, up to the difference a depth or time profile makes (a
-#: likelihood-ratio test of the two against each other rejects even equal currents on long runs: the equation
-#: error's model error, not its noise, sets how close two fits come)
-SAME_CURRENT_SHARE = 0.5
 #: horizontal currents slower than this (m/s) are given no direction. Assumed: a tenth of the weakest current the
 #: catalogue's tests draw (0.08 m/s) and about a DVL's velocity noise per sample; below it the angle is noise
 DIRECTION_SPEED = 0.01
@@ -50,6 +45,10 @@ DIRECTION_SPEED = 0.01
 #: REVERSED_DEG between the parts, turn with the vehicle. Assumed: half of REVERSED_DEG, so that such currents are
 #: closer in the body frame than in the world
 BODY_FIXED_DEG = REVERSED_DEG / 2
+#: a fitted vertical current faster than this (m/s) stands in for a heave force. Assumed: steady vertical flows in
+#: open water (upwelling, mm/s and less) and in a pool are far slower; only eddies and internal waves reach a few
+#: cm/s, and they are not steady
+VERTICAL_CURRENT_MPS = 0.05
 #: the kinds of :class:`CurrentParts` reading
 CURRENT_READINGS = ("one current", "no current", "turns with the vehicle", "not one current")
 
@@ -117,7 +116,7 @@ class CurrentParts:
         holdout runs; :data:`CURRENT_CHI2`).
     share : float
         The fit runs' current's likelihood gain on the holdout runs (frozen) as a share of the holdout's own
-        current's (:data:`SAME_CURRENT_SHARE`); negative when it makes the holdout worse than none.
+        current's (:class:`udrobot_ctrl.gap.parts.Agreement`); negative when it makes the holdout worse than none.
     reading : str
         One of :data:`CURRENT_READINGS`.
     text : str
@@ -245,7 +244,7 @@ def _flow(c: PartCurrent) -> str:
     return f"{where}, down {c.down:+.3f} m/s"
 
 
-def read_currents(fit: PartCurrent, holdout: PartCurrent, turned_deg: float, lr: float, share: float) -> tuple:
+def read_currents(fit: PartCurrent, holdout: PartCurrent, turned_deg: float, ag: Agreement) -> tuple:
     """What the fit and holdout runs' currents say, ``(reading, text, world_angle_deg, body_angle_deg)``.
 
     Parameters
@@ -254,33 +253,42 @@ def read_currents(fit: PartCurrent, holdout: PartCurrent, turned_deg: float, lr:
         The current fitted on each part.
     turned_deg : float
         Angle between the two parts' mean headings, deg (:attr:`HeadingCoverage.separation_deg`).
-    lr : float
-        Holdout likelihood ratio of the holdout's own current against none (:data:`CURRENT_CHI2`).
-    share : float
-        The fit runs' current's gain on the holdout as a share of the holdout's own (:data:`SAME_CURRENT_SHARE`).
+    ag : Agreement
+        The holdout's own current against none (:data:`CURRENT_CHI2`), and the share of its gain the fit runs'
+        current reaches there.
 
     Returns
     -------
     tuple
         One of :data:`CURRENT_READINGS`, its text, and the angles between the currents in the world and off the
-        bow (deg; nan when either is slower than :data:`DIRECTION_SPEED`).
+        bow (deg; nan when either is slower than :data:`DIRECTION_SPEED`). ``one current`` needs the fit runs'
+        current to reach :data:`~udrobot_ctrl.gap.parts.SAME_SHARE` of the holdout's own gain there *and* the two
+        horizontal directions to lie within :data:`REVERSED_DEG` (a share reached through the vertical part alone
+        is not one current); a vertical part beyond :data:`VERTICAL_CURRENT_MPS` is named as a heave force's
+        stand-in.
     """
     world = abs(_wrap_deg(fit.toward_deg - holdout.toward_deg))
     body = abs(_wrap_deg(fit.off_bow_deg - holdout.off_bow_deg))
     both = f"fit runs {_flow(fit)}; holdout runs {_flow(holdout)}"
-    gain = f"the fit runs' current does {100 * share:.0f}% of what the holdout runs' own does there"
+    lr, gain = ag.holdout_lr, ag.words()
+    opposed = world > REVERSED_DEG  # False when a direction is undefined (nan)
+    vertical = max(abs(fit.down), abs(holdout.down))
+    heave = (f"; its vertical part ({vertical:.3f} m/s) is beyond a steady vertical flow (assumed at most "
+             f"{VERTICAL_CURRENT_MPS:.2f} m/s): it stands in for a heave force (a buoyancy or vertical thrust error)"
+             if vertical > VERTICAL_CURRENT_MPS else "")
     if lr <= CURRENT_CHI2:
         return (CURRENT_READINGS[1], f"{both}: the holdout runs support no current (likelihood ratio of their own "
                 f"against none {lr:.1f} <= {CURRENT_CHI2:.1f})", world, body)
-    if share >= SAME_CURRENT_SHARE:
-        return CURRENT_READINGS[0], f"{both}: one current over both parts ({gain})", world, body
+    if ag.agrees and not opposed:
+        return CURRENT_READINGS[0], f"{both}: one current over both parts ({gain}){heave}", world, body
     if turned_deg >= REVERSED_DEG and body <= BODY_FIXED_DEG:
         return (CURRENT_READINGS[2], f"{both}: not one current ({gain}); off the bow they point the same way "
                 f"({body:.0f} deg apart) while the vehicle turned {turned_deg:.0f} deg, so the force fitted as a "
                 "current turns with the vehicle: a body-fixed force (a thrust bias or a drag error along the "
-                "track), not a steady current", world, body)
-    return (CURRENT_READINGS[3], f"{both}: not one current ({gain}); no steady current of one size and direction "
-            "fits both parts", world, body)
+                f"track), not a steady current{heave}", world, body)
+    apart = f"; their horizontal directions are {world:.0f} deg apart" if opposed else ""
+    return (CURRENT_READINGS[3], f"{both}: not one current ({gain}{apart}); no steady current of one size and "
+            f"direction fits both parts{heave}", world, body)
 
 
 def current_parts(att: Attributor, att_h: Attributor, fitted: Fit, coverage: HeadingCoverage) -> CurrentParts:
@@ -302,10 +310,8 @@ def current_parts(att: Attributor, att_h: Attributor, fitted: Fit, coverage: Hea
     """
     c_fit = tuple(fitted.shapes[CURRENT])
     own = att_h.best_shape(CURRENT, seeds=(c_fit,))
-    none, theirs = att_h.fit([]), att_h.fit([(CURRENT, c_fit)])
-    lr = holdout_lr(att_h, none, own)
-    share = holdout_lr(att_h, none, theirs) / lr if lr > 0 else math.nan
+    ag = agreement(att_h, fitted, own)
     f = part_current(c_fit, coverage.fit.mean_deg)
     h = part_current(own.shapes[CURRENT], coverage.holdout.mean_deg)
-    reading, text, world, body = read_currents(f, h, coverage.separation_deg, lr, share)
-    return CurrentParts(f, h, world, body, lr, share, reading, text)
+    reading, text, world, body = read_currents(f, h, coverage.separation_deg, ag)
+    return CurrentParts(f, h, world, body, ag.holdout_lr, ag.share, reading, text)

@@ -66,6 +66,7 @@ from udrobot_ctrl.gap.effects import Actuation
 from udrobot_ctrl.gap.heading import CURRENT, HeadingCoverage, current_parts, heading_coverage
 from udrobot_ctrl.gap.identifiability import Identifiability
 from udrobot_ctrl.gap.locate import Located, locate, noise_floor
+from udrobot_ctrl.gap.parts import named_parts
 from udrobot_ctrl.gap.screen import KINDS, UNEXCITED_COMMAND, Unexcited, run_label, screen_runs
 from udrobot_ctrl.gap.shrink import UNITS, GapScore, check_window, gap, prepare_with_effects, simulate_windows_each
 from udrobot_ctrl.gap.top_end import TETHER, top_end
@@ -1331,6 +1332,8 @@ def report_json(inp: Inputs, where: Where, stacks: Stacks, sel: Selection, elim:
         "remaining": [r.to_json() for r in remaining_gap(after, where.located.floor,
                                                           closed_loop_shares(inp.holdout))],
         "heading_coverage": (hc.to_json() if (hc := headings_and_currents(inp, stacks, sel)) is not None else None),
+        "parts": (pt.to_json() if (pt := named_parts(stacks.holdout, elim.combination.fit,
+                                                     [v.name for v in verdicts if v.significant])) else None),
         "verdict": verdict,
         "location_detail": where.located.detail_json(),
         "noise": {"tau_int_samples": sel.tau_int, "n_eff": sel.n_eff, "n_samples": stacks.fit.N,
@@ -1857,6 +1860,9 @@ def summary(report) -> str:
                      f"dBIC {_num(e['evidence']['delta_bic'], '.0f')}{extra}")
         if e["significant"]:
             lines.append("      params " + ", ".join(f"{k}={_num(v, '.4g')}" for k, v in e["params"].items()))
+            if (report.get("parts") or {}).get("holdout_params", {}).get(e["name"]):
+                lines.append("      fitted on the holdout runs apart: " + ", ".join(
+                    f"{k}={_num(v, '.4g')}" for k, v in report["parts"]["holdout_params"][e["name"]].items()))
             if e.get("held_at_nominal"):
                 lines.append("      " + e["evidence"].get("note", ""))
         elif e.get("at_bound_reason"):
@@ -1871,6 +1877,8 @@ def summary(report) -> str:
             lines.append("      headings: " + report["heading_coverage"]["text"])
             if report["heading_coverage"].get("currents"):
                 lines.append("      currents: " + report["heading_coverage"]["currents"]["text"])
+    if report.get("parts"):
+        lines.append(f"  {', '.join(report['parts']['members'])} {report['parts']['text']}")
     for u in report.get("unidentifiable", []):
         lines.append(f"  unidentifiable with these sensors: {u['name']} ({u['reason']})")
     for u in skipped:

@@ -15,12 +15,13 @@ from udrobot_ctrl.gap.heading import (
     ONE_HEADING_STD_DEG,
     READINGS,
     REVERSED_DEG,
-    SAME_CURRENT_SHARE,
+    VERTICAL_CURRENT_MPS,
     heading_coverage,
     headings,
     part_current,
     read_currents,
 )
+from udrobot_ctrl.gap.parts import SAME_SHARE, Agreement
 from udrobot_ctrl.gap.report import attribute, build_stacks, headings_and_currents, prepare_inputs
 
 from .truth import generate
@@ -93,21 +94,36 @@ def test_currents_that_keep_their_bearing_off_the_bow_while_the_vehicle_reverses
     """The shared sea dive's figures: the fit part's current flows 146 deg off the bow to port, the holdout's 167 deg,
     while the vehicle turned 171 deg; the fit part's current makes the holdout worse than none."""
     fit, hold = part_current((0.0225, 0.0444, -0.085), -151.0), part_current((-0.0240, -0.0296, -0.011), 38.0)
-    reading, text, world, body = read_currents(fit, hold, turned_deg=171.0, lr=54.0, share=-1.41)
+    reading, text, world, body = read_currents(fit, hold, 171.0, Agreement(54.0, -1.41))
     assert reading == CURRENT_READINGS[2] and "body-fixed force" in text
     assert world == pytest.approx(168.0, abs=1.0) and body == pytest.approx(21.0, abs=1.0)
     # the same currents, the vehicle not turned: they disagree in the world and off the bow alike
-    assert read_currents(fit, hold, turned_deg=10.0, lr=54.0, share=-1.41)[0] == CURRENT_READINGS[3]
+    assert read_currents(fit, hold, 10.0, Agreement(54.0, -1.41))[0] == CURRENT_READINGS[3]
 
 
 def test_the_holdouts_support_decides_before_the_directions():
     fit, hold = part_current((0.1, 0.0, 0.0), 0.0), part_current((0.1, 0.01, 0.0), 180.0)
-    assert read_currents(fit, hold, 180.0, lr=CURRENT_CHI2 - 0.1, share=0.9)[0] == CURRENT_READINGS[1]
-    one = read_currents(fit, hold, 180.0, lr=10 * CURRENT_CHI2, share=SAME_CURRENT_SHARE)
+    assert read_currents(fit, hold, 180.0, Agreement(CURRENT_CHI2 - 0.1, 0.9))[0] == CURRENT_READINGS[1]
+    one = read_currents(fit, hold, 180.0, Agreement(10 * CURRENT_CHI2, SAME_SHARE))
     assert one[0] == CURRENT_READINGS[0] and one[2] == pytest.approx(5.7, abs=0.1)
     # a current the holdout's own beats by more than half, pointing the same way in the world: not one current,
     # and not a body-fixed force either (it did not keep its bearing off the bow)
-    assert read_currents(fit, hold, 180.0, lr=10 * CURRENT_CHI2, share=0.2)[0] == CURRENT_READINGS[3]
+    assert read_currents(fit, hold, 180.0, Agreement(10 * CURRENT_CHI2, 0.2))[0] == CURRENT_READINGS[3]
+
+
+def test_a_share_reached_through_the_vertical_part_with_opposed_directions_is_not_one_current():
+    """The Tartan pool log's figures: both parts fit 0.14-0.15 m/s upward, their horizontal currents 129 deg apart
+    on one heading; the fit runs' current does 80% of the holdout's own there, through the vertical part."""
+    fit, hold = part_current((-0.068, -0.087, -0.140), 25.0), part_current((-0.018, 0.080, -0.152), 12.0)
+    reading, text, world, _ = read_currents(fit, hold, 13.0, Agreement(60.0, 0.80))
+    assert reading == CURRENT_READINGS[3] and world == pytest.approx(129.0, abs=2.0)
+    assert "129 deg apart" in text and "stands in for a heave force" in text
+    # the same share with the horizontal parts along one direction: one current, its vertical part still named
+    same = part_current((-0.060, -0.080, -0.150), 12.0)
+    reading, text, _, _ = read_currents(fit, same, 13.0, Agreement(60.0, 0.80))
+    assert reading == CURRENT_READINGS[0] and "stands in for a heave force" in text
+    calm = part_current((-0.060, -0.080, 0.5 * VERTICAL_CURRENT_MPS), 12.0)
+    assert "heave force" not in read_currents(calm, calm, 0.0, Agreement(60.0, 0.9))[1]
 
 
 def _split_headings(effects, seed=3):
