@@ -48,8 +48,17 @@ class Agreement:
         """Whether the fit runs' parameters reach at least :data:`SAME_SHARE` of the holdout's own gain."""
         return self.share >= SAME_SHARE
 
+    @property
+    def excited(self) -> bool:
+        """Whether the holdout's own fit gains anything over the nominal model (else the share is undefined: the
+        holdout runs do not excite the terms, e.g. a wall effect on runs far from the wall)."""
+        return math.isfinite(self.share)
+
     def words(self) -> str:
         """The share in words."""
+        if not self.excited:
+            return (f"the holdout runs' own fit gains nothing over the nominal model there (likelihood ratio "
+                    f"{self.holdout_lr:.1f}): they do not excite it")
         return f"the fit runs' parameters do {100 * self.share:.0f}% of what the holdout runs' own do there"
 
 
@@ -99,7 +108,7 @@ def named_parts(att_h: Attributor, fitted: Fit, members) -> NamedParts | None:
         return None
     own = refit(att_h, members, shapes={m: fitted.shapes[m] for m in members})
     ag = agreement(att_h, fitted, own)
-    text = (f"fitted on the holdout runs apart, {ag.words()}: "
-            + ("the same effect on both parts" if ag.agrees else
-               "the parts fit it differently, so its parameters follow each part's conditions"))
+    text = (f"fitted on the holdout runs apart, {ag.words()}" + ("" if not ag.excited else
+            ": the same effect on both parts" if ag.agrees else
+            ": the parts fit it differently, so its parameters follow each part's conditions"))
     return NamedParts(members, {m: own.params[m] for m in members}, ag.holdout_lr, ag.share, ag.agrees, text)

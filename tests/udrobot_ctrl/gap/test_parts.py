@@ -26,7 +26,8 @@ def _parts(fit_dB, holdout_dB):
 
 def test_the_agreement_is_the_share_of_the_holdouts_own_gain():
     assert Agreement(100.0, SAME_SHARE).agrees and not Agreement(100.0, SAME_SHARE - 0.01).agrees
-    assert not Agreement(0.0, math.nan).agrees
+    idle = Agreement(-0.5, math.nan)  # the holdout's own fit gains nothing: the share is undefined
+    assert not idle.agrees and not idle.excited and "do not excite it" in idle.words() and "nan" not in idle.words()
     assert "-141%" in Agreement(54.0, -1.41).words()
 
 
