@@ -603,6 +603,12 @@ ANCHOR_LATTICE_MAX = 7
 WALK_AZIMUTHS = tuple(np.radians((0.0, 45.0, 90.0, 135.0)))
 WALK_BACK_M = (-4.0, -1.5, 1.5, 4.0)
 WALK_LINES = 5
+#: the deepest a tether's top end may lie (m below the surface, NED down): a tether is paid out from the surface (a
+#: tender's hands, a boat's rail, a pier, a pool deck). Assumed: those sit within half a metre of the water, and an
+#: ArduSub depth zeroed at arming carries a few tenths of a metre of datum error. The refinement stops here; a fit
+#: that ends on it wants a top end under water, which no tether has (:meth:`Attributor.at_bounds
+#: <udrobot_ctrl.gap.attribute.Attributor.at_bounds>` then sets it aside)
+TOP_END_DEPTH_MAX_M = 1.0
 #: the refinement's first step (m) on each coordinate of a tether's attachment point: a tenth of a small ROV's
 #: 0.5 m length (assumed: the hull points a cable is tied to lie 0.1-0.3 m from the CO)
 ATTACH_STEP_M = 0.05
@@ -679,7 +685,7 @@ class TetherDrag(Effect):
         taut = [g + (1.0,) for i, g in enumerate(grid) if i not in far]  # cable_taut 1: as long as the line
         span = 2.0 * FAR_ANCHOR_M
         size = hull_size(s)
-        bounds = ((c[0] - span, c[0] + span), (c[1] - span, c[1] + span), (zc - span, zc + span),
+        bounds = ((c[0] - span, c[0] + span), (c[1] - span, c[1] + span), (zc - span, TOP_END_DEPTH_MAX_M),
                   (-0.5 * np.pi, np.pi), (0.0, 1.0), (0.0, 1.0)) + ((-size, size),) * len(pfx.TETHER_ATTACH)
         at_co = (0.0,) * len(pfx.TETHER_ATTACH)  # the grid ties the cable at the CO; the refinement moves it
         return tuple(tuple(float(v) for v in g + at_co) for g in slack + taut), bounds

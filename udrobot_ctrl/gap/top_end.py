@@ -14,14 +14,16 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from udrobot_ctrl.dynamics.effects import TETHER_ANCHOR
-from udrobot_ctrl.gap.effects import FAR_ANCHOR_M
+from udrobot_ctrl.gap.effects import FAR_ANCHOR_M, TOP_END_DEPTH_MAX_M
 
 #: the catalogue effect whose top end is read
 TETHER = "tether_drag"
-#: a top end at most this far below the surface (m) is at the surface. Assumed: a tender's hands or a boat's rail
-#: sit within half a metre of the water, and an ArduSub depth zeroed at arming carries a few tenths of a metre of
-#: datum error (the baro drifts, the vehicle was armed on deck or floating)
-SURFACE_TOLERANCE_M = 1.0
+#: a top end at most this far below the surface (m) is at the surface: the deepest the tether search lets it lie
+#: (assumed; see :data:`udrobot_ctrl.gap.effects.TOP_END_DEPTH_MAX_M`)
+SURFACE_TOLERANCE_M = TOP_END_DEPTH_MAX_M
+#: a top end within this of :data:`SURFACE_TOLERANCE_M` (m) is pinned at the search's limit (the refinement clips
+#: there): the fit wants it deeper, which is read as below the surface
+AT_LIMIT_M = 1e-3
 #: the kinds of :class:`TopEnd` reading
 READINGS = ("at the surface", "below the surface", "rising", "not rising")
 
@@ -41,8 +43,9 @@ class TopEnd:
     elevation_deg : float
         The cable's elevation from the vehicle's median position towards the top end, deg (+: up).
     reading : str
-        One of :data:`READINGS`: ``at the surface`` (a near top end within ``SURFACE_TOLERANCE_M`` of it),
-        ``below the surface``, ``rising`` (a far top end above the vehicle) or ``not rising``.
+        One of :data:`READINGS`: ``at the surface`` (a near top end less than ``SURFACE_TOLERANCE_M`` below it),
+        ``below the surface`` (deeper, or pinned at that limit of the search: the fit wants it under water),
+        ``rising`` (a far top end above the vehicle) or ``not rising``.
     text : str
         The reading in words; for a top end below the surface or a cable that does not rise, what is missing.
     """
@@ -96,13 +99,15 @@ def top_end(params, position) -> TopEnd | None:
             reading, text = READINGS[3], (f"a far top end below the vehicle: the cable runs down at {-elevation:.0f} "
                                           f"deg towards {toward:03.0f} deg, where no tether goes; the fit is a "
                                           "free-form force, not that cable")
-    elif a[2] <= SURFACE_TOLERANCE_M:
+    elif a[2] < SURFACE_TOLERANCE_M - AT_LIMIT_M:
         reading, text = READINGS[0], (f"at the surface ({a[2]:.1f} m down), {math.hypot(d[0], d[1]):.1f} m across "
                                       f"from the runs' centre; the vehicle at {depth:.1f} m")
     else:
+        where = (f"pinned at {a[2]:.1f} m down, the deepest the search lets a top end lie: the fit wants it under water"
+                 if a[2] <= SURFACE_TOLERANCE_M + AT_LIMIT_M else f"{a[2]:.1f} m below the surface")
         below = " and below the vehicle" if a[2] > depth else ""
         reading, text = READINGS[1], (
-            f"{a[2]:.1f} m below the surface{below} (the vehicle at {depth:.1f} m): a tether runs up to the surface "
-            f"(a tender, a boat, a pier), so this fit is a free-form force, not that cable; missing: where the "
-            f"tether was paid out from (its top end's position) and its paid-out length")
+            f"{where}{below} (the vehicle at {depth:.1f} m): a tether runs up to the surface (a tender, a boat, a "
+            f"pier), so this fit is a free-form force, not that cable; missing: where the tether was paid out from "
+            f"(its top end's position) and its paid-out length")
     return TopEnd(float(a[0]), float(a[1]), float(a[2]), depth, far, elevation, reading, text)

@@ -34,9 +34,13 @@ def test_the_shared_sea_dives_tether_fit_ends_near_the_vehicles_depth_not_at_the
     assert deeper.reading == READINGS[1] and "below the vehicle" in deeper.text
 
 
-def test_the_surface_tolerance_is_a_bound_of_the_reading():
-    assert top_end(_anchor(0, 0, SURFACE_TOLERANCE_M), _track()).reading == READINGS[0]
-    assert top_end(_anchor(0, 0, SURFACE_TOLERANCE_M + 0.01), _track()).reading == READINGS[1]
+def test_a_top_end_pinned_at_the_searchs_depth_limit_is_read_below_the_surface():
+    """The search stops a top end at SURFACE_TOLERANCE_M down: a fit that ends there wants it under water (the sea
+    dive's tether fit, once bounded)."""
+    assert top_end(_anchor(0, 0, SURFACE_TOLERANCE_M - 0.05), _track()).reading == READINGS[0]
+    pinned = top_end(_anchor(7.0, 0, SURFACE_TOLERANCE_M), _track())
+    assert pinned.reading == READINGS[1] and "pinned at 1.0 m down" in pinned.text
+    assert top_end(_anchor(0, 0, SURFACE_TOLERANCE_M + 0.5), _track()).reading == READINGS[1]
 
 
 def test_far_top_ends_are_cable_directions_read_by_their_elevation():
