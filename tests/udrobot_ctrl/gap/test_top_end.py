@@ -1,10 +1,12 @@
 """Where a fitted tether's top end lies against the surface (udrobot_ctrl/gap/top_end.py)."""
 from __future__ import annotations
 
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 
-from udrobot_ctrl.gap.effects import FAR_ANCHOR_M
+from udrobot_ctrl.gap.effects import FAR_ANCHOR_M, TOP_END_DEPTH_MAX_M, catalogue
 from udrobot_ctrl.gap.top_end import READINGS, SURFACE_TOLERANCE_M, top_end
 
 
@@ -54,3 +56,11 @@ def test_far_top_ends_are_cable_directions_read_by_their_elevation():
 def test_fits_without_an_anchor_or_runs_without_a_position_give_no_reading():
     assert top_end({"k_quadratic_N_s2_per_m2": 1.0}, _track()) is None
     assert top_end(_anchor(0, 0, 0), np.full((10, 3), np.nan)) is None
+
+
+def test_the_tether_search_keeps_its_top_end_within_the_reach_of_the_surface():
+    """Grid and refinement bounds: no top end deeper than TOP_END_DEPTH_MAX_M, however deep the vehicle flies."""
+    stack = SimpleNamespace(eta=np.c_[_track(depth=40.0), np.zeros((400, 3))], p=SimpleNamespace(size_m=0.25))
+    grid, bounds = catalogue()["tether_drag"].search_space(stack)
+    assert bounds[2][1] == TOP_END_DEPTH_MAX_M == SURFACE_TOLERANCE_M
+    assert all(g[2] <= TOP_END_DEPTH_MAX_M for g in grid)
