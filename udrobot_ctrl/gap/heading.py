@@ -204,7 +204,7 @@ def heading_coverage(fit, holdout) -> HeadingCoverage | None:
     if f is None or h is None:
         return None
     both = headings(psi_fit + psi_holdout)
-    sep = math.degrees(abs(float(wrap_angle(math.radians(f.mean_deg - h.mean_deg)))))
+    sep = abs(_wrap_deg(f.mean_deg - h.mean_deg))
     if round(both.std_deg, 1) < ONE_HEADING_STD_DEG:  # judged as printed (0.1 deg): 19.96 is not 'under 20.0'
         reading = READINGS[0]
         text = (f"every run holds one heading (mean {f.mean_deg:.0f} deg, spread {both.std_deg:.1f} deg): a steady "
@@ -291,14 +291,14 @@ def read_currents(fit: PartCurrent, holdout: PartCurrent, turned_deg: float, ag:
             f"direction fits both parts{heave}", world, body)
 
 
-def current_parts(att: Attributor, att_h: Attributor, fitted: Fit, coverage: HeadingCoverage) -> CurrentParts:
-    """The steady current fitted on the fit runs (``fitted``, the diagnosis' single fit on ``att``) set beside the
-    one fitted on the holdout runs (``att_h``), and whether they are one current (:func:`read_currents`).
+def current_parts(att_h: Attributor, fitted: Fit, coverage: HeadingCoverage) -> CurrentParts:
+    """The steady current fitted on the fit runs (``fitted``, the diagnosis' single fit there) set beside the one
+    fitted on the holdout runs (``att_h``), and whether they are one current (:func:`read_currents`).
 
     Parameters
     ----------
-    att, att_h : Attributor
-        The fit runs' and the holdout runs' equation-error stacks (``att_h.n_eff`` set).
+    att_h : Attributor
+        The holdout runs' equation-error stack (``n_eff`` set).
     fitted : Fit
         The current alone fitted on the fit runs (its shape is the current, NED m/s).
     coverage : HeadingCoverage

@@ -1310,7 +1310,7 @@ def headings_and_currents(inp: Inputs, stacks: Stacks, sel: Selection) -> Headin
     known = stacks.identifiability.effects.get(CURRENT)
     if hc is None or CURRENT not in sel.singles or known is None or not known.identified or known.not_identified:
         return hc
-    return replace(hc, currents=current_parts(stacks.fit, stacks.holdout, sel.singles[CURRENT], hc))
+    return replace(hc, currents=current_parts(stacks.holdout, sel.singles[CURRENT], hc))
 
 
 def report_json(inp: Inputs, where: Where, stacks: Stacks, sel: Selection, elim: Elimination, verdicts, verdict,

@@ -2,8 +2,9 @@
 
 A tether (``tether_drag``) is paid out from the surface: a tender's hands, a boat, a pier, a pool deck. Its fit
 places the top end where the runs' residual force points (the anchor's NED position, a shape parameter searched
-from the surface and refined freely); a fit that moves it metres below the surface, or a far anchor whose cable
-runs down, is a free-form force the search found, not that cable. :func:`top_end` reads the fitted top end against
+from the surface and refined no deeper than :data:`~udrobot_ctrl.gap.effects.TOP_END_DEPTH_MAX_M`); a fit pinned at
+that limit, deeper (a model file's), or a far anchor whose cable runs down, is a free-form force the search found,
+not that cable. :func:`top_end` reads the fitted top end against
 the surface and the vehicle's depth (docs/formats/diagnosis.md, the ``tether_drag`` verdict's ``top_end``).
 """
 from __future__ import annotations
