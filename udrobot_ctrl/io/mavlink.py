@@ -639,7 +639,12 @@ def detect_vehicle(facts: LogFacts) -> VehicleInfo:
 
 MOTOR_PWM_RANGE = (1100.0, 1900.0)  # us: ArduSub motor outputs (MOT_PWM_MIN / MOT_PWM_MAX defaults)
 NEUTRAL_BAND_US = 50.0  # us: a motor output comes this close to 1500 at some time (lights at 1594-1708 never do)
-MOTOR_MEDIAN_US = 150.0  # us: a motor output's median is this close to 1500
+#: a motor output changes value from one sample to the next at least this many times: its controller's sums move it
+#: all the time, where a lights channel or a stepped servo changes a handful of times (ArduSub's lights: button steps,
+#: LIGHTS_STEPS = 8 levels). Assumed, well above a stepped channel's changes. It replaced a median within 150 us of
+#: 1500 us, which missed the horizontal thrusters of a dive flown on long transects (200-300 us off neutral for
+#: most of the log) and let through lights at half brightness (1500 us)
+MOTOR_CHANGES = 20
 MIN_MOVE_US = 10.0  # us: an output whose range is smaller does not move
 INFERRED_VEHICLES = {6: "bluerov2", 8: "bluerov2-heavy"}  # active motor outputs 1..n -> vehicle
 
@@ -690,10 +695,12 @@ class OutputEvidence:
 def classify_outputs(stream, pattern: str, max_servo: int) -> OutputEvidence:
     """Which logged outputs drive motors, from the PWM values alone.
 
-    A motor output has >= 95 % of its non-zero samples in the motor range 1100..1900 us, a median within
-    150 us of the 1500 us neutral, comes within 50 us of neutral at some time and moves (range >= 10 us);
-    one at exactly 1500 us throughout is ``neutral`` (a disarmed motor, or a servo at its trim). A lights
-    channel (1594-1708 us, never near neutral), an output at 0 and a constant off-neutral output are not motors.
+    A motor output has >= 95 % of its non-zero samples in the motor range 1100..1900 us, comes within 50 us of
+    the 1500 us neutral at some time, moves (range >= 10 us) and changes value from sample to sample at least
+    ``MOTOR_CHANGES`` times (wherever it spends most of the log: the horizontal thrusters of a dive flown on long
+    transects sit 200-300 us off neutral); one at exactly 1500 us throughout is ``neutral`` (a disarmed motor, or a
+    servo at its trim). A lights channel (1594-1708 us, never near neutral, or stepped between a few levels), an
+    output at 0 and a constant off-neutral output are not motors.
 
     Parameters
     ----------
@@ -717,8 +724,9 @@ def classify_outputs(stream, pattern: str, max_servo: int) -> OutputEvidence:
         in_range = np.mean((nonzero >= lo) & (nonzero <= hi)) >= 0.95
         if vmin == vmax == ARDUSUB_PWM_NEUTRAL:
             kind = "neutral"
-        elif (in_range and abs(med - ARDUSUB_PWM_NEUTRAL) <= MOTOR_MEDIAN_US and vmax - vmin >= MIN_MOVE_US
-              and vmin <= ARDUSUB_PWM_NEUTRAL + NEUTRAL_BAND_US and vmax >= ARDUSUB_PWM_NEUTRAL - NEUTRAL_BAND_US):
+        elif (in_range and vmax - vmin >= MIN_MOVE_US and vmin <= ARDUSUB_PWM_NEUTRAL + NEUTRAL_BAND_US
+              and vmax >= ARDUSUB_PWM_NEUTRAL - NEUTRAL_BAND_US
+              and np.count_nonzero(np.diff(nonzero)) >= MOTOR_CHANGES):
             kind = "motor"
         else:
             kind = "other"

@@ -13,7 +13,9 @@ from pymavlink.dialects.v20 import ardupilotmega as mav2
 from tests.udrobot_ctrl.io.test_field_logs import SHARED, T0, _mav, write_df, write_events
 from udrobot_ctrl.cli.main import main
 from udrobot_ctrl.io import LogImportError, convert_log
+from udrobot_ctrl.io.mavlink import VehicleInfo, choose_vehicle, classify_outputs
 from udrobot_ctrl.io.runlog import read_run, write
+from udrobot_ctrl.io.streams import Stream
 
 DIVE = SHARED / "data" / "guided_above_terrain" / "00000029_filtered.BIN"
 DEG = np.pi / 180
@@ -437,3 +439,32 @@ def test_shared_sea_dive_converts_as_a_heavy_with_dvl_velocities():
     assert est["ATC_RAT_RLL_P"] == pytest.approx(0.135, rel=0.01)
     assert est["ATC_RAT_YAW_P"] == pytest.approx(0.18, rel=0.01)
     assert est["ATC_RAT_PIT_I"] == pytest.approx(0.09, rel=0.05) and est["SCHED_LOOP_RATE"] == 200
+
+
+def test_motors_of_a_transect_dive_are_motors_and_stepped_lights_are_not():
+    """A dive flown on long transects: the horizontal thrusters sit 200 us off neutral most of the time (median
+    1300 / 1700 us), with the stabilising loops' jitter (outputs 1, 2) or at exactly the stick's value between
+    manoeuvres (3, 4: MANUAL, or a loop whose corrections round away); lights stepped between ArduSub's levels
+    (1100 .. 1900 us) bracket the neutral too, and the second lights channel sits at 1500 us (half brightness)
+    for most of the log, but each changes a handful of times."""
+    rng = np.random.default_rng(3)
+    t = np.arange(0.0, 180.0, 0.1)
+    cruise = (t > 5) & (t < 170)  # forward stick: +-200 us on the horizontal thrusters, 1500 at rest
+    turns = np.zeros(t.size)
+    for start in np.arange(10.0, 160.0, 5.0):  # 30 short yaw corrections: +-20 us on the horizontals
+        turns[(t >= start) & (t < start + 0.5)] = 20.0
+    fields = {}
+    for k, sign in enumerate((-1, -1, 1, 1)):
+        jitter = rng.normal(0, 6, t.size) if k < 2 else 0.0
+        fields[f"C{k + 1}"] = np.round(1500 + sign * 200 * cruise + (-1) ** k * turns + jitter)
+    for k in range(4, 8):  # verticals holding depth: around neutral
+        fields[f"C{k + 1}"] = np.round(1500 + 40 * np.sin(0.3 * t + k) + rng.normal(0, 6, t.size))
+    fields["C9"] = np.minimum(1100.0 + 100 * (t // 20), 1900.0)  # lights stepped up every 20 s: 9 levels
+    fields["C10"] = np.where((t > 10) & (t < 170), 1500.0, 1100.0 + 800 * (t > 100))  # half brightness
+    stream = Stream(name="RCOU", t=t, fields=fields, time_source="TimeUS")
+    ev = classify_outputs(stream, "C{n}", 10)
+    assert ev.servos("motor") == tuple(range(1, 9)), ev.describe()
+    assert ev.servos("other") == (9, 10), ev.describe()
+    assert np.median(fields["C1"]) < 1350 and np.median(fields["C3"]) > 1650  # far from neutral most of the time
+    info = choose_vehicle(VehicleInfo(name=None, frame=None, motor_servos=(), notes=[]), ev)
+    assert info.name == "bluerov2-heavy" and info.motor_servos == tuple(range(1, 9))
