@@ -538,7 +538,10 @@ class Attributor:
         taut form). The other shape parameters are checked against the effect's search bounds, amplitudes against
         their design bounds (except those whose ends are physical forms, ``Effect.physical_amplitudes``: a dead
         band's shift of 1, the thrust continuous from the band's edge), within ``rel`` of the smaller of the range's
-        width and the bound's magnitude. A confirmed effect found here is not significant
+        width and the bound's magnitude. A shape parameter on a bound that is a tolerance about a physical value
+        (``Effect.tolerance_ends``: a tether's top end at the 1 m limit below the surface) is found here only when the
+        bound binds (:meth:`bound_binds`: that value fits clearly worse); else the runs cannot place it within the
+        tolerance, which is no evidence of a missing term. A confirmed effect found here is not significant
         (:func:`udrobot_ctrl.gap.report.set_aside_at_bound`).
         """
         eff = self.cat[name]
@@ -563,7 +566,19 @@ class Attributor:
                 tol = rel * min(abs(hi - lo), abs(bound))
                 if np.isfinite(bound) and abs(value - bound) <= tol and bound != 0.0:
                     out[pname] = (float(value), float(bound))
+        for pname, value in eff.tolerance_ends:
+            if pname in out and not self.bound_binds(fit, name, pname, value):
+                del out[pname]
         return out
+
+    def bound_binds(self, fit: Fit, name, pname, value) -> bool:
+        """Whether ``fit`` is clearly better with shape parameter ``pname`` of ``name`` where it ended than at
+        ``value`` (the other shapes as fitted, the amplitudes fitted again): the fit-run BIC lower by more than
+        ``BIC_STRONG`` (the same number of parameters, so N_eff times the log-likelihood change)."""
+        shape = list(fit.shapes[name])
+        shape[self.cat[name].shape_names.index(pname)] = float(value)
+        alt = self.fit([(n, tuple(shape) if n == name else fit.shapes[n]) for n in fit.names])
+        return bool(self.n_eff * (alt.loglik_n - fit.loglik_n) > BIC_STRONG)
 
     def _dof_design(self, name, shape, upstream=()):
         """Regressors of a design on the scored DOFs, (nd, k, n) C-contiguous (kept with the design cache)."""

@@ -277,6 +277,11 @@ class Effect:
     #: amplitude parameters whose range ends are physical forms (a dead band's ``shift``: 0 the hard band, 1 the
     #: thrust continuous from the band's edge), likewise not "at the edge of the catalogue's range" there
     physical_amplitudes: tuple = ()
+    #: (shape parameter, physical value) pairs whose search bound is a tolerance about that value, not a limit of
+    #: the physics (a tether's top end, refined down to ``TOP_END_DEPTH_MAX_M`` below the surface, is at the surface,
+    #: 0): a fit on that bound is at the edge of its range only when the physical value fits clearly worse
+    #: (:meth:`udrobot_ctrl.gap.attribute.Attributor.at_bounds`); else the runs cannot place it within the tolerance
+    tolerance_ends: tuple = ()
     #: its regressors read the thrust the actuators deliver, i.e. after the input filters of the other effects in a
     #: set (the plant applies an inflow loss to the lagged thrust): see :meth:`command_filter`
     reads_delivered: ClassVar[bool] = False
@@ -964,7 +969,8 @@ def catalogue() -> dict:
             excited_by=THRUSTERS_MOVING, physical_ends=("thrust_exponent",)),
         TetherDrag("tether_drag", "umbilical cross-flow drag, normal to the cable",
                    pfx.TETHER_ANCHOR + pfx.TETHER_WALK + (pfx.TETHER_TAUT,) + pfx.TETHER_ATTACH, (), (),
-                   refine=True, mimics=("quadratic_damping_error", "linear_damping", "thrust_inflow_loss")),
+                   refine=True, mimics=("quadratic_damping_error", "linear_damping", "thrust_inflow_loss"),
+                   tolerance_ends=(("anchor_down_m", 0.0),)),
         WallEffect("wall_effect", "extra added mass and suction near the seabed or a wall", ("decay_length_m",),
                    wall_grid, ((0.01, 2.0),), refine=True,
                    excited_by="a known distance to a surface: log altitude, or give seabed_depth, or walls with "

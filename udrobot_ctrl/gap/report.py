@@ -21,7 +21,7 @@ from dataclasses import asdict, dataclass, field, replace
 
 import numpy as np
 
-from udrobot_ctrl.dynamics.effects import plant_effect, wall_parameters
+from udrobot_ctrl.dynamics.effects import TETHER_ANCHOR, plant_effect, wall_parameters
 from udrobot_ctrl.dynamics.plant import PlantParameters, plant_parameters, require_nominal, rotation_zyx
 from udrobot_ctrl.gap import effects as fx
 from udrobot_ctrl.gap import identifiability
@@ -1100,7 +1100,8 @@ def effect_verdicts(inp: Inputs, stacks: Stacks, sel: Selection, elim: Eliminati
             if significant else ()
         shown = combo.fit.params[n] if significant else (at_bound[n].fitted if n in at_bound
                                                          else sel.singles[n].params[n])
-        end = top_end(shown, stacks.fit.s.eta[:, :3]) if n == TETHER else None
+        end = top_end(shown, stacks.fit.s.eta[:, :3], _top_end_binds(stacks, n, combo, at_bound, sel)) \
+            if n == TETHER else None
         out.append(EffectVerdict(
             name=n, significant=significant, params=shown if significant else {}, shrink=shrink[n],
             evidence=ev, meaning=inp.catalogue[n].meaning, fitted_params_if_added=None if significant else shown,
@@ -1610,6 +1611,18 @@ def hold_at_nominal(inp: Inputs, stacks: Stacks, where: Where, elim: Elimination
     if not test.passed:
         return None
     return st, trial, test
+
+
+def _top_end_binds(stacks: Stacks, n, combo, at_bound, sel) -> bool:
+    """Whether the tether fit shown for ``n`` wants its top end deeper than the search's limit (read by
+    :func:`~udrobot_ctrl.gap.top_end.top_end`): the anchor depth among its parameters at a bound
+    (:meth:`~udrobot_ctrl.gap.attribute.Attributor.at_bounds`, which counts that bound only where it binds) for the
+    confirmed set's fit or the single fit; for an effect set aside at a bound, as recorded there."""
+    depth = TETHER_ANCHOR[2]
+    if n in at_bound:
+        return depth in at_bound[n].params
+    fit = combo.fit if n in combo.members else sel.singles.get(n)
+    return fit is not None and depth in stacks.fit.at_bounds(fit, n)
 
 
 def set_aside_at_bound(inp: Inputs, stacks: Stacks, where: Where, elim: Elimination, log=None):

@@ -45,7 +45,8 @@ class TopEnd:
         The cable's elevation from the vehicle's median position towards the top end, deg (+: up).
     reading : str
         One of :data:`READINGS`: ``at the surface`` (a near top end less than ``SURFACE_TOLERANCE_M`` below it),
-        ``below the surface`` (deeper, or pinned at that limit of the search: the fit wants it under water),
+        ``below the surface`` (deeper, or pinned at that limit of the search where the surface fits clearly worse:
+        the fit wants it under water),
         ``rising`` (a far top end above the vehicle) or ``not rising``.
     text : str
         The reading in words; for a top end below the surface or a cable that does not rise, what is missing.
@@ -64,7 +65,7 @@ class TopEnd:
         return asdict(self)
 
 
-def top_end(params, position) -> TopEnd | None:
+def top_end(params, position, limit_binds: bool = True) -> TopEnd | None:
     """Read a tether fit's top end against the surface and the vehicle's depth.
 
     Parameters
@@ -73,6 +74,11 @@ def top_end(params, position) -> TopEnd | None:
         The ``tether_drag`` fit's parameters (``anchor_north_m anchor_east_m anchor_down_m``, m).
     position : ndarray, shape (n, 3)
         The vehicle's NED positions over the fit runs (x, y as logged or dead-reckoned, z the depth), m.
+    limit_binds : bool
+        For a top end pinned at the search's limit (``SURFACE_TOLERANCE_M`` down): whether the surface itself fits
+        clearly worse (:meth:`~udrobot_ctrl.gap.attribute.Attributor.bound_binds`), i.e. the fit wants the top end
+        under water; when it does not, the runs cannot place the top end within that metre, and it is read at the
+        surface.
 
     Returns
     -------
@@ -100,8 +106,11 @@ def top_end(params, position) -> TopEnd | None:
             reading, text = READINGS[3], (f"a far top end below the vehicle: the cable runs down at {-elevation:.0f} "
                                           f"deg towards {toward:03.0f} deg, where no tether goes; the fit is a "
                                           "free-form force, not that cable")
-    elif a[2] < SURFACE_TOLERANCE_M - AT_LIMIT_M:
-        reading, text = READINGS[0], (f"at the surface ({a[2]:.1f} m down), {math.hypot(d[0], d[1]):.1f} m across "
+    elif a[2] < SURFACE_TOLERANCE_M - AT_LIMIT_M or (a[2] <= SURFACE_TOLERANCE_M + AT_LIMIT_M and not limit_binds):
+        how = (f"{a[2]:.1f} m down" if a[2] < SURFACE_TOLERANCE_M - AT_LIMIT_M else
+               f"its fit ends at the search's {SURFACE_TOLERANCE_M:.1f} m limit, but a top end at the surface fits as "
+               f"well: the runs do not place it within that metre")
+        reading, text = READINGS[0], (f"at the surface ({how}), {math.hypot(d[0], d[1]):.1f} m across "
                                       f"from the runs' centre; the vehicle at {depth:.1f} m")
     else:
         where = (f"pinned at {a[2]:.1f} m down, the deepest the search lets a top end lie: the fit wants it under water"

@@ -31,7 +31,8 @@ from pymavlink.dialects.v20 import ardupilotmega as mav2
 from tests.udrobot_ctrl.io.test_field_logs import RHO_G, write_events
 from udrobot_ctrl.autopilot.fly import ClosedLoopFlight, fly
 from udrobot_ctrl.autopilot.modes import Mode
-from udrobot_ctrl.dynamics.plant import plant_parameters
+from udrobot_ctrl.dynamics.effects import PlantEffect
+from udrobot_ctrl.dynamics.plant import kinematics, plant_parameters
 from udrobot_ctrl.io.joystick import rc_override
 from udrobot_ctrl.io.runlog import Run
 from udrobot_ctrl.vehicle import Vehicle, load_model
@@ -45,6 +46,8 @@ START_DEPTH = 10.0  # m
 PILOT_GAIN = 1.0  # assumed: ArduSub's JS_GAIN_MAX, where the +-300 us climbs are a full throttle stick
 JOYSTICK_HZ = 23.6  # MANUAL_CONTROL rate measured in the real tlog above
 STATE = ("x", "y", "z", "phi", "theta", "psi", "u", "v", "w", "p", "q", "r")
+DVL_NOISE = 0.01  # m/s per axis, assumed (a Water Linked A50's velocity noise at a few metres' altitude)
+POSITION_NOISE = 0.05  # m, assumed (a DVL-aided EKF's position over a few minutes)
 
 
 @dataclass(frozen=True)
@@ -89,6 +92,18 @@ class Variant:
         own stamps stay exact); 0: none.
     duration : float
         Dive length (s).
+    pattern : tuple of Leg or None
+        The pilot's legs (:class:`Leg`, times from the start); None: :func:`legs` from the start and again from half
+        the duration.
+    effects : tuple of (name, params)
+        Effects of the truth beyond the heave drag scale (``udrobot_ctrl.dynamics.effects`` catalogue entries: a
+        current, a tether), flown by the plant.
+    dvl_hz : float
+        ``VISION_SPEED_ESTIMATE`` rate (Hz): a DVL's velocity over ground, NED, as BlueOS's DVL driver sends it to
+        ArduSub (noise ``DVL_NOISE``); 0: no DVL.
+    position_hz : float
+        ``LOCAL_POSITION_NED`` rate (Hz): the EKF's position and velocity (position noise ``POSITION_NOISE``); 0:
+        not logged.
     """
 
     model: str = MODEL
@@ -103,6 +118,10 @@ class Variant:
     seed: int = 0
     jitter: float = 0.0
     duration: float = 180.0
+    pattern: tuple | None = None
+    effects: tuple = ()
+    dvl_hz: float = 0.0
+    position_hz: float = 0.0
 
     @property
     def logged_voltage(self) -> float:
@@ -123,27 +142,27 @@ def legs(t0: float, forward: float = 200.0) -> tuple:
             Leg(t0 + 76, t0 + 86, "throttle", -300.0))
 
 
-def joystick(t: np.ndarray, duration: float, forward: float = 200.0) -> np.ndarray:
+def joystick(t: np.ndarray, duration: float, forward: float = 200.0, pattern=None) -> np.ndarray:
     """The pilot's joystick (N, 4) at times ``t``: MANUAL_CONTROL x (forward), y (lateral), z (throttle, 500
     neutral), r (yaw), each leg's stick offset (us; forward legs ``forward``) divided by ArduSub's scale at
-    ``PILOT_GAIN``."""
+    ``PILOT_GAIN``; the legs of ``pattern``, or :func:`legs` from 0 and from ``duration / 2``."""
     axes = np.zeros((np.size(t), 4))
     axes[:, 2] = 500.0
     column = {"forward": 0, "lateral": 1, "throttle": 2, "yaw": 3}
-    for leg in legs(0.0, forward) + legs(duration / 2, forward):
+    for leg in (pattern if pattern is not None else legs(0.0, forward) + legs(duration / 2, forward)):
         scale = (0.8 if leg.stick == "throttle" else 0.4) * PILOT_GAIN
         axes[(t >= leg.start) & (t < leg.end), column[leg.stick]] += leg.offset / scale
     return axes
 
 
 def pilot_plan(duration: float = 180.0, dt: float = 0.02, model: str = MODEL,
-               alt_hold_from: float | None = None, forward: float = 200.0) -> Run:
+               alt_hold_from: float | None = None, forward: float = 200.0, pattern=None) -> Run:
     """The pilot's inputs and modes as a run for :func:`fly`: STABILIZE until ``alt_hold_from`` (s; None: half the
-    duration), ALT_HOLD after; the RC inputs are ArduSub's overrides of the joystick (channels 3-6), 1500 us
-    elsewhere."""
+    duration), ALT_HOLD after; the RC inputs are ArduSub's overrides of the joystick (channels 3-6; the legs of
+    ``pattern``, see :func:`joystick`), 1500 us elsewhere."""
     t = np.arange(0.0, duration, dt)
     rc = np.full((t.size, 8), 1500.0)
-    js = joystick(t, duration, forward)
+    js = joystick(t, duration, forward, pattern)
     rc[:, 2:6] = rc_override(js[:, 0], js[:, 1], js[:, 2], js[:, 3], PILOT_GAIN)
     switch = duration / 2 if alt_hold_from is None else alt_hold_from
     mode = np.where(t < switch, float(Mode.STABILIZE), float(Mode.ALT_HOLD))
@@ -156,19 +175,21 @@ def pilot_plan(duration: float = 180.0, dt: float = 0.02, model: str = MODEL,
                extra=extra, metadata={"vehicle": model})
 
 
-def truth_vehicle(scale: float = HEAVE_DRAG_SCALE, model: str = MODEL) -> Vehicle:
-    """The published model with its heave quadratic drag Z_w|w| scaled by ``1 + scale``."""
+def truth_vehicle(scale: float = HEAVE_DRAG_SCALE, model: str = MODEL, effects=()) -> Vehicle:
+    """The published model with its heave quadratic drag Z_w|w| scaled by ``1 + scale`` and the plant effects
+    ``effects`` ((name, params) pairs)."""
     v = load_model(model)
     q = np.array(v.quadratic_damping, float)
     q[2, 2] *= 1.0 + scale
-    return v.with_changes(quadratic_damping=q)
+    return v.with_changes(quadratic_damping=q, effects=tuple(PlantEffect(n, dict(p)) for n, p in effects))
 
 
 def flight(duration: float = 180.0, scale: float = HEAVE_DRAG_SCALE, model: str = MODEL,
-           alt_hold_from: float | None = None, forward: float = 200.0) -> tuple:
-    """The truth flown under the emulated ArduSub at 200 Hz. Returns (ClosedLoopFlight, pilot plan Run)."""
-    plan = pilot_plan(duration, model=model, alt_hold_from=alt_hold_from, forward=forward)
-    return fly(truth_vehicle(scale, model), plan, loop_rate_hz=200.0), plan
+           alt_hold_from: float | None = None, forward: float = 200.0, pattern=None, effects=()) -> tuple:
+    """The truth (:func:`truth_vehicle`) flown under the emulated ArduSub at 200 Hz from the pilot's ``pattern``
+    (:func:`pilot_plan`). Returns (ClosedLoopFlight, pilot plan Run)."""
+    plan = pilot_plan(duration, model=model, alt_hold_from=alt_hold_from, forward=forward, pattern=pattern)
+    return fly(truth_vehicle(scale, model, effects), plan, loop_rate_hz=200.0), plan
 
 
 def _at(f: ClosedLoopFlight, t: float) -> int:
@@ -216,15 +237,31 @@ def write_tlog(path, f: ClosedLoopFlight, plan: Run, variant: Variant = Variant(
     if v.manual_control:
         gcs = mav2.MAVLink(None, srcSystem=255, srcComponent=190)
         t_js = np.arange(0.007, end, 1.0 / JOYSTICK_HZ)
-        for t, (x, y, z, r) in zip(t_js, joystick(t_js, plan.t[-1] + plan.t[1], v.forward)):
+        for t, (x, y, z, r) in zip(t_js, joystick(t_js, plan.t[-1] + plan.t[1], v.forward, v.pattern)):
             ev.append((t, gcs.manual_control_encode(1, int(x), int(y), int(z), int(r), 0).pack(gcs)))
+    if v.dvl_hz > 0:  # the DVL driver (BlueOS, component 197): velocity over ground, NED
+        dvl = mav2.MAVLink(None, srcSystem=1, srcComponent=197)
+        for t in np.arange(0.08, end, 1.0 / v.dvl_hz):
+            ned = _ned_velocity(f.x[_at(f, t)]) + rng.normal(0.0, DVL_NOISE, 3)
+            ev.append((t, dvl.vision_speed_estimate_encode(int(t * 1e6), *ned).pack(dvl)))
+    if v.position_hz > 0:  # the EKF's local position and velocity
+        for t in np.arange(0.09, end, 1.0 / v.position_hz):
+            x = f.x[_at(f, t)]
+            pos = x[:3] + rng.normal(0.0, POSITION_NOISE, 3)
+            ev.append((t, mav.local_position_ned_encode(int(t * 1000), *pos, *_ned_velocity(x))))
     if v.jitter > 0:
         late = np.random.default_rng(v.seed + 1).uniform(0.0, v.jitter, len(ev))
         ev = [(t + d, m) for (t, m), d in zip(ev, late)]
     return write_events(path, mav, ev)
 
 
+def _ned_velocity(x) -> np.ndarray:
+    """(3,) NED velocity of state ``x`` (12,)."""
+    return kinematics(x[None, :6], x[None, 6:])[0, :3]
+
+
 def write_variant(path, variant: Variant = Variant()):
     """Fly ``variant`` and write its tlog to ``path``. Returns the path."""
-    f, plan = flight(variant.duration, variant.scale, variant.model, variant.alt_hold_from, variant.forward)
+    f, plan = flight(variant.duration, variant.scale, variant.model, variant.alt_hold_from, variant.forward,
+                     variant.pattern, variant.effects)
     return write_tlog(path, f, plan, variant)
