@@ -50,6 +50,10 @@ from udrobot_ctrl.gap.data import Prepared
 from udrobot_ctrl.parallel import Helper, in_worker
 
 BIC_STRONG = 10.0
+#: where :meth:`Attributor.bound_binds` profiles a parameter beyond a tolerance bound: these multiples of the bound's
+#: distance from its physical value further on (a tether's top end 1 m below the surface: at 2, 3, 5, 9 and 17 m),
+#: reaching a small ROV's working depths
+BEYOND_STEPS = (1.0, 2.0, 4.0, 8.0, 16.0)
 #: Nelder-Mead budget of a shape refinement, per free shape parameter: a tether anchor walking with the vehicle
 #: (four free) stopped 0.4 m off its top end on a fixed budget of 40 evaluations, and a cross-coupled damping took
 #: up the rest (the full-sensor all-pairs tether + quadratic-damping case); at 40 each it converges to 2 cm
@@ -540,9 +544,9 @@ class Attributor:
         band's shift of 1, the thrust continuous from the band's edge), within ``rel`` of the smaller of the range's
         width and the bound's magnitude. A shape parameter on a bound that is a tolerance about a physical value
         (``Effect.tolerance_ends``: a tether's top end at the 1 m limit below the surface) is found here only when the
-        bound binds (:meth:`bound_binds`: that value fits clearly worse); else the runs cannot place it within the
-        tolerance, which is no evidence of a missing term. A confirmed effect found here is not significant
-        (:func:`udrobot_ctrl.gap.report.set_aside_at_bound`).
+        bound binds (:meth:`bound_binds`: the fit would go on beyond it, clearly better); else the runs cannot place
+        it within the tolerance, which is no evidence of a missing term. A confirmed effect found here is not
+        significant (:func:`udrobot_ctrl.gap.report.set_aside_at_bound`).
         """
         eff = self.cat[name]
         shape = fit.shapes[name]
@@ -572,13 +576,22 @@ class Attributor:
         return out
 
     def bound_binds(self, fit: Fit, name, pname, value) -> bool:
-        """Whether ``fit`` is clearly better with shape parameter ``pname`` of ``name`` where it ended than at
-        ``value`` (the other shapes as fitted, the amplitudes fitted again): the fit-run BIC lower by more than
-        ``BIC_STRONG`` (the same number of parameters, so N_eff times the log-likelihood change)."""
+        """Whether the runs want shape parameter ``pname`` of ``name`` beyond the bound it ended on in ``fit``, a
+        tolerance about the physical ``value`` (``Effect.tolerance_ends``): its likelihood profile beyond that
+        bound, at ``BEYOND_STEPS`` times the bound's distance from ``value`` further on (the other shapes as fitted,
+        the amplitudes fitted again), lowers the fit-run BIC by more than ``BIC_STRONG`` somewhere (the same number
+        of parameters, so N_eff times the log-likelihood change). A tether fit pinned 1 m below the surface that
+        would go on to the vehicle's depth binds; one that drifted there because the runs cannot place its top end
+        within that metre does not."""
         shape = list(fit.shapes[name])
-        shape[self.cat[name].shape_names.index(pname)] = float(value)
-        alt = self.fit([(n, tuple(shape) if n == name else fit.shapes[n]) for n in fit.names])
-        return bool(self.n_eff * (alt.loglik_n - fit.loglik_n) > BIC_STRONG)
+        i = self.cat[name].shape_names.index(pname)
+        at = float(shape[i])
+        best = fit.loglik_n
+        for k in BEYOND_STEPS:
+            shape[i] = at + k * (at - float(value))
+            alt = self.fit([(n, tuple(shape) if n == name else fit.shapes[n]) for n in fit.names])
+            best = min(best, alt.loglik_n)
+        return bool(self.n_eff * (fit.loglik_n - best) > BIC_STRONG)
 
     def _dof_design(self, name, shape, upstream=()):
         """Regressors of a design on the scored DOFs, (nd, k, n) C-contiguous (kept with the design cache)."""

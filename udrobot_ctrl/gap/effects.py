@@ -279,8 +279,8 @@ class Effect:
     physical_amplitudes: tuple = ()
     #: (shape parameter, physical value) pairs whose search bound is a tolerance about that value, not a limit of
     #: the physics (a tether's top end, refined down to ``TOP_END_DEPTH_MAX_M`` below the surface, is at the surface,
-    #: 0): a fit on that bound is at the edge of its range only when the physical value fits clearly worse
-    #: (:meth:`udrobot_ctrl.gap.attribute.Attributor.at_bounds`); else the runs cannot place it within the tolerance
+    #: 0): a fit on that bound is at the edge of its range only when it would go on beyond it, clearly better
+    #: (:meth:`udrobot_ctrl.gap.attribute.Attributor.bound_binds`); else the runs cannot place it within the tolerance
     tolerance_ends: tuple = ()
     #: its regressors read the thrust the actuators deliver, i.e. after the input filters of the other effects in a
     #: set (the plant applies an inflow loss to the lagged thrust): see :meth:`command_filter`

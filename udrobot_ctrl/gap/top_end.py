@@ -45,8 +45,8 @@ class TopEnd:
         The cable's elevation from the vehicle's median position towards the top end, deg (+: up).
     reading : str
         One of :data:`READINGS`: ``at the surface`` (a near top end less than ``SURFACE_TOLERANCE_M`` below it),
-        ``below the surface`` (deeper, or pinned at that limit of the search where the surface fits clearly worse:
-        the fit wants it under water),
+        ``below the surface`` (deeper, or pinned at that limit of the search where it would go on deeper, clearly
+        better: the fit wants it under water),
         ``rising`` (a far top end above the vehicle) or ``not rising``.
     text : str
         The reading in words; for a top end below the surface or a cable that does not rise, what is missing.
@@ -75,10 +75,10 @@ def top_end(params, position, limit_binds: bool = True) -> TopEnd | None:
     position : ndarray, shape (n, 3)
         The vehicle's NED positions over the fit runs (x, y as logged or dead-reckoned, z the depth), m.
     limit_binds : bool
-        For a top end pinned at the search's limit (``SURFACE_TOLERANCE_M`` down): whether the surface itself fits
-        clearly worse (:meth:`~udrobot_ctrl.gap.attribute.Attributor.bound_binds`), i.e. the fit wants the top end
-        under water; when it does not, the runs cannot place the top end within that metre, and it is read at the
-        surface.
+        For a top end pinned at the search's limit (``SURFACE_TOLERANCE_M`` down): whether the fit would go on
+        deeper, clearly better (:meth:`~udrobot_ctrl.gap.attribute.Attributor.bound_binds`), i.e. it wants the top
+        end under water; when it would not, the runs cannot place the top end within that metre, and it is read at
+        the surface.
 
     Returns
     -------
@@ -108,8 +108,8 @@ def top_end(params, position, limit_binds: bool = True) -> TopEnd | None:
                                           "free-form force, not that cable")
     elif a[2] < SURFACE_TOLERANCE_M - AT_LIMIT_M or (a[2] <= SURFACE_TOLERANCE_M + AT_LIMIT_M and not limit_binds):
         how = (f"{a[2]:.1f} m down" if a[2] < SURFACE_TOLERANCE_M - AT_LIMIT_M else
-               f"its fit ends at the search's {SURFACE_TOLERANCE_M:.1f} m limit, but a top end at the surface fits as "
-               f"well: the runs do not place it within that metre")
+               f"its fit ends at the search's {SURFACE_TOLERANCE_M:.1f} m limit, but would not go clearly better "
+               f"deeper: the runs do not place it within that metre")
         reading, text = READINGS[0], (f"at the surface ({how}), {math.hypot(d[0], d[1]):.1f} m across "
                                       f"from the runs' centre; the vehicle at {depth:.1f} m")
     else:

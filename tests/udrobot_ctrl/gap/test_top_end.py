@@ -46,10 +46,10 @@ def test_a_top_end_pinned_at_the_searchs_depth_limit_is_read_below_the_surface()
 
 
 def test_a_top_end_at_the_limit_where_the_surface_fits_as_well_is_at_the_surface():
-    """A fit that drifts to the 1 m limit because the runs cannot place the top end within that metre (the surface
-    fits as well: the limit does not bind) is a tether at the surface, not a free-form force."""
+    """A fit that drifts to the 1 m limit because the runs cannot place the top end within that metre (it would not
+    go on deeper, clearly better: the limit does not bind) is a tether at the surface, not a free-form force."""
     flat = top_end(_anchor(7.0, 0, SURFACE_TOLERANCE_M), _track(), limit_binds=False)
-    assert flat.reading == READINGS[0] and "a top end at the surface fits as well" in flat.text, flat.text
+    assert flat.reading == READINGS[0] and "would not go clearly better deeper" in flat.text, flat.text
     deeper = top_end(_anchor(7.0, 0, 3.0), _track(), limit_binds=False)  # beyond the limit: below whatever binds
     assert deeper.reading == READINGS[1]
 
