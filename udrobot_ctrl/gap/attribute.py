@@ -52,7 +52,7 @@ from udrobot_ctrl.parallel import Helper, in_worker
 BIC_STRONG = 10.0
 #: where :meth:`Attributor.bound_binds` profiles a parameter beyond a tolerance bound: these multiples of the bound's
 #: distance from its physical value further on (a tether's top end 1 m below the surface: at 2, 3, 5, 9 and 17 m),
-#: reaching a small ROV's working depths
+#: reaching a small ROV's working depths; the last is where the refinement beyond the bound stops
 BEYOND_STEPS = (1.0, 2.0, 4.0, 8.0, 16.0)
 #: Nelder-Mead budget of a shape refinement, per free shape parameter: a tether anchor walking with the vehicle
 #: (four free) stopped 0.4 m off its top end on a fixed budget of 40 evaluations, and a cross-coupled damping took
@@ -414,6 +414,7 @@ class Attributor:
         self._cache, self._stacks = ArrayCache(cache_bytes), {}
         self._free_shapes = {}  # see free_shapes
         self._best = {}  # see best_shape
+        self._binds = {}  # see bound_binds
         self._helper, self._delegated, self._asked = None, frozenset(), {}  # see delegate
         self.n_eff = float(self.N)
 
@@ -429,6 +430,7 @@ class Attributor:
         out._stacks = {k: v for k, v in self._stacks.items() if not names_it(k)}
         out._free_shapes = {k: v for k, v in self._free_shapes.items() if not names_it(k)}
         out._best = {k: v for k, v in self._best.items() if not names_it(k)}
+        out._binds = {k: v for k, v in self._binds.items() if not names_it(k)}
         out._helper, out._delegated, out._asked = None, frozenset(), {}  # the helper serves this attributor only
         return out
 
@@ -577,21 +579,32 @@ class Attributor:
 
     def bound_binds(self, fit: Fit, name, pname, value) -> bool:
         """Whether the runs want shape parameter ``pname`` of ``name`` beyond the bound it ended on in ``fit``, a
-        tolerance about the physical ``value`` (``Effect.tolerance_ends``): its likelihood profile beyond that
-        bound, at ``BEYOND_STEPS`` times the bound's distance from ``value`` further on (the other shapes as fitted,
-        the amplitudes fitted again), lowers the fit-run BIC by more than ``BIC_STRONG`` somewhere (the same number
-        of parameters, so N_eff times the log-likelihood change). A tether fit pinned 1 m below the surface that
-        would go on to the vehicle's depth binds; one that drifted there because the runs cannot place its top end
-        within that metre does not."""
-        shape = list(fit.shapes[name])
-        i = self.cat[name].shape_names.index(pname)
-        at = float(shape[i])
-        best = fit.loglik_n
-        for k in BEYOND_STEPS:
+        tolerance about the physical ``value`` (``Effect.tolerance_ends``): with that bound moved ``BEYOND_STEPS[-1]``
+        times the bound's distance from ``value`` further on, the shape refined again (from the best point of the
+        profile at ``BEYOND_STEPS`` times that distance, the other shapes as fitted) lowers the fit-run BIC by more
+        than ``BIC_STRONG`` (the same number of parameters, so N_eff times the log-likelihood change). A tether fit
+        pinned 1 m below the surface that would go on to the vehicle's depth binds; one that drifted there because
+        the runs cannot place its top end within that metre does not. Kept per fit and parameter."""
+        key = (name, pname, float(value), _exact((n, fit.shapes[n]) for n in fit.names))
+        if key in self._binds:
+            return self._binds[key]
+        eff = self.cat[name]
+        _, bounds = eff.search_space(self.s)
+        i = eff.shape_names.index(pname)
+        at = float(fit.shapes[name][i])
+        fixed = [(n, fit.shapes[n]) for n in fit.names if n != name]
+        shape, best = list(fit.shapes[name]), fit
+        for k in BEYOND_STEPS:  # the profile beyond the bound, the other shapes held
             shape[i] = at + k * (at - float(value))
-            alt = self.fit([(n, tuple(shape) if n == name else fit.shapes[n]) for n in fit.names])
-            best = min(best, alt.loglik_n)
-        return bool(self.n_eff * (fit.loglik_n - best) > BIC_STRONG)
+            alt = self.fit(fixed + [(name, tuple(shape))])
+            best = alt if alt.loglik_n < best.loglik_n else best
+        relaxed = list(bounds)
+        relaxed[i] = ((bounds[i][0], shape[i]) if at >= float(value) else (shape[i], bounds[i][1]))
+        if eff.refine:
+            cand = self._refine(name, fixed, best.shapes[name], tuple(relaxed))
+            best = cand if cand.loglik_n < best.loglik_n else best
+        self._binds[key] = bool(self.n_eff * (fit.loglik_n - best.loglik_n) > BIC_STRONG)
+        return self._binds[key]
 
     def _dof_design(self, name, shape, upstream=()):
         """Regressors of a design on the scored DOFs, (nd, k, n) C-contiguous (kept with the design cache)."""
@@ -773,30 +786,36 @@ class Attributor:
         shapes = [tuple(sh) for sh in tuple(grid) + tuple(seeds)]
         best = self.fit(list(fixed) + [(name, shapes[_first_min(self.losses(fixed, name, shapes))])])
         if refine and eff.refine and bounds:
-            x0 = np.array(best.shapes[name], float)
-            lo = np.array([b[0] for b in bounds])
-            hi = np.array([b[1] for b in bounds])
-
-            step = np.asarray(eff.refine_step(self.s, x0), float)
-            free = step != 0  # a zero step holds that shape parameter (a form chosen on the grid)
-
-            def full_shape(zf):
-                z = x0.copy()
-                z[free] = zf
-                return np.clip(z, lo, hi)
-
-            def obj(zf):  # fit(...).loglik_n without the Fit (its parameters and prediction): the same sum
-                return float(self.losses(fixed, name, [tuple(full_shape(zf))], iters=2)[0])
-
-            z0 = x0[free]
-            simplex = np.vstack([z0] + [z0 + np.diag(step[free])[i] for i in range(z0.size)])
-            res = minimize(obj, z0, method="Nelder-Mead",
-                           options={"initial_simplex": simplex, "xatol": 1e-3, "fatol": 1e-7,
-                                    "maxfev": REFINE_EVALS_PER_SHAPE * z0.size})
-            cand = self.fit(list(fixed) + [(name, tuple(full_shape(res.x)))])
+            cand = self._refine(name, fixed, best.shapes[name], bounds)
             if cand.loglik_n < best.loglik_n:
                 best = cand
         return best
+
+    def _refine(self, name, fixed, shape, bounds) -> Fit:
+        """The local refinement of :meth:`best_shape`: Nelder-Mead on the free shape parameters of ``name`` (its
+        ``refine_step``, ``REFINE_EVALS_PER_SHAPE`` evaluations each) from ``shape`` within ``bounds``, the terms
+        ``fixed`` held; the fit where it ends."""
+        eff = self.cat[name]
+        x0 = np.array(shape, float)
+        lo = np.array([b[0] for b in bounds])
+        hi = np.array([b[1] for b in bounds])
+        step = np.asarray(eff.refine_step(self.s, x0), float)
+        free = step != 0  # a zero step holds that shape parameter (a form chosen on the grid)
+
+        def full_shape(zf):
+            z = x0.copy()
+            z[free] = zf
+            return np.clip(z, lo, hi)
+
+        def obj(zf):  # fit(...).loglik_n without the Fit (its parameters and prediction): the same sum
+            return float(self.losses(fixed, name, [tuple(full_shape(zf))], iters=2)[0])
+
+        z0 = x0[free]
+        simplex = np.vstack([z0] + [z0 + np.diag(step[free])[i] for i in range(z0.size)])
+        res = minimize(obj, z0, method="Nelder-Mead",
+                       options={"initial_simplex": simplex, "xatol": 1e-3, "fatol": 1e-7,
+                                "maxfev": REFINE_EVALS_PER_SHAPE * z0.size})
+        return self.fit(list(fixed) + [(name, tuple(full_shape(res.x)))])
 
     def estimate_noise(self, singles):
         """Set N_eff from the residual of all effects at once (their best single shapes)."""
