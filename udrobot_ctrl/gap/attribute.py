@@ -600,8 +600,8 @@ class Attributor:
             best = alt if alt.loglik_n < best.loglik_n else best
         relaxed = list(bounds)
         relaxed[i] = ((bounds[i][0], shape[i]) if at >= float(value) else (shape[i], bounds[i][1]))
-        if eff.refine:
-            cand = self._refine(name, fixed, best.shapes[name], tuple(relaxed))
+        if eff.refine:  # its nested parts judged as the search judges them
+            cand = self.nested_parts(self._refine(name, fixed, best.shapes[name], tuple(relaxed)), name, fixed)
             best = cand if cand.loglik_n < best.loglik_n else best
         self._binds[key] = bool(self.n_eff * (fit.loglik_n - best.loglik_n) > BIC_STRONG)
         return self._binds[key]
@@ -789,7 +789,40 @@ class Attributor:
             cand = self._refine(name, fixed, best.shapes[name], bounds)
             if cand.loglik_n < best.loglik_n:
                 best = cand
-        return best
+        return self.nested_parts(best, name, fixed)
+
+    def nested_parts(self, fit: Fit, name, fixed=()) -> Fit:
+        """``fit`` with each of ``name``'s nested shape groups (``Effect.nested``: a tether's attachment point) set
+        back to its defaults unless the fit pays for it: with the group at its defaults (the amplitudes fitted again,
+        ``fixed`` held) the fit-run BIC would rise by more than ``BIC_STRONG`` counting the group's parameters, on
+        the effective sample count of ``fit``'s own residual (:meth:`effective_samples`; a search does not depend on
+        the attributor's N_eff, set later from every effect's residual)."""
+        eff = self.cat[name]
+        for group, defaults in eff.nested:
+            idx = [eff.shape_names.index(g) for g in group]
+            shape = list(fit.shapes[name])
+            if all(shape[i] == d for i, d in zip(idx, defaults)):
+                continue
+            for i, d in zip(idx, defaults):
+                shape[i] = float(d)
+            alt = self.fit(list(fixed) + [(name, tuple(shape))])
+            n_eff = self.effective_samples(fit)
+            gain = n_eff * (alt.loglik_n - fit.loglik_n) - len(group) * np.log(n_eff * max(1, self.dofs.sum()))
+            if gain <= BIC_STRONG:
+                fit = alt
+        return fit
+
+    def effective_samples(self, fit: Fit) -> float:
+        """N_eff of ``fit``'s residual on the scored DOFs: N over :meth:`residual_tau` (at least 10)."""
+        return max(10.0, self.N / max(self.residual_tau(fit), 1.0))
+
+    def residual_tau(self, fit: Fit) -> float:
+        """The median integrated autocorrelation time (samples) of ``fit``'s residual, per run and scored DOF (runs
+        of more than 20 rows; 1 without any)."""
+        e = (self.r - fit.pred)[:, self.dofs]
+        taus = [[tau_int(seg[:, j]) for j in range(seg.shape[1])]
+                for seg in (e[run["rows"]] for run in self.s.runs) if seg.shape[0] > 20]
+        return float(np.median(taus)) if taus else 1.0
 
     def _refine(self, name, fixed, shape, bounds) -> Fit:
         """The local refinement of :meth:`best_shape`: Nelder-Mead on the free shape parameters of ``name`` (its
@@ -821,13 +854,7 @@ class Attributor:
         """Set N_eff from the residual of all effects at once (their best single shapes)."""
         terms = [(n, f.shapes[n]) for n, f in singles.items()]
         full = self.fit(terms, iters=2)
-        e = (self.r - full.pred)[:, self.dofs]
-        taus = []
-        for run in self.s.runs:
-            seg = e[run["rows"]]
-            if seg.shape[0] > 20:
-                taus.append([tau_int(seg[:, j]) for j in range(seg.shape[1])])
-        tau = float(np.median(taus)) if taus else 1.0
+        tau = self.residual_tau(full)
         self.n_eff = max(10.0, self.N / max(tau, 1.0))
         return tau, full
 

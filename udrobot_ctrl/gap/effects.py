@@ -282,6 +282,12 @@ class Effect:
     #: 0): a fit on that bound is at the edge of its range only when it would go on beyond it, clearly better
     #: (:meth:`udrobot_ctrl.gap.attribute.Attributor.bound_binds`); else the runs cannot place it within the tolerance
     tolerance_ends: tuple = ()
+    #: (shape parameters, their default values) groups the search keeps off their defaults only when the fit pays for
+    #: them: with the group at its defaults instead (the amplitudes fitted again) the fit-run BIC would rise by more
+    #: than ``BIC_STRONG`` counting the group's parameters (:meth:`udrobot_ctrl.gap.attribute.Attributor.
+    #: nested_parts`). A tether's attachment point, refined from the CO, otherwise moves a centimetre on noise, and the
+    #: moment it adds is replayed against a heading the autopilot holds
+    nested: tuple = ()
     #: its regressors read the thrust the actuators deliver, i.e. after the input filters of the other effects in a
     #: set (the plant applies an inflow loss to the lagged thrust): see :meth:`command_filter`
     reads_delivered: ClassVar[bool] = False
@@ -970,7 +976,8 @@ def catalogue() -> dict:
         TetherDrag("tether_drag", "umbilical cross-flow drag, normal to the cable",
                    pfx.TETHER_ANCHOR + pfx.TETHER_WALK + (pfx.TETHER_TAUT,) + pfx.TETHER_ATTACH, (), (),
                    refine=True, mimics=("quadratic_damping_error", "linear_damping", "thrust_inflow_loss"),
-                   tolerance_ends=(("anchor_down_m", 0.0),)),
+                   tolerance_ends=(("anchor_down_m", 0.0),),
+                   nested=((pfx.TETHER_ATTACH, (0.0,) * len(pfx.TETHER_ATTACH)),)),
         WallEffect("wall_effect", "extra added mass and suction near the seabed or a wall", ("decay_length_m",),
                    wall_grid, ((0.01, 2.0),), refine=True,
                    excited_by="a known distance to a surface: log altitude, or give seabed_depth, or walls with "
