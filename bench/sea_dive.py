@@ -11,6 +11,8 @@ Usage: ``python bench/sea_dive.py [CASE ...] [--seeds 0 1 2] --dir DIR``; cases:
 from __future__ import annotations
 
 import argparse
+import contextlib
+import io
 import json
 import math
 import sys
@@ -76,9 +78,10 @@ def main_(argv=None) -> int:
             d.mkdir(parents=True, exist_ok=True)
             t0 = time.process_time()
             write_variant(d / "dive.tlog", sea_variant(case, seed))
-            main(["convert", str(d / "dive.tlog"), "--out", str(d / "dive.csv"), "--force"])
-            main(["diagnose", "--model", "bluerov2-heavy", "--json", str(d / "gap.json"), "--quiet",
-                  str(d / "dive.csv")])
+            with contextlib.redirect_stdout(io.StringIO()):  # the commands' own console output
+                main(["convert", str(d / "dive.tlog"), "--out", str(d / "dive.csv"), "--force"])
+                main(["diagnose", "--model", "bluerov2-heavy", "--json", str(d / "gap.json"), "--quiet",
+                      str(d / "dive.csv")])
             report = json.loads((d / "gap.json").read_text())
             print(f"{case}, seed {seed} ({time.process_time() - t0:.0f} CPU-s):")
             print("\n".join(describe(case, report)), flush=True)
