@@ -97,6 +97,7 @@ def top_end(params, position, limit_binds: bool = True) -> TopEnd | None:
     elevation = math.degrees(math.atan2(-d[2], math.hypot(d[0], d[1])))
     far = bool(np.linalg.norm(d) >= 0.5 * FAR_ANCHOR_M)
     depth = float(centre[2])
+    pinned = abs(a[2] - SURFACE_TOLERANCE_M) <= AT_LIMIT_M  # at the search's limit
     if far:
         toward = math.degrees(math.atan2(d[1], d[0])) % 360
         if elevation > 0:
@@ -106,15 +107,14 @@ def top_end(params, position, limit_binds: bool = True) -> TopEnd | None:
             reading, text = READINGS[3], (f"a far top end below the vehicle: the cable runs down at {-elevation:.0f} "
                                           f"deg towards {toward:03.0f} deg, where no tether goes; the fit is a "
                                           "free-form force, not that cable")
-    elif a[2] < SURFACE_TOLERANCE_M - AT_LIMIT_M or (a[2] <= SURFACE_TOLERANCE_M + AT_LIMIT_M and not limit_binds):
-        how = (f"{a[2]:.1f} m down" if a[2] < SURFACE_TOLERANCE_M - AT_LIMIT_M else
-               f"its fit ends at the search's {SURFACE_TOLERANCE_M:.1f} m limit, but would not go clearly better "
-               f"deeper: the runs do not place it within that metre")
+    elif a[2] < SURFACE_TOLERANCE_M - AT_LIMIT_M or (pinned and not limit_binds):
+        how = (f"its fit ends at the search's {SURFACE_TOLERANCE_M:.1f} m limit, but would not go clearly better "
+               f"deeper: the runs do not place it within that metre" if pinned else f"{a[2]:.1f} m down")
         reading, text = READINGS[0], (f"at the surface ({how}), {math.hypot(d[0], d[1]):.1f} m across "
                                       f"from the runs' centre; the vehicle at {depth:.1f} m")
     else:
         where = (f"pinned at {a[2]:.1f} m down, the deepest the search lets a top end lie: the fit wants it under water"
-                 if a[2] <= SURFACE_TOLERANCE_M + AT_LIMIT_M else f"{a[2]:.1f} m below the surface")
+                 if pinned else f"{a[2]:.1f} m below the surface")
         below = " and below the vehicle" if a[2] > depth else ""
         reading, text = READINGS[1], (
             f"{where}{below} (the vehicle at {depth:.1f} m): a tether runs up to the surface (a tender, a boat, a "
