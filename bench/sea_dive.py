@@ -6,7 +6,7 @@ Prints per case and seed: what was named, the current fitted against the truth a
 tether's anchor, its drag at the transects' 0.5 m/s against the truth's, its top end, the holdout check's outcome,
 and the gap before and after.
 
-Usage: ``python bench/sea_dive.py [CASE ...] [--seeds 0 1 2] --dir DIR``; cases: see ``CASES``.
+Usage: ``python bench/sea_dive.py [CASE ...] [--seeds 0 1 2] --dir DIR``; cases: see ``sea_dive.CASES``.
 """
 from __future__ import annotations
 
@@ -14,38 +14,29 @@ import argparse
 import contextlib
 import io
 import json
-import math
 import sys
 import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from tests.udrobot_ctrl.gap import sea_dive  # noqa: E402
 from tests.udrobot_ctrl.gap.field_dive import write_variant  # noqa: E402
-from tests.udrobot_ctrl.gap.sea_dive import CASES, sea_variant  # noqa: E402
 from udrobot_ctrl.cli.main import main  # noqa: E402
-
-SPEED = 0.5  # m/s, the transects' speed
-
-
-def tether_drag(p: dict, speed: float = SPEED) -> float:
-    """The tether's cross-flow drag (N) at ``speed`` across the cable."""
-    return p["k_quadratic_N_s2_per_m2"] * speed ** 2 + p["k_linear_N_s_per_m"] * speed
 
 
 def describe(case: str, report: dict) -> list:
     """Lines on one diagnosis of ``case``."""
-    truth = dict(CASES[case])
+    truth = dict(sea_dive.CASES[case])
     by = {e["name"]: e for e in report["effects"]}
     named = [e["name"] for e in report["effects"] if e["significant"]]
     lines = [f"  named: {', '.join(named) or 'nothing'}; gap {report['gap_before']['value']:.3f} -> "
              f"{report['gap_after']['value']:.3f}"]
     if "water_current" in truth:
-        e, t = by["water_current"], truth["water_current"]
+        e = by["water_current"]
         p = e["params"] or e.get("fitted_params_if_added") or {}
         if p:
-            err = math.hypot(p["current_north_mps"] - t["current_north_mps"],
-                             p["current_east_mps"] - t["current_east_mps"])
+            err = sea_dive.current_error(p)
             cur = report.get("heading_coverage", {}).get("currents") or {}
             lines.append(f"  current: fitted N {p['current_north_mps']:+.3f} E {p['current_east_mps']:+.3f} m/s, "
                          f"{err:.3f} m/s from the truth; parts: {cur.get('reading', '-')}")
@@ -55,10 +46,11 @@ def describe(case: str, report: dict) -> list:
         test = next((r["tests"]["tether_drag"] for r in report.get("backward_elimination", [])[::-1]
                      if "tether_drag" in r["tests"]), None)
         if p:
-            off = math.hypot(p["anchor_north_m"] - t["anchor_north_m"], p["anchor_east_m"] - t["anchor_east_m"])
+            off = sea_dive.anchor_error(p)
             attach = [p.get(k, 0.0) for k in ("attach_x_m", "attach_y_m", "attach_z_m")]
+            drag, true_drag = sea_dive.tether_drag(p), sea_dive.tether_drag(t)
             lines.append(f"  tether: anchor {off:.2f} m from the truth's (down {p['anchor_down_m']:.2f} m), drag at "
-                         f"{SPEED} m/s {tether_drag(p):.2f} N against {tether_drag(t):.2f} N; attached at "
+                         f"{sea_dive.TRANSECT_SPEED} m/s {drag:.2f} N against {true_drag:.2f} N; attached at "
                          f"({', '.join(f'{100 * a:+.1f}' for a in attach)}) cm; top end: "
                          f"{(e.get('top_end') or {}).get('reading', '-')}; holdout: "
                          + (f"replay gap {100 * test['holdout_gap_contribution']:+.1f}% when dropped, "
@@ -68,7 +60,7 @@ def describe(case: str, report: dict) -> list:
 
 def main_(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("cases", nargs="*", default=sorted(CASES))
+    ap.add_argument("cases", nargs="*", default=sorted(sea_dive.CASES))
     ap.add_argument("--seeds", nargs="*", type=int, default=[0])
     ap.add_argument("--dir", type=Path, required=True)
     args = ap.parse_args(argv)
@@ -77,7 +69,7 @@ def main_(argv=None) -> int:
             d = args.dir / f"{case}_{seed}"
             d.mkdir(parents=True, exist_ok=True)
             t0 = time.process_time()
-            write_variant(d / "dive.tlog", sea_variant(case, seed))
+            write_variant(d / "dive.tlog", sea_dive.sea_variant(case, seed))
             with contextlib.redirect_stdout(io.StringIO()):  # the commands' own console output
                 main(["convert", str(d / "dive.tlog"), "--out", str(d / "dive.csv"), "--force"])
                 main(["diagnose", "--model", "bluerov2-heavy", "--json", str(d / "gap.json"), "--quiet",

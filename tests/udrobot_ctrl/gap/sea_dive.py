@@ -16,6 +16,8 @@ here, on a BlueROV2 Heavy with the published model flown by a pilot under the em
 """
 from __future__ import annotations
 
+import math
+
 from tests.udrobot_ctrl.gap.field_dive import Leg, Variant
 
 #: the pilot's legs (times in s from the start); the yaw legs turn the vehicle 90 deg each (ALT_HOLD's pilot yaw
@@ -28,6 +30,7 @@ CURRENT = ("water_current", {"current_north_mps": 0.0, "current_east_mps": 0.15,
 TETHER = ("tether_drag", {"k_quadratic_N_s2_per_m2": 15.0, "k_linear_N_s_per_m": 2.0, "anchor_north_m": 0.0,
                           "anchor_east_m": -5.0, "anchor_down_m": 0.0})
 CASES = {"current": (CURRENT,), "tether": (TETHER,), "current_and_tether": (CURRENT, TETHER)}
+TRANSECT_SPEED = 0.5  # m/s, the forward legs' speed (ALT_HOLD at +200 us)
 
 
 def sea_variant(case: str, seed: int = 0) -> Variant:
@@ -35,3 +38,22 @@ def sea_variant(case: str, seed: int = 0) -> Variant:
     published Heavy (no heave drag change), ALT_HOLD throughout, the transects, the DVL and the EKF's position."""
     return Variant(scale=0.0, alt_hold_from=0.0, servo_hz=10.0, duration=180.0, pattern=TRANSECTS,
                    effects=CASES[case], dvl_hz=5.0, position_hz=5.0, seed=seed)
+
+
+def current_error(params) -> float:
+    """Horizontal distance (m/s) of a fitted current's ``params`` from the truth's :data:`CURRENT`."""
+    true = CURRENT[1]
+    return math.hypot(params["current_north_mps"] - true["current_north_mps"],
+                      params["current_east_mps"] - true["current_east_mps"])
+
+
+def anchor_error(params) -> float:
+    """Horizontal distance (m) of a fitted tether's anchor in ``params`` from the truth's :data:`TETHER` anchor."""
+    true = TETHER[1]
+    return math.hypot(params["anchor_north_m"] - true["anchor_north_m"],
+                      params["anchor_east_m"] - true["anchor_east_m"])
+
+
+def tether_drag(params, speed: float = TRANSECT_SPEED) -> float:
+    """The tether's cross-flow drag (N) with amplitudes ``params`` at ``speed`` (m/s) across the cable."""
+    return params["k_quadratic_N_s2_per_m2"] * speed ** 2 + params["k_linear_N_s_per_m"] * speed

@@ -20,12 +20,11 @@ What must hold (the physics):
 from __future__ import annotations
 
 import json
-import math
 
 import pytest
 
 from tests.udrobot_ctrl.gap.field_dive import write_variant
-from tests.udrobot_ctrl.gap.sea_dive import CASES, CURRENT, TETHER, sea_variant
+from tests.udrobot_ctrl.gap.sea_dive import CASES, TETHER, anchor_error, current_error, sea_variant, tether_drag
 from udrobot_ctrl.cli.main import main
 
 pytestmark = pytest.mark.slow
@@ -33,7 +32,6 @@ pytestmark = pytest.mark.slow
 CURRENT_TOL_MPS = 0.03  # see the module docstring
 ANCHOR_TOL_M = 2.0
 DRAG_TOL = 0.25
-TRANSECT_SPEED = 0.5  # m/s, the forward legs' speed (ALT_HOLD at +200 us)
 
 
 def _diagnosed(d, case):
@@ -50,16 +48,10 @@ def test_the_current_is_named_with_its_size_and_direction_on_both_parts(case, tm
     named = {e["name"]: e for e in report["effects"] if e["significant"]}
     assert "water_current" in named and set(named) <= {name for name, _ in CASES[case]}, sorted(named)
     assert not any(e.get("at_bound") for e in named.values())
-    cur, true = named["water_current"]["params"], CURRENT[1]
-    err = math.hypot(cur["current_north_mps"] - true["current_north_mps"],
-                     cur["current_east_mps"] - true["current_east_mps"])
-    assert err < CURRENT_TOL_MPS, cur
+    cur = named["water_current"]["params"]
+    assert current_error(cur) < CURRENT_TOL_MPS, cur
     currents = report["heading_coverage"]["currents"]
     assert currents["reading"] == "one current", currents
-
-
-def _tether_drag(params, speed):
-    return params["k_quadratic_N_s2_per_m2"] * speed ** 2 + params["k_linear_N_s_per_m"] * speed
 
 
 def test_the_tether_runs_from_the_co_to_its_boat_at_the_surface(tmp_path):
@@ -67,10 +59,9 @@ def test_the_tether_runs_from_the_co_to_its_boat_at_the_surface(tmp_path):
     named = {e["name"]: e for e in report["effects"] if e["significant"]}
     assert set(named) == {"tether_drag"}, sorted(named)
     tether = named["tether_drag"]
-    p, true = tether["params"], TETHER[1]
-    assert math.hypot(p["anchor_north_m"] - true["anchor_north_m"],
-                      p["anchor_east_m"] - true["anchor_east_m"]) < ANCHOR_TOL_M, p
+    p = tether["params"]
+    assert anchor_error(p) < ANCHOR_TOL_M, p
     assert (p["attach_x_m"], p["attach_y_m"], p["attach_z_m"]) == (0.0, 0.0, 0.0), p
     assert tether["top_end"]["reading"] == "at the surface", tether["top_end"]
-    drag, true_drag = _tether_drag(p, TRANSECT_SPEED), _tether_drag(true, TRANSECT_SPEED)
+    drag, true_drag = tether_drag(p), tether_drag(TETHER[1])
     assert abs(drag - true_drag) < DRAG_TOL * true_drag, (drag, true_drag)
