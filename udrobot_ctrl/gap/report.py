@@ -42,6 +42,7 @@ from udrobot_ctrl.gap.attribute import (
     refit,
     residual,
 )
+from udrobot_ctrl.gap.balance import SteadyBalance, balance_lines, steady_balance
 from udrobot_ctrl.gap.confirm import (
     CONSISTENT_WINDOWS,
     INTERACTING_P,
@@ -1314,6 +1315,14 @@ def headings_and_currents(inp: Inputs, stacks: Stacks, sel: Selection) -> Headin
     return replace(hc, currents=current_parts(stacks.holdout, sel.singles[CURRENT], hc))
 
 
+def balance_of(inp: Inputs, where: Where, stacks: Stacks, elim: Elimination) -> SteadyBalance:
+    """The report's ``steady_balance`` (:mod:`udrobot_ctrl.gap.balance`): the fit and holdout runs' steady flight
+    with the nominal residuals of step 1 and the significant effects' force."""
+    hooks = fitted_hooks(inp.catalogue, inp.p, stacks.actuation, elim.combination.fit, elim.kept) if elim.kept else ()
+    n_fit = len(inp.fit)
+    return steady_balance(inp.fit, inp.holdout, where.residuals[:n_fit], where.residuals[n_fit:], hooks, elim.kept)
+
+
 def report_json(inp: Inputs, where: Where, stacks: Stacks, sel: Selection, elim: Elimination, verdicts, verdict,
                 elapsed_s, support: ReplaySupport | None = None) -> dict:
     """The ``udrobot-diagnosis/1`` report (docs/formats/diagnosis.md) of the diagnosis' steps (not yet rounded)."""
@@ -1332,6 +1341,7 @@ def report_json(inp: Inputs, where: Where, stacks: Stacks, sel: Selection, elim:
         "unexplained": (after.value / before.value) if before.value > 0 else float("nan"),
         "remaining": [r.to_json() for r in remaining_gap(after, where.located.floor,
                                                           closed_loop_shares(inp.holdout))],
+        "steady_balance": balance_of(inp, where, stacks, elim).to_json(),
         "heading_coverage": (hc.to_json() if (hc := headings_and_currents(inp, stacks, sel)) is not None else None),
         "parts": (pt.to_json() if (pt := named_parts(stacks.holdout, elim.combination.fit,
                                                      [v.name for v in verdicts if v.significant])) else None),
@@ -1905,6 +1915,7 @@ def summary(report) -> str:
     left = remaining_line(report.get("remaining") or [])
     if left:
         lines.append(left)
+    lines += balance_lines(report.get("steady_balance"))
     lines.append(report["verdict"])
     return "\n".join(lines)
 
