@@ -15,7 +15,10 @@ What must hold (the physics):
   and a drag at the transects' 0.5 m/s within 25 % of the truth's (the quadratic and linear amplitudes trade against
   each other over the few speeds flown: only their sum at those speeds is pinned). Its attachment point, refined
   freely, moved 1.3 cm on noise and the holdout check dropped it for the yaw moment (the held heading's spread is
-  0.016 rad); it is now kept off the CO only when the fit pays for its three parameters.
+  0.016 rad); it is now kept off the CO only when the fit pays for its three parameters;
+* in steady transit the thrusters held a horizontal force beyond what the nominal model needs there (the cable's
+  pull, the current's push: the report's ``steady_balance``), and the named effects take at least three quarters of
+  it off, on both parts.
 """
 from __future__ import annotations
 
@@ -26,12 +29,30 @@ import pytest
 from tests.udrobot_ctrl.gap.field_dive import write_variant
 from tests.udrobot_ctrl.gap.sea_dive import CASES, TETHER, anchor_error, current_error, sea_variant, tether_drag
 from udrobot_ctrl.cli.main import main
+from udrobot_ctrl.gap.balance import BALANCE_Z
 
 pytestmark = pytest.mark.slow
 
 CURRENT_TOL_MPS = 0.03  # see the module docstring
 ANCHOR_TOL_M = 2.0
 DRAG_TOL = 0.25
+
+
+#: the named effects take at least this share of the horizontal force the thrusters held beyond the nominal need in
+#: steady flight off (the report's ``steady_balance``): the truths' current and cable are the only forces the nominal
+#: plant lacks, and the share left allows for the templates' forms (a uniform current, a straight cable)
+BALANCED_SHARE = 0.75
+
+
+def _horizontal_balance_corrected(report):
+    """Every steady bin whose X or Y the nominal model leaves imbalanced has that imbalance mostly taken off by the
+    corrected model (the named effects' force), or balanced within 3 standard errors (an imbalance just above them)."""
+    off = [(b["part"], b["speed_m_s"], d, x) for b in report["steady_balance"]["bins"] for d, x in b["dofs"].items()
+           if d in ("X", "Y") and x["imbalanced"]]
+    assert off, report["steady_balance"]  # a current or a cable pulls on the transects
+    for part, speed, d, x in off:
+        left, nominal = abs(x["held"] - x["corrected"]), abs(x["held"] - x["nominal"])
+        assert left < max((1 - BALANCED_SHARE) * nominal, BALANCE_Z * x["se"]), (part, speed, d, x)
 
 
 def _diagnosed(d, case):
@@ -52,6 +73,7 @@ def test_the_current_is_named_with_its_size_and_direction_on_both_parts(case, tm
     assert current_error(cur) < CURRENT_TOL_MPS, cur
     currents = report["heading_coverage"]["currents"]
     assert currents["reading"] == "one current", currents
+    _horizontal_balance_corrected(report)
 
 
 def test_the_tether_runs_from_the_co_to_its_boat_at_the_surface(tmp_path):
@@ -65,3 +87,4 @@ def test_the_tether_runs_from_the_co_to_its_boat_at_the_surface(tmp_path):
     assert tether["top_end"]["reading"] == "at the surface", tether["top_end"]
     drag, true_drag = tether_drag(p), tether_drag(TETHER[1])
     assert abs(drag - true_drag) < DRAG_TOL * true_drag, (drag, true_drag)
+    _horizontal_balance_corrected(report)
