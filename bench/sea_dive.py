@@ -4,7 +4,8 @@ through the command line as a user would, each with a few noise seeds.
 
 Prints per case and seed: what was named, the current fitted against the truth and its reading on the two parts, the
 tether's anchor, its drag at the transects' 0.5 m/s against the truth's, its top end, the holdout check's outcome,
-and the gap before and after.
+the gap before and after, and the steady-flight balance (what the thrusters held against what the nominal and
+corrected models need: the cable's pull and the current's push in newtons).
 
 Usage: ``python bench/sea_dive.py [CASE ...] [--seeds 0 1 2] --dir DIR``; cases: see ``sea_dive.CASES``.
 """
@@ -23,6 +24,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from tests.udrobot_ctrl.gap import sea_dive  # noqa: E402
 from tests.udrobot_ctrl.gap.field_dive import write_variant  # noqa: E402
 from udrobot_ctrl.cli.main import main  # noqa: E402
+from udrobot_ctrl.gap.balance import balance_lines  # noqa: E402
 
 
 def describe(case: str, report: dict) -> list:
@@ -55,7 +57,7 @@ def describe(case: str, report: dict) -> list:
                          f"{(e.get('top_end') or {}).get('reading', '-')}; holdout: "
                          + (f"replay gap {100 * test['holdout_gap_contribution']:+.1f}% when dropped, "
                             f"{'passed' if test['passed'] else 'dropped'}" if test else "not a candidate"))
-    return lines
+    return lines + balance_lines(report.get("steady_balance"))
 
 
 def main_(argv=None) -> int:
