@@ -110,10 +110,6 @@ class BalanceBin:
     seconds: float
     dofs: dict
 
-    def label(self) -> str:
-        lo, hi = self.speed
-        return f"{lo:g}-{hi:g} m/s" if np.isfinite(hi) else f"above {lo:g} m/s"
-
     def to_json(self) -> dict:
         return {"part": self.part, "speed_m_s": [self.speed[0], self.speed[1] if np.isfinite(self.speed[1]) else None],
                 "seconds": self.seconds, "dofs": {d: b.to_json() for d, b in self.dofs.items()}}
@@ -214,6 +210,12 @@ def steady_balance(fit, holdout, fit_residuals, holdout_residuals, hooks=(), eff
     return SteadyBalance(tuple(bins), tuple(uncovered), tuple(effects))
 
 
+def _speed(bounds) -> str:
+    """A speed bin's label from its JSON ``speed_m_s`` ([low, high], high null for the last bin)."""
+    lo, hi = bounds
+    return f"{lo:g}-{hi:g} m/s" if hi is not None else f"above {lo:g} m/s"
+
+
 def _force(v: float, unit: str) -> str:
     return f"{v:+.2f} {unit}"
 
@@ -227,8 +229,7 @@ def balance_lines(balance: dict) -> list:
     lines = [f"  steady flight (rates below {balance['steady']['rate_rad_s']:g} rad/s, accelerations below "
              f"{balance['steady']['accel_m_s2']:g} m/s^2): what the thrusters held against what the model needs there"]
     for b in balance["bins"]:
-        lo, hi = b["speed_m_s"]
-        speed = f"{lo:g}-{hi:g} m/s" if hi is not None else f"above {lo:g} m/s"
+        speed = _speed(b["speed_m_s"])
         off = [(d, x) for d, x in b["dofs"].items() if x["imbalanced"] or x.get("corrected_imbalanced")]
         if not off:
             lines.append(f"    {b['part']}, {speed} ({b['seconds']:.0f} s): balanced within {BALANCE_Z:g} standard "
@@ -240,9 +241,15 @@ def balance_lines(balance: dict) -> list:
             parts.append(f"{d} held {_force(x['held'], x['unit'])}, nominal needs {_force(x['nominal'], x['unit'])}"
                          f"{corr} (se {x['se']:.2g})")
         lines.append(f"    {b['part']}, {speed} ({b['seconds']:.0f} s): " + "; ".join(parts))
+    added = [(b, d, x) for b in balance["bins"] for d, x in b["dofs"].items()
+             if x.get("corrected_imbalanced") and not x["imbalanced"]]
+    if added:
+        where = [f"{d} in {b['part']} {_speed(b['speed_m_s'])} (corrected needs "
+                 f"{_force(x['corrected'], x['unit'])}, held {_force(x['held'], x['unit'])})" for b, d, x in added]
+        lines.append("    the named effects add a steady force the thrusters did not hold (a part of them that steady "
+                     "flight contradicts): " + ", ".join(where))
     for u in balance.get("uncovered") or []:
-        lo, hi = u["speed_m_s"]
-        speed = f"{lo:g}-{hi:g} m/s" if hi is not None else f"above {lo:g} m/s"
+        speed = _speed(u["speed_m_s"])
         other = "holdout" if u["part"] == "fit" else "fit"
         lines.append(f"    the {other} runs hold no steady flight at {speed} (the {u['part']} runs {u['seconds']:.0f} "
                      f"s): a force acting there is not tested by them")

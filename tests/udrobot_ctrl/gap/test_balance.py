@@ -145,5 +145,8 @@ def test_the_console_names_what_was_held_against_each_need_and_the_untested_spee
     assert "M held +1.95 N m, nominal needs +0.04 N m, corrected +1.90 N m" in lines[2]
     assert "N held +0.05 N m" in lines[2] and "X held" not in lines[2]
     assert lines[3] == "    holdout, 0.25-0.5 m/s (9 s): balanced within 3 standard errors in X"
-    assert lines[4].startswith("    the holdout runs hold no steady flight at 0-0.1 m/s (the fit runs 88 s)")
+    assert lines[4] == ("    the named effects add a steady force the thrusters did not hold (a part of them that "
+                        "steady flight contradicts): N in holdout 0.1-0.25 m/s (corrected needs +0.48 N m, held "
+                        "+0.05 N m)")
+    assert lines[5].startswith("    the holdout runs hold no steady flight at 0-0.1 m/s (the fit runs 88 s)")
     assert balance_lines(None) == [] and balance_lines(SteadyBalance((), (), ()).to_json()) == []
