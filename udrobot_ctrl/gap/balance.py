@@ -33,7 +33,7 @@ import numpy as np
 
 from udrobot_ctrl.gap.attribute import filter_forces
 from udrobot_ctrl.gap.data import Prepared
-from udrobot_ctrl.gap.locate import DOF, SPEED_BINS
+from udrobot_ctrl.gap.locate import DOF, SPEED_BINS, bin_label
 from udrobot_ctrl.gap.shrink import effect_wrench
 
 #: steady flight: every body rate below this (rad/s). Assumed: 3 deg/s, a turn or a pitch transient is faster; a
@@ -111,7 +111,7 @@ class BalanceBin:
     dofs: dict
 
     def to_json(self) -> dict:
-        return {"part": self.part, "speed_m_s": [self.speed[0], self.speed[1] if np.isfinite(self.speed[1]) else None],
+        return {"part": self.part, "speed_m_s": _bounds_json(self.speed),
                 "seconds": self.seconds, "dofs": {d: b.to_json() for d, b in self.dofs.items()}}
 
 
@@ -127,8 +127,13 @@ class SteadyBalance:
     def to_json(self) -> dict:
         return {"steady": {"rate_rad_s": STEADY_RATE, "accel_m_s2": STEADY_ACCEL, "min_seconds": MIN_STEADY_S},
                 "effects": list(self.effects), "bins": [b.to_json() for b in self.bins],
-                "uncovered": [{"speed_m_s": [lo, hi if np.isfinite(hi) else None], "part": part, "seconds": s}
-                              for (lo, hi), part, s in self.uncovered]}
+                "uncovered": [{"speed_m_s": _bounds_json(speed), "part": part, "seconds": s}
+                              for speed, part, s in self.uncovered]}
+
+
+def _bounds_json(speed) -> list:
+    """A speed bin (low, high) as the report writes it: [low, high], high null for the open last bin."""
+    return [speed[0], speed[1] if np.isfinite(speed[1]) else None]
 
 
 def steady_samples(prep: Prepared) -> np.ndarray:
@@ -151,13 +156,13 @@ def _part_bins(part: str, preps, residuals, hooks) -> tuple:
         w = filter_forces(pr, effect_wrench(pr, hooks)) if hooks else np.zeros_like(T)
         steady = steady_samples(pr) & np.isfinite(r[:, observed]).all(axis=1) & np.isfinite(T).all(axis=1)
         speed = np.linalg.norm(pr.nu[:, :3], axis=1)
+        corr_time = max(pr.window_s, pr.dt)
         for b, (lo, hi) in enumerate(zip(SPEED_BINS[:-1], SPEED_BINS[1:])):
             with np.errstate(invalid="ignore"):
                 s = steady & (speed >= lo) & (speed < hi)
             if not s.any():
                 continue
             seconds[b] += s.sum() * pr.dt
-            corr_time = max(pr.window_s, pr.dt)
             held.setdefault(b, []).append(T[s])
             nominal.setdefault(b, []).append(T[s] + r[s])
             corrected.setdefault(b, []).append(T[s] + r[s] - w[s])
@@ -213,7 +218,7 @@ def steady_balance(fit, holdout, fit_residuals, holdout_residuals, hooks=(), eff
 def _speed(bounds) -> str:
     """A speed bin's label from its JSON ``speed_m_s`` ([low, high], high null for the last bin)."""
     lo, hi = bounds
-    return f"{lo:g}-{hi:g} m/s" if hi is not None else f"above {lo:g} m/s"
+    return bin_label(lo, np.inf if hi is None else hi, "m/s")
 
 
 def _force(v: float, unit: str) -> str:

@@ -65,7 +65,8 @@ def _regimes(prep):
     return out
 
 
-def _bin_label(lo, hi, unit):
+def bin_label(lo, hi, unit):
+    """A bin's label: ``lo-hi unit``, ``below hi unit`` or ``above lo unit`` for an infinite end."""
     if not np.isfinite(lo):
         return f"below {hi:g} {unit}".strip()
     if not np.isfinite(hi):
@@ -96,7 +97,7 @@ def frequency_shares(res, dt):
     tot = P.sum(axis=0) + 1e-300
     for lo, hi in FREQ_BANDS:
         sel = (fr >= lo) & (fr < hi)
-        out[_bin_label(lo, hi, "Hz")] = (P[sel].sum(axis=0) / tot)
+        out[bin_label(lo, hi, "Hz")] = (P[sel].sum(axis=0) / tot)
     return out
 
 
@@ -385,7 +386,7 @@ def _regime_condition(c, per_run):
             ok = np.isfinite(e2) & np.isfinite(vals)
             for lo, hi in zip(bins[:-1], bins[1:]):
                 sel = ok & (vals >= lo) & (vals < hi)
-                lab = _bin_label(lo, hi, unit)
+                lab = bin_label(lo, hi, unit)
                 num[lab] = num.get(lab, 0.0) + float(np.sum(e2[sel]))
                 den[lab] = den.get(lab, 0) + int(sel.sum())
         tn, td = sum(num.values()) or 1.0, sum(den.values()) or 1
