@@ -83,13 +83,14 @@ SURFACES = {"seabed": np.array([0.0, 0.0, -1.0]), "wall 0": np.array([0.0, -1.0,
 class GapRatioTruth:
     """UDrobot plant plus the gap-ratio near-surface effect (module docstring)."""
 
-    def __init__(self, model=MODEL, kappa=KAPPA, c_s=C_S):
+    def __init__(self, model=MODEL, kappa=KAPPA, c_s=C_S, acting=tuple(SURFACES)):
         self.v = load_model(model)
         self.p = plant_parameters(self.v)
         self.MA = np.asarray(self.v.added_mass, float)[:3, :3]
         self.dims = np.asarray(self.v.extras["dims"], float)  # L, W, H (m)
         self.area = np.asarray(self.v.extras["projected_area"], float)  # facing x, y, z (m^2)
         self.kappa, self.c_s = kappa, c_s
+        self.acting = tuple(acting)  # the surfaces whose flow effect acts (every one bumps the body on contact)
 
     def size_along(self, nb):
         """Body size (m) and projected area (m^2) along a body-frame unit normal (n,3) (axis-weighted)."""
@@ -111,7 +112,7 @@ class GapRatioTruth:
             h = SEABED - x[:, 2] if label == "seabed" else WALL_Y - x[:, 1]
             nb = np.einsum("nji,j->ni", Rm, n)
             G = self.gap_ratio(h, nb)
-            c = self.kappa * (1 + G) ** -3
+            c = self.kappa * (1 + G) ** -3 * (label in self.acting)
             P = nb[:, :, None] * nb[:, None, :]
             Pt = np.eye(3) - P
             man = np.einsum("ni,ij,nj->n", nb, self.MA, nb)
@@ -119,7 +120,7 @@ class GapRatioTruth:
             _, A = self.size_along(nb)
             vn = np.sum(nu * nb, 1)
             vt2 = np.maximum(np.sum(nu ** 2, 1) - vn ** 2, 0.0)
-            F[:, :3] += -(0.5 * RHO * self.c_s * A * (1 + G) ** -4 * vt2)[:, None] * nb
+            F[:, :3] += -(0.5 * RHO * self.c_s * (label in self.acting) * A * (1 + G) ** -4 * vt2)[:, None] * nb
             # contact: the body bumps against the surface (stiff spring-damper below a 2 cm gap), it never crosses it
             D, _ = self.size_along(nb)
             pen = np.maximum(0.02 - (h - D / 2), 0.0)
@@ -139,6 +140,8 @@ class GapRatioTruth:
         drag = p.D_L[0, 0] * speed + p.Q[0, 0] * speed ** 2
         out = {}
         for label, n in SURFACES.items():
+            if label not in self.acting:
+                continue
             nb = n.copy()
             D, A = self.size_along(nb[None])
             D, A = float(D[0]), float(A[0])
@@ -166,11 +169,13 @@ def lanes(n_runs, rng):
     return wall, alt
 
 
-def generate(n_runs=4, duration=70.0, rate=20.0, seed=0, model=MODEL, kappa=KAPPA, c_s=C_S):
+def generate(n_runs=4, duration=70.0, rate=20.0, seed=0, model=MODEL, kappa=KAPPA, c_s=C_S,
+             acting=tuple(SURFACES)):
     """Closed-loop passes near the wall and over the seabed; list of :class:`Run` (thrust inputs, noisy sensors,
-    metadata with the seabed depth and the wall plane)."""
+    metadata with the seabed depth and the wall plane). ``acting``: the surfaces whose flow effect acts (labels of
+    ``SURFACES``; the sidecar lists the wall either way)."""
     rng = np.random.default_rng(seed)
-    tr = GapRatioTruth(model, kappa, c_s)
+    tr = GapRatioTruth(model, kappa, c_s, acting)
     p = tr.p
     wall, alt = lanes(n_runs, rng)
     speed = rng.uniform(0.35, 0.5, n_runs)
@@ -238,18 +243,19 @@ def generate(n_runs=4, duration=70.0, rate=20.0, seed=0, model=MODEL, kappa=KAPP
     return runs
 
 
-def case(seed=0, n_fit=4, n_holdout=2, log=None):
-    """Generate the passes, diagnose them (fit / holdout split), compare the distances with the truth."""
+def case(seed=0, n_fit=4, n_holdout=2, log=None, c_s=C_S, acting=tuple(SURFACES)):
+    """Generate the passes, diagnose them (fit / holdout split), compare the distances with the truth (``c_s``,
+    ``acting``: :func:`generate`'s)."""
     from udrobot_ctrl.gap.report import diagnose
 
-    runs = generate(n_runs=n_fit + n_holdout, seed=seed)
+    runs = generate(n_runs=n_fit + n_holdout, seed=seed, c_s=c_s, acting=acting)
     t0 = time.perf_counter()
     report, _ = diagnose(MODEL, runs[:n_fit], runs[n_fit:], log=log)  # holdout: one near, one far lane
     elapsed = time.perf_counter() - t0
     wall = next(e for e in report["effects"] if e["name"] == "wall_effect")
     speed = float(np.percentile(np.concatenate([np.hypot(r.channels["u"], r.channels["v"]) for r in runs[:n_fit]]),
                                 95))
-    truth = GapRatioTruth().matters_below(speed)
+    truth = GapRatioTruth(c_s=c_s, acting=acting).matters_below(speed)
     fitted = wall.get("matters_below", {}).get("per_surface", {})
     return {"report": report, "runs": runs, "n_fit": n_fit, "wall_effect": wall, "truth_matters_below": truth,
             "fitted_matters_below": fitted, "speed95_mps": speed, "elapsed_s": elapsed,

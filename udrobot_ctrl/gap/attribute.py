@@ -209,7 +209,7 @@ def build_stack(preps, p: PlantParameters, M_A, rate_hz=FIT_RATE_HZ):
         runs.append({"f": pr.f, "dt": pr.dt, "window_s": pr.window_s, "idx": idx, "rows": slice(row, row + idx.size),
                      "name": pr.name,
                      "x": x, "nu": x[:, 6:], "eta": x[:, :6], "nu_dot": nud,
-                     "surfaces": [(s[0], s[1]) for s in pr.surfaces], "labels": [s[2] for s in pr.surfaces],
+                     "surfaces": list(pr.surfaces),
                      "smooth": row_filter(pr, idx)})
         row += idx.size
     if not np.logical_and.reduce([pr.dof_ok for pr in preps]).any():
@@ -784,12 +784,47 @@ class Attributor:
         grid, bounds = eff.search_space(self.s)
         self.prefetch(name, tuple(grid) + tuple(seeds), fixed)
         shapes = [tuple(sh) for sh in tuple(grid) + tuple(seeds)]
-        best = self.fit(list(fixed) + [(name, shapes[_first_min(self.losses(fixed, name, shapes))])])
+        losses = self.losses(fixed, name, shapes)
+        best = self.fit(list(fixed) + [(name, shapes[_first_min(losses)])])
         if refine and eff.refine and bounds:
-            cand = self._refine(name, fixed, best.shapes[name], bounds)
-            if cand.loglik_n < best.loglik_n:
-                best = cand
+            starts = self._form_starts(eff, shapes, losses, best)
+            best = self._chosen_form(eff, [best, *(self._refine(name, fixed, x0, bounds) for x0 in starts)])
         return self.nested_parts(best, name, fixed)
+
+    def _form_starts(self, eff, shapes, losses, best: Fit) -> list:
+        """Where :meth:`_search_shape` refines from: the best grid shape, and for an effect whose held shape
+        parameters choose between forms that each refine on their own (``Effect.refine_forms``: a wall effect's
+        planes), the best grid shape of each other form whose grid fit comes within ``LOOKALIKE_SCREEN`` BIC units of
+        the best (on the effective sample count of the best's residual, as :meth:`nested_parts`)."""
+        first = best.shapes[eff.name]
+        if not eff.refine_forms:
+            return [first]
+        held = np.asarray(eff.refine_step(self.s, first), float) == 0
+        n_eff = self.effective_samples(best)
+        lead = float(np.nanmin(losses))
+        forms = {}
+        for sh, loss in zip(shapes, losses):
+            key = tuple(np.asarray(sh, float)[held])
+            if np.isfinite(loss) and n_eff * (loss - lead) < LOOKALIKE_SCREEN and loss < forms.get(key, (np.inf,))[0]:
+                forms[key] = (loss, sh)
+        own = tuple(np.asarray(first, float)[held])
+        return [first] + [sh for key, (_, sh) in sorted(forms.items(), key=lambda kv: kv[1][0]) if key != own]
+
+    def _chosen_form(self, eff, fits) -> Fit:
+        """The best of ``fits`` (one effect's grid and refined fits), unless the effect's default form
+        (``Effect.default_form``: a wall effect acting on every plane) is among them and its best fit comes within
+        ``BIC_STRONG`` of it (the forms have the same parameter count): a form other than the physical default is
+        kept only when the fit pays for it, on the effective sample count of the best's residual."""
+        best = min(fits, key=lambda f: f.loglik_n)
+        default = eff.default_form(self.s)
+        if default is None:
+            return best
+        held = np.asarray(eff.refine_step(self.s, best.shapes[eff.name]), float) == 0
+        own = [f for f in fits if tuple(np.asarray(f.shapes[eff.name], float)[held]) == tuple(default)]
+        if not own:
+            return best
+        alt = min(own, key=lambda f: f.loglik_n)
+        return alt if self.effective_samples(best) * (alt.loglik_n - best.loglik_n) <= BIC_STRONG else best
 
     def nested_parts(self, fit: Fit, name, fixed=()) -> Fit:
         """``fit`` with each of ``name``'s nested shape groups (``Effect.nested``: a tether's attachment point) set

@@ -49,6 +49,7 @@ Templates (the diagnoser's lumped forms; a truth generator should use different 
 from __future__ import annotations
 
 import hashlib
+import itertools
 from dataclasses import dataclass, field, replace
 from functools import partial
 from typing import ClassVar, NamedTuple
@@ -252,9 +253,9 @@ class Hooks:
     input_filter: object = None  # (f (n,k), dt) -> f_act (n,k); applied to the whole command sequence
     force: object = None  # (x (N,12), f (N,k), ctx dict) -> (N,6)
     mass: object = None  # (x (N,12), ctx dict) -> (N,6,6)
-    # ctx: the surfaces' distances and normals at these states ("surfaces") and, optionally, the nominal plant's forces
-    # there (PLANT_FORCES); force and mass of one evaluation get the same ctx, in which a hook may keep terms both need
-    # (the wall's, keyed by its own identity and checked on x)
+    # ctx: the surfaces' (distance, normal, label) at these states ("surfaces") and, optionally, the nominal plant's
+    # forces there (PLANT_FORCES); force and mass of one evaluation get the same ctx, in which a hook may keep terms
+    # both need (the wall's, keyed by its own identity and checked on x)
     order: float = 0.0  # input filters run in increasing order (static maps in [0, 1) as the plant, lag 1)
 
 
@@ -288,6 +289,11 @@ class Effect:
     #: nested_parts`). A tether's attachment point, refined from the CO, otherwise moves a centimetre on noise, and the
     #: moment it adds is replayed against a heading the autopilot holds
     nested: tuple = ()
+    #: its held shape parameters (a zero ``refine_step``) choose between forms whose refined fits may rank otherwise
+    #: than their grid fits (a wall effect's planes: the decay length that suits the seabed alone is not the one that
+    #: suits the seabed and a wall): each form's best grid shape within reach is refined, not only the best one's
+    #: (:meth:`udrobot_ctrl.gap.attribute.Attributor._search_shape`)
+    refine_forms: ClassVar[bool] = False
     #: its regressors read the thrust the actuators deliver, i.e. after the input filters of the other effects in a
     #: set (the plant applies an inflow loss to the lagged thrust): see :meth:`command_filter`
     reads_delivered: ClassVar[bool] = False
@@ -318,6 +324,12 @@ class Effect:
         """The input filter ``(f (n, k), dt) -> f_delivered`` this effect applies to the commands at a shape, when
         the shape alone sets it (no amplitude parameter: a lag), else None. Effects that read the delivered thrust
         (``reads_delivered``) are fitted on commands passed through the filters of the other members of a set."""
+        return None
+
+    def default_form(self, s: Stack):
+        """For an effect with ``refine_forms``: the values of its held shape parameters (in their order) that form
+        the physical default, which the search keeps unless another form fits better by more than ``BIC_STRONG``
+        (:meth:`udrobot_ctrl.gap.attribute.Attributor._chosen_form`); None: no default, the best fit wins."""
         return None
 
     def search_space(self, s: Stack):
@@ -402,13 +414,17 @@ def plant_hooks(e: PlantEffect, p: PlantParameters, actuation: Actuation) -> Hoo
         return Hooks(force=lambda x, f, ctx: _stack(effect_forces(_comps(x), with_current)))
     if e.name == "wall_effect":  # the planes are the run's measured surfaces (ctx), not one seabed depth
         key = ("wall_effect", id(e))
+        mask = e.params.get("planes_mask")  # a fitted effect's plane subset; a model file's acts on its own planes
+
+        def planes(ctx):
+            return on_planes(ctx["surfaces"], mask)
 
         def action(x, ctx):  # every surface's suction (summed) and rank-one added mass, once per state (kept in ctx)
             kept = ctx.get(key)
             if kept is None or not (kept[0] is x or np.array_equal(kept[0], x)):
                 X = _comps(x)
-                dist = np.stack([np.where(np.isfinite(d), d, np.inf) for d, _ in ctx["surfaces"]])  # (planes, ...):
-                normals = np.asarray([n for _, n in ctx["surfaces"]], float)  # unmeasured = no surface nearby
+                dist = np.stack([np.where(np.isfinite(d), d, np.inf) for d, _, _ in planes(ctx)])  # (planes, ...):
+                normals = np.asarray([n for _, n, _ in planes(ctx)], float)  # unmeasured = no surface nearby
                 column = (len(normals),) + (1,) * (dist.ndim - 1)
                 normal = tuple(normals[:, c].reshape(column) for c in range(3))
                 force, a, nb = pfx.surface_action(pfx.NUMPY, X[:6], X[6:], dist, normal, e.params)
@@ -416,13 +432,13 @@ def plant_hooks(e: PlantEffect, p: PlantParameters, actuation: Actuation) -> Hoo
             return kept[1:]
 
         def wall_force(x, f, ctx):
-            if not ctx["surfaces"]:
+            if not planes(ctx):
                 return np.zeros(np.shape(x)[:-1] + (6,))
             return action(x, ctx)[0]
 
         def wall_mass(x, ctx):  # sum over the surfaces of a n n^T on the translations
             out = np.zeros(np.shape(x)[:-1] + (6, 6))
-            if ctx["surfaces"]:
+            if planes(ctx):
                 _, a, nb = action(x, ctx)
                 out[..., :3, :3] = ((a[..., None] * nb)[..., :, None] * nb[..., None, :]).sum(axis=0)
             return out
@@ -745,13 +761,85 @@ def _surface_geometry(eta, nu, nu_dot, dist, normal):
     return nb, vt2, h, np.sum(nu_dot[:, :3] * nb, -1)
 
 
+#: a wall effect's plane subsets searched: every non-empty subset of the planes the runs know the distance to up to
+#: this many planes; beyond, each plane alone and all together
+WALL_SUBSETS_MAX_PLANES = 3
+
+
+def plane_bit(label: str) -> int:
+    """Bit of a surface (its :class:`~udrobot_ctrl.gap.data.Prepared` label) in a wall effect's ``planes_mask``:
+    0 the seabed (from the altitude or the sidecar's ``seabed_depth``), ``i + 1`` the sidecar's wall ``i``; -1 for a
+    plane a model file names (its wall effect acts on all of them)."""
+    if label.startswith("seabed"):
+        return 0
+    head, _, index = label.partition(" ")
+    return int(index) + 1 if head == "wall" and index.isdigit() else -1
+
+
+def mask_bits(mask) -> frozenset:
+    """The plane bits (:func:`plane_bit`) set in a wall effect's ``planes_mask`` (a float in the fitted parameters)."""
+    m = int(round(mask))
+    return frozenset(b for b in range(m.bit_length()) if m >> b & 1)
+
+
+def on_planes(surfaces, mask) -> list:
+    """The surfaces ``(distance, normal, label)`` a wall effect acts on: those whose :func:`plane_bit` is set in
+    ``mask``, or all of them when ``mask`` is None (a model file's wall effect, whose planes are its own)."""
+    if mask is None:
+        return list(surfaces)
+    bits = mask_bits(mask)
+    return [sf for sf in surfaces if plane_bit(sf[2]) in bits]
+
+
+def plane_masks(bits) -> tuple:
+    """The ``planes_mask`` values searched for the plane bits ``bits``: every non-empty subset when there are at most
+    ``WALL_SUBSETS_MAX_PLANES`` planes, else each plane alone and all of them; (0,) without a plane."""
+    bits = sorted(set(bits))
+    if not bits:
+        return (0,)
+    if len(bits) <= WALL_SUBSETS_MAX_PLANES:
+        subsets = itertools.chain.from_iterable(itertools.combinations(bits, k) for k in range(1, len(bits) + 1))
+    else:
+        subsets = [(b,) for b in bits] + [tuple(bits)]
+    return tuple(sum(1 << b for b in sub) for sub in subsets)
+
+
 class WallEffect(Effect):
+    """Added mass and suction near the planes the runs know the distance to. Which planes act is a shape parameter,
+    ``planes_mask`` (bit 0 the seabed, bit ``i + 1`` the sidecar's wall ``i``, :func:`plane_bit`), searched over the
+    subsets of the planes (:func:`plane_masks`) and held in the refinement: the seabed and a wall share the decay
+    length and the coefficients when both act, but a plane that does not act (a vertical wall beside a hull that
+    hovers near the seabed) must not take the same coefficients, which would put a wall's suction on every metre of
+    surge."""
+
+    refine_forms: ClassVar[bool] = True
+
+    @staticmethod
+    def _bits(s):
+        """The plane bits of the surfaces stack ``s`` knows the distance to somewhere."""
+        return sorted(b for b in (plane_bit(lab) for lab, (dist, _) in s.surfaces.items() if np.isfinite(dist).any())
+                      if b >= 0)
+
+    def search_space(self, s):
+        masks = plane_masks(self._bits(s))
+        grid = tuple((lam, float(m)) for m in masks for (lam,) in self.shape_grid)
+        return grid, self.shape_bounds + ((0.0, float(max(masks))),)
+
+    def default_form(self, s):
+        """Every plane acts (a surface near a hull changes its flow whatever its orientation): a subset is named
+        only when it fits better by more than ``BIC_STRONG``."""
+        return (float(sum(1 << b for b in self._bits(s))),)
+
+    def refine_step(self, s, x0):
+        """30 % of the decay length (0.05 m at zero); the plane subset is held at its grid value."""
+        return np.array([0.3 * abs(x0[0]) if x0[0] != 0 else 0.05, 0.0])
+
     def design(self, s, shape):
-        (lam,) = shape
+        lam, mask = shape
 
         def col(r, which):
             out = np.zeros(r["nu"].shape[:1] + (6,))
-            for dist, normal in r["surfaces"]:
+            for dist, normal, _ in on_planes(r["surfaces"], mask):
                 nb, vt2, h, an = s.kept("surface", (r["eta"], r["nu"], r["nu_dot"], dist, normal), _surface_geometry)
                 e = np.exp(-h / lam)
                 if which == 0:
@@ -978,7 +1066,8 @@ def catalogue() -> dict:
                    refine=True, mimics=("quadratic_damping_error", "linear_damping", "thrust_inflow_loss"),
                    tolerance_ends=(("anchor_down_m", 0.0),),
                    nested=((pfx.TETHER_ATTACH, (0.0,) * len(pfx.TETHER_ATTACH)),)),
-        WallEffect("wall_effect", "extra added mass and suction near the seabed or a wall", ("decay_length_m",),
+        WallEffect("wall_effect", "extra added mass and suction near the seabed or a wall",
+                   ("decay_length_m", "planes_mask"),
                    wall_grid, ((0.01, 2.0),), refine=True,
                    excited_by="a known distance to a surface: log altitude, or give seabed_depth, or walls with "
                               "logged x, y, in the sidecar"),

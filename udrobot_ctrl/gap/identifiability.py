@@ -520,9 +520,10 @@ class Restricted(fx.Effect):
     def __init__(self, inner: fx.Effect, frozen, forms=None, actuators=None):
         super().__init__(inner.name, inner.meaning, inner.shape_names, inner.shape_grid, inner.shape_bounds,
                          inner.refine, inner.mimics, inner.excited_by, inner.physical_ends,
-                         inner.physical_amplitudes)
+                         inner.physical_amplitudes, inner.tolerance_ends, inner.nested)
         self.inner = inner
         self.reads_delivered, self.maps_command = inner.reads_delivered, inner.maps_command
+        self.refine_forms = inner.refine_forms
         self.frozen = tuple(frozen)
         self.forms = dict(forms or {})
         self.per_actuator, self.per_dof = inner.per_actuator, inner.per_dof
@@ -552,6 +553,9 @@ class Restricted(fx.Effect):
 
     def refine_step(self, s, x0):
         return self.inner.refine_step(s, x0)
+
+    def default_form(self, s):
+        return self.inner.default_form(s)
 
     def command_filter(self, shape):
         return self.inner.command_filter(shape)

@@ -140,7 +140,8 @@ def wall_distances(params, surfaces, eta, p, speed):
     Parameters
     ----------
     params : dict
-        Fitted ``decay_length_m``, ``added_mass_at_contact_kg``, ``suction_N_s2_per_m2``.
+        Fitted ``decay_length_m``, ``added_mass_at_contact_kg``, ``suction_N_s2_per_m2`` and the ``planes_mask``
+        of the planes it acts on (:func:`udrobot_ctrl.gap.effects.on_planes`; all of them without one).
     surfaces : dict
         label -> (distances (n,), unit normal (3,) NED) of the fit stack.
     eta : (n, 6) ndarray
@@ -152,13 +153,15 @@ def wall_distances(params, surfaces, eta, p, speed):
     Returns
     -------
     dict label -> {"added_mass_m", "suction_m", "matters_below_m"}
+        One entry per plane the effect acts on.
     """
     lam = params.get("decay_length_m", 0.0)
     am, as_ = params.get("added_mass_at_contact_kg", 0.0), params.get("suction_N_s2_per_m2", 0.0)
     drag = float(p.D_L[0, 0] * speed + p.Q[0, 0] * speed ** 2)
     R = rotation_zyx(eta[:, 3], eta[:, 4], eta[:, 5])
     out = {}
-    for label, (_dist, normal) in surfaces.items():
+    acting = fx.on_planes([(d, n, lab) for lab, (d, n) in surfaces.items()], params.get("planes_mask"))
+    for _dist, normal, label in acting:
         nb = np.einsum("nji,j->ni", R, np.asarray(normal, float))
         m_n = float(np.mean(np.einsum("ni,ij,nj->n", nb, p.M[:3, :3], nb)))
         d_am = lam * math.log(am / (WALL_FRACTION * m_n)) if am > WALL_FRACTION * m_n > 0 else 0.0
@@ -235,11 +238,14 @@ def corrected_model(model, report, runs=()):
                                      "components, which the plant's thrusters do not expose; fit it on thrust or "
                                      "pwm runs to place it")
             continue
-        if e["name"] == "wall_effect":  # the planes the diagnosis saw: the seabed and the sidecar walls
-            depth, walls = seabed_depth(runs), run_walls(runs)
+        if e["name"] == "wall_effect":  # the planes the diagnosis saw and fitted it on: the seabed, sidecar walls
+            mask = params.pop("planes_mask", None)
+            bits = None if mask is None else fx.mask_bits(mask)
+            depth = seabed_depth(runs) if bits is None or 0 in bits else None
+            walls = [w for i, w in enumerate(run_walls(runs)) if bits is None or i + 1 in bits]
             if depth is None and not walls:
                 raise ValueError("wall_effect is significant but the runs give neither an altitude or seabed_depth "
-                                 "nor walls, so the planes the corrected plant needs are unknown; add a "
+                                 "nor walls it acts on, so the planes the corrected plant needs are unknown; add a "
                                  "seabed_depth_m (or a wall) to the effect by hand")
             if depth is not None:
                 params["seabed_depth_m"] = depth
@@ -1037,6 +1043,7 @@ def _wall_entry(params, stack, p) -> dict:
     speed95 = float(np.nanpercentile(np.hypot(stack.nu[:, 0], stack.nu[:, 1]), 95))
     per = wall_distances(params, stack.surfaces, stack.eta, p, speed95)
     return {"matters_below_m": max([v["matters_below_m"] for v in per.values()], default=0.0),
+            "planes": list(per),
             "matters_below": {
                 "criterion": f"extra added mass along the normal > {100 * WALL_FRACTION:g}% of the vehicle's "
                              f"mass along it, or suction at {speed95:.2f} m/s (95th percentile horizontal "
@@ -1869,7 +1876,8 @@ def summary(report) -> str:
         if e.get("indistinguishable_from"):
             extra = "; indistinguishable from " + ", ".join(a["name"] for a in e["indistinguishable_from"])
         if e.get("matters_below_m") is not None:
-            extra += f"; matters below {e['matters_below_m']:.2f} m"
+            extra += f"; matters below {e['matters_below_m']:.2f} m" + (
+                f" of {', '.join(e['planes'])}" if e.get("planes") else "")
         if e["shrink"] is not None and e["shrink"] < DRIFTS_OFF:  # a fit the replay cannot hold, not a measure
             extra += f"; alone its replay drifts off ({1 - e['shrink']:.3g} x the nominal gap)"
         if e.get("at_bound"):

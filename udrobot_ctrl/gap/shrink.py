@@ -113,8 +113,8 @@ def _surface_ctx(prep: Prepared, k, xs, at_k=None):
     ``at_k``: :func:`_surfaces_at` (prep, k), when several states share the step's indices (RK4 stages).
     """
     out = []
-    for (d_meas, pos_meas), (_, normal, _) in zip(at_k or _surfaces_at(prep, k), prep.surfaces):
-        out.append((d_meas + (xs[:, :3] - pos_meas) @ normal, normal))
+    for (d_meas, pos_meas), (_, normal, label) in zip(at_k or _surfaces_at(prep, k), prep.surfaces):
+        out.append((d_meas + (xs[:, :3] - pos_meas) @ normal, normal, label))
     return out
 
 
@@ -143,7 +143,7 @@ def effect_wrench(prep: Prepared, hooks) -> np.ndarray:
     f = delivered_commands(prep, hooks)
     x = np.nan_to_num(prep.state())
     nu_dot = np.nan_to_num(prep.nu_dot)
-    ctx = {"surfaces": [(dist, normal) for dist, normal, _ in prep.surfaces]}
+    ctx = {"surfaces": list(prep.surfaces)}
     out = (f - prep.f) @ prep.B.T
     for h in hooks:
         if h.force is not None:
@@ -311,7 +311,7 @@ def _simulate_batch(preps, p: PlantParameters, hook_sets, window_s) -> list:
             for rows, forces, masses in b.groups:
                 if not (forces or masses):
                     continue
-                ctx = {"surfaces": [(dist[rows], normal) for dist, normal in surfaces],
+                ctx = {"surfaces": [(dist[rows], normal, label) for dist, normal, label in surfaces],
                        PLANT_FORCES: PlantForces(p, plant[b.rows][rows])}
                 for fo in forces:
                     tb[rows] = tb[rows] + fo(xb[rows], fk[b.rows][rows], ctx)

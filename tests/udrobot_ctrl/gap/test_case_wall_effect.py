@@ -46,6 +46,7 @@ def test_wall_effect_named_first(result):
 def test_distance_below_which_it_matters(result):
     truth, fitted = result["truth_matters_below"], result["fitted_matters_below"]
     assert set(fitted) == {"seabed", "wall 0"}
+    assert result["wall_effect"]["planes"] == ["seabed", "wall 0"]  # both act: the physical default is kept
     assert fitted["seabed"]["matters_below_m"] == pytest.approx(truth["seabed"]["matters_below_m"], rel=0.25)
     assert fitted["wall 0"]["matters_below_m"] == pytest.approx(truth["wall 0"]["matters_below_m"], rel=0.35)
     assert result["wall_effect"]["matters_below_m"] == pytest.approx(
@@ -66,3 +67,32 @@ def test_corrected_model_holds_the_seabed_and_the_wall_and_replays_gap_after(res
     assert planes == [((0.0, 0.0, wall.SEABED), (0.0, 0.0, -1.0)), ((0.0, wall.WALL_Y, 0.0), (0.0, -1.0, 0.0))]
     g = windowed_gap(vehicle, runs[n_fit:], 8.0)
     assert g.value == pytest.approx(report["gap_after"]["value"], abs=2e-6)
+
+
+@pytest.fixture(scope="module")
+def seabed_only(wall):
+    """The same passes with the flow effect of the seabed only: the sidecar still lists the wall the runs pass along
+    (0.36-1 m off), which bumps the hull on contact but changes no flow."""
+    return wall.case(seed=0, acting=("seabed",))
+
+
+def test_a_plane_that_does_not_act_is_left_out(seabed_only, wall):
+    """Fitted on the seabed and the wall with shared coefficients, the template would put the seabed's suction and
+    added mass on every pass along the wall; the plane subset the fit selects is the seabed alone, its distance is the
+    truth's, and the corrected plant holds the seabed only and replays the report's gap_after."""
+    from udrobot_ctrl.dynamics.effects import wall_planes
+    from udrobot_ctrl.gap.replay import windowed_gap
+    from udrobot_ctrl.gap.report import corrected_model
+
+    eff = seabed_only["wall_effect"]
+    assert eff["significant"] and seabed_only["report"]["effects"][0]["name"] == "wall_effect"
+    assert eff["planes"] == ["seabed"]
+    truth, fitted = seabed_only["truth_matters_below"], seabed_only["fitted_matters_below"]
+    assert set(truth) == set(fitted) == {"seabed"}
+    assert fitted["seabed"]["matters_below_m"] == pytest.approx(truth["seabed"]["matters_below_m"], rel=0.25)
+    report, runs, n_fit = seabed_only["report"], seabed_only["runs"], seabed_only["n_fit"]
+    vehicle, _ = corrected_model(wall.MODEL, report, runs)
+    params = next(e for e in vehicle.effects if e.name == "wall_effect").params
+    assert "planes_mask" not in params
+    assert wall_planes(params) == [((0.0, 0.0, wall.SEABED), (0.0, 0.0, -1.0))]
+    assert windowed_gap(vehicle, runs[n_fit:], 8.0).value == pytest.approx(report["gap_after"]["value"], abs=2e-6)

@@ -13,11 +13,16 @@ from udrobot_ctrl.gap.effects import (
     FAR_ANCHOR_M,
     WALK_AZIMUTHS,
     WALK_BACK_M,
+    WALL_SUBSETS_MAX_PLANES,
     Actuation,
     Stack,
     _tether_columns,
     catalogue,
     discriminating_manoeuvre,
+    mask_bits,
+    on_planes,
+    plane_bit,
+    plane_masks,
 )
 from udrobot_ctrl.vehicle import load_model
 
@@ -231,8 +236,8 @@ def test_wall_replay_hooks_are_the_plants_suction_and_added_mass_over_every_surf
          "wall2_normal_e": 1.0, "wall2_normal_d": 0.0}
     planes = fx.wall_planes(q)
     assert len(planes) == 3
-    ctx = {"surfaces": [(np.asarray(fx.plane_distance(x[:, :6].T, pt, n), float), np.asarray(n))
-                        for pt, n in planes]}
+    ctx = {"surfaces": [(np.asarray(fx.plane_distance(x[:, :6].T, pt, n), float), np.asarray(n), f"plane {k}")
+                        for k, (pt, n) in enumerate(planes)]}
     eff = PlantEffect("wall_effect", q)
     hooks = catalogue()["wall_effect"].hooks(q, p, Actuation(None, None, None, p.M_A))
     X = list(x.T)
@@ -242,7 +247,7 @@ def test_wall_replay_hooks_are_the_plants_suction_and_added_mass_over_every_surf
     np.testing.assert_allclose(hooks.force(x, None, ctx), force, rtol=1e-12, atol=1e-12)
     np.testing.assert_allclose(hooks.mass(x, ctx), mass, rtol=1e-12, atol=1e-12)
     assert np.abs(mass).max() > 0.1 and np.abs(force).max() > 1e-3  # the surfaces are near enough to act
-    far = {"surfaces": [(np.where(np.arange(40) % 2, d, np.nan), n) for d, n in ctx["surfaces"]]}
+    far = {"surfaces": [(np.where(np.arange(40) % 2, d, np.nan), n, lab) for d, n, lab in ctx["surfaces"]]}
     np.testing.assert_allclose(hooks.mass(x, far)[::2], 0.0, atol=0.0)  # unmeasured: no surface
     np.testing.assert_allclose(hooks.mass(x, far)[1::2], mass[1::2], rtol=1e-12, atol=1e-12)
     assert np.all(hooks.mass(x, {"surfaces": []}) == 0.0) and np.all(hooks.force(x, None, {"surfaces": []}) == 0.0)
@@ -254,10 +259,54 @@ def test_wall_replay_hooks_are_the_plants_suction_and_added_mass_over_every_surf
     np.testing.assert_array_equal(hooks.force(x, None, ctx), hooks.force(x, None, {"surfaces": ctx["surfaces"]}))
 
 
+def test_plane_masks_enumerate_the_plane_subsets_and_labels_map_to_bits():
+    assert [plane_bit(lab) for lab in ("seabed", "seabed (altitude)", "wall 0", "wall 3", "plane 0 of the model")] \
+        == [0, 0, 1, 4, -1]
+    assert sorted(plane_masks([0, 1])) == [1, 2, 3] and plane_masks([]) == (0,) and plane_masks([2]) == (4,)
+    many = list(range(WALL_SUBSETS_MAX_PLANES + 1))
+    assert sorted(plane_masks(many)) == sorted([1 << b for b in many] + [2 ** len(many) - 1])  # alone, and all
+    assert mask_bits(5.0) == {0, 2} and mask_bits(0) == frozenset()
+    surfaces = [(None, None, "seabed (altitude)"), (None, None, "wall 0"), (None, None, "wall 1")]
+    assert [lab for _, _, lab in on_planes(surfaces, 5.0)] == ["seabed (altitude)", "wall 1"]
+    assert on_planes(surfaces, None) == surfaces  # a model file's wall effect: its own planes, all of them
+
+
+def test_a_wall_effects_plane_subset_acts_as_the_plant_on_those_planes_only():
+    """Fitted on a subset of the measured planes (``planes_mask``), the replay hooks are the plant's wall effect with
+    those planes only, and the design's columns those of a stack that knows those planes only."""
+    rng = np.random.default_rng(5)
+    p = plant_parameters(load_model("pendulum:chin"))
+    x = _state(rng, 40)
+    x[:, :3] = rng.uniform([-2.0, -1.0, 2.2], [2.0, -0.2, 2.9], (40, 3))
+    seabed = {"seabed_depth_m": 3.0}
+    wall = {"wall1_point_n_m": 0.0, "wall1_point_e_m": 0.0, "wall1_point_d_m": 0.0, "wall1_normal_n": 0.0,
+            "wall1_normal_e": -1.0, "wall1_normal_d": 0.0}
+    q = {"decay_length_m": 0.3, "suction_N_s2_per_m2": 40.0, "added_mass_at_contact_kg": 6.0}
+    ctx = {"surfaces": [(np.asarray(fx.plane_distance(x[:, :6].T, pt, n), float), np.asarray(n), lab)
+                        for (pt, n), lab in zip(fx.wall_planes({**q, **seabed, **wall}), ("seabed", "wall 0"))]}
+    hooks = catalogue()["wall_effect"].hooks({**q, "planes_mask": 1.0}, p, Actuation(None, None, None, p.M_A))
+    only = PlantEffect("wall_effect", {**q, **seabed})
+    X = list(x.T)
+    force = np.stack(np.broadcast_arrays(*fx.external_force(fx.NUMPY, X[:6], X[6:], (only,))), -1)
+    np.testing.assert_allclose(hooks.force(x, None, ctx), force, rtol=1e-12, atol=1e-12)
+    both = catalogue()["wall_effect"].hooks(q, p, Actuation(None, None, None, p.M_A))
+    assert np.abs(both.force(x, None, ctx) - force).max() > 1e-2  # the wall, 0.2-1 m off, acts when listed
+    nu_dot = rng.normal(0, 0.3, (40, 6))
+    s = _stack(x, p)
+    run = {**s.runs[0], "nu_dot": nu_dot, "surfaces": ctx["surfaces"]}
+    two = replace(s, runs=[run], memo={}, surfaces={lab: (d, n) for d, n, lab in ctx["surfaces"]})
+    one = replace(s, runs=[{**run, "surfaces": ctx["surfaces"][:1]}], memo={})
+    wall_effect = catalogue()["wall_effect"]
+    np.testing.assert_array_equal(wall_effect.design(two, (0.3, 1.0)).A, wall_effect.design(one, (0.3, 1.0)).A)
+    assert not np.allclose(wall_effect.design(two, (0.3, 3.0)).A, wall_effect.design(one, (0.3, 1.0)).A)
+    grid, _ = wall_effect.search_space(two)
+    assert sorted({sh[1] for sh in grid}) == [1.0, 2.0, 3.0] and wall_effect.default_form(two) == (3.0,)
+
+
 def _surface_stack(x, p, nu_dot, dist):
     """:func:`_stack` with a seabed at distance ``dist`` and the accelerations ``nu_dot`` (a fresh memo)."""
     s = _stack(x, p)
-    run = {**s.runs[0], "nu_dot": nu_dot, "surfaces": [(dist, np.array([0.0, 0.0, 1.0]))]}
+    run = {**s.runs[0], "nu_dot": nu_dot, "surfaces": [(dist, np.array([0.0, 0.0, 1.0]), "seabed")]}
     return replace(s, runs=[run], memo={})
 
 
@@ -272,9 +321,9 @@ def test_designs_that_keep_shape_free_terms_equal_fresh_ones_on_copies_with_move
     wall, current = catalogue()["wall_effect"], catalogue()["water_current"]
     s = _surface_stack(x, p, nu_dot, dist)
     for lam in (0.1, 0.33):  # the second decay length reads what the first kept
-        np.testing.assert_array_equal(wall.design(s, (lam,)).A, wall.design(_surface_stack(x, p, nu_dot, dist),
-                                                                            (lam,)).A)
-    assert np.abs(wall.design(s, (0.33,)).A).max() > 0  # near the seabed: the wall acts
+        np.testing.assert_array_equal(wall.design(s, (lam, 1.0)).A,
+                                      wall.design(_surface_stack(x, p, nu_dot, dist), (lam, 1.0)).A)
+    assert np.abs(wall.design(s, (0.33, 1.0)).A).max() > 0  # near the seabed: the wall acts
     np.testing.assert_array_equal(current.design(s, (0.1, -0.1, 0.0)).b0,
                                   current.design(_surface_stack(x, p, nu_dot, dist), (0.1, -0.1, 0.0)).b0)
     moved = x.copy()
@@ -282,6 +331,6 @@ def test_designs_that_keep_shape_free_terms_equal_fresh_ones_on_copies_with_move
     moved[:, 3] += 0.1
     copy = replace(s, runs=[dict(s.runs[0], nu=moved[:, 6:], eta=moved[:, :6])])  # shares s's memo
     fresh = _surface_stack(moved, p, nu_dot, dist)
-    np.testing.assert_array_equal(wall.design(copy, (0.33,)).A, wall.design(fresh, (0.33,)).A)
+    np.testing.assert_array_equal(wall.design(copy, (0.33, 1.0)).A, wall.design(fresh, (0.33, 1.0)).A)
     np.testing.assert_array_equal(current.design(copy, (0.1, -0.1, 0.0)).b0, current.design(fresh, (0.1, -0.1, 0.0)).b0)
     assert not np.array_equal(current.design(copy, (0.1, -0.1, 0.0)).b0, current.design(s, (0.1, -0.1, 0.0)).b0)
