@@ -823,7 +823,7 @@ class WallEffect(Effect):
     def search_space(self, s):
         masks = plane_masks(self._bits(s))
         grid = tuple((lam, float(m)) for m in masks for (lam,) in self.shape_grid)
-        return grid, self.shape_bounds + ((0.0, float(max(masks))),)
+        return grid, self.shape_bounds + ((float(min(masks)), float(max(masks))),)  # one plane: no choice to count
 
     def default_form(self, s):
         """Every plane acts (a surface near a hull changes its flow whatever its orientation): a subset is named
