@@ -816,9 +816,10 @@ class WallEffect(Effect):
 
     @staticmethod
     def _bits(s):
-        """The plane bits of the surfaces stack ``s`` knows the distance to somewhere."""
-        return sorted(b for b in (plane_bit(lab) for lab, (dist, _) in s.surfaces.items() if np.isfinite(dist).any())
-                      if b >= 0)
+        """The plane bits of the surfaces stack ``s`` knows the distance to somewhere, once each (a seabed from the
+        altitude in some runs and from the sidecar's depth in others is one plane)."""
+        return sorted({b for b in (plane_bit(lab) for lab, (dist, _) in s.surfaces.items() if np.isfinite(dist).any())
+                       if b >= 0})
 
     def search_space(self, s):
         masks = plane_masks(self._bits(s))

@@ -301,6 +301,8 @@ def test_a_wall_effects_plane_subset_acts_as_the_plant_on_those_planes_only():
     assert not np.allclose(wall_effect.design(two, (0.3, 3.0)).A, wall_effect.design(one, (0.3, 1.0)).A)
     grid, _ = wall_effect.search_space(two)
     assert sorted({sh[1] for sh in grid}) == [1.0, 2.0, 3.0] and wall_effect.default_form(two) == (3.0,)
+    mixed = replace(two, surfaces={**two.surfaces, "seabed (altitude)": two.surfaces["seabed"]})  # one seabed twice
+    assert wall_effect.default_form(mixed) == (3.0,)
 
 
 def _surface_stack(x, p, nu_dot, dist):
