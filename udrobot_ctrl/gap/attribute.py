@@ -791,23 +791,27 @@ class Attributor:
             best = self._chosen_form(eff, [best, *(self._refine(name, fixed, x0, bounds) for x0 in starts)])
         return self.nested_parts(best, name, fixed)
 
+    def _form(self, eff, shape) -> tuple:
+        """The values of ``eff``'s held shape parameters (a zero ``refine_step``) at ``shape``: the form it fixes."""
+        shape = np.asarray(shape, float)
+        return tuple(shape[np.asarray(eff.refine_step(self.s, shape), float) == 0])
+
     def _form_starts(self, eff, shapes, losses, best: Fit) -> list:
-        """Where :meth:`_search_shape` refines from: the best grid shape, and for an effect whose held shape
-        parameters choose between forms that each refine on their own (``Effect.refine_forms``: a wall effect's
-        planes), the best grid shape of each other form whose grid fit comes within ``LOOKALIKE_SCREEN`` BIC units of
-        the best (on the effective sample count of the best's residual, as :meth:`nested_parts`)."""
+        """Where :meth:`_search_shape` refines from: the best grid shape, and for an effect with a default form
+        (``Effect.default_form``: a wall effect's planes), the best grid shape of each other form whose grid fit
+        comes within ``LOOKALIKE_SCREEN`` BIC units of the best (on the effective sample count of the best's
+        residual, as :meth:`nested_parts`)."""
         first = best.shapes[eff.name]
-        if not eff.refine_forms:
+        if eff.default_form(self.s) is None:
             return [first]
-        held = np.asarray(eff.refine_step(self.s, first), float) == 0
         n_eff = self.effective_samples(best)
         lead = float(np.nanmin(losses))
         forms = {}
         for sh, loss in zip(shapes, losses):
-            key = tuple(np.asarray(sh, float)[held])
+            key = self._form(eff, sh)
             if np.isfinite(loss) and n_eff * (loss - lead) < LOOKALIKE_SCREEN and loss < forms.get(key, (np.inf,))[0]:
                 forms[key] = (loss, sh)
-        own = tuple(np.asarray(first, float)[held])
+        own = self._form(eff, first)
         return [first] + [sh for key, (_, sh) in sorted(forms.items(), key=lambda kv: kv[1][0]) if key != own]
 
     def _chosen_form(self, eff, fits) -> Fit:
@@ -817,10 +821,7 @@ class Attributor:
         kept only when the fit pays for it, on the effective sample count of the best's residual."""
         best = min(fits, key=lambda f: f.loglik_n)
         default = eff.default_form(self.s)
-        if default is None:
-            return best
-        held = np.asarray(eff.refine_step(self.s, best.shapes[eff.name]), float) == 0
-        own = [f for f in fits if tuple(np.asarray(f.shapes[eff.name], float)[held]) == tuple(default)]
+        own = [f for f in fits if default is not None and self._form(eff, f.shapes[eff.name]) == tuple(default)]
         if not own:
             return best
         alt = min(own, key=lambda f: f.loglik_n)

@@ -289,11 +289,6 @@ class Effect:
     #: nested_parts`). A tether's attachment point, refined from the CO, otherwise moves a centimetre on noise, and the
     #: moment it adds is replayed against a heading the autopilot holds
     nested: tuple = ()
-    #: its held shape parameters (a zero ``refine_step``) choose between forms whose refined fits may rank otherwise
-    #: than their grid fits (a wall effect's planes: the decay length that suits the seabed alone is not the one that
-    #: suits the seabed and a wall): each form's best grid shape within reach is refined, not only the best one's
-    #: (:meth:`udrobot_ctrl.gap.attribute.Attributor._search_shape`)
-    refine_forms: ClassVar[bool] = False
     #: its regressors read the thrust the actuators deliver, i.e. after the input filters of the other effects in a
     #: set (the plant applies an inflow loss to the lagged thrust): see :meth:`command_filter`
     reads_delivered: ClassVar[bool] = False
@@ -327,9 +322,11 @@ class Effect:
         return None
 
     def default_form(self, s: Stack):
-        """For an effect with ``refine_forms``: the values of its held shape parameters (in their order) that form
-        the physical default, which the search keeps unless another form fits better by more than ``BIC_STRONG``
-        (:meth:`udrobot_ctrl.gap.attribute.Attributor._chosen_form`); None: no default, the best fit wins."""
+        """The values of the held shape parameters (a zero ``refine_step``, in their order) that form the physical
+        default, or None: no default, the best fit wins. With a default, each form's best grid shape within reach
+        is refined (their refined fits may rank otherwise than their grid fits: the decay length that suits the
+        seabed alone is not the one that suits the seabed and a wall), and the default is kept unless another form
+        fits better by more than ``BIC_STRONG`` (:meth:`udrobot_ctrl.gap.attribute.Attributor._search_shape`)."""
         return None
 
     def search_space(self, s: Stack):
@@ -419,12 +416,12 @@ def plant_hooks(e: PlantEffect, p: PlantParameters, actuation: Actuation) -> Hoo
         def planes(ctx):
             return on_planes(ctx["surfaces"], mask)
 
-        def action(x, ctx):  # every surface's suction (summed) and rank-one added mass, once per state (kept in ctx)
-            kept = ctx.get(key)
+        def action(x, ctx, acting):  # the acting surfaces' suction (summed) and rank-one added mass, once per state
+            kept = ctx.get(key)  # (kept in ctx)
             if kept is None or not (kept[0] is x or np.array_equal(kept[0], x)):
                 X = _comps(x)
-                dist = np.stack([np.where(np.isfinite(d), d, np.inf) for d, _, _ in planes(ctx)])  # (planes, ...):
-                normals = np.asarray([n for _, n, _ in planes(ctx)], float)  # unmeasured = no surface nearby
+                dist = np.stack([np.where(np.isfinite(d), d, np.inf) for d, _, _ in acting])  # (planes, ...):
+                normals = np.asarray([n for _, n, _ in acting], float)  # unmeasured = no surface nearby
                 column = (len(normals),) + (1,) * (dist.ndim - 1)
                 normal = tuple(normals[:, c].reshape(column) for c in range(3))
                 force, a, nb = pfx.surface_action(pfx.NUMPY, X[:6], X[6:], dist, normal, e.params)
@@ -432,14 +429,16 @@ def plant_hooks(e: PlantEffect, p: PlantParameters, actuation: Actuation) -> Hoo
             return kept[1:]
 
         def wall_force(x, f, ctx):
-            if not planes(ctx):
+            acting = planes(ctx)
+            if not acting:
                 return np.zeros(np.shape(x)[:-1] + (6,))
-            return action(x, ctx)[0]
+            return action(x, ctx, acting)[0]
 
         def wall_mass(x, ctx):  # sum over the surfaces of a n n^T on the translations
             out = np.zeros(np.shape(x)[:-1] + (6, 6))
-            if planes(ctx):
-                _, a, nb = action(x, ctx)
+            acting = planes(ctx)
+            if acting:
+                _, a, nb = action(x, ctx, acting)
                 out[..., :3, :3] = ((a[..., None] * nb)[..., :, None] * nb[..., None, :]).sum(axis=0)
             return out
         return Hooks(force=wall_force, mass=wall_mass)
@@ -782,13 +781,16 @@ def mask_bits(mask) -> frozenset:
     return frozenset(b for b in range(m.bit_length()) if m >> b & 1)
 
 
+def acts_on(mask, bit: int) -> bool:
+    """Whether a wall effect of ``planes_mask`` ``mask`` acts on the plane of :func:`plane_bit` ``bit``: its bit is
+    set, or ``mask`` is None (a model file's wall effect, whose planes are its own: it acts on all of them)."""
+    return mask is None or bit in mask_bits(mask)
+
+
 def on_planes(surfaces, mask) -> list:
-    """The surfaces ``(distance, normal, label)`` a wall effect acts on: those whose :func:`plane_bit` is set in
-    ``mask``, or all of them when ``mask`` is None (a model file's wall effect, whose planes are its own)."""
-    if mask is None:
-        return list(surfaces)
-    bits = mask_bits(mask)
-    return [sf for sf in surfaces if plane_bit(sf[2]) in bits]
+    """The surfaces ``(distance, normal, label)`` a wall effect of ``planes_mask`` ``mask`` acts on (:func:`acts_on`
+    their :func:`plane_bit`)."""
+    return [sf for sf in surfaces if acts_on(mask, plane_bit(sf[2]))]
 
 
 def plane_masks(bits) -> tuple:
@@ -811,8 +813,6 @@ class WallEffect(Effect):
     length and the coefficients when both act, but a plane that does not act (a vertical wall beside a hull that
     hovers near the seabed) must not take the same coefficients, which would put a wall's suction on every metre of
     surge."""
-
-    refine_forms: ClassVar[bool] = True
 
     @staticmethod
     def _bits(s):

@@ -523,7 +523,6 @@ class Restricted(fx.Effect):
                          inner.physical_amplitudes, inner.tolerance_ends, inner.nested)
         self.inner = inner
         self.reads_delivered, self.maps_command = inner.reads_delivered, inner.maps_command
-        self.refine_forms = inner.refine_forms
         self.frozen = tuple(frozen)
         self.forms = dict(forms or {})
         self.per_actuator, self.per_dof = inner.per_actuator, inner.per_dof

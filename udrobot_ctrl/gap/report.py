@@ -141,7 +141,7 @@ def wall_distances(params, surfaces, eta, p, speed):
     ----------
     params : dict
         Fitted ``decay_length_m``, ``added_mass_at_contact_kg``, ``suction_N_s2_per_m2`` and the ``planes_mask``
-        of the planes it acts on (:func:`udrobot_ctrl.gap.effects.on_planes`; all of them without one).
+        of the planes it acts on (:func:`udrobot_ctrl.gap.effects.acts_on`; all of them without one).
     surfaces : dict
         label -> (distances (n,), unit normal (3,) NED) of the fit stack.
     eta : (n, 6) ndarray
@@ -160,8 +160,9 @@ def wall_distances(params, surfaces, eta, p, speed):
     drag = float(p.D_L[0, 0] * speed + p.Q[0, 0] * speed ** 2)
     R = rotation_zyx(eta[:, 3], eta[:, 4], eta[:, 5])
     out = {}
-    acting = fx.on_planes([(d, n, lab) for lab, (d, n) in surfaces.items()], params.get("planes_mask"))
-    for _dist, normal, label in acting:
+    for label, (_dist, normal) in surfaces.items():
+        if not fx.acts_on(params.get("planes_mask"), fx.plane_bit(label)):
+            continue
         nb = np.einsum("nji,j->ni", R, np.asarray(normal, float))
         m_n = float(np.mean(np.einsum("ni,ij,nj->n", nb, p.M[:3, :3], nb)))
         d_am = lam * math.log(am / (WALL_FRACTION * m_n)) if am > WALL_FRACTION * m_n > 0 else 0.0
@@ -240,9 +241,8 @@ def corrected_model(model, report, runs=()):
             continue
         if e["name"] == "wall_effect":  # the planes the diagnosis saw and fitted it on: the seabed, sidecar walls
             mask = params.pop("planes_mask", None)
-            bits = None if mask is None else fx.mask_bits(mask)
-            depth = seabed_depth(runs) if bits is None or 0 in bits else None
-            walls = [w for i, w in enumerate(run_walls(runs)) if bits is None or i + 1 in bits]
+            depth = seabed_depth(runs) if fx.acts_on(mask, 0) else None
+            walls = [w for i, w in enumerate(run_walls(runs)) if fx.acts_on(mask, i + 1)]
             if depth is None and not walls:
                 raise ValueError("wall_effect is significant but the runs give neither an altitude or seabed_depth "
                                  "nor walls it acts on, so the planes the corrected plant needs are unknown; add a "
