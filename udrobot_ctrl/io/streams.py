@@ -102,7 +102,22 @@ SPIKE_MIN_S = 1.0  # s; below this an out-of-line stamp is jitter (bag header st
 
 
 def time_spikes(t) -> np.ndarray:
-    """Mask of the isolated corrupt stamps of ``t`` (finite, in the order the log holds them): records more than
+    """Mask of the isolated corrupt stamps of ``t`` (finite, in the order the log holds them): :func:`_spikes_once`,
+    repeated on the records it keeps until it finds no more. Three corrupt records among five (every other record
+    flipped) put the median on a corrupt one and hide the middle one; with the other two dropped, it stands out."""
+    t = np.asarray(t, dtype=float)
+    spikes = _spikes_once(t)
+    while spikes.any():
+        keep = np.flatnonzero(~spikes)
+        more = _spikes_once(t[keep])
+        if not more.any():
+            break
+        spikes[keep[more]] = True
+    return spikes
+
+
+def _spikes_once(t) -> np.ndarray:
+    """One pass of :func:`time_spikes`: records more than
     :data:`SPIKE_STEPS` median intervals (and :data:`SPIKE_MIN_S`) away from the median of the five records around
     them (the first or last five at the ends; up to two corrupt records among five are found); at either end, where
     a pause would look the same, only a record out of line into the stream (one of the first two later, one of the

@@ -6,7 +6,7 @@ grid across the stretch, in proportion to the flip."""
 from __future__ import annotations
 
 import numpy as np
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from udrobot_ctrl.io.streams import finish_stream, time_spikes
@@ -17,6 +17,7 @@ DT = 0.05  # s, a 20 Hz stream
 @settings(max_examples=150, deadline=None)
 @given(n=st.integers(20, 400), moves=st.lists(st.tuples(st.integers(0, 10_000), st.floats(-480.0, 480.0)),
                                               min_size=1, max_size=6))
+@example(n=20, moves=[(1, 7.0), (43, 7.0), (85, 7.0)])  # every other record of 1-5 flipped: three among five
 def test_isolated_displaced_stamps_are_dropped_and_the_span_stays(n, moves):
     t = 1000.0 + DT * np.arange(n)
     moved = set()
