@@ -73,7 +73,8 @@ def summary(vehicle) -> str:
         lines.append(fmt.format(name, f"{p.M[i, i]:.4g}", f"{vehicle.added_mass[i, i]:.4g}",
                                 f"{p.D_L[i, i]:.4g}", f"{p.Q[i, i]:.4g}"))
     for t in vehicle.thrusters:
-        lines.append(f"  thruster {t.name}: position {list(t.position)} m, direction {list(t.direction)}, "
+        lines.append(f"  thruster {t.name}: position {np.round(t.position, 4).tolist()} m, "
+                     f"direction {np.round(t.direction, 4).tolist()}, "
                      f"+{t.max_forward_N:g} / -{t.max_reverse_N:g} N")
     rep = actuated_dofs(p.T)
     coupled = getattr(rep, "coupled", ())

@@ -12,7 +12,7 @@ import csv
 import re
 from pathlib import Path
 
-from .runlog import non_ascii_digits
+from .runlog import non_ascii_digits, separator_hint
 from .streams import LogImportError, Stream, finish_stream
 
 _NUM = re.compile(r"^[+-]?(\d+(\.\d*)?|\.\d+)([eE][+-]?\d+)?$", re.ASCII)  # digits 0-9 only
@@ -68,7 +68,7 @@ def read_topic_csv(path, name: str, fields, time: str = "header") -> Stream:
     header = next(reader, None)
     if not header or header[0] != "%time":
         raise LogImportError(f"{path}: line 1: expected a rostopic echo -p header starting with '%time', "
-                             f"got {(header or [''])[0][:40]!r}")
+                             f"got {(header or [''])[0][:40]!r}{separator_hint(header or [])}")
     index = {h: j for j, h in enumerate(header)}
     wanted = list(dict.fromkeys(fields))
     for f in wanted:

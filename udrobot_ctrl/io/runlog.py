@@ -174,6 +174,28 @@ def non_ascii_digits(text: str) -> str:
     return ""
 
 
+def separator_hint(header: list) -> str:
+    """``" (the header is semicolon-separated: the file must be comma-separated)"`` when a one-cell header holds
+    another common separator (semicolon, tab, pipe) instead of commas, else ``""``: for error messages.
+
+    Parameters
+    ----------
+    header : list of str
+        The header row as a comma-separated reader split it.
+
+    Returns
+    -------
+    str
+        The hint, with a leading space, or the empty string.
+    """
+    if len(header) != 1:
+        return ""
+    for sep, name in ((";", "semicolon"), ("\t", "tab"), ("|", "pipe")):
+        if sep in header[0]:
+            return f" (the header is {name}-separated: the file must be comma-separated)"
+    return ""
+
+
 def _parse_cell(text: str):
     """Return a float (nan for empty/nan), or None if the cell is not a finite number / empty / nan.
 
@@ -237,7 +259,8 @@ def _map_header(path, header: list) -> tuple:
         seen[name] = j
     if "t" not in seen:
         raise RunLogError(f"{_where(path, line=1)}: no 't' column in the header {names[:12]!r}"
-                          f"{' ...' if len(names) > 12 else ''}; expected 't' (s) plus inputs and channels")
+                          f"{' ...' if len(names) > 12 else ''}; expected 't' (s) plus inputs and channels"
+                          f"{separator_hint(names)}")
     sets = {}
     for kind in ("thrust", "pwm"):
         indices = sorted(int(m.group(2)) for m in map(_INDEXED_INPUT.match, names) if m and m.group(1) == kind)

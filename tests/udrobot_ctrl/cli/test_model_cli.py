@@ -44,3 +44,13 @@ def test_show_lists_actuated_and_passive_dofs_and_provenance(capsys):
 def test_unknown_model_is_a_clean_error(capsys):
     assert main(["model", "show", "--model", "nosuch:chin"]) == 2
     assert "nosuch" in capsys.readouterr().err
+
+
+def test_show_prints_thruster_coordinates_as_plain_numbers(capsys):
+    """Thruster positions and directions print as numbers (a vehicle TOML's arrays are numpy floats: their repr is
+    ``np.float64(0.156)`` under numpy 2, which a reader should never see)."""
+    assert main(["model", "show", "--model", "bluerov2-heavy"]) == 0
+    lines = [ln for ln in capsys.readouterr().out.splitlines() if ln.strip().startswith("thruster T")]
+    assert len(lines) == 8
+    assert not any("np." in ln or "float" in ln for ln in lines)
+    assert "position [0.156, 0.111, 0.085] m, direction [-0.7071, 0.7071, 0.0]" in lines[0]

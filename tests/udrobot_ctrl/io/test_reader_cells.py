@@ -101,6 +101,14 @@ def test_a_non_ascii_digit_in_a_qgc_or_rostopic_csv_is_refused(tmp_path, digit):
         read_topic_csv(topic, "pose", ["x"], time="receive")
 
 
+def test_a_semicolon_separated_rostopic_csv_is_named_as_such(tmp_path):
+    topic = tmp_path / "pose.csv"
+    topic.write_text("%time;field.x\n1000000000;1.0\n", encoding="utf-8")
+    with pytest.raises(LogImportError, match=r"pose.csv: line 1: .*semicolon-separated: the file must be "
+                                             r"comma-separated"):
+        read_topic_csv(topic, "pose", ["x"], time="receive")
+
+
 def test_a_nan_stamp_drops_its_own_sample_for_a_bad_time_stamp(tmp_path):
     """Before: the NaN compared false with its neighbour, and the valid sample before it was dropped as 'sharing a
     time stamp with the next one'."""

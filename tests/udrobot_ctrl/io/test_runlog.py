@@ -126,6 +126,8 @@ BAD_CASES = [
     ("t,thrust_1,t\n0,1,2\n", r"column 't': duplicate column"),
     ("t,thrust_1,,z\n0,1,2,3\n", r"file line 1: header column 3 has an empty name"),
     ("time,thrust_1\n0,1\n", r"file line 1: no 't' column"),
+    ("t;thrust_1;z\n0;1;1\n", r"file line 1: no 't' column.*semicolon-separated: the file must be comma-separated"),
+    ("t\tthrust_1\n0\t1\n", r"no 't' column.*tab-separated"),
     ("t,thrust_1,z\n0,1,abc\n", r"data row 1 \(file line 2\): column 'z': non-numeric cell 'abc'"),
     ("t,thrust_1,z\n0,1,1\n1,0x10,1\n", r"data row 2 \(file line 3\): column 'thrust_1': non-numeric"),
     ("t,thrust_1,z\n0,1,1_0\n", r"column 'z': non-numeric"),
