@@ -2,6 +2,7 @@
 to a ``udrobot-run/1`` run, optionally cut into free-decay launches for identification."""
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 from udrobot_ctrl.cli.main import CLIError
@@ -70,7 +71,8 @@ def run(args) -> int:
         column = args.segment_column or ("theta" if angle else "y")
         # a launch needs a free vehicle: thrusters idle from the release on (rows without commands: a rig)
         free = idle_mask(run_.input_kind, run_.inputs)
-        launches = find_launches(run_.t, y, angle=angle, free=free)
+        launches = [replace(launch, start=launch.start + a, stop=launch.stop + a)  # none across a cut
+                    for a, b in bounds for launch in find_launches(run_.t[a:b], y[a:b], angle=angle, free=free[a:b])]
         if not launches:
             raise ValueError(f"{args.input}: no launch (hold then release with the thrusters idle) found in channel "
                              f"'{args.segment}' ({100 * free.mean():.0f} % of the rows have idle thrusters)")

@@ -15,10 +15,11 @@ from udrobot_ctrl.io.runlog import Run, RunLogError, read_run, resample, split_s
 from udrobot_ctrl.io.stretches import MIN_SEGMENT_S, TOO_SHORT, cut_run
 
 MIN_DEPTH = CutSpec().min_depth  # the ardusub mapping's [cut] threshold (0.3 m)
-#: log time (s) -> depth (m): three 2.5 m dives between surface visits, a 7 m dive, a 1 s dip to 0.45 m
-PROFILE = ([100.0, 105.0, 115.0, 125.0, 130.0, 135.0, 145.0, 155.0, 160.0, 165.0, 175.0, 185.0, 190.0, 195.0, 210.0,
-            235.0, 240.0, 245.0, 245.75, 246.5, 260.0],
-           [0.0, 0.0, 2.5, 2.5, 0.0, 0.0, 2.5, 2.5, 0.0, 0.0, 2.5, 2.5, 0.0, 0.0, 7.0, 7.0, 0.0, 0.0, 0.45, 0.0, 0.0])
+#: log time (s) -> depth (m): three 2.5 m dives between surface visits, a shorter 7 m dive (the deepest is not the
+#: longest: keeping the longest stretch alone wrote 2.5 m of the 7 m), a 1 s dip to 0.45 m
+PROFILE = ([100.0, 105.0, 115.0, 135.0, 140.0, 145.0, 155.0, 175.0, 180.0, 185.0, 195.0, 215.0, 220.0, 225.0, 235.0,
+            245.0, 250.0, 250.75, 251.5, 265.0],
+           [0.0, 0.0, 2.5, 2.5, 0.0, 0.0, 2.5, 2.5, 0.0, 0.0, 2.5, 2.5, 0.0, 0.0, 7.0, 0.0, 0.0, 0.45, 0.0, 0.0])
 TRUE_MAX = 7.0
 
 
@@ -28,16 +29,16 @@ def depth_of(t):
 
 def crossings():
     """(down, up) log times (s) where the profile crosses MIN_DEPTH, in order."""
-    t = np.arange(100.0, 260.0, 1e-3)
+    t = np.arange(100.0, 265.0, 1e-3)
     below = depth_of(t) >= MIN_DEPTH
     edges = np.flatnonzero(np.diff(below.astype(int)))
     return [(t[a + 1], t[b]) for a, b in zip(edges[::2], edges[1::2])]
 
 
 def surface_crossing_dive(path):
-    """160 s of a BlueROV2 Heavy dive at 10 Hz (ATT, BARO, CTUN, RCOU, RCIN; armed at 101 s, STABILIZE)."""
+    """165 s of a BlueROV2 Heavy dive at 10 Hz (ATT, BARO, CTUN, RCOU, RCIN; armed at 101 s, STABILIZE)."""
     recs = [("MODE", (int(100.0e6), 0, 0, 1)), ("EV", (int(101.0e6), 10))]
-    for t in np.arange(100.0, 260.0, 0.1):
+    for t in np.arange(100.0, 265.0, 0.1):
         us = int(round(t * 1e6))
         recs.append(("ATT", (us, 0.0, 1.0, 0.0, -1.0, 30.0, 30.0 + 0.1 * (t - 100.0))))
         recs.append(("BARO", (us + 1, 1, -depth_of(t), 0.0)))
