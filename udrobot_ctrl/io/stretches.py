@@ -12,7 +12,7 @@ Every contiguous stretch of valid rows that a replay can start from is kept, eac
 ``segment`` column of docs/formats/runlog.md, numbered 1, 2, ... in time order); the rows cut between them are not
 written. ``t`` stays the converted log's t (it is not shifted: the notes, the sidecar's ``cut`` record and the file
 give the same times, and t increases strictly across segments). A valid stretch is too short to keep when it holds
-fewer than :data:`MIN_SEGMENT_ROWS` rows or spans less than :data:`MIN_SEGMENT_S`: no replay window of the
+fewer than :data:`MIN_SEGMENT_ROWS` rows or spans :data:`MIN_SEGMENT_S` or less: no replay window of the
 diagnoser's default length opens on it (see those constants); if no valid stretch is that long, the longest one is
 kept alone, with a note. Every stretch left out is listed with its times and reasons. A run without any valid row
 is kept whole with a prominent ``cut: WARNING`` note (a log entirely at the surface still converts). The same
@@ -57,14 +57,15 @@ class Stretch:
 
 #: a replay window of the diagnoser's default length, s (``diagnose --window`` and ``simulate --windows`` default)
 DEFAULT_WINDOW_S = 8.0
-#: shortest segment kept, s: ``udrobot_ctrl.gap.shrink.window_starts`` opens a window only where a quarter of it
-#: fits in the run, so a stretch shorter than a quarter of the default window gives no replay window
+#: a segment kept spans more than this, s: ``udrobot_ctrl.gap.shrink.window_starts`` opens a window only where a
+#: quarter of it fits in the run (and ``check_window`` refuses a window of 4 x the longest run or more), so a stretch
+#: of a quarter of the default window or less gives no replay window of that length
 MIN_SEGMENT_S = DEFAULT_WINDOW_S / 4
 #: fewest rows of a segment kept: ``udrobot_ctrl.gap.data.prepare`` refuses a run of fewer (its Savitzky-Golay
 #: derivatives and the smoother need them)
 MIN_SEGMENT_ROWS = 20
 #: reason of a valid stretch left out because no replay can start on it
-TOO_SHORT = (f"valid but too short to replay (under {MIN_SEGMENT_S:g} s, a quarter of the default "
+TOO_SHORT = (f"valid but too short to replay ({MIN_SEGMENT_S:g} s or less, a quarter of the default "
              f"{DEFAULT_WINDOW_S:g} s replay window, or under {MIN_SEGMENT_ROWS} rows)")
 
 
@@ -127,9 +128,9 @@ class CutResult:
 
 
 def replayable(stretch: Stretch) -> bool:
-    """True when a replay window can start on ``stretch``: at least :data:`MIN_SEGMENT_ROWS` rows spanning at least
+    """True when a replay window can start on ``stretch``: at least :data:`MIN_SEGMENT_ROWS` rows spanning more than
     :data:`MIN_SEGMENT_S`."""
-    return stretch.stop - stretch.start >= MIN_SEGMENT_ROWS and stretch.duration >= MIN_SEGMENT_S
+    return stretch.stop - stretch.start >= MIN_SEGMENT_ROWS and stretch.duration > MIN_SEGMENT_S
 
 
 def _runs(mask: np.ndarray) -> list:
