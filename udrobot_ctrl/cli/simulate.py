@@ -313,7 +313,11 @@ def _one_run_in_one_out(args, what: str, hint: str = "") -> tuple:
 
 
 def run_closed_loop(args) -> int:
-    """``--closed-loop``: fly ``args.model`` under the emulated ArduSub from the run's logged pilot inputs and modes."""
+    """``--closed-loop``: fly ``args.model`` under the emulated ArduSub from the run's logged pilot inputs and modes.
+
+    Each segment of the run is flown on its own (:func:`udrobot_ctrl.io.runlog.split_segments`): from its first row's
+    state with a new autopilot (integrators and targets reset), written on its control grid in the run's t with the
+    ``segment`` column (a run of one segment: t from its first row, as before)."""
     src, out, inputs = _one_run_in_one_out(args, "--closed-loop flies one --input run")
     if args.loop_rate is not None and not 10.0 <= args.loop_rate <= 2000.0:
         raise ValueError(f"--loop-rate must be between 10 and 2000 Hz (ArduSub runs 100-400 Hz), got {args.loop_rate}")
