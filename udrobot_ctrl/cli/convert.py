@@ -2,6 +2,7 @@
 to a ``udrobot-run/1`` run, optionally cut into free-decay launches for identification."""
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 from udrobot_ctrl.cli.main import CLIError
@@ -48,11 +49,15 @@ def run(args) -> int:
         check_output_dir(args.segment_dir, inputs, option="--segment-dir")
     run_ = convert_log(args.input, args.mapping, require_inputs=not args.allow_missing_inputs, vehicle=args.vehicle,
                        cut=not args.no_cut)
-    print(f"{args.input}: {run_.n} samples, {run_.duration:.3f} s, dt {run_.dt_median * 1e3:.2f} ms, "
+    bounds = run_.segment_bounds()
+    kept_s = sum(float(run_.t[b - 1] - run_.t[a]) for a, b in bounds)
+    span = (f"{kept_s:.3f} s in {len(bounds)} segments (t {run_.t[0]:.3f}..{run_.t[-1]:.3f} s)" if len(bounds) > 1
+            else f"{run_.duration:.3f} s")
+    print(f"{args.input}: {run_.n} samples, {span}, dt {run_.dt_median * 1e3:.2f} ms, "
           f"channels {', '.join(run_.channels) or 'none'}, inputs {run_.input_kind} x{run_.inputs.shape[1]}"
           + (f", vehicle {run_.metadata['vehicle']}" if run_.metadata.get("vehicle") else ""))
     for line in run_.metadata.get("notes", "").splitlines():
-        if line.startswith(("cut: WARNING", "cut: kept")) or "ALMOST ALL" in line:
+        if line.startswith(("cut: WARNING", "cut: kept", "cut: segment")) or "ALMOST ALL" in line:
             print(line)
     if args.out:
         path = write(run_, args.out, overwrite=args.force, protect=inputs)
@@ -66,7 +71,8 @@ def run(args) -> int:
         column = args.segment_column or ("theta" if angle else "y")
         # a launch needs a free vehicle: thrusters idle from the release on (rows without commands: a rig)
         free = idle_mask(run_.input_kind, run_.inputs)
-        launches = find_launches(run_.t, y, angle=angle, free=free)
+        launches = [replace(launch, start=launch.start + a, stop=launch.stop + a)  # none across a cut
+                    for a, b in bounds for launch in find_launches(run_.t[a:b], y[a:b], angle=angle, free=free[a:b])]
         if not launches:
             raise ValueError(f"{args.input}: no launch (hold then release with the thrusters idle) found in channel "
                              f"'{args.segment}' ({100 * free.mean():.0f} % of the rows have idle thrusters)")

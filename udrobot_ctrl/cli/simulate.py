@@ -3,6 +3,9 @@
 Open loop (default): inputs are held (zero-order hold) on the run's own timestamps, which may be non-uniform:
 each interval [t_k, t_k+1) is integrated with RK4 sub-steps of at most ``--max-step`` (0.01 s), or with
 ``solve_ivp``. The initial state is the first row's measured state (missing channels -> 0, with a warning).
+A run of several segments (the ``segment`` column a converter writes when it cuts surface or disarmed stretches)
+is replayed segment by segment: each starts afresh from its own first row's measured state (open loop, and under
+``--closed-loop`` with the emulated autopilot's integrators restarted), and no replay or window crosses a cut.
 
 Windowed (``--windows [S]``, S = 8 s when omitted): the diagnoser's multiple-shooting replay and gap metric.
 Each run is cut into windows of S seconds, each simulated from the measured state at its start with the logged
@@ -132,21 +135,30 @@ REPLAY_CHUNK = 200_000  # rows per compiled call (progress granularity)
 MAX_SUBSTEPS_PER_ROW = 1.0e4  # assumed bound: beyond this the time column, not the dynamics, sets the work
 
 
-def substep_count(t, max_step: float) -> int:
-    """Total RK4 sub-steps of a replay: sum over intervals of ceil(h_k / max_step)."""
+def segments_duration(run) -> float:
+    """Sum of the durations of ``run``'s segments, s (its duration when it has one): the time a replay covers."""
+    return float(sum(run.t[b - 1] - run.t[a] for a, b in run.segment_bounds()))
+
+
+def substep_count(t, max_step: float, segment=None) -> int:
+    """Total RK4 sub-steps of a replay: sum over intervals of ceil(h_k / max_step), none for the intervals between
+    two segments (``segment``: the run's segment column; nothing is integrated across a cut)."""
     h = np.diff(np.asarray(t, float))
-    return int(np.sum(np.maximum(1, np.ceil(h / max_step - 1e-9))))
+    steps = np.maximum(1, np.ceil(h / max_step - 1e-9))
+    return int(np.sum(steps[~runlog.segment_breaks(segment, len(t))]))
 
 
-def check_work(t, max_step: float, where: str = "run") -> int:
-    """Refuse a replay whose sub-step count is absurd for the number of rows (a clock jump in ``t``).
+def check_work(t, max_step: float, where: str = "run", segment=None) -> int:
+    """Refuse a replay whose sub-step count is absurd for the number of rows (a clock jump in ``t``); the intervals
+    between segments (``segment``) are not integrated, so not counted.
 
     Returns the sub-step count. Raises ValueError naming the widest interval.
     """
-    check_time_gaps(t, where)
-    n_sub = substep_count(t, max_step)
+    check_time_gaps(t, where, segment=segment)
+    n_sub = substep_count(t, max_step, segment)
     if n_sub > MAX_SUBSTEPS_PER_ROW * max(len(t), 1e3):
-        k = int(np.argmax(np.diff(t)))
+        h = np.where(runlog.segment_breaks(segment, len(t)), 0.0, np.diff(t))
+        k = int(np.argmax(h))
         raise ValueError(f"{where}: replay needs {n_sub:.3g} RK4 sub-steps of {max_step:g} s for {len(t)} rows; "
                          f"widest interval {t[k + 1] - t[k]:.6g} s (data rows {k + 1}-{k + 2}); check the time "
                          f"column or raise --max-step")
@@ -267,13 +279,21 @@ def run_windows(args) -> int:
     if args.json:
         atomic_write(Path(args.json), json.dumps(g.to_dict(), indent=2) + "\n", protect=inputs)
         print(f"wrote {args.json}")
-    if args.out:
-        prep, xs = g.preps[0], g.sims[0]
+    if args.out:  # one input run: its segments' preps, in order (one without segments)
+        preps, sims = g.preps, g.sims
+        xs = np.concatenate(sims)
         channels = {name: xs[:, i] for i, name in enumerate(STATE_NAMES)}
-        runlog.write_run(args.out, prep.t, channels, "thrust" if prep.input_kind == "pwm" else prep.input_kind,
-                         prep.f, protect=inputs)
-        print(f"wrote {args.out}: windowed replay on the run's uniform grid ({prep.n} rows, dt {prep.dt:g} s; "
-              f"inputs are the clipped commands{' in N (converted from pwm)' if prep.input_kind == 'pwm' else ''})")
+        t = np.concatenate([pr.t for pr in preps])
+        extra = None
+        if len(preps) > 1:
+            numbers = [int(part.segment[0]) for part in runlog.split_segments(runs[0])]
+            extra = {runlog.SEGMENT: np.concatenate([np.full(pr.n, k) for pr, k in zip(preps, numbers)])}
+        kind = preps[0].input_kind
+        runlog.write_run(args.out, t, channels, "thrust" if kind == "pwm" else kind,
+                         np.concatenate([pr.f for pr in preps]), protect=inputs, extra=extra)
+        grid = f"{t.size} rows, dt {preps[0].dt:g} s" + (f", {len(preps)} segments" if len(preps) > 1 else "")
+        print(f"wrote {args.out}: windowed replay on the run's uniform grid ({grid}; inputs are the clipped "
+              f"commands{' in N (converted from pwm)' if kind == 'pwm' else ''})")
     return 0
 
 
@@ -293,30 +313,46 @@ def _one_run_in_one_out(args, what: str, hint: str = "") -> tuple:
 
 
 def run_closed_loop(args) -> int:
-    """``--closed-loop``: fly ``args.model`` under the emulated ArduSub from the run's logged pilot inputs and modes."""
+    """``--closed-loop``: fly ``args.model`` under the emulated ArduSub from the run's logged pilot inputs and modes.
+
+    Each segment of the run is flown on its own (:func:`udrobot_ctrl.io.runlog.split_segments`): from its first row's
+    state with a new autopilot (integrators and targets reset), written on its control grid in the run's t with the
+    ``segment`` column (a run of one segment: t from its first row, as before)."""
     src, out, inputs = _one_run_in_one_out(args, "--closed-loop flies one --input run")
     if args.loop_rate is not None and not 10.0 <= args.loop_rate <= 2000.0:
         raise ValueError(f"--loop-rate must be between 10 and 2000 Hz (ArduSub runs 100-400 Hz), got {args.loop_rate}")
     rn = read_input_run(src, getattr(args, "mapping", None))
-    flight = fly(args.model, rn, args.loop_rate)
-    for note in flight.notes:
+    parts = runlog.split_segments(rn)
+    flights = [fly(args.model, part, args.loop_rate) for part in parts]  # each from its first row, a new autopilot
+    for note in dict.fromkeys(n for f in flights for n in f.notes):
         print(note)
-    channels = {name: flight.x[:, i] for i, name in enumerate(STATE_NAMES)}
-    runlog.write_run(out, flight.t, channels, "pwm", flight.pwm, protect=inputs,
-                     extra={"mode": flight.mode.astype(float)})
-    logged = runlog.resample(rn, rn.t[0] + flight.t)
-    lines = []
-    for name in ("z", "phi", "theta", "psi", "u", "v", "w"):
-        meas = logged.channels.get(name)
-        if meas is None or not np.isfinite(meas).any():
-            continue
-        err = flight.x[:, STATE_NAMES.index(name)] - meas
-        if name in ("phi", "theta", "psi"):
-            err = np.angle(np.exp(1j * err))
-        lines.append(f"{name} {np.sqrt(np.nanmean(err ** 2)):.3g}")
+    segmented = len(parts) > 1
+    # each segment's control grid in the run's own t (s from the run's first row when it has one segment)
+    t = np.concatenate([(part.t[0] - rn.t[0] if not segmented else part.t[0]) + f.t
+                        for part, f in zip(parts, flights)])
+    x = np.concatenate([f.x for f in flights])
+    channels = {name: x[:, i] for i, name in enumerate(STATE_NAMES)}
+    extra = {"mode": np.concatenate([f.mode for f in flights]).astype(float)}
+    if segmented:
+        extra[runlog.SEGMENT] = np.concatenate([np.full(f.t.size, part.segment[0]) for part, f in zip(parts, flights)])
+    runlog.write_run(out, t, channels, "pwm", np.concatenate([f.pwm for f in flights]), protect=inputs, extra=extra)
+    errors = {}
+    for part, f in zip(parts, flights):
+        logged = runlog.resample(part, part.t[0] + f.t)
+        for name in ("z", "phi", "theta", "psi", "u", "v", "w"):
+            meas = logged.channels.get(name)
+            if meas is None or not np.isfinite(meas).any():
+                continue
+            err = f.x[:, STATE_NAMES.index(name)] - meas
+            if name in ("phi", "theta", "psi"):
+                err = np.angle(np.exp(1j * err))
+            errors.setdefault(name, []).append(err)
+    lines = [f"{name} {np.sqrt(np.nanmean(np.concatenate(e) ** 2)):.3g}" for name, e in errors.items()]
     print(f"closed-loop flight against the log (RMS error, m, rad, m/s): {', '.join(lines)}")
-    print(f"wrote {out}: {flight.t.size} rows, {flight.t[-1]:.3f} s flown under the emulated ArduSub "
-          f"(pwm_i are its motor outputs)")
+    flown = sum(float(f.t[-1]) for f in flights)
+    where = f" in {len(parts)} segments, each from its own first row" if segmented else ""
+    print(f"wrote {out}: {t.size} rows, {flown:.3f} s flown under the emulated ArduSub{where} (pwm_i are its motor "
+          f"outputs)")
     return 0
 
 
@@ -342,20 +378,27 @@ def run(args) -> int:
     rn = read_input_run(src, getattr(args, "mapping", None))
     if rn.n < 2:
         raise ValueError(f"{src}: need at least 2 rows to simulate, got {rn.n}")
-    check_work(rn.t, args.max_step, str(src))
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
-        x0 = initial_state(rn)
-    for w in caught:
-        print(f"udrobot-ctrl simulate: warning: {w.message}", file=sys.stderr)
+    check_work(rn.t, args.max_step, str(src), rn.segment)
     tau, thrust = input_wrenches(rn, p)
-    try:
-        xs = replay(p, rn.t, x0, tau, args.method, args.max_step, progress=True, thrust=thrust)
-    except FloatingPointError as exc:
-        raise ValueError(f"{src} with model {vehicle.name}: {exc}") from exc
+    parts = runlog.split_segments(rn)
+    xs = np.empty((rn.n, 12))
+    for part, (a, b) in zip(parts, rn.segment_bounds()):
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            x0 = initial_state(part)
+        for w in caught:
+            print(f"udrobot-ctrl simulate: warning: {w.message}", file=sys.stderr)
+        try:
+            xs[a:b] = replay(p, rn.t[a:b], x0, tau[a:b], args.method, args.max_step, progress=True,
+                             thrust=None if thrust is None else thrust[a:b])
+        except FloatingPointError as exc:
+            raise ValueError(f"{part.path or src} with model {vehicle.name}: {exc}") from exc
     channels = {name: xs[:, i] for i, name in enumerate(STATE_NAMES)}
     if "voltage" in rn.channels:
         channels["voltage"] = rn.channels["voltage"]
-    runlog.write_run(out, rn.t, channels, rn.input_kind, rn.inputs, protect=inputs)
-    print(f"wrote {out}: {rn.n} rows, {rn.duration:.3f} s simulated with {vehicle.name} ({args.method})")
+    extra = {runlog.SEGMENT: rn.extra[runlog.SEGMENT]} if rn.segment is not None else None
+    runlog.write_run(out, rn.t, channels, rn.input_kind, rn.inputs, protect=inputs, extra=extra)
+    where = f" in {len(parts)} segments, each from its own first row" if len(parts) > 1 else ""
+    print(f"wrote {out}: {rn.n} rows, {segments_duration(rn):.3f} s simulated with {vehicle.name} ({args.method})"
+          f"{where}")
     return 0

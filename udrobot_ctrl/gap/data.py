@@ -263,6 +263,9 @@ def prepare(run: Run, p: PlantParameters, name=None, window_s=0.8, dt=None, know
     """
     label = name or (run.path.split("/")[-1] if run.path else "run")
     notes = []
+    if len(run.segment_bounds()) > 1:  # no resampling, smoothing or reconstruction across a cut
+        raise ValueError(f"{label}: {len(run.segment_bounds())} segments; prepare each on its own "
+                         f"(udrobot_ctrl.gap.shrink.segment_runs)")
     if run.n < 20:
         raise ValueError(f"{label}: only {run.n} samples; a run needs at least 20")
     check_time_gaps(run.t, label)

@@ -33,7 +33,7 @@ from udrobot_ctrl.dynamics.effects import wall_planes
 from udrobot_ctrl.dynamics.plant import plant_parameters
 from udrobot_ctrl.gap.data import Prepared, prepare
 from udrobot_ctrl.gap.effects import Actuation, plant_hooks
-from udrobot_ctrl.gap.shrink import check_window, gap, prepare_with_effects, simulate_windows
+from udrobot_ctrl.gap.shrink import check_window, gap, prepare_with_effects, segment_runs, simulate_windows
 from udrobot_ctrl.vehicle import load_model
 
 
@@ -118,7 +118,8 @@ def windowed_gap(model, runs, window_s: float = 8.0, names=None, scored=None) ->
     model : str, Path or Vehicle
         Any model, with or without ``effects`` (every effect of the catalogue is replayed).
     runs : sequence of Run
-        Runs with logged commands (thrust, pwm or a commanded wrench).
+        Runs with logged commands (thrust, pwm or a commanded wrench). A run of several segments is replayed as one
+        run per segment (:func:`segment_runs`, labelled ``LABEL[segment k]``): no window crosses a cut.
     window_s : float
         Multiple-shooting window, s (the diagnoser's default is 8 s).
     names : sequence of str, optional
@@ -137,6 +138,7 @@ def windowed_gap(model, runs, window_s: float = 8.0, names=None, scored=None) ->
     p = plant_parameters(vehicle.with_changes(effects=()))  # the nominal; every effect enters through its hooks
     labels = list(names) if names is not None else [
         (r.path.replace("\\", "/").split("/")[-1] if r.path else f"run {i}") for i, r in enumerate(runs)]
+    runs, labels = segment_runs(runs, labels)
     preps, sims = [], []
     for run, label in zip(runs, labels):
         prep = prepare(run, p, label)

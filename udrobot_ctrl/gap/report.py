@@ -69,7 +69,15 @@ from udrobot_ctrl.gap.identifiability import Identifiability
 from udrobot_ctrl.gap.locate import Located, locate, noise_floor
 from udrobot_ctrl.gap.parts import named_parts
 from udrobot_ctrl.gap.screen import KINDS, UNEXCITED_COMMAND, Unexcited, run_label, screen_runs
-from udrobot_ctrl.gap.shrink import UNITS, GapScore, check_window, gap, prepare_with_effects, simulate_windows_each
+from udrobot_ctrl.gap.shrink import (
+    UNITS,
+    GapScore,
+    check_window,
+    gap,
+    prepare_with_effects,
+    segment_runs,
+    simulate_windows_each,
+)
 from udrobot_ctrl.gap.top_end import TETHER, top_end
 from udrobot_ctrl.io.files import atomic_write
 from udrobot_ctrl.io.runlog import Run
@@ -80,10 +88,14 @@ FORMAT = "udrobot-diagnosis/1"
 
 
 def split_runs(runs, holdout):
-    """Fit and holdout runs; without holdout runs, the last run is held out (one run: its last third).
+    """Fit and holdout runs; without holdout runs, the last run is held out (one run: its last third). A run of
+    several segments counts as one run per segment (:func:`~udrobot_ctrl.gap.shrink.segment_runs`, labelled
+    ``NAME[segment k]``), each replayed from its own first row.
 
     Returns (fit runs, holdout runs, note saying which split was made).
     """
+    runs = segment_runs(runs)[0]
+    holdout = segment_runs(holdout)[0] if holdout else holdout
     if holdout:
         return list(runs), list(holdout), "holdout runs given on the command line"
     if len(runs) >= 2:

@@ -7,7 +7,9 @@ Definition used by the report (``metric: "nrmse"``):
   (zero-order hold) -- a multiple-shooting replay. A pure open-loop replay of a closed-loop run drifts
   without bound (the logged controller stabilised the real vehicle, not the model), so a whole-run replay
   measures drift; short re-initialised windows measure the model error over a horizon of a few time
-  constants. Windows whose start state is not measured (DVL gap) are skipped.
+  constants. Windows whose start state is not measured (DVL gap) are skipped. A run of several segments (the
+  ``segment`` column of a cut field log) is replayed as one run per segment (:func:`segment_runs`): its windows,
+  smoothing and derivatives start afresh at each segment's first row and none crosses a cut.
 * Per channel c (u v w p q r z phi theta psi, when logged): NRMSE_c = RMS(sim_c - meas_c) / std(meas_c)
   over all scored samples of all runs (angle errors wrapped to [-pi, pi)).
 * The accelerometer (``ax ay az``), on runs whose unlogged velocities the smoother reconstructed: the replay's
@@ -41,7 +43,7 @@ from udrobot_ctrl.dynamics.plant import PlantParameters, generalized_forces, kin
 from udrobot_ctrl.gap.data import Prepared, prepare
 from udrobot_ctrl.gap.effects import PLANT_FORCES, PlantForces
 from udrobot_ctrl.gap.smoother import GRAVITY, accelerometer, logged_noise_model
-from udrobot_ctrl.io.runlog import Run
+from udrobot_ctrl.io.runlog import Run, split_segments
 from udrobot_ctrl.parallel import fork_map, shares, workers
 from udrobot_ctrl.vehicle import STATE_INDEX
 
@@ -97,6 +99,34 @@ def check_window(window_s, preps, option: str = "window") -> float:
                              f"window fits (a window needs a quarter of its length in the run); use at most "
                              f"{longest:.3g} s")
     return w
+
+
+def segment_runs(runs, labels=None) -> tuple:
+    """Every run of ``runs`` cut into one run per segment (:func:`udrobot_ctrl.io.runlog.split_segments`): the single
+    place the replays of ``diagnose`` and ``simulate --windows`` get their stretches from, so that each segment is
+    prepared (resampled, smoothed, differentiated, reconstructed) and replayed on its own, its windows re-initialised
+    from its own first row.
+
+    Parameters
+    ----------
+    runs : sequence of Run
+    labels : sequence of str, optional
+        A label per run; a segment's is ``LABEL[segment k]`` (its path's tag, ``split_segments``, by default).
+
+    Returns
+    -------
+    runs, labels : list of Run, list of str or None
+        One entry per segment, in order (labels None when none were given).
+    """
+    out, names = [], []
+    for i, run in enumerate(runs):
+        parts = split_segments(run)
+        out += parts
+        if labels is not None:
+            seg = run.segment
+            names += ([labels[i]] if len(parts) == 1 else
+                      [f"{labels[i]}[segment {int(seg[a])}]" for a, _ in run.segment_bounds()])
+    return out, (names if labels is not None else None)
 
 
 def window_starts(prep: Prepared, window_s: float):

@@ -143,7 +143,9 @@ def convert_log(path, mapping=None, require_inputs: bool = True, vehicle: str | 
     "Frame: ..." texts, SERVOn_FUNCTION), else inferred from the active motor outputs
     (:func:`~udrobot_ctrl.io.mavlink.choose_vehicle`: an ambiguous log is refused, asking for ``vehicle``).
     With a ``[cut]`` table in the mapping and ``cut`` true, the stretches the plant cannot represent (surface,
-    disarmed, upside down) are cut out (:func:`~udrobot_ctrl.io.stretches.cut_run`; ``cut:`` notes).
+    disarmed, upside down) are cut out and every valid stretch a replay can start from is kept as a segment of the
+    run (the ``segment`` column; t stays the converted log's t; :func:`~udrobot_ctrl.io.stretches.cut_run`; ``cut:``
+    notes, the sidecar's ``cut`` record).
 
     Parameters
     ----------

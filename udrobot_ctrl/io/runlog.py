@@ -21,6 +21,11 @@ Choices the spec leaves open (stated here so callers can rely on them):
   A partial set (``tau_X`` without ``tau_Y``..., or ``thrust_1, thrust_3`` without ``thrust_2``) is an error.
 - Unknown columns are kept in :attr:`Run.extra`: as a float array when every cell is numeric or
   empty (infinities allowed there, since the column is ignored), else as an array of the raw strings.
+- The optional ``segment`` column (the stretch of a cut field log a row belongs to) is kept in
+  :attr:`Run.extra` like other columns, so every row selection carries it, but it is validated: an integer in every
+  row, non-decreasing (:func:`check_segments`). :attr:`Run.segment` and :meth:`Run.segment_bounds` expose it,
+  :func:`split_segments` cuts a run into one run per segment (each replayed from its own first row), and the time
+  gap check does not judge the interval between two segments (the rows cut there are not in the file).
 """
 from __future__ import annotations
 
@@ -45,6 +50,10 @@ ANGLE_CHANNELS = ("phi", "theta", "psi")
 TAU_COLUMNS = ("tau_X", "tau_Y", "tau_Z", "tau_K", "tau_M", "tau_N")
 INPUT_KINDS = ("thrust", "pwm", "tau")
 METADATA_KEYS = ("format", "vehicle", "water_density", "seabed_depth", "walls", "notes")
+#: the optional integer column naming the contiguous stretch (segment) of a log each row belongs to
+SEGMENT = "segment"
+#: largest segment number accepted: integers of a float64 column are exact up to 2**53
+_SEGMENT_MAX = 2.0 ** 53
 
 _INDEXED_INPUT = re.compile(r"^(thrust|pwm)_(\d+)$")
 _NUMBER = re.compile(r"^[+-]?(\d+(\.\d*)?|\.\d+)([eE][+-]?\d+)?$", re.ASCII)  # ASCII digits only (not '٣', '３')
@@ -73,7 +82,7 @@ class Run:
     inputs : (n, k) ndarray
         Commanded inputs, columns :attr:`input_names`; held constant on [t_k, t_k+1).
     extra : dict of str -> ndarray
-        Unknown columns, kept and ignored.
+        Unknown columns, kept and ignored; and the optional ``segment`` column (validated, :attr:`segment`).
     metadata : dict
         Validated sidecar content ({} if there is no sidecar).
     """
@@ -139,6 +148,17 @@ class Run:
         """(n, 12) state [x y z phi theta psi u v w p q r] (m, rad, m/s, rad/s); nan where not measured."""
         return np.column_stack([self.channel(name) for name in STATE_CHANNELS]) if self.n else np.zeros((0, 12))
 
+    @property
+    def segment(self) -> np.ndarray | None:
+        """(n,) int64 segment number of each row (the ``segment`` column), or None when the run has none (then the
+        whole run is one segment)."""
+        seg = self.extra.get(SEGMENT)
+        return None if seg is None else np.asarray(seg, float).astype(np.int64)
+
+    def segment_bounds(self) -> list:
+        """[start, stop) row ranges of the run's segments, in order ([(0, n)] without a ``segment`` column)."""
+        return segment_bounds(self.segment, self.n)
+
 
 def input_column_names(input_kind: str, k: int) -> tuple:
     """Column names for ``k`` inputs of kind 'thrust' | 'pwm' | 'tau'."""
@@ -149,6 +169,92 @@ def input_column_names(input_kind: str, k: int) -> tuple:
     if input_kind not in INPUT_KINDS:
         raise RunLogError(f"input_kind must be one of {INPUT_KINDS}, got {input_kind!r}")
     return tuple(f"{input_kind}_{i}" for i in range(1, k + 1))
+
+
+def segment_bounds(segment, n: int) -> list:
+    """[start, stop) row ranges where ``segment`` (n,) keeps one value, in order; [(0, n)] when it is None.
+
+    Parameters
+    ----------
+    segment : (n,) array_like of int or None
+        Segment number per row (non-decreasing, :func:`check_segments`).
+    n : int
+        Rows.
+    """
+    if segment is None or n == 0:
+        return [(0, n)] if n else []
+    seg = np.asarray(segment)
+    cuts = np.flatnonzero(seg[1:] != seg[:-1]) + 1
+    edges = [0, *cuts.tolist(), n]
+    return [(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:])]
+
+
+def segment_breaks(segment, n: int) -> np.ndarray:
+    """(n - 1,) bool: True for the interval between rows k and k + 1 when they belong to different segments (the
+    rows cut between them are not in the run: no replay, derivative or gap check spans such an interval)."""
+    if segment is None or n < 2:
+        return np.zeros(max(n - 1, 0), bool)
+    seg = np.asarray(segment)
+    return seg[1:] != seg[:-1]
+
+
+def check_segments(values, path="run", lines=None) -> np.ndarray:
+    """The ``segment`` column checked: an integer in every row (no empty cell, no fraction), non-decreasing (a
+    segment is one contiguous stretch of rows). Returns it as int64.
+
+    Parameters
+    ----------
+    values : (n,) array_like
+        The column as read (float, or text when a cell was not a number).
+    path : str
+        File named in the error.
+    lines : (n,) array_like of int, optional
+        File line of each row (named in the error).
+
+    Raises
+    ------
+    RunLogError
+        Naming the file, the data row (and file line) and the column ``segment``.
+    """
+    arr = np.asarray(values)
+
+    def where(i):
+        return _where(path, row=i + 1, line=None if lines is None else int(lines[i]), column=SEGMENT)
+
+    if arr.dtype.kind not in "biuf":
+        for i, cell in enumerate(arr):
+            value = _parse_cell(str(cell))
+            if value is None:
+                raise RunLogError(f"{where(i)}: non-numeric cell {str(cell)[:40]!r}; expected an integer segment "
+                                  f"number in every row")
+        arr = np.array([_parse_cell(str(c)) for c in arr], float)
+    arr = arr.astype(float)
+    bad = np.flatnonzero(~np.isfinite(arr) | (np.abs(arr) > _SEGMENT_MAX) | (arr != np.round(arr)))
+    if bad.size:
+        i = int(bad[0])
+        what = "empty/nan" if np.isnan(arr[i]) else repr(float(arr[i]))
+        raise RunLogError(f"{where(i)}: segment {what}; expected an integer segment number in every row (the "
+                          f"stretch of the log the row belongs to)")
+    down = np.flatnonzero(np.diff(arr) < 0)
+    if down.size:
+        i = int(down[0]) + 1
+        raise RunLogError(f"{where(i)}: segment {int(arr[i])} follows segment {int(arr[i - 1])}; segment numbers "
+                          f"must not decrease (each segment is one contiguous stretch of rows)")
+    return arr.astype(np.int64)
+
+
+def split_segments(run: Run) -> list:
+    """One :class:`Run` per segment of ``run`` (the run itself when it has one segment), each replayed from its own
+    first row: the single place the replays (``simulate``, ``simulate --windows``, ``diagnose``) get their stretches
+    from. A part is labelled ``PATH[segment k]`` (k its segment number) and keeps the sidecar metadata."""
+    bounds = run.segment_bounds()
+    if len(bounds) <= 1:
+        return [run]
+    seg = run.segment
+    return [replace(run, path=f"{run.path or 'run'}[segment {int(seg[a])}]", t=run.t[a:b],
+                    channels={c: v[a:b] for c, v in run.channels.items()}, inputs=run.inputs[a:b],
+                    extra={c: v[a:b] for c, v in run.extra.items()}, metadata=run.metadata)
+            for a, b in bounds]
 
 
 # ----------------------------------------------------------------------------------------------- reading
@@ -353,11 +459,13 @@ def _chunk_column(path, fields: list, lines: list, row0: int, j: int, name: str,
     return _column_values(path, rows, j, name, strict)
 
 
-def check_time_gaps(t: np.ndarray, path="run", lines=None) -> None:
+def check_time_gaps(t: np.ndarray, path="run", lines=None, segment=None) -> None:
     """Reject a sample interval that no manoeuvre can have (a clock jump), naming the rows and the times.
 
     A gap is absurd when it exceeds :data:`MAX_GAP_S`, or :data:`MAX_GAP_RATIO` median steps and
     :data:`MIN_RATIO_GAP_S`. Simulating or resampling across such a gap would cost work proportional to it.
+    With ``segment`` (the ``segment`` column), the intervals between two segments are not judged (nor counted in
+    the median): the rows cut there are not in the run and nothing is replayed across them.
 
     Raises
     ------
@@ -367,9 +475,12 @@ def check_time_gaps(t: np.ndarray, path="run", lines=None) -> None:
     if t.size < 2:
         return
     dt = np.diff(t)
-    med = float(np.median(dt))
+    within = ~segment_breaks(segment, t.size)
+    if not within.any():
+        return
+    med = float(np.median(dt[within]))
     limit = min(MAX_GAP_S, max(MAX_GAP_RATIO * med, MIN_RATIO_GAP_S))
-    bad = np.flatnonzero(dt > limit)
+    bad = np.flatnonzero((dt > limit) & within)
     if bad.size:
         k = int(bad[0])
         line = None if lines is None else int(lines[k + 1])
@@ -542,11 +653,15 @@ def read_run(path, progress: bool | None = None) -> Run:
         return a[:n] if n > 0.9 * a.shape[0] else a[:n].copy()
 
     t = trim(cols.t)
-    check_time_gaps(t, path, cols.lines)
     extra = {c: trim(v) for c, v in cols.extra.items() if c not in cols.text_extra}
     if cols.text_extra:
         extra.update(_text_columns(path, sorted(cols.text_extra), state["index"], n))
     extra = {c: extra[c] for c in state["extra_cols"]}
+    segment = None
+    if SEGMENT in extra:
+        segment = check_segments(extra[SEGMENT], path, cols.lines[:n])
+        extra[SEGMENT] = segment.astype(float)
+    check_time_gaps(t, path, cols.lines, segment)
     metadata = read_metadata(path.with_suffix(".json")) if path.with_suffix(".json").exists() else {}
     return Run(path=str(path), t=t, channels={c: trim(v) for c, v in cols.channels.items()},
                input_kind=state["input_kind"], inputs=trim(cols.inputs), extra=extra, metadata=metadata)
@@ -643,6 +758,29 @@ def _check_cut(cut, where: str) -> None:
             and 0 <= rows[0] <= rows[1] < n):
         raise RunLogError(f"{where}.kept: 'rows' must be [first, last] row indices of the converted log and 'of' its "
                           f"row count (0 <= first <= last < of), got rows {rows!r}, of {n!r}")
+    if "segments" in kept:
+        _check_cut_segments(kept["segments"], rows, f"{where}.kept.segments")
+
+
+def _check_cut_segments(segments, span, where: str) -> None:
+    """Check ``cut.kept.segments``: per kept segment its number, ``t_start``, ``t_stop`` and ``rows`` [first, last]
+    (rows of the converted log), in order, disjoint and inside the kept span ``span`` [first, last]."""
+    if not isinstance(segments, list) or not segments:
+        raise RunLogError(f"{where}: expected a non-empty list of {{segment, t_start, t_stop, rows}} objects, got "
+                          f"{segments!r}")
+    last = span[0] - 1
+    for i, seg in enumerate(segments):
+        at = f"{where}[{i}]"
+        if not isinstance(seg, dict) or not {"segment", "t_start", "t_stop", "rows"} <= set(seg):
+            raise RunLogError(f"{at}: expected an object with 'segment', 't_start', 't_stop' and 'rows', got {seg!r}")
+        rows = seg["rows"]
+        whole = isinstance(rows, list) and len(rows) == 2 and all(isinstance(v, int) and not isinstance(v, bool)
+                                                                  for v in rows)
+        if not (isinstance(seg["segment"], int) and _finite_number(seg["t_start"]) and _finite_number(seg["t_stop"])
+                and seg["t_start"] <= seg["t_stop"] and whole and last < rows[0] <= rows[1] <= span[1]):
+            raise RunLogError(f"{at}: expected an integer 'segment', times t_start <= t_stop (s) and 'rows' [first, "
+                              f"last] after the previous segment's and within the kept rows {span!r}, got {seg!r}")
+        last = rows[1]
 
 
 def read_metadata(path) -> dict:
@@ -687,7 +825,8 @@ def write_run(path, t, channels, input_kind, inputs, metadata=None, extra=None, 
     metadata : dict, optional
         Sidecar content; validated; ``format`` is added.
     extra : dict of str -> (n,) array_like, optional
-        Additional columns (numeric or strings), written after the standard ones.
+        Additional columns (numeric or strings), written after the standard ones. A ``segment`` column is checked
+        (:func:`check_segments`) and written as integers; the intervals between segments are not gap-checked.
     overwrite : bool
         If False, refuse to replace an existing CSV or sidecar. With True, a stale sidecar of the replaced
         run is replaced too (by ``metadata``, or by ``{"format": "udrobot-run/1"}``).
@@ -711,7 +850,13 @@ def write_run(path, t, channels, input_kind, inputs, metadata=None, extra=None, 
     bad = np.flatnonzero(~(np.diff(t) > 0))
     if bad.size:
         raise RunLogError(f"{_where(where, row=int(bad[0]) + 2, column='t')}: t must be strictly increasing")
-    check_time_gaps(t, where)
+    segment = None
+    if extra and SEGMENT in extra:
+        segment = check_segments(extra[SEGMENT], where)
+        if segment.shape != (n,):
+            raise RunLogError(f"{where}: column '{SEGMENT}' has shape {segment.shape}, expected ({n},)")
+        extra = {**extra, SEGMENT: segment.astype(str)}  # written as integers ("2", not "2.0")
+    check_time_gaps(t, where, segment=segment)
     inputs = np.asarray(inputs, dtype=float)
     if inputs.ndim == 1:
         inputs = inputs[:, None]
@@ -822,7 +967,9 @@ def resample(run: Run, t_new) -> Run:
     """The run on a new time base: linear for measured channels (angles unwrapped), zero-order hold for inputs.
 
     Extra columns use zero-order hold (they are of unknown meaning; holding never invents values).
-    Samples of t_new outside [t[0], t[-1]] get nan channels; inputs before t[0] are nan.
+    Samples of t_new outside [t[0], t[-1]] get nan channels; inputs before t[0] are nan. A run of several segments
+    is interpolated within each segment: samples of t_new between two segments get nan channels (the rows cut
+    there are not bridged), and the ``segment`` column is held like the other extra columns.
 
     Parameters
     ----------
@@ -833,7 +980,11 @@ def resample(run: Run, t_new) -> Run:
     t_new = np.asarray(t_new, dtype=float).reshape(-1)
     if t_new.size == 0 or not np.all(np.isfinite(t_new)) or np.any(np.diff(t_new) <= 0):
         raise RunLogError(f"{run.path or 'run'}: resample times must be finite and strictly increasing")
-    channels = {c: interpolate_linear(run.t, y, t_new, angle=c in ANGLE_CHANNELS) for c, y in run.channels.items()}
+    channels = {c: np.full(t_new.shape, np.nan) for c in run.channels}
+    for a, b in run.segment_bounds():
+        inside = (t_new >= run.t[a]) & (t_new <= run.t[b - 1])
+        for c, y in run.channels.items():
+            channels[c][inside] = interpolate_linear(run.t[a:b], y[a:b], t_new[inside], angle=c in ANGLE_CHANNELS)
     inputs = hold_previous(run.t, run.inputs, t_new)
     extra = {c: hold_previous(run.t, y, t_new) for c, y in run.extra.items()}
     return replace(run, t=t_new, channels=channels, inputs=inputs, extra=extra)

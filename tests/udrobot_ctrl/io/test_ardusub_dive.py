@@ -124,8 +124,9 @@ def dive_dataflash(path, n_motors=8, viso=True, lights=True):
 
 
 def log_time(run):
-    """Log time (s) of each row: the RCOU stamp at or before the first row (10 Hz) + t."""
-    return run.extra["t_source"][0] + run.t
+    """Log time (s) of each row: the RCOU stamp at or before the first row (10 Hz) + t - t of the first row (t is the
+    converted log's t, which a cut does not shift)."""
+    return run.extra["t_source"][0] + run.t - run.t[0]
 
 
 def test_dataflash_dive_heavy_from_outputs_dvl_context_and_cuts(tmp_path):
@@ -136,18 +137,24 @@ def test_dataflash_dive_heavy_from_outputs_dvl_context_and_cuts(tmp_path):
     assert "vehicle: inferred bluerov2-heavy (8 thrusters) from the logged outputs" in notes
     assert "RCOU output 10: other (1650..1700 us" in notes
     t = log_time(run)
-    # the kept stretch: from 0.3 m on the way down (110.6 s) to the disarm at 140 s (the 145..160 s stretch is
-    # shorter); each cut stretch listed with its reason
-    assert 110.5 < t[0] < 110.75 and 139.85 < t[-1] < 140.0
-    assert "cut: kept rows" in notes
+    # every valid stretch kept, each a segment: from 0.3 m on the way down (110.6 s) to the disarm at 140 s, and
+    # from the re-arm at 145 s to the end; each segment and each cut stretch listed with its span and reason
+    seg = run.segment
+    one = seg == 1
+    assert set(np.unique(seg)) == {1, 2} and np.all(np.diff(seg) >= 0)
+    assert 110.5 < t[one][0] < 110.75 and 139.85 < t[one][-1] < 140.0
+    assert 144.95 < t[~one][0] < 145.15 and t[~one][-1] > 159.8
+    assert "cut: kept 2 segment(s)" in notes and notes.count("cut: segment ") == 2
     assert "at or near the surface (z < 0.3 m, assumed threshold)" in notes
-    assert notes.count("cut: left out") == 3 and "disarmed (armed = 0)" in notes
-    assert "shorter valid stretch (the longest is kept)" in notes
-    # the same cut, recorded for the tools that read the sidecar: rows kept, of how many, share failing each check
+    assert notes.count("cut: left out") == 2 and "disarmed (armed = 0)" in notes
+    # the same cut, recorded for the tools that read the sidecar: the span kept, its segments, of how many rows,
+    # share failing each check; t is the converted log's t in the file, the notes and the record alike
     cut = run.metadata["cut"]
-    first, last = cut["kept"]["rows"]
-    assert last - first + 1 == run.n and cut["kept"]["of"] > run.n
-    assert cut["kept"]["t_stop"] - cut["kept"]["t_start"] == pytest.approx(run.t[-1])
+    segments = cut["kept"]["segments"]
+    assert [s["segment"] for s in segments] == [1, 2]
+    assert sum(s["rows"][1] - s["rows"][0] + 1 for s in segments) == run.n and cut["kept"]["of"] > run.n
+    assert (cut["kept"]["t_start"], cut["kept"]["t_stop"]) == (run.t[0], run.t[-1])
+    assert segments[1]["t_start"] == run.t[~one][0]
     assert 0 < cut["invalid_share"]["disarmed (armed = 0)"] < 1
     np.testing.assert_allclose(run.channels["z"], depth_of(t), atol=0.06)  # t from the 10 Hz stamp: 0.1 s x 0.5 m/s
     # inputs: RCOU C1..C8 held (10 Hz) -> exactly the logged values of the RCOU sample in force
@@ -155,21 +162,24 @@ def test_dataflash_dive_heavy_from_outputs_dvl_context_and_cuts(tmp_path):
     expected = np.array([motor_pwm(s - 2e-6, 8)[:8] for s in stamp], float)
     np.testing.assert_array_equal(run.inputs, expected)
     # u v w from the DVL (body, deltas over dt), the three low-confidence deltas dropped and counted
-    for k, name in enumerate("uvw"):
-        np.testing.assert_allclose(run.channels[name], BODY_VEL[k], atol=1e-6)
+    for k, name in enumerate("uvw"):  # the last DVL delta is stamped mid-interval: the log's last rows have none
+        vel = run.channels[name]
+        assert np.isfinite(vel[one]).all() and np.isfinite(vel[~one]).mean() > 0.9
+        np.testing.assert_allclose(vel[np.isfinite(vel)], BODY_VEL[k], atol=1e-6)
     assert "source: u/v/w <- VISO[PosDX,PosDY,PosDZ,dt]: DVL-measured" in notes
     assert "3 of 480 samples invalid and dropped (3 low DVL confidence" in notes
     # x y from the EKF (core 0 only), tagged as an estimate
     np.testing.assert_allclose(run.channels["x"], 0.02 * (t - 100.0), atol=2.1e-3)
     np.testing.assert_allclose(run.channels["y"], -0.01 * (t - 100.0), atol=1.1e-3)
     assert "source: x/y <- XKF1[PN,PE]: EKF-estimated" in notes
-    # altitude: 12 invalid readings dropped, counted per reason (the one at 101 s and 150 s lie outside the kept
-    # stretch but are counted: the counts are per log)
+    # altitude: 12 invalid readings dropped, counted per reason (the one at 101 s lies outside the kept segments
+    # but is counted: the counts are per log; the one at 150 s leaves a gap in segment 2)
     assert ("RFND[Dist] -> altitude: 12 of 1200 samples invalid and dropped (5 zero distance (no echo); 4 status not "
             "Good (Stat != 4); 3 low Quality") in notes
     alt = run.channels["altitude"]
-    assert np.isfinite(alt).all()
-    np.testing.assert_allclose(alt, altitude_of(t), atol=2e-3)
+    assert np.isfinite(alt[one]).all() and np.isfinite(alt[~one]).mean() > 0.9
+    ok = np.isfinite(alt)
+    np.testing.assert_allclose(alt[ok], altitude_of(t[ok]), atol=2e-3)
     assert "RNGFND1_MIN_CM, RNGFND1_MAX_CM not in the log" in notes
     # autopilot context columns, held
     ex = run.extra
@@ -231,7 +241,7 @@ def test_convert_cli_vehicle_option_and_refusal(tmp_path, capsys):
     assert "--vehicle NAME" in capsys.readouterr().err
     assert main(["convert", str(seven), "--vehicle", "bluerov2-heavy", "--out", str(tmp_path / "a.csv")]) == 0
     out = capsys.readouterr().out
-    assert "vehicle bluerov2-heavy" in out and "cut: kept rows" in out
+    assert "vehicle bluerov2-heavy" in out and "cut: kept 2 segment(s)" in out and "cut: segment 2: rows" in out
     assert read_run(tmp_path / "a.csv").inputs.shape[1] == 8
 
 
@@ -284,7 +294,7 @@ def test_tlog_dive_bluerov2_dvl_context_and_cuts(tmp_path):
     run = convert_log(dive_tlog(tmp_path / "d.tlog"), "ardusub")
     notes = run.metadata["notes"]
     assert run.metadata["vehicle"] == "bluerov2" and run.inputs.shape[1] == 6
-    t = run.extra["t_source"][0] - T0 + run.t  # ATTITUDE receive time at or before the first row (20 Hz)
+    t = run.extra["t_source"][0] - T0 + run.t - run.t[0]  # ATTITUDE receive time at or before the first row (20 Hz)
     # armed 10..50 s (heartbeats at 1 Hz: held), depth >= 0.3 m from 6 s: kept 10..50 s
     assert 9.95 < t[0] < 10.1 and 49.9 < t[-1] < 50.0
     np.testing.assert_array_equal(run.extra["armed"], 1.0)
