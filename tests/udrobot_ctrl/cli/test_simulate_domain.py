@@ -142,3 +142,21 @@ def test_the_closed_loop_replay_of_a_full_throttle_climb_warns_when_it_breaks_th
     first = next(s for s in dom["spans"] if s["code"] == ABOVE_SURFACE)
     assert first["t0"] == pytest.approx(flown.t[above[0]], abs=1e-3)
     assert "above_surface" in capsys.readouterr().err
+
+
+def test_the_windowed_replay_names_its_windows_above_the_surface_in_the_console_and_the_json(tmp_path, capsys):
+    n = int(24 * RATE)
+    t = np.arange(n) / RATE
+    f = np.zeros((n, 4))
+    f[:, 0] = f[:, 1] = 8.0 * np.sin(2 * np.pi * t / 6.0)
+    f[t >= 12.0, 2:] = -15.0  # up from 2 m at 12 s: through the surface in the last window
+    _, xs = _flown(tmp_path / "climb.csv", f, z0=2.0)
+    gap = tmp_path / "gap.json"
+    assert main(["simulate", "--model", MODEL, "--windows", "8", "--input", str(tmp_path / "climb.csv"),
+                 "--json", str(gap)]) == 0
+    entries = json.loads(gap.read_text())["replay_domain"]
+    above = {k + 1 for k in range(3) if np.any(xs[k * 160:(k + 1) * 160, 2] < 0)}
+    assert above and {e["window"] for e in entries if ABOVE_SURFACE in e["codes"]} == above
+    assert all(e["run"] == "climb.csv" for e in entries)
+    out = capsys.readouterr().out
+    assert f"warning: climb.csv window {min(above)} (" in out and "(scored, not a finding)" in out
