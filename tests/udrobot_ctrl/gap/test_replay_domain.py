@@ -8,6 +8,7 @@ that are above the surface or hold a thruster at its limit are known from the tr
 from __future__ import annotations
 
 import json
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -17,11 +18,12 @@ from udrobot_ctrl.dynamics.domain import ABOVE_SURFACE, THRUST_SATURATED
 from udrobot_ctrl.dynamics.effects import PlantEffect
 from udrobot_ctrl.dynamics.plant import plant_parameters
 from udrobot_ctrl.dynamics.sim import simulate
+from udrobot_ctrl.gap import plots
 from udrobot_ctrl.gap.data import prepare
 from udrobot_ctrl.gap.locate import _regime_condition, bin_label
 from udrobot_ctrl.gap.replay import window_domains
 from udrobot_ctrl.gap.report import diagnose, summary
-from udrobot_ctrl.gap.shrink import simulate_windows, window_starts
+from udrobot_ctrl.gap.shrink import WINDOW, simulate_windows, window_starts
 from udrobot_ctrl.io.runlog import Run, write_run
 from udrobot_ctrl.vehicle import STATE_NAMES, load_model
 
@@ -167,3 +169,29 @@ def test_out_model_is_not_written_when_no_run_was_diagnosed(tmp_path, capsys):
     report = json.loads((tmp_path / "r.json").read_text())
     assert report["verdict"].startswith("not diagnosed") and report["replay_domain"] is None
     assert f"{model} not written: no run was diagnosed" in capsys.readouterr().err
+
+
+def test_the_figures_hatch_the_windows_the_report_names_outside_the_domain(tmp_path, monkeypatch):
+    t = np.arange(200) * 0.05
+    sim = np.zeros((200, 16))
+    sim[:, WINDOW] = np.repeat([1.0, 2.0], 100)
+    prep = SimpleNamespace(t=t, meas={"u": np.zeros(200)}, name="run.csv", smoothed=None)
+    ctx = SimpleNamespace(preps=[prep], nominal_sims=[sim], after_sims=[sim], n_fit=0)
+    entry = {"run": "run.csv", "part": "holdout", "window": 2, "t": [5.0, 9.95], "codes": [ABOVE_SURFACE],
+             "spans": [{"code": ABOVE_SURFACE, "t0": 7.0, "t1": 9.95}]}
+    report = {"location": [], "gap_before": {"scored": ["u"]}, "replay_domain": {"nominal": [entry], "after": []}}
+    figures = {}
+    monkeypatch.setattr(plots, "errors", lambda prep, sim: {"u": np.zeros(200)})
+    monkeypatch.setattr(plots, "save_figure", lambda fig, path, **kw: figures.setdefault(path.name, fig) and path)
+    plots.write_plots(ctx, report, tmp_path)
+    for name in ("residuals_run.png", "overlay_run.png"):
+        fig = figures[name]
+        hatched = [pa for pa in fig.axes[0].patches if pa.get_hatch() == "//"]
+        assert len(hatched) == 1 and hatched[0].get_x() == pytest.approx(5.0)
+        assert any(tx.get_text() == ABOVE_SURFACE for tx in fig.axes[0].texts)
+        assert "outside the plant's domain" in fig._suptitle.get_text()
+    report["replay_domain"] = {"nominal": [], "after": []}
+    figures.clear()
+    plots.write_plots(ctx, report, tmp_path)
+    assert not [pa for pa in figures["residuals_run.png"].axes[0].patches if pa.get_hatch() == "//"]
+    assert "domain" not in figures["overlay_run.png"]._suptitle.get_text()
