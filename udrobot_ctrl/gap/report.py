@@ -1792,7 +1792,7 @@ def _diagnose(model, runs, holdout, window_s, effects, log, model_label):
     verdict = verdict_line(elim.kept, len(inp.names), where.before, unexplained, at_bound=res.at_bound,
                            verdicts=verdicts)
     after_sims = elim.after.sims if elim.kept else where.nominal_sims[len(inp.fit):]
-    domain = replay_domain(inp, where.nominal_sims, after_sims)
+    domain = replay_domain(inp, where.nominal_sims, after_sims if elim.kept else None)
     verdict += domain_caveat(domain)
     say(f"{verdict} ({time.perf_counter() - t0:.1f} s)")
 
@@ -1811,12 +1811,13 @@ def replay_domain(inp: Inputs, nominal_sims, after_sims) -> dict:
     (:func:`udrobot_ctrl.gap.replay.domain_windows`; docs/formats/diagnosis.md).
 
     ``nominal``: the nominal model's windows on every run (fit and holdout: the location's and ``gap_before``'s
-    replays); ``after``: the holdout windows replayed with the significant effects (``gap_after``'s). Such windows
+    replays); ``after``: the holdout windows replayed with the significant effects (``gap_after``'s; empty when
+    ``after_sims`` is None: no effect is significant, the corrected replay is the nominal one). Such windows
     stay scored (left out, a model whose replays leave the water would score better than one whose replays stay
     in it); ``holdout_flagged`` counts the holdout's flagged windows of each, and when any is flagged the verdict
     says that the gap there is not a finding (:func:`domain_caveat`)."""
     nominal = domain_windows(inp.runs, nominal_sims, inp.p, inp.window_s)
-    after = domain_windows(inp.holdout, after_sims, inp.p, inp.window_s)
+    after = domain_windows(inp.holdout, after_sims, inp.p, inp.window_s) if after_sims is not None else []
     holdout = {pr.name for pr in inp.holdout}
     return {"criteria": {"above_surface_z_m": 0.0, "inverted_cos_phi_cos_theta": 0.0,
                          "saturation_tolerance": SATURATION_TOLERANCE,
@@ -1833,8 +1834,9 @@ def domain_caveat(domain: dict) -> str:
     if not (n["nominal"] or n["after"]):
         return ""
     codes = sorted({c for w in domain["nominal"] + domain["after"] if w["part"] == "holdout" for c in w["codes"]})
-    return (f"; {n['nominal']} nominal and {n['after']} corrected holdout replay windows leave the plant's domain "
-            f"({', '.join(codes)}; replay_domain): they are scored, but their gap is not a finding")
+    which = f"{n['nominal']} nominal" + (f" and {n['after']} corrected" if n["after"] else "")
+    return (f"; {which} holdout replay windows leave the plant's domain ({', '.join(codes)}; replay_domain): they "
+            f"are scored, but their gap is not a finding")
 
 
 def domain_lines(domain) -> list:
