@@ -194,10 +194,12 @@ class StartFill:
 def start_state(t, X, names=POSE + VEL) -> tuple:
     """The state (12,) a replay of a run starts from, and a :class:`StartFill` per channel its first row lacks.
 
-    The diagnoser's rule, used by ``simulate`` and by every replay window: a pose channel takes its first finite
-    sample, as :func:`_fill` extrapolates it back to the start (what a window at a run's first sample starts from),
-    0 when never logged (level attitude, the origin); a velocity takes its first finite sample when it comes within
-    :data:`START_VELOCITY_WITHIN_S`, else 0 (at rest: the diagnoser's window start for a velocity it has not).
+    ``simulate``'s start, on the diagnoser's rule: a pose channel takes its first finite sample, as :func:`_fill`
+    (called here) extrapolates it back in :func:`prepare` (so a diagnoser's window at a run's first sample starts
+    from that same value), 0 when never logged (level attitude, the origin, as :func:`prepare` assumes); a velocity
+    takes its first finite sample when it comes within :data:`START_VELOCITY_WITHIN_S`, else 0 (at rest, as a
+    window starts an unobserved DOF; the diagnoser skips a window whose observed velocity is missing at its start,
+    which a whole-run replay, with one start, cannot).
 
     Parameters
     ----------
