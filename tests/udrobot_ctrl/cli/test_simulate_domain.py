@@ -121,6 +121,7 @@ def test_channels_the_first_row_lacks_start_from_their_first_sample_or_at_rest(t
     assert fills["u"]["t_first"] == pytest.approx(2.0) and set(fills) == {"z", "u", "v"}
 
 
+@pytest.mark.slow
 def test_the_closed_loop_replay_of_a_full_throttle_climb_warns_when_it_breaks_the_surface(tmp_path, capsys):
     """The emulated ArduSub flies bluerov2-heavy from 3 m up at a full throttle stick in STABILIZE (the motors take
     the throttle as it is): it leaves the water, and the closed-loop replay says where."""

@@ -134,6 +134,7 @@ def test_a_regime_family_only_some_runs_have_is_binned_over_those_runs():
         {k: v for k, v in pooled.items() if v > 0}, abs=1e-3)
 
 
+@pytest.mark.slow
 def test_diagnose_plot_on_runs_whose_altitude_is_valid_in_one_part_only(tmp_path):
     """The vehicle is 3 N lighter than the model: the heave gap is located, and its regimes binned over both runs;
     the run with the valid altitude flies twice as long, so it holds most of the error (the run the families were
