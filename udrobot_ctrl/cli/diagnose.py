@@ -7,6 +7,8 @@ the option for several). Without ``--holdout`` the last run is held out (a singl
 Options may come before or after the runs. The report format is ``udrobot-diagnosis/1`` (docs/formats/diagnosis.md).
 A holdout run may not be a fit run (the same file, or a copy with identical content), and ``--json``,
 ``--out-model`` and the ``--plot`` files must be different files: both are refused before any work.
+When every run is reported "not diagnosed" (unexcited, or not represented by the plant), ``--out-model`` is not
+written (a message says so): there is no corrected model to write.
 Exit 0 whenever the diagnosis ran; 2 with a message on bad input; 130 / 143 when stopped by Ctrl-C / SIGTERM (the
 workers are stopped, no output is left half-written).
 """
@@ -19,7 +21,15 @@ import sys
 from pathlib import Path
 
 from udrobot_ctrl.gap.plots import plot_paths, write_plots
-from udrobot_ctrl.gap.report import corrected_model, diagnose, run_label, split_runs, summary, write_report
+from udrobot_ctrl.gap.report import (
+    corrected_model,
+    diagnose,
+    nothing_diagnosed,
+    run_label,
+    split_runs,
+    summary,
+    write_report,
+)
 from udrobot_ctrl.gap.shrink import check_window
 from udrobot_ctrl.io import load_any
 from udrobot_ctrl.io.files import check_distinct_outputs, check_output_dir, check_outputs, spec_files
@@ -119,7 +129,10 @@ def run(args) -> int:
     report, ctx = diagnose(args.model, fit, hold or None, window_s=args.window, effects=effects, log=log,
                            model_label=args.model)
     write_report(report, Path(args.json), protect=inputs)
-    if args.out_model:
+    if args.out_model and nothing_diagnosed(report):
+        print(f"udrobot-ctrl diagnose: {args.out_model} not written: no run was diagnosed (the report's verdict says "
+              f"why), so there is no corrected model", file=sys.stderr)
+    elif args.out_model:
         corrected, not_placed = corrected_model(args.model, report, fit + hold)
         write_model_file(corrected, args.out_model, protect=inputs)
         print(f"wrote {args.out_model} with effects: {', '.join(e.name for e in corrected.effects) or 'none'}",

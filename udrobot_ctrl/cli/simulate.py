@@ -2,10 +2,15 @@
 
 Open loop (default): inputs are held (zero-order hold) on the run's own timestamps, which may be non-uniform:
 each interval [t_k, t_k+1) is integrated with RK4 sub-steps of at most ``--max-step`` (0.01 s), or with
-``solve_ivp``. The initial state is the first row's measured state (missing channels -> 0, with a warning).
+``solve_ivp``. The initial state is the first row's measured state; a channel it lacks starts from its first
+finite sample (a velocity: within 0.8 s, else at rest, 0), as the diagnoser's windows start, with a warning.
 A run of several segments (the ``segment`` column a converter writes when it cuts surface or disarmed stretches)
 is replayed segment by segment: each starts afresh from its own first row's measured state (open loop, and under
 ``--closed-loop`` with the emulated autopilot's integrators restarted), and no replay or window crosses a cut.
+
+Every replay (open and closed loop) is checked against the plant's domain: a warning line names each span above
+the surface (z < 0), rolled or pitched over (cos phi cos theta < 0) or with a thruster held at its limit for 4 s
+or more, and the simulated run's sidecar (NAME.json) holds them as ``replay_domain`` (codes and spans).
 
 Windowed (``--windows [S]``, S = 8 s when omitted): the diagnoser's multiple-shooting replay and gap metric.
 Each run is cut into windows of S seconds, each simulated from the measured state at its start with the logged
@@ -28,9 +33,17 @@ from tqdm import tqdm
 
 from udrobot_ctrl.autopilot.fly import fly
 from udrobot_ctrl.dynamics import effects as fx
+from udrobot_ctrl.dynamics.domain import (
+    DEFAULT_WINDOW_S,
+    SATURATION_WINDOW_FRACTION,
+    DomainCheck,
+    domain_check,
+    thrust_limits,
+)
 from udrobot_ctrl.dynamics.plant import plant_parameters, state_derivative
 from udrobot_ctrl.dynamics.sim import Actuators, integrate_intervals, rk4_step
 from udrobot_ctrl.dynamics.thrusters import pwm_to_thrust
+from udrobot_ctrl.gap.data import START_VELOCITY_WITHIN_S, start_state
 from udrobot_ctrl.gap.replay import WindowedGap, windowed_gap
 from udrobot_ctrl.gap.screen import unrepresented_runs
 from udrobot_ctrl.gap.shrink import check_window
@@ -97,14 +110,57 @@ def read_input_run(path, mapping=None):
 
 
 def initial_state(run) -> np.ndarray:
-    """First row's state (12,), missing or nan channels set to 0 with a warning naming them."""
-    x0 = np.array(run.state_matrix()[0], dtype=float)
-    missing = [STATE_NAMES[i] for i in range(12) if not np.isfinite(x0[i])]
-    if missing:
-        warnings.warn(f"{run.path or 'run'}: first row has no {', '.join(missing)}; starting them at 0",
-                      stacklevel=2)
-        x0[~np.isfinite(x0)] = 0.0
+    """The replay's start state (12,): the first row's, a channel it lacks filled as the diagnoser fills it
+    (:func:`udrobot_ctrl.gap.data.start_state`: a pose from its first finite sample, a velocity from its first
+    sample within 0.8 s, else 0), with a warning naming each filled channel and how."""
+    x0, fills = start_state(run.t, run.state_matrix())
+    if fills:
+        warnings.warn(f"{run.path or 'run'}: first row has no {', '.join(f.channel for f in fills)}; "
+                      + "; ".join(_fill_text(f) for f in fills), stacklevel=2)
     return x0
+
+
+def _fill_text(f) -> str:
+    """How one channel of the start state was filled, for the warning."""
+    if f.how == "first_sample":
+        return f"{f.channel} from its first sample ({f.t_first:.3g} s in)"
+    if f.t_first is None:
+        return f"{f.channel} at rest (0: never logged)"
+    return f"{f.channel} at rest (0: first logged {f.t_first:.3g} s in, later than {START_VELOCITY_WITHIN_S:g} s)"
+
+
+def domain_report(t, x, where: str, thrust=None, limits=(None, None)) -> DomainCheck:
+    """Check a whole-run replay against the plant's domain (:func:`udrobot_ctrl.dynamics.domain.domain_check`:
+    above the surface, inverted, a thruster at its limit for 4 s, half of the default 8 s window), print a warning
+    line per span on stderr and return the check."""
+    lo, hi = limits
+    chk = domain_check(t, x, thrust if lo is not None else None, lo, hi,
+                       saturation_s=SATURATION_WINDOW_FRACTION * DEFAULT_WINDOW_S)
+    for span in chk.spans:
+        print(f"udrobot-ctrl simulate: warning: {where}: the replay leaves the plant's domain, {span.describe()}: "
+              f"{DOMAIN_REASON[span.code]}", file=sys.stderr)
+    return chk
+
+
+#: the warning's reason per code (:data:`udrobot_ctrl.dynamics.domain.CODES`)
+DOMAIN_REASON = {"above_surface": "above the surface (z < 0; the plant has no free surface)",
+                 "inverted": "rolled or pitched over (body z axis above the horizontal)",
+                 "thrust_saturated": "a thruster held at its limit (the replay measures the limit, not the dynamics)"}
+
+
+def _rows(limit, a: int, b: int):
+    """Rows a..b of a per-row thrust limit (n, n_thr), or the limit itself when it is one per thruster."""
+    limit = np.asarray(limit)
+    return limit[a:b] if limit.ndim == 2 else limit
+
+
+def replay_sidecar(domain: DomainCheck, x0_fills=()) -> dict:
+    """The simulated run's sidecar (docs/formats/runlog.md): ``replay_domain`` (codes, spans, saturation_s) and,
+    when the first row lacked some channel, ``start_state`` (channel, how, t_first)."""
+    out = {"replay_domain": domain.to_json() | {"saturation_s": domain.saturation_s}}
+    if x0_fills:
+        out["start_state"] = [{"channel": f.channel, "how": f.how, "t_first": f.t_first} for f in x0_fills]
+    return out
 
 
 def input_wrenches(run, p) -> tuple:
@@ -251,6 +307,10 @@ def _format_gap(g: WindowedGap) -> str:
     if any(g.diverged.values()):
         lines.append("diverged windows (their remaining samples score the error cap): " + ", ".join(
             f"{run} {n} of {g.windows.get(run, 0)}" for run, n in g.diverged.items() if n))
+    for w in g.domain:
+        lines.append(f"warning: {w.run} window {w.window} ({w.t0:.2f}-{w.t1:.2f} s) leaves the plant's domain: "
+                     + "; ".join(f"{sp.describe()}: {DOMAIN_REASON[sp.code]}" for sp in w.check.spans)
+                     + " (scored, not a finding)")
     return "\n".join(lines)
 
 
@@ -331,14 +391,19 @@ def run_closed_loop(args) -> int:
     t = np.concatenate([(part.t[0] - rn.t[0] if not segmented else part.t[0]) + f.t
                         for part, f in zip(parts, flights)])
     x = np.concatenate([f.x for f in flights])
+    pwm = np.concatenate([f.pwm for f in flights])
     channels = {name: x[:, i] for i, name in enumerate(STATE_NAMES)}
     extra = {"mode": np.concatenate([f.mode for f in flights]).astype(float)}
     if segmented:
         extra[runlog.SEGMENT] = np.concatenate([np.full(f.t.size, part.segment[0]) for part, f in zip(parts, flights)])
-    runlog.write_run(out, t, channels, "pwm", np.concatenate([f.pwm for f in flights]), protect=inputs, extra=extra)
-    errors = {}
+    p = plant_parameters(load_model(args.model))
+    errors, checks = {}, []
     for part, f in zip(parts, flights):
         logged = runlog.resample(part, part.t[0] + f.t)
+        volts = logged.battery_voltage(p.supply_voltage)
+        thrust = np.clip(pwm_to_thrust(f.pwm, volts[:, None]), p.f_min, p.f_max)
+        t_part = (part.t[0] - rn.t[0] if not segmented else part.t[0]) + f.t
+        checks.append(domain_report(t_part, f.x, str(src), thrust, thrust_limits(p.f_min, p.f_max, "pwm", volts)))
         for name in ("z", "phi", "theta", "psi", "u", "v", "w"):
             meas = logged.channels.get(name)
             if meas is None or not np.isfinite(meas).any():
@@ -347,6 +412,8 @@ def run_closed_loop(args) -> int:
             if name in ("phi", "theta", "psi"):
                 err = np.angle(np.exp(1j * err))
             errors.setdefault(name, []).append(err)
+    runlog.write_run(out, t, channels, "pwm", pwm, protect=inputs, extra=extra,
+                     metadata=replay_sidecar(DomainCheck.joined(checks)))
     lines = [f"{name} {np.sqrt(np.nanmean(np.concatenate(e) ** 2)):.3g}" for name, e in errors.items()]
     print(f"closed-loop flight against the log (RMS error, m, rad, m/s): {', '.join(lines)}")
     flown = sum(float(f.t[-1]) for f in flights)
@@ -397,7 +464,15 @@ def run(args) -> int:
     if "voltage" in rn.channels:
         channels["voltage"] = rn.channels["voltage"]
     extra = {runlog.SEGMENT: rn.extra[runlog.SEGMENT]} if rn.segment is not None else None
-    runlog.write_run(out, rn.t, channels, rn.input_kind, rn.inputs, protect=inputs, extra=extra)
+    fills = [f for part in parts for f in start_state(part.t, part.state_matrix())[1]]
+    volts = rn.battery_voltage(p.supply_voltage) if rn.input_kind == "pwm" else None
+    lo, hi = thrust_limits(p.f_min, p.f_max, rn.input_kind, volts)
+    domain = DomainCheck.joined(  # each segment on its own: a stretch at a limit never runs across a cut
+        domain_report(rn.t[a:b], xs[a:b], str(src), None if thrust is None else thrust[a:b],
+                      (None, None) if lo is None else (_rows(lo, a, b), _rows(hi, a, b)))
+        for a, b in rn.segment_bounds())
+    runlog.write_run(out, rn.t, channels, rn.input_kind, rn.inputs, protect=inputs, extra=extra,
+                     metadata=replay_sidecar(domain, fills))
     where = f" in {len(parts)} segments, each from its own first row" if len(parts) > 1 else ""
     print(f"wrote {out}: {rn.n} rows, {segments_duration(rn):.3f} s simulated with {vehicle.name} ({args.method})"
           f"{where}")

@@ -175,6 +175,55 @@ def _fill(y, default=0.0):
     return np.interp(idx, idx[ok], y[ok])
 
 
+#: a velocity first logged later than this after a replay's start is not its start value (the rest value 0 is): one
+#: Savitzky-Golay window of :func:`prepare` (0.8 s), the span the diagnoser's smoothed velocity at a sample draws on
+START_VELOCITY_WITHIN_S = 0.8
+
+
+@dataclass(frozen=True)
+class StartFill:
+    """How a replay's start state got a channel its first row lacks: ``how`` is ``first_sample`` (its first finite
+    sample, logged at ``t_first`` s after the start) or ``rest`` (0: never logged, or a velocity first logged
+    later than :data:`START_VELOCITY_WITHIN_S`; ``t_first`` None when never logged)."""
+
+    channel: str
+    how: str
+    t_first: float | None = None
+
+
+def start_state(t, X, names=POSE + VEL) -> tuple:
+    """The state (12,) a replay of a run starts from, and a :class:`StartFill` per channel its first row lacks.
+
+    ``simulate``'s start, on the diagnoser's rule: a pose channel takes its first finite sample, as :func:`_fill`
+    (called here) extrapolates it back in :func:`prepare` (so a diagnoser's window at a run's first sample starts
+    from that same value), 0 when never logged (level attitude, the origin, as :func:`prepare` assumes); a velocity
+    takes its first finite sample when it comes within :data:`START_VELOCITY_WITHIN_S`, else 0 (at rest, as a
+    window starts an unobserved DOF; the diagnoser skips a window whose observed velocity is missing at its start,
+    which a whole-run replay, with one start, cannot).
+
+    Parameters
+    ----------
+    t : (n,) array_like
+        Time, s.
+    X : (n, 12) array_like
+        State rows [x y z phi theta psi u v w p q r] (m, rad, m/s, rad/s), nan where not logged.
+    """
+    t, X = np.asarray(t, float), np.asarray(X, float)
+    x0, fills = np.array(X[0], float), []
+    for i, c in enumerate(names):
+        if np.isfinite(x0[i]):
+            continue
+        ok = np.flatnonzero(np.isfinite(X[:, i]))
+        lead = float(t[ok[0]] - t[0]) if ok.size else None
+        if ok.size and (i < 6 or lead <= START_VELOCITY_WITHIN_S):
+            x0[i] = _fill(X[:, i])[0]
+            fills.append(StartFill(c, "first_sample", lead))
+        else:
+            x0[i] = 0.0
+            fills.append(StartFill(c, "rest", lead))
+    return x0, fills
+
+
 def actuators(run: Run, p: PlantParameters, f_raw=None):
     """Actuator commands f (n, k), matrix B (6, k), inflow matrix (6, k) and reference magnitudes (k,).
 

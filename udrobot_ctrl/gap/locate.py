@@ -376,13 +376,18 @@ def excess_shares(nrmse: dict, floor: dict) -> dict:
 
 
 def _regime_condition(c, per_run):
-    """Regime shares of channel c's error and the regime that concentrates it (or None)."""
-    best_run = max(per_run, key=lambda x: x[0])
+    """Regime shares of channel c's error and the regime that concentrates it (or None).
+
+    A family some runs do not have (the distance to a surface: a run whose altitude is valid and one whose altitude
+    is not, or without sidecar walls) is binned over the runs that have it."""
+    of_run = [_regimes(prep) for _s, prep, _e2 in per_run]
     regimes, cond, best_excess = {}, None, 0.0
-    for fam in _regimes(best_run[1]):
+    for fam in dict.fromkeys(f for r in of_run for f in r):
         num, den = {}, {}
-        for _s, prep, e2 in per_run:
-            vals, bins, unit = _regimes(prep)[fam]
+        for (_s, _prep, e2), fams in zip(per_run, of_run):
+            if fam not in fams:
+                continue
+            vals, bins, unit = fams[fam]
             ok = np.isfinite(e2) & np.isfinite(vals)
             for lo, hi in zip(bins[:-1], bins[1:]):
                 sel = ok & (vals >= lo) & (vals < hi)

@@ -1,5 +1,7 @@
 """Figures of a diagnosis: residuals per channel with the located windows shaded; simulated vs measured, with
-an X where a replay window diverges (the rest of that window is scored at the error cap).
+an X where a replay window diverges (the rest of that window is scored at the error cap). Both hatch the replay
+windows the report names outside the plant's domain (``replay_domain``: above the surface, inverted, a thruster
+held at its limit), with their codes.
 
 The replay columns of a channel (:data:`COLUMN`): the state for ``u v w p q r z phi theta psi``, the specific force
 for the accelerometer ``ax ay az`` (scored on runs without a DVL), compared with the measurement minus the
@@ -59,6 +61,25 @@ def located_windows(report) -> dict:
     return out
 
 
+def domain_windows(report, which: str = "nominal") -> dict:
+    """Run name -> [(t0, t1, codes), ...]: the replay windows the report names outside the plant's domain
+    (``replay_domain``, ``which``: ``nominal`` or ``after``); empty when the report has none."""
+    out = {}
+    for w in ((report.get("replay_domain") or {}).get(which) or []):
+        out.setdefault(w["run"], []).append((w["t"][0], w["t"][1], tuple(w["codes"])))
+    return out
+
+
+def shade_domain(axes, spans, color="red") -> None:
+    """Hatch the windows ``spans`` [(t0, t1, codes)] on every axis of ``axes`` and name their codes on the first."""
+    for ax in axes:
+        for a, b, _ in spans:
+            ax.axvspan(a, b, facecolor="none", edgecolor=color, hatch="//", alpha=0.5, lw=0)
+    for a, b, codes in spans:
+        axes[0].annotate(", ".join(codes), ((a + b) / 2, 0.02), xycoords=("data", "axes fraction"), ha="center",
+                         va="bottom", fontsize=6, color=color)
+
+
 def file_label(run_name: str) -> str:
     """File-name-safe label of a run name: ``pool.csv[last third]`` -> ``pool_last_third``."""
     label = re.sub(r"\.(csv|json|bag|mcap|db3|tlog|bin)(?=\[|$)", "", run_name, flags=re.IGNORECASE)
@@ -95,10 +116,14 @@ def write_plots(ctx, report, outdir, protect=()):
         for a, b, c in spans:  # which located channel each window is the worst of
             axes[0, 0].annotate(c, ((a + b) / 2, 1.0), xycoords=("data", "axes fraction"), ha="center",
                                 va="bottom", fontsize=7, color="darkorange")
+        outside = domain_windows(report).get(prep.name, [])
+        shade_domain(axes[:, 0], outside)
         axes[-1, 0].set_xlabel("t (s)")
         shaded = (f"the located channels' worst windows shaded: {', '.join(dict.fromkeys(c for *_, c in spans))}"
                   if spans else "no located window in this run")
-        fig.suptitle(f"nominal model residuals, {prep.name} ({shaded})")
+        fig.suptitle(f"nominal model residuals, {prep.name} ({shaded})"
+                     + (f"; hatched: {len(outside)} replay windows outside the plant's domain (scored, not a finding)"
+                        if outside else ""))
         p = save_figure(fig, out / f"residuals_{file_label(prep.name)}.png", protect=protect, dpi=90)
         paths.append(p)
     n_fit = ctx.n_fit
@@ -120,12 +145,19 @@ def write_plots(ctx, report, outdir, protect=()):
                             transform=ax.get_xaxis_transform(), clip_on=False, zorder=4,
                             label=f"{label}: replay diverges ({starts.size} windows)")
             ax.set_ylabel(f"{c} ({UNITS.get(c, '')})")
+        outside = {which: domain_windows(report, which).get(prep.name, []) for which in ("nominal", "after")}
+        shade_domain(axes[:, 0], outside["nominal"], "red")
+        if s1 is not s0:
+            shade_domain(axes[:, 0], outside["after"], "purple")
         axes[0, 0].legend(loc="upper right", fontsize=7)
         axes[-1, 0].set_xlabel("t (s)")
         diverged = any(divergence_starts(sim).size for sim in (s0, s1))
+        n_out = len(outside["nominal"]) + (len(outside["after"]) if s1 is not s0 else 0)
         fig.suptitle(f"holdout {prep.name}: multiple-shooting replay before/after"
                      + ("; X: a replay window diverges (the rest of the window is scored at the error cap)"
-                        if diverged else ""))
+                        if diverged else "")
+                     + (f"; hatched: windows outside the plant's domain (red nominal, purple corrected: {n_out})"
+                        if n_out else ""))
         p = save_figure(fig, out / f"overlay_{file_label(prep.name)}.png", protect=protect, dpi=90)
         paths.append(p)
     return paths

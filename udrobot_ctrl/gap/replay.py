@@ -29,11 +29,12 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from udrobot_ctrl.dynamics.domain import SATURATION_WINDOW_FRACTION, DomainCheck, domain_check, thrust_limits
 from udrobot_ctrl.dynamics.effects import wall_planes
 from udrobot_ctrl.dynamics.plant import plant_parameters
 from udrobot_ctrl.gap.data import Prepared, prepare
 from udrobot_ctrl.gap.effects import Actuation, plant_hooks
-from udrobot_ctrl.gap.shrink import check_window, gap, prepare_with_effects, segment_runs, simulate_windows
+from udrobot_ctrl.gap.shrink import WINDOW, check_window, gap, prepare_with_effects, segment_runs, simulate_windows
 from udrobot_ctrl.vehicle import load_model
 
 
@@ -69,6 +70,8 @@ class WindowedGap:
     diverged : dict of str -> int
         Run label -> windows whose replay diverged (non-finite, or out of the envelope: their remaining samples
         score the channel's error cap, :data:`udrobot_ctrl.gap.shrink.ERROR_CAP`).
+    domain : tuple of WindowDomain
+        The windows whose replay left the plant's domain (:func:`domain_windows`; still scored).
     """
 
     model: str
@@ -83,18 +86,21 @@ class WindowedGap:
     sims: tuple
     windows: dict = field(default_factory=dict)
     diverged: dict = field(default_factory=dict)
+    domain: tuple = ()
 
     def to_dict(self) -> dict:
         """JSON form: the report's gap object (``metric``, ``value``, ``per_channel``, ``undefined``, ``scored``,
-        ``windows``, ``diverged_windows``) plus ``model``, ``effects``, ``runs`` and ``window_s``; undefined numbers
-        become null."""
+        ``windows``, ``diverged_windows``) plus ``model``, ``effects``, ``runs``, ``window_s`` and ``replay_domain``
+        (the windows outside the plant's domain, as the report's ``replay_domain.nominal`` entries without ``part``);
+        undefined numbers become null."""
         def num(v):
             return float(v) if v is not None and math.isfinite(v) else None
         return {"metric": "nrmse", "value": num(self.value),
                 "per_channel": {c: num(v) for c, v in self.per_channel.items()},
                 "undefined": dict(self.undefined), "scored": list(self.scored), "windows": dict(self.windows),
                 "diverged_windows": dict(self.diverged), "model": self.model,
-                "effects": list(self.effects), "runs": list(self.runs), "window_s": self.window_s}
+                "effects": list(self.effects), "runs": list(self.runs), "window_s": self.window_s,
+                "replay_domain": [w.to_json() for w in self.domain]}
 
 
 def model_surfaces(effects, prep: Prepared) -> list:
@@ -157,4 +163,74 @@ def windowed_gap(model, runs, window_s: float = 8.0, names=None, scored=None) ->
     return WindowedGap(model=vehicle.name, effects=tuple(e.name for e in vehicle.effects), runs=tuple(labels),
                        window_s=float(window_s), value=g.value, per_channel=g.per_channel,
                        scored=tuple(g.scored), undefined=dict(g.undefined), preps=tuple(preps),
-                       sims=tuple(sims), windows=dict(g.windows), diverged=dict(g.diverged))
+                       sims=tuple(sims), windows=dict(g.windows), diverged=dict(g.diverged),
+                       domain=tuple(domain_windows(preps, sims, p, window_s)))
+
+
+@dataclass(frozen=True)
+class WindowDomain:
+    """A replay window that left the plant's domain (:func:`udrobot_ctrl.dynamics.domain.domain_check`).
+
+    Attributes
+    ----------
+    run : str
+        Run label.
+    window : int
+        The window's number in its run (1-based: the replay's window column, :data:`udrobot_ctrl.gap.shrink.WINDOW`).
+    t0, t1 : float
+        The window's first and last replayed sample, s.
+    check : DomainCheck
+        Its spans outside the domain (codes and times).
+    """
+
+    run: str
+    window: int
+    t0: float
+    t1: float
+    check: DomainCheck
+
+    def to_json(self) -> dict:
+        """``{"run", "window", "t": [t0, t1], "codes", "spans"}`` (s)."""
+        return {"run": self.run, "window": self.window, "t": [round(self.t0, 3), round(self.t1, 3)],
+                **self.check.to_json()}
+
+
+def prep_thrust_limits(prep: Prepared, p) -> tuple:
+    """(f_lo, f_hi) N of a prepared run's thrusters (:func:`udrobot_ctrl.dynamics.domain.thrust_limits`): the T-200
+    curve's ends at the logged voltage (the model's supply voltage where not logged) for ``pwm`` runs, the model's
+    limits for ``thrust`` runs, (None, None) for a commanded wrench."""
+    v = prep.meas.get("voltage")
+    v = np.full(prep.n, p.supply_voltage) if v is None else np.where(np.isfinite(v), v, p.supply_voltage)
+    return thrust_limits(p.f_min, p.f_max, prep.input_kind, v)
+
+
+def window_domains(prep: Prepared, sim, p, window_s: float) -> list:
+    """The windows of one run's multiple-shooting replay ``sim`` (:func:`udrobot_ctrl.gap.shrink.simulate_windows`)
+    that leave the plant's domain, each checked on its own samples (a span never crosses windows): above the
+    surface, inverted, or a thruster at its limit for at least half the window
+    (:data:`udrobot_ctrl.dynamics.domain.SATURATION_WINDOW_FRACTION`). The thrust checked is the command the
+    window replays (``prep.f``; on a run replayed closed loop, the logged outputs refreshed by the emulated loop,
+    without the loop's reaction to the replay's own departure). Diverged samples are not checked (the gap scores
+    them at the error cap already)."""
+    ids = np.abs(sim[:, WINDOW]) if sim.shape[1] > WINDOW else np.full(sim.shape[0], np.nan)
+    alive = sim[:, WINDOW] > 0 if sim.shape[1] > WINDOW else np.zeros(sim.shape[0], bool)
+    lo, hi = prep_thrust_limits(prep, p) if prep.input_kind != "tau" else (None, None)
+    out = []
+    for k in np.unique(ids[np.isfinite(ids)]).astype(int):
+        rows = np.flatnonzero(ids == k)
+        live = rows[alive[rows]]
+        if live.size == 0:
+            continue
+        thrust = prep.f[live] if lo is not None else None
+        lo_k, hi_k = (None, None) if lo is None else (lo[live] if np.ndim(lo) == 2 else lo,
+                                                      hi[live] if np.ndim(hi) == 2 else hi)
+        chk = domain_check(prep.t[live], sim[live, :12], thrust, lo_k, hi_k,
+                           saturation_s=SATURATION_WINDOW_FRACTION * window_s)
+        if chk:
+            out.append(WindowDomain(prep.name, int(k), float(prep.t[rows[0]]), float(prep.t[rows[-1]]), chk))
+    return out
+
+
+def domain_windows(preps, sims, p, window_s: float) -> list:
+    """:func:`window_domains` of every run, in order: the windows that left the plant's domain."""
+    return [w for prep, sim in zip(preps, sims) for w in window_domains(prep, sim, p, window_s)]

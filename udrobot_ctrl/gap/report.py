@@ -21,6 +21,7 @@ from dataclasses import asdict, dataclass, field, replace
 
 import numpy as np
 
+from udrobot_ctrl.dynamics.domain import SATURATION_TOLERANCE, SATURATION_WINDOW_FRACTION
 from udrobot_ctrl.dynamics.effects import TETHER_ANCHOR, plant_effect, wall_parameters
 from udrobot_ctrl.dynamics.plant import PlantParameters, plant_parameters, require_nominal, rotation_zyx
 from udrobot_ctrl.gap import effects as fx
@@ -68,6 +69,7 @@ from udrobot_ctrl.gap.heading import CURRENT, HeadingCoverage, current_parts, he
 from udrobot_ctrl.gap.identifiability import Identifiability
 from udrobot_ctrl.gap.locate import Located, locate, noise_floor
 from udrobot_ctrl.gap.parts import named_parts
+from udrobot_ctrl.gap.replay import domain_windows
 from udrobot_ctrl.gap.screen import KINDS, UNEXCITED_COMMAND, Unexcited, run_label, screen_runs
 from udrobot_ctrl.gap.shrink import (
     UNITS,
@@ -1801,6 +1803,9 @@ def _diagnose(model, runs, holdout, window_s, effects, log, model_label):
     verdicts = effect_verdicts(inp, stacks, sel, elim, shrink, res.at_bound, res.singles, held=res.held)
     verdict = verdict_line(elim.kept, len(inp.names), where.before, unexplained, at_bound=res.at_bound,
                            verdicts=verdicts)
+    after_sims = elim.after.sims if elim.kept else where.nominal_sims[len(inp.fit):]
+    domain = replay_domain(inp, where.nominal_sims, after_sims if elim.kept else None)
+    verdict += domain_caveat(domain)
     say(f"{verdict} ({time.perf_counter() - t0:.1f} s)")
 
     location = [x.to_json() for x in where.located.locations]
@@ -1808,9 +1813,54 @@ def _diagnose(model, runs, holdout, window_s, effects, log, model_label):
     report = report_json(inp, where, stacks, sel, elim, verdicts, verdict, time.perf_counter() - t0,
                          support=res.support)
     report.update(_not_diagnosed_fields(skipped))
-    after_sims = elim.after.sims if elim.kept else where.nominal_sims[len(inp.fit):]
+    report["replay_domain"] = domain
     ctx = DiagnosisContext(inp.runs, len(inp.fit), where.nominal_sims, after_sims, where.residuals, location)
     return _clean(report), ctx
+
+
+def replay_domain(inp: Inputs, nominal_sims, after_sims) -> dict:
+    """The report's ``replay_domain``: the replay windows that left the plant's domain
+    (:func:`udrobot_ctrl.gap.replay.domain_windows`; docs/formats/diagnosis.md).
+
+    ``nominal``: the nominal model's windows on every run (fit and holdout: the location's and ``gap_before``'s
+    replays); ``after``: the holdout windows replayed with the significant effects (``gap_after``'s; empty when
+    ``after_sims`` is None: no effect is significant, the corrected replay is the nominal one). Such windows
+    stay scored (left out, a model whose replays leave the water would score better than one whose replays stay
+    in it); ``holdout_flagged`` counts the holdout's flagged windows of each, and when any is flagged the verdict
+    says that the gap there is not a finding (:func:`domain_caveat`)."""
+    nominal = domain_windows(inp.runs, nominal_sims, inp.p, inp.window_s)
+    after = domain_windows(inp.holdout, after_sims, inp.p, inp.window_s) if after_sims is not None else []
+    holdout = {pr.name for pr in inp.holdout}
+    return {"criteria": {"above_surface_z_m": 0.0, "inverted_cos_phi_cos_theta": 0.0,
+                         "saturation_tolerance": SATURATION_TOLERANCE,
+                         "saturation_s": SATURATION_WINDOW_FRACTION * inp.window_s},
+            "scored": True,
+            "nominal": [w.to_json() | {"part": "holdout" if w.run in holdout else "fit"} for w in nominal],
+            "after": [w.to_json() | {"part": "holdout"} for w in after],
+            "holdout_flagged": {"nominal": sum(w.run in holdout for w in nominal), "after": len(after)}}
+
+
+def domain_caveat(domain: dict) -> str:
+    """The verdict's caveat when holdout replay windows left the plant's domain ("" otherwise)."""
+    n = domain["holdout_flagged"]
+    if not (n["nominal"] or n["after"]):
+        return ""
+    codes = sorted({c for w in domain["nominal"] + domain["after"] if w["part"] == "holdout" for c in w["codes"]})
+    which = f"{n['nominal']} nominal" + (f" and {n['after']} corrected" if n["after"] else "")
+    return (f"; {which} holdout replay windows leave the plant's domain ({', '.join(codes)}; replay_domain): they "
+            f"are scored, but their gap is not a finding")
+
+
+def domain_lines(domain) -> list:
+    """Console lines of the report's ``replay_domain``: each flagged window with its codes."""
+    lines = []
+    for which, label in (("nominal", "nominal replay"), ("after", "corrected replay")):
+        ws = (domain or {}).get(which) or []
+        if ws:
+            lines.append(f"  {label} windows outside the plant's domain (scored, not a finding): " + "; ".join(
+                f"{w['run']} ({w['part']}) window {w['window']} {w['t'][0]:.1f}-{w['t'][1]:.1f} s: "
+                f"{', '.join(w['codes'])}" for w in ws))
+    return lines
 
 
 def _not_diagnosed_notes(skipped) -> list:
@@ -1845,7 +1895,8 @@ def not_diagnosed_report(model, runs, holdout, skipped, model_label, elapsed_s):
     report = {"format": FORMAT, "model": label, "fit_runs": [run_label(r) for r in runs],
               "holdout_runs": [run_label(r) for r in holdout], "gap_before": dict(empty), "location": [],
               "effects": [], "unidentifiable": [], "gap_after": dict(empty), "unexplained": None, "verdict": verdict,
-              **_not_diagnosed_fields(skipped), "notes": _not_diagnosed_notes(skipped), "elapsed_s": elapsed_s}
+              **_not_diagnosed_fields(skipped), "replay_domain": None, "notes": _not_diagnosed_notes(skipped),
+              "elapsed_s": elapsed_s}
     return _clean(report), DiagnosisContext([], 0, [], [], [], [])
 
 
@@ -1862,11 +1913,17 @@ def _num(value, spec: str, undefined: str = "undefined") -> str:
     return format(value, spec)
 
 
+def nothing_diagnosed(report) -> bool:
+    """True for a report whose every run was screened out (:func:`not_diagnosed_report`): no gap, no effect, so no
+    corrected model either."""
+    return not report["effects"] and any(report.get(kind.field) for kind in KINDS)
+
+
 def summary(report) -> str:
     """Human-readable summary of a report (undefined numbers, e.g. the gap of constant channels, say so)."""
     gb, ga = report["gap_before"], report["gap_after"]
     skipped = [u for kind in KINDS for u in report.get(kind.field, [])]
-    if not report["effects"] and skipped:  # nothing was diagnosed
+    if nothing_diagnosed(report):
         return "\n".join([f"model {report['model']}: runs {', '.join(report['fit_runs'] + report['holdout_runs'])}"]
                          + [f"  not diagnosed: {u['reason']}" for u in skipped] + [report["verdict"]])
     why = gb.get("undefined") or {}
@@ -1931,6 +1988,7 @@ def summary(report) -> str:
         if div:
             lines.append(f"  diverged windows {which} (scored at the error cap): " + ", ".join(
                 f"{r} {n} of {(g.get('windows') or {}).get(r, '?')}" for r, n in div.items()))
+    lines += domain_lines(report.get("replay_domain"))
     lines.append(f"gap after {_num(ga['value'], '.3f')}; unexplained {_num(report['unexplained'], '.2f')}")
     left = remaining_line(report.get("remaining") or [])
     if left:

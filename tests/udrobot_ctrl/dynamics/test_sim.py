@@ -69,7 +69,7 @@ def test_simulate_command_replays_inputs(tmp_path, kind, u, capsys):
     src, out = tmp_path / "in.csv", tmp_path / "sim.csv"
     _write_run(src, kind, u, t)
     assert main(["simulate", "--model", "pendulum:chin", "--input", str(src), "--out", str(out)]) == 0
-    assert "starting them at 0" in capsys.readouterr().err
+    assert "y at rest (0: never logged)" in capsys.readouterr().err  # the channels the first row lacks, named
     sim = runlog.read_run(out)
     np.testing.assert_array_equal(sim.t, t)
     assert sim.input_kind == kind
