@@ -22,6 +22,7 @@ from .mavlink import (
     choose_vehicle,
     classify_outputs,
     detect_vehicle,
+    ekf_aiding,
     motor_command_pwm,
     water_density_from_params,
 )
@@ -178,8 +179,10 @@ def convert_log(path, mapping=None, require_inputs: bool = True, vehicle: str | 
                                 facts.named.get("PilotGain"))
             streams = {**streams, PILOT_STREAM: pilot.stream}
             notes += pilot.notes
-        run = assemble_run(mapping, streams, str(path), extra_notes=notes, require_inputs=require_inputs,
-                           log_params=facts.params, extra_rules=motor_rules(mapping, servos))
+        aiding = ekf_aiding(facts)  # the sidecar's channels: measured, estimated or estimated-unaided (dead reckoning)
+        run = assemble_run(mapping, streams, str(path), extra_notes=notes + list(aiding.notes),
+                           require_inputs=require_inputs, log_params=facts.params,
+                           extra_rules=motor_rules(mapping, servos), aiding=aiding.of)
         if vehicle.name is not None:
             run.metadata["vehicle"] = vehicle.name
         note = apply_motor_directions(run, facts.params)
