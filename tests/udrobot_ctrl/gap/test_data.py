@@ -9,6 +9,7 @@ import pytest
 from udrobot_ctrl.dynamics.plant import plant_parameters
 from udrobot_ctrl.dynamics.thrusters import pwm_to_thrust
 from udrobot_ctrl.gap.data import ALTITUDE_VALID_MIN, prepare, without_stabilised
+from udrobot_ctrl.gap.identifiability import EffectCheck, Identifiability, ParameterCheck, describe_missing
 from udrobot_ctrl.io.runlog import Run
 from udrobot_ctrl.vehicle import load_model
 
@@ -87,3 +88,55 @@ def test_pwm_thrust_follows_the_logged_battery_voltage():
     want = np.clip(pwm_to_thrust(pwm, volts[:, None]), hv.f_min, hv.f_max)
     assert prep.f == pytest.approx(want, rel=1e-9)
     assert prep.f[0, 4] > 1.2 * prep.f[-1, 4]  # the sag is in the thrust
+
+
+NO_FIX = "horizontal UNAIDED (dead reckoning): EK3_SRC1_VELXY = 3 (GPS): GPS: 0 of 50 samples with a 3D fix"
+UNAIDED_SIDECAR = {"channels": {
+    **{c: {"source": "XKF1.VN/VE/VD (world_to_body)", "kind": "estimated-unaided", "aiding": NO_FIX} for c in "uvw"},
+    **{c: {"source": f"XKF1.P{'N' if c == 'x' else 'E'}", "kind": "estimated-unaided", "aiding": NO_FIX}
+       for c in "xy"},
+    "z": {"source": "BARO[1].Alt", "kind": "measured"}, "phi": {"source": "ATT.Roll", "kind": "estimated"}}}
+
+
+def _drifting_run(metadata=None, n=400):
+    """A run that logs u v w and x y as an EKF with no velocity source gives them (a drifting dead-reckoned surge)."""
+    run = _run(0.0, metadata, n)
+    run.channels["u"] = 0.2 + 0.01 * run.t
+    run.channels["x"] = np.cumsum(run.channels["u"]) * 0.05
+    del run.channels["altitude"]
+    return run
+
+
+def test_unaided_estimates_are_not_observed(p):
+    """The sidecar marks u v w x y estimated-unaided: prepare leaves them out of meas (so nothing downstream fits,
+    scores or counts them), X and Y are not observed, Z still is (through the measured depth); estimated but aided
+    columns (phi) stay. The same run without the entry observes every DOF."""
+    plain = prepare(_drifting_run(), p, "r.csv")
+    assert plain.observed.all() and "u" in plain.meas and not plain.unaided
+    prep = prepare(_drifting_run(UNAIDED_SIDECAR), p, "r.csv")
+    assert not any(c in prep.meas for c in "uvwxy") and "z" in prep.meas and "phi" in prep.meas
+    assert list(prep.observed) == [False, False, True, True, True, True]
+    assert not prep.dof_ok[:2].any()
+    assert sorted(prep.unaided) == ["u", "v", "w", "x", "y"]
+    assert prep.unaided["u"].source == "XKF1.VN/VE/VD (world_to_body)"
+    note = next(n for n in prep.notes if "estimated-unaided" in n)
+    assert "u, v, w, x, y logged but estimated-unaided" in note and "not fitted, scored or counted" in note
+
+
+def test_the_unidentifiable_reason_names_the_unaided_column(p):
+    """An effect not identified for the horizontal velocity: its entry's ``missing`` carries ``not_observed`` and one
+    ``unaided_estimate`` per unaided horizontal column (u, v, x, y: not w, which is heave) with its source and
+    evidence; the console sentence is rendered from the code."""
+    prep = prepare(_drifting_run(UNAIDED_SIDECAR), p, "r.csv")
+    chk = EffectCheck("added_mass", [ParameterCheck("dm_X", 0.05, 0.0, False, ("horizontal",))])
+    ident = Identifiability({"added_mass": chk}, prep.observed, prep.reconstructed, unaided=prep.unaided)
+    (entry,) = ident.report()
+    codes = [(m["code"], m.get("column", m.get("dofs"))) for m in entry["missing"]]
+    assert codes == [("not_observed", "horizontal"), ("unaided_estimate", "u"), ("unaided_estimate", "v"),
+                     ("unaided_estimate", "x"), ("unaided_estimate", "y")]
+    u = entry["missing"][1]
+    assert u["source"] == "XKF1.VN/VE/VD (world_to_body)" and "EK3_SRC1_VELXY = 3 (GPS)" in u["why"]
+    assert describe_missing(u).startswith("u is logged but is an estimate without aiding (XKF1.VN/VE/VD")
+    # no unaided column: the entry has no such code
+    (plain,) = Identifiability({"added_mass": chk}, prep.observed, prep.reconstructed).report()
+    assert [m["code"] for m in plain["missing"]] == ["not_observed"]
