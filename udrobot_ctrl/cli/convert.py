@@ -52,7 +52,7 @@ def run(args) -> int:
           f"channels {', '.join(run_.channels) or 'none'}, inputs {run_.input_kind} x{run_.inputs.shape[1]}"
           + (f", vehicle {run_.metadata['vehicle']}" if run_.metadata.get("vehicle") else ""))
     for line in run_.metadata.get("notes", "").splitlines():
-        if line.startswith(("cut: WARNING", "cut: kept")) or "ALMOST ALL" in line:
+        if line.startswith(("cut: WARNING", "cut: kept")) or "ALMOST ALL" in line or "estimated-unaided (dead" in line:
             print(line)
     if args.out:
         path = write(run_, args.out, overwrite=args.force, protect=inputs)

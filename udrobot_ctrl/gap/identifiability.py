@@ -979,7 +979,8 @@ def _forms(eff, stack, stacks, sigma, observed, top, memo=None) -> dict:
 
 def sensors(preps) -> dict:
     """The report's ``sensors`` field: per velocity channel, ``observed`` (logged, or pinned by a logged
-    integral), ``reconstructed`` (by the smoother) or ``absent``; and the channels logged in every run."""
+    integral), ``reconstructed`` (by the smoother) or ``absent``; the channels logged in every run; and ``unaided``
+    (column -> source) the columns some run logs as estimated-unaided (left out of the rest)."""
     status = {}
     for i, c in enumerate(VEL):
         if all(pr.observed[i] for pr in preps):
@@ -992,4 +993,8 @@ def sensors(preps) -> dict:
         status[c] = how
     logged = sorted(set.intersection(*[{c for c, v in pr.meas.items() if np.isfinite(v).any()} for pr in preps]))
     scored = [fx.DOF[i] for i in range(6) if all(pr.dof_ok[i] for pr in preps)]
-    return {"logged": logged, "velocities": status, "scored_dofs": scored}
+    out = {"logged": logged, "velocities": status, "scored_dofs": scored}
+    unaided = {c: s.source for pr in preps for c, s in getattr(pr, "unaided", {}).items()}
+    if unaided:  # logged, but dead reckoning (the sidecar's estimated-unaided): not in "logged", never scored
+        out["unaided"] = dict(sorted(unaided.items()))
+    return out

@@ -1036,7 +1036,7 @@ def sidecar_channels(rules, aiding=None) -> tuple:
             out[c] = entry
         if unaided:
             notes.append(f"provenance: {', '.join(unaided)} <- {rule.stream}[{','.join(rule.fields)}]: {UNAIDED} "
-                         f"(dead reckoning: {out[unaided[0]]['aiding']}); written for the user to see, never fitted, "
+                         f"({out[unaided[0]]['aiding']}); written for the user to see, never fitted, "
                          f"scored or counted as observed by diagnose")
     return out, notes
 

@@ -6,10 +6,12 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
+from tests.udrobot_ctrl.gap.truth import generate
 from udrobot_ctrl.dynamics.plant import plant_parameters
 from udrobot_ctrl.dynamics.thrusters import pwm_to_thrust
 from udrobot_ctrl.gap.data import ALTITUDE_VALID_MIN, prepare, without_stabilised
 from udrobot_ctrl.gap.identifiability import EffectCheck, Identifiability, ParameterCheck, describe_missing
+from udrobot_ctrl.gap.report import diagnose, summary
 from udrobot_ctrl.io.runlog import Run
 from udrobot_ctrl.vehicle import load_model
 
@@ -140,3 +142,28 @@ def test_the_unidentifiable_reason_names_the_unaided_column(p):
     # no unaided column: the entry has no such code
     (plain,) = Identifiability({"added_mass": chk}, prep.observed, prep.reconstructed).report()
     assert [m["code"] for m in plain["missing"]] == ["not_observed"]
+
+
+def test_a_diagnosis_on_dead_reckoned_velocities_scores_none_of_them():
+    """Two simulated pool runs whose sidecars mark u v w x y estimated-unaided (an EKF with no velocity source): the
+    diagnosis leaves them out (sensors: not logged, X and Y not scored, listed under unaided), every run notes it, and
+    the effects the horizontal velocity would identify are unidentifiable with the ``unaided_estimate`` code naming
+    each column and its source."""
+    runs = generate({}, n_runs=2, duration=60.0, rate=20.0, seed=3)
+    for r in runs:
+        r.metadata = {**r.metadata, **UNAIDED_SIDECAR}
+    report, _ = diagnose("pendulum:chin", runs)
+    sensors = report["sensors"]
+    assert not set("uvwxy") & set(sensors["logged"]) and not {"X", "Y"} & set(sensors["scored_dofs"])
+    assert sensors["unaided"]["u"] == "XKF1.VN/VE/VD (world_to_body)"
+    assert sum("u, v, w, x, y logged but estimated-unaided" in n for n in report["notes"]) == 2
+    assert report["unidentifiable"] and not any(e["significant"] for e in report["effects"])
+    horizontal = [u for u in report["unidentifiable"] if {"code": "not_observed", "dofs": "horizontal"} in u["missing"]]
+    assert horizontal
+    for u in horizontal:
+        named = {m["column"]: m["source"] for m in u["missing"] if m["code"] == "unaided_estimate"}
+        assert named == {"u": "XKF1.VN/VE/VD (world_to_body)", "v": "XKF1.VN/VE/VD (world_to_body)",
+                         "x": "XKF1.PN", "y": "XKF1.PE"}
+    # the console says it in words, once per column of each such effect
+    text = summary(report)
+    assert text.count("u is logged but is an estimate without aiding (XKF1.VN/VE/VD (world_to_body)") == len(horizontal)
