@@ -15,7 +15,7 @@ from udrobot_ctrl.io.runlog import Run, read_run
 
 from . import mavlink, qgc_csv, rosbag, rostopic_csv
 from .joystick import pilot_input
-from .mapping import Mapping, MappingError, assemble_run, load_mapping, motor_rules, rule_stream
+from .mapping import Mapping, MappingError, assemble_run, judge_channels, load_mapping, motor_rules, rule_stream
 from .mavlink import (
     DecodedLog,
     OutputEvidence,
@@ -208,6 +208,10 @@ def convert_log(path, mapping=None, require_inputs: bool = True, vehicle: str | 
         run = result.run
         run.metadata["notes"] += "\n" + "\n".join(result.notes)
         run.metadata["cut"] = result.record()
+        if isinstance(decoded, DecodedLog) and run.n:  # the EKF's aiding judged again on the rows kept
+            run.metadata["channels"], kept = judge_channels(run.metadata.get("channels", {}), aiding.of,
+                                                            run.extra["t_source"])
+            run.metadata["notes"] += "".join(f"\n{n} [on the rows the cut kept]" for n in kept)
     run.path = str(path)
     return run
 

@@ -998,7 +998,7 @@ def _gap_notes(name, stream, values, limit, grid) -> list:
             f"compares {name} only where it is finite"]
 
 
-def sidecar_channels(rules, aiding=None) -> tuple:
+def sidecar_channels(rules, aiding=None, times=None) -> tuple:
     """The sidecar's ``channels`` entry for the state columns of the chosen ``rules`` (docs/formats/runlog.md).
 
     Parameters
@@ -1006,21 +1006,23 @@ def sidecar_channels(rules, aiding=None) -> tuple:
     rules : sequence of ChannelRule
         The rule that gave each column (the first per column counts).
     aiding : callable, optional
-        quantity (one of :data:`ESTIMATES`) -> object with ``aided`` (bool) and ``why`` (str): whether a sensor fed
-        the filter's estimate of it (:meth:`udrobot_ctrl.io.mavlink.EkfAiding.of`). Without it an estimate is
-        ``estimated`` (the source cannot say).
+        (quantity, times) -> object with ``aided`` (bool) and ``why`` (str): whether a sensor fed the filter's
+        estimate of the quantity (one of :data:`ESTIMATES`) at every one of the log times ``times``
+        (:meth:`udrobot_ctrl.io.mavlink.EkfAiding.of`). Without it an estimate is ``estimated`` (the source cannot
+        say).
+    times : (n,) ndarray, optional
+        Log times (s) of the run's rows.
 
     Returns
     -------
     channels : dict
-        column -> ``{"source", "kind"}`` (plus ``"aiding"``, the evidence, for judged estimates); ``kind`` is one
-        of :data:`udrobot_ctrl.io.runlog.CHANNEL_KINDS`.
+        column -> ``{"source", "kind"}``, plus ``"estimates"`` (the quantity) and ``"aiding"`` (the evidence) for
+        judged estimates; ``kind`` is one of :data:`udrobot_ctrl.io.runlog.CHANNEL_KINDS`.
     notes : list of str
         ``provenance:`` lines naming every estimated-unaided column.
     """
-    out, notes = {}, []
+    out = {}
     for rule in rules:
-        unaided = []
         for c in rule.to:
             if c not in CHANNELS or c in out:
                 continue
@@ -1028,16 +1030,28 @@ def sidecar_channels(rules, aiding=None) -> tuple:
             if rule.estimated(c):
                 entry["kind"] = ESTIMATED
                 if rule.estimates and aiding is not None:
-                    judged = aiding(rule.estimates)
-                    entry["kind"] = ESTIMATED if judged.aided else UNAIDED
-                    entry["aiding"] = judged.why
-                    if not judged.aided:
-                        unaided.append(c)
+                    entry["estimates"] = rule.estimates
             out[c] = entry
-        if unaided:
-            notes.append(f"provenance: {', '.join(unaided)} <- {rule.stream}[{','.join(rule.fields)}]: {UNAIDED} "
-                         f"({out[unaided[0]]['aiding']}); written for the user to see, never fitted, "
-                         f"scored or counted as observed by diagnose")
+    return judge_channels(out, aiding, times)
+
+
+def judge_channels(channels: dict, aiding, times=None) -> tuple:
+    """``channels`` with each entry that names the quantity it ``estimates`` judged ``estimated`` or
+    ``estimated-unaided`` by ``aiding`` over the rows at log times ``times`` (:func:`sidecar_channels`); a converter
+    that cuts rows judges again on the rows it keeps. Returns (channels, ``provenance:`` notes for the unaided
+    columns, grouped by source)."""
+    out, unaided = {}, {}
+    for c, entry in channels.items():
+        entry = dict(entry)
+        if entry.get("estimates") and aiding is not None:
+            judged = aiding(entry["estimates"], times)
+            entry["kind"] = ESTIMATED if judged.aided else UNAIDED
+            entry["aiding"] = judged.why
+            if not judged.aided:
+                unaided.setdefault((entry["source"].split(".")[0], judged.why), []).append(c)
+        out[c] = entry
+    notes = [f"provenance: {', '.join(cols)} <- {stream}: {UNAIDED} ({why}); written for the user to see, never "
+             f"fitted, scored or counted as observed by diagnose" for (stream, why), cols in unaided.items()]
     return out, notes
 
 
@@ -1175,7 +1189,7 @@ def assemble_run(mapping: Mapping, streams: dict, source_path: str, extra_notes=
              f"measured channels linear (angles unwrapped; no bridging of gaps longer than "
              f"max({mapping.max_gap_s:g} s, {mapping.gap_factor:g} x the stream's median interval)), inputs "
              f"zero-order hold; t_source = original {base_name} time stamp held"]
-    sources, source_notes = sidecar_channels(chosen, aiding)
+    sources, source_notes = sidecar_channels(chosen, aiding, grid)
     notes += provenance + selection_notes + tag_notes + source_notes + rate_notes + gap_notes + rejected
     if missing:
         notes.append("not in this log: " + ", ".join(missing))

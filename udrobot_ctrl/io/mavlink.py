@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import re
 import struct
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -126,6 +126,9 @@ class LogFacts:
     fixes : dict of str -> (int, int)
         GPS message type -> (samples with a 3D fix or better, samples): dataflash ``GPS`` Status, tlog
         ``GPS_RAW_INT`` / ``GPS2_RAW`` / ``GPS_INPUT`` fix_type (:data:`GPS_FIX_FIELDS`).
+    times : dict of str -> list of float
+        Log times (s, the streams' clock) of the aiding sensors' records (:data:`SENSOR_RECORDS`, XKFD) and, under
+        ``"NAME fix"``, of the GPS samples with a 3D fix: when the EKF had data (:func:`ekf_aiding`).
     """
 
     params: dict = field(default_factory=dict)
@@ -136,12 +139,20 @@ class LogFacts:
     notes: list = field(default_factory=list)
     counts: dict = field(default_factory=dict)
     fixes: dict = field(default_factory=dict)
+    times: dict = field(default_factory=dict)
 
-    def add_fix(self, name: str, fix) -> None:
-        """Count one GPS sample of message type ``name`` with fix type ``fix`` (a 3D fix is >= 3)."""
+    def add_fix(self, name: str, fix, t: float) -> None:
+        """Count one GPS sample of message type ``name`` at log time ``t`` (s) with fix type ``fix`` (a 3D fix is
+        >= 3)."""
         good, n = self.fixes.get(name, (0, 0))
         ok = isinstance(fix, (int, float)) and fix >= GPS_FIX_3D
         self.fixes[name] = (good + int(ok), n + 1)
+        if ok:
+            self.times.setdefault(f"{name} fix", []).append(t)
+
+    def add_time(self, name: str, t: float) -> None:
+        """Note a record of aiding sensor ``name`` at log time ``t`` (s)."""
+        self.times.setdefault(name, []).append(t)
 
 
 @dataclass
@@ -327,14 +338,17 @@ def read_tlog_streams(path, mapping, optional: dict | None = None) -> DecodedLog
     gcs = set()
     unknown = 0
     tally = {}
-    wanted = set(data) | {"HEARTBEAT", "PARAM_VALUE", "STATUSTEXT", "NAMED_VALUE_FLOAT"} | set(GPS_FIX_FIELDS)
+    wanted = set(data) | {"HEARTBEAT", "PARAM_VALUE", "STATUSTEXT", "NAMED_VALUE_FLOAT"} | set(GPS_FIX_FIELDS) \
+        | AIDING_RECORDS
     for index, offset, t, msg in iter_tlog(path, facts.damage, wanted, tally):
         if msg is None:
             unknown += 1
             continue
         mtype = msg.get_type()
         if mtype in GPS_FIX_FIELDS:
-            facts.add_fix(mtype, getattr(msg, GPS_FIX_FIELDS[mtype], None))
+            facts.add_fix(mtype, getattr(msg, GPS_FIX_FIELDS[mtype], None), t)
+        elif mtype in AIDING_RECORDS:
+            facts.add_time(mtype, t)
         if mtype == "HEARTBEAT" and msg.type == MAV_TYPE_GCS:
             gcs.add(msg.get_srcSystem())
         elif mtype == "PARAM_VALUE":
@@ -529,11 +543,14 @@ def read_bin_streams(path, mapping, optional: dict | None = None) -> DecodedLog:
         opt = sorted(set(optional.get(name, ())) - set(req))
         data[name] = {"t": [], "req": req, "opt": opt, "cols": {f: [] for f in req + opt}}
     facts = LogFacts()
-    wanted = {name.split("[")[0] for name in data} | {"PARM", "MSG"} | set(GPS_FIX_FIELDS)
+    wanted = {name.split("[")[0] for name in data} | {"PARM", "MSG"} | set(GPS_FIX_FIELDS) | AIDING_RECORDS
     tally = {}
     for _index, offset, name, values in iter_dataflash(path, facts.damage, wanted, tally):
-        if name in GPS_FIX_FIELDS:
-            facts.add_fix(name, values.get(GPS_FIX_FIELDS[name]))
+        stamp = values.get("TimeUS")
+        if name in GPS_FIX_FIELDS and isinstance(stamp, (int, float)):
+            facts.add_fix(name, values.get(GPS_FIX_FIELDS[name]), stamp * 1e-6)
+        elif name in AIDING_RECORDS and isinstance(stamp, (int, float)):
+            facts.add_time(name, stamp * 1e-6)
         if name == "PARM":
             facts.params[str(values.get("Name", ""))] = float(values.get("Value", np.nan))
             continue
@@ -923,6 +940,14 @@ SENSOR_RECORDS = {
 BODY_ODOMETRY_FUSED = "XKFD"
 
 
+#: the EKF leaves its aided mode (AID_ABSOLUTE -> AID_NONE, dead reckoning) when no position or velocity data has been
+#: fused for the shortest of its aiding-loss checks: MIN(tiltDriftTimeMax_ms 15000, posRetryTimeNoVel_ms 7000,
+#: posRetryTimeUseVel_ms 10000) = 7 s (AP_NavEKF3.h constants; NavEKF3_core::setAidingMode, case AID_ABSOLUTE)
+EKF_AID_TIMEOUT_S = 7.0
+#: every record type whose times :class:`LogFacts` keeps (the aiding sensors and the EKF's body-odometry innovations)
+AIDING_RECORDS = frozenset(n for names in SENSOR_RECORDS.values() for n in names) | {BODY_ODOMETRY_FUSED}
+
+
 @dataclass(frozen=True)
 class Aiding:
     """Whether an EKF output had a sensor of its quantity (or of its rate) behind it, and why (the parameters and
@@ -933,88 +958,128 @@ class Aiding:
 
 
 @dataclass(frozen=True)
+class AxisAiding:
+    """The data the EKF had for one axis (horizontal or vertical): the log times (s) of every delivery of its
+    configured sources (a GPS sample with a 3D fix, a DVL delta, a baro sample, ...) and the evidence."""
+
+    times: np.ndarray
+    why: str
+
+    def judge(self, label: str, times=None) -> Aiding:
+        """Aided when a source delivered within :data:`EKF_AID_TIMEOUT_S` before every one of ``times`` (the run's
+        rows, log clock; None: at any time in the log). Rows before the first delivery count as aided when it comes
+        within the timeout of the first row (a sensor streaming as the log starts: a log trimmed mid-dive). A run
+        aided only part of the time is judged unaided: its other rows are dead reckoning, and the sidecar's kind
+        holds for the whole column."""
+        if self.times.size == 0:
+            return Aiding(False, f"{label} UNAIDED (dead reckoning): {self.why}")
+        if times is None:
+            return Aiding(True, f"{label} aided: {self.why}")
+        t = np.asarray(times, float)
+        t = t[np.isfinite(t)]
+        delivered = self.times
+        if t.size and delivered[0] - t.min() <= EKF_AID_TIMEOUT_S:
+            delivered = np.concatenate([[min(t.min(), delivered[0])], delivered])
+        k = np.searchsorted(delivered, t, side="right") - 1
+        ok = (k >= 0) & (t - delivered[np.maximum(k, 0)] <= EKF_AID_TIMEOUT_S)
+        if ok.all():
+            return Aiding(True, f"{label} aided: {self.why}")
+        return Aiding(False, f"{label} UNAIDED (dead reckoning) in {int((~ok).sum())} of {ok.size} rows (no source "
+                             f"data for more than the EKF's {EKF_AID_TIMEOUT_S:g} s timeout): {self.why}")
+
+
+@dataclass(frozen=True)
 class EkfAiding:
     """The aiding of the autopilot's EKF per quantity, from the log's own configuration (:func:`ekf_aiding`).
 
     Attributes
     ----------
-    horizontal, vertical : Aiding
+    horizontal, vertical : AxisAiding
         Horizontal (N, E) and vertical (D) velocity and position.
     notes : tuple of str
         ``provenance:`` lines for the run's notes (what was read, what was assumed).
     """
 
-    horizontal: Aiding
-    vertical: Aiding
+    horizontal: AxisAiding
+    vertical: AxisAiding
     notes: tuple = ()
 
-    def of(self, quantity: str) -> Aiding:
-        """The aiding of an EKF output: ``velocity`` (the NED velocity, rotated to body u, v, w: each mixes the
-        horizontal and vertical components, so it is aided only when both are), ``position_xy``, ``position_z``,
-        ``attitude`` (the AHRS/EKF attitude, always aided by the gyros, accelerometers and compass)."""
+    def of(self, quantity: str, times=None) -> Aiding:
+        """The aiding of an EKF output over the log times ``times`` (s; None: anywhere in the log): ``velocity``
+        (the NED velocity, rotated to body u, v, w: each mixes the horizontal and vertical components, so it is aided
+        only when both are), ``position_xy``, ``position_z``, ``attitude`` (the AHRS/EKF attitude, always aided by the
+        gyros, accelerometers and compass)."""
         if quantity == "attitude":
             return Aiding(True, "attitude from the EKF/AHRS, aided by the accelerometers (gravity) and the compass "
                                 "(heading)")
         if quantity == "position_xy":
-            return self.horizontal
+            return self.horizontal.judge("horizontal", times)
         if quantity == "position_z":
-            return self.vertical
+            return self.vertical.judge("vertical", times)
         if quantity == "velocity":
-            if self.horizontal.aided and self.vertical.aided:
-                return Aiding(True, f"{self.horizontal.why}; {self.vertical.why}")
-            return Aiding(False, "; ".join(a.why for a in (self.horizontal, self.vertical) if not a.aided))
+            parts = (self.horizontal.judge("horizontal", times), self.vertical.judge("vertical", times))
+            if all(a.aided for a in parts):
+                return Aiding(True, "; ".join(a.why for a in parts))
+            return Aiding(False, "; ".join(a.why for a in parts if not a.aided))
         raise ValueError(f"unknown EKF quantity {quantity!r}; expected velocity, position_xy, position_z or attitude")
+
+
+def _times(facts: LogFacts, names) -> np.ndarray:
+    """Sorted log times (s) of the records ``names``."""
+    found = [np.asarray(facts.times[n], float) for n in names if facts.times.get(n)]
+    return np.sort(np.concatenate(found)) if found else np.zeros(0)
 
 
 def _records(facts: LogFacts, kind: str) -> list:
     """(name, count) of the log's records of sensor ``kind`` (:data:`SENSOR_RECORDS`)."""
-    return [(n, facts.counts[n]) for n in SENSOR_RECORDS[kind] if facts.counts.get(n)]
+    return [(n, facts.counts.get(n, len(facts.times.get(n, ())))) for n in SENSOR_RECORDS[kind]
+            if facts.counts.get(n) or facts.times.get(n)]
 
 
 def _gps_fix(facts: LogFacts) -> tuple:
-    """(has a 3D fix, evidence): the autopilot's own GPS messages (dataflash GPS, tlog GPS_RAW_INT) first, else
-    what a companion sent it (GPS_INPUT, e.g. a Water Linked UGPS)."""
+    """(times of the samples with a 3D fix, evidence): the autopilot's own GPS messages (dataflash GPS, tlog
+    GPS_RAW_INT) first, else what a companion sent it (GPS_INPUT, e.g. a Water Linked UGPS)."""
     gps_type = facts.params.get("GPS_TYPE")
     if gps_type is not None and gps_type == 0:
-        return False, "GPS_TYPE = 0 (no GPS)"
+        return np.zeros(0), "GPS_TYPE = 0 (no GPS)"
     for name in ("GPS", "GPS_RAW_INT", "GPS2_RAW", "GPS_INPUT"):
         if name in facts.fixes:
             good, n = facts.fixes[name]
-            return good > 0, f"{name}: {good} of {n} samples with a 3D fix"
-    return False, "no GPS messages in the log" + (f" (GPS_TYPE = {gps_type:g})" if gps_type is not None else "")
+            return _times(facts, [f"{name} fix"]), f"{name}: {good} of {n} samples with a 3D fix"
+    return np.zeros(0), "no GPS messages in the log" + (f" (GPS_TYPE = {gps_type:g})" if gps_type is not None else "")
 
 
-def _available(source: int, axis: str, facts: LogFacts) -> tuple:
-    """(the EKF source ``source`` delivered data in this log, evidence) for ``axis`` ``xy`` or ``z``."""
+def _deliveries(source: int, axis: str, facts: LogFacts) -> tuple:
+    """(log times of the data EKF source ``source`` had in this log, evidence) for ``axis`` ``xy`` or ``z``."""
     if source == 0:
-        return False, "no source"
+        return np.zeros(0), "no source"
     if source == 3:
         return _gps_fix(facts)
     if source == 6:
         viso = facts.params.get("VISO_TYPE")
         if viso is not None and viso == 0:
-            return False, "VISO_TYPE = 0 (no visual odometry / DVL)"
-        recs = _records(facts, "extnav_velocity") + _records(facts, "extnav_position") if axis == "xy" else \
-            _records(facts, "extnav_position")
-        recs = list(dict.fromkeys(recs))
-        what = "velocity or position" if axis == "xy" else "position"
+            return np.zeros(0), "VISO_TYPE = 0 (no visual odometry / DVL)"
+        kinds = ("extnav_velocity", "extnav_position") if axis == "xy" else ("extnav_position",)
+        names = tuple(dict.fromkeys(n for k in kinds for n in SENSOR_RECORDS[k]))
+        recs = [(n, len(facts.times[n])) for n in names if facts.times.get(n)]
         if not recs:
-            return False, f"no external-navigation {what} records (VISO/VISP/VISION_*)"
-        return True, ("VISO_TYPE not in the log; " if viso is None else f"VISO_TYPE = {viso:g}; ") + \
-            ", ".join(f"{n} x{c}" for n, c in recs)
+            what = "velocity or position" if axis == "xy" else "position"
+            return np.zeros(0), f"no external-navigation {what} records (VISO/VISP/VISION_*)"
+        return _times(facts, names), (("VISO_TYPE not in the log; " if viso is None else f"VISO_TYPE = {viso:g}; ")
+                                      + ", ".join(f"{n} x{c}" for n, c in recs))
     kind = {1: "baro", 2: "rangefinder", 4: "beacon", 5: "optflow", 7: "wheel"}.get(source)
     if kind is None:
-        return False, f"unknown source value {source}"
+        return np.zeros(0), f"unknown source value {source}"
     recs = _records(facts, kind)
-    return bool(recs), ", ".join(f"{n} x{c}" for n, c in recs) or f"no {kind} records"
+    return _times(facts, SENSOR_RECORDS[kind]), ", ".join(f"{n} x{c}" for n, c in recs) or f"no {kind} records"
 
 
-def _source_param(facts: LogFacts, name: str) -> tuple:
-    """(value, text) of EK3_SRC1_<name>, ArduPilot's default when the log does not hold it."""
-    key = f"EK3_SRC1_{name}"
+def _source_param(facts: LogFacts, name: str, bank: int = 1) -> tuple:
+    """(value, text) of EK3_SRC<bank>_<name>, ArduPilot's default when the log does not hold it (bank 1)."""
+    key = f"EK3_SRC{bank}_{name}"
     value = facts.params.get(key)
     if value is None or not np.isfinite(value):
-        value = EKF_SOURCE_DEFAULTS[name]
+        value = EKF_SOURCE_DEFAULTS[name] if bank == 1 else 0
         return value, f"{key} = {value} ({EKF_SOURCES[value]}; not in the log: ArduPilot's default assumed)"
     value = int(value)
     return value, f"{key} = {value} ({EKF_SOURCES.get(value, 'unknown')})"
@@ -1025,21 +1090,22 @@ def ekf_aiding(facts: LogFacts) -> EkfAiding:
 
     The EKF's sources are ``EK3_SRC1_POSXY`` / ``VELXY`` / ``POSZ`` / ``VELZ`` (AP_NavEKF_Source.h: 0 None, 1 Baro,
     2 RangeFinder, 3 GPS, 4 Beacon, 5 OpticalFlow, 6 ExternalNav, 7 WheelEncoder; ArduPilot's defaults
-    :data:`EKF_SOURCE_DEFAULTS` where the log lacks them). A source counts only when its sensor delivered data in
+    :data:`EKF_SOURCE_DEFAULTS` where the log lacks them). A source counts only where its sensor delivered data in
     this log: a GPS with a 3D fix (``GPS_TYPE`` not 0; :data:`GPS_FIX_3D`), external navigation with ``VISO_TYPE``
     not 0 and VISO / VISP / VISION_* records (a DVL), a baro with BARO / SCALED_PRESSURE records, and so on
     (:data:`SENSOR_RECORDS`). The horizontal velocity and position are aided when the horizontal velocity source or
     the horizontal position source delivered (a position fix observes the velocity through its rate; a velocity
     sensor such as a DVL makes the position its integral), or when the EKF logged its body-odometry innovations
-    (:data:`BODY_ODOMETRY_FUSED`); the vertical ones likewise with VELZ / POSZ. Under water a GPS has no fix: an
-    EKF whose horizontal sources are GPS, with ``VISO_TYPE = 0`` and no DVL, dead-reckons (``estimated-unaided``).
-    Source sets 2 and 3 (switched by an RC option) are not followed: set 1 is taken as active, noted when another
-    set would have been aided.
+    (:data:`BODY_ODOMETRY_FUSED`); the vertical ones likewise with VELZ / POSZ. A row is aided when some source
+    delivered within :data:`EKF_AID_TIMEOUT_S` before it (:meth:`AxisAiding.judge`). Under water a GPS has no fix:
+    an EKF whose horizontal sources are GPS, with ``VISO_TYPE = 0`` and no DVL, dead-reckons
+    (``estimated-unaided``). Source sets 2 and 3 (switched by an RC option) are not followed: set 1 is taken as
+    active, noted when another set had data.
 
     Parameters
     ----------
     facts : LogFacts
-        Parameters, message counts and GPS fixes of the log.
+        Parameters, message counts, record times and GPS fixes of the log.
 
     Returns
     -------
@@ -1047,42 +1113,43 @@ def ekf_aiding(facts: LogFacts) -> EkfAiding:
     """
     notes = []
     ekf_type = facts.params.get("AHRS_EKF_TYPE")
-    if ekf_type is not None and ekf_type == 2:
+    ekf2 = ekf_type is not None and ekf_type == 2
+    if ekf2:
         notes.append("provenance: AHRS_EKF_TYPE = 2 (EKF2, no EK3_SRC* parameters): its sources are judged as EKF3's "
                      "defaults (GPS horizontally, baro vertically) plus any external navigation in the log")
-    params = {name: _source_param(facts, name) for name in EKF_SOURCE_DEFAULTS}
 
-    def axis(names, xy):
-        found, texts = [], []
+    def axis(names, xy, bank=1):
+        times, texts = [], []
         for name in names:
-            value, text = params[name]
-            ok, evidence = _available(value, "xy" if xy else "z", facts)
+            value, text = _source_param(facts, name, bank)
+            t, evidence = _deliveries(value, "xy" if xy else "z", facts)
             texts.append(f"{text}: {evidence}")
-            found.append(ok)
-        if ekf_type is not None and ekf_type == 2 and xy and not any(found):
-            ok, evidence = _available(6, "xy", facts)
-            if ok:
+            times.append(t)
+        if ekf2 and xy:
+            t, evidence = _deliveries(6, "xy", facts)
+            if t.size:
                 texts.append(f"external navigation: {evidence}")
-                found.append(True)
-        return any(found), "; ".join(texts)
+                times.append(t)
+        return np.sort(np.concatenate(times)), "; ".join(texts)
 
-    h_ok, h_why = axis(("VELXY", "POSXY"), True)
-    odom = facts.counts.get(BODY_ODOMETRY_FUSED, 0)
-    if odom and not h_ok:
-        h_ok, h_why = True, (f"{h_why}; but the EKF logged {odom} {BODY_ODOMETRY_FUSED} records (innovations of the "
-                             f"body-frame odometry it fused: a DVL / visual odometry aided it)")
-    v_ok, v_why = axis(("VELZ", "POSZ"), False)
-    horizontal = Aiding(h_ok, ("horizontal aided: " if h_ok else "horizontal UNAIDED (dead reckoning): ") + h_why)
-    vertical = Aiding(v_ok, ("vertical aided: " if v_ok else "vertical UNAIDED (dead reckoning): ") + v_why)
+    h_times, h_why = axis(("VELXY", "POSXY"), True)
+    odom = _times(facts, [BODY_ODOMETRY_FUSED])
+    if odom.size:
+        h_times = np.sort(np.concatenate([h_times, odom]))
+        h_why += (f"; the EKF logged {odom.size} {BODY_ODOMETRY_FUSED} records (innovations of the body-frame "
+                  f"odometry it fused: a DVL / visual odometry aided it)")
+    v_times, v_why = axis(("VELZ", "POSZ"), False)
+    aiding = EkfAiding(AxisAiding(h_times, h_why), AxisAiding(v_times, v_why))
+    horizontal, vertical = aiding.horizontal.judge("horizontal"), aiding.vertical.judge("vertical")
     for k in (2, 3):
-        other = [int(facts.params.get(f"EK3_SRC{k}_{n}", 0) or 0) for n in ("VELXY", "POSXY")]
-        if not h_ok and any(_available(v, "xy", facts)[0] for v in other):
-            notes.append(f"provenance: EK3_SRC{k}_VELXY/POSXY ({', '.join(EKF_SOURCES.get(v, '?') for v in other)}) "
-                         f"had data in this log; source set 1 is taken as the active one (the log does not say "
-                         f"whether an RC switch selected set {k})")
+        if not horizontal.aided and any(f"EK3_SRC{k}_{n}" in facts.params for n in ("VELXY", "POSXY")):
+            other, _ = axis(("VELXY", "POSXY"), True, k)
+            if other.size:
+                notes.append(f"provenance: EK3_SRC{k}_VELXY/POSXY had data in this log; source set 1 is taken as the "
+                             f"active one (the log does not say whether an RC switch selected set {k})")
     notes.append(f"provenance: EKF {horizontal.why}")
     notes.append(f"provenance: EKF {vertical.why}")
-    return EkfAiding(horizontal, vertical, tuple(notes))
+    return replace(aiding, notes=tuple(notes))
 
 
 # ------------------------------------------------------------------------------------------------ not a dataflash log

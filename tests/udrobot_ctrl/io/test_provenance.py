@@ -70,7 +70,7 @@ def test_dataflash_ekf_without_a_velocity_source_is_marked_unaided(tmp_path):
     assert ch["u"]["source"] == "XKF1.VN/VE/VD (world_to_body)" and ch["x"]["source"] == "XKF1.PN"
     assert ch["z"] == {"source": "BARO[1].Alt", "kind": "measured"}
     assert ch["phi"]["kind"] == "estimated" and ch["psi"]["kind"] == "estimated"
-    assert "u, v, w <- XKF1[VN,VE,VD]: estimated-unaided (dead reckoning" in run.metadata["notes"]
+    assert "u, v, w, x, y <- XKF1: estimated-unaided (horizontal UNAIDED (dead reckoning)" in run.metadata["notes"]
     # the values are still written for the user to see, and the entry survives the sidecar round trip
     np.testing.assert_allclose(run.channels["u"][np.isfinite(run.channels["u"])], BODY_VEL[0], atol=3e-4)
     write(run, tmp_path / "d.csv")
@@ -96,31 +96,69 @@ def test_dataflash_ekf_fed_by_a_dvl_is_estimated(tmp_path):
     assert {entries[c]["kind"] for c in "uvw"} == {"estimated"} and not notes
 
 
+def facts_with(params=None, records=(), gps=None):
+    """LogFacts of a log with ``params``, records ``(name, times)`` and GPS samples ``(name, times, fix types)``."""
+    facts = LogFacts(params=dict(params or {}))
+    for name, times in records:
+        for t in times:
+            facts.add_time(name, float(t))
+        facts.counts[name] = len(times)
+    if gps is not None:
+        name, times, fixes = gps
+        for t, fix in zip(times, fixes):
+            facts.add_fix(name, int(fix), float(t))
+    return facts
+
+
+ROWS = np.arange(0.0, 100.0, 0.02)  # a run's rows, log time (s)
+BARO = ("BARO", np.arange(0.0, 100.0, 0.05))
+
+
 def test_a_gps_fix_aids_the_ekf_and_vertical_needs_its_own_source(tmp_path):
     """A 3D fix (Status 3) on the GPS source: aided. With the vertical sources none (POSZ = VELZ = 0) the NED velocity
     (each body axis mixes all three components) is unaided even though the horizontal is aided."""
     run = convert_log(ekf_dive_dataflash(tmp_path / "g.BIN", UNAIDED_PARAMS, gps_status=3), "ardusub")
     assert {run.metadata["channels"][c]["kind"] for c in "uvwxy"} == {"estimated"}
-    facts = LogFacts(params={**UNAIDED_PARAMS, "EK3_SRC1_POSZ": 0, "EK3_SRC1_VELZ": 0}, counts={"BARO": 100},
-                     fixes={"GPS": (100, 100)})
-    aiding = ekf_aiding(facts)
-    assert aiding.of("position_xy").aided and not aiding.of("position_z").aided
-    assert not aiding.of("velocity").aided and "vertical UNAIDED" in aiding.of("velocity").why
+    t = np.arange(0.0, 100.0, 0.2)
+    aiding = ekf_aiding(facts_with({**UNAIDED_PARAMS, "EK3_SRC1_POSZ": 0, "EK3_SRC1_VELZ": 0}, [BARO],
+                                   ("GPS", t, np.full(t.size, 3))))
+    assert aiding.of("position_xy", ROWS).aided and not aiding.of("position_z", ROWS).aided
+    assert not aiding.of("velocity", ROWS).aided and "vertical UNAIDED" in aiding.of("velocity", ROWS).why
+
+
+def test_a_fix_lost_for_longer_than_the_ekf_timeout_makes_the_run_unaided():
+    """EKF3 leaves its aided mode after 7 s without position or velocity data (AP_NavEKF3.h posRetryTimeNoVel_ms):
+    a UGPS fix (1 Hz) lost for 5 s keeps the run aided; lost for 20 s (the last fix at 39 s, the next at 60 s) it
+    leaves the rows of 46..60 s dead-reckoned (unaided: the kind holds for the whole column); rows after the last fix
+    likewise."""
+    t = np.arange(0.0, 100.0, 1.0)
+    params = {**UNAIDED_PARAMS, "GPS_TYPE": 14}
+    for lost, unaided_rows in ((5.0, 0), (20.0, (60.0 - 39.0 - 7.0) / 0.02)):
+        fix = np.where((t >= 40.0) & (t < 40.0 + lost), 0, 3)
+        judged = ekf_aiding(facts_with(params, [BARO], ("GPS_INPUT", t, fix))).of("position_xy", ROWS)
+        assert judged.aided == (unaided_rows == 0)
+        if unaided_rows:
+            n = int(judged.why.split(" in ")[1].split(" of ")[0])
+            assert abs(n - unaided_rows) <= 2 and f"of {ROWS.size} rows" in judged.why
+    late = ekf_aiding(facts_with(params, [BARO], ("GPS_INPUT", t[t < 50], np.full(50, 3)))).of("position_xy", ROWS)
+    assert not late.aided
 
 
 def test_a_log_without_parameters_is_judged_from_its_records():
     """A trimmed log (no EK3_SRC*, no VISO_TYPE: the shared sea dive): ArduPilot's defaults (GPS) are assumed, so a
     GPS without a fix leaves the EKF unaided, unless the EKF logged XKFD (its body-odometry innovations: a DVL fed
-    it)."""
-    base = dict(counts={"BARO": 100, "VISO": 80, "GPS": 50}, fixes={"GPS": (0, 50)})
-    bare = ekf_aiding(LogFacts(**base))
-    assert not bare.of("position_xy").aided and bare.of("position_z").aided
-    assert "not in the log: ArduPilot's default assumed" in bare.horizontal.why
-    fused = ekf_aiding(LogFacts(counts={**base["counts"], "XKFD": 60}, fixes=base["fixes"]))
-    assert fused.of("velocity").aided and "60 XKFD records" in fused.horizontal.why
+    it), from the first row on when the records start within the timeout of it (a log trimmed mid-dive)."""
+    t = np.arange(0.0, 100.0, 2.0)
+    gps = ("GPS", t, np.ones(t.size))
+    viso = ("VISO", np.arange(0.1, 100.0, 0.125))
+    bare = ekf_aiding(facts_with(records=[BARO, viso], gps=gps))
+    assert not bare.of("position_xy", ROWS).aided and bare.of("position_z", ROWS).aided
+    assert "not in the log: ArduPilot's default assumed" in bare.of("position_xy").why
+    fused = ekf_aiding(facts_with(records=[BARO, viso, ("XKFD", np.arange(0.2, 100.0, 0.125))], gps=gps))
+    assert fused.of("velocity", ROWS).aided and "799 XKFD records" in fused.of("velocity").why
     # GPS_TYPE 0 disables the GPS whatever the messages say
-    off = ekf_aiding(LogFacts(params={"GPS_TYPE": 0}, counts={"BARO": 10}, fixes={"GPS_INPUT": (10, 10)}))
-    assert not off.horizontal.aided and "GPS_TYPE = 0" in off.horizontal.why
+    off = ekf_aiding(facts_with({"GPS_TYPE": 0}, [BARO], ("GPS_INPUT", t, np.full(t.size, 3))))
+    assert not off.of("position_xy", ROWS).aided and "GPS_TYPE = 0" in off.of("position_xy").why
 
 
 def _tlog_with(path, params, extra):
