@@ -15,7 +15,16 @@ from udrobot_ctrl.io.runlog import Run, read_run
 
 from . import mavlink, qgc_csv, rosbag, rostopic_csv
 from .joystick import pilot_input
-from .mapping import Mapping, MappingError, assemble_run, judge_channels, load_mapping, motor_rules, rule_stream
+from .mapping import (
+    UNAIDED_NOTE,
+    Mapping,
+    MappingError,
+    assemble_run,
+    judge_channels,
+    load_mapping,
+    motor_rules,
+    rule_stream,
+)
 from .mavlink import (
     DecodedLog,
     OutputEvidence,
@@ -211,7 +220,8 @@ def convert_log(path, mapping=None, require_inputs: bool = True, vehicle: str | 
         if isinstance(decoded, DecodedLog) and run.n:  # the EKF's aiding judged again on the rows kept
             run.metadata["channels"], kept = judge_channels(run.metadata.get("channels", {}), aiding.of,
                                                             run.extra["t_source"])
-            run.metadata["notes"] += "".join(f"\n{n} [on the rows the cut kept]" for n in kept)
+            lines = [n for n in run.metadata["notes"].split("\n") if not n.startswith(UNAIDED_NOTE)]
+            run.metadata["notes"] = "\n".join(lines + [f"{n} [on the rows the cut kept]" for n in kept])
     run.path = str(path)
     return run
 

@@ -93,6 +93,7 @@ AUXILIARY_CHANNELS = ("altitude", "voltage", "ax", "ay", "az")  # never shorten 
 #: what a navigation filter's output estimates (a rule's ``estimates``): its aiding is judged per quantity
 #: (:func:`udrobot_ctrl.io.mavlink.ekf_aiding` for ArduPilot's EKF)
 ESTIMATES = ("velocity", "position_xy", "position_z", "attitude")
+UNAIDED_NOTE = "provenance: unaided: "  # the notes' lines naming estimated-unaided columns (convert prints them)
 
 
 class MappingError(ValueError):
@@ -1050,7 +1051,7 @@ def judge_channels(channels: dict, aiding, times=None) -> tuple:
             if not judged.aided:
                 unaided.setdefault((entry["source"].split(".")[0], judged.why), []).append(c)
         out[c] = entry
-    notes = [f"provenance: {', '.join(cols)} <- {stream}: {UNAIDED} ({why}); written for the user to see, never "
+    notes = [f"{UNAIDED_NOTE}{', '.join(cols)} <- {stream}: {UNAIDED} ({why}); written for the user to see, never "
              f"fitted, scored or counted as observed by diagnose" for (stream, why), cols in unaided.items()]
     return out, notes
 

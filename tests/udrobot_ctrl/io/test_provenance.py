@@ -70,7 +70,9 @@ def test_dataflash_ekf_without_a_velocity_source_is_marked_unaided(tmp_path):
     assert ch["u"]["source"] == "XKF1.VN/VE/VD (world_to_body)" and ch["x"]["source"] == "XKF1.PN"
     assert ch["z"] == {"source": "BARO[1].Alt", "kind": "measured"}
     assert ch["phi"]["kind"] == "estimated" and ch["psi"]["kind"] == "estimated"
-    assert "u, v, w, x, y <- XKF1: estimated-unaided (horizontal UNAIDED (dead reckoning)" in run.metadata["notes"]
+    notes = run.metadata["notes"]
+    assert "provenance: unaided: u, v, w, x, y <- XKF1: estimated-unaided (horizontal UNAIDED (dead reckoning)" in notes
+    assert notes.count("provenance: unaided: ") == 1  # judged again on the rows the cut kept: one line, not two
     # the values are still written for the user to see, and the entry survives the sidecar round trip
     np.testing.assert_allclose(run.channels["u"][np.isfinite(run.channels["u"])], BODY_VEL[0], atol=3e-4)
     write(run, tmp_path / "d.csv")
