@@ -8,6 +8,7 @@ from pathlib import Path
 from udrobot_ctrl.cli.main import CLIError
 from udrobot_ctrl.io import convert_log, log_input_files
 from udrobot_ctrl.io.files import check_output_dir, check_outputs, run_files
+from udrobot_ctrl.io.mapping import UNAIDED_NOTE
 from udrobot_ctrl.io.runlog import write
 from udrobot_ctrl.io.segment import find_launches, idle_mask, write_launches
 
@@ -57,7 +58,7 @@ def run(args) -> int:
           f"channels {', '.join(run_.channels) or 'none'}, inputs {run_.input_kind} x{run_.inputs.shape[1]}"
           + (f", vehicle {run_.metadata['vehicle']}" if run_.metadata.get("vehicle") else ""))
     for line in run_.metadata.get("notes", "").splitlines():
-        if line.startswith(("cut: WARNING", "cut: kept", "cut: segment")) or "ALMOST ALL" in line:
+        if line.startswith(("cut: WARNING", "cut: kept", "cut: segment", UNAIDED_NOTE)) or "ALMOST ALL" in line:
             print(line)
     if args.out:
         path = write(run_, args.out, overwrite=args.force, protect=inputs)

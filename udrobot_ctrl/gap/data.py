@@ -20,6 +20,10 @@ Everything the diagnoser computes starts from a :class:`Prepared` run:
   logged one, and ``x, y`` are dead-reckoned when not logged. A DOF is *observed* when a sensor measures its
   velocity or the integral of it (X: ``u`` or ``x``; Y: ``v`` or ``y``; Z: ``w`` or ``z``; K/M/N: the rate or the
   Euler angle); only observed DOFs are scored (``dof_ok``). Runs that log ``u v w`` take the path above unchanged.
+* a column the run's sidecar marks ``estimated-unaided`` (dead reckoning: an EKF velocity or position with no sensor
+  of it, e.g. XKF1 with its GPS source and no fix under water; docs/formats/runlog.md, ``channels``) is not logged
+  from here on: it is left out of ``meas`` (so the smoother, the replays' scores, the equation error, the
+  identifiability and the plots never read it) and kept in ``Prepared.unaided`` to say why.
 """
 from __future__ import annotations
 
@@ -32,7 +36,7 @@ from udrobot_ctrl.autopilot.feedback import ReplayFeedback, replay_feedback
 from udrobot_ctrl.dynamics.plant import PlantParameters, restoring_forces
 from udrobot_ctrl.dynamics.thrusters import pwm_to_thrust
 from udrobot_ctrl.gap.smoother import SmoothedRun, SmootherError, smooth_run
-from udrobot_ctrl.io.runlog import Run, check_time_gaps, resample
+from udrobot_ctrl.io.runlog import Run, check_time_gaps, resample, unaided_channels
 
 VEL = ("u", "v", "w", "p", "q", "r")
 POSE = ("x", "y", "z", "phi", "theta", "psi")
@@ -86,6 +90,8 @@ class Prepared:
     feedback : ReplayFeedback or None
         The vehicle's autopilot attitude loop, closed around the replay of a run whose logged outputs are too slow
         to replay open loop (:func:`udrobot_ctrl.autopilot.feedback.replay_feedback`); None: open-loop replay.
+    unaided : dict of str -> ChannelSource
+        Columns the run logs but its sidecar marks ``estimated-unaided`` (:func:`observable`): not in ``meas``.
     """
 
     name: str
@@ -108,6 +114,7 @@ class Prepared:
     reconstructed: np.ndarray = field(default_factory=lambda: np.zeros(6, bool))
     smoothed: SmoothedRun | None = None
     feedback: ReplayFeedback | None = None
+    unaided: dict = field(default_factory=dict)
 
     @property
     def n(self) -> int:
@@ -325,7 +332,9 @@ def prepare(run: Run, p: PlantParameters, name=None, window_s=0.8, dt=None, know
                          f"would need {n_grid:.3g} samples (> {MAX_GRID_RATIO:g} x the rows); check the time column")
     t = run.t[0] + dt * np.arange(int(np.floor((run.t[-1] - run.t[0]) / dt + 1e-9)) + 1)
     r = resample(run, t) if (t.size != run.n or np.max(np.abs(t - run.t)) > 1e-9) else run
-    meas = {c: np.asarray(v, float) for c, v in r.channels.items()}
+    meas, unaided, note = observable(r, label)
+    if note:
+        notes.append(note)
     n = t.size
     eta = np.zeros((n, 6))
     for i, c in enumerate(POSE):
@@ -395,7 +404,33 @@ def prepare(run: Run, p: PlantParameters, name=None, window_s=0.8, dt=None, know
     return Prepared(name=label, t=t, dt=dt, meas=meas, eta=eta, nu=nu, nu_dot=nu_dot, f=f, B=B, inflow=inflow,
                     f_ref=ref, input_kind=run.input_kind, surfaces=_surfaces(run, meas, n, label, notes), dof_ok=dof_ok,
                     notes=notes, window_s=window_s, observed=observed, reconstructed=reconstructed,
-                    smoothed=smoothed, feedback=loop.feedback)
+                    smoothed=smoothed, feedback=loop.feedback, unaided=unaided)
+
+
+def observable(run: Run, label: str = "run") -> tuple:
+    """The run's channels the diagnosis may read: every logged column but those its sidecar marks
+    ``estimated-unaided`` (dead reckoning, :func:`udrobot_ctrl.io.runlog.unaided_channels`).
+
+    The one place where such a column stops being "logged": everything downstream reads ``Prepared.meas``.
+
+    Returns
+    -------
+    meas : dict of str -> (n,) ndarray
+        The channels kept.
+    unaided : dict of str -> ChannelSource
+        The logged columns left out, with their source and the evidence.
+    note : str
+        Empty when none was left out.
+    """
+    marked = unaided_channels(run.metadata)
+    meas = {c: np.asarray(v, float) for c, v in run.channels.items() if c not in marked}
+    unaided = {c: s for c, s in marked.items() if c in run.channels}
+    if not unaided:
+        return meas, unaided, ""
+    sources = sorted({s.source for s in unaided.values()})
+    return meas, unaided, (f"{label}: {', '.join(unaided)} logged but estimated-unaided (dead reckoning: "
+                           f"{'; '.join(sources)}; {next(iter(unaided.values())).aiding or 'no sensor of them'}): not "
+                           f"fitted, scored or counted as observed")
 
 
 def without_stabilised(dof_ok, feedback: ReplayFeedback | None, label: str = "run") -> tuple:

@@ -90,6 +90,28 @@ RECONSTRUCTED = {g: f"{g} (reconstructed)" for g in VELOCITY_SENSOR}
 MISSING.update({RECONSTRUCTED[g]: (f"its force in the observed DOFs hinges on the {g} velocity, which the smoother "
                                    f"reconstructs from its integral with too large an error", f"log {v} directly")
                 for g, v in VELOCITY_SENSOR.items()})
+#: the DOF groups (keys of :data:`MISSING`) a logged column would observe (:data:`udrobot_ctrl.gap.data.OBSERVING`;
+#: x, y also the position)
+COLUMN_GROUPS = {c: (DOF_GROUP[i],) + (("position",) if c in ("x", "y") else ()) for i, cols in OBSERVING.items()
+                 for c in cols}
+#: structured reason codes of an ``unidentifiable`` entry's ``missing`` list (:meth:`Identifiability.missing`)
+NOT_OBSERVED, UNAIDED_ESTIMATE, RECONSTRUCTED_CODE, STABILISED, NOT_EXCITED = (
+    "not_observed", "unaided_estimate", "reconstructed", "stabilised", "not_excited")
+
+
+def describe_missing(item: dict) -> str:
+    """One ``missing`` item (:meth:`Identifiability.missing`) as a sentence, for the console."""
+    code = item["code"]
+    if code == UNAIDED_ESTIMATE:
+        return (f"{item['column']} is logged but is an estimate without aiding ({item['source']}: {item['why']}), so "
+                f"it is not counted as observed")
+    if code == NOT_OBSERVED:
+        return f"{item['dofs']}: {MISSING[item['dofs']][0]}"
+    if code == RECONSTRUCTED_CODE:
+        return MISSING[RECONSTRUCTED[item['dofs']]][0]
+    if code == STABILISED:
+        return MISSING["stabilised"][0]
+    return "its regressors are zero on these runs (nothing it acts on is present)"
 
 
 @dataclass
@@ -350,6 +372,9 @@ class Identifiability:
     #: they were reconstructed with the confirmed effects' force (name -> :class:`PassDisagreement`;
     #: :meth:`with_pass_disagreement`)
     pass_disagreement: dict = field(default_factory=dict)
+    #: columns some fit run logs but its sidecar marks estimated-unaided (column ->
+    #: :class:`udrobot_ctrl.io.runlog.ChannelSource`; ``Prepared.unaided``): named in the reasons' ``missing``
+    unaided: dict = field(default_factory=dict)
 
     def observed_dofs(self) -> list:
         """Names of the observed (scored) DOFs."""
@@ -486,8 +511,51 @@ class Identifiability:
         return "; ".join(out)
 
     def report(self) -> list:
-        """The report's ``unidentifiable`` list: ``[{"name", "reason"}]``."""
-        return [{"name": n, "reason": self.reason(n)} for n in self.names]
+        """The report's ``unidentifiable`` list: ``[{"name", "reason", "missing"}]`` (``missing``: :meth:`missing`,
+        present when not empty)."""
+        out = []
+        for n in self.names:
+            entry = {"name": n, "reason": self.reason(n)}
+            missing = self.missing(n)
+            if missing:
+                entry["missing"] = missing
+            out.append(entry)
+        return out
+
+    def _referred(self, name) -> list:
+        """``name`` and the effects whose reason its reason carries (:meth:`reason`)."""
+        out = [name]
+        if name in self.stand_in:
+            out.append(self.stand_in[name].on)
+        if name in self.hinged:
+            out.append(self.hinged[name].on)
+        if name in self.form_alike:
+            a = self.form_alike[name]
+            out.append(a.rival if a.held_by_rival else name)
+        out += [a for a in self.ambiguous.get(name, ()) if not self.effects[a].identified][:1]
+        return [n for n in dict.fromkeys(out) if n in self.effects]
+
+    def missing(self, name) -> list:
+        """What the runs lack for ``name`` as structured codes, once each: ``{"code": "not_observed", "dofs": group}``
+        (no sensor of the DOF group's velocity or its integral), ``{"code": "unaided_estimate", "column", "source",
+        "why"}`` (a column of that group was logged but its sidecar marks it estimated-unaided: dead reckoning, not
+        counted as observed), ``{"code": "reconstructed", "dofs"}``, ``{"code": "stabilised"}``,
+        ``{"code": "not_excited"}``. Rendered as sentences by :func:`describe_missing` (the console only)."""
+        out = []
+        for n in self._referred(name):
+            for cause in self.effects[n].causes:
+                if cause == "vanishes":
+                    item = [{"code": NOT_EXCITED}]
+                elif cause == "stabilised":
+                    item = [{"code": STABILISED}]
+                elif cause in RECONSTRUCTED.values():
+                    item = [{"code": RECONSTRUCTED_CODE, "dofs": cause.split(" (")[0]}]
+                else:
+                    item = [{"code": NOT_OBSERVED, "dofs": cause}]
+                    item += [{"code": UNAIDED_ESTIMATE, "column": c, "source": s.source, "why": s.aiding}
+                             for c, s in self.unaided.items() if cause in COLUMN_GROUPS.get(c, ())]
+                out += [i for i in item if i not in out]
+        return out
 
     def entry(self, name) -> dict:
         """Extra fields of an effect's report entry: the parameters not identified (partial effects only)."""
@@ -693,7 +761,8 @@ def assess(stack, r, dofs, preps, catalogue: dict, names=None, designs=None, sto
             checks.append(ParameterCheck(",".join(eff.shape_names) or n, float("nan"), float("nan"), False,
                                          ("vanishes",)))
         out[n] = _stabilised_causes(EffectCheck(n, checks, eff.excited_by, forms, acts), held)
-    return Identifiability(out, observed, reconstructed)
+    unaided = {c: s for pr in preps for c, s in getattr(pr, "unaided", {}).items()}
+    return Identifiability(out, observed, reconstructed, unaided=unaided)
 
 
 def _stabilised_causes(chk: EffectCheck, held) -> EffectCheck:
@@ -910,7 +979,8 @@ def _forms(eff, stack, stacks, sigma, observed, top, memo=None) -> dict:
 
 def sensors(preps) -> dict:
     """The report's ``sensors`` field: per velocity channel, ``observed`` (logged, or pinned by a logged
-    integral), ``reconstructed`` (by the smoother) or ``absent``; and the channels logged in every run."""
+    integral), ``reconstructed`` (by the smoother) or ``absent``; the channels logged in every run; and ``unaided``
+    (column -> source) the columns some run logs as estimated-unaided (left out of the rest)."""
     status = {}
     for i, c in enumerate(VEL):
         if all(pr.observed[i] for pr in preps):
@@ -923,4 +993,8 @@ def sensors(preps) -> dict:
         status[c] = how
     logged = sorted(set.intersection(*[{c for c, v in pr.meas.items() if np.isfinite(v).any()} for pr in preps]))
     scored = [fx.DOF[i] for i in range(6) if all(pr.dof_ok[i] for pr in preps)]
-    return {"logged": logged, "velocities": status, "scored_dofs": scored}
+    out = {"logged": logged, "velocities": status, "scored_dofs": scored}
+    unaided = {c: s.source for pr in preps for c, s in getattr(pr, "unaided", {}).items()}
+    if unaided:  # logged, but dead reckoning (the sidecar's estimated-unaided): not in "logged", never scored
+        out["unaided"] = dict(sorted(unaided.items()))
+    return out

@@ -63,7 +63,7 @@ from udrobot_ctrl.gap.confirm import (
     replay_sets,
     separations,
 )
-from udrobot_ctrl.gap.data import prepare
+from udrobot_ctrl.gap.data import observable, prepare
 from udrobot_ctrl.gap.effects import Actuation
 from udrobot_ctrl.gap.heading import CURRENT, HeadingCoverage, current_parts, heading_coverage
 from udrobot_ctrl.gap.identifiability import Identifiability
@@ -204,10 +204,12 @@ def seabed_depth(runs) -> float | None:
 
 def run_walls(runs) -> list:
     """The distinct walls of the runs' sidecars (``walls``: point and normal, NED), in order of appearance, of the
-    runs that log x and y (the diagnosis places walls only where the position is known)."""
+    runs that log x and y (the diagnosis places walls only where the position is known: not dead-reckoned, i.e. not
+    marked estimated-unaided in the sidecar)."""
     out = []
     for r in runs:
-        if not all(c in r.channels and np.isfinite(r.channels[c]).any() for c in ("x", "y")):
+        logged, _, _ = observable(r)
+        if not all(c in logged and np.isfinite(logged[c]).any() for c in ("x", "y")):
             continue
         for w in (r.metadata or {}).get("walls", []) or []:
             wall = {"point": [float(v) for v in w["point"]], "normal": [float(v) for v in w["normal"]]}
@@ -1981,6 +1983,8 @@ def summary(report) -> str:
         lines.append(f"  {', '.join(report['parts']['members'])} {report['parts']['text']}")
     for u in report.get("unidentifiable", []):
         lines.append(f"  unidentifiable with these sensors: {u['name']} ({u['reason']})")
+        lines += [f"      {identifiability.describe_missing(m)}" for m in u.get("missing", ())
+                  if m["code"] == identifiability.UNAIDED_ESTIMATE]
     for u in skipped:
         lines.append(f"  not diagnosed: {u['reason']}")
     for which, g in (("before", gb), ("after", ga)):

@@ -15,13 +15,23 @@ from udrobot_ctrl.io.runlog import Run, read_run
 
 from . import mavlink, qgc_csv, rosbag, rostopic_csv
 from .joystick import pilot_input
-from .mapping import Mapping, MappingError, assemble_run, load_mapping, motor_rules, rule_stream
+from .mapping import (
+    UNAIDED_NOTE,
+    Mapping,
+    MappingError,
+    assemble_run,
+    judge_channels,
+    load_mapping,
+    motor_rules,
+    rule_stream,
+)
 from .mavlink import (
     DecodedLog,
     OutputEvidence,
     choose_vehicle,
     classify_outputs,
     detect_vehicle,
+    ekf_aiding,
     motor_command_pwm,
     water_density_from_params,
 )
@@ -180,8 +190,10 @@ def convert_log(path, mapping=None, require_inputs: bool = True, vehicle: str | 
                                 facts.named.get("PilotGain"))
             streams = {**streams, PILOT_STREAM: pilot.stream}
             notes += pilot.notes
-        run = assemble_run(mapping, streams, str(path), extra_notes=notes, require_inputs=require_inputs,
-                           log_params=facts.params, extra_rules=motor_rules(mapping, servos))
+        aiding = ekf_aiding(facts)  # the sidecar's channels: measured, estimated or estimated-unaided (dead reckoning)
+        run = assemble_run(mapping, streams, str(path), extra_notes=notes + list(aiding.notes),
+                           require_inputs=require_inputs, log_params=facts.params,
+                           extra_rules=motor_rules(mapping, servos), aiding=aiding.of)
         if vehicle.name is not None:
             run.metadata["vehicle"] = vehicle.name
         note = apply_motor_directions(run, facts.params)
@@ -207,6 +219,11 @@ def convert_log(path, mapping=None, require_inputs: bool = True, vehicle: str | 
         run = result.run
         run.metadata["notes"] += "\n" + "\n".join(result.notes)
         run.metadata["cut"] = result.record()
+        if isinstance(decoded, DecodedLog) and run.n:  # the EKF's aiding judged again on the rows kept
+            run.metadata["channels"], kept = judge_channels(run.metadata.get("channels", {}), aiding.of,
+                                                            run.extra["t_source"])
+            lines = [n for n in run.metadata["notes"].split("\n") if not n.startswith(UNAIDED_NOTE)]
+            run.metadata["notes"] = "\n".join(lines + [f"{n} [on the rows the cut kept]" for n in kept])
     run.path = str(path)
     return run
 

@@ -64,7 +64,10 @@ import tomllib
 from udrobot_ctrl.io.runlog import (
     ANGLE_CHANNELS,
     CHANNELS,
+    ESTIMATED,
+    MEASURED,
     TAU_COLUMNS,
+    UNAIDED,
     Run,
     hold_previous,
     interpolate_linear,
@@ -87,6 +90,10 @@ TRANSFORMS = {
 }
 G = 9.81
 AUXILIARY_CHANNELS = ("altitude", "voltage", "ax", "ay", "az")  # never shorten the run to their span
+#: what a navigation filter's output estimates (a rule's ``estimates``): its aiding is judged per quantity
+#: (:func:`udrobot_ctrl.io.mavlink.ekf_aiding` for ArduPilot's EKF)
+ESTIMATES = ("velocity", "position_xy", "position_z", "attitude")
+UNAIDED_NOTE = "provenance: unaided: "  # the notes' lines naming estimated-unaided columns (convert prints them)
 
 
 class MappingError(ValueError):
@@ -147,6 +154,9 @@ class ChannelRule:
     ``tag`` says what kind of source this is (``DVL-measured``, ``EKF-estimated``) in the notes; ``valid`` holds
     :class:`ValidCheck` s (invalid samples dropped, counted per reason); ``lookup`` maps raw values of the first
     field to output values (samples with other values are dropped), e.g. dataflash EV ids 10/11 -> armed 1/0.
+    ``estimates`` (one of :data:`ESTIMATES`) names the filter quantity the columns ``estimated_columns`` (all of
+    ``to`` when empty) are estimates of: the sidecar's ``channels`` entry says whether a sensor aided it
+    (:func:`sidecar_channels`).
     """
 
     to: tuple
@@ -163,6 +173,21 @@ class ChannelRule:
     tag: str = ""
     valid: tuple = ()
     lookup: tuple = ()
+    estimates: str = ""
+    estimated_columns: tuple = ()
+
+    def estimated(self, column: str) -> bool:
+        """True when ``column`` of this rule is a filter's estimate (role ``estimate``, or named by ``estimates``)."""
+        if self.estimates:
+            return column in (self.estimated_columns or self.to)
+        return self.role == "estimate"
+
+    def source(self, column: str) -> str:
+        """Where ``column`` comes from, for the sidecar: ``STREAM.field`` (its own field when fields and outputs
+        pair up, else every field of the rule, with the transform)."""
+        if self.transform == "none" and len(self.fields) == len(self.to) and column in self.to:
+            return f"{self.stream}.{self.fields[self.to.index(column)]}"
+        return f"{self.stream}.{'/'.join(self.fields)} ({self.transform})"
 
 
 @dataclass(frozen=True)
@@ -320,7 +345,8 @@ def parse_mapping(text: str, source_name: str = "mapping") -> Mapping:
     for i, entry in enumerate(entries):
         w = f"{source_name}: channels[{i}]"
         unknown = set(entry) - {"to", "stream", "field", "fields", "transform", "scale", "offset", "frame", "params",
-                                "comment", "role", "keep_if", "tag", "valid", "lookup"}
+                                "comment", "role", "keep_if", "tag", "valid", "lookup", "estimates",
+                                "estimated_columns"}
         if unknown:
             raise MappingError(f"{w}: unknown key(s) {sorted(unknown)}")
         if "to" not in entry or "stream" not in entry or ("field" in entry) == ("fields" in entry):
@@ -366,11 +392,20 @@ def parse_mapping(text: str, source_name: str = "mapping") -> Mapping:
                 from None
         if lookup and len(fields) != 1:
             raise MappingError(f"{w}: 'lookup' maps one field; got {len(fields)}")
+        estimates = entry.get("estimates", "")
+        if estimates not in ("",) + ESTIMATES:
+            raise MappingError(f"{w}: 'estimates' must be one of {', '.join(ESTIMATES)}, got {estimates!r}")
+        estimated = _as_tuple(entry["estimated_columns"], w, "estimated_columns") if "estimated_columns" in entry \
+            else ()
+        if estimated and (not estimates or set(estimated) - set(to)):
+            raise MappingError(f"{w}: 'estimated_columns' must be outputs of the entry ({', '.join(to)}) and needs "
+                               f"'estimates'")
         rules.append(ChannelRule(to=to, stream=str(entry["stream"]), fields=fields, transform=transform,
                                  scale=_number(entry, "scale", 1.0, w), offset=_number(entry, "offset", 0.0, w),
                                  frame=frame, params=params, index=i, role=role,
                                  keep_if=tuple(sorted((str(k), float(v)) for k, v in keep_if.items())),
-                                 tag=tag, valid=_valid_checks(entry.get("valid", []), w), lookup=lookup))
+                                 tag=tag, valid=_valid_checks(entry.get("valid", []), w), lookup=lookup,
+                                 estimates=estimates, estimated_columns=estimated))
     files = doc.get("files", {})
     if not isinstance(files, dict) or not all(isinstance(v, str) and "{suffix}" in v for v in files.values()):
         raise MappingError(f"{source_name}: [files] must map stream names to patterns containing '{{suffix}}'")
@@ -964,8 +999,65 @@ def _gap_notes(name, stream, values, limit, grid) -> list:
             f"compares {name} only where it is finite"]
 
 
+def sidecar_channels(rules, aiding=None, times=None) -> tuple:
+    """The sidecar's ``channels`` entry for the state columns of the chosen ``rules`` (docs/formats/runlog.md).
+
+    Parameters
+    ----------
+    rules : sequence of ChannelRule
+        The rule that gave each column (the first per column counts).
+    aiding : callable, optional
+        (quantity, times) -> object with ``aided`` (bool) and ``why`` (str): whether a sensor fed the filter's
+        estimate of the quantity (one of :data:`ESTIMATES`) at every one of the log times ``times``
+        (:meth:`udrobot_ctrl.io.mavlink.EkfAiding.of`). Without it an estimate is ``estimated`` (the source cannot
+        say).
+    times : (n,) ndarray, optional
+        Log times (s) of the run's rows.
+
+    Returns
+    -------
+    channels : dict
+        column -> ``{"source", "kind"}``, plus ``"estimates"`` (the quantity) and ``"aiding"`` (the evidence) for
+        judged estimates; ``kind`` is one of :data:`udrobot_ctrl.io.runlog.CHANNEL_KINDS`.
+    notes : list of str
+        ``provenance:`` lines naming every estimated-unaided column.
+    """
+    out = {}
+    for rule in rules:
+        for c in rule.to:
+            if c not in CHANNELS or c in out:
+                continue
+            entry = {"source": rule.source(c), "kind": MEASURED}
+            if rule.estimated(c):
+                entry["kind"] = ESTIMATED
+                if rule.estimates and aiding is not None:
+                    entry["estimates"] = rule.estimates
+            out[c] = entry
+    return judge_channels(out, aiding, times)
+
+
+def judge_channels(channels: dict, aiding, times=None) -> tuple:
+    """``channels`` with each entry that names the quantity it ``estimates`` judged ``estimated`` or
+    ``estimated-unaided`` by ``aiding`` over the rows at log times ``times`` (:func:`sidecar_channels`); a converter
+    that cuts rows judges again on the rows it keeps. Returns (channels, ``provenance:`` notes for the unaided
+    columns, grouped by source)."""
+    out, unaided = {}, {}
+    for c, entry in channels.items():
+        entry = dict(entry)
+        if entry.get("estimates") and aiding is not None:
+            judged = aiding(entry["estimates"], times)
+            entry["kind"] = ESTIMATED if judged.aided else UNAIDED
+            entry["aiding"] = judged.why
+            if not judged.aided:
+                unaided.setdefault((entry["source"].split(".")[0], judged.why), []).append(c)
+        out[c] = entry
+    notes = [f"{UNAIDED_NOTE}{', '.join(cols)} <- {stream}: {UNAIDED} ({why}); written for the user to see, never "
+             f"fitted, scored or counted as observed by diagnose" for (stream, why), cols in unaided.items()]
+    return out, notes
+
+
 def assemble_run(mapping: Mapping, streams: dict, source_path: str, extra_notes=(), require_inputs=True,
-                 log_params: dict | None = None, extra_rules=()) -> Run:
+                 log_params: dict | None = None, extra_rules=(), aiding=None) -> Run:
     """Apply ``mapping`` to decoded ``streams`` and resample onto one time base.
 
     Parameters
@@ -974,12 +1066,17 @@ def assemble_run(mapping: Mapping, streams: dict, source_path: str, extra_notes=
         Parameters the log holds (surface pressure, water density for ``pressure_to_depth``).
     extra_rules : sequence of ChannelRule
         Rules placed before the mapping's own (motor outputs from the vehicle's servo map).
+    aiding : callable, optional
+        Whether the log's navigation filter was aided per quantity, for the sidecar's ``channels``
+        (:func:`sidecar_channels`).
 
     Returns
     -------
     Run
         ``t`` starts at 0 s; ``extra['t_source']`` is the time-base stream's original time (log clock, s) at or
-        before each sample; ``metadata['notes']`` records the source of every column (and, for columns with a
+        before each sample; ``metadata['channels']`` says how each state column was obtained (measured, estimated,
+        estimated-unaided: :func:`sidecar_channels`); ``metadata['notes']`` records the source of every column (and, for
+        columns with a
         ``[select.COLUMN]`` table, why it was chosen), the interpolation used, the time origin, slow streams,
         gaps and any clock delays (e.g. header stamp vs bag record time).
     """
@@ -1093,7 +1190,8 @@ def assemble_run(mapping: Mapping, streams: dict, source_path: str, extra_notes=
              f"measured channels linear (angles unwrapped; no bridging of gaps longer than "
              f"max({mapping.max_gap_s:g} s, {mapping.gap_factor:g} x the stream's median interval)), inputs "
              f"zero-order hold; t_source = original {base_name} time stamp held"]
-    notes += provenance + selection_notes + tag_notes + rate_notes + gap_notes + rejected
+    sources, source_notes = sidecar_channels(chosen, aiding, grid)
+    notes += provenance + selection_notes + tag_notes + source_notes + rate_notes + gap_notes + rejected
     if missing:
         notes.append("not in this log: " + ", ".join(missing))
     for s in sorted(used):
@@ -1106,6 +1204,7 @@ def assemble_run(mapping: Mapping, streams: dict, source_path: str, extra_notes=
                          f"{d.max() * 1e3:.1f} ms)")
     notes += input_notes + list(extra_notes)
     metadata = {"format": "udrobot-run/1", **mapping.metadata}
+    metadata["channels"] = {c: e for c, e in sources.items() if c in channels}
     metadata["notes"] = "\n".join(([mapping.metadata["notes"]] if "notes" in mapping.metadata else []) + notes)
     return Run(path="", t=t_rel, channels=channels, input_kind=kind, inputs=inputs, extra=extra,
                metadata=metadata)

@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import re
 import struct
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -45,6 +45,12 @@ MAV_TYPE_GCS = 6
 # messages a ground station sends, read from their sender (every other stream leaves ground stations out): the
 # joystick as QGroundControl sent it (QGC logs its outgoing messages), with the sender's ids
 GCS_STREAMS = {"MANUAL_CONTROL": ("x", "y", "z", "r")}
+#: GPS messages whose fix is counted (LogFacts.fixes): message type -> fix field. Dataflash GPS.Status is
+#: AP_GPS::GPS_Status (0 NO_GPS, 1 NO_FIX, 2 2D, 3 3D, ...), MAVLink fix_type is GPS_FIX_TYPE (same numbering)
+GPS_FIX_FIELDS = {"GPS": "Status", "GPS_RAW_INT": "fix_type", "GPS2_RAW": "fix_type", "GPS_INPUT": "fix_type"}
+#: EKF3 uses a GPS only with a 3D fix (AP_NavEKF3_VehicleStatus.cpp, NavEKF3_core::calcGpsGoodToAlign:
+#: gps.status() < AP_GPS::GPS_OK_FIX_3D fails the check)
+GPS_FIX_3D = 3
 # NAMED_VALUE_FLOAT values kept in LogFacts.named: ArduSub's current pilot gain (sent with the other joystick state)
 NAMED_FLOATS = ("PilotGain",)
 
@@ -115,6 +121,14 @@ class LogFacts:
         Frames / records with valid framing (and CRC).
     notes : list of str
         Further statements for the run's notes (e.g. ``frames:`` unknown message ids).
+    counts : dict of str -> int
+        Well-framed frames / records per message type (every type, read or not).
+    fixes : dict of str -> (int, int)
+        GPS message type -> (samples with a 3D fix or better, samples): dataflash ``GPS`` Status, tlog
+        ``GPS_RAW_INT`` / ``GPS2_RAW`` / ``GPS_INPUT`` fix_type (:data:`GPS_FIX_FIELDS`).
+    times : dict of str -> list of float
+        Log times (s, the streams' clock) of the aiding sensors' records (:data:`SENSOR_RECORDS`, XKFD) and, under
+        ``"NAME fix"``, of the GPS samples with a 3D fix: when the EKF had data (:func:`ekf_aiding`).
     """
 
     params: dict = field(default_factory=dict)
@@ -123,6 +137,22 @@ class LogFacts:
     damage: Damage = field(default_factory=Damage)
     decoded: int = 0
     notes: list = field(default_factory=list)
+    counts: dict = field(default_factory=dict)
+    fixes: dict = field(default_factory=dict)
+    times: dict = field(default_factory=dict)
+
+    def add_fix(self, name: str, fix, t: float) -> None:
+        """Count one GPS sample of message type ``name`` at log time ``t`` (s) with fix type ``fix`` (a 3D fix is
+        >= 3)."""
+        good, n = self.fixes.get(name, (0, 0))
+        ok = isinstance(fix, (int, float)) and fix >= GPS_FIX_3D
+        self.fixes[name] = (good + int(ok), n + 1)
+        if ok:
+            self.times.setdefault(f"{name} fix", []).append(t)
+
+    def add_time(self, name: str, t: float) -> None:
+        """Note a record of aiding sensor ``name`` at log time ``t`` (s)."""
+        self.times.setdefault(name, []).append(t)
 
 
 @dataclass
@@ -189,12 +219,14 @@ def iter_tlog(path, damage: Damage | None = None, wanted=None, tally: dict | Non
 
     ``wanted`` (set of message type names): frames of other types are only checked (CRC, framing; damage
     counted the same way) and not decoded or yielded, which keeps a 30-minute tlog fast. ``tally['valid']``
-    counts every frame with a valid CRC, yielded or not.
+    counts every frame with a valid CRC, yielded or not; ``tally['types']`` counts them per message type (the
+    EKF's aiding is judged from which sensors' messages the log holds: :func:`ekf_aiding`).
     """
     dialect = _dialect()
     x25crc = dialect.x25crc
     tally = {} if tally is None else tally
     tally.setdefault("valid", 0)
+    types = tally.setdefault("types", {})
     data = Path(path).read_bytes()
     damage = Damage() if damage is None else damage
     mav = dialect.MAVLink(None)
@@ -231,6 +263,7 @@ def iter_tlog(path, damage: Damage | None = None, wanted=None, tally: dict | Non
             if _crc_ok(data, start, end, known[msg_id], x25crc):
                 last_us = usec
                 tally["valid"] += 1
+                types[known[msg_id].msgname] = types.get(known[msg_id].msgname, 0) + 1
             elif end < size and not _plausible_stamp(data, end, usec):
                 nxt = _resync(data, offset + 1, last_us)
                 damage.add("garbage (no frame start)", offset, nxt - offset)
@@ -253,6 +286,7 @@ def iter_tlog(path, damage: Damage | None = None, wanted=None, tally: dict | Non
             else:
                 last_us = usec
                 tally["valid"] += 1
+                types[known[msg_id].msgname] = types.get(known[msg_id].msgname, 0) + 1
                 yield index, offset, usec * 1e-6, msg
         offset = end
         index += 1
@@ -304,12 +338,17 @@ def read_tlog_streams(path, mapping, optional: dict | None = None) -> DecodedLog
     gcs = set()
     unknown = 0
     tally = {}
-    wanted = set(data) | {"HEARTBEAT", "PARAM_VALUE", "STATUSTEXT", "NAMED_VALUE_FLOAT"}
+    wanted = set(data) | {"HEARTBEAT", "PARAM_VALUE", "STATUSTEXT", "NAMED_VALUE_FLOAT"} | set(GPS_FIX_FIELDS) \
+        | AIDING_RECORDS
     for index, offset, t, msg in iter_tlog(path, facts.damage, wanted, tally):
         if msg is None:
             unknown += 1
             continue
         mtype = msg.get_type()
+        if mtype in GPS_FIX_FIELDS:
+            facts.add_fix(mtype, getattr(msg, GPS_FIX_FIELDS[mtype], None), t)
+        elif mtype in AIDING_RECORDS:
+            facts.add_time(mtype, t)
         if mtype == "HEARTBEAT" and msg.type == MAV_TYPE_GCS:
             gcs.add(msg.get_srcSystem())
         elif mtype == "PARAM_VALUE":
@@ -353,6 +392,7 @@ def read_tlog_streams(path, mapping, optional: dict | None = None) -> DecodedLog
             boot = np.nan
         entry["boot"].append(float(boot))
     facts.decoded = tally["valid"] + unknown
+    facts.counts = dict(tally["types"])
     if unknown:
         facts.notes.append(f"frames: {unknown} of {facts.decoded} frames in {path} have message ids unknown to the "
                            f"ardupilotmega dialect (framing and length valid) and were not decoded")
@@ -400,7 +440,8 @@ def iter_dataflash(path, damage: Damage | None = None, wanted=None, tally: dict 
     FMT records pymavlink cannot parse (``bad FMT``). Dataflash has no checksum: corruption inside a record
     that keeps its header is not detectable. ``wanted`` (set of message names): records of other types are
     stepped over without unpacking (their framing is still checked); the index still counts them.
-    ``tally['valid']`` counts every well-framed record (FMT included), yielded or not.
+    ``tally['valid']`` counts every well-framed record (FMT included), yielded or not; ``tally['types']`` counts
+    them per message name.
     """
     from pymavlink.DFReader import FORMAT_TO_STRUCT, DFFormat, null_term
 
@@ -410,6 +451,7 @@ def iter_dataflash(path, damage: Damage | None = None, wanted=None, tally: dict 
     damage = Damage() if damage is None else damage
     tally = {} if tally is None else tally
     tally.setdefault("valid", 0)
+    types = tally.setdefault("types", {})
     formats = {DF_FMT_TYPE: DFFormat(DF_FMT_TYPE, "FMT", 89, "BBnNZ", "Type,Length,Name,Format,Columns")}
     layouts = {}
     size = len(data)
@@ -432,6 +474,7 @@ def iter_dataflash(path, damage: Damage | None = None, wanted=None, tally: dict 
             damage.add(f"truncated tail ({fmt.name})", offset, size - offset)
             break
         tally["valid"] += 1
+        types[fmt.name] = types.get(fmt.name, 0) + 1
         if wanted is not None and mtype != DF_FMT_TYPE and fmt.name not in wanted:
             offset += fmt.len
             index += 1
@@ -481,7 +524,17 @@ def read_bin_streams(path, mapping, optional: dict | None = None) -> DecodedLog:
     """The messages ``mapping`` needs from a dataflash ``.bin``, on the ``TimeUS`` clock (s since boot).
 
     ``optional`` as in :func:`read_tlog_streams`. Parameters (``PARM``) and texts (``MSG``) are collected.
+
+    Raises
+    ------
+    LogImportError
+        Nothing decodes; a ``.bin`` that is a Blue Robotics Ping recording (:func:`ping_viewer_signature`) is named
+        as such.
     """
+    what = ping_viewer_signature(path)
+    if what is not None:
+        raise LogImportError(f"{path}: not an ArduPilot dataflash log: {what}; it holds sonar echoes, not the "
+                             f"vehicle's motion or commands, so there is nothing to convert")
     needs = mapping.needs()
     optional = optional or {}
     data = {}
@@ -490,9 +543,14 @@ def read_bin_streams(path, mapping, optional: dict | None = None) -> DecodedLog:
         opt = sorted(set(optional.get(name, ())) - set(req))
         data[name] = {"t": [], "req": req, "opt": opt, "cols": {f: [] for f in req + opt}}
     facts = LogFacts()
-    wanted = {name.split("[")[0] for name in data} | {"PARM", "MSG"}
+    wanted = {name.split("[")[0] for name in data} | {"PARM", "MSG"} | set(GPS_FIX_FIELDS) | AIDING_RECORDS
     tally = {}
     for _index, offset, name, values in iter_dataflash(path, facts.damage, wanted, tally):
+        stamp = values.get("TimeUS")
+        if name in GPS_FIX_FIELDS and isinstance(stamp, (int, float)):
+            facts.add_fix(name, values.get(GPS_FIX_FIELDS[name]), stamp * 1e-6)
+        elif name in AIDING_RECORDS and isinstance(stamp, (int, float)):
+            facts.add_time(name, stamp * 1e-6)
         if name == "PARM":
             facts.params[str(values.get("Name", ""))] = float(values.get("Value", np.nan))
             continue
@@ -524,6 +582,7 @@ def read_bin_streams(path, mapping, optional: dict | None = None) -> DecodedLog:
             value = values.get(f, np.nan)
             cols[f].append(float(value) if isinstance(value, (int, float)) else np.nan)
     facts.decoded = tally["valid"]
+    facts.counts = dict(tally["types"])
     if facts.decoded == 0:
         raise LogImportError(f"{path}: nothing usable decodes (no dataflash record): {facts.damage.summary()}")
     streams = {}
@@ -853,3 +912,280 @@ def water_density_from_params(params: dict) -> tuple | None:
         return None
     return 1000.0 * sg, (f"water_density: {1000 * sg:.0f} kg/m^3 from log parameter BARO_SPEC_GRAV = {sg:g} (the "
                          f"water the operator configured: 1.0 fresh, 1.024 sea water)")
+
+
+# ------------------------------------------------------------------------------------------------ EKF aiding
+
+#: EK3_SRCn_* source values (AP_NavEKF_Source.h, enum classes SourceXY / SourceZ)
+EKF_SOURCES = {0: "None", 1: "Baro", 2: "RangeFinder", 3: "GPS", 4: "Beacon", 5: "OpticalFlow", 6: "ExternalNav",
+               7: "WheelEncoder"}
+#: defaults of EK3_SRC1_POSXY / VELXY / POSZ / VELZ when a log does not hold them (AP_NavEKF_Source.cpp, var_info:
+#: POSXY = SourceXY::GPS, VELXY = SourceXY::GPS, POSZ = SourceZ::BARO, VELZ = SourceZ::GPS)
+EKF_SOURCE_DEFAULTS = {"POSXY": 3, "VELXY": 3, "POSZ": 1, "VELZ": 3}
+#: records of each sensor (dataflash names, MAVLink names) whose presence says the autopilot received its data
+SENSOR_RECORDS = {
+    "baro": ("BARO", "SCALED_PRESSURE", "SCALED_PRESSURE2", "SCALED_PRESSURE3"),
+    "rangefinder": ("RFND", "RANGEFINDER", "DISTANCE_SENSOR"),
+    "beacon": ("BCN",),
+    "optflow": ("OF", "OPTICAL_FLOW", "OPTICAL_FLOW_RAD"),
+    "wheel": ("WENC", "WHEEL_DISTANCE"),
+    # external navigation (VISO_TYPE: a DVL or a camera through AP_VisualOdom): velocity / position deltas ...
+    "extnav_velocity": ("VISO", "VISV", "VISION_POSITION_DELTA", "VISION_SPEED_ESTIMATE", "ODOMETRY"),
+    # ... and positions (VISP: AP_VisualOdom_Backend logs each VISION_POSITION_ESTIMATE it passes on)
+    "extnav_position": ("VISP", "VISION_POSITION_ESTIMATE", "GLOBAL_VISION_POSITION_ESTIMATE", "ODOMETRY"),
+}
+#: XKFD (EKF3 "Body Frame Odometry errors", the innovations of the body-frame odometry it fused) is written only
+#: when EKF3 fuses body-frame odometry (a DVL's VISION_POSITION_DELTA, AP_VisualOdom): its presence is evidence that
+#: the horizontal velocity was aided even where the log holds no EK3_SRC* / VISO_TYPE parameters
+BODY_ODOMETRY_FUSED = "XKFD"
+
+
+#: the EKF leaves its aided mode (AID_ABSOLUTE -> AID_NONE, dead reckoning) when no position or velocity data has been
+#: fused for the shortest of its aiding-loss checks: MIN(tiltDriftTimeMax_ms 15000, posRetryTimeNoVel_ms 7000,
+#: posRetryTimeUseVel_ms 10000) = 7 s (AP_NavEKF3.h constants; NavEKF3_core::setAidingMode, case AID_ABSOLUTE)
+EKF_AID_TIMEOUT_S = 7.0
+#: every record type whose times :class:`LogFacts` keeps (the aiding sensors and the EKF's body-odometry innovations)
+AIDING_RECORDS = frozenset(n for names in SENSOR_RECORDS.values() for n in names) | {BODY_ODOMETRY_FUSED}
+
+
+@dataclass(frozen=True)
+class Aiding:
+    """Whether an EKF output had a sensor of its quantity (or of its rate) behind it, and why (the parameters and
+    records read), as :func:`ekf_aiding` judges it."""
+
+    aided: bool
+    why: str
+
+
+@dataclass(frozen=True)
+class AxisAiding:
+    """The data the EKF had for one axis (horizontal or vertical): the log times (s) of every delivery of its
+    configured sources (a GPS sample with a 3D fix, a DVL delta, a baro sample, ...) and the evidence."""
+
+    times: np.ndarray
+    why: str
+
+    def judge(self, label: str, times=None) -> Aiding:
+        """Aided when a source delivered within :data:`EKF_AID_TIMEOUT_S` before every one of ``times`` (the run's
+        rows, log clock; None: at any time in the log). Rows before the first delivery count as aided when it comes
+        within the timeout of the first row (a sensor streaming as the log starts: a log trimmed mid-dive). A run
+        aided only part of the time is judged unaided: its other rows are dead reckoning, and the sidecar's kind
+        holds for the whole column."""
+        if self.times.size == 0:
+            return Aiding(False, f"{label} UNAIDED (dead reckoning): {self.why}")
+        if times is None:
+            return Aiding(True, f"{label} aided: {self.why}")
+        t = np.asarray(times, float)
+        t = t[np.isfinite(t)]
+        delivered = self.times
+        if t.size and delivered[0] - t.min() <= EKF_AID_TIMEOUT_S:
+            delivered = np.concatenate([[min(t.min(), delivered[0])], delivered])
+        k = np.searchsorted(delivered, t, side="right") - 1
+        ok = (k >= 0) & (t - delivered[np.maximum(k, 0)] <= EKF_AID_TIMEOUT_S)
+        if ok.all():
+            return Aiding(True, f"{label} aided: {self.why}")
+        return Aiding(False, f"{label} UNAIDED (dead reckoning) in {int((~ok).sum())} of {ok.size} rows (no source "
+                             f"data for more than the EKF's {EKF_AID_TIMEOUT_S:g} s timeout): {self.why}")
+
+
+@dataclass(frozen=True)
+class EkfAiding:
+    """The aiding of the autopilot's EKF per quantity, from the log's own configuration (:func:`ekf_aiding`).
+
+    Attributes
+    ----------
+    horizontal, vertical : AxisAiding
+        Horizontal (N, E) and vertical (D) velocity and position.
+    notes : tuple of str
+        ``provenance:`` lines for the run's notes (what was read, what was assumed).
+    """
+
+    horizontal: AxisAiding
+    vertical: AxisAiding
+    notes: tuple = ()
+
+    def of(self, quantity: str, times=None) -> Aiding:
+        """The aiding of an EKF output over the log times ``times`` (s; None: anywhere in the log): ``velocity``
+        (the NED velocity, rotated to body u, v, w: each mixes the horizontal and vertical components, so it is aided
+        only when both are), ``position_xy``, ``position_z``, ``attitude`` (the AHRS/EKF attitude, always aided by the
+        gyros, accelerometers and compass)."""
+        if quantity == "attitude":
+            return Aiding(True, "attitude from the EKF/AHRS, aided by the accelerometers (gravity) and the compass "
+                                "(heading)")
+        if quantity == "position_xy":
+            return self.horizontal.judge("horizontal", times)
+        if quantity == "position_z":
+            return self.vertical.judge("vertical", times)
+        if quantity == "velocity":
+            parts = (self.horizontal.judge("horizontal", times), self.vertical.judge("vertical", times))
+            if all(a.aided for a in parts):
+                return Aiding(True, "; ".join(a.why for a in parts))
+            return Aiding(False, "; ".join(a.why for a in parts if not a.aided))
+        raise ValueError(f"unknown EKF quantity {quantity!r}; expected velocity, position_xy, position_z or attitude")
+
+
+def _times(facts: LogFacts, names) -> np.ndarray:
+    """Sorted log times (s) of the records ``names``."""
+    found = [np.asarray(facts.times[n], float) for n in names if facts.times.get(n)]
+    return np.sort(np.concatenate(found)) if found else np.zeros(0)
+
+
+def _records(facts: LogFacts, kind: str) -> list:
+    """(name, count) of the log's records of sensor ``kind`` (:data:`SENSOR_RECORDS`)."""
+    return [(n, facts.counts.get(n, len(facts.times.get(n, ())))) for n in SENSOR_RECORDS[kind]
+            if facts.counts.get(n) or facts.times.get(n)]
+
+
+def _gps_fix(facts: LogFacts) -> tuple:
+    """(times of the samples with a 3D fix, evidence): the autopilot's own GPS messages (dataflash GPS, tlog
+    GPS_RAW_INT) first, else what a companion sent it (GPS_INPUT, e.g. a Water Linked UGPS)."""
+    gps_type = facts.params.get("GPS_TYPE")
+    if gps_type is not None and gps_type == 0:
+        return np.zeros(0), "GPS_TYPE = 0 (no GPS)"
+    for name in ("GPS", "GPS_RAW_INT", "GPS2_RAW", "GPS_INPUT"):
+        if name in facts.fixes:
+            good, n = facts.fixes[name]
+            return _times(facts, [f"{name} fix"]), f"{name}: {good} of {n} samples with a 3D fix"
+    return np.zeros(0), "no GPS messages in the log" + (f" (GPS_TYPE = {gps_type:g})" if gps_type is not None else "")
+
+
+def _deliveries(source: int, axis: str, facts: LogFacts) -> tuple:
+    """(log times of the data EKF source ``source`` had in this log, evidence) for ``axis`` ``xy`` or ``z``."""
+    if source == 0:
+        return np.zeros(0), "no source"
+    if source == 3:
+        return _gps_fix(facts)
+    if source == 6:
+        viso = facts.params.get("VISO_TYPE")
+        if viso is not None and viso == 0:
+            return np.zeros(0), "VISO_TYPE = 0 (no visual odometry / DVL)"
+        kinds = ("extnav_velocity", "extnav_position") if axis == "xy" else ("extnav_position",)
+        names = tuple(dict.fromkeys(n for k in kinds for n in SENSOR_RECORDS[k]))
+        recs = [(n, len(facts.times[n])) for n in names if facts.times.get(n)]
+        if not recs:
+            what = "velocity or position" if axis == "xy" else "position"
+            return np.zeros(0), f"no external-navigation {what} records (VISO/VISP/VISION_*)"
+        return _times(facts, names), (("VISO_TYPE not in the log; " if viso is None else f"VISO_TYPE = {viso:g}; ")
+                                      + ", ".join(f"{n} x{c}" for n, c in recs))
+    kind = {1: "baro", 2: "rangefinder", 4: "beacon", 5: "optflow", 7: "wheel"}.get(source)
+    if kind is None:
+        return np.zeros(0), f"unknown source value {source}"
+    recs = _records(facts, kind)
+    return _times(facts, SENSOR_RECORDS[kind]), ", ".join(f"{n} x{c}" for n, c in recs) or f"no {kind} records"
+
+
+def _source_param(facts: LogFacts, name: str, bank: int = 1) -> tuple:
+    """(value, text) of EK3_SRC<bank>_<name>, ArduPilot's default when the log does not hold it (bank 1)."""
+    key = f"EK3_SRC{bank}_{name}"
+    value = facts.params.get(key)
+    if value is None or not np.isfinite(value):
+        value = EKF_SOURCE_DEFAULTS[name] if bank == 1 else 0
+        return value, f"{key} = {value} ({EKF_SOURCES[value]}; not in the log: ArduPilot's default assumed)"
+    value = int(value)
+    return value, f"{key} = {value} ({EKF_SOURCES.get(value, 'unknown')})"
+
+
+def ekf_aiding(facts: LogFacts) -> EkfAiding:
+    """Which of the EKF's outputs a sensor fed, from the log's own configuration (ArduPilot EKF3).
+
+    The EKF's sources are ``EK3_SRC1_POSXY`` / ``VELXY`` / ``POSZ`` / ``VELZ`` (AP_NavEKF_Source.h: 0 None, 1 Baro,
+    2 RangeFinder, 3 GPS, 4 Beacon, 5 OpticalFlow, 6 ExternalNav, 7 WheelEncoder; ArduPilot's defaults
+    :data:`EKF_SOURCE_DEFAULTS` where the log lacks them). A source counts only where its sensor delivered data in
+    this log: a GPS with a 3D fix (``GPS_TYPE`` not 0; :data:`GPS_FIX_3D`), external navigation with ``VISO_TYPE``
+    not 0 and VISO / VISP / VISION_* records (a DVL), a baro with BARO / SCALED_PRESSURE records, and so on
+    (:data:`SENSOR_RECORDS`). The horizontal velocity and position are aided when the horizontal velocity source or
+    the horizontal position source delivered (a position fix observes the velocity through its rate; a velocity
+    sensor such as a DVL makes the position its integral), or when the EKF logged its body-odometry innovations
+    (:data:`BODY_ODOMETRY_FUSED`); the vertical ones likewise with VELZ / POSZ. A row is aided when some source
+    delivered within :data:`EKF_AID_TIMEOUT_S` before it (:meth:`AxisAiding.judge`). Under water a GPS has no fix:
+    an EKF whose horizontal sources are GPS, with ``VISO_TYPE = 0`` and no DVL, dead-reckons
+    (``estimated-unaided``). Source sets 2 and 3 (switched by an RC option) are not followed: set 1 is taken as
+    active, noted when another set had data.
+
+    Parameters
+    ----------
+    facts : LogFacts
+        Parameters, message counts, record times and GPS fixes of the log.
+
+    Returns
+    -------
+    EkfAiding
+    """
+    notes = []
+    ekf_type = facts.params.get("AHRS_EKF_TYPE")
+    ekf2 = ekf_type is not None and ekf_type == 2
+    if ekf2:
+        notes.append("provenance: AHRS_EKF_TYPE = 2 (EKF2, no EK3_SRC* parameters): its sources are judged as EKF3's "
+                     "defaults (GPS horizontally, baro vertically) plus any external navigation in the log")
+
+    def axis(names, xy, bank=1):
+        times, texts = [], []
+        for name in names:
+            value, text = _source_param(facts, name, bank)
+            t, evidence = _deliveries(value, "xy" if xy else "z", facts)
+            texts.append(f"{text}: {evidence}")
+            times.append(t)
+        if ekf2 and xy:
+            t, evidence = _deliveries(6, "xy", facts)
+            if t.size:
+                texts.append(f"external navigation: {evidence}")
+                times.append(t)
+        return np.sort(np.concatenate(times)), "; ".join(texts)
+
+    h_times, h_why = axis(("VELXY", "POSXY"), True)
+    odom = _times(facts, [BODY_ODOMETRY_FUSED])
+    if odom.size:
+        h_times = np.sort(np.concatenate([h_times, odom]))
+        h_why += (f"; the EKF logged {odom.size} {BODY_ODOMETRY_FUSED} records (innovations of the body-frame "
+                  f"odometry it fused: a DVL / visual odometry aided it)")
+    v_times, v_why = axis(("VELZ", "POSZ"), False)
+    aiding = EkfAiding(AxisAiding(h_times, h_why), AxisAiding(v_times, v_why))
+    horizontal, vertical = aiding.horizontal.judge("horizontal"), aiding.vertical.judge("vertical")
+    for k in (2, 3):
+        if not horizontal.aided and any(f"EK3_SRC{k}_{n}" in facts.params for n in ("VELXY", "POSXY")):
+            other, _ = axis(("VELXY", "POSXY"), True, k)
+            if other.size:
+                notes.append(f"provenance: EK3_SRC{k}_VELXY/POSXY had data in this log; source set 1 is taken as the "
+                             f"active one (the log does not say whether an RC switch selected set {k})")
+    notes.append(f"provenance: EKF {horizontal.why}")
+    notes.append(f"provenance: EKF {vertical.why}")
+    return replace(aiding, notes=tuple(notes))
+
+
+# ------------------------------------------------------------------------------------------------ not a dataflash log
+
+#: Ping Viewer (Blue Robotics' application for its Ping echo sounder and Ping360 sonar) writes its sensor logs as
+#: ``.bin``: a Qt QDataStream (big-endian) that opens with the QString "PingViewer sensor log file" (uint32 byte
+#: length, then UTF-16BE text; bluerobotics/ping-viewer, ``LogSensorStruct::_validHeader``, and its doc
+#: "Binary log file structure"); the recorded messages are Ping-protocol frames ("BR", payload length, message id,
+#: ..., checksum: docs.bluerobotics.com/ping-protocol)
+PING_VIEWER_HEADER = "PingViewer sensor log file"
+PING_START = b"BR"
+
+
+def _ping_frame_at(data: bytes, k: int) -> bool:
+    """A whole Ping-protocol frame starts at byte ``k``: 'B' 'R', payload length (uint16 LE), message id (uint16 LE),
+    source and destination ids, the payload and a uint16 LE checksum = the byte sum of everything before it."""
+    if data[k:k + 2] != PING_START or k + 10 > len(data):
+        return False
+    n = data[k + 2] | data[k + 3] << 8
+    end = k + 8 + n
+    if end + 2 > len(data):
+        return False
+    return (sum(data[k:end]) & 0xFFFF) == (data[end] | data[end + 1] << 8)
+
+
+def ping_viewer_signature(path) -> str | None:
+    """What a ``.bin`` that is not ArduPilot dataflash is, when it is a Blue Robotics Ping recording: a Ping Viewer
+    sensor log (its header string, UTF-16BE or UTF-8) or a raw Ping-protocol stream (a checksummed 'BR' frame at the
+    start); None otherwise. Reads the first 4 kB only."""
+    with open(path, "rb") as fh:
+        head = fh.read(4096)
+    if head[:2] == DF_HEAD:
+        return None
+    if PING_VIEWER_HEADER.encode("utf-16-be") in head[:128] or PING_VIEWER_HEADER.encode() in head[:128]:
+        return ("a Ping Viewer sensor log (Blue Robotics Ping echo sounder / Ping360 sonar recording, header "
+                f"'{PING_VIEWER_HEADER}')")
+    if _ping_frame_at(head, 0):
+        return "a raw Ping-protocol stream (Blue Robotics Ping echo sounder / Ping360 sonar messages, 'BR' framing)"
+    return None

@@ -54,6 +54,10 @@ METADATA_KEYS = ("format", "vehicle", "water_density", "seabed_depth", "walls", 
 SEGMENT = "segment"
 #: largest segment number accepted: integers of a float64 column are exact up to 2**53
 _SEGMENT_MAX = 2.0 ** 53
+#: the sidecar's ``channels`` kinds: a sensor; a filter aided by a sensor of that quantity (or of its rate); dead
+#: reckoning (no sensor of it fed the estimate: shown, never fitted, scored or counted as observed)
+MEASURED, ESTIMATED, UNAIDED = "measured", "estimated", "estimated-unaided"
+CHANNEL_KINDS = (MEASURED, ESTIMATED, UNAIDED)
 
 _INDEXED_INPUT = re.compile(r"^(thrust|pwm)_(\d+)$")
 _NUMBER = re.compile(r"^[+-]?(\d+(\.\d*)?|\.\d+)([eE][+-]?\d+)?$", re.ASCII)  # ASCII digits only (not '٣', '３')
@@ -731,7 +735,55 @@ def validate_metadata(meta, source="metadata") -> dict:
                                   f"(got {wall['normal'][2]!r})")
     if "cut" in meta:
         _check_cut(meta["cut"], f"{source}: field 'cut'")
+    if "channels" in meta:
+        _check_channels(meta["channels"], f"{source}: field 'channels'")
     return out
+
+
+def _check_channels(channels, where: str) -> None:
+    """Check the sidecar's ``channels`` entry: column -> {"source": str, "kind": one of CHANNEL_KINDS, ...}."""
+    if not isinstance(channels, dict):
+        raise RunLogError(f"{where}: expected an object of column -> {{\"source\", \"kind\"}}, got {channels!r}")
+    for column, entry in channels.items():
+        if not isinstance(entry, dict) or not isinstance(entry.get("source", ""), str) \
+                or entry.get("kind") not in CHANNEL_KINDS:
+            raise RunLogError(f"{where}.{column}: expected {{\"source\": text, \"kind\": "
+                              f"{' | '.join(CHANNEL_KINDS)}}}, got {entry!r}")
+
+
+@dataclass(frozen=True)
+class ChannelSource:
+    """How one column of a run was obtained (the sidecar's ``channels`` entry).
+
+    Attributes
+    ----------
+    column : str
+    source : str
+        Sensor / message and field, e.g. ``XKF1.VN/VE/VD (world_to_body)``.
+    kind : str
+        One of :data:`CHANNEL_KINDS`.
+    aiding : str
+        For a judged estimate, the evidence (which sources the filter had and what the log shows of them).
+    """
+
+    column: str
+    source: str
+    kind: str
+    aiding: str = ""
+
+
+def channel_sources(metadata) -> dict:
+    """column -> :class:`ChannelSource` of a run's sidecar ``channels`` entry; a column without an entry is
+    ``measured`` (and absent here)."""
+    entries = (metadata or {}).get("channels") or {}
+    return {c: ChannelSource(c, str(e.get("source", "")), e["kind"], str(e.get("aiding", "")))
+            for c, e in entries.items() if isinstance(e, dict) and e.get("kind") in CHANNEL_KINDS}
+
+
+def unaided_channels(metadata) -> dict:
+    """column -> :class:`ChannelSource` of the run's ``estimated-unaided`` columns (dead reckoning): a consumer shows
+    them but never fits to them, scores them or counts them as observed."""
+    return {c: s for c, s in channel_sources(metadata).items() if s.kind == UNAIDED}
 
 
 def _check_cut(cut, where: str) -> None:

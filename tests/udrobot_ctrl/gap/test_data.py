@@ -6,9 +6,12 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
+from tests.udrobot_ctrl.gap.truth import generate
 from udrobot_ctrl.dynamics.plant import plant_parameters
 from udrobot_ctrl.dynamics.thrusters import pwm_to_thrust
 from udrobot_ctrl.gap.data import ALTITUDE_VALID_MIN, prepare, without_stabilised
+from udrobot_ctrl.gap.identifiability import EffectCheck, Identifiability, ParameterCheck, describe_missing
+from udrobot_ctrl.gap.report import diagnose, summary
 from udrobot_ctrl.io.runlog import Run
 from udrobot_ctrl.vehicle import load_model
 
@@ -87,3 +90,80 @@ def test_pwm_thrust_follows_the_logged_battery_voltage():
     want = np.clip(pwm_to_thrust(pwm, volts[:, None]), hv.f_min, hv.f_max)
     assert prep.f == pytest.approx(want, rel=1e-9)
     assert prep.f[0, 4] > 1.2 * prep.f[-1, 4]  # the sag is in the thrust
+
+
+NO_FIX = "horizontal UNAIDED (dead reckoning): EK3_SRC1_VELXY = 3 (GPS): GPS: 0 of 50 samples with a 3D fix"
+UNAIDED_SIDECAR = {"channels": {
+    **{c: {"source": "XKF1.VN/VE/VD (world_to_body)", "kind": "estimated-unaided", "aiding": NO_FIX} for c in "uvw"},
+    **{c: {"source": f"XKF1.P{'N' if c == 'x' else 'E'}", "kind": "estimated-unaided", "aiding": NO_FIX}
+       for c in "xy"},
+    "z": {"source": "BARO[1].Alt", "kind": "measured"}, "phi": {"source": "ATT.Roll", "kind": "estimated"}}}
+
+
+def _drifting_run(metadata=None, n=400):
+    """A run that logs u v w and x y as an EKF with no velocity source gives them (a drifting dead-reckoned surge)."""
+    run = _run(0.0, metadata, n)
+    run.channels["u"] = 0.2 + 0.01 * run.t
+    run.channels["x"] = np.cumsum(run.channels["u"]) * 0.05
+    del run.channels["altitude"]
+    return run
+
+
+def test_unaided_estimates_are_not_observed(p):
+    """The sidecar marks u v w x y estimated-unaided: prepare leaves them out of meas (so nothing downstream fits,
+    scores or counts them), X and Y are not observed, Z still is (through the measured depth); estimated but aided
+    columns (phi) stay. The same run without the entry observes every DOF."""
+    plain = prepare(_drifting_run(), p, "r.csv")
+    assert plain.observed.all() and "u" in plain.meas and not plain.unaided
+    prep = prepare(_drifting_run(UNAIDED_SIDECAR), p, "r.csv")
+    assert not any(c in prep.meas for c in "uvwxy") and "z" in prep.meas and "phi" in prep.meas
+    assert list(prep.observed) == [False, False, True, True, True, True]
+    assert not prep.dof_ok[:2].any()
+    assert sorted(prep.unaided) == ["u", "v", "w", "x", "y"]
+    assert prep.unaided["u"].source == "XKF1.VN/VE/VD (world_to_body)"
+    note = next(n for n in prep.notes if "estimated-unaided" in n)
+    assert "u, v, w, x, y logged but estimated-unaided" in note and "not fitted, scored or counted" in note
+
+
+def test_the_unidentifiable_reason_names_the_unaided_column(p):
+    """An effect not identified for the horizontal velocity: its entry's ``missing`` carries ``not_observed`` and one
+    ``unaided_estimate`` per unaided horizontal column (u, v, x, y: not w, which is heave) with its source and
+    evidence; the console sentence is rendered from the code."""
+    prep = prepare(_drifting_run(UNAIDED_SIDECAR), p, "r.csv")
+    chk = EffectCheck("added_mass", [ParameterCheck("dm_X", 0.05, 0.0, False, ("horizontal",))])
+    ident = Identifiability({"added_mass": chk}, prep.observed, prep.reconstructed, unaided=prep.unaided)
+    (entry,) = ident.report()
+    codes = [(m["code"], m.get("column", m.get("dofs"))) for m in entry["missing"]]
+    assert codes == [("not_observed", "horizontal"), ("unaided_estimate", "u"), ("unaided_estimate", "v"),
+                     ("unaided_estimate", "x"), ("unaided_estimate", "y")]
+    u = entry["missing"][1]
+    assert u["source"] == "XKF1.VN/VE/VD (world_to_body)" and "EK3_SRC1_VELXY = 3 (GPS)" in u["why"]
+    assert describe_missing(u).startswith("u is logged but is an estimate without aiding (XKF1.VN/VE/VD")
+    # no unaided column: the entry has no such code
+    (plain,) = Identifiability({"added_mass": chk}, prep.observed, prep.reconstructed).report()
+    assert [m["code"] for m in plain["missing"]] == ["not_observed"]
+
+
+def test_a_diagnosis_on_dead_reckoned_velocities_scores_none_of_them():
+    """Two simulated pool runs whose sidecars mark u v w x y estimated-unaided (an EKF with no velocity source): the
+    diagnosis leaves them out (sensors: not logged, X and Y not scored, listed under unaided), every run notes it, and
+    the effects the horizontal velocity would identify are unidentifiable with the ``unaided_estimate`` code naming
+    each column and its source."""
+    runs = generate({}, n_runs=2, duration=60.0, rate=20.0, seed=3)
+    for r in runs:
+        r.metadata = {**r.metadata, **UNAIDED_SIDECAR}
+    report, _ = diagnose("pendulum:chin", runs)
+    sensors = report["sensors"]
+    assert not set("uvwxy") & set(sensors["logged"]) and not {"X", "Y"} & set(sensors["scored_dofs"])
+    assert sensors["unaided"]["u"] == "XKF1.VN/VE/VD (world_to_body)"
+    assert sum("u, v, w, x, y logged but estimated-unaided" in n for n in report["notes"]) == 2
+    assert report["unidentifiable"] and not any(e["significant"] for e in report["effects"])
+    horizontal = [u for u in report["unidentifiable"] if {"code": "not_observed", "dofs": "horizontal"} in u["missing"]]
+    assert horizontal
+    for u in horizontal:
+        named = {m["column"]: m["source"] for m in u["missing"] if m["code"] == "unaided_estimate"}
+        assert named == {"u": "XKF1.VN/VE/VD (world_to_body)", "v": "XKF1.VN/VE/VD (world_to_body)",
+                         "x": "XKF1.PN", "y": "XKF1.PE"}
+    # the console says it in words, once per column of each such effect
+    text = summary(report)
+    assert text.count("u is logged but is an estimate without aiding (XKF1.VN/VE/VD (world_to_body)") == len(horizontal)
