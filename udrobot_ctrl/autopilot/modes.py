@@ -14,7 +14,9 @@ Sources (ArduPilot, ArduSub 4.1-4.5):
   ``get_pilot_desired_climb_rate`` (``THR_DZ`` about mid stick, ``PILOT_SPEED_UP``/``DN``).
 * ``ArduSub/mode_manual.cpp`` (``control_manual.cpp`` before 4.1): roll, pitch, forward, lateral = ``norm_input``;
   yaw = ``norm_input * ACRO_YAW_P / ACRO_YAW_P_default``; ``motors.set_throttle(channel_throttle->norm_input())``.
-* ``ArduSub/mode_stabilize.cpp``, ``mode_althold.cpp``: lean angles and yaw rate from the sticks; the heading is
+* ``ArduSub/mode_stabilize.cpp``, ``mode_althold.cpp``: lean angles and yaw rate from the sticks (the yaw stick's
+  dead zone is ``RC4_DZ`` times the pilot gain: ``pwm_to_angle_dz_trim(get_dead_zone() * sub.gain, trim)``; on the
+  sea dive, which logs no parameters, 40 x 0.5 fits its horizontal motors twice as well as 40); the heading is
   held (``input_euler_angle_roll_pitch_yaw`` with ``last_pilot_heading``) 250 ms after the yaw stick returns to
   centre; forward/lateral = ``norm_input``; STABILIZE's throttle ``set_throttle_out(channel_throttle->
   norm_input(), false, PILOT_THR_FILT)``, ALT_HOLD's from the depth loop with the stick as a climb rate.
@@ -267,7 +269,8 @@ def shape_pilot(pilot: PilotInput, params: PilotParameters, depth: DepthParamete
     pitch_in = pwm_to_angle_dz_trim(pilot.channel("pitch"), ch["pitch"], ch["pitch"].dead_zone, ch["pitch"].trim)
     roll, pitch = pilot_lean_angles(roll_in, pitch_in, params.angle_max,
                                     params.angle_max if angle_limit is None else angle_limit)
-    yaw_in = pwm_to_angle_dz_trim(pilot.channel("yaw"), ch["yaw"], ch["yaw"].dead_zone, ch["yaw"].trim)
+    # mode_stabilize.cpp / mode_althold.cpp: pwm_to_angle_dz_trim(channel_yaw->get_dead_zone() * sub.gain, trim)
+    yaw_in = pwm_to_angle_dz_trim(pilot.channel("yaw"), ch["yaw"], ch["yaw"].dead_zone * params.gain, ch["yaw"].trim)
     thr_ch = ch["throttle"]
     throttle_control = pwm_to_range_dz(pilot.channel("throttle"), thr_ch, thr_ch.dead_zone)
     climb = pilot_climb_rate(throttle_control, control_mid(thr_ch), params, depth)
