@@ -259,6 +259,99 @@ def emulated_mixer_inputs(run: Run, params: ArduSubParameters, fr: Frame, motors
     return np.array([pilot.mixer_inputs(float(t - run.t[0]), xk) for t, xk in zip(run.t, x)])
 
 
+#: fewer output-sample rows than this and :func:`motor_output_check` compares every row (outputs constant)
+MIN_SAMPLE_ROWS = 20
+
+
+@dataclass(frozen=True)
+class MotorOutputCheck:
+    """The emulated ArduSub's motor outputs on a run against the logged ones (:func:`motor_output_check`).
+
+    Attributes
+    ----------
+    frame : str
+        ArduSub frame of the mixer.
+    rows : (m,) ndarray
+        Rows compared: where a logged output sample lands (every row when the outputs never change).
+    emulated, logged : (m, k) ndarray
+        Motor PWM at those rows, us (motor-command sense).
+    nrmse : tuple of float
+        Per motor: RMSE / std of the logged channel (nan where the logged channel is constant and the RMSE not 0).
+    rmse_us, logged_std_us : tuple of float
+        Per motor: RMSE (us) and std of the logged channel (us).
+    mode_rows : dict
+        ArduSub mode name (or number) -> rows compared in it.
+    armed_fraction : float
+        Fraction of the compared rows armed.
+    assumed : tuple of str
+        ArduSub parameters the run lacked (ArduSub's defaults used, :meth:`ArduSubParameters.from_log_params`).
+    """
+
+    frame: str
+    rows: np.ndarray = field(repr=False)
+    emulated: np.ndarray = field(repr=False)
+    logged: np.ndarray = field(repr=False)
+    nrmse: tuple
+    rmse_us: tuple
+    logged_std_us: tuple
+    mode_rows: dict
+    armed_fraction: float
+    assumed: tuple
+
+
+def motor_output_check(run: Run, p: PlantParameters, params: ArduSubParameters | None = None) -> MotorOutputCheck:
+    """Emulate ArduSub on a converted run (:func:`emulated_mixer_inputs`: the logged modes, armed state, pilot inputs
+    and targets on the logged states) and compare its mixed PWM with the logged motor outputs.
+
+    Parameters
+    ----------
+    run : Run
+        A converted ArduSub run (``pwm_i`` in motor-command sense and the context columns).
+    p : PlantParameters
+        The vehicle's plant (its ``ardusub_frame`` names the mixer).
+    params : ArduSubParameters, optional
+        The autopilot's parameters; the run's own (sidecar ``autopilot_params``, ArduSub's defaults for the rest) if
+        None.
+
+    Raises
+    ------
+    ValueError
+        If the plant names no ArduSub frame or the run has no ``mode`` column.
+    """
+    if not p.ardusub_frame:
+        raise ValueError("the plant names no ArduSub frame ('ardusub_frame'): no mixer to emulate")
+    # local import: validate reads dataflash through io, which imports this package's modules first
+    from udrobot_ctrl.autopilot.validate import nrmse
+    fr = frame(p.ardusub_frame)
+    log_params, _ = run_log_params(run.metadata)
+    if params is None:
+        params = ArduSubParameters.from_log_params(log_params)
+    k = fr.n_motors
+    # the run's pwm_i are motor-command PWM (the converter mirrored the reversed motors): every direction +1
+    motors = replace(MotorParameters.from_log_params(log_params, k), directions=(1,) * k)
+    u = emulated_mixer_inputs(run, params, fr, motors, p)
+    if u is None:
+        raise ValueError(f"{run.path or 'run'}: no 'mode' column: nothing to emulate")
+    rows = changed_rows(run)
+    if rows.size < MIN_SAMPLE_ROWS:
+        rows = np.arange(run.n)
+    emulated = to_pwm(mix(fr, u[rows], motors), motors, integer=True)
+    logged = np.asarray(run.inputs, float)[rows]
+    mode = run.extra.get("mode")
+    names: dict = {}
+    for m in (np.nan_to_num(mode[rows], nan=-1).astype(int) if mode is not None else ()):
+        name = Mode(m).name if m in Mode._value2member_map_ else str(m)
+        names[name] = names.get(name, 0) + 1
+    armed = run.extra.get("armed")
+    on = np.ones(rows.size, bool) if armed is None else np.nan_to_num(armed[rows], nan=1.0) != 0
+    return MotorOutputCheck(
+        frame=fr.name, rows=rows, emulated=emulated, logged=logged,
+        nrmse=tuple(nrmse(emulated[:, i], logged[:, i]) for i in range(k)),
+        rmse_us=tuple(float(np.sqrt(np.nanmean((emulated[:, i] - logged[:, i]) ** 2))) for i in range(k)),
+        logged_std_us=tuple(float(np.nanstd(logged[:, i])) for i in range(k)), mode_rows=names,
+        armed_fraction=float(on.mean()) if on.size else 0.0, assumed=tuple(params.assumed))
+
+
 #: refreshes kept in memory (:func:`output_refresh`): a diagnosis prepares the same run several times (fit and
 #: holdout parts, the second reconstruction pass), and the emulation costs ~0.2 ms a row
 REFRESHES_KEPT = 8
