@@ -3,6 +3,9 @@ channels' ``norm_input`` / ``norm_input_dz`` with the log's trims (the throttle 
 vehicles have it), the manual throttle, ALT_HOLD's climb rate and its saturation handling."""
 from __future__ import annotations
 
+from dataclasses import replace
+
+import numpy as np
 import pytest
 
 from udrobot_ctrl.autopilot.ardusub import ArduSubAutopilot, MixerInputs, VehicleState
@@ -127,3 +130,61 @@ def test_althold_after_a_saturated_descent_does_not_keep_full_down_thrust():
     dt = 0.005
     assert sum(thr <= 0.0 for _, thr in hold) * dt < 1.0                 # full down-thrust ends within 1 s
     assert abs(hold[-1][0] - released_at) < err_max                      # settled near the release depth
+
+
+def trim_at_min_tlog(path, seconds: float = 30.0):
+    """A BlueROV2 (FRAME_CONFIG 1, VECTORED) in MANUAL as QGroundControl logs it, ``RC3_TRIM = RC3_MIN = 1100``: the
+    throttle stick (RC_CHANNELS chan3, 10 Hz) steps through 1500, 1700, 1500, 1300 us, 2 s each, and the vertical
+    thrusters (SERVO_OUTPUT_RAW 5, 6, 10 Hz, 5 ms after each RC sample) follow ArduSub 4.1-4.5's law: throttle =
+    norm_input = (pwm - 1100) / 800, bidirectional 2 (throttle - 0.5), factor -1, 1500 + 400 x thrust (int)."""
+    from pymavlink.dialects.v20 import ardupilotmega as mav2
+
+    from tests.udrobot_ctrl.io.test_field_logs import RHO_G, params_events, write_events
+    mav = mav2.MAVLink(None, srcSystem=1, srcComponent=1)
+    params = {**TRIM_AT_MIN, "FRAME_CONFIG": 1.0, "MOT_PWM_MIN": 1100.0, "MOT_PWM_MAX": 1900.0,
+              **{f"SERVO{i}_FUNCTION": 32.0 + i for i in range(1, 7)}}
+    ev = params_events(mav, params)
+    for t in np.arange(0.0, seconds, 1.0):
+        ev.append((t + 0.5, mav.heartbeat_encode(12, 3, 81 | 128, int(Mode.MANUAL), 4)))  # armed, MANUAL
+        ev.append((t + 0.6, mav.sys_status_encode(0, 0, 0, 500, 16000, 500, 90, 0, 0, 0, 0, 0, 0)))
+    for t in np.arange(0.01, seconds, 0.02):
+        ev.append((t, mav.attitude_encode(int(t * 1000), 0.0, 0.0, 0.5, 0.0, 0.0, 0.0)))
+    for t in np.arange(0.02, seconds, 0.5):
+        ev.append((t, mav.scaled_pressure2_encode(int(t * 1000), (101325.0 + RHO_G * 2.0) / 100.0, 0.0, 1200)))
+    steps = (1500, 1700, 1500, 1300)
+    for t in np.arange(1.0, seconds, 0.1):
+        thr_pwm = steps[int(t // 2.0) % len(steps)]
+        rc = [1500, 1500, thr_pwm, 1500, 1500, 1500, 1500, 1500]
+        ev.append((t, mav.rc_channels_encode(int(t * 1000), 8, *rc, *[0] * 10, 255)))
+        thrust = -2.0 * ((thr_pwm - 1100.0) / 800.0 - 0.5)
+        vertical = int(1500 + 400 * thrust)
+        servo = [1500, 1500, 1500, 1500, vertical, vertical] + [0] * 10
+        ev.append((t + 0.005, mav.servo_output_raw_encode(int((t + 0.005) * 1e6), 0, *servo)))
+    return write_events(path, mav, ev)
+
+
+def test_trim_at_min_log_replays_its_vertical_thrusters(tmp_path):
+    """The whole path a user's log takes (convert -> emulation -> mixer): with the log's RC3_TRIM = RC3_MIN the
+    emulated vertical thrusters equal the logged ones (a row or two per stick step aside, where the converter's
+    grid and the emulation's one-tick lag place the step), and a centred stick is 1500 us; the (norm + 1) / 2 form
+    misses them by hundreds of us."""
+    from udrobot_ctrl.autopilot.feedback import motor_output_check
+    from udrobot_ctrl.dynamics.plant import plant_parameters
+    from udrobot_ctrl.io import convert_log
+    from udrobot_ctrl.vehicle import load_model
+
+    run = convert_log(trim_at_min_tlog(tmp_path / "trim.tlog"), cut=False)
+    assert run.metadata["vehicle"] == "bluerov2"
+    assert run.metadata["autopilot_params"]["RC3_TRIM"] == 1100.0
+    p = plant_parameters(load_model("bluerov2"))
+    check = motor_output_check(run, p)
+    vertical = check.emulated[:, 4:6] - check.logged[:, 4:6]
+    assert np.mean(np.abs(vertical) < 1.0) > 0.9          # equal to the us on all rows but the step ones
+    assert max(check.nrmse[4:6]) < 0.3
+    rc3 = np.asarray(run.extra["rcin_3"])
+    held = (rc3[check.rows] == 1500) & (rc3[np.maximum(check.rows - 1, 0)] == 1500)  # centred since the last row
+    assert held.sum() > 100
+    assert np.all(check.emulated[held][:, 4:6] == 1500)
+    params = ArduSubParameters.from_log_params(run.metadata["autopilot_params"])
+    wrong = replace(params, pilot=replace(params.pilot, throttle_norm_centred=True))
+    assert min(motor_output_check(run, p, wrong).rmse_us[4:6]) > 100.0
