@@ -24,9 +24,11 @@ emulated and raise. ALT_HOLD has ArduSub 4.1.1-4.5's surface and bottom handling
 ticks) and, with the throttle stick centred, the depth target held at least 5 cm below ``SURFACE_DEPTH`` or
 raised to 10 cm above a bottomed vehicle (:mod:`~udrobot_ctrl.autopilot.surface_bottom`, which also lists the
 variants that are not emulated). The detector's ``motors.limit.throttle_lower`` is the autopilot's own (its
-filtered throttle at 0, ``AP_Motors6DOF::output_armed_stabilizing``) or the ``limits`` given; the depth loop's
-integrators see only the ``limits`` given (ArduSub also stops them at its own throttle clamp: not emulated, as
-before). Not emulated: the surface throttle limit ``SURFACE_MAX_THR`` (after 4.5), SURFTRAK's rangefinder ->
+filtered throttle at 0, ``AP_Motors6DOF::output_armed_stabilizing``) or the ``limits`` given, and so is the depth
+loop's: ``throttle_lower`` / ``throttle_upper`` at the motors' throttle clamp (0 / 1) of this tick's output stop
+the depth loop's integrators from growing and its target from moving further towards the limit (the saturation
+handling of :mod:`~udrobot_ctrl.autopilot.depth`).
+Not emulated: the surface throttle limit ``SURFACE_MAX_THR`` (after 4.5), SURFTRAK's rangefinder ->
 depth-target law (``ModeSurftrak::control_range``, ArduSub 4.5 only: give the depth target, e.g. the logged one),
 the ``SET_ATTITUDE_TARGET`` override of ALT_HOLD, failsafes.
 
@@ -43,7 +45,7 @@ Checked against the Seattle dive by :func:`udrobot_ctrl.autopilot.validate.repla
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -342,11 +344,14 @@ class ArduSubAutopilot:
         self._throttle_out = min(max(self._throttle_out, 0.0), 1.0)
         out = MixerInputs(float(rpy[0]), float(rpy[1]), float(rpy[2]), self._throttle_out, self._forward,
                           self._lateral)
+        # motors.limit of this output (AP_Motors6DOF::output_armed_stabilizing: bidirectional throttle at -1 / +1),
+        # read by this tick's update_z_controller
+        limits = replace(limits, throttle_lower=limits.throttle_lower or self._throttle_out <= 0.0,
+                         throttle_upper=limits.throttle_upper or self._throttle_out >= 1.0)
         # 3. flight mode update for the next tick
         self._update_flight_mode(dt, state, pilot, targets, limits)
-        # 4. surface and bottom detector (read by the next tick's mode); motors.limit.throttle_lower is the mixer's
-        # throttle clamp (throttle_thrust at -_throttle_thrust_max = -1: the filtered throttle at 0)
-        self.surface_bottom.update(state.depth, state.vel_down, limits.throttle_lower or self._throttle_out <= 0.0)
+        # 4. surface and bottom detector (read by the next tick's mode); motors.limit.throttle_lower as above
+        self.surface_bottom.update(state.depth, state.vel_down, limits.throttle_lower)
         self.time += dt
         return out
 

@@ -28,10 +28,29 @@ Version differences (``AC_PosControl``):
   Here the pilot's climb-rate shaping is simplified to an acceleration-limited ramp of ``vel_desired``
   (``PILOT_ACCEL_Z``) integrated into ``pos_target`` -- exact in the steady state (sticks centred: the target
   holds), approximate during stick transients. GUIDED and SURFTRAK take the logged or commanded targets as they
-  are (:meth:`DepthController.set_targets`). Not emulated either: the ``_limit_vector`` of ``update_z_controller``
-  (``update_pos_vel_accel`` stops moving the target towards a throttle limit), so a target the vehicle cannot
-  follow (pushed into the seabed) keeps moving with ``vel_desired`` until that has ramped to zero. ALT_HOLD's
-  surface and bottom clamps of ``pos_target`` are in :mod:`.surface_bottom`.
+  are (:meth:`DepthController.set_targets`). ALT_HOLD's surface and bottom clamps of ``pos_target`` are in
+  :mod:`.surface_bottom`.
+
+Saturation (ArduSub 4.1-4.5, the behaviour that keeps a saturated dive from winding the loop up):
+
+* ``AP_Motors6DOF::output_armed_stabilizing``: ``limit.throttle_lower`` / ``throttle_upper`` are set when the
+  bidirectional throttle reaches -1 / +1 (the motors' filtered throttle at 0 / 1); ``update_z_controller`` reads
+  the flags of the previous output. :class:`~udrobot_ctrl.autopilot.ardusub.ArduSubAutopilot` feeds its own
+  flags back (and any the caller gives).
+* ``update_z_controller``: ``_pid_vel_z.update_all(..., limit.throttle_lower, limit.throttle_upper)`` (the
+  velocity integrator does not grow towards the limit), ``_pid_accel_z.update_all(..., throttle_lower ||
+  throttle_upper)`` (the acceleration integrator may only shrink), and at its end ``_limit_vector.z`` = +1
+  (upper) / -1 (lower) / 0, up frame.
+* ``input_vel_accel_z`` (``set_pos_target_z_from_climb_rate_cm``) -> ``update_pos_vel_accel(_pos_target.z,
+  _vel_desired.z, _accel_desired.z, dt, _limit_vector.z, _p_pos_z.get_error(), _pid_vel_z.get_error())``
+  (``libraries/AP_Math/control.cpp``): the target's position step is skipped when it points along the limit and
+  the position error already does (``delta_pos * limit > 0 && pos_error * limit > 0``), and likewise the desired
+  velocity's step with the velocity error. A target the vehicle cannot follow stops moving: once the pilot
+  centres the stick the vehicle is held where the target stopped.
+* ``AC_P_1D`` (``PSC_POSZ``) limits the position error to ``inv_sqrt_controller(PILOT_SPEED_DN/UP)`` and moves
+  the target to within that distance of the vehicle.
+
+Here the limit vector is on the down axis (+1 = ``throttle_lower``: full down-thrust, -1 = ``throttle_upper``).
 """
 from __future__ import annotations
 
@@ -70,6 +89,9 @@ class DepthController:
         self.accel_target = 0.0
         self.throttle = params.throttle_hover
         self.active = False
+        #: ``_limit_vector.z`` on the down axis (+1 throttle_lower, -1 throttle_upper, 0 none), set by update
+        self.limit_down = 0.0
+        self._pos_error = 0.0
 
     def init(self, depth: float, vel_down: float, throttle_in: float) -> None:
         """``init_z_controller``: targets to the current depth and velocity, accel I term from the throttle.
@@ -94,6 +116,8 @@ class DepthController:
         self.pid_accel.set_integrator(-(throttle_in - self.params.throttle_hover))
         self.throttle = throttle_in
         self.active = True
+        self.limit_down = 0.0
+        self._pos_error = 0.0
 
     def relax(self, depth: float, throttle: float) -> None:
         """``relax_z_controller``: hold the current depth, integrator from ``throttle`` (used while disarmed)."""
@@ -107,13 +131,20 @@ class DepthController:
     def set_pos_target_from_climb_rate(self, climb_rate: float, dt: float) -> None:
         """The pilot's climb rate (m/s, positive *up*, ArduSub's sign) moves the depth target (see module notes).
 
-        ``vel_desired`` ramps to ``-climb_rate`` at ``accel_max`` and is integrated into ``pos_target``.
+        ``vel_desired`` is integrated into ``pos_target`` and ramps to ``-climb_rate`` at ``accel_max``; neither step
+        is taken towards a throttle limit the errors already point to (``update_pos_vel_accel`` with
+        :attr:`limit_down`, module notes).
         """
+        limit = self.limit_down
+        delta_pos = self.vel_desired * dt
+        if not (delta_pos * limit > 0.0 and self._pos_error * limit > 0.0):
+            self.pos_target += delta_pos
         want = -climb_rate
         step = self.params.accel_max * dt
-        self.vel_desired = min(max(want, self.vel_desired - step), self.vel_desired + step)
+        delta_vel = min(max(want, self.vel_desired - step), self.vel_desired + step) - self.vel_desired
+        if not (delta_vel * limit > 0.0 and self.pid_vel.error * limit > 0.0):
+            self.vel_desired += delta_vel
         self.accel_desired = 0.0
-        self.pos_target += self.vel_desired * dt
 
     def set_targets(self, depth: float, vel_down: float = 0.0, accel_down: float = 0.0) -> None:
         """Set the position, velocity and acceleration targets directly (GUIDED, SURFTRAK; PSCD TPD/DVD/DAD).
@@ -151,6 +182,7 @@ class DepthController:
         elif err < -err_max_up < 0:
             err = -err_max_up
             self.pos_target = depth + err
+        self._pos_error = err
         self.vel_target = sqrt_controller(err, p.pos_p, p.accel_max, dt) + self.vel_desired
         # up-frame (limit_neg = throttle_lower, limit_pos = throttle_upper) seen from the down axis
         self.accel_target = self.pid_vel.update_all(self.vel_target, vel_down, dt, limit_neg=limit_upper,
@@ -158,6 +190,7 @@ class DepthController:
         self._sync_imax()
         out = self.pid_accel.update_all(self.accel_target, accel_down, dt, limit_lower or limit_upper)
         self.throttle = p.throttle_hover - (out + self.pid_accel.ff)
+        self.limit_down = 1.0 if limit_lower else -1.0 if limit_upper else 0.0
         return self.throttle
 
     @property

@@ -242,21 +242,167 @@ ANCHOR_ROWS = 1
 
 
 def emulated_mixer_inputs(run: Run, params: ArduSubParameters, fr: Frame, motors: MotorParameters,
-                          p: PlantParameters) -> np.ndarray | None:
-    """Mixer inputs (n, 6) of the emulated ArduSub stepped once per grid row on the run's measured states.
+                          p: PlantParameters, loop_rate_hz: float | None = None,
+                          start_integrators: bool = False) -> np.ndarray | None:
+    """Mixer inputs (n, 6) of the emulated ArduSub on the run's measured states, at each grid row.
 
     The log's modes, armed state, pilot inputs (``rcin_i``) and targets drive
-    :class:`~udrobot_ctrl.autopilot.fly.LoggedPilot` (the emulation ``simulate --closed-loop`` flies) at the grid's
-    step; the measured pose and rates are its state (unlogged components 0). None when the run has no ``mode``.
+    :class:`~udrobot_ctrl.autopilot.fly.LoggedPilot` (the emulation ``simulate --closed-loop`` flies); the measured
+    pose and rates are its state (unlogged components 0). None when the run has no ``mode``.
+
+    Parameters
+    ----------
+    loop_rate_hz : float, optional
+        None: one autopilot tick per grid row (the grid's step). Given: the autopilot ticks at this rate (Hz) between
+        rows on the states interpolated linearly between them (angles unwrapped), as ArduSub's loop runs between
+        two log samples; each row gets the output of the tick that lands on it.
+    start_integrators : bool
+        At the first armed row with the logged mixer inputs (``out_roll`` ... ``out_throttle``, dataflash RATE), start
+        the roll and pitch rate integrators at ``out_roll/pitch`` (yaw's at 0) and the depth loop's acceleration
+        integrator at ``hover - out_throttle``
+        (:meth:`~udrobot_ctrl.autopilot.ardusub.ArduSubAutopilot.set_integrators`):
+        a log that starts in flight has its trims (buoyancy, tether, static moments) in ArduSub's integrators,
+        which the logged states alone do not pin down. *Estimated*: the P, D and FF parts of that row are taken
+        as 0.
     """
     try:
         commands = LoggedCommands.from_run(run, fr, motors, p.supply_voltage)
     except ValueError:
         return None
-    dt = float(np.median(np.diff(run.t)))
-    pilot = LoggedPilot(commands, ArduSubAutopilot(params), fr, motors, p, dt)
     x = np.nan_to_num(run.state_matrix())
-    return np.array([pilot.mixer_inputs(float(t - run.t[0]), xk) for t, xk in zip(run.t, x)])
+    t = np.asarray(run.t, float) - float(run.t[0])
+    start = _integrator_start(run, params) if start_integrators else None
+    if loop_rate_hz is None:
+        dt = float(np.median(np.diff(run.t)))
+        pilot = LoggedPilot(commands, ArduSubAutopilot(params), fr, motors, p, dt)
+        return np.array([pilot.mixer_inputs(float(tk), xk) for tk, xk in zip(t, x)])
+    x[:, 3:6] = np.unwrap(x[:, 3:6], axis=0)  # no spurious turn where a logged angle wraps
+    dt = 1.0 / float(loop_rate_hz)
+    pilot = LoggedPilot(commands, ArduSubAutopilot(params), fr, motors, p, dt)
+    out = np.empty((run.n, 6))
+    if start is not None and start[0] == 0:
+        pilot.autopilot.set_integrators(*start[1])
+    out[0] = pilot.mixer_inputs(0.0, x[0])
+    for k in range(1, run.n):
+        if start is not None and start[0] == k:
+            pilot.autopilot.set_integrators(*start[1])
+        ticks = max(1, int(round((t[k] - t[k - 1]) / dt)))
+        for j in range(1, ticks + 1):
+            f = j / ticks
+            u = pilot.mixer_inputs(float(t[k - 1] + f * (t[k] - t[k - 1])), x[k - 1] + f * (x[k] - x[k - 1]))
+        out[k] = u
+    return out
+
+
+def _integrator_start(run: Run, params: ArduSubParameters) -> tuple | None:
+    """(row, (roll, pitch, yaw, accel_down)) for ``start_integrators`` of :func:`emulated_mixer_inputs`, or None."""
+    cols = [run.extra.get(f"out_{a}") for a in ("roll", "pitch", "yaw", "throttle")]
+    if any(c is None for c in cols):
+        return None
+    armed = run.extra.get("armed")
+    on = np.ones(run.n, bool) if armed is None else np.nan_to_num(armed, nan=1.0) != 0
+    ok = np.flatnonzero(on & np.all(np.isfinite(np.column_stack(cols)), axis=1))
+    if ok.size == 0:
+        return None
+    k = int(ok[0])
+    roll, pitch, _, thr = (float(c[k]) for c in cols)
+    # yaw stays 0: ArduSub's yaw output is mostly P and FF (ATC_RAT_YAW_I is a fifth of roll/pitch's); started from
+    # out_yaw, the sea dive's horizontal motors replay twice as badly (NRMSE 0.26-0.34 -> 0.52-0.72)
+    return k, (roll, pitch, 0.0, params.depth.throttle_hover - thr)
+
+
+#: fewer output-sample rows than this and :func:`motor_output_check` compares every row (outputs constant)
+MIN_SAMPLE_ROWS = 20
+
+
+@dataclass(frozen=True)
+class MotorOutputCheck:
+    """The emulated ArduSub's motor outputs on a run against the logged ones (:func:`motor_output_check`).
+
+    Attributes
+    ----------
+    frame : str
+        ArduSub frame of the mixer.
+    rows : (m,) ndarray
+        Rows compared: where a logged output sample lands (every row when the outputs never change).
+    emulated, logged : (m, k) ndarray
+        Motor PWM at those rows, us (motor-command sense).
+    nrmse : tuple of float
+        Per motor: RMSE / std of the logged channel (nan where the logged channel is constant and the RMSE not 0).
+    rmse_us, logged_std_us : tuple of float
+        Per motor: RMSE (us) and std of the logged channel (us).
+    mode_rows : dict
+        ArduSub mode name (or number) -> rows compared in it.
+    armed_fraction : float
+        Fraction of the compared rows armed.
+    assumed : tuple of str
+        ArduSub parameters the run lacked (ArduSub's defaults used, :meth:`ArduSubParameters.from_log_params`).
+    """
+
+    frame: str
+    rows: np.ndarray = field(repr=False)
+    emulated: np.ndarray = field(repr=False)
+    logged: np.ndarray = field(repr=False)
+    nrmse: tuple
+    rmse_us: tuple
+    logged_std_us: tuple
+    mode_rows: dict
+    armed_fraction: float
+    assumed: tuple
+
+
+def motor_output_check(run: Run, p: PlantParameters, params: ArduSubParameters | None = None) -> MotorOutputCheck:
+    """Emulate ArduSub on a converted run (:func:`emulated_mixer_inputs` at the autopilot's loop rate, integrators
+    started from the logged mixer inputs where the run has them: the logged modes, armed state, pilot inputs and
+    targets on the logged states) and compare its mixed PWM with the logged motor outputs.
+
+    Parameters
+    ----------
+    run : Run
+        A converted ArduSub run (``pwm_i`` in motor-command sense and the context columns).
+    p : PlantParameters
+        The vehicle's plant (its ``ardusub_frame`` names the mixer).
+    params : ArduSubParameters, optional
+        The autopilot's parameters; the run's own (sidecar ``autopilot_params``, ArduSub's defaults for the rest) if
+        None.
+
+    Raises
+    ------
+    ValueError
+        If the plant names no ArduSub frame or the run has no ``mode`` column.
+    """
+    if not p.ardusub_frame:
+        raise ValueError("the plant names no ArduSub frame ('ardusub_frame'): no mixer to emulate")
+    # local import: validate reads dataflash through io, which imports this package's modules first
+    from udrobot_ctrl.autopilot.validate import nrmse
+    fr = frame(p.ardusub_frame)
+    log_params, _ = run_log_params(run.metadata)
+    if params is None:
+        params = ArduSubParameters.from_log_params(log_params)
+    k = fr.n_motors
+    # the run's pwm_i are motor-command PWM (the converter mirrored the reversed motors): every direction +1
+    motors = replace(MotorParameters.from_log_params(log_params, k), directions=(1,) * k)
+    u = emulated_mixer_inputs(run, params, fr, motors, p, loop_rate_hz=params.loop_rate_hz, start_integrators=True)
+    if u is None:
+        raise ValueError(f"{run.path or 'run'}: no 'mode' column: nothing to emulate")
+    rows = changed_rows(run)
+    if rows.size < MIN_SAMPLE_ROWS:
+        rows = np.arange(run.n)
+    emulated = to_pwm(mix(fr, u[rows], motors), motors, integer=True)
+    logged = np.asarray(run.inputs, float)[rows]
+    mode = run.extra.get("mode")
+    names: dict = {}
+    for m in (np.nan_to_num(mode[rows], nan=-1).astype(int) if mode is not None else ()):
+        name = Mode(m).name if m in Mode._value2member_map_ else str(m)
+        names[name] = names.get(name, 0) + 1
+    armed = run.extra.get("armed")
+    on = np.ones(rows.size, bool) if armed is None else np.nan_to_num(armed[rows], nan=1.0) != 0
+    return MotorOutputCheck(
+        frame=fr.name, rows=rows, emulated=emulated, logged=logged,
+        nrmse=tuple(nrmse(emulated[:, i], logged[:, i]) for i in range(k)),
+        rmse_us=tuple(float(np.sqrt(np.nanmean((emulated[:, i] - logged[:, i]) ** 2))) for i in range(k)),
+        logged_std_us=tuple(float(np.nanstd(logged[:, i])) for i in range(k)), mode_rows=names,
+        armed_fraction=float(on.mean()) if on.size else 0.0, assumed=tuple(params.assumed))
 
 
 #: refreshes kept in memory (:func:`output_refresh`): a diagnosis prepares the same run several times (fit and

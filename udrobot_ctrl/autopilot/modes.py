@@ -5,23 +5,35 @@ Sources (ArduPilot, ArduSub 4.1-4.5):
 * ``ArduSub/radio.cpp`` ``init_rc_in``: channel order pitch 1, roll 2, throttle 3, yaw 4, forward 5, lateral 6
   (RCMAP disabled), roll/pitch/yaw/forward/lateral are *angle* channels of +-4500, throttle a *range* channel of
   0..1000 (:data:`~udrobot_ctrl.autopilot.params.RC_MAP`).
-* ``libraries/RC_Channel/RC_Channel.cpp``: ``norm_input`` (-1..1 about the trim), ``pwm_to_angle_dz_trim``
-  (+-high_in outside the dead zone), ``pwm_to_range_dz`` (0..high_in from ``min + dz``), ``get_control_mid``.
+* ``libraries/RC_Channel/RC_Channel.cpp``: ``norm_input`` (-1..1 about the trim, each side scaled to its own end:
+  with ``RCn_TRIM = RCn_MIN`` it runs 0..1), ``norm_input_dz`` (the same outside ``trim +- RCn_DZ``),
+  ``pwm_to_angle_dz_trim`` (+-high_in outside the dead zone), ``pwm_to_range_dz`` (0..high_in from ``min + dz``),
+  ``get_control_mid``; ``RCn_REVERSED`` flips each.
 * ``ArduSub/Attitude.cpp``: ``get_pilot_desired_lean_angles`` (sticks scaled to ``ANGLE_MAX``, circular limit,
   lateral tilt -> Euler roll), ``get_pilot_desired_yaw_rate`` (``stick * ACRO_YAW_P`` cdeg/s),
   ``get_pilot_desired_climb_rate`` (``THR_DZ`` about mid stick, ``PILOT_SPEED_UP``/``DN``).
-* ``ArduSub/mode_manual.cpp``: roll, pitch, forward, lateral = ``norm_input``; yaw = ``norm_input * ACRO_YAW_P /
-  ACRO_YAW_P_default``; throttle from the stick.
-* ``ArduSub/mode_stabilize.cpp``, ``mode_althold.cpp``: lean angles and yaw rate from the sticks; the heading is
+* ``ArduSub/mode_manual.cpp`` (``control_manual.cpp`` before 4.1): roll, pitch, forward, lateral = ``norm_input``;
+  yaw = ``norm_input * ACRO_YAW_P / ACRO_YAW_P_default``; ``motors.set_throttle(channel_throttle->norm_input())``.
+* ``ArduSub/mode_stabilize.cpp``, ``mode_althold.cpp``: lean angles and yaw rate from the sticks (the yaw stick's
+  dead zone is ``RC4_DZ`` times the pilot gain: ``pwm_to_angle_dz_trim(get_dead_zone() * sub.gain, trim)``; on the
+  sea dive, which logs no parameters, 40 x 0.5 fits its horizontal motors twice as well as 40); the heading is
   held (``input_euler_angle_roll_pitch_yaw`` with ``last_pilot_heading``) 250 ms after the yaw stick returns to
-  centre; forward/lateral = ``norm_input``; STABILIZE's throttle from the stick, ALT_HOLD's from the depth loop
-  with the stick as a climb rate.
+  centre; forward/lateral = ``norm_input``; STABILIZE's throttle ``set_throttle_out(channel_throttle->
+  norm_input(), false, PILOT_THR_FILT)``, ALT_HOLD's from the depth loop with the stick as a climb rate.
 
-Throttle in the manual modes: ``AP_Motors6DOF`` reads the throttle as 0..1 with 0.5 neutral
-(``get_throttle_bidirectional = 2 (throttle - 0.5)``), so the stick's ``norm_input`` (-1..1) is mapped
-``(norm_input + 1) / 2`` as ``mode_stabilize.cpp`` writes it. (Some trees pass ``norm_input`` to
-``set_throttle`` in MANUAL directly; with the motors clamping the throttle to 0..1 that would put neutral stick at
-half up-thrust, which BlueROV2 pilots do not see, so the stabilize form is used for both.)
+Throttle in the manual modes (:func:`pilot_throttle`). ``AP_Motors6DOF`` reads the throttle as 0..1 with 0.5
+neutral (``get_throttle_bidirectional = 2 (throttle - 0.5)``, clamped to +-1). ArduSub 4.1-4.5 give it the
+throttle channel's ``norm_input`` *as it is*: on an ArduSub vehicle ``RC3_TRIM = RC3_MIN`` (1100, Sub's default
+in those versions and what QGroundControl's calibration sets), so ``norm_input`` is ``(pwm - 1100) / (RC3_MAX -
+1100)``: 0..1 with 0.5 at 1500 us. A log with another trim is read as the firmware reads it (e.g. a trim of 1500
+puts a centred stick at throttle 0, full down-thrust, and below the trim the motors clamp the negative throttle).
+ArduPilot master after 4.5 passes ``(norm_input + 1) / 2`` with a ``RC3_TRIM`` default of 1500 instead
+(:attr:`~udrobot_ctrl.autopilot.params.PilotParameters.throttle_norm_centred`); both give 0.5 at a centred stick
+with their own default trim.
+
+RC overrides from a joystick (``ArduSub/joystick.cpp`` ``transform_manual_control_to_rc_override``,
+:mod:`udrobot_ctrl.io.joystick`) are PWM: channel 3 is ``z * 0.8 gain JS_THR_GAIN + 1500 - 500 * 0.8 gain
+JS_THR_GAIN``, 1500 us at z = 500 whatever the trims; the trims act afterwards, here.
 """
 from __future__ import annotations
 
@@ -101,6 +113,38 @@ def norm_input(pwm: float, ch: RCChannel) -> float:
     return max(-1.0, min(1.0, ret))
 
 
+def norm_input_dz(pwm: float, ch: RCChannel) -> float:
+    """``RC_Channel::norm_input_dz``: -1..1 outside ``trim +- RCn_DZ``, 0 inside (each side scaled to its end)."""
+    sign = -1.0 if ch.reversed else 1.0
+    dz_min, dz_max = ch.trim - ch.dead_zone, ch.trim + ch.dead_zone
+    if pwm < dz_min and dz_min > ch.min:
+        ret = sign * (pwm - dz_min) / (dz_min - ch.min)
+    elif pwm > dz_max and ch.max > dz_max:
+        ret = sign * (pwm - dz_max) / (ch.max - dz_max)
+    else:
+        ret = 0.0
+    return max(-1.0, min(1.0, ret))
+
+
+def pilot_throttle(norm: float, centred: bool = False) -> float:
+    """The manual modes' throttle (``throttle_in``, 0..1 before the motors' clamp) from the throttle channel's
+    ``norm_input`` (module notes): ``norm`` as it is (ArduSub 4.1-4.5) or ``(norm + 1) / 2`` (``centred``, master).
+
+    Parameters
+    ----------
+    norm : float
+        ``norm_input`` of the throttle channel (-1..1).
+    centred : bool
+        :attr:`~udrobot_ctrl.autopilot.params.PilotParameters.throttle_norm_centred`.
+
+    Returns
+    -------
+    float
+        Throttle; the motors clamp it to 0..1 (``throttle_bidirectional`` to +-1).
+    """
+    return (norm + 1.0) / 2.0 if centred else norm
+
+
 def pwm_to_angle_dz_trim(pwm: float, ch: RCChannel, dead_zone: float, trim: float,
                          high_in: float = 4500.0) -> float:
     """``RC_Channel::pwm_to_angle_dz_trim``: +-``high_in`` outside ``trim +- dead_zone`` (ArduSub's int16 kept
@@ -163,15 +207,22 @@ def pilot_yaw_rate(yaw_in: float, acro_yaw_p: float) -> float:
 
 
 def pilot_climb_rate(throttle_control: float, mid: float, params: PilotParameters, depth: DepthParameters) -> float:
-    """``Sub::get_pilot_desired_climb_rate``: throttle control (0..1000) -> climb rate (m/s, positive *up*)."""
-    dz = max(0.0, min(400.0, params.throttle_deadzone))
+    """``Sub::get_pilot_desired_climb_rate``: throttle control (0..1000) -> climb rate (m/s, positive *up*).
+
+    The dead band is ``mid +- THR_DZ * gain`` (``THR_DZ`` constrained to 0..400, ``gain`` the pilot gain,
+    :attr:`~udrobot_ctrl.autopilot.params.PilotParameters.gain`); below it the rate runs to ``-PILOT_SPEED_DN`` at
+    throttle 0, above it to ``PILOT_SPEED_UP`` at 1000; ``control_depth`` constrains it to those speeds.
+    """
+    dz = max(0.0, min(400.0, params.throttle_deadzone)) * params.gain
     top, bottom = mid + dz, mid - dz
     t = max(0.0, min(1000.0, throttle_control))
     if t < bottom:
-        return depth.speed_down_effective * (t - bottom) / bottom
-    if t > top:
-        return abs(depth.speed_up) * (t - top) / (1000.0 - top)
-    return 0.0
+        rate = depth.speed_down_effective * (t - bottom) / bottom
+    elif t > top:
+        rate = abs(depth.speed_up) * (t - top) / (1000.0 - top)
+    else:
+        rate = 0.0
+    return min(max(rate, -depth.speed_down_effective), abs(depth.speed_up))
 
 
 @dataclass(frozen=True)
@@ -187,7 +238,7 @@ class PilotCommand:
     yaw_rate : float
         Yaw-rate target (rad/s) from the yaw stick outside its dead zone.
     throttle : float
-        Manual throttle (0..1, 0.5 neutral).
+        Manual throttle (:func:`pilot_throttle`; 0.5 neutral, the motors clamp it to 0..1).
     climb_rate : float
         ALT_HOLD's climb rate demand (m/s, positive up).
     """
@@ -218,12 +269,14 @@ def shape_pilot(pilot: PilotInput, params: PilotParameters, depth: DepthParamete
     pitch_in = pwm_to_angle_dz_trim(pilot.channel("pitch"), ch["pitch"], ch["pitch"].dead_zone, ch["pitch"].trim)
     roll, pitch = pilot_lean_angles(roll_in, pitch_in, params.angle_max,
                                     params.angle_max if angle_limit is None else angle_limit)
-    yaw_in = pwm_to_angle_dz_trim(pilot.channel("yaw"), ch["yaw"], ch["yaw"].dead_zone, ch["yaw"].trim)
+    # mode_stabilize.cpp / mode_althold.cpp: pwm_to_angle_dz_trim(channel_yaw->get_dead_zone() * sub.gain, trim)
+    yaw_in = pwm_to_angle_dz_trim(pilot.channel("yaw"), ch["yaw"], ch["yaw"].dead_zone * params.gain, ch["yaw"].trim)
     thr_ch = ch["throttle"]
     throttle_control = pwm_to_range_dz(pilot.channel("throttle"), thr_ch, thr_ch.dead_zone)
     climb = pilot_climb_rate(throttle_control, control_mid(thr_ch), params, depth)
     return PilotCommand(norm=norm, roll=roll, pitch=pitch, yaw_rate=pilot_yaw_rate(yaw_in, params.acro_yaw_p),
-                        throttle=(norm["throttle"] + 1.0) / 2.0, climb_rate=climb)
+                        throttle=pilot_throttle(norm["throttle"], params.throttle_norm_centred),
+                        climb_rate=climb)
 
 
 @dataclass(frozen=True)
@@ -266,5 +319,6 @@ class Targets:
     lateral: float = 0.0
 
 
-__all__ = ["Mode", "PilotCommand", "PilotInput", "Targets", "norm_input", "pilot_climb_rate", "pilot_lean_angles",
+__all__ = ["Mode", "PilotCommand", "PilotInput", "Targets", "norm_input", "norm_input_dz",
+           "pilot_climb_rate", "pilot_throttle", "pilot_lean_angles",
            "pilot_yaw_rate", "pwm_to_angle_dz_trim", "pwm_to_range_dz", "shape_pilot"]

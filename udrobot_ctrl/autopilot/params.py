@@ -25,7 +25,14 @@ Defaults (ArduPilot source, ArduSub 4.1-4.5):
   ``ACCEL_R_MAX``/``ACCEL_P_MAX`` 110000 cdeg/s^2, ``RATE_FF_ENAB`` 1, ``SLEW_YAW`` 6000 cdeg/s, ``RATE_R/P/Y_MAX``
   0 (no limit), ``ANGLE_BOOST`` 1 (Sub's ``set_throttle_out`` ignores it).
 * ``ArduSub/Parameters.h`` ``defaults_table`` (Sub's overrides of library defaults): ``ATC_ACCEL_Y_MAX`` 110000,
-  ``ATC_RATE_Y_MAX`` 180 deg/s, ``RC3_TRIM`` 1500, ``PILOT_SPEED_UP`` 100 cm/s, ``PSC_JERK_Z`` 50 m/s^3.
+  ``ATC_RATE_Y_MAX`` 180 deg/s, ``PILOT_SPEED_UP`` 100 cm/s, ``PSC_JERK_Z`` 50 m/s^3. That table is ArduPilot
+  master's (after 4.5); in it ``RC3_TRIM`` is 1500 -- together with master's ``mode_stabilize.cpp`` /
+  ``mode_manual.cpp`` passing ``(norm_input + 1) / 2`` to the motors. ArduSub 4.0-4.5 set the same Sub defaults by
+  ``AP_Param::set_default_by_name`` in ``Sub::load_parameters`` (``ArduSub/Parameters.cpp``), there with
+  ``RC3_TRIM`` **1100** (= ``RC3_MIN``: the throttle's ``norm_input`` runs 0..1, 0.5 at 1500 us), and its modes pass
+  ``norm_input`` as it is; QGroundControl's radio calibration also sets the throttle trim to its minimum for Sub.
+  The default here is the 4.0-4.5 one (1100), the generation of every ArduSub log read so far (see
+  :attr:`PilotParameters.throttle_norm_centred` for master's form).
 * ``libraries/AC_AttitudeControl/AC_PosControl.h`` (Copter/Sub branch): ``POSCONTROL_POS_Z_P`` 1.0,
   ``POSCONTROL_VEL_Z_P`` 5.0 (I, D 0), ``VEL_Z_IMAX`` 1000, ``VEL_Z_FILT_HZ`` 5 (FLTE), ``VEL_Z_FILT_D_HZ`` 5,
   ``POSCONTROL_ACC_Z_P`` 0.5, ``ACC_Z_I`` 1.0, ``ACC_Z_D`` 0, ``ACC_Z_IMAX`` 800, ``ACC_Z_FILT_HZ`` 20 (FLTE; FLTT
@@ -35,8 +42,9 @@ Defaults (ArduPilot source, ArduSub 4.1-4.5):
   ``ACRO_YAW_P`` 3.375 (the value in the stored ``config.h``; older trees had 4.5),
   ``PILOT_SPEED_DN`` 0 (= up), ``PILOT_ACCEL_Z`` 100 cm/s^2 (``PILOT_ACCEL_Z_DEFAULT``), ``THR_DZ`` 100
   (``THR_DZ_DEFAULT``), ``PILOT_THR_FILT`` 0 (off), ``SURFACE_DEPTH`` -10 cm (``SURFACE_DEPTH_DEFAULT``).
-* ``libraries/RC_Channel/RC_Channel.cpp``: ``RCn_MIN`` 1100, ``RCn_MAX`` 1900, ``RCn_TRIM`` 1500, ``RCn_DZ`` 0
-  except where ArduSub's ``radio.cpp`` sets a default dead zone (roll, pitch, yaw: 30 us).
+* ``libraries/RC_Channel/RC_Channel.cpp``: ``RCn_MIN`` 1100, ``RCn_MAX`` 1900, ``RCn_TRIM`` 1500, ``RCn_DZ`` 0,
+  ``RCn_REVERSED`` 0, except ``RC3_TRIM`` (above) and the dead zones ArduSub's ``radio.cpp`` ``Sub::init_rc_in``
+  sets by ``set_default_dead_zone``: roll, pitch, throttle, forward, lateral 30 us, yaw 40 us.
 
 The main loop rate: ``MAIN_LOOP_RATE`` 400 Hz in ``ArduSub/config.h``; ``SCHED_LOOP_RATE`` overrides it (the
 Seattle dive's ANG.Dt says 200 Hz). ``loop_rate_hz`` is a field so the caller can pass the log's rate.
@@ -209,7 +217,8 @@ class DepthParameters:
 
 @dataclass(frozen=True)
 class RCChannel:
-    """One RC input's calibration (``RCn_MIN``, ``RCn_MAX``, ``RCn_TRIM``, ``RCn_DZ`` in microseconds)."""
+    """One RC input's calibration (``RCn_MIN``, ``RCn_MAX``, ``RCn_TRIM``, ``RCn_DZ`` in microseconds,
+    ``RCn_REVERSED``)."""
 
     min: float = 1100.0
     max: float = 1900.0
@@ -217,6 +226,21 @@ class RCChannel:
     dead_zone: float = 0.0
     reversed: bool = False
 
+
+def boot_gain(default: float, gain_min: float, gain_max: float, steps: float) -> float:
+    """``Sub::init_joystick``: the pilot gain at boot from ``JS_GAIN_DEFAULT``, ``JS_GAIN_MIN``, ``JS_GAIN_MAX`` and
+    ``JS_GAIN_STEPS`` (dimensionless, 0.1..1.0)."""
+    steps = max(1, int(steps))
+    if steps == 1 or gain_min - 0.01 < default < gain_max + 0.01:
+        gain = min(max(default, gain_min), gain_max)
+    else:  # the setting closest to the middle of min and max (integer division as in the source)
+        gain = gain_min + (steps // 2 - 1) * (gain_max - gain_min) / (steps - 1)
+    return min(max(gain, 0.1), 1.0)
+
+
+#: ``RC3_TRIM`` default of ArduSub 4.0-4.5 (``Sub::load_parameters``: ``set_default_by_name("RC3_TRIM", 1100)``),
+#: us; ArduPilot master's ``defaults_table`` has 1500 (module notes)
+RC3_TRIM_DEFAULT = 1100.0
 
 #: ArduSub's RC input order (``ArduSub/radio.cpp`` ``init_rc_in``, RCMAP disabled): 1-based channel numbers
 RC_MAP = {"pitch": 1, "roll": 2, "throttle": 3, "yaw": 4, "forward": 5, "lateral": 6}
@@ -239,15 +263,31 @@ class PilotParameters:
         ``THR_DZ`` (0..1000 throttle stick units) around mid stick where the climb rate is 0.
     throttle_filt_hz : float
         ``PILOT_THR_FILT`` (Hz; 0 = off), the motors' throttle filter when the pilot drives the throttle.
+    gain : float
+        The pilot gain ``Sub::gain`` at boot (``ArduSub/joystick.cpp`` ``init_joystick``: ``JS_GAIN_DEFAULT`` 0.5
+        within ``JS_GAIN_MIN`` 0.25 .. ``JS_GAIN_MAX`` 1.0, else the setting nearest their middle, then 0.1..1.0).
+        ``get_pilot_desired_climb_rate`` scales ``THR_DZ`` by it (``mid_stick +- g.throttle_deadzone * gain``).
+        Gain changes by joystick buttons during a dive are not followed (the log has them only as ``PilotGain``
+        texts; assumed constant).
+    throttle_norm_centred : bool
+        How MANUAL and STABILIZE turn the throttle stick into the motors' throttle (0..1, 0.5 neutral):
+        False (ArduSub 4.1-4.5, ``Sub::manual_run`` / ``ModeManual::run``: ``motors.set_throttle(channel_throttle->
+        norm_input())``, ``ModeStabilize::run``: ``set_throttle_out(channel_throttle->norm_input(), ...)``) passes
+        ``norm_input`` as it is -- 0..1 with the vehicle's ``RC3_TRIM = RC3_MIN``; True (ArduPilot master after 4.5,
+        whose ``RC3_TRIM`` default is 1500) passes ``(norm_input + 1) / 2``. Not a parameter of the log: the
+        firmware generation decides it.
     """
 
     channels: dict = field(default_factory=lambda: {
-        "pitch": RCChannel(dead_zone=30.0), "roll": RCChannel(dead_zone=30.0), "throttle": RCChannel(),
-        "yaw": RCChannel(dead_zone=30.0), "forward": RCChannel(), "lateral": RCChannel()})
+        "pitch": RCChannel(dead_zone=30.0), "roll": RCChannel(dead_zone=30.0),
+        "throttle": RCChannel(trim=RC3_TRIM_DEFAULT, dead_zone=30.0), "yaw": RCChannel(dead_zone=40.0),
+        "forward": RCChannel(dead_zone=30.0), "lateral": RCChannel(dead_zone=30.0)})
     angle_max: float = 4500 * CDEG
     acro_yaw_p: float = 3.375
     throttle_deadzone: float = 100.0
     throttle_filt_hz: float = 0.0
+    gain: float = 0.5
+    throttle_norm_centred: bool = False
 
 
 @dataclass(frozen=True)
@@ -349,7 +389,9 @@ class ArduSubParameters:
                                        reversed=bool(get(f"RC{number}_REVERSED", 0.0)))
         pilot = PilotParameters(channels=channels, angle_max=get("ANGLE_MAX", 4500.0, CDEG),
                                 acro_yaw_p=get("ACRO_YAW_P", 3.375), throttle_deadzone=get("THR_DZ", 100.0),
-                                throttle_filt_hz=get("PILOT_THR_FILT", 0.0))
+                                throttle_filt_hz=get("PILOT_THR_FILT", 0.0),
+                                gain=boot_gain(get("JS_GAIN_DEFAULT", 0.5), get("JS_GAIN_MIN", 0.25),
+                                               get("JS_GAIN_MAX", 1.0), get("JS_GAIN_STEPS", 4.0)))
         if loop_rate_hz is None:
             loop_rate_hz = get("SCHED_LOOP_RATE", 400.0)
         return cls(attitude=attitude, depth=depth, pilot=pilot, loop_rate_hz=float(loop_rate_hz),

@@ -258,6 +258,11 @@ class ACPIDBasic(ACPID):
     ``limit_pos`` (or negative while ``limit_neg``) is set (``AC_PID_Basic::update_i``).
     """
 
+    @property
+    def error(self) -> float:
+        """The filtered error of the last update (``get_error``, input units)."""
+        return float(self._error)
+
     def update_all(self, target: float, measurement: float, dt: float, limit: bool = False,
                    limit_neg: bool = False, limit_pos: bool = False) -> float:
         """One tick of ``AC_PID_Basic::update_all``; returns P + I + D + FF (output units)."""

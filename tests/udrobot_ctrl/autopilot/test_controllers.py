@@ -192,7 +192,7 @@ def test_manual_passes_the_sticks_through():
     u = ap.step(0.0025, state, pilot, Mode.MANUAL)
     assert (u.roll, u.pitch, u.forward, u.lateral) == pytest.approx((0.5, -0.25, 0.8, -0.6))
     assert u.yaw == pytest.approx(0.4 * ap.params.pilot.acro_yaw_p / 3.375)
-    assert u.throttle == pytest.approx((0.2 + 1) / 2)             # 0..1 throttle, 0.5 neutral
+    assert u.throttle == pytest.approx((0.2 + 1) / 2)  # norm_input passed as is: RC3_TRIM = RC3_MIN, 0..1
     assert ap.attitude.rate_pids[0].terms.p == 0.0                 # no rate loop in MANUAL
 
 

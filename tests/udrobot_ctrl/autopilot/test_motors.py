@@ -195,3 +195,38 @@ def test_mixer_reproduces_the_logged_vertical_motor_pwm_of_a_real_dive():
     u = np.column_stack([r[:, 1], r[:, 2], r[:, 3], throttle_bidirectional(r[:, 4]), np.zeros((len(r), 2))])
     pwm = motor_pwm(frame("VECTORED_6DOF"), u, MotorParameters(directions=(-1, -1, 1, 1, -1, 1, 1, -1)))
     assert np.max(np.abs(pwm[:, 4:] - out[:, 4:])) <= 1.0
+
+
+#: ``AP_Motors6DOF::setup_motors`` (ArduSub 4.1-4.5), the ``add_motor_raw_6dof(motor, roll, pitch, yaw, throttle,
+#: forward, lateral, testing_order)`` calls of the two BlueROV2 frames, written out from the source motor by motor
+SOURCE_TABLES = {
+    "VECTORED": {1: (0, 0, 1.0, 0, -1.0, 1.0), 2: (0, 0, -1.0, 0, -1.0, -1.0), 3: (0, 0, -1.0, 0, 1.0, 1.0),
+                 4: (0, 0, 1.0, 0, 1.0, -1.0), 5: (1.0, 0, 0, -1.0, 0, 0), 6: (-1.0, 0, 0, -1.0, 0, 0)},
+    "VECTORED_6DOF": {1: (0, 0, 1.0, 0, -1.0, 1.0), 2: (0, 0, -1.0, 0, -1.0, -1.0), 3: (0, 0, -1.0, 0, 1.0, 1.0),
+                      4: (0, 0, 1.0, 0, 1.0, -1.0), 5: (1.0, -1.0, 0, -1.0, 0, 0), 6: (-1.0, -1.0, 0, -1.0, 0, 0),
+                      7: (1.0, 1.0, 0, -1.0, 0, 0), 8: (-1.0, 1.0, 0, -1.0, 0, 0)},
+}
+
+
+@pytest.mark.parametrize("name", sorted(SOURCE_TABLES))
+def test_factors_equal_the_source_table_factor_by_factor(name):
+    fr = frame(name)
+    table = SOURCE_TABLES[name]
+    assert fr.n_motors == len(table)
+    for motor, row in table.items():
+        for column, (want, got) in enumerate(zip(row, fr.factors[motor - 1])):
+            assert got == want, f"{name} motor {motor} {MIXER_INPUTS[column]}: {got} != source {want}"
+
+
+def test_vectored_vertical_motors_carry_throttle_and_roll_only():
+    """VECTORED's vertical thrusters (5, 6): a centred throttle (0.5 -> bidirectional 0) leaves them at 1500 us,
+    full up-throttle drives both to the same end, roll splits them; pitch does nothing (no pitch column)."""
+    fr = frame("VECTORED")
+    neutral = motor_pwm(fr, np.array([0.0, 0.0, 0.0, 0.0, 0.0, 0.0]))
+    up = motor_pwm(fr, np.array([0.0, 0.0, 0.0, 1.0, 0.0, 0.0]))
+    roll = motor_pwm(fr, np.array([0.5, 0.0, 0.0, 0.0, 0.0, 0.0]))
+    pitch = motor_pwm(fr, np.array([0.0, 0.5, 0.0, 0.0, 0.0, 0.0]))
+    assert np.all(neutral == 1500)
+    assert up[4] == up[5] == 1100 and np.all(up[:4] == 1500)      # factor -1: full up-throttle is 1100 us
+    assert roll[4] == 1700 and roll[5] == 1300
+    assert np.all(pitch == 1500)
