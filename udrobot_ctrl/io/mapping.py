@@ -41,7 +41,7 @@ docs/mappings.md. In short::
     valid = [{field = "Stat", equal = 4, reason = "status not Good"}]  # invalid samples dropped, counted
     lookup = {"10" = 1, "11" = 0}  # raw value -> output value, other samples dropped
 
-    [cut]                       # optional: keep the longest stretch the plant represents (io.stretches)
+    [cut]                       # optional: keep every stretch the plant represents, as segments (io.stretches)
     min_depth = 0.3
     armed_column = "armed"
     upside_down_s = 10.0
