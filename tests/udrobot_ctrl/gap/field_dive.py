@@ -192,6 +192,11 @@ def flight(duration: float = 180.0, scale: float = HEAVE_DRAG_SCALE, model: str 
     return fly(truth_vehicle(scale, model, effects), plan, loop_rate_hz=200.0), plan
 
 
+#: the EKF configuration of a vehicle whose DVL feeds the EKF (BlueOS's Water Linked DVL extension)
+DVL_PARAMETERS = {"VISO_TYPE": 1.0, "EK3_SRC1_POSXY": 6.0, "EK3_SRC1_VELXY": 6.0, "EK3_SRC1_POSZ": 1.0,
+                  "EK3_SRC1_VELZ": 0.0}
+
+
 def _at(f: ClosedLoopFlight, t: float) -> int:
     return int(min(np.searchsorted(f.t, t), f.t.size - 1))
 
@@ -240,6 +245,10 @@ def write_tlog(path, f: ClosedLoopFlight, plan: Run, variant: Variant = Variant(
         for t, (x, y, z, r) in zip(t_js, joystick(t_js, plan.t[-1] + plan.t[1], v.forward, v.pattern)):
             ev.append((t, gcs.manual_control_encode(1, int(x), int(y), int(z), int(r), 0).pack(gcs)))
     if v.dvl_hz > 0:  # the DVL driver (BlueOS, component 197): velocity over ground, NED
+        # the parameters BlueOS's DVL set-up writes: the EKF's horizontal sources are the external navigation (6),
+        # the vertical position the baro (1); a QGC tlog carries them as PARAM_VALUE (its parameter download)
+        for k, (name, value) in enumerate(DVL_PARAMETERS.items()):
+            ev.append((0.001 * (k + 1), mav.param_value_encode(name.encode(), value, 9, len(DVL_PARAMETERS), k)))
         dvl = mav2.MAVLink(None, srcSystem=1, srcComponent=197)
         for t in np.arange(0.08, end, 1.0 / v.dvl_hz):
             ned = _ned_velocity(f.x[_at(f, t)]) + rng.normal(0.0, DVL_NOISE, 3)
