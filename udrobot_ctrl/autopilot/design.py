@@ -1096,5 +1096,6 @@ def plot_loop(design: ArduSubDesign, loop: str, path=None) -> Figure:
 
 
 __all__ = ["ArduSubDesign", "FAILURE_CODES", "LOOPS", "LOOP_PARAMETERS", "LoopDesign", "Margins", "SpecFailure",
-           "Specification", "StepMetrics", "StepResponse", "check_gains", "loop_failures", "design_ardusub", "gain_values", "layout_frame", "model_spread", "plot_loop",
-           "prediction_sensitivity", "step_flight", "tune_loop", "vehicle_frame"]
+           "Specification", "StepMetrics", "StepResponse", "check_gains", "design_ardusub", "gain_values",
+           "layout_frame", "loop_failures", "model_spread", "plot_loop", "prediction_sensitivity", "step_flight",
+           "tune_loop", "vehicle_frame"]

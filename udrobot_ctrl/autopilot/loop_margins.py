@@ -33,11 +33,11 @@ One single-input loop per axis, linear about hover, in SI:
   latency (:class:`LoopTiming`).
 
 Margins (:func:`loop_margins`): the phase margin is the smallest ``180 deg - |arg L|`` (arg wrapped to +-180 deg)
-over the gain crossovers (``|L| = 1``); the gain margin the smallest ``|20 log10 |L||`` over the phase crossovers (``arg L = -180 deg``),
-so a loop that is conditionally stable (the depth cascade's phase passes -180 deg at low frequency where
-``|L| > 1``) is held to 6 dB of gain *reduction* too. The frequency response uses the delays exactly; whether
-the closed loop is stable at all is decided on the rational model (second-order Pade delays) by its poles.
-Cross-coupling between axes is neglected (each loop alone, the others open): the BlueROV2 frames are near
+over the gain crossovers (``|L| = 1``); the gain margin the smallest ``|20 log10 |L||`` over the phase crossovers
+(``arg L = -180 deg``), so a loop that is conditionally stable (the depth cascade's phase passes -180 deg at low
+frequency where ``|L| > 1``) is held to 6 dB of gain *reduction* too. The frequency response uses the delays
+exactly; whether the closed loop is stable at all is decided on the rational model (second-order Pade delays) by its
+poles. Cross-coupling between axes is neglected (each loop alone, the others open): the BlueROV2 frames are near
 symmetric and the step flights (:mod:`.design`) fly the coupled plant.
 """
 from __future__ import annotations
@@ -125,7 +125,8 @@ class LoopTiming:
         tau, source = MOTOR_TAU_ASSUMED_S, "assumed (MOTOR_TAU_ASSUMED_S: half the measured 110 ms start-up)"
         for e in vehicle.effects or ():
             if e.name == "thruster_lag" and "T_lag_s" in e.params:
-                tau, source = float(e.params["T_lag_s"]), f"the model's thruster_lag effect (T_lag_s {e.params['T_lag_s']:g})"
+                tau = float(e.params["T_lag_s"])
+                source = f"the model's thruster_lag effect (T_lag_s {tau:g})"
         rate = loop_rate_hz if loop_rate_hz is not None else get("SCHED_LOOP_RATE", 400.0)
         return cls(loop_rate_hz=float(rate), gyro_filter_hz=get("INS_GYRO_FILTER", GYRO_FILTER_DEFAULT_HZ),
                    accel_filter_hz=get("INS_ACCEL_FILTER", ACCEL_FILTER_DEFAULT_HZ), motor_tau_s=tau,
@@ -187,7 +188,8 @@ def axis_plant(vehicle: Vehicle, fr: Frame, loop: str, motors: MotorParameters |
     x_p, x_m = x0.copy(), x0.copy()
     x_p[i_rate] += 0.01
     x_m[i_rate] -= 0.01
-    slope = (np.asarray(state_derivative(x_p, tau0, p))[i_rate] - np.asarray(state_derivative(x_m, tau0, p))[i_rate]) / 0.02
+    slope = (np.asarray(state_derivative(x_p, tau0, p))[i_rate]
+             - np.asarray(state_derivative(x_m, tau0, p))[i_rate]) / 0.02
     stiff = d(k_state=i_pos) if loop in ("roll", "pitch") else 0.0
     inertia = 1.0 / b
     motors = motors or MotorParameters.default(fr.n_motors)
@@ -201,7 +203,8 @@ def axis_plant(vehicle: Vehicle, fr: Frame, loop: str, motors: MotorParameters |
     slope_n_per_us = (np.asarray(hi) - np.asarray(lo)) / (2.0 * THRUST_SLOPE_EXCURSION_US)
     e = np.zeros(6)
     e[j] = 0.1
-    dpwm = (to_pwm(mix(fr, e, motors), motors, integer=False) - to_pwm(mix(fr, -e, motors), motors, integer=False)) / 0.2
+    dpwm = (to_pwm(mix(fr, e, motors), motors, integer=False)
+            - to_pwm(mix(fr, -e, motors), motors, integer=False)) / 0.2
     wrench = p.T @ (slope_n_per_us * dpwm)
     gain = float(wrench[w])
     if loop == "depth":
