@@ -6,9 +6,11 @@ import json
 import math
 from pathlib import Path
 
+from udrobot_ctrl.autopilot.check_flight import check_flight, checklist_markdown
 from udrobot_ctrl.autopilot.design import (
     LOOP_PARAMETERS,
     LOOPS,
+    STEP_SIZE,
     Specification,
     design_ardusub,
     plot_loop,
@@ -62,8 +64,9 @@ def register(subparsers):
                    help="start from this vehicle's parameters: a converted run (its sidecar's autopilot_params, "
                         "else autopilot_params_estimated) or a .params file; ArduSub's defaults otherwise")
     p.add_argument("--out", required=True, help="the QGroundControl .params file to write")
-    p.add_argument("--report", metavar="DIR", help="folder for design.json, one step plot per loop and the "
-                                                   "sensitivity of the predictions (sensitivity.csv)")
+    p.add_argument("--report", metavar="DIR", help="folder for design.json, check_flight.md (the doublets to fly "
+                                                   "to check the gains), one step plot per loop and the "
+                                                   "sensitivity of the predictions")
     p.add_argument("--loops", default=",".join(LOOPS), help=f"comma-separated loops to design (default "
                                                             f"{','.join(LOOPS)})")
     p.add_argument("--spread", action="append", default=[], metavar="MODEL",
@@ -131,7 +134,8 @@ def run(args) -> int:
     check_outputs([args.out], inputs, force=args.force, create_folders=False)
     outputs = []
     if args.report:
-        outputs += [Path(args.report) / "design.json"] + [Path(args.report) / f"step_{lp}.png" for lp in LOOPS]
+        outputs += ([Path(args.report) / "design.json", Path(args.report) / "check_flight.md"]
+                    + [Path(args.report) / f"step_{lp}.png" for lp in LOOPS])
     check_outputs(outputs, inputs, force=args.force, option="--report")
     given = parse_firmware(args.firmware, f"--firmware {args.firmware}") if args.firmware else None
     if args.from_:
@@ -198,10 +202,14 @@ def run(args) -> int:
             except ValueError as exc:
                 doc["sensitivity"] = {"skipped": str(exc)}
                 print(f"sensitivity: skipped ({exc})")
+        manoeuvres = check_flight(design, STEP_SIZE)
+        doc["check_flight"] = [m.__dict__ for m in manoeuvres]
         atomic_write(report / "design.json", json.dumps(doc, indent=1) + "\n", force=True)
+        atomic_write(report / "check_flight.md", checklist_markdown(design, manoeuvres), force=True)
         for loop in LOOPS:
             plot_loop(design, loop, report / f"step_{loop}.png")
-        print(f"report: {report}/design.json, step_<loop>.png for {', '.join(LOOPS)}")
+        print(f"report: {report}/design.json, check_flight.md (what to fly to check the gains), step_<loop>.png "
+              f"for {', '.join(LOOPS)}")
     code, sentence = design.verdict()
     print(f"verdict: {sentence}")
     for f in design.current_failures():

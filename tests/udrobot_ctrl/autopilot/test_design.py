@@ -6,8 +6,10 @@ import math
 import numpy as np
 import pytest
 
+from udrobot_ctrl.autopilot.check_flight import check_flight, checklist_markdown
 from udrobot_ctrl.autopilot.design import (
     LOOP_PARAMETERS,
+    STEP_SIZE,
     SpecFailure,
     Specification,
     _Robustness,
@@ -18,6 +20,7 @@ from udrobot_ctrl.autopilot.design import (
     model_spread,
     step_flight,
     vehicle_frame,
+    with_motor_lag,
 )
 from udrobot_ctrl.autopilot.firmware import (
     ASSUMED_FIRMWARE,
@@ -256,10 +259,37 @@ def test_heavy_design_respects_ranges_and_margins(heavy_depth_yaw):
     # ArduSub's defaults on this model: the yaw angle loop has less than 45 deg (ANG_YAW_P 6 against a ~5 rad/s
     # rate loop behind a 5 Hz target filter and the motor lag): reported as a failure of the current gains
     assert any(f.code == "phase_margin" and f.loop == "yaw" for f in d.current_failures())
-    # the new gains flown again through the design's parameters give the same prediction
-    fr, _ = vehicle_frame(load_model("bluerov2-heavy"))
-    again = step_flight(load_model("bluerov2-heavy"), d.parameters(), fr, "depth", spec=d.spec)
+    # the new gains flown again through the design's parameters (and the motor lag of its flights) give the same
+    # prediction
+    vehicle = with_motor_lag(load_model("bluerov2-heavy"), d.timing.motor_tau_s)
+    fr, _ = vehicle_frame(vehicle)
+    again = step_flight(vehicle, d.parameters(), fr, "depth", spec=d.spec)
     assert again.iae == pytest.approx(d.loops["depth"].nominal_new.iae, rel=1e-9)
+
+
+@pytest.mark.slow
+def test_check_flight_commands_the_designed_steps(heavy_depth_yaw):
+    """One doublet per designed loop in the mode that closes it; the stick inputs give the design's steps through
+    ArduSub's pilot mapping (yaw: ACRO_YAW_P x stick rate; depth: PILOT_SPEED beyond THR_DZ); each level is held
+    for twice the predicted settling."""
+    d = heavy_depth_yaw
+    ms = {m.loop: m for m in check_flight(d, STEP_SIZE)}
+    assert set(ms) == {"depth", "yaw"}
+    p = d.parameters()
+    yaw = ms["yaw"]
+    assert yaw.mode == "STABILIZE"
+    rate = yaw.stick_pct / 100 * 4500 * p.pilot.acro_yaw_p / 100  # deg/s
+    assert yaw.stick_s * rate == pytest.approx(45.0)
+    depth = ms["depth"]
+    assert depth.mode == "ALT_HOLD" and depth.amplitude == pytest.approx(1.0)
+    dz = p.pilot.throttle_deadzone / 500
+    assert depth.stick_s * p.depth.speed_down_effective * (0.5 - dz) / (1 - dz) == pytest.approx(1.0)
+    for m in ms.values():
+        settle = d.loops[m.loop].nominal_new.settling_s or d.spec.settling_s(m.loop)
+        assert m.hold_s >= 2 * settle
+    text = checklist_markdown(d, list(ms.values()))
+    assert text.count("- [ ]") == 2 and "diagnose" in text
+    assert ("not written" in text) == (not d.safe)
 
 
 @pytest.mark.slow
@@ -278,11 +308,11 @@ def test_failing_specification_is_not_written_without_force(tmp_path, capsys):
     and with --force writes the file in the named firmware's names (4.7: PSC_D_*)."""
     out = tmp_path / "gains.params"
     args = ["design", "ardusub", "--model", "bluerov2", "--out", str(out), "--loops", "depth",
-            "--evaluations", "1", "--depth-settling", "0.5", "--firmware", "4.7"]
+            "--evaluations", "2", "--depth-settling", "0.5", "--firmware", "4.7"]
     code = main(args)
     text = capsys.readouterr().out
     assert code == 1 and not out.exists()
-    assert "NOT MET: depth: settles" in text and "the specification is 0.5 s" in text and "--force" in text
+    assert "NOT MET: depth: " in text and "the specification is 0.5 s" in text and "--force" in text
     assert "margins (phase deg / gain dB; current -> new" in text and "verdict:" in text
     assert main(args + ["--force"]) == 0
     written = read_params(out)
