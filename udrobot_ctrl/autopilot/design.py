@@ -809,7 +809,7 @@ def _blend(old: dict, new: dict, w: float) -> dict:
 
 
 def design_ardusub(model, log_params: dict | None = None, spec: Specification | None = None,
-                   loop_rate_hz: float = 100.0, loops=LOOPS, spread_extra=(), max_evaluations: int = 16,
+                   loop_rate_hz: float = 100.0, loops=LOOPS, spread_extra=(), max_evaluations: int = 12,
                    firmware: Firmware | None = None, timing_rate_hz: float | None = None,
                    motor_lag_in_flights: bool = True) -> ArduSubDesign:
     """Design ArduSub's attitude and depth gains on ``model`` with the emulated ArduSub in the loop.

@@ -84,7 +84,7 @@ def register(subparsers):
     p.add_argument("--firmware", metavar="VERSION",
                    help="the ArduSub version the file is for (e.g. 4.5, 4.7.0): its parameter names, units and "
                         "ranges; default: the run's sidecar (--from RUN.csv), else <= 4.6 names (assumed, said so)")
-    p.add_argument("--evaluations", type=int, default=16, metavar="N",
+    p.add_argument("--evaluations", type=int, default=12, metavar="N",
                    help="flights per loop in the search (default %(default)s)")
     p.add_argument("--no-sensitivity", action="store_true", help="with --report: skip the sensitivity study")
     p.add_argument("--force", action="store_true",
