@@ -1078,6 +1078,8 @@ def prediction_sensitivity(design: ArduSubDesign, model=None, loops=("depth", "y
         When the model's coefficient space cannot be built (naming why).
     """
     vehicle = load_model(model if model is not None else design.model)
+    if design.timing is not None:  # the thrusters of the design's flights
+        vehicle = with_motor_lag(vehicle, design.timing.motor_tau_s)
     space = default_space(vehicle)
     axes = {SENSITIVITY_AXES[lp] for lp in loops}
     names = [n for n in space.names if n.split(".", 1)[0] in axes]
