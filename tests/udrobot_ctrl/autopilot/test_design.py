@@ -10,8 +10,11 @@ from udrobot_ctrl.autopilot.check_flight import check_flight, checklist_markdown
 from udrobot_ctrl.autopilot.design import (
     LOOP_PARAMETERS,
     STEP_SIZE,
+    ArduSubDesign,
+    LoopDesign,
     SpecFailure,
     Specification,
+    StepResponse,
     _Robustness,
     design_ardusub,
     gain_values,
@@ -32,7 +35,7 @@ from udrobot_ctrl.autopilot.firmware import (
     range_violations,
     to_firmware,
 )
-from udrobot_ctrl.autopilot.loop_margins import margins_from_response
+from udrobot_ctrl.autopilot.loop_margins import Margins, margins_from_response
 from udrobot_ctrl.autopilot.motors import frame
 from udrobot_ctrl.autopilot.params import ArduSubParameters
 from udrobot_ctrl.autopilot.qgc_params import format_params, parse_params, read_params
@@ -247,6 +250,37 @@ def _assert_written_gains_are_sound(d, firmware=ASSUMED_FIRMWARE):
                 assert all(m.meets(d.spec.phase_margin_deg, d.spec.gain_margin_db) for m in lp.margins_new)
     else:
         assert all(isinstance(f, SpecFailure) and f.sentence() for f in d.failures)
+
+
+def _step(model, iae, settling=3.0, overshoot=5.0):
+    t = np.linspace(0.0, 12.0, 13)
+    return StepResponse("depth", model, t, np.zeros_like(t), 2.0, 3.0, overshoot, settling, iae, 0.5, 0.0, True)
+
+
+def _design(new_iae, old_iaes=(1.0, 1.3, 1.1), margins_pm=60.0, failures=()):
+    models = ("m0", "m1", "m2")
+    old = tuple(_step(m, i) for m, i in zip(models, old_iaes))
+    new = tuple(_step(m, new_iae if k == 0 else i) for k, (m, i) in enumerate(zip(models, old_iaes)))
+    margins_old = tuple(Margins("depth", m, margins_pm, 12.0, 2.0, True) for m in models)
+    margins_new = tuple(Margins("depth", m, 60.0, 12.0, 2.0, True) for m in models)
+    loop = LoopDesign("depth", True, {"PSC_POSZ_P": 1.0}, {"PSC_POSZ_P": 1.2}, old[0], new[0], old, new,
+                      margins_old, margins_new, 3)
+    return ArduSubDesign("m0", "VECTORED", Specification(), {"depth": loop}, {}, models, tuple(failures), (), 100.0)
+
+
+def test_verdict_says_when_the_current_gains_are_fine():
+    """Current gains that meet the specification, new ones better by less than the IAE varies over the spread
+    (0.3 s here): 'changing them buys little'; better by more: 'improves'; a failure of the new ones: 'refused'."""
+    code, sentence = _design(new_iae=0.9).verdict()
+    assert code == "current_fine" and "buys little" in sentence
+    assert _design(new_iae=0.5).verdict()[0] == "improves"
+    # the current gains lose their margins: the new ones are worth loading even for a small step improvement
+    assert _design(new_iae=0.9, margins_pm=30.0).verdict()[0] == "improves"
+    refused = _design(new_iae=0.5, failures=(SpecFailure("phase_margin", "depth", "m1", 40.0, 45.0),))
+    code, sentence = refused.verdict()
+    assert code == "refused" and "phase margin 40.0 deg on m1, below the 45 deg required" in sentence
+    with pytest.raises(ValueError, match="unknown failure code"):
+        SpecFailure("too_slow", "depth")
 
 
 @pytest.mark.slow
