@@ -9,7 +9,9 @@ Ranges (``@Range`` of the parameter's ``var_info`` documentation; ArduPilot sour
 * ``libraries/AC_AttitudeControl/AC_AttitudeControl_Sub.cpp`` ``AC_AttitudeControl_Sub::var_info`` (master,
   commit 00f02a67266abf4a5ac287a22ea9a98fdb38561f): ``ATC_RAT_RLL_P`` and ``ATC_RAT_PIT_P`` 0.0-0.30, ``_I``
   0.0-0.5, ``_D`` 0.0-0.02, ``_IMAX`` 0-1, ``_FF`` 0-0.5; ``ATC_RAT_YAW_P`` 0.0-0.50, ``_I`` 0.0-0.05, ``_D``
-  0.000-0.02, ``_IMAX`` 0-1, ``_FF`` 0-0.5. (ArduCopter's ranges -- rate P 0.01-0.5, I 0.01-2, yaw P 0.1-2.5 --
+  0.000-0.02, ``_IMAX`` 0-1, ``_FF`` 0-0.5; the same ``@Range`` values in an older stored tree of the file (one
+  ``RAT_*_FILT`` per PID, the 3.x-4.0 layout), so they hold for every ArduSub this project reads. (ArduCopter's
+  ranges -- rate P 0.01-0.5, I 0.01-2, yaw P 0.1-2.5 --
   are *not* Sub's: a BlueROV2 with ``ATC_RAT_YAW_P`` 2.5 is five times past what ArduSub documents.)
 * ``libraries/AC_AttitudeControl/AC_AttitudeControl.cpp`` ``AC_AttitudeControl::var_info`` (same commit):
   ``ATC_ANG_RLL_P`` and ``ATC_ANG_PIT_P`` ``@Range{Sub}`` 0.0-12.0, ``ATC_ANG_YAW_P`` ``@Range{Sub}`` 0.0-6.0.
