@@ -12,24 +12,37 @@ What is designed (ArduSub's names; the search runs on them in ArduSub's units, t
   :mod:`.params`).
 
 The limits and filters (``IMAX``, ``FLTT/FLTE/FLTD``, ``ATC_INPUT_TC``, ``ATC_ACCEL_*_MAX``, ``PILOT_*``) are kept as
-the log (or ArduSub's defaults) has them: they shape the pilot's feel and the vehicle's sensor noise, which the
-model does not know. Each gain stays inside the range ArduPilot documents for it (:data:`GAIN_RANGES`).
+the log (or ArduSub's defaults) has them: they shape the pilot's feel and the vehicle's sensor noise. Each gain
+stays inside the range ArduSub documents for it in the target firmware (:mod:`.firmware`: Sub's own ``@Range``,
+not ArduCopter's).
 
-How: every candidate is flown on the model by :func:`udrobot_ctrl.dynamics.sim.simulate` with the emulated
-autopilot as its controller (the :class:`~udrobot_ctrl.autopilot.fly.LoggedPilot` of ``simulate --closed-loop``,
-in GUIDED with the step as its target): a 1 m depth step, a 45 deg yaw step and 10 deg roll and pitch steps from
-rest, trimmed for the model's net buoyancy. The cost of a loop is its step's IAE (normalised by the step size, s)
-with penalties for overshoot beyond the specification, settling later than specified (or not at all), any
-thruster at its limit, and divergence; a scan of the inner loop's overall gain (x 0.5, 2, 4, 8 the old), then a
-coordinate search (factors 2, sqrt 2, 2^(1/4) on each gain in turn,
-starting from the old gains) minimises it on the nominal model. The metrics are the project's one definition
-(:func:`udrobot_ctrl.control.metrics.step_response`, :func:`~udrobot_ctrl.control.metrics.integral_abs_error`,
-:func:`~udrobot_ctrl.control.metrics.at_thrust_limit`).
+How, in two stages per loop (the loops searched in parallel, :func:`udrobot_ctrl.parallel.fork_map`):
 
-The new gains are then flown on every model of the *spread* (:func:`model_spread`). If a loop diverges on one of
-them, or a thruster reaches its limit in the depth or yaw step, the gains are moved back towards the old ones
-(half, then a quarter of the way, geometrically); if that does not help, the design is *refused*
-(:attr:`ArduSubDesign.refusal`) and ``design ardusub`` does not write it without ``--force``.
+1. **margins** (:func:`linear_search`): on the loop's linear model with the filters, the motor lag and the delays
+   (:mod:`.loop_margins`), the gains of the highest crossover frequency that keep the specification's phase and
+   gain margins on every model of the spread, by a coordinate search (factors 2, sqrt 2, 2^(1/4) on each gain and
+   on the inner loop's gains together). No flight is needed, and the margins stop the gains where the filters and
+   delays leave no more phase: without them more gain is always better and the search runs to the range's end.
+2. **steps** (:func:`tune_loop`): every candidate is flown on the nominal model by
+   :func:`udrobot_ctrl.dynamics.sim.simulate` with the emulated autopilot as its controller (the
+   :class:`~udrobot_ctrl.autopilot.fly.LoggedPilot` of ``simulate --closed-loop``, in GUIDED with the step as its
+   target; the thrusters follow their command with the margins' motor lag, :func:`with_motor_lag`): a 1 m depth
+   step, a 45 deg yaw step and 10 deg roll and pitch steps from rest, trimmed for the model's net buoyancy. The
+   cost of a loop is its step's IAE (normalised by the step size, s) with penalties for overshoot beyond the
+   specification, settling later than specified (or not at all), any thruster at its limit, and divergence, plus
+   a penalty for margins below the specification. Starting from the better of the current gains and stage 1's, a
+   coordinate search (factors sqrt 2, 2^(1/4)) refines it; a candidate that loses the margins the current point
+   keeps is not flown. The metrics are the project's one definition
+   (:func:`udrobot_ctrl.control.metrics.step_response`, :func:`~udrobot_ctrl.control.metrics.integral_abs_error`,
+   :func:`~udrobot_ctrl.control.metrics.at_thrust_limit`).
+
+The new gains of all loops are then flown together on every model of the *spread* (:func:`model_spread`) and
+their margins computed on each. If a loop diverges, saturates a thruster in the depth or yaw step, or loses its
+margins, the gains are moved back towards the old ones (half, then a quarter of the way, geometrically). What
+still fails is a :class:`SpecFailure` (a code, the loop, the model, the figure and its specification): the design
+is then not written without ``--force`` (:attr:`ArduSubDesign.failures`). The same checks on the current gains
+(:meth:`ArduSubDesign.current_failures`) and the :meth:`ArduSubDesign.verdict` say when the current gains are
+fine and changing them buys little.
 
 Frames. The BlueROV2 models carry their ArduSub frame. A vehicle without one (the UDrobot: two horizontal and two
 vertical thrusters) is designed on a CUSTOM frame (``FRAME_CONFIG`` 7) whose factors are the normalised columns of
@@ -38,9 +51,7 @@ table would hold. ArduSub has no such table built in, so these gains only apply 
 factors; the design says so. A mixer input with no factor on any motor (pitch on the BlueROV2's VECTORED frame and
 on the UDrobot) cannot be commanded: that loop is not designed, its gains stay.
 
-Margins: no linear margins are computed (the loop holds sqrt controllers, input shaping, saturations and the
-thrusters' dead band); instead each designed loop is flown with its gains doubled (a 6 dB gain-margin check on
-the emulated loop) and the result says whether it stays stable.
+Check flight: :mod:`.check_flight` turns the design into the doublets to fly on the vehicle.
 """
 from __future__ import annotations
 
