@@ -12,24 +12,37 @@ What is designed (ArduSub's names; the search runs on them in ArduSub's units, t
   :mod:`.params`).
 
 The limits and filters (``IMAX``, ``FLTT/FLTE/FLTD``, ``ATC_INPUT_TC``, ``ATC_ACCEL_*_MAX``, ``PILOT_*``) are kept as
-the log (or ArduSub's defaults) has them: they shape the pilot's feel and the vehicle's sensor noise, which the
-model does not know. Each gain stays inside the range ArduPilot documents for it (:data:`GAIN_RANGES`).
+the log (or ArduSub's defaults) has them: they shape the pilot's feel and the vehicle's sensor noise. Each gain
+stays inside the range ArduSub documents for it in the target firmware (:mod:`.firmware`: Sub's own ``@Range``,
+not ArduCopter's).
 
-How: every candidate is flown on the model by :func:`udrobot_ctrl.dynamics.sim.simulate` with the emulated
-autopilot as its controller (the :class:`~udrobot_ctrl.autopilot.fly.LoggedPilot` of ``simulate --closed-loop``,
-in GUIDED with the step as its target): a 1 m depth step, a 45 deg yaw step and 10 deg roll and pitch steps from
-rest, trimmed for the model's net buoyancy. The cost of a loop is its step's IAE (normalised by the step size, s)
-with penalties for overshoot beyond the specification, settling later than specified (or not at all), any
-thruster at its limit, and divergence; a scan of the inner loop's overall gain (x 0.5, 2, 4, 8 the old), then a
-coordinate search (factors 2, sqrt 2, 2^(1/4) on each gain in turn,
-starting from the old gains) minimises it on the nominal model. The metrics are the project's one definition
-(:func:`udrobot_ctrl.control.metrics.step_response`, :func:`~udrobot_ctrl.control.metrics.integral_abs_error`,
-:func:`~udrobot_ctrl.control.metrics.at_thrust_limit`).
+How, in two stages per loop (the loops searched in parallel, :func:`udrobot_ctrl.parallel.fork_map`):
 
-The new gains are then flown on every model of the *spread* (:func:`model_spread`). If a loop diverges on one of
-them, or a thruster reaches its limit in the depth or yaw step, the gains are moved back towards the old ones
-(half, then a quarter of the way, geometrically); if that does not help, the design is *refused*
-(:attr:`ArduSubDesign.refusal`) and ``design ardusub`` does not write it without ``--force``.
+1. **margins** (:func:`linear_search`): on the loop's linear model with the filters, the motor lag and the delays
+   (:mod:`.loop_margins`), the gains of the highest crossover frequency that keep the specification's phase and
+   gain margins on every model of the spread, by a coordinate search (factors 2, sqrt 2, 2^(1/4) on each gain and
+   on the inner loop's gains together). No flight is needed, and the margins stop the gains where the filters and
+   delays leave no more phase: without them more gain is always better and the search runs to the range's end.
+2. **steps** (:func:`tune_loop`): every candidate is flown on the nominal model by
+   :func:`udrobot_ctrl.dynamics.sim.simulate` with the emulated autopilot as its controller (the
+   :class:`~udrobot_ctrl.autopilot.fly.LoggedPilot` of ``simulate --closed-loop``, in GUIDED with the step as its
+   target; the thrusters follow their command with the margins' motor lag, :func:`with_motor_lag`): a 1 m depth
+   step, a 45 deg yaw step and 10 deg roll and pitch steps from rest, trimmed for the model's net buoyancy. The
+   cost of a loop is its step's IAE (normalised by the step size, s) with penalties for overshoot beyond the
+   specification, settling later than specified (or not at all), any thruster at its limit, and divergence, plus
+   a penalty for margins below the specification. Starting from the better of the current gains and stage 1's, a
+   coordinate search (factors sqrt 2, 2^(1/4)) refines it; a candidate that loses the margins the current point
+   keeps is not flown. The metrics are the project's one definition
+   (:func:`udrobot_ctrl.control.metrics.step_response`, :func:`~udrobot_ctrl.control.metrics.integral_abs_error`,
+   :func:`~udrobot_ctrl.control.metrics.at_thrust_limit`).
+
+The new gains of all loops are then flown together on every model of the *spread* (:func:`model_spread`) and
+their margins computed on each. If a loop diverges, saturates a thruster in the depth or yaw step, or loses its
+margins, the gains are moved back towards the old ones (half, then a quarter of the way, geometrically). What
+still fails is a :class:`SpecFailure` (a code, the loop, the model, the figure and its specification): the design
+is then not written without ``--force`` (:attr:`ArduSubDesign.failures`). The same checks on the current gains
+(:meth:`ArduSubDesign.current_failures`) and the :meth:`ArduSubDesign.verdict` say when the current gains are
+fine and changing them buys little.
 
 Frames. The BlueROV2 models carry their ArduSub frame. A vehicle without one (the UDrobot: two horizontal and two
 vertical thrusters) is designed on a CUSTOM frame (``FRAME_CONFIG`` 7) whose factors are the normalised columns of
@@ -38,9 +51,7 @@ table would hold. ArduSub has no such table built in, so these gains only apply 
 factors; the design says so. A mixer input with no factor on any motor (pitch on the BlueROV2's VECTORED frame and
 on the UDrobot) cannot be commanded: that loop is not designed, its gains stay.
 
-Margins: no linear margins are computed (the loop holds sqrt controllers, input shaping, saturations and the
-thrusters' dead band); instead each designed loop is flown with its gains doubled (a 6 dB gain-margin check on
-the emulated loop) and the result says whether it stays stable.
+Check flight: :mod:`.check_flight` turns the design into the doublets to fly on the vehicle.
 """
 from __future__ import annotations
 
@@ -53,15 +64,26 @@ from matplotlib.figure import Figure
 from scipy.optimize import brentq
 
 from udrobot_ctrl.autopilot.ardusub import ArduSubAutopilot
+from udrobot_ctrl.autopilot.firmware import ASSUMED_FIRMWARE, Firmware, gain_range, range_violations
 from udrobot_ctrl.autopilot.fly import LoggedCommands, LoggedPilot
+from udrobot_ctrl.autopilot.loop_margins import (
+    GAIN_MARGIN_MIN_DB,
+    PHASE_MARGIN_MIN_DEG,
+    LoopTiming,
+    Margins,
+    axis_plant,
+    loop_margins,
+)
 from udrobot_ctrl.autopilot.modes import Mode, Targets
 from udrobot_ctrl.autopilot.motors import MIXER_INPUTS, Frame, MotorParameters, custom_frame, frame, mix, to_pwm
 from udrobot_ctrl.autopilot.params import ArduSubParameters, gain_log_params
 from udrobot_ctrl.control.metrics import at_thrust_limit, integral_abs_error, step_response
+from udrobot_ctrl.dynamics.effects import parse_effects
 from udrobot_ctrl.dynamics.plant import plant_parameters, thrust_to_wrench
 from udrobot_ctrl.dynamics.sim import simulate
 from udrobot_ctrl.dynamics.thrusters import pwm_to_thrust
 from udrobot_ctrl.io.files import save_figure
+from udrobot_ctrl.parallel import fork_map
 from udrobot_ctrl.sensitivity.executor import as_executor
 from udrobot_ctrl.sensitivity.local import LocalResult, local_sensitivity
 from udrobot_ctrl.sensitivity.parameters import ParameterSpace, apply_sample, default_space
@@ -74,14 +96,6 @@ LOOP_PARAMETERS = {
     "pitch": ("ATC_ANG_PIT_P", "ATC_RAT_PIT_P", "ATC_RAT_PIT_I"),
     "yaw": ("ATC_ANG_YAW_P", "ATC_RAT_YAW_P", "ATC_RAT_YAW_I"),
     "depth": ("PSC_POSZ_P", "PSC_VELZ_P", "PSC_ACCZ_P", "PSC_ACCZ_I"),
-}
-#: ArduPilot's documented ranges (parameter docs, ArduSub/ArduCopter 4.x; ArduSub's units)
-GAIN_RANGES = {
-    "ATC_ANG_RLL_P": (3.0, 12.0), "ATC_ANG_PIT_P": (3.0, 12.0), "ATC_ANG_YAW_P": (3.0, 12.0),
-    "ATC_RAT_RLL_P": (0.01, 0.5), "ATC_RAT_RLL_I": (0.01, 2.0), "ATC_RAT_RLL_D": (0.0, 0.05),
-    "ATC_RAT_PIT_P": (0.01, 0.5), "ATC_RAT_PIT_I": (0.01, 2.0), "ATC_RAT_PIT_D": (0.0, 0.05),
-    "ATC_RAT_YAW_P": (0.1, 2.5), "ATC_RAT_YAW_I": (0.01, 1.0),
-    "PSC_POSZ_P": (1.0, 3.0), "PSC_VELZ_P": (1.0, 8.0), "PSC_ACCZ_P": (0.2, 1.5), "PSC_ACCZ_I": (0.0, 3.0),
 }
 #: the step flown per loop: size (m or rad), its time and the flight's length (s)
 STEP_SIZE = {"roll": math.radians(10.0), "pitch": math.radians(10.0), "yaw": math.radians(45.0), "depth": 1.0}
@@ -113,6 +127,9 @@ class Specification:
         The search's preferred largest motor command on the nominal model, fraction of full thrust (0.8: 20 %
         headroom left for the models of the spread and for disturbances): commands above it are penalised in the
         search, but not a pass/fail criterion (a thruster *at* its limit is).
+    phase_margin_deg, gain_margin_db : float
+        The smallest phase (deg) and gain (dB) margin every loop must keep on every model of the spread
+        (:mod:`.loop_margins`: 45 deg, 6 dB).
     """
 
     depth_settling_s: float = 6.0
@@ -125,6 +142,8 @@ class Specification:
     angle_band: float = 0.05
     saturation_allowed: bool = False
     command_limit: float = 0.8
+    phase_margin_deg: float = PHASE_MARGIN_MIN_DEG
+    gain_margin_db: float = GAIN_MARGIN_MIN_DB
 
     def settling_s(self, loop: str) -> float:
         """The settling-time specification of ``loop`` (s)."""
@@ -199,6 +218,62 @@ class StepResponse:
                 "stable": self.stable}
 
 
+#: the codes of :class:`SpecFailure`, with the sentence each is printed as
+FAILURE_CODES = {
+    "settling": "settles in {value:.2f} s on {model}, the specification is {limit:g} s",
+    "overshoot": "overshoots {value:.1f} % on {model}, the specification is {limit:g} %",
+    "unstable": "the step diverges on {model}",
+    "saturation": "a thruster is at its limit for {value:.2f} s in the step on {model} ({detail})",
+    "phase_margin": "phase margin {value:.1f} deg on {model}, below the {limit:g} deg required",
+    "gain_margin": "gain margin {value:.1f} dB on {model}, below the {limit:g} dB required",
+    "closed_loop_unstable": "the linear loop with its filters and delays is unstable on {model}",
+    "out_of_range": "{detail}",
+    "unwritable": "{detail}",
+}
+
+
+@dataclass(frozen=True)
+class SpecFailure:
+    """One way a set of gains fails the specification.
+
+    Attributes
+    ----------
+    code : str
+        A key of :data:`FAILURE_CODES`.
+    loop : str
+        The loop (``depth``, ``yaw``, ``roll_rate`` ...; for ``out_of_range`` the loop of the gain).
+    model : str
+        The model of the spread it fails on ('' when not model-specific).
+    value, limit : float
+        The figure and its specification (s, %, deg, dB; nan when not applicable).
+    detail : str
+    """
+
+    code: str
+    loop: str
+    model: str = ""
+    value: float = math.nan
+    limit: float = math.nan
+    detail: str = ""
+
+    def __post_init__(self):
+        if self.code not in FAILURE_CODES:
+            raise ValueError(f"unknown failure code {self.code!r}: expected one of {sorted(FAILURE_CODES)}")
+
+    def sentence(self) -> str:
+        """The failure as the console prints it."""
+        value = "not settled" if self.code == "settling" and not math.isfinite(self.value) else self.value
+        text = FAILURE_CODES[self.code]
+        if value == "not settled":
+            text = "does not settle within the flight on {model}, the specification is {limit:g} s"
+        return f"{self.loop}: " + text.format(value=value, limit=self.limit, model=self.model or "the model",
+                                              detail=self.detail)
+
+    def to_dict(self) -> dict:
+        return {"code": self.code, "loop": self.loop, "model": self.model, "value": _num(self.value),
+                "limit": _num(self.limit), "detail": self.detail, "sentence": self.sentence()}
+
+
 @dataclass(frozen=True)
 class LoopDesign:
     """The design of one loop.
@@ -214,8 +289,9 @@ class LoopDesign:
         The step on the nominal model with the old and the new gains.
     spread_old, spread_new : tuple of StepResponse
         The step on every model of the spread (the nominal first).
-    gain_margin_ok : bool or None
-        The loop is still stable on the nominal model with the new gains doubled (None: not checked).
+    margins_old, margins_new : tuple of Margins
+        The loop's margins (and its rate loop's, for an attitude axis) on every model of the spread with the old
+        and the new gains (:mod:`.loop_margins`).
     evaluations : int
         Flights the search used.
     note : str
@@ -229,7 +305,8 @@ class LoopDesign:
     nominal_new: StepResponse
     spread_old: tuple
     spread_new: tuple
-    gain_margin_ok: bool | None = None
+    margins_old: tuple = ()
+    margins_new: tuple = ()
     evaluations: int = 0
     note: str = ""
 
@@ -254,12 +331,16 @@ class ArduSubDesign:
         The parameters the design started from (ArduSub names and units: the log's, else empty = defaults).
     spread : tuple of str
         The models of the spread (the nominal first) and how each was made.
-    refusal : tuple of str
-        Why the gains are unsafe (empty: safe to write).
+    failures : tuple of SpecFailure
+        How the new gains fail the specification (empty: they meet it and may be written).
     notes : tuple of str
-        Assumptions (frame, defaults used, the spread's construction).
+        Assumptions (frame, defaults used, the spread's construction, the loop timing).
     loop_rate_hz : float
         The autopilot rate of the flights (Hz).
+    firmware : Firmware
+        The firmware whose ranges bound the gains.
+    timing : LoopTiming
+        The nominal model's filters and delays in the margins.
     """
 
     model: str
@@ -268,14 +349,47 @@ class ArduSubDesign:
     loops: dict
     base_params: dict
     spread: tuple
-    refusal: tuple
+    failures: tuple
     notes: tuple
     loop_rate_hz: float
+    firmware: Firmware = ASSUMED_FIRMWARE
+    timing: LoopTiming | None = None
 
     @property
     def safe(self) -> bool:
-        """No refusal reason."""
-        return not self.refusal
+        """The new gains meet the specification (no failure)."""
+        return not self.failures
+
+    @property
+    def refusal(self) -> tuple:
+        """The failures as sentences."""
+        return tuple(f.sentence() for f in self.failures)
+
+    def current_failures(self) -> tuple:
+        """How the vehicle's current gains fail the specification in the designed loops (same checks)."""
+        return tuple(f for d in self.loops.values() if d.designed
+                     for f in loop_failures(d.loop, d.spread_old or (d.nominal_old,), d.margins_old, self.spec))
+
+    def verdict(self) -> tuple:
+        """(code, sentence): ``current_fine`` when the current gains meet the specification and the new ones
+        improve no designed loop's nominal IAE by more than that IAE varies over the spread with the current
+        gains (the model's own uncertainty); ``improves`` when the new gains meet it and do better;
+        ``refused`` when they fail it."""
+        if self.failures:
+            return "refused", "the new gains fail the specification: " + "; ".join(self.refusal)
+        gains = []
+        for d in self.loops.values():
+            if not d.designed:
+                continue
+            old_iae = [r.iae for r in d.spread_old if math.isfinite(r.iae)]
+            spread = (max(old_iae) - min(old_iae)) if len(old_iae) > 1 else 0.0
+            gains.append((d.loop, d.nominal_old.iae - d.nominal_new.iae, spread))
+        if not self.current_failures() and all(g <= s for _, g, s in gains):
+            return "current_fine", ("your current gains meet the specification, and the new ones improve no loop's "
+                                    "step (IAE) by more than it varies over the model's spread: changing them buys "
+                                    "little")
+        better = ", ".join(f"{lp} IAE -{g:.2f} s (spread {s:.2f} s)" for lp, g, s in gains)
+        return "improves", f"the new gains meet the specification: {better}"
 
     def changes(self) -> dict:
         """ArduSub name -> (old, new) for every designed gain whose value changes (ArduSub's units)."""
@@ -299,15 +413,23 @@ class ArduSubDesign:
         loops = {}
         for name, d in self.loops.items():
             loops[name] = {"designed": d.designed, "note": d.note, "old": d.old, "new": d.new,
-                           "gain_margin_6dB_stable": d.gain_margin_ok, "evaluations": d.evaluations,
+                           "margins": [{"loop": o.loop, "model": o.model, "old": o.summary(),
+                                        "new": n.summary() if n is not None else None}
+                                       for o, n in zip(d.margins_old, d.margins_new or (None,) * len(d.margins_old))],
+                           "evaluations": d.evaluations,
                            "nominal": {"old": d.nominal_old.summary(), "new": d.nominal_new.summary()},
                            "spread": [{"model": o.model, "old": o.summary(), "new": n.summary()}
                                       for o, n in zip(d.spread_old, d.spread_new)],
                            "meets_spec": d.nominal_new.meets(self.spec)}
         return {"format": "udrobot-ardusub-design/1", "model": self.model, "frame": self.frame_name,
-                "loop_rate_hz": self.loop_rate_hz, "specification": self.spec.__dict__, "spread": list(self.spread),
+                "loop_rate_hz": self.loop_rate_hz, "specification": dict(self.spec.__dict__),
+                "spread": list(self.spread),
                 "changes": {k: {"old": o, "new": n} for k, (o, n) in self.changes().items()},
-                "safe": self.safe, "refusal": list(self.refusal), "notes": list(self.notes), "loops": loops}
+                "firmware": self.firmware.label, "firmware_source": self.firmware.source,
+                "safe": self.safe, "failures": [f.to_dict() for f in self.failures],
+                "current_failures": [f.to_dict() for f in self.current_failures()],
+                "verdict": dict(zip(("code", "sentence"), self.verdict())), "notes": list(self.notes),
+                "loops": loops}
 
 
 def _num(v):
@@ -519,9 +641,64 @@ def _params_with(base: dict, values: dict, loop_rate_hz: float) -> ArduSubParame
     return ArduSubParameters.from_log_params({**base, **values}, loop_rate_hz)
 
 
+# ------------------------------------------------------------------------------------------------ margins
+class _Robustness:
+    """The margins of the loops on every model of the spread, the axis plants computed once per model."""
+
+    def __init__(self, vehicles, fr: Frame, base: dict, timing_rate_hz: float):
+        self.vehicles, self.frame, self.base, self.rate = tuple(vehicles), fr, base, float(timing_rate_hz)
+        self.timings = tuple(LoopTiming.of(v, base, self.rate) for v in self.vehicles)
+        self._plants = {}
+
+    def plant(self, k: int, loop: str):
+        key = (k, loop)
+        if key not in self._plants:
+            self._plants[key] = axis_plant(self.vehicles[k], self.frame, loop, depth=START_DEPTH)
+        return self._plants[key]
+
+    def margins(self, values: dict, loop: str, timings=None) -> tuple:
+        """Margins of ``loop`` (and of its rate loop for an attitude axis) on every model, gains ``values``
+        (canonical names) over the base parameters."""
+        params = _params_with(self.base, values, self.rate)
+        out = []
+        for k, v in enumerate(self.vehicles):
+            timing = (timings or self.timings)[k]
+            ap = self.plant(k, loop)
+            whiches = ("outer",) if loop == "depth" else ("rate", "outer")
+            out += [loop_margins(v, self.frame, params, loop, timing, w, ap) for w in whiches]
+        return tuple(out)
+
+
+def _margin_penalty(margins, spec: Specification) -> float:
+    """The search's penalty for margins below the specification (0 when every model meets it)."""
+    out = 0.0
+    for m in margins:
+        if not m.stable:
+            out += 100.0
+            continue
+        pm = m.phase_margin_deg if math.isfinite(m.phase_margin_deg) else 180.0
+        gm = m.gain_margin_db if math.isfinite(m.gain_margin_db) else 60.0
+        out += 20.0 * max(0.0, spec.phase_margin_deg - pm) / spec.phase_margin_deg
+        out += 20.0 * max(0.0, spec.gain_margin_db - gm) / spec.gain_margin_db
+    return out
+
+
+def _range(name: str, firmware: Firmware, ranges: dict | None = None) -> tuple:
+    """(low, high) of a gain: ``ranges[name]`` when given (a test's or a user's bound), else ``firmware``'s."""
+    if ranges and name in ranges:
+        return tuple(ranges[name])
+    r = gain_range(name, firmware)
+    return (r[0], r[1]) if r is not None else (0.0, math.inf)
+
+
 def tune_loop(loop: str, vehicle: Vehicle, fr: Frame, base: dict, old: dict, spec: Specification,
-              loop_rate_hz: float, motors: MotorParameters | None = None, max_evaluations: int = 30) -> tuple:
+              loop_rate_hz: float, motors: MotorParameters | None = None, max_evaluations: int = 30,
+              robustness: _Robustness | None = None, firmware: Firmware = ASSUMED_FIRMWARE) -> tuple:
     """Coordinate search of one loop's gains on ``vehicle`` (see the module notes).
+
+    The cost of a candidate is its nominal step's (:func:`_cost`) plus the penalty of its margins on the
+    spread (:func:`_margin_penalty`, computed first: a candidate whose margins alone cost more than the best
+    so far is not flown). Every gain stays inside ``firmware``'s documented range.
 
     Returns
     -------
@@ -529,49 +706,108 @@ def tune_loop(loop: str, vehicle: Vehicle, fr: Frame, base: dict, old: dict, spe
         The loop's new gains (ArduSub names and units), the nominal step with them, the number of flights.
     """
     names = LOOP_PARAMETERS[loop]
-    current = {n: old[n] for n in names}
+    current = {n: float(min(max(old[n], _range(n, firmware)[0]), _range(n, firmware)[1])) for n in names}
+
+    def penalty(values):
+        return _margin_penalty(robustness.margins({**old, **values}, loop), spec) if robustness else 0.0
 
     def fly(values):
         return step_flight(vehicle, _params_with(base, {**old, **values}, loop_rate_hz), fr, loop, motors, spec)
 
     best = fly(current)
-    best_cost, evaluations = _cost(best, spec), 1
-    # a coarse scan of the inner loop's overall gain first (the cost is flat far from a good point: a loop that does
-    # not settle costs the same at half or twice its gains)
-    for scale in SCAN_SCALES:
-        if evaluations >= max_evaluations:
-            break
-        trial = dict(current)
-        for name in names[1:]:
-            lo, hi = GAIN_RANGES[name]
-            trial[name] = float(min(max(old[name] * scale, lo), hi))
+    current_pen = penalty(current)
+    best_cost, evaluations = _cost(best, spec) + current_pen, 1
+    if robustness is not None and max_evaluations > 1:
+        # the linear optimum (highest bandwidth within the margins) is the search's start unless its step is worse
+        # than the current gains' (it can saturate the thrusters, which the linear loop does not know)
+        trial = linear_search(loop, robustness, old, current, spec, firmware)
+        r, pen = fly(trial), penalty(trial)
+        evaluations += 1
+        if _cost(r, spec) + pen < best_cost:
+            current, best, best_cost, current_pen = trial, r, _cost(r, spec) + pen, pen
+
+    def attempt(trial):
+        nonlocal current, best, best_cost, evaluations, current_pen
+        pen = penalty(trial)
+        if (pen > 0.0 and current_pen == 0.0) or pen >= best_cost:
+            return False  # loses the margins the current gains keep, or the margins alone cost more: not flown
         r = fly(trial)
         evaluations += 1
-        c = _cost(r, spec)
+        c = _cost(r, spec) + pen
         if c < best_cost * 0.995:
-            current, best, best_cost = trial, r, c
-    # directions: the whole inner loop (rate PID or velocity + accel gains) scaled together, then each gain
+            current, best, best_cost, current_pen = trial, r, c, pen
+            return True
+        return False
+
+    # then the steps: each gain in turn, and the inner loop (rate PID or velocity + accel gains) scaled together
     directions = [names[1:]] + [(n,) for n in names]
-    for factor in SEARCH_FACTORS:
+    for factor in SEARCH_FACTORS[1:]:
         improved = True
         while improved and evaluations < max_evaluations:
             improved = False
             for direction in directions:
                 for f in (factor, 1.0 / factor):
-                    trial = dict(current)
-                    for name in direction:
-                        lo, hi = GAIN_RANGES[name]
-                        value = current[name] * f if current[name] > 0 else (lo if lo > 0 else 0.1 * hi) * f
-                        trial[name] = float(min(max(value, lo), hi))
+                    trial = _scaled(current, direction, f, firmware)
                     if all(math.isclose(trial[n], current[n]) for n in direction) or evaluations >= max_evaluations:
                         continue
-                    r = fly(trial)
-                    evaluations += 1
-                    c = _cost(r, spec)
-                    if c < best_cost * 0.995:
-                        current, best, best_cost, improved = trial, r, c, True
+                    if attempt(trial):
+                        improved = True
                         break
-    return {n: float(f"{v:.4g}") for n, v in current.items()}, best, evaluations
+    rounded = {}
+    for n, v in current.items():
+        lo, hi = _range(n, firmware)
+        rounded[n] = float(min(max(float(f"{v:.4g}"), lo), hi))
+    return rounded, best, evaluations
+
+
+def _scaled(values: dict, names, factor: float, firmware: Firmware, ranges: dict | None = None) -> dict:
+    """``values`` with the gains ``names`` times ``factor``, inside ``firmware``'s ranges (a gain at 0 starts
+    from its range's low end, or 5 % of its high end)."""
+    out = dict(values)
+    for name in names:
+        lo, hi = _range(name, firmware, ranges)
+        value = values[name] * factor if values[name] > 0 else (lo if lo > 0 else 0.05 * hi) * factor
+        out[name] = float(min(max(value, lo), hi))
+    return out
+
+
+def linear_search(loop: str, robustness: _Robustness, old: dict, start: dict, spec: Specification,
+                  firmware: Firmware, iterations: int = 80, ranges: dict | None = None) -> dict:
+    """The loop's gains that give the highest crossover frequency on its slowest model of the spread while
+    every model keeps the margins (:func:`_margin_penalty` 0), by a coordinate search on the linear loops alone
+    (no flight; factors 2, sqrt 2, 2^(1/4) on each gain and on the inner loop's gains together, within
+    ``firmware``'s ranges). Returns ``start`` when no candidate meets the margins and improves on it.
+
+    The crossover it maximises is the outer loop's (the angle loop of an attitude axis, the depth cascade),
+    the bandwidth of what the pilot commands; the margins bound it, so the gains stop where the filters,
+    the motor lag and the delays leave no more phase (the issue's runaway to the range's end does not occur
+    unless the range's end still has margin). ``ranges`` overrides the firmware's ranges (name -> (low, high)).
+    """
+    names = LOOP_PARAMETERS[loop]
+
+    def cost(values):
+        margins = robustness.margins({**old, **values}, loop)
+        pen = _margin_penalty(margins, spec)
+        outer = [m.crossover_rad_s for m in margins if m.loop == loop and math.isfinite(m.crossover_rad_s)]
+        return pen - (math.log(min(outer)) if outer and pen == 0.0 else 0.0)
+
+    current, best, n = dict(start), cost(start), 1
+    directions = [names[1:]] + [(name,) for name in names]
+    for factor in SEARCH_FACTORS:
+        improved = True
+        while improved and n < iterations:
+            improved = False
+            for direction in directions:
+                for f in (factor, 1.0 / factor):
+                    trial = _scaled(current, direction, f, firmware, ranges)
+                    if all(math.isclose(trial[k], current[k]) for k in direction) or n >= iterations:
+                        continue
+                    c = cost(trial)
+                    n += 1
+                    if c < best - 1e-3:
+                        current, best, improved = trial, c, True
+                        break
+    return current
 
 
 def _blend(old: dict, new: dict, w: float) -> dict:
@@ -584,8 +820,9 @@ def _blend(old: dict, new: dict, w: float) -> dict:
 
 
 def design_ardusub(model, log_params: dict | None = None, spec: Specification | None = None,
-                   loop_rate_hz: float = 100.0, loops=LOOPS, spread_extra=(), max_evaluations: int = 30,
-                   gain_margin: bool = True) -> ArduSubDesign:
+                   loop_rate_hz: float = 100.0, loops=LOOPS, spread_extra=(), max_evaluations: int = 12,
+                   firmware: Firmware | None = None, timing_rate_hz: float | None = None,
+                   motor_lag_in_flights: bool = True) -> ArduSubDesign:
     """Design ArduSub's attitude and depth gains on ``model`` with the emulated ArduSub in the loop.
 
     Parameters
@@ -593,27 +830,35 @@ def design_ardusub(model, log_params: dict | None = None, spec: Specification | 
     model : str, Path or Vehicle
         The nominal model (a name, a ``udrobot-model/1`` file such as ``diagnose --out-model``'s, or a Vehicle).
     log_params : dict, optional
-        The vehicle's parameters (ArduSub names and units, e.g. :func:`~udrobot_ctrl.autopilot.params.run_log_params`
-        of a converted run); ArduSub's defaults for the missing ones (and for all when None).
+        The vehicle's parameters (canonical names and ArduSub's units, :func:`.firmware.from_firmware` of a log's),
+        e.g. :func:`~udrobot_ctrl.autopilot.params.run_log_params` of a converted run; ArduSub's defaults for the
+        missing ones (and for all when None).
     spec : Specification, optional
         The specifications (the defaults of :class:`Specification`).
     loop_rate_hz : float
-        The autopilot's tick in the flights (Hz). 100 Hz keeps a design under a minute; the PID filters (5-30 Hz)
-        stay below its Nyquist rate.
+        The autopilot's tick in the step flights (Hz). 100 Hz keeps a design fast; the PID filters (5-30 Hz) stay
+        below its Nyquist rate. The margins use the vehicle's own rate (``timing_rate_hz``).
     loops : iterable of str
         The loops to design (others keep their gains).
     spread_extra : iterable
         Further models of the spread (:func:`model_spread`).
     max_evaluations : int
-        Flights per loop of the search.
-    gain_margin : bool
-        Fly each designed loop with its gains doubled (the 6 dB check).
+        Step flights per loop of the search.
+    firmware : Firmware, optional
+        The firmware the gains are for: its documented ranges bound the search (:data:`.firmware.ASSUMED_FIRMWARE`
+        when None).
+    timing_rate_hz : float, optional
+        The loop rate of the margins (Hz): the log's ``SCHED_LOOP_RATE``, else ArduSub's 400 Hz.
+    motor_lag_in_flights : bool
+        Fly the steps with the motor/ESC lag of the margins (:func:`with_motor_lag`) on every model that has no
+        ``thruster_lag`` effect of its own, so the flights and the margins see the same thrusters.
 
     Returns
     -------
     ArduSubDesign
     """
     spec = spec or Specification()
+    firmware = firmware or ASSUMED_FIRMWARE
     if not 10.0 <= loop_rate_hz <= 2000.0:
         raise ValueError(f"loop_rate_hz must be between 10 and 2000 Hz (ArduSub runs 100-400 Hz), got {loop_rate_hz}")
     unknown = [lp for lp in loops if lp not in LOOPS]
@@ -632,105 +877,149 @@ def design_ardusub(model, log_params: dict | None = None, spec: Specification | 
     notes.append(f"spread: {'; '.join(spread_names)}")
     notes.append(f"flights: GUIDED steps from rest at {START_DEPTH:g} m, trimmed for the net buoyancy, ArduSub at "
                  f"{loop_rate_hz:g} Hz; limits and filters (IMAX, FLT*, INPUT_TC, ACCEL_*_MAX) kept")
-    new = dict(old)
+    rate = timing_rate_hz or float(base.get("SCHED_LOOP_RATE") or 400.0)
+    robust = _Robustness(vehicles, fr, base, rate)
+    t0 = robust.timings[0]
+    if motor_lag_in_flights:
+        vehicles = tuple(with_motor_lag(v, t.motor_tau_s) for v, t in zip(vehicles, robust.timings))
+        nominal = vehicles[0]
+        notes.append(f"flights: the thrusters follow their command with the margins' motor lag "
+                     f"({t0.motor_tau_s * 1e3:.0f} ms, {t0.motor_tau_source}) where the model has none")
+    notes.append(f"margins: linear loops at {rate:g} Hz with INS_GYRO_FILTER {t0.gyro_filter_hz:g} Hz, "
+                 f"INS_ACCEL_FILTER {t0.accel_filter_hz:g} Hz, the PID filters, a {t0.output_delay_s * 1e3:.2f} ms "
+                 f"output delay, motor lag {t0.motor_tau_s * 1e3:.0f} ms ({t0.motor_tau_source}), depth latency "
+                 f"{t0.depth_latency_s * 1e3:.0f} ms (assumed); required {spec.phase_margin_deg:g} deg and "
+                 f"{spec.gain_margin_db:g} dB on every model of the spread")
+    notes.append(f"ranges: {firmware.label} ({firmware.source or 'given'}): ArduSub's documented @Range")
+    commandable = {lp: bool(np.any(fr.factors[:, MIXER_INPUTS.index(LOOP_INPUT[lp])])) for lp in LOOPS}
+    designed = [lp for lp in LOOPS if lp in loops and commandable[lp]]
+
+    def flights_of(params, which):
+        """Every (loop, model) step of ``which`` loops with ``params``, over the cores (fork_map)."""
+        items = [(lp, k) for lp in which for k in range(len(vehicles))]
+        got = fork_map(lambda item: step_flight(vehicles[item[1]], params, fr, item[0], spec=spec), items)
+        return {lp: tuple(r for (lq, _), r in zip(items, got) if lq == lp) for lp in which}
+
+    spread_old = flights_of(start, LOOPS)
+    # each loop's search from the old gains of the others, the loops over the cores; the joint flights below
+    # check them together
+    tuned = dict(zip(designed, fork_map(
+        lambda lp: tune_loop(lp, nominal, fr, base, old, spec, loop_rate_hz, max_evaluations=max_evaluations,
+                             robustness=robust, firmware=firmware), designed)))
     designs = {}
     for loop in LOOPS:
-        names = LOOP_PARAMETERS[loop]
-        column = fr.factors[:, MIXER_INPUTS.index(LOOP_INPUT[loop])]
-        nominal_old = step_flight(nominal, start, fr, loop, spec=spec)
-        if loop not in loops or not np.any(column):
+        old_loop = {n: old[n] for n in LOOP_PARAMETERS[loop]}
+        margins = robust.margins(old, loop) if commandable[loop] else ()
+        if loop not in designed:
             why = ("not requested" if loop not in loops else
                    f"frame {fr.name} has no {LOOP_INPUT[loop]} factor on any motor: the loop cannot be commanded")
-            designs[loop] = LoopDesign(loop, False, {n: old[n] for n in names}, {n: old[n] for n in names},
-                                       nominal_old, nominal_old, (), (), None, 1, f"gains unchanged: {why}")
+            designs[loop] = LoopDesign(loop, False, old_loop, old_loop, spread_old[loop][0], spread_old[loop][0],
+                                       (), (), margins, margins, 0, f"gains unchanged: {why}")
             continue
-        values, best, n_eval = tune_loop(loop, nominal, fr, base, new, spec, loop_rate_hz,
-                                         max_evaluations=max_evaluations)
-        new.update(values)
-        designs[loop] = LoopDesign(loop, True, {n: old[n] for n in names}, values, nominal_old, best, (), (),
-                                   None, n_eval)
-    # the spread, with a back-off towards the old gains where the new ones fail
-    for loop, d in designs.items():
-        spread_old = tuple(step_flight(v, start, fr, loop, spec=spec) for v in vehicles)
-        if not d.designed:
-            designs[loop] = replace(d, spread_old=spread_old, spread_new=spread_old)
-            continue
-        chosen, note = d.new, ""
-        for w in (1.0, 0.5, 0.25):
-            values = chosen if w == 1.0 else _blend(d.old, d.new, w)
-            params = _params_with(base, {**new, **values}, loop_rate_hz)
-            spread_new = tuple(step_flight(v, params, fr, loop, spec=spec) for v in vehicles)
-            bad = _unsafe(spread_new, spec, loop)
-            if not bad:
-                break
-        if w != 1.0 and not bad:
-            note = f"backed off to {w:.0%} of the way from the old gains (geometric) to stay safe on the spread"
-        new.update(values)
-        margin = None
-        if gain_margin:
-            doubled = {n: min(2.0 * v, 2.0 * GAIN_RANGES[n][1]) for n, v in values.items()
-                       if n not in ("ATC_ANG_RLL_P", "ATC_ANG_PIT_P", "ATC_ANG_YAW_P", "PSC_POSZ_P")}
-            margin = step_flight(nominal, _params_with(base, {**new, **doubled}, loop_rate_hz), fr, loop,
-                                 spec=spec).stable
-        designs[loop] = replace(d, new=values, nominal_new=spread_new[0], spread_old=spread_old,
-                                spread_new=spread_new, gain_margin_ok=margin, note=note)
-    # all loops together: they share the thrusters (a loop's gains can saturate another loop's step)
-    designed = [lp for lp, d in designs.items() if d.designed]
+        values, best, n_eval = tuned[loop]
+        designs[loop] = LoopDesign(loop, True, old_loop, values, spread_old[loop][0], best, (), (), margins, (),
+                                   n_eval)
+    # all loops together on the spread: they share the thrusters (a loop's gains can saturate another loop's step);
+    # where the new gains diverge, saturate or lose their margins, move back towards the old ones (half, a quarter
+    # of the way, geometrically); a step that is only slow or overshoots is not helped by that
     final_old = {n: v for lp in designed for n, v in designs[lp].old.items()}
     final_new = {n: v for lp in designed for n, v in designs[lp].new.items()}
-    joint_bad = []
+    tried = []
     for w in (1.0, 0.5, 0.25):
         values = final_new if w == 1.0 else _blend(final_old, final_new, w)
         params = _params_with(base, {**old, **values}, loop_rate_hz)
-        flights = {lp: tuple(step_flight(v, params, fr, lp, spec=spec) for v in vehicles) for lp in designed}
-        joint_bad = [f"{lp}: {b} (all loops' new gains together)" for lp in designed
-                     for b in _unsafe(flights[lp], spec, lp)]
-        if not joint_bad:
+        flights = flights_of(params, designed)
+        margins = {lp: robust.margins({**old, **values}, lp) for lp in designed}
+        failures = [f for lp in designed for f in loop_failures(lp, flights[lp], margins[lp], spec)]
+        tried.append((w, values, flights, margins, failures))
+        if not any(f.code not in ("settling", "overshoot") for f in failures):
             break
-    if w != 1.0 or joint_bad:
-        for lp in designed:
-            vals = {n: values[n] for n in designs[lp].new}
-            note = designs[lp].note + ("; " if designs[lp].note else "") + (
-                f"all loops backed off to {w:.0%} of the way from the old gains: together the new gains were "
-                f"unsafe on the spread")
-            designs[lp] = replace(designs[lp], new=vals, nominal_new=flights[lp][0], spread_new=flights[lp],
-                                  note=note)
-    refusal = joint_bad  # the joint flights are the final word: they fly every loop with every new gain
-    at_bound = [f"{n} = {v:g}" for d in designs.values() if d.designed for n, v in d.new.items()
-                if v != d.old[n] and (math.isclose(v, GAIN_RANGES[n][0]) or math.isclose(v, GAIN_RANGES[n][1]))]
-    if at_bound:
-        notes.append(f"at the end of ArduPilot's documented range: {', '.join(at_bound)} -- the model asks for more "
-                     f"than the range allows; sensor noise and delays the model lacks make such gains the first to "
-                     f"check on the vehicle")
+    if any(f.code not in ("settling", "overshoot") for f in failures):
+        # no back-off keeps the spread safe: the full design is the one reported (and refused)
+        w, values, flights, margins, failures = tried[0]
+    for lp in LOOPS:
+        d = designs[lp]
+        if not d.designed:
+            designs[lp] = replace(d, spread_old=spread_old[lp], spread_new=spread_old[lp])
+            continue
+        vals = {n: values[n] for n in d.new}
+        note = (f"backed off to {w:.0%} of the way from the old gains (geometric): at full step the new gains "
+                f"failed the specification on the spread" if w != 1.0 else "")
+        designs[lp] = replace(d, new=vals, nominal_new=flights[lp][0], spread_old=spread_old[lp],
+                              spread_new=flights[lp], margins_new=margins[lp], note=note)
+    failures = list(failures)
+    written = {n: v for lp in designed for n, v in designs[lp].new.items()}
+    failures += [SpecFailure("out_of_range", _loop_of(r.name), detail=r.sentence())
+                 for r in range_violations(written, firmware)]
+    at_end = [f"{n} = {v:g}" for n, v in written.items() if not math.isclose(v, old[n])
+              and any(math.isclose(v, b, rel_tol=1e-6) for b in _range(n, firmware))]
+    if at_end:
+        notes.append(f"at the end of ArduSub's documented range ({firmware.label}): {', '.join(at_end)}")
     return ArduSubDesign(model=nominal.name, frame_name=fr.name, spec=spec, loops=designs, base_params=base,
-                         spread=spread_names, refusal=tuple(refusal), notes=tuple(notes),
-                         loop_rate_hz=float(loop_rate_hz))
+                         spread=spread_names, failures=tuple(failures), notes=tuple(notes),
+                         loop_rate_hz=float(loop_rate_hz), firmware=firmware, timing=t0)
 
 
-def _unsafe(responses, spec: Specification, loop: str) -> list:
-    """Reasons the new gains are unsafe on the spread: a diverging loop, a thruster at its limit in a depth or
-    yaw step (the thrust headroom)."""
+def with_motor_lag(vehicle: Vehicle, tau_s: float) -> Vehicle:
+    """``vehicle`` with a ``thruster_lag`` plant effect of time constant ``tau_s`` (s) on the thrust, unless it
+    has one already (a corrected model's own lag wins) or ``tau_s`` is 0."""
+    if tau_s <= 0 or any(e.name == "thruster_lag" for e in vehicle.effects or ()):
+        return vehicle
+    lag = parse_effects([{"name": "thruster_lag", "params": {"T_lag_s": float(tau_s)}}])
+    return vehicle.with_changes(effects=tuple(vehicle.effects or ()) + tuple(lag))
+
+
+def _loop_of(name: str) -> str:
+    for lp, names in LOOP_PARAMETERS.items():
+        if name in names:
+            return lp
+    return ""
+
+
+def loop_failures(loop: str, responses, margins, spec: Specification) -> list:
+    """The specification failures of one loop: its nominal step (the first response) late or overshooting,
+    any model's step unstable or saturating a thruster (depth and yaw), any model's margins below the spec."""
     out = []
+    if responses:
+        r = responses[0]
+        if r.stable:
+            if r.settling_s is None or r.settling_s > spec.settling_s(loop):
+                out.append(SpecFailure("settling", loop, r.model, math.inf if r.settling_s is None else r.settling_s,
+                                       spec.settling_s(loop)))
+            if r.overshoot_pct > spec.overshoot_pct(loop):
+                out.append(SpecFailure("overshoot", loop, r.model, r.overshoot_pct, spec.overshoot_pct(loop)))
     for r in responses:
         if not r.stable:
-            out.append(f"unstable on {r.model}")
+            out.append(SpecFailure("unstable", loop, r.model))
         elif loop in ("depth", "yaw") and not spec.saturation_allowed and r.saturation_s > 0:
-            out.append(f"a thruster saturates for {r.saturation_s:.2f} s in the step on {r.model} "
-                       f"(largest command {r.max_command:.2f})")
+            out.append(SpecFailure("saturation", loop, r.model, r.saturation_s, 0.0,
+                                   f"largest command {r.max_command:.2f}"))
+    for m in margins:
+        if not m.stable:
+            out.append(SpecFailure("closed_loop_unstable", m.loop, m.model))
+            continue
+        if m.phase_margin_deg < spec.phase_margin_deg:
+            out.append(SpecFailure("phase_margin", m.loop, m.model, m.phase_margin_deg, spec.phase_margin_deg))
+        if m.gain_margin_db < spec.gain_margin_db:
+            out.append(SpecFailure("gain_margin", m.loop, m.model, m.gain_margin_db, spec.gain_margin_db))
     return out
 
 
 def check_gains(model, params: ArduSubParameters, spec: Specification | None = None, spread_extra=(),
-                loops=("depth", "yaw")) -> list:
-    """Refusal reasons for given gains (e.g. a hand-written ``.params``) flown on the model's spread: empty when
-    they are safe. ``params.loop_rate_hz`` is the flights' tick."""
+                loops=("depth", "yaw"), log_params: dict | None = None) -> list:
+    """The specification failures (:class:`SpecFailure`) of given gains (e.g. a hand-written ``.params``) flown
+    on the model's spread, with their margins: empty when they meet the specification. ``params.loop_rate_hz``
+    is the flights' tick; ``log_params`` the filters and rate of the margins."""
     spec = spec or Specification()
     vehicles, _ = model_spread(model, spread_extra)
     fr, _ = vehicle_frame(vehicles[0])
+    base = dict(log_params or {})
+    robust = _Robustness(vehicles, fr, base, float(base.get("SCHED_LOOP_RATE") or 400.0))
+    values = gain_values(params)
     out = []
     for loop in loops:
-        out += [f"{loop}: {b}" for b in _unsafe([step_flight(v, params, fr, loop, spec=spec) for v in vehicles],
-                                                spec, loop)]
+        flights = [step_flight(v, params, fr, loop, spec=spec) for v in vehicles]
+        out += loop_failures(loop, flights, robust.margins(values, loop), spec)
     return out
 
 
@@ -800,6 +1089,8 @@ def prediction_sensitivity(design: ArduSubDesign, model=None, loops=("depth", "y
         When the model's coefficient space cannot be built (naming why).
     """
     vehicle = load_model(model if model is not None else design.model)
+    if design.timing is not None:  # the thrusters of the design's flights
+        vehicle = with_motor_lag(vehicle, design.timing.motor_tau_s)
     space = default_space(vehicle)
     axes = {SENSITIVITY_AXES[lp] for lp in loops}
     names = [n for n in space.names if n.split(".", 1)[0] in axes]
@@ -852,6 +1143,7 @@ def plot_loop(design: ArduSubDesign, loop: str, path=None) -> Figure:
     return fig
 
 
-__all__ = ["ArduSubDesign", "GAIN_RANGES", "LOOPS", "LOOP_PARAMETERS", "LoopDesign", "Specification", "StepMetrics",
-           "StepResponse", "check_gains", "design_ardusub", "gain_values", "layout_frame", "model_spread", "plot_loop",
-           "prediction_sensitivity", "step_flight", "tune_loop", "vehicle_frame"]
+__all__ = ["ArduSubDesign", "FAILURE_CODES", "LOOPS", "LOOP_PARAMETERS", "LoopDesign", "Margins", "SpecFailure",
+           "Specification", "StepMetrics", "StepResponse", "check_gains", "design_ardusub", "gain_values",
+           "layout_frame", "loop_failures", "model_spread", "plot_loop", "prediction_sensitivity", "step_flight",
+           "tune_loop", "vehicle_frame"]

@@ -6,13 +6,25 @@ import json
 import math
 from pathlib import Path
 
+from udrobot_ctrl.autopilot.check_flight import check_flight, checklist_markdown
 from udrobot_ctrl.autopilot.design import (
     LOOP_PARAMETERS,
     LOOPS,
+    STEP_SIZE,
     Specification,
     design_ardusub,
     plot_loop,
     prediction_sensitivity,
+)
+from udrobot_ctrl.autopilot.firmware import (
+    ASSUMED_FIRMWARE,
+    UnverifiedConversion,
+    firmware_name,
+    firmware_of_run,
+    from_firmware,
+    parse_firmware,
+    range_violations,
+    to_firmware,
 )
 from udrobot_ctrl.autopilot.params import run_log_params
 from udrobot_ctrl.autopilot.qgc_params import format_params, read_params
@@ -36,10 +48,15 @@ def register(subparsers):
                     "defaults, for the specifications below and no thruster at its limit in a 1 m depth step or\n"
                     "a 45 deg yaw step. The new gains are checked on the model's spread of coefficient sets\n"
                     "(UDrobot: the five sets; BlueROV2: the Wu2018 alternative and a low-damping corner; a\n"
-                    "corrected model: with and without its effects). Writes only the parameters that change,\n"
-                    "in ArduSub's names and units, as a QGroundControl parameter file (Parameters > Tools >\n"
-                    "Load from file). Unsafe gains (unstable on a model of the spread, or saturating a\n"
-                    "thruster in the step) are reported and not written without --force.",
+                    "corrected model: with and without its effects), and every loop must keep 45 deg of phase\n"
+                    "and 6 dB of gain margin on each of them (its frequency response with the IMU and PID\n"
+                    "filters, the motor lag and the loop delays). Every gain stays inside the range ArduSub\n"
+                    "documents for the firmware (--firmware, else the run's sidecar, else <= 4.6 assumed).\n"
+                    "Writes only the parameters that change, in the names and units that firmware loads\n"
+                    "(PSC_POSZ_P/VELZ/ACCZ up to 4.6, PSC_D_POS/D_VEL/D_ACC from 4.7), as a QGroundControl\n"
+                    "parameter file (Parameters > Tools > Load from file). Gains that fail the specification\n"
+                    "are reported with the failing figure and not written without --force; a gain outside\n"
+                    "ArduSub's documented range is never written.",
         epilog="example: udrobot-ctrl design ardusub --model bluerov2-heavy --out gains.params --report design_out")
     p.add_argument("--model", required=True, help=f"model name ({', '.join(ALL_MODEL_NAMES)}) or model file "
                                                   f"(e.g. diagnose --out-model's corrected model)")
@@ -47,8 +64,9 @@ def register(subparsers):
                    help="start from this vehicle's parameters: a converted run (its sidecar's autopilot_params, "
                         "else autopilot_params_estimated) or a .params file; ArduSub's defaults otherwise")
     p.add_argument("--out", required=True, help="the QGroundControl .params file to write")
-    p.add_argument("--report", metavar="DIR", help="folder for design.json, one step plot per loop and the "
-                                                   "sensitivity of the predictions (sensitivity.csv)")
+    p.add_argument("--report", metavar="DIR", help="folder for design.json, check_flight.md (the doublets to fly "
+                                                   "to check the gains), one step plot per loop and the "
+                                                   "sensitivity of the predictions")
     p.add_argument("--loops", default=",".join(LOOPS), help=f"comma-separated loops to design (default "
                                                             f"{','.join(LOOPS)})")
     p.add_argument("--spread", action="append", default=[], metavar="MODEL",
@@ -63,29 +81,37 @@ def register(subparsers):
                    help="overshoot of the yaw step, %% (default %(default)s)")
     p.add_argument("--loop-rate", type=float, default=100.0, metavar="HZ",
                    help="the emulated autopilot's rate in the design flights (default %(default)s Hz)")
-    p.add_argument("--evaluations", type=int, default=30, metavar="N",
+    p.add_argument("--firmware", metavar="VERSION",
+                   help="the ArduSub version the file is for (e.g. 4.5, 4.7.0): its parameter names, units and "
+                        "ranges; default: the run's sidecar (--from RUN.csv), else <= 4.6 names (assumed, said so)")
+    p.add_argument("--evaluations", type=int, default=12, metavar="N",
                    help="flights per loop in the search (default %(default)s)")
     p.add_argument("--no-sensitivity", action="store_true", help="with --report: skip the sensitivity study")
     p.add_argument("--force", action="store_true",
-                   help="write the gains even when they are unsafe, and replace existing output files")
+                   help="write the gains even when they fail the specification (never outside ArduSub's ranges), "
+                        "and replace existing output files")
     p.set_defaults(func=run)
 
 
-def _start_params(path) -> tuple:
-    """(parameters in ArduSub units, description) from a run CSV's sidecar or a .params file."""
+def _start_params(path, firmware=None) -> tuple:
+    """(parameters in the canonical names and ArduSub units, description, firmware the run names or None) from a
+    run CSV's sidecar or a .params file; a 4.7+ file's PSC_D_* names are read back to the canonical ones."""
     path = Path(path)
     if not path.exists():
         raise FileNotFoundError(f"--from {path}: no such file")
     if path.suffix.lower() in (".params", ".param", ".parm"):
-        return read_params(path), f"the parameters of {path}"
+        return from_firmware(read_params(path), firmware), f"the parameters of {path}", None
     meta_path = path if path.suffix.lower() == ".json" else sidecar(path)
     if not meta_path.exists():
         raise FileNotFoundError(f"--from {path}: its sidecar {meta_path} (udrobot-run/1 metadata) does not exist")
-    params, note = run_log_params(read_metadata(meta_path))
+    metadata = read_metadata(meta_path)
+    params, note = run_log_params(metadata)
     if not params:
         raise ValueError(f"--from {path}: the sidecar {meta_path} holds no autopilot_params or "
                          f"autopilot_params_estimated; run without --from to start from ArduSub's defaults")
-    return params, f"the log's parameters ({meta_path})" + (f"; {note}" if note else "")
+    logged = firmware_of_run(metadata)
+    return (from_firmware(params, firmware or logged),
+            f"the log's parameters ({meta_path})" + (f"; {note}" if note else ""), logged)
 
 
 def _fmt(v) -> str:
@@ -108,20 +134,38 @@ def run(args) -> int:
     check_outputs([args.out], inputs, force=args.force, create_folders=False)
     outputs = []
     if args.report:
-        outputs += [Path(args.report) / "design.json"] + [Path(args.report) / f"step_{lp}.png" for lp in LOOPS]
+        outputs += ([Path(args.report) / "design.json", Path(args.report) / "check_flight.md"]
+                    + [Path(args.report) / f"step_{lp}.png" for lp in LOOPS])
     check_outputs(outputs, inputs, force=args.force, option="--report")
-    log_params, origin = (_start_params(args.from_) if args.from_ else ({}, "ArduSub's defaults"))
+    given = parse_firmware(args.firmware, f"--firmware {args.firmware}") if args.firmware else None
+    if args.from_:
+        log_params, origin, logged = _start_params(args.from_, given)
+    else:
+        log_params, origin, logged = {}, "ArduSub's defaults (no --from: the vehicle's current gains taken as " \
+                                         "ArduSub's defaults)", None
+    firmware = given or logged or ASSUMED_FIRMWARE
+    if given and logged and (given.major, given.minor) != (logged.major, logged.minor):
+        print(f"note: --firmware {args.firmware} overrides the run's {logged.label} ({logged.source})")
     spec = Specification(depth_settling_s=args.depth_settling, depth_overshoot_pct=args.depth_overshoot,
                          yaw_settling_s=args.yaw_settling, yaw_overshoot_pct=args.yaw_overshoot)
     design = design_ardusub(args.model, log_params, spec, loop_rate_hz=args.loop_rate, loops=loops,
-                            spread_extra=args.spread, max_evaluations=args.evaluations)
+                            spread_extra=args.spread, max_evaluations=args.evaluations, firmware=firmware)
     print(f"ArduSub gains for {design.model} (frame {design.frame_name}), from {origin}")
-    print(f"{'parameter':16s} {'old':>9s} {'new':>9s}")
+    print(f"firmware: {firmware.label} ({firmware.source}): names, units and ranges of that version")
+    for v in range_violations(gain_values_of(design, "old"), firmware):
+        print(f"note: the current {v.sentence()}")
+    print(f"{'parameter':16s} {'current':>9s} {'new':>9s}  {'(as ' + firmware.label + ' names it)'}")
     for loop in LOOPS:
         for name in LOOP_PARAMETERS[loop]:
             d = design.loops[loop]
             mark = "" if d.new[name] != d.old[name] else "   (unchanged)"
-            print(f"{name:16s} {d.old[name]:9.4g} {d.new[name]:9.4g}{mark}")
+            try:
+                fname, scale = firmware_name(name, firmware)
+                shown = "" if fname == name else f"   {fname} {d.old[name] * scale:.4g} -> {d.new[name] * scale:.4g}"
+            except UnverifiedConversion:
+                shown = "   (no verified name in this version)"
+            print(f"{name:16s} {d.old[name]:9.4g} {d.new[name]:9.4g}{mark}{shown}")
+    _print_margins(design)
     print(f"\n{'loop':6s} {'gains':4s} {'settling s':>15s} {'overshoot %':>15s} {'IAE s':>13s} {'max cmd':>11s} "
           f"{'spread (new)':>14s}")
     print("(old->new on the nominal model; settling: '-' = not settled in the flight)")
@@ -132,10 +176,11 @@ def run(args) -> int:
             print(f"{loop:6s} kept  not designed: {d.note}")
             continue
         kind = "new" if d.designed else "kept"
+        met = not [f for f in design.failures if f.loop.split("_")[0] == loop]
         print(f"{loop:6s} {kind:4s} {_fmt(o['settling_s']):>7s}->{_fmt(n['settling_s']):>7s} "
               f"{_fmt(o['overshoot_pct']):>7s}->{_fmt(n['overshoot_pct']):>7s} {_fmt(o['iae_s']):>6s}->"
               f"{_fmt(n['iae_s']):>6s} {_fmt(o['max_command']):>5s}->{_fmt(n['max_command']):>5s} "
-              f"{stable}/{len(d.spread_new)} stable  spec {'met' if d.nominal_new.meets(design.spec) else 'NOT met'}"
+              f"{stable}/{len(d.spread_new)} stable  spec {'met' if met else 'NOT met'}"
               + ("" if not d.note else f"  [{d.note}]"))
     for note in design.notes:
         print(f"note: {note}")
@@ -157,27 +202,65 @@ def run(args) -> int:
             except ValueError as exc:
                 doc["sensitivity"] = {"skipped": str(exc)}
                 print(f"sensitivity: skipped ({exc})")
+        manoeuvres = check_flight(design, STEP_SIZE)
+        doc["check_flight"] = [m.__dict__ for m in manoeuvres]
         atomic_write(report / "design.json", json.dumps(doc, indent=1) + "\n", force=True)
+        atomic_write(report / "check_flight.md", checklist_markdown(design, manoeuvres), force=True)
         for loop in LOOPS:
             plot_loop(design, loop, report / f"step_{loop}.png")
-        print(f"report: {report}/design.json, step_<loop>.png for {', '.join(LOOPS)}")
+        print(f"report: {report}/design.json, check_flight.md (what to fly to check the gains), step_<loop>.png "
+              f"for {', '.join(LOOPS)}")
+    code, sentence = design.verdict()
+    print(f"verdict: {sentence}")
+    for f in design.current_failures():
+        print(f"current gains: {f.sentence()}")
+    hard = [f for f in design.failures if f.code in ("out_of_range", "unwritable")]
+    try:
+        values = to_firmware(changed, firmware)
+    except UnverifiedConversion as exc:
+        hard.append(exc)
+        values = {}
+    if hard:
+        for f in hard:
+            print(f"REFUSED: {f.sentence() if hasattr(f, 'sentence') else f}")
+        print(f"not written: {args.out} (a gain {firmware.label} cannot load as designed; --force does not override "
+              f"ArduSub's documented ranges)")
+        return 1
     if not design.safe:
-        for reason in design.refusal:
-            print(f"UNSAFE: {reason}")
+        for f in design.failures:
+            print(f"NOT MET: {f.sentence()}")
         if not args.force:
-            print(f"not written: {args.out} (the gains are unsafe on the model's spread; --force writes them anyway)")
+            print(f"not written: {args.out} (the specification is not met; --force writes the gains anyway)")
             return 1
     if not changed:
-        print(f"no gain changes: the old gains already are the design; {args.out} not written")
+        print(f"no gain changes: the current gains already are the design; {args.out} not written")
         return 0
     comments = [f"ArduSub gains designed by udrobot-ctrl design ardusub on model {design.model} "
                 f"(frame {design.frame_name}), from {origin}",
-                "only the parameters that change; ArduSub's names and units"]
+                f"for {firmware.label} ({firmware.source}): only the parameters that change, in that version's "
+                f"names and units"]
     if not design.safe:
-        comments.append("UNSAFE (written with --force): " + "; ".join(design.refusal))
-    atomic_write(args.out, format_params(changed, comments=comments), force=True)
-    print(f"wrote {args.out}: {len(changed)} parameters")
+        comments.append("SPECIFICATION NOT MET (written with --force): " + "; ".join(design.refusal))
+    atomic_write(args.out, format_params(values, comments=comments), force=True)
+    print(f"wrote {args.out}: {len(values)} parameters ({firmware.label} names)")
     return 0
+
+
+def gain_values_of(design, which: str) -> dict:
+    """The designed loops' current (``old``) or ``new`` gains, canonical names."""
+    return {n: v for d in design.loops.values() for n, v in getattr(d, which).items()}
+
+
+def _print_margins(design) -> None:
+    """Phase / gain margins of every loop on every model, current gains -> new."""
+    print("\nmargins (phase deg / gain dB; current -> new; required "
+          f"{design.spec.phase_margin_deg:g} deg / {design.spec.gain_margin_db:g} dB on every model)")
+    for d in design.loops.values():
+        new = d.margins_new or d.margins_old
+        for o, n in zip(d.margins_old, new):
+            flag = "" if n.meets(design.spec.phase_margin_deg, design.spec.gain_margin_db) else "  below spec"
+            print(f"  {o.loop:10s} {o.model[:34]:34s} {_fmt(o.phase_margin_deg):>7s}/{_fmt(o.gain_margin_db):>6s} -> "
+                  f"{_fmt(n.phase_margin_deg):>7s}/{_fmt(n.gain_margin_db):>6s}{flag}")
 
 
 def _num(v):

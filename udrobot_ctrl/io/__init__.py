@@ -32,6 +32,7 @@ from .mavlink import (
     classify_outputs,
     detect_vehicle,
     ekf_aiding,
+    firmware_text,
     motor_command_pwm,
     water_density_from_params,
 )
@@ -201,6 +202,8 @@ def convert_log(path, mapping=None, require_inputs: bool = True, vehicle: str | 
             run.metadata["notes"] += "\n" + note
         if autopilot_params(facts.params):
             run.metadata["autopilot_params"] = autopilot_params(facts.params)
+        if firmware_text(facts):
+            run.metadata["firmware"] = firmware_text(facts)
         if kind == "bin":
             note = estimate_autopilot_gains(path, run, facts.params)
             if note:

@@ -644,6 +644,16 @@ class VehicleInfo:
     servo_source: str = ""
 
 
+_FIRMWARE_TEXT = re.compile(r"\bArduSub\s+V\d+\.\d+\S*(?:\s+[A-Z]+\d*)?(?:\s+\([0-9a-fA-F]+\))?")
+
+
+def firmware_text(facts: LogFacts) -> str | None:
+    """The autopilot's version banner (``ArduSub V4.1.0 (89639005)``, sent as STATUSTEXT / MSG at boot and on a
+    ground station's connection), the last one in the log; None when the log holds none."""
+    found = [m.group(0) for t in facts.texts if (m := _FIRMWARE_TEXT.search(t))]
+    return found[-1] if found else None
+
+
 def detect_vehicle(facts: LogFacts) -> VehicleInfo:
     """Vehicle name and motor outputs from FRAME_CONFIG, ``Frame: ...`` texts and SERVOn_FUNCTION."""
     notes = []

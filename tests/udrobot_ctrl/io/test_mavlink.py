@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from udrobot_ctrl.io import LogImportError, convert_log, load_any
-from udrobot_ctrl.io.mavlink import Damage, iter_dataflash, iter_tlog
+from udrobot_ctrl.io.mavlink import Damage, LogFacts, firmware_text, iter_dataflash, iter_tlog
 
 T0 = 1_700_000_000.0
 # these synthetic logs name no frame and their outputs do not tell one (outputs held at 1400 / 1600 us beside moving
@@ -206,3 +206,11 @@ def test_dataflash_fmt_with_unknown_format_char_is_damage_not_a_crash(tmp_path, 
     assert kept == good
     assert damage.kinds["bad FMT"].offsets == [0]
     assert "Unsupported format char" not in capsys.readouterr().out
+
+
+def test_firmware_text_is_the_last_version_banner():
+    """The sidecar's ``firmware``: the log's own ``ArduSub V...`` banner (the real logs send
+    'ArduSub V4.1.0 (89639005)' and 'ArduSub V4.1.1 BETA5 (66c674c1)'), None when absent."""
+    facts = LogFacts(texts=["ArduSub V4.1.0 (89639005)", "Frame: VECTORED", "ArduSub V4.1.1 BETA5 (66c674c1)"])
+    assert firmware_text(facts) == "ArduSub V4.1.1 BETA5 (66c674c1)"
+    assert firmware_text(LogFacts(texts=["Frame: VECTORED_6DOF"])) is None
