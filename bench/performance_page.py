@@ -35,8 +35,9 @@ BENCHES = {
     "control": (["--quick"], "one control step: linear MPC, NMPC, EKF, fault monitor, anchors"),
     "diagnose": (["--sensors", "stock"], "a 10-minute stock-sensor diagnosis"),
     "autopilot": ([], "the ArduSub emulation against the logs' own motor outputs (NRMSE per channel)"),
+    "design": (["--models", "bluerov2-heavy"], "one `design ardusub` of one model"),
 }
-DEFAULT_BENCHES = ("demo", "plant", "identify", "control", "diagnose")
+DEFAULT_BENCHES = ("demo", "plant", "identify", "control", "diagnose", "autopilot", "design")
 
 
 @dataclass(frozen=True)

@@ -259,7 +259,7 @@ def _print_margins(design) -> None:
         new = d.margins_new or d.margins_old
         for o, n in zip(d.margins_old, new):
             flag = "" if n.meets(design.spec.phase_margin_deg, design.spec.gain_margin_db) else "  below spec"
-            print(f"  {o.loop:10s} {o.model[:34]:34s} {_fmt(o.phase_margin_deg):>7s}/{_fmt(o.gain_margin_db):>6s} -> "
+            print(f"  {o.loop:10s} {o.model:34s} {_fmt(o.phase_margin_deg):>7s}/{_fmt(o.gain_margin_db):>6s} -> "
                   f"{_fmt(n.phase_margin_deg):>7s}/{_fmt(n.gain_margin_db):>6s}{flag}")
 
 
