@@ -154,6 +154,11 @@ def _flat(figures: dict, prefix: str = "") -> list:
     return out
 
 
+def _sentence(text: str) -> str:
+    """``text`` with its first letter upper-cased (the rest as written: names such as ArduSub keep their case)."""
+    return text[:1].upper() + text[1:] + "."
+
+
 def render(results: list, cold: bool, invocation: str) -> str:
     """The page (markdown); ``invocation`` is the command that wrote it."""
     when = datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
@@ -171,7 +176,7 @@ def render(results: list, cold: bool, invocation: str) -> str:
     for m in results:
         if not m.figures:
             continue
-        lines += ["", f"## `{m.command}`", "", BENCHES.get(m.name, ("", m.name))[1].capitalize() + ".", "",
+        lines += ["", f"## `{m.command}`", "", _sentence(BENCHES.get(m.name, ("", m.name))[1]), "",
                   "| figure | value |", "|---|---|"]
         lines += [f"| `{k}` | {v} |" for k, v in _flat(m.figures)]
     return "\n".join(lines) + "\n"
