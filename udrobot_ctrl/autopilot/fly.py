@@ -31,7 +31,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from udrobot_ctrl.autopilot.ardusub import ArduSubAutopilot, MotorLimits, VehicleState
-from udrobot_ctrl.autopilot.modes import Mode, PilotInput, Targets
+from udrobot_ctrl.autopilot.modes import Mode, PilotInput, Targets, pilot_pulses
 from udrobot_ctrl.autopilot.motors import Frame, MotorParameters, frame, from_pwm, mix, to_pwm, unmix
 from udrobot_ctrl.autopilot.params import ArduSubParameters, run_log_params
 from udrobot_ctrl.dynamics.plant import PlantParameters, plant_parameters
@@ -42,7 +42,6 @@ from udrobot_ctrl.vehicle import load_model
 
 #: modes the emulation flies from the pilot's inputs
 PILOT_MODES = (Mode.MANUAL, Mode.STABILIZE, Mode.ALT_HOLD)
-PWM_CENTRE = 1500.0  # us, a centred stick
 #: modes flown on the logged targets (GUIDED is emulated this way; SURFTRAK's own depth law is not emulated and is
 #: flown so as a stand-in, and so are the other modes, see :func:`mode_notes`)
 TARGET_MODES = (Mode.GUIDED, Mode.SURFTRAK)
@@ -102,8 +101,8 @@ class LoggedCommands:
         armed = np.ones(run.n, bool) if armed is None else np.nan_to_num(armed, nan=1.0) != 0
         rc = [run.extra.get(f"rcin_{i}") for i in range(1, 9)]
         rcin = np.column_stack(rc) if all(c is not None for c in rc) else None
-        if rcin is not None:  # no pilot sample yet (before the log's first, or in a gap): sticks centred, never nan
-            rcin = np.where(np.isfinite(rcin), rcin, PWM_CENTRE)  # (a nan stick would read as full stick)
+        if rcin is not None:  # no pulse (no sample yet, a gap, 0 us, 65535 "unused"): sticks centred, never full
+            rcin = pilot_pulses(rcin)
         tg = [run.extra.get(c) for c in ("roll_target", "pitch_target", "yaw_target")]
         attitude = np.column_stack(tg) if all(c is not None for c in tg) else None
         voltage = run.battery_voltage(supply_voltage)

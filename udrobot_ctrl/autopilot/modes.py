@@ -41,11 +41,16 @@ import math
 from dataclasses import dataclass
 from enum import IntEnum
 
+import numpy as np
+
 from udrobot_ctrl.autopilot.params import CDEG, RC_MAP, DepthParameters, PilotParameters, RCChannel
 
 ROLL_PITCH_INPUT_MAX = 4500.0   # ArduSub/config.h, centidegrees of stick
 ACRO_YAW_P_DEFAULT = 3.375      # ArduSub/config.h ACRO_YAW_P (the MANUAL mode's yaw scaling reference)
 YAW_HOLD_DELAY = 0.25           # s, mode_stabilize.cpp / mode_althold.cpp "give 250ms to slow down"
+RC_MIN_LIMIT_PWM = 800.0        # us, RC_Channel.h: a pulse at or outside these bounds is a receiver or wiring error
+RC_MAX_LIMIT_PWM = 2200.0       # us (0: no pulse; 65535: MAVLink's UINT16_MAX "unused")
+PWM_CENTRE = 1500.0             # us, a centred stick
 
 
 class Mode(IntEnum):
@@ -201,6 +206,30 @@ def pilot_lean_angles(roll_in: float, pitch_in: float, angle_max: float, angle_l
     return roll_rad, pitch_in * CDEG
 
 
+def pilot_pulses(pwm) -> np.ndarray:
+    """Logged RC inputs (us) as pulses the emulation can read: a sample that is no pulse is a centred stick.
+
+    A logged value outside ArduPilot's valid pulse range (``RC_Channel::RC_MIN_LIMIT_PWM`` 800 us to
+    ``RC_MAX_LIMIT_PWM`` 2200 us, bounds excluded, as ``read_3pos_switch`` treats them: 0 for "no pulse", 65535
+    for MAVLink's "unused") or not finite (no sample yet, a gap) is not a stick position; read as one, 0 us or
+    65535 us would be a full stick. Such samples are read as :data:`PWM_CENTRE`, every channel's neutral.
+
+    Parameters
+    ----------
+    pwm : array_like
+        RC input samples, us.
+
+    Returns
+    -------
+    ndarray
+        The same shape, us, every sample within (800, 2200).
+    """
+    pwm = np.asarray(pwm, float)
+    with np.errstate(invalid="ignore"):
+        ok = np.isfinite(pwm) & (pwm > RC_MIN_LIMIT_PWM) & (pwm < RC_MAX_LIMIT_PWM)
+    return np.where(ok, pwm, PWM_CENTRE)
+
+
 def pilot_yaw_rate(yaw_in: float, acro_yaw_p: float) -> float:
     """``Sub::get_pilot_desired_yaw_rate``: yaw stick (cdeg, +-4500) -> yaw rate (rad/s) = stick x ACRO_YAW_P cdeg/s."""
     return yaw_in * acro_yaw_p * CDEG
@@ -319,6 +348,6 @@ class Targets:
     lateral: float = 0.0
 
 
-__all__ = ["Mode", "PilotCommand", "PilotInput", "Targets", "norm_input", "norm_input_dz",
-           "pilot_climb_rate", "pilot_throttle", "pilot_lean_angles",
+__all__ = ["PWM_CENTRE", "Mode", "PilotCommand", "PilotInput", "Targets", "norm_input", "norm_input_dz",
+           "pilot_climb_rate", "pilot_pulses", "pilot_throttle", "pilot_lean_angles",
            "pilot_yaw_rate", "pwm_to_angle_dz_trim", "pwm_to_range_dz", "shape_pilot"]

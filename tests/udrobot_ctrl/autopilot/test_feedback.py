@@ -264,3 +264,21 @@ def test_a_missing_pilot_sample_reads_as_a_centred_stick():
     assert np.all(commands.rcin[:20] == 1500.0)
     emulated = emulated_mixer_inputs(run, ArduSubParameters(), fr, motors, p)
     np.testing.assert_allclose(emulated[:20, 4:6], 0.0, atol=1e-12)  # no forward, no lateral from the gap
+
+
+@pytest.mark.parametrize("sentinel", [0.0, 65535.0, 700.0, 2300.0])
+def test_no_pulse_and_unused_rc_values_read_as_a_centred_stick(sentinel):
+    """0 us ("no pulse") and 65535 (MAVLink's UINT16_MAX, "unused") are not stick positions: outside ArduPilot's
+    valid pulse range (RC_Channel::RC_MIN_LIMIT_PWM 800 to RC_MAX_LIMIT_PWM 2200 us) a sample is read as a centred
+    stick. Read as a pulse, 65535 on the throttle was a full climb and 0 a full dive; the forward stick alike."""
+    p = plant_parameters(load_model(MODEL))
+    fr = frame(p.ardusub_frame)
+    motors = dataclasses.replace(MotorParameters(), directions=(1,) * fr.n_motors)
+    run = _pilot_run(duration=2.0)
+    for i in (3, 5):  # throttle and forward
+        run.extra[f"rcin_{i}"][:50] = sentinel
+    commands = LoggedCommands.from_run(run, fr, motors, p.supply_voltage)
+    assert np.all(commands.rcin[:50, [2, 4]] == 1500.0)
+    emulated = emulated_mixer_inputs(run, ArduSubParameters(), fr, motors, p)
+    centred = emulated_mixer_inputs(_pilot_run(duration=2.0), ArduSubParameters(), fr, motors, p)
+    np.testing.assert_allclose(emulated[:50], centred[:50], atol=1e-12)
