@@ -38,6 +38,7 @@ from udrobot_ctrl.dynamics.domain import (
     SATURATION_WINDOW_FRACTION,
     DomainCheck,
     domain_check,
+    limit_rows,
     thrust_limits,
 )
 from udrobot_ctrl.dynamics.plant import plant_parameters, state_derivative
@@ -109,15 +110,16 @@ def read_input_run(path, mapping=None):
     return run
 
 
-def initial_state(run) -> np.ndarray:
-    """The replay's start state (12,): the first row's, a channel it lacks filled as the diagnoser fills it
-    (:func:`udrobot_ctrl.gap.data.start_state`: a pose from its first finite sample, a velocity from its first
-    sample within 0.8 s, else 0), with a warning naming each filled channel and how."""
+def initial_state(run) -> tuple:
+    """The replay's start state (12,) and how its missing channels were filled: the first row's state, a channel it
+    lacks filled as the diagnoser fills it (:func:`udrobot_ctrl.gap.data.start_state`: a pose from its first finite
+    sample, a velocity from its first sample within 0.8 s, else 0), with a warning naming each filled channel and
+    how. Returns ``(x0, fills)``."""
     x0, fills = start_state(run.t, run.state_matrix())
     if fills:
         warnings.warn(f"{run.path or 'run'}: first row has no {', '.join(f.channel for f in fills)}; "
                       + "; ".join(_fill_text(f) for f in fills), stacklevel=2)
-    return x0
+    return x0, fills
 
 
 def _fill_text(f) -> str:
@@ -148,12 +150,6 @@ DOMAIN_REASON = {"above_surface": "above the surface (z < 0; the plant has no fr
                  "thrust_saturated": "a thruster held at its limit (the replay measures the limit, not the dynamics)"}
 
 
-def _rows(limit, a: int, b: int):
-    """Rows a..b of a per-row thrust limit (n, n_thr), or the limit itself when it is one per thruster."""
-    limit = np.asarray(limit)
-    return limit[a:b] if limit.ndim == 2 else limit
-
-
 def replay_sidecar(domain: DomainCheck, x0_fills=()) -> dict:
     """The simulated run's sidecar (docs/formats/runlog.md): ``replay_domain`` (codes, spans, saturation_s) and,
     when the first row lacked some channel, ``start_state`` (channel, how, t_first)."""
@@ -180,11 +176,18 @@ def input_wrenches(run, p) -> tuple:
     if u.shape[1] != n_thr:
         raise ValueError(f"{run.path or 'run'}: {u.shape[1]} {kind} columns but the model has {n_thr} thrusters")
     if kind == "pwm":
-        u = pwm_to_thrust(u, run.battery_voltage(p.supply_voltage)[:, None])  # broadcasts: one voltage per row
-    elif kind != "thrust":
+        f = clipped_thrusts(u, run.battery_voltage(p.supply_voltage), p)
+    elif kind == "thrust":
+        f = np.clip(u, p.f_min, p.f_max)
+    else:
         raise ValueError(f"{run.path or 'run'}: unknown input kind {kind!r}")
-    f = np.clip(u, p.f_min, p.f_max)
     return f @ p.T.T, f
+
+
+def clipped_thrusts(pwm, voltage, p) -> np.ndarray:
+    """Thrusts (n, n_thr) N of PWM commands (n, n_thr) us by the T-200 curve at each row's supply ``voltage`` (n,) V,
+    clipped to each thruster's forward/reverse limit of the plant ``p``."""
+    return np.clip(pwm_to_thrust(pwm, np.asarray(voltage, float)[:, None]), p.f_min, p.f_max)
 
 
 REPLAY_CHUNK = 200_000  # rows per compiled call (progress granularity)
@@ -388,8 +391,8 @@ def run_closed_loop(args) -> int:
         print(note)
     segmented = len(parts) > 1
     # each segment's control grid in the run's own t (s from the run's first row when it has one segment)
-    t = np.concatenate([(part.t[0] - rn.t[0] if not segmented else part.t[0]) + f.t
-                        for part, f in zip(parts, flights)])
+    t_parts = [(part.t[0] - rn.t[0] if not segmented else part.t[0]) + f.t for part, f in zip(parts, flights)]
+    t = np.concatenate(t_parts)
     x = np.concatenate([f.x for f in flights])
     pwm = np.concatenate([f.pwm for f in flights])
     channels = {name: x[:, i] for i, name in enumerate(STATE_NAMES)}
@@ -398,12 +401,11 @@ def run_closed_loop(args) -> int:
         extra[runlog.SEGMENT] = np.concatenate([np.full(f.t.size, part.segment[0]) for part, f in zip(parts, flights)])
     p = plant_parameters(load_model(args.model))
     errors, checks = {}, []
-    for part, f in zip(parts, flights):
+    for part, f, t_part in zip(parts, flights, t_parts):
         logged = runlog.resample(part, part.t[0] + f.t)
         volts = logged.battery_voltage(p.supply_voltage)
-        thrust = np.clip(pwm_to_thrust(f.pwm, volts[:, None]), p.f_min, p.f_max)
-        t_part = (part.t[0] - rn.t[0] if not segmented else part.t[0]) + f.t
-        checks.append(domain_report(t_part, f.x, str(src), thrust, thrust_limits(p.f_min, p.f_max, "pwm", volts)))
+        checks.append(domain_report(t_part, f.x, str(src), clipped_thrusts(f.pwm, volts, p),
+                                    thrust_limits(p.f_min, p.f_max, "pwm", volts)))
         for name in ("z", "phi", "theta", "psi", "u", "v", "w"):
             meas = logged.channels.get(name)
             if meas is None or not np.isfinite(meas).any():
@@ -449,10 +451,12 @@ def run(args) -> int:
     tau, thrust = input_wrenches(rn, p)
     parts = runlog.split_segments(rn)
     xs = np.empty((rn.n, 12))
+    fills = []
     for part, (a, b) in zip(parts, rn.segment_bounds()):
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
-            x0 = initial_state(part)
+            x0, filled = initial_state(part)
+        fills += filled
         for w in caught:
             print(f"udrobot-ctrl simulate: warning: {w.message}", file=sys.stderr)
         try:
@@ -464,12 +468,11 @@ def run(args) -> int:
     if "voltage" in rn.channels:
         channels["voltage"] = rn.channels["voltage"]
     extra = {runlog.SEGMENT: rn.extra[runlog.SEGMENT]} if rn.segment is not None else None
-    fills = [f for part in parts for f in start_state(part.t, part.state_matrix())[1]]
     volts = rn.battery_voltage(p.supply_voltage) if rn.input_kind == "pwm" else None
     lo, hi = thrust_limits(p.f_min, p.f_max, rn.input_kind, volts)
     domain = DomainCheck.joined(  # each segment on its own: a stretch at a limit never runs across a cut
         domain_report(rn.t[a:b], xs[a:b], str(src), None if thrust is None else thrust[a:b],
-                      (None, None) if lo is None else (_rows(lo, a, b), _rows(hi, a, b)))
+                      (None, None) if lo is None else (limit_rows(lo, slice(a, b)), limit_rows(hi, slice(a, b))))
         for a, b in rn.segment_bounds())
     runlog.write_run(out, rn.t, channels, rn.input_kind, rn.inputs, protect=inputs, extra=extra,
                      metadata=replay_sidecar(domain, fills))

@@ -134,8 +134,8 @@ class DomainCheck:
         return {"codes": list(self.codes), "spans": [s.to_json() for s in self.spans]}
 
 
-def _runs(mask) -> list:
-    """(start, stop) index pairs (stop exclusive) of the stretches of True in ``mask``."""
+def true_runs(mask) -> list:
+    """(start, stop) index pairs (stop exclusive) of the stretches of True in the boolean array ``mask``."""
     d = np.diff(np.concatenate([[0], np.asarray(mask, np.int8), [0]]))
     return list(zip(np.flatnonzero(d == 1), np.flatnonzero(d == -1)))
 
@@ -170,7 +170,7 @@ def domain_check(t, x, thrust=None, f_lo=None, f_hi=None, saturation_s=None) -> 
         tests = {ABOVE_SURFACE: ok & (x[:, 2] < 0.0),
                  INVERTED: ok & (np.cos(x[:, 3]) * np.cos(x[:, 4]) < 0.0)}
     for code, mask in tests.items():
-        spans += [DomainSpan(code, t[a], t[b - 1]) for a, b in _runs(mask)]
+        spans += [DomainSpan(code, t[a], t[b - 1]) for a, b in true_runs(mask)]
     if thrust is not None:
         f = np.asarray(thrust, float).reshape(len(t), -1)
         lo = np.broadcast_to(np.asarray(f_lo, float), f.shape)
@@ -180,9 +180,16 @@ def domain_check(t, x, thrust=None, f_lo=None, f_hi=None, saturation_s=None) -> 
             at = ((f >= near * hi) & (hi > 0)) | ((f <= near * lo) & (lo < 0))
         at &= ok[:, None]
         for j in range(f.shape[1]):
-            spans += [DomainSpan(THRUST_SATURATED, t[a], t[b - 1], j) for a, b in _runs(at[:, j])
+            spans += [DomainSpan(THRUST_SATURATED, t[a], t[b - 1], j) for a, b in true_runs(at[:, j])
                       if t[b - 1] - t[a] >= sat_s - 1e-9]
     return DomainCheck(tuple(spans), sat_s)
+
+
+def limit_rows(limit, rows):
+    """The rows ``rows`` (an index array or a slice) of a per-row thrust limit (n, k) N, or the limit itself when it
+    is one per thruster (k,): a limit of :func:`thrust_limits` for a part of the replay it was made for."""
+    limit = np.asarray(limit)
+    return limit[rows] if limit.ndim == 2 else limit
 
 
 def thrust_limits(f_min, f_max, kind: str, voltage=None) -> tuple:

@@ -33,6 +33,7 @@ import numpy as np
 from scipy.signal import savgol_filter
 
 from udrobot_ctrl.autopilot.feedback import ReplayFeedback, replay_feedback
+from udrobot_ctrl.dynamics.domain import true_runs
 from udrobot_ctrl.dynamics.plant import PlantParameters, restoring_forces
 from udrobot_ctrl.dynamics.thrusters import pwm_to_thrust
 from udrobot_ctrl.gap.smoother import SmoothedRun, SmootherError, smooth_run
@@ -137,12 +138,6 @@ class Prepared:
         return np.concatenate([self.eta, self.nu], axis=1)
 
 
-def _segments(ok):
-    """Start/stop index pairs of the runs of True in a boolean array."""
-    d = np.diff(np.concatenate([[0], ok.astype(np.int8), [0]]))
-    return list(zip(np.flatnonzero(d == 1), np.flatnonzero(d == -1)))
-
-
 def smooth_derivative(y, dt, window_s=0.8, order=2):
     """Savitzky-Golay smoothing and first derivative of y on each finite stretch (nan elsewhere).
 
@@ -162,7 +157,7 @@ def smooth_derivative(y, dt, window_s=0.8, order=2):
     ys = np.full_like(y, np.nan, dtype=float)
     yd = np.full_like(y, np.nan, dtype=float)
     win = max(5, int(round(window_s / dt)) | 1)
-    for a, b in _segments(np.isfinite(y)):
+    for a, b in true_runs(np.isfinite(y)):
         m = b - a
         if m < 5:
             continue

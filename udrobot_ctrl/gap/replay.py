@@ -29,7 +29,13 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from udrobot_ctrl.dynamics.domain import SATURATION_WINDOW_FRACTION, DomainCheck, domain_check, thrust_limits
+from udrobot_ctrl.dynamics.domain import (
+    SATURATION_WINDOW_FRACTION,
+    DomainCheck,
+    domain_check,
+    limit_rows,
+    thrust_limits,
+)
 from udrobot_ctrl.dynamics.effects import wall_planes
 from udrobot_ctrl.dynamics.plant import plant_parameters
 from udrobot_ctrl.gap.data import Prepared, prepare
@@ -222,8 +228,7 @@ def window_domains(prep: Prepared, sim, p, window_s: float) -> list:
         if live.size == 0:
             continue
         thrust = prep.f[live] if lo is not None else None
-        lo_k, hi_k = (None, None) if lo is None else (lo[live] if np.ndim(lo) == 2 else lo,
-                                                      hi[live] if np.ndim(hi) == 2 else hi)
+        lo_k, hi_k = (None, None) if lo is None else (limit_rows(lo, live), limit_rows(hi, live))
         chk = domain_check(prep.t[live], sim[live, :12], thrust, lo_k, hi_k,
                            saturation_s=SATURATION_WINDOW_FRACTION * window_s)
         if chk:
