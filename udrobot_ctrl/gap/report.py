@@ -24,8 +24,8 @@ import numpy as np
 from udrobot_ctrl.dynamics.domain import SATURATION_TOLERANCE, SATURATION_WINDOW_FRACTION
 from udrobot_ctrl.dynamics.effects import TETHER_ANCHOR, plant_effect, wall_parameters
 from udrobot_ctrl.dynamics.plant import PlantParameters, plant_parameters, require_nominal, rotation_zyx
+from udrobot_ctrl.gap import decide, identifiability
 from udrobot_ctrl.gap import effects as fx
-from udrobot_ctrl.gap import identifiability
 from udrobot_ctrl.gap.attribute import (
     BIC_STRONG,
     HOLDOUT_CHI2,
@@ -1763,6 +1763,10 @@ def _diagnose(model, runs, holdout, window_s, effects, log, model_label):
             if "closed loop" in note else note)
 
     res = diagnosis_pass(inp, say, t0)
+    shadow = table_decision(inp, res.stacks, res.where, log=say)
+    say(f"shadow decision: best {shadow.best.members}, named {shadow.named}, "
+        f"inclusion {dict((k, round(v, 3)) for k, v in shadow.inclusion.items() if v > 0.01)} "
+        f"({time.perf_counter() - t0:.1f} s)")
     # the force the holdout confirmed improves the reconstruction whichever effect it is named as (an ambiguous
     # effect is set aside from the verdict, not from the plant that smooths the velocities)
     if reconstructed(inp) and res.confirmed.kept:
@@ -1816,8 +1820,20 @@ def _diagnose(model, runs, holdout, window_s, effects, log, model_label):
                          support=res.support)
     report.update(_not_diagnosed_fields(skipped))
     report["replay_domain"] = domain
+    report["selection"] = shadow.to_json()
     ctx = DiagnosisContext(inp.runs, len(inp.fit), where.nominal_sims, after_sims, where.residuals, location)
     return _clean(report), ctx
+
+
+def table_decision(inp: Inputs, stacks: Stacks, where: Where, log=None) -> decide.Decision:
+    """The one decision (:mod:`udrobot_ctrl.gap.decide`) on the fit runs only: every identifiable effect searched,
+    each set scored by the fit runs' output-error BIC of its replays."""
+    nf = len(inp.fit)
+    nominal = where.nominal_sims[:nf]
+    channels = gap(inp.fit, nominal).scored
+    replay = _replayer(inp, stacks, channels, runs=inp.fit).many
+    names = [n for n in inp.names if n not in stacks.identifiability.names]
+    return decide.decision(decide.search(stacks.fit, replay, inp.fit, channels, nominal, names, log=log))
 
 
 def replay_domain(inp: Inputs, nominal_sims, after_sims) -> dict:

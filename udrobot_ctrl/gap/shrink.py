@@ -497,6 +497,23 @@ class GapScore:
     metric: str = "nrmse"
     windows: dict = field(default_factory=dict)
     diverged: dict = field(default_factory=dict)
+    #: channel -> NRMSE of the model-free baseline on the same samples: the persistence forecast, each window's
+    #: measured start held (:func:`persistence_errors`)
+    baseline: dict = field(default_factory=dict)
+
+    @property
+    def baseline_value(self) -> float:
+        """RMS over the scored channels of the baseline's NRMSE (nan when no channel is scored)."""
+        use = [self.baseline[c] for c in self.scored if np.isfinite(self.baseline.get(c, np.nan))]
+        return float(np.sqrt(np.mean(np.square(use)))) if use else float("nan")
+
+    @property
+    def skill(self) -> float:
+        """1 - value / baseline_value: above 0 the replays predict the runs better than holding each window's
+        measured start; a model that barely moves scores about 0 however small its error, one that departs further
+        than holding still below 0."""
+        b = self.baseline_value
+        return float(1.0 - self.value / b) if b > 0 else float("nan")
 
     @property
     def n_diverged(self) -> int:
@@ -507,7 +524,10 @@ class GapScore:
         """The report's ``gap_before`` / ``gap_after`` object."""
         return {"metric": self.metric, "value": self.value, "per_channel": self.per_channel,
                 "undefined": self.undefined, "scored": self.scored, "windows": self.windows,
-                "diverged_windows": self.diverged}
+                "diverged_windows": self.diverged,
+                "baseline": {"metric": "nrmse of the persistence forecast (each window's measured start held)",
+                             "value": self.baseline_value, "per_channel": self.baseline},
+                "skill": self.skill}
 
 
 class LoggedChannel(NamedTuple):
@@ -538,6 +558,31 @@ def logged_channel(c: str, m: np.ndarray) -> LoggedChannel:
     return out
 
 
+def persistence_errors(prep: Prepared, sim) -> dict:
+    """Channel -> error of the model-free baseline on the samples of the replay ``sim``'s windows: each window's
+    first measured value held through it (angles wrapped), as :func:`errors` gives for the replay (nan outside the
+    windows and where the start is not measured)."""
+    out = {}
+    if sim.shape[1] <= WINDOW:
+        return out
+    win = np.abs(sim[:, WINDOW])
+    ok = np.isfinite(win)
+    idx = np.flatnonzero(ok)
+    new = np.r_[True, (win[idx][1:] != win[idx][:-1]) | (np.diff(idx) > 1)] if idx.size else np.zeros(0, bool)
+    start = np.zeros(win.shape, int)
+    start[idx] = idx[new][np.cumsum(new) - 1]
+    channels = [c for c in CHANNELS if c in prep.meas] + ([c for c in ACCEL if c in prep.meas]
+                                                          if accel_bias(prep) is not None else [])
+    for c in channels:
+        m = prep.meas[c]
+        e = np.full(m.shape, np.nan)
+        e[ok] = m[ok] - m[start[ok]]
+        if c in ANGLES:
+            e = wrap_angle(e)
+        out[c] = e
+    return out
+
+
 def gap(preps, sims, scored=None) -> GapScore:
     """NRMSE gap over runs (see the module docstring); ``scored`` fixes the channels (default: those that move)."""
     acc, windows, diverged = {}, {}, {}
@@ -546,15 +591,21 @@ def gap(preps, sims, scored=None) -> GapScore:
         name = getattr(prep, "name", None) or f"run {len(windows)}"
         windows[name] = windows.get(name, 0) + n_win
         diverged[name] = diverged.get(name, 0) + n_div
+        base = persistence_errors(prep, sim)
         for c, e in errors(prep, sim).items():
             ok = np.isfinite(e)
-            a = acc.setdefault(c, {"se": 0.0, "n": 0, "meas": [], "noise": []})
+            a = acc.setdefault(c, {"se": 0.0, "n": 0, "meas": [], "noise": [], "base": 0.0, "nb": 0})
             a["se"] += float(np.sum(e[ok] ** 2))
             a["n"] += int(ok.sum())
+            eb = base.get(c)
+            if eb is not None:
+                okb = ok & np.isfinite(eb)
+                a["base"] += float(np.sum(eb[okb] ** 2))
+                a["nb"] += int(okb.sum())
             logged = logged_channel(c, prep.meas[c])
             a["meas"].append(logged.finite)
             a["noise"].append(logged.noise)
-    per, scale, auto, undefined = {}, {}, [], {}
+    per, scale, auto, undefined, baseline = {}, {}, [], {}, {}
     for c, a in acc.items():
         if a["n"] == 0:
             continue
@@ -562,6 +613,7 @@ def gap(preps, sims, scored=None) -> GapScore:
         sd = float(np.std(allm)) if allm.size > 1 else 0.0
         scale[c] = sd
         per[c] = float(np.sqrt(a["se"] / a["n"]) / sd) if sd > 0 else float("nan")
+        baseline[c] = float(np.sqrt(a["base"] / a["nb"]) / sd) if sd > 0 and a["nb"] else float("nan")
         if not sd > 0:
             undefined[c] = "channel constant (standard deviation 0): NRMSE undefined"
         noise = np.nanmedian(a["noise"]) if np.isfinite(a["noise"]).any() else 0.0
@@ -570,4 +622,4 @@ def gap(preps, sims, scored=None) -> GapScore:
     use = [c for c in (scored if scored is not None else auto) if c in per and np.isfinite(per[c])]
     value = float(np.sqrt(np.mean([per[c] ** 2 for c in use]))) if use else float("nan")
     return GapScore(value=value, per_channel=per, scored=use, scale=scale, undefined=undefined, windows=windows,
-                    diverged=diverged)
+                    diverged=diverged, baseline=baseline)
