@@ -39,6 +39,7 @@ from pathlib import Path
 
 import numpy as np
 
+from udrobot_ctrl.autopilot.params import ESTIMATED_PARAMS, LOGGED_PARAMS, ParameterError, check_log_params
 from udrobot_ctrl.io import files
 from udrobot_files.nesting import NestingError, loads_json
 
@@ -737,6 +738,12 @@ def validate_metadata(meta, source="metadata") -> dict:
         _check_cut(meta["cut"], f"{source}: field 'cut'")
     if "channels" in meta:
         _check_channels(meta["channels"], f"{source}: field 'channels'")
+    for key in (LOGGED_PARAMS, ESTIMATED_PARAMS):  # the autopilot's parameters: checked once, here
+        if key in meta:
+            try:
+                out[key] = check_log_params(meta[key], f"{source}: field '{key}'")
+            except ParameterError as exc:
+                raise RunLogError(str(exc)) from None
     return out
 
 
