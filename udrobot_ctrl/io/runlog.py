@@ -42,7 +42,7 @@ import numpy as np
 from udrobot_ctrl.autopilot.modes import Mode
 from udrobot_ctrl.autopilot.params import ESTIMATED_PARAMS, LOGGED_PARAMS, ParameterError, check_log_params
 from udrobot_ctrl.io import files
-from udrobot_files.nesting import NestingError, loads_json
+from udrobot_files.nesting import NestingError, loads_json, unique_keys
 
 FORMAT = "udrobot-run/1"
 STATE_CHANNELS = ("x", "y", "z", "phi", "theta", "psi", "u", "v", "w", "p", "q", "r")
@@ -891,13 +891,15 @@ def read_metadata(path) -> dict:
     """Read and validate a sidecar ``NAME.json``."""
     path = Path(path)
     try:
-        meta = loads_json(path.read_text(encoding="utf-8"), path)
+        meta = loads_json(path.read_text(encoding="utf-8"), path, object_pairs_hook=unique_keys(path))
     except NestingError as exc:
         raise RunLogError(str(exc)) from None
     except UnicodeDecodeError as exc:
         raise RunLogError(f"{path}: byte offset {exc.start}: not UTF-8 text; expected JSON metadata") from exc
     except json.JSONDecodeError as exc:
         raise RunLogError(f"{path}: line {exc.lineno} column {exc.colno}: invalid JSON ({exc.msg})") from exc
+    except ValueError as exc:  # a key given twice (unique_keys)
+        raise RunLogError(str(exc)) from None
     return validate_metadata(meta, str(path))
 
 
