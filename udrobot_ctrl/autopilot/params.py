@@ -406,7 +406,8 @@ def parameter_problems(params: Mapping) -> list:
     :data:`PARAMETER_DOMAINS` lie in their documented domain; PID gains, limits, filters and the attitude shaping
     limits are not negative; each RC input the modes read (channels 1-6) has ``RCn_MIN < RCn_MAX``, its trim
     within them and a dead zone that leaves part of the range outside it (``RC_Channel::norm_input_dz``,
-    ``pwm_to_range_dz`` and ``get_control_mid`` divide by what is left).
+    ``pwm_to_range_dz`` and ``get_control_mid`` divide by what is left: the throttle's ``RCn_MIN + RCn_DZ`` below
+    ``RCn_MAX``, an angle channel's ``RCn_TRIM +- RCn_DZ`` not covering both ends).
 
     Parameters
     ----------
@@ -452,8 +453,8 @@ def parameter_problems(params: Mapping) -> list:
             out.append(ParameterProblem(names[3], dz, "inconsistent", f"below RC{k}_MAX - RC{k}_MIN = {hi - lo:g} us "
                                                                        f"(the dead zone spans the throttle range; "
                                                                        f"RC_Channel::pwm_to_range_dz)"))
-        elif k != RC_MAP["throttle"] and not (lo < trim - dz and trim + dz < hi):
-            out.append(ParameterProblem(names[3], dz, "inconsistent", f"below {min(trim - lo, hi - trim):g} us (the "
+        elif k != RC_MAP["throttle"] and trim - dz <= lo and trim + dz >= hi:
+            out.append(ParameterProblem(names[3], dz, "inconsistent", f"below {max(trim - lo, hi - trim):g} us (the "
                                                                        f"dead zone about RC{k}_TRIM spans the "
                                                                        f"channel's range; RC_Channel::norm_input_dz)"))
     return out

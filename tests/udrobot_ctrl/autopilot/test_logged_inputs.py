@@ -4,6 +4,8 @@ with a note (autopilot.params.parameter_problems, the one check)."""
 from __future__ import annotations
 
 import dataclasses
+import os
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -112,3 +114,27 @@ def test_convert_drops_impossible_ekf_velocities_and_damaged_parameter_records(t
     np.testing.assert_allclose(speed[ok], 0.2, atol=1e-3)  # the 0.2 m/s as logged; the damaged sample is a gap
     again = read_run(write(run, tmp_path / "spike.csv"))
     assert again.metadata["autopilot_params"] == run.metadata["autopilot_params"]
+
+
+SHARED = Path(os.environ.get("UDROBOT_SHARED", Path(__file__).resolve().parents[3] / ".." / "shared")) / "data"
+REAL_LOGS = [SHARED / "ardusub_log_tools" / "small.BIN", SHARED / "ardusub_log_tools" / "small.tlog",
+             SHARED / "guided_above_terrain" / "00000029_filtered.BIN"]
+
+
+@pytest.mark.parametrize("log", REAL_LOGS, ids=lambda p: p.name)
+def test_real_logs_parameters_and_context_pass_the_checks(log):
+    """The real logs convert with no parameter record left out and no velocity dropped, and their closed-loop inputs
+    are read without a refusal (GUIDED and SURFTRAK rows of the sea dive carry their targets)."""
+    if not log.exists():
+        pytest.skip("shared data absent")
+    from udrobot_ctrl.io import convert_log
+
+    run = convert_log(log, "ardusub")
+    notes = run.metadata["notes"]
+    assert "parameters: " not in notes and "velocity limit" not in notes
+    for key in ("autopilot_params", "autopilot_params_estimated"):
+        assert parameter_problems(run.metadata.get(key, {})) == []
+    fr = frame("VECTORED_6DOF" if run.inputs.shape[1] == 8 else "VECTORED")
+    motors = dataclasses.replace(MotorParameters(), directions=(1,) * fr.n_motors)
+    commands = LoggedCommands.from_run(run, fr, motors, 16.0)
+    assert commands.rcin is not None and commands.notes == ()

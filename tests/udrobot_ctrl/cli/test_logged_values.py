@@ -79,8 +79,7 @@ BAD_PARAMS = [  # (parameters, words of the refusal)
 
 
 @pytest.mark.parametrize("command", ["simulate", "diagnose", "design"])
-@pytest.mark.parametrize("params,words", BAD_PARAMS, ids=[next(iter(p)) + "=" + str(list(p.values())[-1])
-                                                         for p, _ in BAD_PARAMS])
+@pytest.mark.parametrize("params,words", BAD_PARAMS, ids=[w[0].replace(" ", "") for _, w in BAD_PARAMS])
 def test_a_damaged_sidecar_parameter_is_refused_by_every_command(tmp_path, capsys, command, params, words):
     """One check for every consumer: the sidecar's file and field, the parameter and ArduSub's documented domain,
     before any flight (a SCHED_LOOP_RATE of 1e9 was a 2.6 TiB allocation, 0 a ZeroDivisionError)."""
@@ -91,9 +90,9 @@ def test_a_damaged_sidecar_parameter_is_refused_by_every_command(tmp_path, capsy
 
 
 def test_the_real_logs_documented_values_pass_the_check(tmp_path, capsys):
-    """The parameters of a real ArduSub 4.1 log (small.BIN: RC3_TRIM = RC3_MIN = 1100, SURFACE_DEPTH -10, MOT_k_DIRECTION
-    -1) are inside every domain: the check refuses only what ArduSub cannot hold. Without the shared log, the same
-    values typed in."""
+    """Values of the real ArduSub 4.1 logs (small.BIN, small.tlog: RC3_TRIM = RC3_MIN = 1100, SURFACE_DEPTH -10,
+    MOT_k_DIRECTION -1, typed in here) are inside every domain: the check refuses only what ArduSub cannot hold, and
+    the flight runs (the logs themselves: test_logged_inputs.py)."""
     params = {"RC3_MIN": 1100.0, "RC3_TRIM": 1100.0, "RC3_MAX": 1900.0, "RC3_DZ": 30.0, "RC4_DZ": 40.0,
               "SURFACE_DEPTH": -10.0, "MOT_1_DIRECTION": -1.0, "SCHED_LOOP_RATE": 200.0, "ANGLE_MAX": 4500.0,
               "MOT_THST_HOVER": 0.5, "PILOT_SPEED_UP": 500.0, "PILOT_SPEED_DN": 0.0, "FRAME_CONFIG": 2.0,
