@@ -138,3 +138,18 @@ def test_real_logs_parameters_and_context_pass_the_checks(log):
     motors = dataclasses.replace(MotorParameters(), directions=(1,) * fr.n_motors)
     commands = LoggedCommands.from_run(run, fr, motors, 16.0)
     assert commands.rcin is not None and commands.notes == ()
+
+
+def test_validate_read_log_leaves_a_damaged_loop_rate_record_out(tmp_path):
+    """validate.read_log (the emulation check and the converter's gain estimate) took 1 / SCHED_LOOP_RATE as its tick:
+    a record of 1e5 made a 10 us tick (a run of hours); now the record is left out with its problem kept, and the
+    tick is ArduSub's 400 Hz (MAIN_LOOP_RATE) as for a log without the parameter."""
+    from tests.udrobot_ctrl.io.test_ardusub_dive import write_dataflash
+    from udrobot_ctrl.autopilot.validate import read_log
+
+    records = [("PARM", (0, b"SCHED_LOOP_RATE", 1e5)), ("PARM", (1, b"ATC_RAT_RLL_P", 0.2))]
+    records += [("MODE", (int(t * 1e6), 19, 19, 0)) for t in (0.5,)]
+    log = read_log(write_dataflash(tmp_path / "d.bin", records))
+    assert log.loop_dt == pytest.approx(1.0 / 400.0)
+    assert "SCHED_LOOP_RATE" not in log.params and log.params["ATC_RAT_RLL_P"] == pytest.approx(0.2)
+    assert [p.code for p in log.param_problems] == ["out_of_range"]
