@@ -31,6 +31,7 @@ from identification.sets import coefficient_set_from_dict, load_coefficient_set
 from identification.similitude import FullSizeVehicle
 from udrobot_ctrl.dynamics.effects import check_against_model, parse_effects
 from udrobot_ctrl.io.files import atomic_write
+from udrobot_files.nesting import unique_keys
 
 MODEL_FORMAT = "udrobot-model/1"
 #: UDrobot models: shipped coefficient set : damping form.
@@ -563,7 +564,7 @@ def read_model_file(path) -> Vehicle:
     """Read a ``udrobot-model/1`` JSON file."""
     path = Path(path)
     try:
-        doc = json.loads(path.read_text())
+        doc = json.loads(path.read_text(), object_pairs_hook=unique_keys(path))  # a second 'effects' is refused
     except FileNotFoundError:
         raise FileNotFoundError(f"model file {path} does not exist") from None
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:

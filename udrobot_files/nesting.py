@@ -39,3 +39,17 @@ def loads_toml(text: str, source):
         return tomllib.loads(text)
     except RecursionError:
         raise too_deep(source, "TOML") from None
+
+
+def unique_keys(source):
+    """An ``object_pairs_hook`` for :func:`json.loads` that refuses a key given twice in one object (``json`` keeps
+    the last silently: a second ``"effects"`` would drop the first list), naming ``source`` and the key."""
+    def hook(pairs):
+        out = {}
+        for key, value in pairs:
+            if key in out:
+                raise ValueError(f"{source}: key {key!r} given twice in one JSON object; expected each key once "
+                                 f"(which one was meant is not known)")
+            out[key] = value
+        return out
+    return hook

@@ -31,13 +31,13 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from udrobot_ctrl.autopilot.ardusub import ArduSubAutopilot, MotorLimits, VehicleState
-from udrobot_ctrl.autopilot.modes import Mode, PilotInput, Targets, pilot_pulses
+from udrobot_ctrl.autopilot.modes import Mode, PilotInput, Targets, logged_pulses, logged_targets
 from udrobot_ctrl.autopilot.motors import Frame, MotorParameters, frame, from_pwm, mix, to_pwm, unmix
 from udrobot_ctrl.autopilot.params import ArduSubParameters, run_log_params
 from udrobot_ctrl.dynamics.plant import PlantParameters, plant_parameters
 from udrobot_ctrl.dynamics.sim import simulate
 from udrobot_ctrl.dynamics.thrusters import pwm_to_thrust
-from udrobot_ctrl.io.runlog import Run
+from udrobot_ctrl.io.runlog import Run, check_context_columns
 from udrobot_ctrl.vehicle import load_model
 
 #: modes the emulation flies from the pilot's inputs
@@ -69,6 +69,8 @@ class LoggedCommands:
         Forward and lateral mixer inputs held by the logged PWM (dimensionless).
     voltage : (n,) ndarray
         Battery voltage, V (the model's supply voltage where not logged).
+    notes : tuple of str
+        What was read in place of a missing input (a centred RC channel, a held target).
     """
 
     t: np.ndarray
@@ -79,37 +81,53 @@ class LoggedCommands:
     z_target: np.ndarray | None
     horizontal: np.ndarray
     voltage: np.ndarray
+    notes: tuple = ()
 
     @classmethod
     def from_run(cls, run: Run, fr: Frame, motors: MotorParameters, supply_voltage: float) -> LoggedCommands:
-        """The autopilot inputs of a converted ArduSub run (its context columns, docs/formats/runlog.md).
+        """The autopilot inputs of a converted ArduSub run (its context columns, docs/formats/runlog.md), checked
+        (:func:`~udrobot_ctrl.io.runlog.check_context_columns`: ArduSub's own mode numbers only).
+
+        A missing ``rcin_k`` column is a centred stick on that channel alone (noted), as is a sample that is no
+        pulse (:func:`~udrobot_ctrl.autopilot.modes.pilot_pulses`). The rows flown on logged targets (every mode
+        but MANUAL, STABILIZE, ALT_HOLD) need them: without an attitude target there (or, outside SURFTRAK, a depth
+        target) the run is refused rather than flown on a target of zero; a row whose target is empty between
+        logged ones holds the last logged target, and :attr:`notes` counts them.
 
         Raises
         ------
         ValueError
-            If the run has no ``mode`` column or its inputs are not the frame's ``pwm_i``.
+            If the run has no ``mode`` column, its inputs are not the frame's ``pwm_i``, a context column is
+            not what the format says, or the rows flown on targets have none.
         """
+        where = run.path or "run"
         if run.input_kind != "pwm" or run.inputs.shape[1] != fr.n_motors:
-            raise ValueError(f"{run.path or 'run'}: the closed-loop flight needs the {fr.n_motors} pwm_i columns of "
+            raise ValueError(f"{where}: the closed-loop flight needs the {fr.n_motors} pwm_i columns of "
                              f"frame {fr.name}; the run has {run.inputs.shape[1]} {run.input_kind} columns")
+        check_context_columns(run.extra, where)
         mode = run.extra.get("mode")
         if mode is None or not np.isfinite(mode).any():
-            raise ValueError(f"{run.path or 'run'}: no 'mode' column: the closed-loop flight needs the log's flight "
+            raise ValueError(f"{where}: no 'mode' column: the closed-loop flight needs the log's flight "
                              f"modes (convert an ArduSub .bin/.tlog with udrobot-ctrl convert)")
         first = mode[np.isfinite(mode)][0]
+        mode = np.where(np.isfinite(mode), mode, first)
+        notes = []
         armed = run.extra.get("armed")
         armed = np.ones(run.n, bool) if armed is None else np.nan_to_num(armed, nan=1.0) != 0
-        rc = [run.extra.get(f"rcin_{i}") for i in range(1, 9)]
-        rcin = np.column_stack(rc) if all(c is not None for c in rc) else None
-        if rcin is not None:  # no pulse (no sample yet, a gap, 0 us, 65535 "unused"): sticks centred, never full
-            rcin = pilot_pulses(rcin)
-        tg = [run.extra.get(c) for c in ("roll_target", "pitch_target", "yaw_target")]
-        attitude = np.column_stack(tg) if all(c is not None for c in tg) else None
+        by_pilot = np.isin(mode, [float(m) for m in PILOT_MODES])
+        rcin = logged_pulses(run.extra, run.n, notes if by_pilot.any() else [])
+        attitude, z_target = None, run.extra.get("z_target")
+        if not by_pilot.all():  # flown on the logged targets; outside SURFTRAK a depth target too
+            t = np.asarray(run.t, float) - float(run.t[0])
+            attitude = np.column_stack([logged_targets(run.extra, c, ~by_pilot, mode, t, where, notes)
+                                        for c in ("roll_target", "pitch_target", "yaw_target")])
+            if (~by_pilot & (mode != float(Mode.SURFTRAK))).any():
+                z_target = logged_targets(run.extra, "z_target", ~by_pilot & (mode != float(Mode.SURFTRAK)), mode,
+                                          t, where, notes)
         voltage = run.battery_voltage(supply_voltage)
         horizontal = unmix(fr, from_pwm(run.inputs, motors))[:, 4:6]
-        return cls(t=np.asarray(run.t, float), mode=np.where(np.isfinite(mode), mode, first), armed=armed,
-                   rcin=rcin, attitude_target=attitude, z_target=run.extra.get("z_target"),
-                   horizontal=np.nan_to_num(horizontal), voltage=voltage)
+        return cls(t=np.asarray(run.t, float), mode=mode, armed=armed, rcin=rcin, attitude_target=attitude,
+                   z_target=z_target, horizontal=np.nan_to_num(horizontal), voltage=voltage, notes=tuple(notes))
 
     def index(self, t: float) -> int:
         """The row holding at time ``t`` (s from the run's first row)."""
@@ -155,7 +173,7 @@ class LoggedPilot:
         accel_down = 0.0 if self._vel_down is None else (state0.vel_down - self._vel_down) / self.dt
         self._vel_down = state0.vel_down
         state = VehicleState.from_plant(x, accel_down)
-        mode = Mode(int(c.mode[k])) if int(c.mode[k]) in Mode._value2member_map_ else Mode.GUIDED
+        mode = Mode(int(c.mode[k]))  # ArduSub's own numbers only (check_context_columns)
         if mode not in PILOT_MODES + TARGET_MODES:
             self.stand_ins.add(int(c.mode[k]))
             mode = Mode.GUIDED
@@ -272,6 +290,7 @@ def fly(model, run: Run, loop_rate_hz: float | None = None, t_final: float | Non
     pwm = np.array(pilot.pwm[:m - 1] + pilot.pwm[-1:])[:m]
     modes = np.array(pilot.modes[:m - 1] + pilot.modes[-1:])[:m]
     notes = [f"closed loop: gains {estimated}"] if estimated else []
+    notes.extend(commands.notes)
     gains = [n for n in params.assumed]
     if gains:
         notes.append(f"closed loop: {len(gains)} ArduSub parameters not in the log, ArduSub's defaults used "

@@ -230,6 +230,81 @@ def pilot_pulses(pwm) -> np.ndarray:
     return np.where(ok, pwm, PWM_CENTRE)
 
 
+def logged_pulses(extra, n: int, notes: list) -> np.ndarray | None:
+    """The logged RC inputs ``rcin_1`` .. ``rcin_8`` of a run's columns as pulses (:func:`pilot_pulses`), (n, 8) us.
+
+    A missing channel is a centred stick on that channel alone (never are the eight dropped for one), said in
+    ``notes`` (appended to); None, also said, when the run has none of the eight.
+
+    Parameters
+    ----------
+    extra : mapping of str to ndarray
+        The run's extra columns.
+    n : int
+        Rows.
+    notes : list of str
+        Appended to (pass a throw-away list when no row is flown on the pilot's inputs).
+    """
+    rc = [extra.get(f"rcin_{i}") for i in range(1, 9)]
+    missing = [i for i, c in enumerate(rc, start=1) if c is None]
+    if len(missing) == 8:
+        notes.append("closed loop: no rcin_1..rcin_8 columns: the pilot's sticks are read as centred (1500 us) in "
+                     "MANUAL/STABILIZE/ALT_HOLD")
+        return None
+    if missing:
+        notes.append(f"closed loop: no {', '.join(f'rcin_{i}' for i in missing)} column(s): that RC input is read as "
+                     f"a centred stick (1500 us); the other channels as logged")
+    return pilot_pulses(np.column_stack([np.full(n, np.nan) if c is None else np.asarray(c, float) for c in rc]))
+
+
+def logged_targets(extra, column: str, rows, mode, t, where: str, notes: list) -> np.ndarray:
+    """The logged target ``column`` (``roll_target`` ... ``z_target``) where ``rows`` are flown on it.
+
+    Refused when it is missing, or empty in every such row: a target that was not logged is never flown as zero
+    or as whatever the controller held. An empty cell between logged ones holds the last logged target (the
+    first one before it); ``notes`` counts those rows.
+
+    Parameters
+    ----------
+    extra : mapping of str to ndarray
+        The run's extra columns.
+    column : str
+    rows : (n,) bool ndarray
+        Rows flown on the logged targets.
+    mode : (n,) ndarray
+        The mode of each row (ArduSub numbers, for the message).
+    t : (n,) ndarray
+        Row times from the first row, s (for the message).
+    where : str
+        The run's file, for the message.
+    notes : list of str
+        Appended to.
+
+    Raises
+    ------
+    ValueError
+        Naming the file, the column, the modes and the first such row.
+    """
+    rows = np.asarray(rows, bool)
+    names = ", ".join(Mode(int(m)).name for m in np.unique(mode[rows]))
+    values = extra.get(column)
+    values = None if values is None else np.asarray(values, float)
+    if values is None or not np.isfinite(values[rows]).any():
+        state = "no such column" if values is None else "an empty cell in every such row"
+        raise ValueError(f"{where}: column '{column}': {state}, but {int(rows.sum())} rows are flown in {names} on "
+                         f"the logged targets (the first {float(t[np.flatnonzero(rows)[0]]):.2f} s into the run); "
+                         f"expected the logged target (docs/formats/runlog.md): a target that was not logged is not "
+                         f"flown")
+    finite = np.isfinite(values)
+    last = np.maximum.accumulate(np.where(finite, np.arange(values.size), -1))
+    held = values[np.where(last >= 0, last, int(np.flatnonzero(finite)[0]))]
+    gaps = int((rows & ~finite).sum())
+    if gaps:
+        notes.append(f"closed loop: {column} empty in {gaps} of {int(rows.sum())} rows flown on the logged targets "
+                     f"({names}): the last logged target is held there")
+    return held
+
+
 def pilot_yaw_rate(yaw_in: float, acro_yaw_p: float) -> float:
     """``Sub::get_pilot_desired_yaw_rate``: yaw stick (cdeg, +-4500) -> yaw rate (rad/s) = stick x ACRO_YAW_P cdeg/s."""
     return yaw_in * acro_yaw_p * CDEG
@@ -349,5 +424,5 @@ class Targets:
 
 
 __all__ = ["PWM_CENTRE", "Mode", "PilotCommand", "PilotInput", "Targets", "norm_input", "norm_input_dz",
-           "pilot_climb_rate", "pilot_pulses", "pilot_throttle", "pilot_lean_angles",
+           "logged_pulses", "logged_targets", "pilot_climb_rate", "pilot_pulses", "pilot_throttle", "pilot_lean_angles",
            "pilot_yaw_rate", "pwm_to_angle_dz_trim", "pwm_to_range_dz", "shape_pilot"]

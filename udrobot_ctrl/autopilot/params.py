@@ -52,6 +52,7 @@ Seattle dive's ANG.Dt says 200 Hz). ``loop_rate_hz`` is a field so the caller ca
 from __future__ import annotations
 
 import math
+import re
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 
@@ -288,6 +289,220 @@ class PilotParameters:
     throttle_filt_hz: float = 0.0
     gain: float = 0.5
     throttle_norm_centred: bool = False
+
+
+# ----------------------------------------------------------------------------- the check of logged values
+
+
+class ParameterError(ValueError):
+    """An autopilot parameter read from a log, a sidecar or a ``.params`` file that ArduSub cannot hold; the message
+    names the file, the parameter and what was expected."""
+
+
+@dataclass(frozen=True)
+class ParameterDomain:
+    """The values ArduSub documents for one parameter, in its own units (the firmware's ``var_info`` metadata).
+
+    Attributes
+    ----------
+    low, high : float
+        Inclusive bounds (ArduSub's units).
+    unit : str
+        ArduSub's unit (``cm``, ``cdeg``, ``Hz``, ``us``; '' for a gain or a ratio).
+    source : str
+        File and metadata line the bounds come from.
+    values : tuple of float
+        For an enumerated parameter, the values it may take (empty: any value within ``low``..``high``).
+    """
+
+    low: float
+    high: float
+    unit: str
+    source: str
+    values: tuple = ()
+
+    def expected(self) -> str:
+        """What the parameter may be, as a phrase for an error line."""
+        unit = f" {self.unit}" if self.unit else ""
+        if self.values:
+            return f"one of {', '.join(f'{v:g}' for v in self.values)}{unit} ({self.source})"
+        return f"{self.low:g} to {self.high:g}{unit} ({self.source})"
+
+    def holds(self, value: float) -> bool:
+        """True when ``value`` is one of :attr:`values` or inside ``low``..``high``."""
+        return value in self.values if self.values else self.low <= value <= self.high
+
+
+_SUB = "ArduSub/Parameters.cpp @Range"
+_RC = "libraries/RC_Channel/RC_Channel.cpp var_info @Range"
+_PID = "libraries/AC_PID/AC_PID.cpp: a gain, limit or filter below 0 is no controller setting"
+#: documented domains of the parameters the emulation reads, by name (ArduSub's units). The rate gains' upper
+#: @Range bounds are advisory tuning limits (:func:`~udrobot_ctrl.autopilot.firmware.range_violations` reports them);
+#: what is refused here is what no firmware build can hold or fly: a negative gain, limit or filter.
+PARAMETER_DOMAINS = {
+    "SCHED_LOOP_RATE": ParameterDomain(50, 400, "Hz", "libraries/AP_Scheduler/AP_Scheduler.cpp LOOP_RATE @Range 50 "
+                                                      "400; older trees' @Values 50, 100, 200, 250, 300, 400"),
+    "ANGLE_MAX": ParameterDomain(1000, 8000, "cdeg", f"{_SUB} 1000 8000"),
+    "MOT_THST_HOVER": ParameterDomain(0.2, 0.8, "", "libraries/AP_Motors/AP_MotorsMulticopter.cpp THST_HOVER @Range"),
+    "PILOT_SPEED_UP": ParameterDomain(20, 500, "cm/s", f"{_SUB} 20 500"),
+    "PILOT_SPEED_DN": ParameterDomain(0, 500, "cm/s", f"{_SUB} 20 500, and 0 for 'PILOT_SPEED_UP' (its default)"),
+    "PILOT_ACCEL_Z": ParameterDomain(50, 500, "cm/s/s", f"{_SUB} 50 500"),
+    "PILOT_THR_FILT": ParameterDomain(0, 10, "Hz", f"{_SUB} 0 10"),
+    "SURFACE_DEPTH": ParameterDomain(-100, 0, "cm", f"{_SUB} -100 0"),
+    "THR_DZ": ParameterDomain(0, 300, "us", f"{_SUB} 0 300"),
+    "FRAME_CONFIG": ParameterDomain(0, 7, "", "ArduSub/Parameters.cpp FRAME_CONFIG @Values",
+                                    tuple(float(v) for v in range(8))),
+    "ATC_RATE_FF_ENAB": ParameterDomain(0, 1, "", "AC_AttitudeControl.cpp RATE_FF_ENAB @Values", (0.0, 1.0)),
+    **{f"RC{k}_{f}": ParameterDomain(800, 2200, "us", f"{_RC} 800 2200") for k in range(1, 9)
+       for f in ("MIN", "TRIM", "MAX")},
+    **{f"RC{k}_DZ": ParameterDomain(0, 200, "us", f"{_RC} 0 200") for k in range(1, 9)},
+    **{f"RC{k}_REVERSED": ParameterDomain(0, 1, "", "RC_Channel.cpp REVERSED @Values", (0.0, 1.0))
+       for k in range(1, 9)},
+    **{f"MOT_{k}_DIRECTION": ParameterDomain(-1, 1, "", "AP_Motors6DOF.cpp MOT_n_DIRECTION @Values", (-1.0, 1.0))
+       for k in range(1, 13)},
+    "JS_GAIN_DEFAULT": ParameterDomain(0.1, 1.0, "", f"{_SUB} 0.1 1.0"),
+    "JS_GAIN_MAX": ParameterDomain(0.2, 1.0, "", f"{_SUB} 0.2 1.0"),
+    "JS_GAIN_MIN": ParameterDomain(0.1, 0.8, "", f"{_SUB} 0.1 0.8"),
+    "JS_GAIN_STEPS": ParameterDomain(1, 10, "", f"{_SUB} 1 10"),
+}
+#: the gains, limits and filters of every PID and the shaping limits read by the emulation: 0 or more
+_NON_NEGATIVE = re.compile(r"^(ATC_(RAT_(RLL|PIT|YAW)_[A-Z_]+|ANG_(RLL|PIT|YAW)_P|ACCEL_[RPY]_MAX|INPUT_TC|SLEW_YAW|"
+                           r"RATE_[RPY]_MAX)|PSC_(POSZ_P|VELZ_[A-Z_]+|ACCZ_[A-Z_]+|D_(POS|VEL|ACC)_[A-Z_]+)|"
+                           r"ACRO_YAW_P)$")
+#: the RC inputs the emulation reads: their calibration must let ``norm_input`` and the dead-zone maps divide
+_RC_INPUTS = tuple(RC_MAP.values())
+
+
+@dataclass(frozen=True)
+class ParameterProblem:
+    """One logged parameter value ArduSub cannot hold (structured: the code says which check failed).
+
+    Attributes
+    ----------
+    name : str
+        ArduSub's parameter name (for a consistency check, the first of those involved).
+    value : object
+        The value as read (a list, a string or a non-finite number included).
+    code : str
+        ``not_a_number``, ``not_finite``, ``out_of_range``, ``negative`` or ``inconsistent``.
+    expected : str
+        What the parameter may be (with its source), as printed.
+    """
+
+    name: str
+    value: object
+    code: str
+    expected: str
+
+    def sentence(self) -> str:
+        shown = f"{self.value:g}" if isinstance(self.value, float) else repr(self.value)
+        return f"parameter {self.name} = {shown}: expected {self.expected}"
+
+
+def parameter_problems(params: Mapping) -> list:
+    """Every value of ``params`` (name -> value, ArduSub's names and units) that ArduSub cannot hold.
+
+    Checked: each value is a finite number (not a list, string, bool or null); the parameters of
+    :data:`PARAMETER_DOMAINS` lie in their documented domain; PID gains, limits, filters and the attitude shaping
+    limits are not negative; each RC input the modes read (channels 1-6) has ``RCn_MIN < RCn_MAX``, its trim
+    within them and a dead zone that leaves part of the range outside it (``RC_Channel::norm_input_dz``,
+    ``pwm_to_range_dz`` and ``get_control_mid`` divide by what is left: the throttle's ``RCn_MIN + RCn_DZ`` below
+    ``RCn_MAX``, an angle channel's ``RCn_TRIM +- RCn_DZ`` not covering both ends).
+
+    Parameters
+    ----------
+    params : mapping of str to object
+
+    Returns
+    -------
+    list of ParameterProblem
+        Empty when every value is usable.
+    """
+    out, values = [], {}
+    for name, raw in params.items():
+        if isinstance(raw, bool) or not isinstance(raw, (int, float)):
+            out.append(ParameterProblem(str(name), raw, "not_a_number", "a number (ArduSub stores every parameter "
+                                                                         "as one)"))
+            continue
+        value = float(raw)
+        if not math.isfinite(value) or abs(value) > _FLOAT32_MAX:
+            out.append(ParameterProblem(str(name), value, "not_finite", "a finite number (a MAVLink / dataflash "
+                                                                         "parameter is a float32)"))
+            continue
+        values[name] = value
+        domain = PARAMETER_DOMAINS.get(name)
+        if domain is not None and not domain.holds(value):
+            out.append(ParameterProblem(name, value, "out_of_range", domain.expected()))
+        elif domain is None and _NON_NEGATIVE.match(name) and value < 0:
+            out.append(ParameterProblem(name, value, "negative", f"0 or more ({_PID})"))
+    bad = {p.name for p in out}
+    for k in _RC_INPUTS:
+        names = [f"RC{k}_{f}" for f in ("MIN", "TRIM", "MAX", "DZ")]
+        if bad & set(names) or not any(n in values for n in names):
+            continue
+        default = PilotParameters().channels[next(n for n, c in RC_MAP.items() if c == k)]
+        lo, trim, hi, dz = (values.get(n, d) for n, d in zip(names, (default.min, default.trim, default.max,
+                                                                        default.dead_zone)))
+        if not lo < hi:
+            out.append(ParameterProblem(names[0], lo, "inconsistent", f"below RC{k}_MAX = {hi:g} us (RC_Channel.cpp: "
+                                                                       f"the channel's travel runs from MIN to MAX)"))
+        elif not lo <= trim <= hi:
+            out.append(ParameterProblem(names[1], trim, "inconsistent", f"within RC{k}_MIN {lo:g} .. RC{k}_MAX "
+                                                                         f"{hi:g} us (RC_Channel.cpp norm_input)"))
+        elif k == RC_MAP["throttle"] and not lo + dz < hi:
+            out.append(ParameterProblem(names[3], dz, "inconsistent", f"below RC{k}_MAX - RC{k}_MIN = {hi - lo:g} us "
+                                                                       f"(the dead zone spans the throttle range; "
+                                                                       f"RC_Channel::pwm_to_range_dz)"))
+        elif k != RC_MAP["throttle"] and trim - dz <= lo and trim + dz >= hi:
+            out.append(ParameterProblem(names[3], dz, "inconsistent", f"below {max(trim - lo, hi - trim):g} us (the "
+                                                                       f"dead zone about RC{k}_TRIM spans the "
+                                                                       f"channel's range; RC_Channel::norm_input_dz)"))
+    return out
+
+
+def check_log_params(params, source: str) -> dict:
+    """The one check of an autopilot parameter set read from a log, a sidecar or a ``.params`` file.
+
+    Parameters
+    ----------
+    params : mapping of str to object
+        Name -> value in ArduSub's names and units.
+    source : str
+        Where they were read (file and field), for the message.
+
+    Returns
+    -------
+    dict of str to float
+
+    Raises
+    ------
+    ParameterError
+        On the first problem of :func:`parameter_problems`: one line naming ``source``, the parameter and what
+        was expected.
+    """
+    if not isinstance(params, Mapping):
+        raise ParameterError(f"{source}: expected an object of ArduSub parameter name -> number, got "
+                             f"{type(params).__name__}")
+    problems = parameter_problems(params)
+    if problems:
+        more = f" (and {len(problems) - 1} more)" if len(problems) > 1 else ""
+        raise ParameterError(f"{source}: {problems[0].sentence()}{more}")
+    return {str(k): float(v) for k, v in params.items()}
+
+
+def usable_log_params(params: Mapping) -> tuple:
+    """(the usable parameters, the problems of the others) of a log's parameter records, for a converter that
+    passes the log on: a damaged record (:func:`parameter_problems`) is dropped, never written on without a note.
+    A consistency problem drops the parameters of that RC channel."""
+    problems = parameter_problems(params)
+    drop = {p.name for p in problems}
+    for p in problems:
+        if p.code == "inconsistent":
+            drop |= {f"{p.name.split('_')[0]}_{f}" for f in ("MIN", "TRIM", "MAX", "DZ")}
+    return {k: float(v) for k, v in params.items() if k not in drop}, problems
+
+
+_FLOAT32_MAX = 3.4028234663852886e38  # a parameter is a float32 on the autopilot (AP_Param, MAVLink PARAM_VALUE)
 
 
 @dataclass(frozen=True)

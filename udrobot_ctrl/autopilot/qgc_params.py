@@ -20,6 +20,8 @@ import math
 from collections.abc import Mapping
 from pathlib import Path
 
+from udrobot_ctrl.autopilot.params import ParameterError, parameter_problems
+
 #: MAV_PARAM_TYPE values (MAVLink common.xml)
 MAV_PARAM_TYPE_REAL32 = 9
 MAV_PARAM_TYPE_INT32 = 6
@@ -66,15 +68,18 @@ def format_params(params: Mapping, vehicle_id: int = 1, component_id: int = 1, c
 
 def parse_params(text: str, source: str = "<params>") -> dict:
     """Parameters (name -> float) of a QGroundControl ``.params`` text (also accepts Mission Planner's
-    ``NAME,VALUE`` lines).
+    ``NAME,VALUE`` lines), checked as every logged parameter set is
+    (:func:`~udrobot_ctrl.autopilot.params.check_log_params`).
 
     Raises
     ------
     ValueError
         A line that is neither a comment, nor ``vehicle component name value type``, nor ``NAME,VALUE``, naming
-        the file and the line number.
+        the file and the line number; a name given twice (naming both lines: which one the vehicle holds is not
+        known); a file without a parameter line; a value ArduSub cannot hold (NaN, infinite, beyond float32, outside
+        the parameter's documented domain).
     """
-    out = {}
+    out, lines = {}, {}
     for number, raw in enumerate(text.splitlines(), start=1):
         line = raw.strip()
         if not line or line.startswith("#"):
@@ -91,7 +96,17 @@ def parse_params(text: str, source: str = "<params>") -> dict:
         except ValueError:
             raise ValueError(f"{source}, line {number}: expected 'vehicle-id<TAB>component-id<TAB>NAME<TAB>value"
                              f"<TAB>type' (QGroundControl .params), got {raw!r}") from None
-        out[name] = value
+        if name in lines:
+            raise ValueError(f"{source}, lines {lines[name]} and {number}: parameter {name} given twice; expected "
+                             f"each parameter once (which value the vehicle holds is not known)")
+        out[name], lines[name] = value, number
+    if not out:
+        raise ValueError(f"{source}: no parameter lines (only comments or blank lines); expected QGroundControl "
+                         f"'vehicle-id<TAB>component-id<TAB>NAME<TAB>value<TAB>type' lines")
+    problems = parameter_problems(out)
+    if problems:
+        p = problems[0]
+        raise ParameterError(f"{source}, line {lines[p.name]}: {p.sentence()}")
     return out
 
 

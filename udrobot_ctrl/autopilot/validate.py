@@ -68,7 +68,7 @@ from udrobot_ctrl.autopilot.motors import (
     motor_pwm,
     throttle_bidirectional,
 )
-from udrobot_ctrl.autopilot.params import RC_MAP, ArduSubParameters, PIDGains
+from udrobot_ctrl.autopilot.params import RC_MAP, ArduSubParameters, PIDGains, usable_log_params
 from udrobot_ctrl.autopilot.pid import ACPID, integrator_after, lowpass_alpha
 from udrobot_ctrl.io.mavlink import iter_dataflash
 
@@ -95,6 +95,9 @@ class DataflashLog:
         (time s, mode number) of each MODE record.
     loop_dt : float
         The main loop's tick (s): median ``ANG.Dt``, else ``1 / SCHED_LOOP_RATE``, else 1/400.
+    param_problems : tuple of ParameterProblem
+        ``PARM`` records ArduSub cannot hold (:func:`~udrobot_ctrl.autopilot.params.parameter_problems`: a damaged
+        ``SCHED_LOOP_RATE`` of 1e5, a NaN gain): left out of ``params``, so ArduSub's defaults stand in for them.
     """
 
     path: str
@@ -102,6 +105,7 @@ class DataflashLog:
     params: dict
     modes: tuple
     loop_dt: float
+    param_problems: tuple = ()
 
     def __getitem__(self, name: str) -> dict:
         if name not in self.messages:
@@ -144,13 +148,14 @@ def read_log(path) -> DataflashLog:
         arrays = {k: np.asarray(v) for k, v in store.items() if not isinstance(v[0], str)}
         arrays["t"] = arrays["TimeUS"] * 1e-6
         messages[name] = arrays
+    params, problems = usable_log_params(params)  # the one check of logged parameters (autopilot.params)
     if "ANG" in messages and "Dt" in messages["ANG"]:
         loop_dt = float(np.median(messages["ANG"]["Dt"]))
     elif "SCHED_LOOP_RATE" in params:
         loop_dt = 1.0 / float(params["SCHED_LOOP_RATE"])
     else:
         loop_dt = 1.0 / 400.0
-    return DataflashLog(str(path), messages, params, tuple(modes), loop_dt)
+    return DataflashLog(str(path), messages, params, tuple(modes), loop_dt, tuple(problems))
 
 
 def nrmse(emulated, logged, mask=None) -> float:

@@ -29,8 +29,9 @@ from udrobot_ctrl.autopilot.firmware import (
 from udrobot_ctrl.autopilot.params import run_log_params
 from udrobot_ctrl.autopilot.qgc_params import format_params, read_params
 from udrobot_ctrl.io.files import atomic_write, check_outputs, sidecar
+from udrobot_ctrl.io.mavlink import ARDUSUB_FRAMES
 from udrobot_ctrl.io.runlog import read_metadata
-from udrobot_ctrl.vehicle import ALL_MODEL_NAMES
+from udrobot_ctrl.vehicle import ALL_MODEL_NAMES, load_model
 
 
 def register(subparsers):
@@ -114,6 +115,33 @@ def _start_params(path, firmware=None) -> tuple:
             f"the log's parameters ({meta_path})" + (f"; {note}" if note else ""), logged)
 
 
+def check_thruster_counts(model, spread, log_params: dict, source) -> None:
+    """Refuse, before any flight, a design whose inputs disagree on the vehicle's thrusters: a ``--spread`` model
+    with another thruster count than ``--model`` (one mixer cannot fly both), or a ``--from`` log whose
+    ``FRAME_CONFIG`` names a frame of another motor count (``ArduSub/Parameters.cpp`` FRAME_CONFIG @Values;
+    :data:`~udrobot_ctrl.io.mavlink.ARDUSUB_FRAMES`): a Heavy's gains are tuned for eight thrusters.
+
+    Raises
+    ------
+    ValueError
+        Naming the option, both counts and both models or the log.
+    """
+    nominal = load_model(model)
+    n = nominal.n_thrusters
+    for other in spread:
+        k = load_model(other).n_thrusters
+        if k != n:
+            raise ValueError(f"--spread {other}: {k} thrusters, but --model {model} has {n}; the spread holds models "
+                             f"of the same vehicle (the designed gains drive one mixer)")
+    frame_config = log_params.get("FRAME_CONFIG")
+    if frame_config is not None and int(frame_config) in ARDUSUB_FRAMES:
+        label, motors, _ = ARDUSUB_FRAMES[int(frame_config)]
+        if motors is not None and motors != n:
+            raise ValueError(f"--from {source}: FRAME_CONFIG {int(frame_config)} ({label}) is a {motors}-thruster "
+                             f"vehicle, but --model {model} has {n} thrusters; design on the model of that vehicle "
+                             f"(e.g. {'bluerov2-heavy' if motors == 8 else 'bluerov2'}) or start without --from")
+
+
 def _fmt(v) -> str:
     if v is None:
         return "-"
@@ -128,8 +156,12 @@ def run(args) -> int:
     if args.evaluations < 1:
         raise ValueError(f"--evaluations must be >= 1, got {args.evaluations}")
     for name in ("depth_settling", "depth_overshoot", "yaw_settling", "yaw_overshoot"):
-        if not getattr(args, name) > 0:
-            raise ValueError(f"--{name.replace('_', '-')} must be > 0, got {getattr(args, name)}")
+        value = getattr(args, name)
+        if not (math.isfinite(value) and value > 0):  # inf would be a specification every flight meets
+            raise ValueError(f"--{name.replace('_', '-')} must be a finite number > 0, got {value}")
+    if not (math.isfinite(args.loop_rate) and 10.0 <= args.loop_rate <= 2000.0):
+        raise ValueError(f"--loop-rate must be between 10 and 2000 Hz (ArduSub runs 50-400 Hz, AP_Scheduler "
+                         f"LOOP_RATE), got {args.loop_rate}")
     inputs = [args.from_] if args.from_ else []
     check_outputs([args.out], inputs, force=args.force, create_folders=False)
     outputs = []
@@ -143,6 +175,7 @@ def run(args) -> int:
     else:
         log_params, origin, logged = {}, "ArduSub's defaults (no --from: the vehicle's current gains taken as " \
                                          "ArduSub's defaults)", None
+    check_thruster_counts(args.model, args.spread, log_params, args.from_)
     firmware = given or logged or ASSUMED_FIRMWARE
     if given and logged and (given.major, given.minor) != (logged.major, logged.minor):
         print(f"note: --firmware {args.firmware} overrides the run's {logged.label} ({logged.source})")

@@ -429,6 +429,10 @@ def run(args) -> int:
     """Replay ``args.input`` through ``args.model`` and write ``args.out`` (or ``--windows``: score the gap)."""
 
     if getattr(args, "windows", None) is not None:
+        if getattr(args, "closed_loop", False) or getattr(args, "loop_rate", None) is not None:
+            raise ValueError("--windows scores the open-loop windowed replay (each window from its measured state); "
+                             "--closed-loop" + (" / --loop-rate" if getattr(args, "loop_rate", None) else "")
+                             + " flies one run under the emulated ArduSub: give one or the other")
         return run_windows(args)
     if getattr(args, "json", None):
         raise ValueError("--json writes the gap of a windowed replay; add --windows")

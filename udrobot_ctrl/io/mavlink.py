@@ -32,6 +32,8 @@ from pathlib import Path
 
 import numpy as np
 
+from udrobot_ctrl.autopilot.params import usable_log_params
+
 from .streams import LogImportError, finish_stream
 
 TLOG_STAMP = struct.Struct(">Q")
@@ -304,6 +306,42 @@ def _split_field(f):
     return name, (int(idx.rstrip("]")) if idx else None)
 
 
+#: the EKF's velocity outputs: NavEKF3_core::ConstrainStates (and NavEKF2's) hold every velocity state within
+#: +-500 m/s ("velocity limit 500 m/sec"), so a logged value beyond it is a damaged record, not a speed
+EKF_VELOCITY_LIMIT = 500.0  # m/s
+EKF_VELOCITY_FIELDS = {"XKF1": ("VN", "VE", "VD"), "NKF1": ("VN", "VE", "VD"),
+                       "LOCAL_POSITION_NED": ("vx", "vy", "vz")}
+
+
+def drop_impossible(name: str, cols: dict) -> list:
+    """Set the EKF velocities of message ``name`` beyond :data:`EKF_VELOCITY_LIMIT` to nan in ``cols`` (field ->
+    list of values, in place); returns the notes (one per field with such samples)."""
+    notes = []
+    for f in EKF_VELOCITY_FIELDS.get(name.split("[")[0], ()):
+        if f not in cols:
+            continue
+        v = np.asarray(cols[f], float)
+        with np.errstate(invalid="ignore"):
+            bad = np.abs(v) > EKF_VELOCITY_LIMIT
+        if bad.any():
+            notes.append(f"{name}.{f}: {int(bad.sum())} of {v.size} samples beyond the EKF's velocity limit of "
+                         f"+-{EKF_VELOCITY_LIMIT:g} m/s (NavEKF3_core::ConstrainStates; largest "
+                         f"{float(np.max(np.abs(v[bad]))):.3g} m/s): damaged records, read as not measured")
+            v[bad] = np.nan
+            cols[f] = list(v)
+    return notes
+
+
+def checked_params(facts: LogFacts) -> None:
+    """The one check of a log's parameter records (:func:`~udrobot_ctrl.autopilot.params.usable_log_params`), in
+    place: a record ArduSub cannot hold (a SCHED_LOOP_RATE of 1e5, a NaN gain) is left out of ``facts.params``
+    with a ``parameters:`` note, so ArduSub's default stands in for it and no converter passes it on."""
+    facts.params, problems = usable_log_params(facts.params)
+    for p in problems:
+        facts.notes.append(f"parameters: {p.sentence()}: a damaged or impossible record, left out (ArduSub's "
+                           f"default stands in for it)")
+
+
 def read_tlog_streams(path, mapping, optional: dict | None = None) -> DecodedLog:
     """The message types ``mapping`` needs from a ``.tlog``, as streams on the receive-time clock.
 
@@ -410,7 +448,9 @@ def read_tlog_streams(path, mapping, optional: dict | None = None) -> DecodedLog
         if np.all(np.isfinite(boot)) and np.any(boot > 0) and back.size == 0:
             alt = boot + np.median(t - boot)
             alt_source = "autopilot time (aligned by median offset)"
+        impossible = drop_impossible(name, entry["cols"])
         stream = finish_stream(name, t, entry["cols"], "tlog receive time", alt, alt_source)
+        stream.notes.extend(impossible)
         if back.size:
             k = back[0]
             stream.notes.append(f"{name}: the autopilot clock goes back {back.size} time(s), first at receive time "
@@ -421,6 +461,7 @@ def read_tlog_streams(path, mapping, optional: dict | None = None) -> DecodedLog
             stream.notes.append(f"{name}: {bad} frames with bad CRCs skipped (see damage:); the stream has "
                                 f"{t.size} good ones")
         streams[name] = stream
+    checked_params(facts)
     return DecodedLog(streams, facts)
 
 
@@ -591,10 +632,13 @@ def read_bin_streams(path, mapping, optional: dict | None = None) -> DecodedLog:
             continue
         lacks = sorted(e.get("lacks", ()))
         cols = {f: v for f, v in e["cols"].items() if f not in lacks}
+        impossible = drop_impossible(name, cols)
         streams[name] = finish_stream(name, e["t"], cols, "TimeUS (autopilot boot time)")
+        streams[name].notes.extend(impossible)
         if lacks:
             streams[name].notes.append(f"{name}: this log's {name} records have no field(s) {', '.join(lacks)}; "
                                        f"mapping entries that need them are skipped")
+    checked_params(facts)
     return DecodedLog(streams, facts)
 
 

@@ -39,8 +39,10 @@ from pathlib import Path
 
 import numpy as np
 
+from udrobot_ctrl.autopilot.modes import Mode
+from udrobot_ctrl.autopilot.params import ESTIMATED_PARAMS, LOGGED_PARAMS, ParameterError, check_log_params
 from udrobot_ctrl.io import files
-from udrobot_files.nesting import NestingError, loads_json
+from udrobot_files.nesting import NestingError, loads_json, unique_keys
 
 FORMAT = "udrobot-run/1"
 STATE_CHANNELS = ("x", "y", "z", "phi", "theta", "psi", "u", "v", "w", "p", "q", "r")
@@ -262,6 +264,49 @@ def split_segments(run: Run) -> list:
 
 
 # ----------------------------------------------------------------------------------------------- reading
+
+
+#: the autopilot context columns a closed-loop flight reads (docs/formats/runlog.md): numbers, or empty cells
+CONTEXT_NUMERIC = ("mode", "armed", *(f"rcin_{k}" for k in range(1, 9)), "roll_target", "pitch_target", "yaw_target",
+                   "z_target")
+MODE_NAMES = ", ".join(f"{int(m)} {m.name}" for m in Mode)
+
+
+def check_context_columns(extra: dict, path="run", lines=None) -> None:
+    """The autopilot context columns checked where they enter: numbers (or empty cells) in each of
+    :data:`CONTEXT_NUMERIC`; every ``mode`` an ArduSub mode number (``ArduSub/mode.h`` ``Mode::Number``, the
+    ``control_mode_t`` of ``defines.h`` before 4.1: :class:`~udrobot_ctrl.autopilot.modes.Mode`), never rounded or
+    read as another mode; ``armed`` 0 or 1. The RC inputs' "no pulse" (0) and "unused" (65535) sentinels are
+    values, read as a centred stick by :func:`~udrobot_ctrl.autopilot.modes.pilot_pulses`.
+
+    Raises
+    ------
+    RunLogError
+        Naming the file, the data row (and file line), the column and what was expected.
+    """
+    def where(i, column):
+        return _where(path, row=i + 1, line=None if lines is None else int(lines[i]), column=column)
+
+    for column in CONTEXT_NUMERIC:
+        if column in extra and np.asarray(extra[column]).dtype.kind not in "biuf":
+            cells = np.asarray(extra[column])
+            i = next(i for i, c in enumerate(cells) if _parse_cell(str(c)) is None)
+            raise RunLogError(f"{where(i, column)}: non-numeric cell {str(cells[i])[:40]!r}; expected a number or an "
+                              f"empty cell (docs/formats/runlog.md, autopilot context columns)")
+    if "mode" in extra:
+        mode = np.asarray(extra["mode"], float)
+        known = np.array([int(m) for m in Mode], float)
+        bad = np.isfinite(mode) & ~np.isin(mode, known) | np.isinf(mode)
+        if bad.any():
+            i = int(np.flatnonzero(bad)[0])
+            raise RunLogError(f"{where(i, 'mode')}: {mode[i]:g} is not an ArduSub flight mode; expected one of "
+                              f"{MODE_NAMES} (ArduSub/mode.h Mode::Number) or an empty cell")
+    if "armed" in extra:
+        armed = np.asarray(extra["armed"], float)
+        bad = ~np.isnan(armed) & ~np.isin(armed, (0.0, 1.0))
+        if bad.any():
+            i = int(np.flatnonzero(bad)[0])
+            raise RunLogError(f"{where(i, 'armed')}: {armed[i]:g}; expected 1 (armed), 0 (disarmed) or an empty cell")
 
 
 def _where(path, row=None, line=None, column=None) -> str:
@@ -666,6 +711,7 @@ def read_run(path, progress: bool | None = None) -> Run:
         segment = check_segments(extra[SEGMENT], path, cols.lines[:n])
         extra[SEGMENT] = segment.astype(float)
     check_time_gaps(t, path, cols.lines, segment)
+    check_context_columns(extra, path, cols.lines)
     metadata = read_metadata(path.with_suffix(".json")) if path.with_suffix(".json").exists() else {}
     return Run(path=str(path), t=t, channels={c: trim(v) for c, v in cols.channels.items()},
                input_kind=state["input_kind"], inputs=trim(cols.inputs), extra=extra, metadata=metadata)
@@ -737,6 +783,12 @@ def validate_metadata(meta, source="metadata") -> dict:
         _check_cut(meta["cut"], f"{source}: field 'cut'")
     if "channels" in meta:
         _check_channels(meta["channels"], f"{source}: field 'channels'")
+    for key in (LOGGED_PARAMS, ESTIMATED_PARAMS):  # the autopilot's parameters: checked once, here
+        if key in meta:
+            try:
+                out[key] = check_log_params(meta[key], f"{source}: field '{key}'")
+            except ParameterError as exc:
+                raise RunLogError(str(exc)) from None
     return out
 
 
@@ -839,13 +891,15 @@ def read_metadata(path) -> dict:
     """Read and validate a sidecar ``NAME.json``."""
     path = Path(path)
     try:
-        meta = loads_json(path.read_text(encoding="utf-8"), path)
+        meta = loads_json(path.read_text(encoding="utf-8"), path, object_pairs_hook=unique_keys(path))
     except NestingError as exc:
         raise RunLogError(str(exc)) from None
     except UnicodeDecodeError as exc:
         raise RunLogError(f"{path}: byte offset {exc.start}: not UTF-8 text; expected JSON metadata") from exc
     except json.JSONDecodeError as exc:
         raise RunLogError(f"{path}: line {exc.lineno} column {exc.colno}: invalid JSON ({exc.msg})") from exc
+    except ValueError as exc:  # a key given twice (unique_keys)
+        raise RunLogError(str(exc)) from None
     return validate_metadata(meta, str(path))
 
 

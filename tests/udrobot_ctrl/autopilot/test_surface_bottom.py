@@ -171,7 +171,8 @@ def test_closed_loop_flight_notes_surface_depth_and_surftrak():
     names = ("x", "y", "z", "phi", "theta", "psi", "u", "v", "w", "p", "q", "r")
     channels = {n: np.full(t.size, 5.0 if n == "z" else 0.0) for n in names}
     extra = {"mode": mode, "z_target": np.full(t.size, 5.0), **{f"rcin_{i}": np.full(t.size, 1500.0)
-                                                                 for i in range(1, 9)}}
+                                                                 for i in range(1, 9)},
+             **{f"{a}_target": np.zeros(t.size) for a in ("roll", "pitch", "yaw")}}  # SURFTRAK flies logged targets
     notes = {}
     for label, params in (("default", {}), ("logged", {"SURFACE_DEPTH": -30.0})):
         run = Run(path="plan.csv", t=t, channels=channels, input_kind="pwm", inputs=np.full((t.size, 8), 1500.0),
