@@ -7,7 +7,7 @@ from pathlib import Path
 
 from udrobot_ctrl.cli.main import CLIError
 from udrobot_ctrl.io import convert_log, log_input_files
-from udrobot_ctrl.io.files import check_output_dir, check_outputs, run_files
+from udrobot_ctrl.io.files import check_command, run_files
 from udrobot_ctrl.io.mapping import UNAIDED_NOTE
 from udrobot_ctrl.io.runlog import write
 from udrobot_ctrl.io.segment import find_launches, idle_mask, write_launches
@@ -44,10 +44,8 @@ def run(args) -> int:
     if not args.out and not args.segment:
         raise ValueError("nothing to do: give --out RUN.csv and/or --segment CHANNEL")
     inputs = log_input_files(args.input, args.mapping)  # the log, its mapping file, a rostopic set's other files
-    if args.out:
-        check_outputs(run_files(args.out), inputs, force=args.force, option="--out", create_folders=False)
-    if args.segment_dir:
-        check_output_dir(args.segment_dir, inputs, option="--segment-dir")
+    check_command({"--out": run_files(args.out) if args.out else None}, inputs, force=args.force,
+                  folders={"--segment-dir": (args.segment_dir, ()) if args.segment_dir else None})
     run_ = convert_log(args.input, args.mapping, require_inputs=not args.allow_missing_inputs, vehicle=args.vehicle,
                        cut=not args.no_cut)
     bounds = run_.segment_bounds()

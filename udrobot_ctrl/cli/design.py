@@ -28,9 +28,12 @@ from udrobot_ctrl.autopilot.firmware import (
 )
 from udrobot_ctrl.autopilot.params import run_log_params
 from udrobot_ctrl.autopilot.qgc_params import format_params, read_params
-from udrobot_ctrl.io.files import atomic_write, check_outputs, sidecar
+from udrobot_ctrl.io.files import atomic_write, check_command, sidecar, spec_files
 from udrobot_ctrl.io.runlog import read_metadata
 from udrobot_ctrl.vehicle import ALL_MODEL_NAMES
+
+#: the files ``--report DIR`` holds
+REPORT_FILES = ("design.json", "check_flight.md", *(f"step_{lp}.png" for lp in LOOPS))
 
 
 def register(subparsers):
@@ -130,13 +133,9 @@ def run(args) -> int:
     for name in ("depth_settling", "depth_overshoot", "yaw_settling", "yaw_overshoot"):
         if not getattr(args, name) > 0:
             raise ValueError(f"--{name.replace('_', '-')} must be > 0, got {getattr(args, name)}")
-    inputs = [args.from_] if args.from_ else []
-    check_outputs([args.out], inputs, force=args.force, create_folders=False)
-    outputs = []
-    if args.report:
-        outputs += ([Path(args.report) / "design.json", Path(args.report) / "check_flight.md"]
-                    + [Path(args.report) / f"step_{lp}.png" for lp in LOOPS])
-    check_outputs(outputs, inputs, force=args.force, option="--report")
+    inputs = [*spec_files(args.model, *args.spread), *([args.from_] if args.from_ else [])]
+    check_command({"--out": args.out}, inputs, force=args.force,
+                  folders={"--report": (args.report, REPORT_FILES) if args.report else None})
     given = parse_firmware(args.firmware, f"--firmware {args.firmware}") if args.firmware else None
     if args.from_:
         log_params, origin, logged = _start_params(args.from_, given)

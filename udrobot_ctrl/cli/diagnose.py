@@ -32,7 +32,7 @@ from udrobot_ctrl.gap.report import (
 )
 from udrobot_ctrl.gap.shrink import check_window
 from udrobot_ctrl.io import load_any
-from udrobot_ctrl.io.files import check_distinct_outputs, check_output_dir, check_outputs, spec_files
+from udrobot_ctrl.io.files import check_command, spec_files
 from udrobot_ctrl.vehicle import write_model_file
 
 
@@ -109,19 +109,17 @@ def check_holdout_not_fit(fit, holdout) -> None:
 
 def run(args) -> int:
     inputs = [*args.runs, *args.holdout, *spec_files(args.model), *spec_files(args.mapping)]
-    check_distinct_outputs({"--json": args.json, "--out-model": args.out_model})
-    check_outputs([args.json], inputs, force=args.force, option="--json", create_folders=False)
-    if args.out_model:
-        check_outputs([args.out_model], inputs, force=args.force, option="--out-model",
-                      create_folders=False)
+    files = {"--json": args.json, "--out-model": args.out_model}
+    # the outputs checked and claimed before the runs are read; the figures' names (one per run segment) once
+    # they are, still before any work
+    check_command(files, inputs, force=args.force, folders={"--plot": (args.plot, ()) if args.plot else None})
     fit = [_load(p, args.mapping) for p in args.runs]
     hold = [_load(p, args.mapping) for p in args.holdout]
     if args.plot:
         fit_s, hold_s, _ = split_runs(fit, hold or None)
-        check_output_dir(args.plot, inputs, force=args.force, option="--plot")
         plots = plot_paths(args.plot, [run_label(r) for r in fit_s], [run_label(r) for r in hold_s])
-        check_distinct_outputs({"--json": args.json, "--out-model": args.out_model, "--plot": plots})
-        check_outputs(plots, inputs, force=args.force, option="--plot")
+        check_command(files, inputs, force=args.force,
+                      folders={"--plot": (args.plot, [Path(f).name for f in plots])})
     effects = [e.strip() for e in args.effects.split(",")] if args.effects else None
     check_window(args.window, ())
     check_holdout_not_fit(args.runs, args.holdout)

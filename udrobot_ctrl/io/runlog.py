@@ -32,6 +32,7 @@ from __future__ import annotations
 import csv
 import json
 import math
+import os
 import re
 import unicodedata
 from dataclasses import dataclass, field, replace
@@ -952,8 +953,13 @@ def write_run(path, t, channels, input_kind, inputs, metadata=None, extra=None, 
             stop = min(n, start + _WRITE_CHUNK)
             writer.writerows([_format(v[i]) if is_float else str(v[i]) for is_float, v in columns]
                              for i in range(start, stop))
-    if meta is not None:
-        files.atomic_write(side, json.dumps(meta, indent=2) + "\n", protect=protect)
+        # the CSV on disk (a full disk shows at latest in fsync) before its sidecar, and the sidecar in place
+        # before the CSV is renamed: a write that fails leaves neither a run without its sidecar nor a sidecar
+        # describing a run that is not there
+        fh.flush()
+        os.fsync(fh.fileno())
+        if meta is not None:
+            files.atomic_write(side, json.dumps(meta, indent=2) + "\n", protect=protect)
     return path
 
 
