@@ -14,6 +14,7 @@ folder (removed at exit) is used instead: nothing planted is loaded.
 """
 from __future__ import annotations
 
+import errno
 import os
 import stat
 import tempfile
@@ -132,6 +133,34 @@ def private_dir(path, purpose: str) -> Path:
     return Path(_FALLBACKS[purpose].name)
 
 
+#: errors of a cache write that mean "no room here now" (a full disk, ``ulimit -f``, a quota, a read-only disk)
+UNSAVED_ERRNOS = frozenset({errno.ENOSPC, errno.EFBIG, errno.EDQUOT, errno.EROFS})
+
+
+def _tolerate_unsaved_kernels() -> None:
+    """Make numba's cache save (``numba.core.caching.Cache.save_overload``) survive a full disk or a file-size
+    limit: the kernel is compiled and used all the same, only not kept for the next run (a warning says so).
+    Without this, a cold cache under ``ulimit -f`` ended the command with numba's traceback."""
+    from numba.core import caching  # third-party, imported here so that importing this module stays cheap
+
+    original = caching.Cache.save_overload
+    if getattr(original, "_tolerates_full_disk", False):
+        return
+
+    def save_overload(self, sig, data):
+        try:
+            original(self, sig, data)
+        except OSError as exc:
+            if exc.errno not in UNSAVED_ERRNOS:
+                raise
+            warnings.warn(f"numba cache {self._cache_path}: a compiled kernel was not saved "
+                          f"({exc.strerror or exc}); it is compiled again by the next run", RuntimeWarning,
+                          stacklevel=2)
+
+    save_overload._tolerates_full_disk = True
+    caching.Cache.save_overload = save_overload
+
+
 def configure_numba_cache() -> str:
     """Point numba's on-disk cache at a private folder: ``NUMBA_CACHE_DIR`` if set and safe, else our own.
 
@@ -151,6 +180,7 @@ def configure_numba_cache() -> str:
     """
     chosen = os.environ.get("NUMBA_CACHE_DIR")
     folder = str(private_dir(Path(chosen) if chosen else user_cache_root() / "numba", "numba"))
+    _tolerate_unsaved_kernels()
     if folder == chosen:
         return chosen
     os.environ["NUMBA_CACHE_DIR"] = folder

@@ -18,6 +18,7 @@ descriptors it inherited (:func:`os.register_at_fork`), so a lock ends with its 
 """
 from __future__ import annotations
 
+import atexit
 import errno
 import fcntl
 import hashlib
@@ -207,6 +208,9 @@ def release_claims() -> None:
     """Release every output claim of this process (``udrobot-ctrl`` does so when a command ends)."""
     for key in list(_CLAIMS):
         _CLAIMS.pop(key).release(remove=True)
+
+
+atexit.register(release_claims)  # a library user's claims end with the process, their lock files removed
 
 
 def _forget_claims_in_child() -> None:

@@ -21,6 +21,6 @@ from udrobot_files.output import (
     spec_files,
 )
 
-__all__ = ["OutputError", "atomic_write", "check_command", "check_distinct_outputs", "check_output_dir", "check_outputs",
-           "current_umask", "is_private_dir", "not_regular", "open_atomic", "run_files", "save_figure", "sidecar",
-           "spec_files"]
+__all__ = ["OutputError", "atomic_write", "check_command", "check_distinct_outputs", "check_output_dir",
+           "check_outputs", "current_umask", "is_private_dir", "not_regular", "open_atomic", "run_files",
+           "save_figure", "sidecar", "spec_files"]
