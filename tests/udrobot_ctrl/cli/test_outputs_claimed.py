@@ -192,3 +192,14 @@ def test_a_full_disk_while_diagnosing_is_one_line_and_leaves_nothing(tmp_path, c
                    str(report), "no space left on the device (ENOSPC)", "no partial file")
     assert err.startswith("udrobot-ctrl diagnose: error: ")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["run.csv", "run.json"]
+
+
+@pytest.mark.slow
+def test_a_size_limit_in_designs_report_is_one_line(tmp_path):
+    """design ardusub --report under ulimit -f: one line naming the report file, no partial file (a design flight
+    takes tens of seconds, hence slow)."""
+    report = tmp_path / "rep"
+    done = _size_limited(["design", "ardusub", "--model", "bluerov2", "--loops", "depth", "--evaluations", "1",
+                          "--no-sensitivity", "--report", report, "--out", tmp_path / "g.params"], 4096)
+    _one_line_naming(done, report / "design.json")
+    assert not list(report.glob("*")) if report.exists() else True  # neither the file nor its temporary
