@@ -22,6 +22,7 @@ import warnings
 from pathlib import Path
 
 _FALLBACKS: dict = {}  # purpose -> TemporaryDirectory kept alive for the process
+_CONFIGURED: set = set()  # numba cache folders checked and configured in this process
 
 
 def user_cache_root() -> Path:
@@ -179,8 +180,11 @@ def configure_numba_cache() -> str:
         The folder in use (also left in ``NUMBA_CACHE_DIR`` and numba's ``config.CACHE_DIR``).
     """
     chosen = os.environ.get("NUMBA_CACHE_DIR")
+    if chosen and chosen in _CONFIGURED:  # checked by an earlier call of this process (each kernel module calls)
+        return chosen
     folder = str(private_dir(Path(chosen) if chosen else user_cache_root() / "numba", "numba"))
     _tolerate_unsaved_kernels()
+    _CONFIGURED.add(folder)
     if folder == chosen:
         return chosen
     os.environ["NUMBA_CACHE_DIR"] = folder
