@@ -32,6 +32,7 @@ from identification.sets import coefficient_set_from_dict, load_coefficient_set
 from identification.similitude import FullSizeVehicle
 from udrobot_ctrl.dynamics.effects import check_against_model, parse_effects
 from udrobot_ctrl.io.files import atomic_write
+from udrobot_files.inputs import inside, read_regular
 
 MODEL_FORMAT = "udrobot-model/1"
 #: UDrobot models: shipped coefficient set : damping form.
@@ -149,7 +150,6 @@ def resolve_curve(name, model_file=None, source: str = "<description>", field: s
         Naming the model, the field and what was expected.
     """
     from udrobot_ctrl.dynamics.thrusters import MAX_CURVE_BYTES, shipped_curve_name  # thrusters imports vehicle
-    from udrobot_files.inputs import inside, read_regular
 
     if not isinstance(name, str) or not name.strip():
         raise ValueError(f"{source}: {field} must be the name of a thruster curve (t200) or a curve "
@@ -363,9 +363,9 @@ def vehicle_from_description(d: dict, source: str = "<description>", model_file=
 def vehicle_model(name: str) -> Vehicle:
     """A shipped vehicle with its own coefficients (:data:`VEHICLE_MODEL_NAMES`) or a path to such a TOML."""
     path = Path(name)
-    if path.suffix.lower() == ".toml" and path.is_file():
+    if path.suffix.lower() == ".toml" and os.path.lexists(path):  # model_text refuses a pipe or a device
         try:
-            doc = tomllib.loads(path.read_text())
+            doc = tomllib.loads(model_text(path))
         except tomllib.TOMLDecodeError as exc:
             raise ValueError(f"{path}: not valid TOML ({exc})") from exc
         return vehicle_from_description(doc, str(path), model_file=path)
@@ -385,7 +385,7 @@ def load_model(model) -> Vehicle:
         return model
     text = str(model)
     path = Path(text)
-    if text in VEHICLE_MODEL_NAMES or (path.suffix.lower() == ".toml" and path.is_file()):
+    if text in VEHICLE_MODEL_NAMES or (path.suffix.lower() == ".toml" and os.path.lexists(path)):
         return vehicle_model(text)
     if path.suffix.lower() == ".json" or (path.exists() and path.is_file()):
         return read_model_file(path)
@@ -627,11 +627,32 @@ def model_from_dict(doc: dict, source: str = "<dict>", model_file=None) -> Vehic
     )
 
 
+#: the largest model file read, bytes (assumed: a udrobot-model/1 JSON or a vehicle TOML is a few kB, 16 MiB leaves
+#: room for any provenance and effects list and stops a huge or endless file at once)
+MAX_MODEL_BYTES = 16 << 20
+
+
+def model_text(path) -> str:
+    """The text of a model file: a regular file of at most :data:`MAX_MODEL_BYTES` (never a pipe or a device,
+    :func:`udrobot_files.inputs.read_regular`), UTF-8.
+
+    Raises
+    ------
+    FileNotFoundError
+        No such file.
+    ValueError
+        Not a regular file, too large, or not UTF-8 (``UnicodeDecodeError``).
+    """
+    if not os.path.lexists(path):
+        raise FileNotFoundError(f"model file {path} does not exist")
+    return read_regular(path, MAX_MODEL_BYTES, "model file").decode("utf-8")
+
+
 def read_model_file(path) -> Vehicle:
     """Read a ``udrobot-model/1`` JSON file."""
     path = Path(path)
     try:
-        doc = json.loads(path.read_text())
+        doc = json.loads(model_text(path))
     except FileNotFoundError:
         raise FileNotFoundError(f"model file {path} does not exist") from None
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:

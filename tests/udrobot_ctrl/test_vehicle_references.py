@@ -96,3 +96,13 @@ def test_a_curve_that_is_not_a_small_regular_file_is_refused_at_once(tmp_path, c
     err = _refused(_model_naming(folder, "c"), capsys)
     expected = {"fifo": "named pipe", "dev_zero": "outside", "huge": "bytes, more than", "folder": "a folder"}[node]
     assert expected in err, err
+
+
+@pytest.mark.parametrize("suffix", [".json", ".toml"])
+def test_a_model_file_that_is_a_pipe_is_refused_at_once(tmp_path, capsys, suffix):
+    model = tmp_path / f"m{suffix}"
+    os.mkfifo(model)  # reading it would block for ever
+    capsys.readouterr()
+    assert main(["model", "show", "--model", str(model)]) == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and str(model) in err and "named pipe" in err, err
