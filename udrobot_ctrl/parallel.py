@@ -188,7 +188,9 @@ def die_with_parent() -> None:
     Linux: ``prctl(PR_SET_PDEATHSIG, SIGKILL)`` through ``ctypes`` (the kernel kills the worker when the thread
     that forked it ends), then a check that the parent did not die before the call. Elsewhere, or if prctl
     fails: a daemon thread that polls ``os.getppid()`` every :data:`PARENT_POLL_S` s and ends the worker when it
-    changes.
+    changes. The pools here fork their workers from the caller's thread (``ProcessPoolExecutor`` re-forks from its
+    manager thread only with ``max_tasks_per_child``, which no pool here uses), so a worker lives as long as the
+    caller.
     """
     parent = _forker["pid"]
     armed = False
