@@ -3,6 +3,7 @@ included), outputs claimed against a concurrent run, and a full disk or a size l
 from __future__ import annotations
 
 import errno
+import json
 import os
 import subprocess
 import sys
@@ -203,3 +204,32 @@ def test_a_size_limit_in_designs_report_is_one_line(tmp_path):
                           "--no-sensitivity", "--report", report, "--out", tmp_path / "g.params"], 4096)
     _one_line_naming(done, report / "design.json")
     assert not list(report.glob("*")) if report.exists() else True  # neither the file nor its temporary
+
+
+@pytest.mark.slow
+def test_two_diagnose_runs_on_one_report_at_once(tmp_path, capsys, private_cache):
+    """The audit's case: two `diagnose --json X --force` at once. The second is refused while the first runs (it
+    claims X before reading its runs); the first writes X. Before, both wrote and both said so."""
+    run = _run(tmp_path / "run.csv", n=200)
+    report = tmp_path / "gap.json"
+    locks_dir = private_cache / "udrobot_ctrl" / "locks"
+    first = subprocess.Popen([PYTHON, "-m", "udrobot_ctrl.cli", "diagnose", "--model", "cfd:chin", "--json",
+                              str(report), "--force", str(run)], env=os.environ.copy(), text=True,
+                             stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    try:
+        deadline = time.monotonic() + 120
+        while not (locks_dir.is_dir() and any(locks_dir.iterdir())):  # the first run has claimed its report
+            assert first.poll() is None and time.monotonic() < deadline, first.stderr.read() if first.poll() else ""
+            time.sleep(0.02)
+        capsys.readouterr()
+        assert main(["diagnose", "--model", "cfd:chin", "--json", str(report), "--force", str(run)]) == 2
+        err = capsys.readouterr().err
+        assert "in use by another udrobot-ctrl run" in err and f"pid {first.pid}" in err, err
+        out, err_first = first.communicate(timeout=300)
+    finally:
+        if first.poll() is None:
+            first.kill()
+            first.wait()
+    assert first.returncode == 0, err_first
+    assert json.loads(report.read_text())["format"].startswith("udrobot-diagnosis/")
+    assert not any(locks_dir.iterdir())  # the claim ended with the run
