@@ -3,6 +3,6 @@
 Re-exported here under its historical path; the definition lives in the neutral package so that
 ``identification`` (whose numba kernels need the same private cache) does not import ``udrobot_ctrl``.
 """
-from udrobot_files.caches import configure_numba_cache, private_dir, unsafe_reason, user_cache_root
+from udrobot_files.caches import configure_numba_cache, path_unsafe_reason, private_dir, unsafe_reason, user_cache_root
 
-__all__ = ["configure_numba_cache", "private_dir", "unsafe_reason", "user_cache_root"]
+__all__ = ["configure_numba_cache", "path_unsafe_reason", "private_dir", "unsafe_reason", "user_cache_root"]

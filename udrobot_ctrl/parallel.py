@@ -31,15 +31,18 @@ workers: OpenBLAS splits a long dot product (from 2e4 terms) over its threads, w
 last bits) and, on a machine whose cores are busy, costs a thousand times its arithmetic (measured: 1.3 s of CPU
 for the 200 lags of one integrated autocorrelation time of 3e4 samples on two threads, 5 ms on one).
 
-Killed runs: every worker ignores SIGINT (a Ctrl-C reaches the whole process group; the caller decides) and dies
-at SIGTERM without cleanup (:func:`worker_signals`, installed in every worker forked here); the caller stops them
-all with :func:`stop_workers` (``udrobot-ctrl`` does so at SIGINT and SIGTERM, see :mod:`udrobot_ctrl.cli.main`).
+Killed runs: every worker ignores SIGINT (a Ctrl-C reaches the whole process group; the caller decides), dies
+at SIGTERM without cleanup, and dies with its parent (:func:`worker_signals`, installed in every worker forked
+here; :func:`die_with_parent`: a caller killed by SIGKILL leaves no orphan); the caller stops them all with
+:func:`stop_workers` (``udrobot-ctrl`` does so at SIGINT and SIGTERM, see :mod:`udrobot_ctrl.cli.main`).
 """
 from __future__ import annotations
 
+import ctypes
 import multiprocessing
 import os
 import signal
+import sys
 import threading
 import time
 from concurrent.futures import ProcessPoolExecutor
@@ -162,15 +165,63 @@ def _give_core() -> None:
         _blas_before = None
 
 
+_forker = {"pid": os.getpid()}  # the process that forked this one, recorded just before each fork
+
+
+def _record_forker() -> None:
+    _forker["pid"] = os.getpid()
+
+
+os.register_at_fork(before=_record_forker)
+
+#: prctl option "signal me when my parent dies" (linux/prctl.h PR_SET_PDEATHSIG)
+PR_SET_PDEATHSIG = 1
+#: how often a worker without prctl checks that its parent is alive, s (assumed: a second keeps an orphan's
+#: life short at no measurable cost)
+PARENT_POLL_S = 1.0
+
+
+def die_with_parent() -> None:
+    """In a worker process: end when the process that forked it ends, even by SIGKILL (which no handler sees, so
+    the parent cannot stop its workers itself; its workers would otherwise wait for tasks for ever).
+
+    Linux: ``prctl(PR_SET_PDEATHSIG, SIGKILL)`` through ``ctypes`` (the kernel kills the worker when the thread
+    that forked it ends), then a check that the parent did not die before the call. Elsewhere, or if prctl
+    fails: a daemon thread that polls ``os.getppid()`` every :data:`PARENT_POLL_S` s and ends the worker when it
+    changes. The pools here fork their workers from the caller's thread (``ProcessPoolExecutor`` re-forks from its
+    manager thread only with ``max_tasks_per_child``, which no pool here uses), so a worker lives as long as the
+    caller.
+    """
+    parent = _forker["pid"]
+    armed = False
+    if sys.platform.startswith("linux"):
+        try:
+            libc = ctypes.CDLL(None, use_errno=True)
+            armed = libc.prctl(PR_SET_PDEATHSIG, int(signal.SIGKILL), 0, 0, 0) == 0
+        except (OSError, AttributeError):
+            armed = False
+    if os.getppid() != parent:  # the parent is already gone (we were re-parented)
+        os._exit(1)
+    if not armed:
+        def watch():
+            while os.getppid() == parent:
+                time.sleep(PARENT_POLL_S)
+            os._exit(1)
+
+        threading.Thread(target=watch, name="udrobot-parent-watch", daemon=True).start()
+
+
 def worker_signals() -> None:
     """In a worker process: ignore SIGINT (a Ctrl-C at the terminal reaches every process of the group; the caller
-    stops its workers, and a worker's KeyboardInterrupt would only print a traceback) and die at SIGTERM (the
-    default action, whatever handler the caller had installed before forking).
+    stops its workers, and a worker's KeyboardInterrupt would only print a traceback), die at SIGTERM (the
+    default action, whatever handler the caller had installed before forking), and die with the parent
+    (:func:`die_with_parent`: a caller killed by SIGKILL leaves no worker behind).
 
     Used as the initializer of every pool forked here and of the sensitivity executor's local pool.
     """
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    die_with_parent()
 
 
 def stop_workers(timeout: float = 2.0) -> int:

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import difflib
 import json
+import os
 import warnings
 from dataclasses import dataclass, field, replace
 from importlib import resources
@@ -31,6 +32,7 @@ from identification.sets import coefficient_set_from_dict, load_coefficient_set
 from identification.similitude import FullSizeVehicle
 from udrobot_ctrl.dynamics.effects import check_against_model, parse_effects
 from udrobot_ctrl.io.files import atomic_write
+from udrobot_files.inputs import inside, read_regular
 from udrobot_files.nesting import unique_keys
 
 MODEL_FORMAT = "udrobot-model/1"
@@ -116,6 +118,68 @@ def _read_toml(name: str) -> dict:
     return tomllib.loads(res.read_text())
 
 
+def resolve_curve(name, model_file=None, source: str = "<description>", field: str = "thruster_model.name") -> str:
+    """The thruster curve a model names (``thruster_model.name``, ``thruster_curve.name``), as
+    :func:`udrobot_ctrl.dynamics.thrusters.load_curve` takes it, checked: never a file from elsewhere.
+
+    A plain name of a shipped curve (``t200``) stays a name. Any other reference is a file (``.toml`` added when it
+    has no suffix) looked up next to the model file, then in the package's models folder; it is accepted only if,
+    with every link resolved, it lies inside one of those two folders (a ``..`` escape, an absolute path elsewhere
+    or a link out are refused; the working folder is never searched), and is a regular file of at most
+    ``MAX_CURVE_BYTES`` (never a pipe or a device such as ``/dev/zero``). A shipped model (``model_file`` None)
+    may name only shipped curves.
+
+    Parameters
+    ----------
+    name : str
+        The reference as written in the model.
+    model_file : str or Path, optional
+        The model file that holds it (None for a shipped model or a dictionary).
+    source : str
+        The model, for messages.
+    field : str
+        The field holding the reference, for messages.
+
+    Returns
+    -------
+    str
+        The shipped name, or the absolute path of the curve file (links resolved).
+
+    Raises
+    ------
+    ValueError
+        Naming the model, the field and what was expected.
+    """
+    from udrobot_ctrl.dynamics.thrusters import MAX_CURVE_BYTES, shipped_curve_name  # thrusters imports vehicle
+
+    if not isinstance(name, str) or not name.strip():
+        raise ValueError(f"{source}: {field} must be the name of a thruster curve (t200) or a curve "
+                         f"file next to the model, got {name!r}")
+    if shipped_curve_name(name):
+        return name
+    ref = Path(name)
+    if not ref.suffix:
+        ref = ref.with_suffix(".toml")
+    package = Path(str(_models_dir()))
+    folders = [Path(model_file).resolve().parent] if model_file is not None else []
+    folders.append(package)
+    where = " or ".join(str(f) for f in folders)
+    for folder in folders:
+        candidate = ref if ref.is_absolute() else folder / ref
+        if not os.path.lexists(candidate):
+            continue
+        if not inside(candidate, folders):
+            raise ValueError(f"{source}: {field} {name!r} leads to {os.path.realpath(candidate)}, "
+                             f"outside the model's folder and the package's models (expected a curve file in "
+                             f"{where})")
+        real = os.path.realpath(candidate)
+        read_regular(real, MAX_CURVE_BYTES, f"{source}: {field} {name!r}:")
+        return real
+    raise ValueError(f"{source}: {field} {name!r} is neither a shipped curve (t200) nor a curve file "
+                     f"in {where}" + (" (an absolute path outside those folders is not read)"
+                                      if ref.is_absolute() else ""))
+
+
 def _tagged(entry, where, prov, key):
     if isinstance(entry, dict):
         prov[key] = entry.get("provenance", "")
@@ -197,7 +261,7 @@ def build_vehicle(set_name: str, form: str, description: dict | None = None) -> 
         name=f"{coeffs.name}:{form}", mass=mass, inertia_cg=inertia, r_g=r_g, r_b=r_b,
         weight=mass * g, buoyancy=rho * g * volume, added_mass=M_A, linear_damping=D_L,
         quadratic_damping=Q, thrusters=tuple(thrusters), rho=rho, g=g, provenance=prov,
-        extras={"dims": dims, "projected_area": area, "thruster_model": tm.get("name", "t200"),
+        extras={"dims": dims, "projected_area": area, "thruster_model": resolve_curve(tm.get("name", "t200")),
                 "voltage": float(_tagged(tm.get("voltage", 12.0), "", prov, "thrusters.voltage"))},
     )
 
@@ -224,13 +288,15 @@ def _thrust_limits_at(voltage: float, curve_name: str):
     return thrust_limits(voltage, load_curve(curve_name))
 
 
-def vehicle_from_description(d: dict, source: str = "<description>") -> Vehicle:
+def vehicle_from_description(d: dict, source: str = "<description>", model_file=None) -> Vehicle:
     """A :class:`Vehicle` from a description that carries its own coefficients (``[hydrodynamics]``).
 
     The description (docs/vehicle_models.md) gives rho, g, mass, displaced volume, inertia about the CG, r_g,
     r_b, the positive diagonals of M_A, D_L and D_n per DOF, the thruster model (curve name and supply voltage:
     the thrust limits are the curve's at that voltage unless ``max_forward_N``/``max_reverse_N`` are given) and
-    the thrusters in autopilot motor order. Every number keeps its provenance string.
+    the thrusters in autopilot motor order. Every number keeps its provenance string. ``model_file``: the TOML
+    file read (None for a shipped vehicle): a thruster curve it names is looked for next to it
+    (:func:`resolve_curve`).
 
     Raises
     ------
@@ -261,7 +327,7 @@ def vehicle_from_description(d: dict, source: str = "<description>") -> Vehicle:
     M_A, D_L, Q = (np.diag(_diag_entries(tab, source, k, prov, k)) for tab, k in
                    zip(tables, ("added_mass", "linear_damping", "quadratic_damping")))
     voltage = float(_tagged(tm["voltage"], "", prov, "thrusters.voltage"))
-    curve = str(tm.get("name", "t200"))
+    curve = resolve_curve(tm.get("name", "t200"), model_file, source)
     if "max_forward_N" in tm:
         fwd = float(_tagged(tm["max_forward_N"], "", prov, "thrusters.max_forward_N"))
         rev = float(_tagged(tm["max_reverse_N"], "", prov, "thrusters.max_reverse_N"))
@@ -298,12 +364,12 @@ def vehicle_from_description(d: dict, source: str = "<description>") -> Vehicle:
 def vehicle_model(name: str) -> Vehicle:
     """A shipped vehicle with its own coefficients (:data:`VEHICLE_MODEL_NAMES`) or a path to such a TOML."""
     path = Path(name)
-    if path.suffix.lower() == ".toml" and path.is_file():
+    if path.suffix.lower() == ".toml" and os.path.lexists(path):  # model_text refuses a pipe or a device
         try:
-            doc = tomllib.loads(path.read_text())
+            doc = tomllib.loads(model_text(path))
         except tomllib.TOMLDecodeError as exc:
             raise ValueError(f"{path}: not valid TOML ({exc})") from exc
-        return vehicle_from_description(doc, str(path))
+        return vehicle_from_description(doc, str(path), model_file=path)
     if name not in VEHICLE_MODEL_NAMES:
         raise ValueError(f"unknown vehicle {name!r}: expected one of {', '.join(VEHICLE_MODEL_NAMES)} or a "
                          "udrobot-vehicle/1 .toml path")
@@ -320,7 +386,7 @@ def load_model(model) -> Vehicle:
         return model
     text = str(model)
     path = Path(text)
-    if text in VEHICLE_MODEL_NAMES or (path.suffix.lower() == ".toml" and path.is_file()):
+    if text in VEHICLE_MODEL_NAMES or (path.suffix.lower() == ".toml" and os.path.lexists(path)):
         return vehicle_model(text)
     if path.suffix.lower() == ".json" or (path.exists() and path.is_file()):
         return read_model_file(path)
@@ -490,7 +556,7 @@ def _thruster(t, i: int, src: str) -> Thruster:
                     lim["max_forward_N"], lim["max_reverse_N"])
 
 
-def model_from_dict(doc: dict, source: str = "<dict>") -> Vehicle:
+def model_from_dict(doc: dict, source: str = "<dict>", model_file=None) -> Vehicle:
     """Parse and check a ``udrobot-model/1`` document; errors name the source and field.
 
     Rejected: booleans or strings as numbers, non-positive rho, g, mass, weight, negative buoyancy, inertia not
@@ -531,7 +597,9 @@ def model_from_dict(doc: dict, source: str = "<dict>") -> Vehicle:
     curve = doc.get("thruster_curve")
     if curve is not None:
         try:
-            extras = {"thruster_model": str(curve.get("name", "t200")), "voltage": float(curve["supply_voltage_V"])}
+            extras = {"thruster_model": resolve_curve(curve.get("name", "t200"), model_file, source,
+                                                            "thruster_curve.name"),
+                      "voltage": float(curve["supply_voltage_V"])}
         except (AttributeError, KeyError, TypeError, ValueError) as exc:
             raise ValueError(f"{source}: field 'thruster_curve' must be {{\"name\": str, \"supply_voltage_V\": "
                              f"number}} ({exc!r})") from exc
@@ -560,11 +628,32 @@ def model_from_dict(doc: dict, source: str = "<dict>") -> Vehicle:
     )
 
 
+#: the largest model file read, bytes (assumed: a udrobot-model/1 JSON or a vehicle TOML is a few kB, 16 MiB leaves
+#: room for any provenance and effects list and stops a huge or endless file at once)
+MAX_MODEL_BYTES = 16 << 20
+
+
+def model_text(path) -> str:
+    """The text of a model file: a regular file of at most :data:`MAX_MODEL_BYTES` (never a pipe or a device,
+    :func:`udrobot_files.inputs.read_regular`), UTF-8.
+
+    Raises
+    ------
+    FileNotFoundError
+        No such file.
+    ValueError
+        Not a regular file, too large, or not UTF-8 (``UnicodeDecodeError``).
+    """
+    if not os.path.lexists(path):
+        raise FileNotFoundError(f"model file {path} does not exist")
+    return read_regular(path, MAX_MODEL_BYTES, "model file").decode("utf-8")
+
+
 def read_model_file(path) -> Vehicle:
     """Read a ``udrobot-model/1`` JSON file."""
     path = Path(path)
     try:
-        doc = json.loads(path.read_text(), object_pairs_hook=unique_keys(path))  # a second 'effects' is refused
+        doc = json.loads(model_text(path), object_pairs_hook=unique_keys(path))  # a second 'effects' is refused
     except FileNotFoundError:
         raise FileNotFoundError(f"model file {path} does not exist") from None
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
@@ -573,7 +662,7 @@ def read_model_file(path) -> Vehicle:
         raise ValueError(f"{path}: not a model file: {_what_file_is(path)}not valid JSON ({where}); a model is "
                          f"a name ({', '.join(ALL_MODEL_NAMES)}), a "
                          f"udrobot-model/1 JSON or a udrobot-vehicle/1 TOML") from exc
-    return model_from_dict(doc, str(path))
+    return model_from_dict(doc, str(path), model_file=path)
 
 
 def _what_file_is(path: Path) -> str:

@@ -11,7 +11,10 @@ never imports ``udrobot_ctrl``; ``udrobot_ctrl`` (vehicle models, plant, control
 
 Modules
 -------
-output : output-file policy (never destroy an input, never overwrite without ``--force``, atomic writes)
+output : output-file policy (never destroy an input, never overwrite without ``--force``, atomic writes, one
+    check per command)
+locks : exclusive locks between runs (output claims, sensitivity study folders)
+inputs : reading a file an input names (a regular file of bounded size, never a pipe or a device)
 caches : private on-disk folders for compiled code (numba, casadi-generated C)
 nesting : JSON/TOML documents nested too deeply to parse: one error naming the file, never a RecursionError
 """

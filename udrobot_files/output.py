@@ -13,17 +13,27 @@ Rules (the same for every command, see docs/files.md):
   whose folder does not exist is refused with ``create_folders=False``, naming the folder: a mistyped path should
   not grow a tree of folders silently.
 - Files are written atomically (:func:`atomic_write`, :func:`open_atomic`): into an unpredictable temporary
-  file created exclusively (``O_EXCL | O_NOFOLLOW``, so never through a planted symlink) in the destination
-  folder, then renamed over the target; the temporary file is removed on any failure. The final mode is
-  ``0o666 & ~umask``, as for a file created by ``open()``.
+  file ``.NAME.PID.TOKEN.tmp`` created exclusively (``O_EXCL | O_NOFOLLOW``, so never through a planted symlink)
+  in the destination folder, then renamed over the target (``os.replace``); the temporary file is removed on any
+  failure. The final mode is ``0o666 & ~umask``, as for a file created by ``open()``.
+- A write that fails (a full disk ``ENOSPC``, a file-size limit ``EFBIG`` from ``ulimit -f``, a quota, an I/O
+  error) raises :class:`OutputError` naming the file and the reason: no traceback, no partial file, the previous
+  file (if any) intact.
+- One check per command (:func:`check_command`), before any work: every output file and report folder (with the
+  files it will hold) against every input and every other output, then claimed for the run
+  (:func:`udrobot_files.locks.claim_outputs`) so that a second run naming the same output at the same time is
+  refused instead of both writing.
 """
 from __future__ import annotations
 
 import contextlib
+import errno
 import os
+import secrets
 import stat
-import tempfile
 from pathlib import Path
+
+from udrobot_files.locks import claim_outputs
 
 
 class OutputError(ValueError):
@@ -293,8 +303,12 @@ def open_atomic(path, mode: str = "w", *, force: bool = True, protect=(), encodi
         raise OutputError(f"{path}: is {kind}, not a regular file; refusing to replace it")
     if not force and (path.exists() or path.is_symlink()):
         raise OutputError(f"{path}: exists; pass --force to replace it")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = str(path.with_name(temporary_name(path.name)))
+        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW | os.O_CLOEXEC, 0o600)
+    except OSError as exc:
+        raise write_error(path, exc) from None
     _TEMPORARIES.add(tmp)  # until renamed or removed: remove_temporaries() at a signal
     try:
         os.fchmod(fd, (0o666 & ~current_umask()) if file_mode is None else file_mode)
@@ -312,12 +326,40 @@ def open_atomic(path, mode: str = "w", *, force: bool = True, protect=(), encodi
         if kind:
             raise OutputError(f"{path}: became {kind} while writing; refusing to replace it")
         os.replace(tmp, path)
+    except OSError as exc:  # a full disk, a size limit, an I/O error: one line naming the file
+        with contextlib.suppress(FileNotFoundError):
+            os.unlink(tmp)
+        if exc.errno not in WRITE_ERRNOS:
+            raise
+        raise write_error(path, exc) from None
     except BaseException:  # cleanup, re-raised
         with contextlib.suppress(FileNotFoundError):
             os.unlink(tmp)
         raise
     finally:
         _TEMPORARIES.discard(tmp)
+
+
+def temporary_name(name: str) -> str:
+    """The name of a temporary file for the output ``name``: ``.NAME.PID.TOKEN.tmp`` (TOKEN 12 hex digits,
+    unpredictable), so that a later run can tell whose it is and whether that writer is gone."""
+    return f".{name}.{os.getpid()}.{secrets.token_hex(6)}.tmp"
+
+
+#: why a write failed, for the errors a user can act on
+_WRITE_REASONS = {errno.ENOSPC: "no space left on the device (ENOSPC)",
+                  errno.EFBIG: "file too large: a file-size limit (ulimit -f) or the file system's (EFBIG)",
+                  errno.EDQUOT: "disk quota exceeded (EDQUOT)",
+                  errno.EROFS: "read-only file system (EROFS)",
+                  errno.EIO: "input/output error of the device (EIO)"}
+#: the errors of a write that mean "this file cannot be written here now", not a bug
+WRITE_ERRNOS = frozenset(_WRITE_REASONS)
+
+
+def write_error(path, exc: OSError) -> OutputError:
+    """The :class:`OutputError` for an ``OSError`` raised while writing ``path``: the file and the reason."""
+    reason = _WRITE_REASONS.get(exc.errno) or (exc.strerror or str(exc))
+    return OutputError(f"{path}: cannot be written: {reason}; nothing was written to it (no partial file)")
 
 
 def atomic_write(path, data, *, force: bool = True, protect=(), file_mode: int | None = None) -> Path:
@@ -344,3 +386,94 @@ def is_private_dir(path) -> bool:
         return False
     return (stat.S_ISDIR(st.st_mode) and st.st_uid == os.getuid()
             and not st.st_mode & (stat.S_IWGRP | stat.S_IWOTH))
+
+
+def _label(option: str, path: Path, k: int) -> str:
+    """The name of the k-th file of an output option in messages: the option, or ``--out's sidecar``."""
+    if k == 0:
+        return option
+    return f"{option}'s {'sidecar' if path.suffix.lower() == '.json' else 'companion file'}"
+
+
+def check_command(files=None, inputs=(), *, force: bool = False, folders=None, create_folders=(),
+                  claim: bool = True) -> list:
+    """The one output check of a command, before any work: every output against every input and every other
+    output, then the outputs claimed for this run.
+
+    Parameters
+    ----------
+    files : mapping of option -> path or list of paths, optional
+        The file outputs (``{"--json": "gap.json", "--out": run_files("sim.csv")}``; None values ignored). The
+        first path of a list is the option's own file, the others its companions (a run's sidecar).
+    inputs : iterable of str or Path
+        Every file the command reads (models, ``--spread`` models, runs, holdouts, mappings, ``--from``); a run
+        CSV brings its sidecar.
+    force : bool
+        Allow replacing existing outputs (never an input).
+    folders : mapping of option -> (folder, iterable of file names), optional
+        Report folders (``--report DIR``, ``--plot DIR``) and the files each will hold (``design.json``, ...):
+        the folder must be a folder (or not exist yet: it is created when written) and each of its files obeys
+        the rules of a file output.
+    create_folders : iterable of str
+        File options whose missing folder is created when written (their value may be inside a report folder);
+        any other file option refuses a missing folder, naming it.
+    claim : bool
+        Claim every output file for this run (:func:`udrobot_files.locks.claim_outputs`).
+
+    Returns
+    -------
+    list of Path
+        Every output file (the files of the folders included).
+
+    Raises
+    ------
+    OutputError
+        Naming the option and the file: an output that is an input (``--force`` never lifts it, and the message
+        does not suggest it), two outputs on one file (through another spelling or a link), an existing output
+        without ``force``, a device/pipe/socket, a folder where a file is expected (or the reverse), a missing
+        or unwritable folder.
+    udrobot_files.locks.LockedError
+        An output another run claims at the same time (a ValueError too).
+    """
+    entries = []  # (label, path, option): the report folders' files first, then the file options'
+    dirs = []  # (option, folder)
+    for option, value in (folders or {}).items():
+        if value is None or value[0] is None:
+            continue
+        folder, names = Path(value[0]), list(value[1])
+        dirs.append((option, folder))
+        entries += [(option, folder / n, option) for n in names]
+    for option, paths in (files or {}).items():
+        if paths is None:
+            continue
+        paths = [paths] if isinstance(paths, (str, os.PathLike)) else list(paths)
+        entries += [(_label(option, Path(p), k), Path(p), option) for k, p in enumerate(paths) if p is not None]
+    ins = [fam for i in inputs if i is not None for fam in _input_family(i)]
+    # 1. never an input (before anything else: the message must not suggest --force)
+    for label, path, _ in entries:
+        for i, what in ins:
+            if _collides(path, i):
+                raise OutputError(f"{label} {path}: is {what}; refusing to overwrite input data (--force never "
+                                  f"does), choose another output")
+    for option, folder in dirs:
+        for i, what in ins:
+            if _collides(folder, i):
+                raise OutputError(f"{option} {folder}: is {what}, not a folder for outputs; choose another folder")
+    # 2. never two outputs on one file, nor a file output on a report folder
+    check_distinct_outputs([(label, [path]) for label, path, _ in entries])
+    for option, folder in dirs:
+        for label, path, owner in entries:
+            if owner != option and (path.resolve() == folder.resolve() or _same_file(path, folder)):
+                raise OutputError(f"{label} {path} is the folder of {option}; give each output its own path")
+    # 3. each output writable, existing ones only with force
+    for option, folder in dirs:
+        if folder.exists() and not folder.is_dir():
+            raise OutputError(f"{option} {folder}: exists and is not a folder")
+        _check_folder(folder / "x", option)
+    created = set(create_folders) | {option for option, _ in dirs}
+    for label, path, option in entries:
+        check_outputs([path], force=force, option=label, create_folders=option in created)
+    outs = [path for _, path, _ in entries]
+    if claim:
+        claim_outputs(outs, [label for label, _, _ in entries])
+    return outs

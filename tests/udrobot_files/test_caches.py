@@ -6,6 +6,7 @@ import shutil
 import stat
 import subprocess
 import sys
+from pathlib import Path
 
 import casadi as ca
 import numpy as np
@@ -197,3 +198,85 @@ def test_planted_pickle_in_a_world_writable_numba_cache_does_not_run(tmp_path):
     os.chmod(cache, 0o700)  # the control: the same planted index in a private folder is what numba loads
     third = run()
     assert marker.exists(), third.stderr
+
+
+@pytest.mark.slow
+def test_planted_pickle_behind_a_link_inside_a_private_numba_cache_does_not_run(tmp_path):
+    """Issue 62: a private NUMBA_CACHE_DIR whose subfolders link to a world-writable folder: nothing loaded."""
+    script = tmp_path / "kernel.py"
+    script.write_text(NUMBA_SCRIPT)
+    cache = tmp_path / "numba_cache"
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(cache))
+
+    def run():
+        return subprocess.run([sys.executable, str(script)], env=env, capture_output=True, text=True, timeout=300)
+
+    assert run().returncode == 0
+    shared = tmp_path / "shared"
+    shared.mkdir()
+    os.chmod(shared, 0o777)
+    for sub in [p for p in cache.iterdir() if p.is_dir()]:  # numba's per-source subfolders -> links out
+        sub.rename(shared / sub.name)
+        sub.symlink_to(shared / sub.name, target_is_directory=True)
+    os.chmod(cache, 0o700)
+    marker = tmp_path / "ran.txt"
+    assert _plant_index(shared, marker) >= 1
+    second = run()
+    assert second.returncode == 0 and second.stdout.split()[-1] == "2", second.stderr
+    assert "holds a symbolic link" in second.stderr and second.stdout.split()[0] != str(cache)
+    assert not marker.exists()
+
+
+@pytest.mark.parametrize("attack", ["open_parent", "link_inside", "writable_file_inside", "foreign_parent_link"])
+def test_a_cache_folder_is_checked_along_its_whole_path_and_inside(tmp_path, monkeypatch, attack):
+    monkeypatch.setattr(caches, "_FALLBACKS", {})
+    parent = tmp_path / "p"
+    parent.mkdir()
+    folder = parent / "cache"
+    folder.mkdir(mode=0o755)
+    os.chmod(folder, 0o755)  # open to read: what is inside must then be closed to writes
+    if attack == "open_parent":
+        os.chmod(parent, 0o777)  # anyone may replace 'cache' (no sticky bit)
+        expected = "writable by group or others without the sticky bit"
+    elif attack == "link_inside":
+        (folder / "sub").symlink_to(tmp_path, target_is_directory=True)
+        expected = "holds a symbolic link"
+    elif attack == "writable_file_inside":
+        (folder / "index.nbi").write_bytes(b"x")
+        os.chmod(folder / "index.nbi", 0o666)
+        expected = "writable by group or others"
+    else:
+        if os.getuid() == 0:
+            link = tmp_path / "owned_by_nobody"
+            link.symlink_to(parent, target_is_directory=True)
+            os.lchown(link, 65534, 65534)
+            folder = link / "cache"
+            expected = "owned by uid 65534"
+        else:
+            pytest.skip("needs root to give a link to another user")
+    assert expected in (caches.path_unsafe_reason(folder) or "")
+    with pytest.warns(RuntimeWarning, match="using a private temporary folder"):
+        used = caches.private_dir(folder, "test")
+    assert used != folder and caches.path_unsafe_reason(used) is None
+
+
+def test_a_private_folder_with_the_users_umask_inside_and_a_sticky_parent_is_used(tmp_path, monkeypatch):
+    monkeypatch.setattr(caches, "_FALLBACKS", {})
+    sticky = tmp_path / "tmp"
+    sticky.mkdir()
+    os.chmod(sticky, 0o1777)  # like /tmp
+    folder = sticky / "cache"
+    folder.mkdir(mode=0o700)
+    (folder / "sub").mkdir()
+    os.chmod(folder / "sub", 0o775)  # numba's subfolder under umask 002: nobody else can reach it through 0700
+    assert caches.path_unsafe_reason(folder) is None
+    assert caches.private_dir(folder, "test") == folder
+
+
+def test_the_cache_location_honours_xdg_cache_home(tmp_path, monkeypatch):
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
+    monkeypatch.delenv("UDROBOT_CACHE", raising=False)
+    assert caches.user_cache_root() == tmp_path / "xdg" / "udrobot_ctrl"
+    assert fastsim.cache_dir() == tmp_path / "xdg" / "udrobot_ctrl" / "fastsim"
+    monkeypatch.setenv("XDG_CACHE_HOME", "relative/cache")  # the XDG spec: relative paths are ignored
+    assert caches.user_cache_root() == Path.home() / ".cache" / "udrobot_ctrl"

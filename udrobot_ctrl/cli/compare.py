@@ -14,7 +14,7 @@ from udrobot_ctrl.control.compare import (
     write_outputs,
 )
 from udrobot_ctrl.control.missions import CONTROLLER_KINDS
-from udrobot_ctrl.io.files import atomic_write, check_distinct_outputs, check_output_dir, check_outputs, spec_files
+from udrobot_ctrl.io.files import atomic_write, check_command, spec_files
 from udrobot_ctrl.vehicle import MODEL_NAMES
 
 
@@ -54,14 +54,10 @@ def run(args) -> int:
     if args.workers is not None and args.workers < 1:
         raise ValueError(f"--workers must be >= 1, got {args.workers}")
     inputs = spec_files(*models)
-    if args.json and args.out:  # --json naming one of the files --out DIR will hold
-        check_distinct_outputs([*(("--out", Path(args.out) / n) for n in output_names(controllers)),
-                                ("--json", args.json)])
-    if args.json:
-        in_out = bool(args.out) and Path(args.json).parent.resolve() == Path(args.out).resolve()  # --out creates it
-        check_outputs([args.json], inputs, force=args.force, option="--json", create_folders=in_out)
-    if args.out:
-        check_output_dir(args.out, inputs, force=args.force, option="--out", names=output_names(controllers))
+    in_out = bool(args.json and args.out) and Path(args.json).parent.resolve() == Path(args.out).resolve()
+    check_command({"--json": args.json}, inputs, force=args.force,  # --out creates the folder --json may be in
+                  folders={"--out": (args.out, output_names(controllers)) if args.out else None},
+                  create_folders=("--json",) if in_out else ())
     result = compare(models, controllers, quick=args.quick, workers=args.workers, keep_trajectories=bool(args.out),
                      ekf=not args.no_ekf)
     print(text_table(result["results"], result["ekf"]))

@@ -7,7 +7,7 @@ from pathlib import Path
 
 from udrobot_ctrl.cli.main import CLIError
 from udrobot_ctrl.io import convert_log, log_input_files
-from udrobot_ctrl.io.files import check_output_dir, check_outputs, run_files
+from udrobot_ctrl.io.files import check_command, run_files
 from udrobot_ctrl.io.mapping import UNAIDED_NOTE
 from udrobot_ctrl.io.runlog import write
 from udrobot_ctrl.io.segment import find_launches, idle_mask, write_launches
@@ -44,10 +44,8 @@ def run(args) -> int:
     if not args.out and not args.segment:
         raise ValueError("nothing to do: give --out RUN.csv and/or --segment CHANNEL")
     inputs = log_input_files(args.input, args.mapping)  # the log, its mapping file, a rostopic set's other files
-    if args.out:
-        check_outputs(run_files(args.out), inputs, force=args.force, option="--out", create_folders=False)
-    if args.segment_dir:
-        check_output_dir(args.segment_dir, inputs, option="--segment-dir")
+    check_command({"--out": run_files(args.out) if args.out else None}, inputs, force=args.force,
+                  folders={"--segment-dir": (args.segment_dir, ()) if args.segment_dir else None})
     run_ = convert_log(args.input, args.mapping, require_inputs=not args.allow_missing_inputs, vehicle=args.vehicle,
                        cut=not args.no_cut)
     bounds = run_.segment_bounds()
@@ -60,10 +58,8 @@ def run(args) -> int:
     for line in run_.metadata.get("notes", "").splitlines():
         if line.startswith(("cut: WARNING", "cut: kept", "cut: segment", UNAIDED_NOTE)) or "ALMOST ALL" in line:
             print(line)
-    if args.out:
-        path = write(run_, args.out, overwrite=args.force, protect=inputs)
-        print(f"wrote {path} and {Path(path).with_suffix('.json')}")
-    if args.segment:
+    launches = []
+    if args.segment:  # the channel and its launches checked (and their files) before anything is written
         try:
             y = run_.channel(args.segment)
         except KeyError as exc:  # an unknown channel name is the user's input, not a bug
@@ -79,6 +75,16 @@ def run(args) -> int:
                              f"'{args.segment}' ({100 * free.mean():.0f} % of the rows have idle thrusters)")
         out_dir = args.segment_dir or (Path(args.out).parent if args.out else Path("."))
         stem = Path(args.out).stem if args.out else Path(args.input).stem
+        names = [f"{stem}_launch{k}.csv" for k in range(1, len(launches) + 1)]  # as segment.write_launches names
+        check_command({"--out": run_files(args.out) if args.out else None}, inputs, force=args.force,
+                      folders={"--segment-dir" if args.segment_dir else "--segment": (out_dir, names)})
+        for name in names:  # launch files are never replaced (write_launches), --force or not
+            if (Path(out_dir) / name).exists():
+                raise ValueError(f"{Path(out_dir) / name}: exists; refusing to overwrite a launch file")
+    if args.out:
+        path = write(run_, args.out, overwrite=args.force, protect=inputs)
+        print(f"wrote {path} and {Path(path).with_suffix('.json')}")
+    if launches:
         for launch, path in zip(launches, write_launches(run_.t, y, launches, out_dir, stem, column, angle,
                                                                   protect=inputs)):
             print(f"launch at t = {launch.t_release:.3f} s, amplitude {launch.amplitude:.4g}, "

@@ -36,7 +36,7 @@ from udrobot_ctrl.control.compare import (
     write_outputs,
 )
 from udrobot_ctrl.dynamics.sim import simulate
-from udrobot_ctrl.io.files import OutputError, atomic_write, check_output_dir, open_atomic, save_figure
+from udrobot_ctrl.io.files import OutputError, atomic_write, check_command, open_atomic, save_figure
 from udrobot_ctrl.parallel import Background
 from udrobot_ctrl.vehicle import MODEL_NAMES, coefficient_set, full_size_vehicle, load_model, write_model_file
 
@@ -358,7 +358,7 @@ def check_demo_folder(out: Path, force: bool) -> None:
         ``out`` is not a writable folder, or (without ``force``) it exists and is not empty, naming a few of its
         entries; with ``force``, a device, pipe or socket where the demo writes its index or summary.
     """
-    check_output_dir(out, force=force, option="--out", names=[SUMMARY_FILE, INDEX_FILE])
+    check_command(force=force, folders={"--out": (out, [SUMMARY_FILE, INDEX_FILE])})
     if not force and out.is_dir():
         entries = sorted(p.name for p in out.iterdir())
         if entries:

@@ -28,10 +28,13 @@ from udrobot_ctrl.autopilot.firmware import (
 )
 from udrobot_ctrl.autopilot.params import run_log_params
 from udrobot_ctrl.autopilot.qgc_params import format_params, read_params
-from udrobot_ctrl.io.files import atomic_write, check_outputs, sidecar
+from udrobot_ctrl.io.files import atomic_write, check_command, sidecar, spec_files
 from udrobot_ctrl.io.mavlink import ARDUSUB_FRAMES
 from udrobot_ctrl.io.runlog import read_metadata
 from udrobot_ctrl.vehicle import ALL_MODEL_NAMES, load_model
+
+#: the files ``--report DIR`` holds
+REPORT_FILES = ("design.json", "check_flight.md", *(f"step_{lp}.png" for lp in LOOPS))
 
 
 def register(subparsers):
@@ -162,13 +165,9 @@ def run(args) -> int:
     if not (math.isfinite(args.loop_rate) and 10.0 <= args.loop_rate <= 2000.0):
         raise ValueError(f"--loop-rate must be between 10 and 2000 Hz (ArduSub runs 50-400 Hz, AP_Scheduler "
                          f"LOOP_RATE), got {args.loop_rate}")
-    inputs = [args.from_] if args.from_ else []
-    check_outputs([args.out], inputs, force=args.force, create_folders=False)
-    outputs = []
-    if args.report:
-        outputs += ([Path(args.report) / "design.json", Path(args.report) / "check_flight.md"]
-                    + [Path(args.report) / f"step_{lp}.png" for lp in LOOPS])
-    check_outputs(outputs, inputs, force=args.force, option="--report")
+    inputs = [*spec_files(args.model, *args.spread), *([args.from_] if args.from_ else [])]
+    check_command({"--out": args.out}, inputs, force=args.force,
+                  folders={"--report": (args.report, REPORT_FILES) if args.report else None})
     given = parse_firmware(args.firmware, f"--firmware {args.firmware}") if args.firmware else None
     if args.from_:
         log_params, origin, logged = _start_params(args.from_, given)

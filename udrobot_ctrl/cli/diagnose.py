@@ -5,8 +5,10 @@
 Positional runs fit the effects' parameters; ``--holdout`` runs only score (one run per ``--holdout``; repeat
 the option for several). Without ``--holdout`` the last run is held out (a single run: its last third).
 Options may come before or after the runs. The report format is ``udrobot-diagnosis/1`` (docs/formats/diagnosis.md).
-A holdout run may not be a fit run (the same file, or a copy with identical content), and ``--json``,
-``--out-model`` and the ``--plot`` files must be different files: both are refused before any work.
+A holdout run may not be a fit run (the same file, or a copy with identical content) nor repeat fit data (the
+same samples shifted in time, written again, or a stretch of a fit run), a run whose sidecar names another
+vehicle than --model is refused, and ``--json``, ``--out-model`` and the ``--plot`` files must be different
+files and not inputs: all are refused before any work.
 When every run is reported "not diagnosed" (unexcited, or not represented by the plant), ``--out-model`` is not
 written (a message says so): there is no corrected model to write.
 Exit 0 whenever the diagnosis ran; 2 with a message on bad input; 130 / 143 when stopped by Ctrl-C / SIGTERM (the
@@ -32,8 +34,9 @@ from udrobot_ctrl.gap.report import (
 )
 from udrobot_ctrl.gap.shrink import check_window
 from udrobot_ctrl.io import load_any
-from udrobot_ctrl.io.files import check_distinct_outputs, check_output_dir, check_outputs, spec_files
-from udrobot_ctrl.vehicle import write_model_file
+from udrobot_ctrl.io.files import check_command, spec_files
+from udrobot_ctrl.io.overlap import check_unseen
+from udrobot_ctrl.vehicle import MODEL_NAMES, VEHICLE_MODEL_NAMES, load_model, write_model_file
 
 
 def register(subparsers):
@@ -107,24 +110,73 @@ def check_holdout_not_fit(fit, holdout) -> None:
                              f"give a different run as holdout")
 
 
+#: the vehicles a run's sidecar can name that a model can be matched against (the ArduSub mapping's default
+#: vehicle "udrobot" and the shipped BlueROV2 models)
+KNOWN_VEHICLES = ("udrobot", *VEHICLE_MODEL_NAMES)
+#: the ArduSub frame of each shipped BlueROV2 model (models/bluerov2*.toml ardusub_frame)
+VEHICLE_FRAMES = {"bluerov2": "VECTORED", "bluerov2-heavy": "VECTORED_6DOF"}
+
+
+def model_vehicle(spec, vehicle) -> str | None:
+    """The vehicle (of :data:`KNOWN_VEHICLES`) a ``--model`` is, or None when it cannot be told: ``SET:FORM`` is
+    the UDrobot, a shipped vehicle is itself, a model file is the vehicle its name starts with (a corrected
+    model is named ``BASE+effects``) or, failing that, the shipped model of its ArduSub frame."""
+    text = str(spec)
+    if text in MODEL_NAMES:
+        return "udrobot"
+    if text in VEHICLE_MODEL_NAMES:
+        return text
+    base = str(vehicle.name).split("+")[0].strip()
+    if base in MODEL_NAMES:
+        return "udrobot"
+    if base in VEHICLE_MODEL_NAMES:
+        return base
+    frame = (vehicle.extras or {}).get("ardusub_frame")
+    return next((name for name, f in VEHICLE_FRAMES.items() if f == frame), None)
+
+
+def check_run_vehicles(spec, runs, paths) -> None:
+    """Refuse a run whose sidecar names another vehicle than ``--model`` (both known, :func:`model_vehicle`):
+    its data would be diagnosed on the wrong vehicle's plant.
+
+    Raises
+    ------
+    ValueError
+        Naming the run, the sidecar's vehicle and the model's.
+    """
+    named = [(r, p, r.metadata.get("vehicle")) for r, p in zip(runs, paths)]
+    named = [(r, p, v) for r, p, v in named if v in KNOWN_VEHICLES]
+    if not named:
+        return
+    ours = model_vehicle(spec, load_model(spec))
+    for _, path, vehicle in named:
+        if ours is not None and vehicle != ours:
+            raise ValueError(f"run {path}: its sidecar names the vehicle {vehicle!r}, but --model {spec} is the "
+                             f"{ours}; diagnose a run with its own vehicle's model (or, if the sidecar is wrong, "
+                             f"convert the log again with --vehicle)")
+
+
 def run(args) -> int:
     inputs = [*args.runs, *args.holdout, *spec_files(args.model), *spec_files(args.mapping)]
-    check_distinct_outputs({"--json": args.json, "--out-model": args.out_model})
-    check_outputs([args.json], inputs, force=args.force, option="--json", create_folders=False)
-    if args.out_model:
-        check_outputs([args.out_model], inputs, force=args.force, option="--out-model",
-                      create_folders=False)
+    files = {"--json": args.json, "--out-model": args.out_model}
+    # the outputs checked and claimed before the runs are read; the figures' names (one per run segment) once
+    # they are, still before any work
+    check_command(files, inputs, force=args.force, folders={"--plot": (args.plot, ()) if args.plot else None})
+    check_holdout_not_fit(args.runs, args.holdout)
     fit = [_load(p, args.mapping) for p in args.runs]
     hold = [_load(p, args.mapping) for p in args.holdout]
+    check_run_vehicles(args.model, fit + hold, [*args.runs, *args.holdout])
+    if hold:  # a holdout repeating fit data (shifted, re-written, a stretch of it): before any work
+        check_unseen(fit, args.runs, hold, args.holdout)
+    elif len(fit) > 1:  # without --holdout the last run is held out
+        check_unseen(fit[:-1], args.runs[:-1], fit[-1:], args.runs[-1:])
     if args.plot:
         fit_s, hold_s, _ = split_runs(fit, hold or None)
-        check_output_dir(args.plot, inputs, force=args.force, option="--plot")
         plots = plot_paths(args.plot, [run_label(r) for r in fit_s], [run_label(r) for r in hold_s])
-        check_distinct_outputs({"--json": args.json, "--out-model": args.out_model, "--plot": plots})
-        check_outputs(plots, inputs, force=args.force, option="--plot")
+        check_command(files, inputs, force=args.force,
+                      folders={"--plot": (args.plot, [Path(f).name for f in plots])})
     effects = [e.strip() for e in args.effects.split(",")] if args.effects else None
     check_window(args.window, ())
-    check_holdout_not_fit(args.runs, args.holdout)
     log = None if args.quiet else (lambda s: print(s, file=sys.stderr))
     report, ctx = diagnose(args.model, fit, hold or None, window_s=args.window, effects=effects, log=log,
                            model_label=args.model)

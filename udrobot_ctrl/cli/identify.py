@@ -26,7 +26,7 @@ import numpy as np
 from identification.identify import KINDS, RigOptions, coefficient_set_values, format_table, identify_files
 from identification.plots import plot_report
 from identification.sets import write_coefficient_set
-from udrobot_ctrl.io.files import atomic_write, check_output_dir, check_outputs, spec_files
+from udrobot_ctrl.io.files import atomic_write, check_command, spec_files
 from udrobot_ctrl.vehicle import coefficient_set, full_size_vehicle
 
 
@@ -103,12 +103,8 @@ def run(args) -> int:
     files = expand_files(args.files)
     inputs = [*files, *spec_files(args.base)]
     force = getattr(args, "force", False)
-    check_outputs([args.out], inputs, force=force, option="--out", create_folders=False)
-    check_outputs([args.json], inputs, force=force, option="--json", create_folders=False)
-    if args.json and args.out:
-        check_outputs([args.json, args.out], option="--json/--out", force=True)
-    if args.plot:
-        check_output_dir(args.plot, inputs, force=force, option="--plot")
+    check_command({"--out": args.out, "--json": args.json}, inputs, force=force,
+                  folders={"--plot": (args.plot, ()) if args.plot else None})
     opts = RigOptions(mass=args.mass, volume=args.volume, stiffness=args.stiffness, area=args.area,
                       length=args.length, gravity=args.gravity, rho=args.rho, scale=args.scale,
                       mechanical_damping=args.mechanical_damping, pivot_inertia=args.pivot_inertia,

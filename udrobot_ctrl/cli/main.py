@@ -27,6 +27,7 @@ from pathlib import Path
 
 from udrobot_ctrl import __version__
 from udrobot_ctrl.parallel import stop_workers
+from udrobot_files.locks import release_claims
 from udrobot_files.nesting import too_deep
 from udrobot_files.output import check_distinct_outputs, remove_temporaries, run_files
 
@@ -267,6 +268,7 @@ def main(argv=None) -> int:
             raise
         return _stopped(command, _STOPPING["signum"])  # what the stopped workers left (a broken pool): the signal
     finally:
+        release_claims()  # the outputs this command claimed (udrobot_files.output.check_command)
         for sig, handler in previous.items():
             signal.signal(sig, handler if handler is not None else signal.SIG_DFL)
         sys.unraisablehook = unraisable

@@ -7,7 +7,7 @@ import numpy as np
 
 from udrobot_ctrl.dynamics.plant import plant_parameters
 from udrobot_ctrl.dynamics.thrusters import actuated_dofs
-from udrobot_ctrl.io.files import check_outputs, spec_files
+from udrobot_ctrl.io.files import check_command, spec_files
 from udrobot_ctrl.vehicle import ALL_MODEL_NAMES, DOF_NAMES, load_model, write_model_file
 
 
@@ -52,8 +52,7 @@ def run_export(args) -> int:
     """Write ``args.model`` to ``args.out`` atomically; refuses to overwrite without ``--force``."""
     out = Path(args.out)
     inputs = spec_files(args.model)
-    check_outputs([out], inputs, force=getattr(args, "force", False), option="--out",
-                  create_folders=False)
+    check_command({"--out": out}, inputs, force=getattr(args, "force", False))
     vehicle = load_model(args.model)
     write_model_file(vehicle, out, protect=inputs)
     print(f"wrote {out} ({vehicle.name}, udrobot-model/1)")

@@ -29,14 +29,14 @@ import numpy as np
 from udrobot_ctrl.cli.main import CLIError
 from udrobot_ctrl.control.compare import CONTROL_DT, SIM_DT
 from udrobot_ctrl.control.missions import standard_mission
-from udrobot_ctrl.io.files import atomic_write, check_output_dir, spec_files
+from udrobot_ctrl.io.files import atomic_write, check_command, spec_files
 from udrobot_ctrl.sensitivity.evaluators import MissionEvaluator
 from udrobot_ctrl.sensitivity.executor import SweepExecutor, scheduler_warning
 from udrobot_ctrl.sensitivity.global_ import run_monte_carlo, run_morris, run_sobol
 from udrobot_ctrl.sensitivity.local import local_sensitivity
 from udrobot_ctrl.sensitivity.parameters import default_space, parse_range, read_study_file
 from udrobot_ctrl.sensitivity.plots import sobol_bars, tornado
-from udrobot_ctrl.sensitivity.results import StudyLock, StudyLockedError
+from udrobot_ctrl.sensitivity.results import DESIGN_FILE, STUDY_FILE, StudyLock, StudyLockedError
 
 METHODS = ("local", "sobol", "morris", "montecarlo")
 
@@ -164,7 +164,9 @@ def run(args) -> int:
         print(f"udrobot-ctrl sensitivity: warning: {note}", file=sys.stderr)
     inputs = spec_files(args.model, args.ranges)
     if args.out:
-        check_output_dir(args.out, inputs, force=True, option="--out", names=["space.json"])
+        # the study folder is locked by StudyLock below (the same lock primitive, OUT/.lock)
+        check_command(inputs=inputs, force=True, claim=False,
+                      folders={"--out": (args.out, ["space.json", STUDY_FILE, DESIGN_FILE, "results.csv"])})
     space = build_space(args)
     evaluator = build_evaluator(args, space)
     if not args.out:

@@ -49,7 +49,7 @@ from udrobot_ctrl.gap.replay import WindowedGap, windowed_gap
 from udrobot_ctrl.gap.screen import unrepresented_runs
 from udrobot_ctrl.gap.shrink import check_window
 from udrobot_ctrl.io import load_any, runlog
-from udrobot_ctrl.io.files import atomic_write, check_distinct_outputs, check_outputs, run_files, spec_files
+from udrobot_ctrl.io.files import atomic_write, check_command, run_files, spec_files
 from udrobot_ctrl.io.runlog import check_time_gaps
 from udrobot_ctrl.vehicle import ALL_MODEL_NAMES, STATE_NAMES, load_model
 
@@ -329,13 +329,8 @@ def run_windows(args) -> int:
     if args.out and len(srcs) > 1:
         raise ValueError(f"--out writes one simulated run; {len(srcs)} --input runs were given (use --json for the "
                          f"gap of several runs)")
-    check_distinct_outputs({"--json": args.json, "--out": run_files(args.out) if args.out else None})
-    if args.json:
-        check_outputs([args.json], inputs, force=getattr(args, "force", False), option="--json",
-                      create_folders=False)
-    if args.out:
-        check_outputs(run_files(args.out), inputs, force=getattr(args, "force", False), option="--out",
-                      create_folders=False)
+    check_command({"--json": args.json, "--out": run_files(args.out) if args.out else None}, inputs,
+                  force=getattr(args, "force", False))
     runs = [read_input_run(src, getattr(args, "mapping", None)) for src in srcs]
     g = windowed_gap(args.model, runs, args.windows, names=[src.name for src in srcs])
     print(_format_gap(g))
@@ -370,8 +365,7 @@ def _one_run_in_one_out(args, what: str, hint: str = "") -> tuple:
     if not src.exists():
         raise FileNotFoundError(f"input run {src} does not exist")
     inputs = [src, *spec_files(args.model, getattr(args, "mapping", None))]
-    check_outputs(run_files(out), inputs, force=getattr(args, "force", False), option="--out",
-                  create_folders=False)
+    check_command({"--out": run_files(out)}, inputs, force=getattr(args, "force", False))
     return src, out, inputs
 
 

@@ -26,7 +26,7 @@ from pathlib import Path
 import casadi as ca
 import numpy as np
 
-from udrobot_ctrl.caches import private_dir, unsafe_reason
+from udrobot_ctrl.caches import private_dir, unsafe_reason, user_cache_root
 from udrobot_ctrl.dynamics import integrators, plant_casadi
 from udrobot_ctrl.dynamics.plant import PlantParameters, require_nominal
 from udrobot_ctrl.dynamics.sim import as_parameters
@@ -36,9 +36,11 @@ COMPILE_TIMEOUT_S = 2.0
 
 
 def cache_dir() -> Path:
-    """Directory for compiled rollouts (``$UDROBOT_CACHE`` or ``~/.cache/udrobot_ctrl/fastsim``); see
-    :func:`private_cache_dir` for the checks made before anything in it is loaded."""
-    return Path(os.environ.get("UDROBOT_CACHE", Path.home() / ".cache" / "udrobot_ctrl" / "fastsim"))
+    """Directory for compiled rollouts (``$UDROBOT_CACHE``, else ``$XDG_CACHE_HOME/udrobot_ctrl/fastsim``,
+    :func:`udrobot_ctrl.caches.user_cache_root`); see :func:`private_cache_dir` for the checks made before
+    anything in it is loaded."""
+    chosen = os.environ.get("UDROBOT_CACHE")
+    return Path(chosen) if chosen else user_cache_root() / "fastsim"
 
 
 def private_cache_dir() -> Path:

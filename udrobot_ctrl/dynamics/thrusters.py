@@ -46,6 +46,7 @@ import tomllib
 
 from udrobot_ctrl.io.files import atomic_write
 from udrobot_ctrl.vehicle import DOF_NAMES
+from udrobot_files.inputs import read_regular
 
 PWM_NEUTRAL = 1500.0
 PWM_MIN = 1100.0
@@ -110,16 +111,41 @@ def curve_from_dict(doc: dict, source: str = "<dict>") -> ThrusterCurve:
     return curve
 
 
+#: the largest thruster-curve file read, bytes (assumed: the shipped models/t200.toml is 4.7 kB for four
+#: voltages; 256 kB holds a curve of hundreds of voltages and stops an endless or huge file at once)
+MAX_CURVE_BYTES = 256 * 1024
+
+
+def shipped_curve_name(name: str) -> bool:
+    """True if ``name`` is a plain name (no folder, no ``..``, no suffix) of a curve shipped in
+    ``udrobot_ctrl.models`` (``t200``)."""
+    if not isinstance(name, str) or not name or name.startswith(".") or any(c in name for c in "/\\\0"):
+        return False
+    return resources.files("udrobot_ctrl.models").joinpath(f"{name}.toml").is_file()
+
+
 @cache
 def load_curve(name_or_path: str = "t200") -> ThrusterCurve:
-    """The shipped curve ``t200`` (``models/t200.toml``) or a curve TOML path."""
+    """The shipped curve ``t200`` (``models/t200.toml``) or a curve TOML path.
+
+    A plain name is looked up only among the shipped curves (never joined into a path that leaves the package);
+    a path is read only if it is a regular file of at most :data:`MAX_CURVE_BYTES` (never a pipe or a device).
+    A model file's reference is resolved first (:func:`udrobot_ctrl.vehicle.resolve_curve`: inside the package
+    or next to the model only).
+    """
+    if shipped_curve_name(name_or_path):
+        res = resources.files("udrobot_ctrl.models").joinpath(f"{name_or_path}.toml")
+        return curve_from_dict(tomllib.loads(res.read_text()), f"models/{name_or_path}.toml")
     path = Path(name_or_path)
-    if path.suffix == ".toml" and path.exists():
-        return curve_from_dict(tomllib.loads(path.read_text()), str(path))
-    res = resources.files("udrobot_ctrl.models").joinpath(f"{name_or_path}.toml")
-    if not res.is_file():
-        raise FileNotFoundError(f"thruster curve {name_or_path!r} is not shipped in udrobot_ctrl.models")
-    return curve_from_dict(tomllib.loads(res.read_text()), f"models/{name_or_path}.toml")
+    if path.suffix.lower() != ".toml":
+        raise FileNotFoundError(f"thruster curve {name_or_path!r} is not shipped in udrobot_ctrl.models (shipped: "
+                                f"t200) and is not a .toml file")
+    data = read_regular(path, MAX_CURVE_BYTES, "thruster curve")
+    try:
+        doc = tomllib.loads(data.decode("utf-8"))
+    except (UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
+        raise ValueError(f"thruster curve {path}: not a UTF-8 TOML file ({exc})") from None
+    return curve_from_dict(doc, str(path))
 
 
 def _poly_mag(dpwm_abs, d0, coeffs):

@@ -7,6 +7,7 @@ by the same rules without importing ``udrobot_ctrl``.
 from udrobot_files.output import (
     OutputError,
     atomic_write,
+    check_command,
     check_distinct_outputs,
     check_output_dir,
     check_outputs,
@@ -20,6 +21,6 @@ from udrobot_files.output import (
     spec_files,
 )
 
-__all__ = ["OutputError", "atomic_write", "check_distinct_outputs", "check_output_dir", "check_outputs",
-           "current_umask", "is_private_dir", "not_regular", "open_atomic", "run_files", "save_figure", "sidecar",
-           "spec_files"]
+__all__ = ["OutputError", "atomic_write", "check_command", "check_distinct_outputs", "check_output_dir",
+           "check_outputs", "current_umask", "is_private_dir", "not_regular", "open_atomic", "run_files",
+           "save_figure", "sidecar", "spec_files"]

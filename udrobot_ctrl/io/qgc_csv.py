@@ -70,19 +70,20 @@ def read_qgc_csv(path, name: str = "telemetry") -> Stream:
     """
     path = Path(path)
     with open(path, newline="", encoding="utf-8-sig") as fh:
-        rows = list(csv.reader(fh))
-    if not rows or not rows[0] or rows[0][0].strip() != HEADER_FIRST:
+        reader = csv.reader(fh)
+        rows = [(reader.line_num, r) for r in reader]  # (file line, 1-based with the header, cells)
+    if not rows or not rows[0][1] or rows[0][1][0].strip() != HEADER_FIRST:
         raise LogImportError(f"{path}: not a QGroundControl telemetry CSV (first header cell must be "
                              f"'{HEADER_FIRST}')")
-    header = [h.strip() for h in rows[0]]
-    data = [r for r in rows[1:] if any(c.strip() for c in r)]
+    header = [h.strip() for h in rows[0][1]]
+    data = [(line, r) for line, r in rows[1:] if any(c.strip() for c in r)]  # blank lines skipped, not renumbered
     if not data:
         raise LogImportError(f"{path}: QGC telemetry CSV has a header but no data rows")
     times = []
     columns = {h: [] for h in header[1:]}
     bad = {h: [] for h in header[1:]}  # (row, cell) of the cells that are not numbers, per column
     longer, first_longer, most = 0, None, len(header)
-    for k, row in enumerate(data, start=2):
+    for k, row in data:
         if len(row) > len(header):  # QGC adds fact columns (a second battery) after writing its header
             longer += 1
             first_longer = first_longer or k

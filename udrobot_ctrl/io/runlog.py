@@ -32,6 +32,7 @@ from __future__ import annotations
 import csv
 import json
 import math
+import os
 import re
 import unicodedata
 from dataclasses import dataclass, field, replace
@@ -587,10 +588,33 @@ def _process_chunk(path, cols: _Columns, fields: list, lines: list, index: dict,
     cols.n += m
 
 
+#: the longest line read, characters (assumed: a udrobot-run/1 row holds one sample, about 25 characters per
+#: column, so the widest the writers produce, ~100 columns, is 2.5 kB; 1 Mi characters is 400 times that and
+#: keeps a damaged file's single endless line from being held in memory several times over)
+MAX_LINE_CHARS = 1 << 20
+
+
+def _bounded_lines(fh, path: Path):
+    """The lines of ``fh``, refusing one longer than :data:`MAX_LINE_CHARS` before it is read whole (memory stays
+    bounded by the limit, not by the line)."""
+    number = 0
+    while True:
+        line = fh.readline(MAX_LINE_CHARS + 1)
+        if not line:
+            return
+        number += 1
+        if len(line) > MAX_LINE_CHARS and not line.endswith("\n"):
+            raise RunLogError(f"{_where(path, line=number)}: a line longer than {MAX_LINE_CHARS} characters; a "
+                              f"udrobot-run/1 row is one sample (a few kB): a damaged file, or not a run log")
+        yield line
+
+
 def _rows(path: Path, fh, on_header):
-    """Yield (file line, fields) of the data rows; reject ragged rows and blank lines inside the data."""
-    reader = csv.reader(fh, strict=True)
+    """Yield (file line, fields) of the data rows; reject ragged rows, blank lines inside the data and lines
+    longer than :data:`MAX_LINE_CHARS`. File lines are 1-based, the header is line 1."""
+    reader = csv.reader(_bounded_lines(fh, path), strict=True)
     n_rows = 0
+    start = 1  # the file line where the record being parsed starts
     try:
         header = next(reader, None)
         if not header or (len(header) == 1 and header[0].strip() == ""):
@@ -599,7 +623,11 @@ def _rows(path: Path, fh, on_header):
         on_header(header)
         width = len(header)
         blank_at = None
-        for fields in reader:
+        while True:
+            start = reader.line_num + 1
+            fields = next(reader, None)
+            if fields is None:
+                break
             line = reader.line_num
             if not fields or (width > 1 and len(fields) == 1 and fields[0].strip() == ""):
                 blank_at = blank_at or line
@@ -612,9 +640,9 @@ def _rows(path: Path, fh, on_header):
                 raise RunLogError(f"{_where(path, row=n_rows, line=line)}: {len(fields)} cells, the header has "
                                   f"{width}")
             yield line, fields
-    except csv.Error as exc:
-        raise RunLogError(f"{_where(path, row=n_rows + 1, line=reader.line_num + 1)}: malformed CSV ({exc})") \
-            from exc
+    except csv.Error as exc:  # found at line_num, in the record that starts at ``start``
+        found = "" if reader.line_num <= start else f"; found at file line {reader.line_num}"
+        raise RunLogError(f"{_where(path, row=n_rows + 1, line=start)}: malformed CSV ({exc}{found})") from exc
 
 
 def _open_text(path: Path):
@@ -1006,8 +1034,13 @@ def write_run(path, t, channels, input_kind, inputs, metadata=None, extra=None, 
             stop = min(n, start + _WRITE_CHUNK)
             writer.writerows([_format(v[i]) if is_float else str(v[i]) for is_float, v in columns]
                              for i in range(start, stop))
-    if meta is not None:
-        files.atomic_write(side, json.dumps(meta, indent=2) + "\n", protect=protect)
+        # the CSV on disk (a full disk shows at latest in fsync) before its sidecar, and the sidecar in place
+        # before the CSV is renamed: a write that fails leaves neither a run without its sidecar nor a sidecar
+        # describing a run that is not there
+        fh.flush()
+        os.fsync(fh.fileno())
+        if meta is not None:
+            files.atomic_write(side, json.dumps(meta, indent=2) + "\n", protect=protect)
     return path
 
 

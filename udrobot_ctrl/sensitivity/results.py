@@ -25,19 +25,19 @@ only the writer, or a later run once that pid is gone, removes them.
 from __future__ import annotations
 
 import csv
-import fcntl
 import hashlib
 import io
 import json
 import os
 import re
-import secrets
 import stat
 from pathlib import Path
 
 import numpy as np
 
+from udrobot_files.locks import FileLock, LockedError
 from udrobot_files.nesting import loads_json
+from udrobot_files.output import atomic_write
 
 STUDY_FILE = "study.json"
 DESIGN_FILE = "design.npy"
@@ -56,70 +56,41 @@ class StudyLockedError(RuntimeError):
     """Another run holds the study folder's lock."""
 
 
-_HELD: dict = {}  # resolved study folder -> [fd, depth]: the locks this process holds (re-entrant)
-
-
-def _forget_locks_in_child() -> None:
-    """In a forked child (a pool worker): close the inherited lock descriptors, so the lock ends with its
-    holder's release and not with the last worker; the parent's descriptor keeps the lock."""
-    for fd, _ in _HELD.values():
-        os.close(fd)
-    _HELD.clear()
-
-
-os.register_at_fork(after_in_child=_forget_locks_in_child)
-
-
 class StudyLock:
-    """Exclusive, re-entrant (within one process) lock of a study folder: ``flock`` on ``OUT/.lock``.
+    """Exclusive, re-entrant (within one process) lock of a study folder: ``flock`` on ``OUT/.lock``
+    (:class:`udrobot_files.locks.FileLock`, the lock of every output).
 
     Held from :meth:`acquire` to the matching :meth:`release` (or the ``with`` block); the lock file holds the
-    holder's pid. The kernel drops the lock when the holder dies, so a killed run never blocks a resume.
+    holder's pid. The kernel drops the lock when the holder dies, so a killed run never blocks a resume. A lock
+    file that is a symbolic link (or not a regular file of this user) is refused, never followed.
 
     Raises
     ------
     StudyLockedError
-        From :meth:`acquire`, at once, if another process holds the lock.
+        From :meth:`acquire`, at once, if another process holds the lock or the lock file is unsafe.
     """
 
     def __init__(self, out):
         self.out = Path(out)
-        self._key = None
+        self._lock = None
 
     def acquire(self) -> StudyLock:
-        self.out.mkdir(parents=True, exist_ok=True)
-        key = str(self.out.resolve())
-        held = _HELD.get(key)
-        if held is not None:
-            held[1] += 1
-            self._key = key
-            return self
-        fd = os.open(self.out / LOCK_FILE, os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW | os.O_CLOEXEC, 0o666)
         try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            holder = os.pread(fd, 32, 0).decode(errors="replace").strip() or "unknown"
-            os.close(fd)
-            raise StudyLockedError(f"{self.out}: the study folder is in use by another sensitivity run (pid {holder}); "
-                                   "wait for it to finish or choose another --out") from None
-        os.ftruncate(fd, 0)
-        os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
-        _HELD[key] = [fd, 1]
-        self._key = key
+            self.out.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise StudyLockedError(f"{self.out}: the study folder cannot be created ({exc.strerror})") from None
+        lock = FileLock(self.out.resolve() / LOCK_FILE, f"the study folder {self.out}")
+        try:
+            lock.acquire()
+        except LockedError as exc:
+            raise StudyLockedError(f"{exc}".replace("choose another output", "choose another --out")) from None
+        self._lock = lock
         return self
 
     def release(self) -> None:
-        if self._key is None:
-            return
-        key, self._key = self._key, None
-        held = _HELD.get(key)
-        if held is None:
-            return
-        held[1] -= 1
-        if held[1] == 0:
-            del _HELD[key]
-            os.ftruncate(held[0], 0)
-            os.close(held[0])  # closing the descriptor drops the flock
+        if self._lock is not None:
+            self._lock.release()
+            self._lock = None
 
     def __enter__(self):
         return self.acquire()
@@ -171,23 +142,11 @@ def remove_stale_temp_files(folder) -> list:
 
 
 def atomic_write_bytes(path, data: bytes) -> None:
-    """Write ``data`` to ``path`` via a temporary file in the same directory and an atomic rename.
-
-    The temporary file ``.NAME.PID.TOKEN.tmp`` is created exclusively (``O_EXCL``, never through a symlink)
-    with the user's umask, and removed if the write fails.
-    """
-    path = Path(path)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.{secrets.token_hex(6)}.tmp")
-    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW | os.O_CLOEXEC, 0o666)
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except BaseException:  # cleanup, re-raised
-        tmp.unlink(missing_ok=True)
-        raise
+    """Write ``data`` to ``path`` via a temporary file in the same directory and an atomic rename: the one
+    writer of every output (:func:`udrobot_files.output.atomic_write`; temporary ``.NAME.PID.TOKEN.tmp``,
+    created exclusively, never through a symlink, removed if the write fails; a full disk or a size limit is an
+    :class:`~udrobot_files.output.OutputError` naming the file)."""
+    atomic_write(path, data)
 
 
 def atomic_write_text(path, text: str) -> None:

@@ -176,6 +176,32 @@ def test_sensitivity_stops_its_workers_and_exits(tmp_path, signum, group):
     assert not (out / "results.csv").exists()
 
 
+def _gone_within(pids, limit) -> list:
+    """The processes of ``pids`` still alive after ``limit`` s (polled)."""
+    t0 = time.monotonic()
+    left = [p for p in pids if _alive(p)]
+    while left and time.monotonic() - t0 < limit:
+        time.sleep(0.1)
+        left = [p for p in left if _alive(p)]
+    return left
+
+
+@pytest.mark.parametrize("command", ["sensitivity", "diagnose"])
+def test_sigkill_of_the_command_leaves_no_worker(runs, tmp_path, command):
+    """SIGKILL reaches no handler: the workers notice their parent's death themselves (parallel.die_with_parent)
+    and end within seconds instead of waiting for tasks for ever (issue 62)."""
+    if command == "sensitivity":
+        argv = ["sensitivity", "--model", "pendulum:chin", "--method", "sobol", "--samples", "64", "--workers", "2",
+                "--params", "surge.KQ,heave.KQ", "--out", str(tmp_path / "study"), "--quiet"]
+    else:
+        argv = ["diagnose", "--model", "pendulum:chin", "--json", str(tmp_path / "r.json"), str(runs[0]),
+                "--holdout", str(runs[1])]
+    status, took, err, seen, left = _interrupt(argv, signal.SIGKILL, tmp_path)
+    assert seen and status == -signal.SIGKILL, err
+    survivors = _gone_within(seen, stop_limit())
+    assert not survivors, f"workers left running after the SIGKILL of {command}: {survivors}"
+
+
 SLOW_WRITER = """
 import sys, time
 import udrobot_ctrl.cli.model as model_cli

@@ -116,3 +116,51 @@ def test_not_utf8_is_located_in_a_large_file(tmp_path):
     path.write_bytes(bytes(raw))
     with pytest.raises(RunLogError, match=rf"file line {line} \(byte offset {pos}\): not UTF-8"):
         read_run(path)
+
+
+HEADER = "t,z,thrust_1,thrust_2,thrust_3,thrust_4"
+
+
+def _with_row(path, k, text, n=8):
+    """A run of ``n`` data rows whose data row ``k`` (1-based) is ``text``."""
+    rows = [f"{0.1 * i:.1f},0,1,1,1,1" for i in range(n)]
+    rows[k - 1] = text
+    path.write_text("\n".join([HEADER, *rows]) + "\n")
+    return path
+
+
+@pytest.mark.parametrize("text, words", [
+    ('0.2,"0,1,1,1,1', ["data row 3 (file line 4)", "malformed CSV", "found at file line 9"]),  # the quote runs on
+    ('0.2,"0"x,1,1,1,1', ["data row 3 (file line 4)", "malformed CSV"]),
+    ("0.2,abc,1,1,1,1", ["data row 3 (file line 4)", "column 'z'"]),
+    ("0.2,0,1,1,1", ["data row 3 (file line 4)", "5 cells"]),
+])
+def test_error_lines_are_the_files_own_numbers(tmp_path, capsys, text, words):
+    """Issue 62: file lines are 1-based with the header as line 1 (a malformed record was named one line on)."""
+    path = _with_row(tmp_path / "r.csv", 3, text)
+    assert path.read_text().splitlines()[3] == text  # file line 4 (1-based) is data row 3
+    assert main(["simulate", "--model", "cfd:chin", "--input", str(path), "--out", str(tmp_path / "s.csv")]) == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and str(path) in err, err
+    for w in words:
+        assert w in err, err
+
+
+def test_an_endless_line_is_refused_without_holding_it(tmp_path, capsys):
+    """Issue 62: a single line of millions of cells (a damaged file) is refused at the line limit, read in pieces
+    of at most MAX_LINE_CHARS: the reader's memory does not grow with the line."""
+    path = tmp_path / "r.csv"
+    cells = 4 * runlog.MAX_LINE_CHARS // 2  # 4 Mi characters of "0,"
+    with open(path, "w") as fh:
+        fh.write(HEADER + "\n0.0,0,1,1,1,1\n")
+        fh.write("0," * cells + "\n")
+    with pytest.raises(RunLogError, match=r"file line 3: a line longer than 1048576 characters"):
+        read_run(path)
+    lines = []
+    with open(path) as fh:  # what the reader took from the file before refusing: the limit, not the line
+        with pytest.raises(RunLogError):
+            for line in runlog._bounded_lines(fh, path):
+                lines.append(line)
+        assert fh.tell() <= len(HEADER) + 16 + runlog.MAX_LINE_CHARS + 1
+    assert main(["simulate", "--model", "cfd:chin", "--input", str(path), "--out", str(tmp_path / "s.csv")]) == 2
+    assert "a line longer than" in capsys.readouterr().err

@@ -125,3 +125,24 @@ def test_tartan_pair_converts_to_tau_run(tmp_path):
     assert "BODY-frame" in notes
     # the wrench's own record times are kept: t_source steps through them
     assert np.all(np.diff(run.extra["t_source"]) >= 0)
+
+
+@pytest.mark.parametrize("channel, words", [("nosuch", ["--segment", "nosuch"]), ("phi", ["no launch", "'phi'"])])
+def test_a_segment_that_cannot_be_cut_is_refused_before_the_run_is_written(tmp_path, capsys, channel, words):
+    """Issue 62: --segment was checked only after --out had been written; now nothing is written."""
+    from pymavlink.dialects.v20 import ardupilotmega as mav2
+
+    t = np.arange(0.0, 20.0, 0.01)
+    theta = decay_signal(t, [3.0], 0.5)  # launches in theta only; phi stays at rest
+    mav = mav2.MAVLink(None, srcSystem=1, srcComponent=1)
+    log = tmp_path / "pendulum.tlog"
+    with open(log, "wb") as fh:
+        for ti, th in zip(t, theta):
+            msg = mav.attitude_encode(int(ti * 1000), 0.0, th, 0.0, 0.0, 0.0, 0.0)
+            fh.write(struct.pack(">Q", int(round((T0 + ti) * 1e6))) + msg.pack(mav))
+    capsys.readouterr()
+    assert main(["convert", str(log), "--mapping", "ardusub", "--out", str(tmp_path / "pend.csv"),
+                 "--allow-missing-inputs", "--segment", channel]) == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and all(w in err for w in words), err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["pendulum.tlog"]  # no run, no sidecar, no launch
