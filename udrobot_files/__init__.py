@@ -14,4 +14,6 @@ Modules
 output : output-file policy (never destroy an input, never overwrite without ``--force``, atomic writes)
 caches : private on-disk folders for compiled code (numba, casadi-generated C)
 nesting : JSON/TOML documents nested too deeply to parse: one error naming the file, never a RecursionError
+exports : lazy re-exports of a package's public names (its ``__all__``), imported when first used
+
 """

@@ -11,7 +11,7 @@ import numpy as np
 
 from udrobot_ctrl.autopilot.motors import MotorParameters, fit_directions, frame, throttle_bidirectional
 from udrobot_ctrl.autopilot.params import ESTIMATED_PARAMS, gain_log_params
-from udrobot_ctrl.io.runlog import Run, read_run
+from udrobot_ctrl.io.runlog import Run, RunLogError, read_run, resample, write_run
 
 from . import mavlink, qgc_csv, rosbag, rostopic_csv
 from .joystick import pilot_input
@@ -358,4 +358,6 @@ def load_any(path, mapping=None, require_inputs: bool = True, vehicle: str | Non
     return convert_log(path, mapping, require_inputs=require_inputs, vehicle=vehicle)
 
 
-__all__ = ["load_any", "convert_log", "read_streams", "log_kind", "load_mapping", "LogImportError", "MappingError"]
+# the public API (docs/api)
+__all__ = ["load_any", "convert_log", "read_streams", "log_kind", "load_mapping", "Mapping", "LogImportError",
+           "MappingError", "Run", "read_run", "write_run", "resample", "RunLogError", "cut_run"]
