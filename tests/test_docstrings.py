@@ -205,7 +205,8 @@ def test_checker_finds_missing_sections():
         """
         return 2 * x
 
-    assert _problems(bare, "bare") == ["Parameters missing ['x', 'dt']", "no Returns section (the function returns a value)"]
+    assert _problems(bare, "bare") == ["Parameters missing ['x', 'dt']",
+                                       "no Returns section (the function returns a value)"]
     assert _problems(unitless, "unitless") == ["Parameters entry 'x' (float) names no unit"]
     assert _problems(good, "good") == []
 
