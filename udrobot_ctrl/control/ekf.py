@@ -203,7 +203,8 @@ class EKFResult:
     dof : (n,) ndarray
         Dimension of the accepted measurement per step (a count).
     status : list of str
-        Per step: ``ok``, or why the consistency test flagged the filter (printed text).
+        Per step: ``ok``, or why the filter was flagged (an inconsistent NIS block) or re-initialised (printed
+        text).
     resets : int
         Times the filter was re-initialised after a divergence.
     rejected : (n, 13) ndarray of bool, optional

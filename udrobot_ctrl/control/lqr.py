@@ -92,7 +92,8 @@ class LQRDesign:
     K : (n, 10) ndarray
         State-feedback gain from the reduced state deviation (SI units) to the thrust deviations, N.
     closed_loop_poles : ndarray
-        Eigenvalues of the closed loop: 1/s (continuous) or on the unit circle's plane (discrete, ``dt`` set).
+        Eigenvalues of the closed loop: in 1/s for a continuous design, in the z-plane (dimensionless) for a
+        discrete one (``dt`` set).
     report : StructureReport
         Controllability of the reduced (A, B).
     dt : float, optional

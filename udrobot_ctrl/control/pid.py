@@ -88,8 +88,9 @@ class PIDTuning:
     ----------
     tau_c : dict
         Loop name (``surge``, ``depth``, ``roll``, ``heading``, ``pitch``) -> closed-loop time constant, s;
-        the names given override the defaults (surge 0.5, depth 0.15, roll 0.3, heading 0.1, pitch 0.3 s,
-        assumed: they settle the quick mission's steps within the thrust limits of the shipped models).
+        the names given override the defaults (surge 0.5, depth 0.15, roll 0.3, heading 0.1, pitch 0.3 s: depth
+        and heading settle the quick mission's steps in 3-4 s off the thrust limits of the shipped models; surge,
+        roll and pitch assumed).
     delay : float, optional
         Effective delay theta of the SIMC rules, s; None: half the control period.
     """
