@@ -7,7 +7,7 @@ Build (warnings are errors, as in CI)::
 
 The API pages are generated here, before reading, from each package's ``__all__`` (the public API that
 tests/test_docstrings.py checks), into ``docs/api/`` (not in git): one page per package, with an autosummary
-table whose entries get a page each.
+table whose entries get a page each; likewise ``docs/examples/`` from the scripts in ``examples/``.
 """
 from __future__ import annotations
 
@@ -96,6 +96,30 @@ def write_api_pages() -> None:
             page.write_text(text, encoding="utf-8")
 
 
+def examples_page() -> str:
+    """The reST of the examples page: each script of examples/ with its docstring and its source."""
+    out = ["Examples", "========", "",
+           "The scripts in ``examples/`` of the repository, each run as ``python examples/NAME.py`` from the "
+           "repository's root (``--help`` lists its options).", ""]
+    for script in sorted((ROOT / "examples").glob("*.py")):
+        doc = ast.get_docstring(ast.parse(script.read_text(encoding="utf-8"))) or ""
+        title = f"``{script.name}``"
+        out += [title, "-" * len(title), "", "::", ""]
+        out += [f"    {line}" if line else "" for line in doc.splitlines()] + [""]
+        out += [f".. literalinclude:: ../../examples/{script.name}", "   :language: python", ""]
+    return "\n".join(out) + "\n"
+
+
+def write_generated_pages() -> None:
+    """The API pages (:func:`write_api_pages`) and docs/examples/index.rst (not in git)."""
+    write_api_pages()
+    folder = DOCS / "examples"
+    folder.mkdir(exist_ok=True)
+    page, text = folder / "index.rst", examples_page()
+    if not page.exists() or page.read_text(encoding="utf-8") != text:
+        page.write_text(text, encoding="utf-8")
+
+
 def escape_bars(line: str) -> str:
     """``|u|`` (an absolute value in the docstrings' formulas) escaped outside ``literals``: not a substitution."""
     parts = line.split("``")
@@ -108,6 +132,6 @@ def plain_bars(app, what, name, obj, options, lines) -> None:
 
 
 def setup(app):
-    app.connect("config-inited", lambda app, config: write_api_pages())
+    app.connect("config-inited", lambda app, config: write_generated_pages())
     app.connect("autodoc-process-docstring", plain_bars, priority=400)
 
