@@ -34,9 +34,9 @@ html_static_path: list = []
 
 myst_heading_anchors = 4  # the guides link to sections by their GitHub-style anchors (runlog.md#segments)
 myst_enable_extensions = ["dollarmath"]
+templates_path = ["_templates"]  # autosummary/class.rst: a class page documents its public methods in full
 autosummary_generate = True
 autosummary_imported_members = True
-autodoc_default_options = {"members": False}
 numpydoc_show_class_members = False  # a class page shows its docstring (fields in Parameters/Attributes)
 numpydoc_class_members_toctree = False
 numpydoc_xref_param_type = False
