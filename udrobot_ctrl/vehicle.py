@@ -33,6 +33,9 @@ from udrobot_ctrl.dynamics.effects import check_against_model, parse_effects
 from udrobot_ctrl.io.files import atomic_write
 
 MODEL_FORMAT = "udrobot-model/1"
+# the public API (docs/api)
+__all__ = ["MODEL_NAMES", "ALL_MODEL_NAMES", "Thruster", "Vehicle", "load_model", "build_vehicle", "vehicle_model",
+           "model_from_dict", "to_model_dict", "read_model_file", "write_model_file"]
 #: UDrobot models: shipped coefficient set : damping form.
 MODEL_NAMES = ("cfd:chin", "cfd:morison", "free_decay:morison", "pendulum:chin", "pendulum:morison")
 #: Other vehicles shipped as descriptions with their own published coefficients (models/NAME.toml).
@@ -680,7 +683,7 @@ def _what_file_is(path: Path) -> str:
 
 
 def write_model_file(v: Vehicle, path, protect=()) -> None:
-    """Write ``udrobot-model/1`` JSON atomically (never over a file in ``protect``: :mod:`udrobot_ctrl.io.files`).
+    """Write ``udrobot-model/1`` JSON atomically (never over a file in ``protect``: :mod:`udrobot_files.output`).
 
     Parameters
     ----------
@@ -693,7 +696,3 @@ def write_model_file(v: Vehicle, path, protect=()) -> None:
     """
     atomic_write(path, json.dumps(to_model_dict(v), indent=2), protect=protect)
 
-
-# the public API (docs/api)
-__all__ = ["MODEL_NAMES", "ALL_MODEL_NAMES", "Thruster", "Vehicle", "load_model", "build_vehicle", "vehicle_model",
-           "model_from_dict", "to_model_dict", "read_model_file", "write_model_file"]

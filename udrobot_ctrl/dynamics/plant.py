@@ -227,13 +227,14 @@ def plant_parameters(vehicle: Vehicle) -> PlantParameters:
 
     Parameters
     ----------
-    vehicle : Vehicle
-        The model (:func:`~udrobot_ctrl.vehicle.load_model`).
+    vehicle : udrobot_ctrl.vehicle.Vehicle
+        The vehicle's data (SI units). Read by its fields only: the vehicle layer sits above this one
+        (docs/architecture.md), so it is not imported here.
 
     Returns
     -------
     PlantParameters
-        The arrays of the equations of motion.
+        The arrays the equations take, with the vehicle's effects folded in.
 
     Raises
     ------

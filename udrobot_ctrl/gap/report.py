@@ -2003,7 +2003,7 @@ def summary(report) -> str:
 
 
 def write_report(report, path, protect=()) -> None:
-    """Write the JSON report atomically (never over a file in ``protect``, see :mod:`udrobot_ctrl.io.files`).
+    """Write the JSON report atomically (never over a file in ``protect``, see :mod:`udrobot_files.output`).
 
     Parameters
     ----------
