@@ -695,4 +695,3 @@ def write_model_file(v: Vehicle, path, protect=()) -> None:
         Files that must not be overwritten (the command's inputs).
     """
     atomic_write(path, json.dumps(to_model_dict(v), indent=2), protect=protect)
-
