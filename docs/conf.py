@@ -17,6 +17,8 @@ import inspect
 import sys
 from pathlib import Path
 
+from pygments.lexers.special import TextLexer
+
 DOCS = Path(__file__).resolve().parent
 ROOT = DOCS.parent
 sys.path.insert(0, str(ROOT))
@@ -84,16 +86,33 @@ def package_page(package: str, skip: set) -> str:
     return "\n".join(out) + "\n"
 
 
+def api_index() -> str:
+    """The reST of the API reference's front page: what the public API is, the package pages, the layers."""
+    out = ["API reference", "=============", "",
+           "The public API is each package's ``__all__``: what ``from udrobot_ctrl.dynamics import simulate`` and "
+           "the like give. Every name has a numpydoc docstring with its parameters and results in SI units "
+           "(checked by ``tests/test_docstrings.py``); everything else is an implementation detail that may "
+           "change.", "", ".. toctree::", "   :maxdepth: 1", ""]
+    out += [f"   {package}" for package in PACKAGES]
+    if (DOCS / "architecture.md").exists():  # the package graph, generated from the imports by the layering test
+        out.append("   ../architecture")
+    return "\n".join(out) + "\n"
+
+
+def _write(page: Path, text: str) -> None:
+    """Write a generated page only when its text changed (so rebuilds stay quick)."""
+    if not page.exists() or page.read_text(encoding="utf-8") != text:
+        page.write_text(text, encoding="utf-8")
+
+
 def write_api_pages() -> None:
-    """Write docs/api/<package>.rst for every package (only when the text changed, so rebuilds stay quick)."""
+    """Write docs/api/index.rst and docs/api/<package>.rst for every package."""
     folder = DOCS / "api"
     folder.mkdir(exist_ok=True)
     skip = pending()
+    _write(folder / "index.rst", api_index())
     for package in PACKAGES:
-        page = folder / f"{package}.rst"
-        text = package_page(package, skip)
-        if not page.exists() or page.read_text(encoding="utf-8") != text:
-            page.write_text(text, encoding="utf-8")
+        _write(folder / f"{package}.rst", package_page(package, skip))
 
 
 def examples_page() -> str:
@@ -115,9 +134,7 @@ def write_generated_pages() -> None:
     write_api_pages()
     folder = DOCS / "examples"
     folder.mkdir(exist_ok=True)
-    page, text = folder / "index.rst", examples_page()
-    if not page.exists() or page.read_text(encoding="utf-8") != text:
-        page.write_text(text, encoding="utf-8")
+    _write(folder / "index.rst", examples_page())
 
 
 def escape_bars(line: str) -> str:
@@ -132,6 +149,8 @@ def plain_bars(app, what, name, obj, options, lines) -> None:
 
 
 def setup(app):
+    # Mermaid graphs (docs/architecture.md) are shown as their source: no highlighter, no extra dependency
+    app.add_lexer("mermaid", TextLexer)
     app.connect("config-inited", lambda app, config: write_generated_pages())
     app.connect("autodoc-process-docstring", plain_bars, priority=400)
 
