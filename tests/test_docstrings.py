@@ -6,7 +6,7 @@ parameters documents each of them, by its name, in ``Parameters`` (a class: its 
 or, for a dataclass, ``Attributes``), none left out and none that the signature does not have; a function whose
 body returns a value has ``Returns`` (one that yields, ``Yields``); every entry has a description. A quantity
 typed ``float`` names its unit (SI) or says it has none: the description holds a unit from :data:`UNITS` or one of
-the words of :data:`NO_UNIT`.
+the words of :data:`NO_UNIT`. A constant has a ``#:`` comment (what the API reference shows for it).
 """
 from __future__ import annotations
 
@@ -15,6 +15,7 @@ import dataclasses
 import importlib
 import inspect
 import os
+import pkgutil
 import re
 import subprocess
 import sys
@@ -25,6 +26,7 @@ from pathlib import Path
 
 import pytest
 from numpydoc.docscrape import NumpyDocString
+from sphinx.pycode import ModuleAnalyzer
 
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = ("udrobot_ctrl", "udrobot_ctrl.vehicle", "udrobot_ctrl.dynamics", "udrobot_ctrl.control",
@@ -158,12 +160,21 @@ def test_every_package_lists_its_public_api():
         assert not clash, f"{package} exports names of its own submodules: {clash}"
 
 
+def _has_doc_comment(module, name: str) -> bool:
+    """A ``#:`` comment documents ``name`` in ``module`` or in one of its package's modules (what autodoc shows)."""
+    names = [module.__name__]
+    if hasattr(module, "__path__"):
+        names += [f"{module.__name__}.{m.name}" for m in pkgutil.iter_modules(module.__path__)]
+    return any(("", name) in ModuleAnalyzer.for_module(n).find_attr_docs() for n in names)
+
+
 @pytest.mark.parametrize("qualified, name, module", PUBLIC, ids=[q for q, _, _ in PUBLIC])
 def test_public_name_has_numpydoc_docstring(qualified, name, module):
     obj = _resolve(qualified, name, module)
-    if not callable(obj) or isinstance(obj, types.ModuleType):
-        assert not isinstance(obj, types.ModuleType), f"{qualified} is a module, not a function or class"
-        return  # a constant: documented by the ``#:`` comment the API reference shows (checked by the docs build)
+    assert not isinstance(obj, types.ModuleType), f"{qualified} is a module, not a function or class"
+    if not callable(obj):  # a constant: its ``#:`` comment is its documentation (autodoc shows it)
+        assert _has_doc_comment(module, name), f"{qualified}: a constant without a '#:' comment saying what it is"
+        return
     problems = _problems(obj, qualified)
     assert not problems, f"{qualified}: " + "; ".join(problems)
 
@@ -211,6 +222,16 @@ def test_checker_finds_missing_sections():
                                        "no Returns section (the function returns a value)"]
     assert _problems(unitless, "unitless") == ["Parameters entry 'x' (float) names no unit"]
     assert _problems(good, "good") == []
+
+
+def test_checker_finds_undocumented_constants(tmp_path, monkeypatch):
+    """A constant counts as documented by a ``#:`` comment in its package or one of the package's modules."""
+    (tmp_path / "docpkg").mkdir()
+    (tmp_path / "docpkg" / "__init__.py").write_text("#: documented here\nA = 1\nB = 2\n")
+    (tmp_path / "docpkg" / "part.py").write_text("#: documented in a module\nC = 3\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    module = importlib.import_module("docpkg")
+    assert [_has_doc_comment(module, n) for n in ("A", "B", "C")] == [True, False, True]
 
 
 @pytest.mark.slow
