@@ -82,7 +82,7 @@ def package_page(package: str, skip: set) -> str:
             out += ["   :toctree: generated", "   :nosignatures:"]
         out += [""] + [f"   {n}" for n in rows[kind]] + [""]
         if kind == "data":
-            out += [f".. autodata:: {n}\n   :no-value:\n" for n in rows[kind]]
+            out += [f".. autodata:: {n}\n" for n in rows[kind]]
     return "\n".join(out) + "\n"
 
 

@@ -41,7 +41,7 @@ from .streams import LogImportError
 from .stretches import cut_run
 
 PILOT_STREAM = "PILOT_RC"  # the pilot-input stream built from MANUAL_CONTROL (udrobot_ctrl.io.joystick)
-#: the mapping a log of each source is converted with when none is given (convert_log, convert --mapping)
+#: the mapping a log of each source is converted with when none is given (:func:`convert_log`, ``convert --mapping``)
 DEFAULT_MAPPINGS = {"ros": "bluerov2-mavros", "mavlink": "ardusub", "qgc_csv": "qgc-csv"}
 
 
