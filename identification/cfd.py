@@ -29,7 +29,17 @@ MIN_POINTS = 3
 
 @dataclass
 class ForceTable:
-    """One axis of CFD results: inflow speed (m/s) and drag force (N), same sign convention."""
+    """One axis of CFD results: inflow speed (m/s) and drag force (N), same sign convention.
+
+    Attributes
+    ----------
+    path : str
+        Source file.
+    speed : ndarray
+        Inflow speed u, m/s.
+    force : ndarray
+        Drag force F, N (same sign as u).
+    """
 
     path: str
     speed: np.ndarray
@@ -37,7 +47,18 @@ class ForceTable:
 
 
 def read_force_table(path) -> ForceTable:
-    """Read a ``speed,force`` CSV (m/s, N); errors name the file, row and field."""
+    """Read a ``speed,force`` CSV (m/s, N); errors name the file, row and field.
+
+    Parameters
+    ----------
+    path : str or Path
+        The CSV.
+
+    Returns
+    -------
+    ForceTable
+        The speeds (m/s) and forces (N).
+    """
     cols, _ = _read(path)
     return ForceTable(str(path), cols["speed"], cols["force"])
 
@@ -180,7 +201,23 @@ def morison_regression(speed, force, area=None, rho=1000.0) -> dict:
 
 
 def identify_table(table: ForceTable, area=None, rho=1000.0) -> dict:
-    """Both regressions for one axis, in the layout of Table 5 (Chin at top level, Morison under ``morison``)."""
+    """Both regressions for one axis, in the layout of Table 5 (Chin at top level, Morison under ``morison``).
+
+    Parameters
+    ----------
+    table : ForceTable
+        The axis's CFD results.
+    area : float, optional
+        Projected area A, m^2 (for C_D).
+    rho : float
+        Water density, kg/m^3.
+
+    Returns
+    -------
+    dict
+        :func:`chin_regression`'s fields (``KL`` N s/m, ``KQ`` N s^2/m^2 ...) and ``morison``:
+        :func:`morison_regression`'s.
+    """
     chin = chin_regression(table.speed, table.force)
     mor = morison_regression(table.speed, table.force, area, rho)
     out = dict(chin)

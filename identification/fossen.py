@@ -51,6 +51,8 @@ class CoefficientSet:
         Morison drag coefficient per axis, dimensionless.
     forms : tuple of str
         Damping forms this set supports.
+    description : str
+        What the set is (method, source).
     provenance : dict
         ``{"surge.KL": "measured: ...", ...}``.
     """
@@ -136,13 +138,43 @@ def strip_theory_rotational(translational, dims, power=2):
 
 
 def added_mass_matrix(coeffs: CoefficientSet, form: str, dims) -> np.ndarray:
-    """6x6 added-mass matrix M_A (kg, kg m^2), diagonal, translational part identified."""
+    """6x6 added-mass matrix M_A (kg, kg m^2), diagonal, translational part identified.
+
+    Parameters
+    ----------
+    coeffs : CoefficientSet
+        The identified set.
+    form : {'chin', 'morison'}
+        Damping form (a set may give a different added mass per form).
+    dims : (3,) array_like
+        Body extents (L, W, H) along x, y, z, m, for the strip-theory rotational terms (estimated).
+
+    Returns
+    -------
+    (6, 6) ndarray
+        diag(surge, sway, heave in kg; roll, pitch, yaw in kg m^2), positive (Fossen sign convention).
+    """
     trans = coeffs.added_mass_for(form)
     return np.diag(np.concatenate([trans, strip_theory_rotational(trans, dims, 2)]))
 
 
 def damping_matrices(coeffs: CoefficientSet, form: str, dims, area, rho=1000.0):
     """Linear damping D_L and quadratic coefficient matrix Q (D_n(nu)_ij = Q_ij |nu_j|).
+
+    The rotational entries are strip-theory estimates from the translational ones (module notes).
+
+    Parameters
+    ----------
+    coeffs : CoefficientSet
+        The identified set.
+    form : {'chin', 'morison'}
+        ``chin``: K_L and K_Q; ``morison``: only 1/2 rho C_D A (no linear term).
+    dims : (3,) array_like
+        Body extents (L, W, H) along x, y, z, m.
+    area : (3,) array_like
+        Projected areas for C_D per axis, m^2.
+    rho : float
+        Water density, kg/m^3.
 
     Returns
     -------

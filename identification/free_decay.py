@@ -115,7 +115,20 @@ def drag_coefficient_paper_eq9(zeta_f, total_mass, rho, dimension, amplitude):
 
 
 def read_spring_launch(path, counts_per_mm=COUNTS_PER_MM) -> Launch:
-    """Read a ``t,y`` (m) or ``t,counts`` (encoder counts) launch CSV."""
+    """Read a ``t,y`` (m) or ``t,counts`` (encoder counts) launch CSV.
+
+    Parameters
+    ----------
+    path : str or Path
+        The CSV (t in s).
+    counts_per_mm : float
+        Encoder counts per mm of a ``counts`` file (default 2.45: the LX-EP-40 encoder, Cely 2019 sec. 3.2.1).
+
+    Returns
+    -------
+    Launch
+        Times (s), displacement (m) and the sensor's quantisation step (m).
+    """
     cols, label = decay.read_columns(path, {"y": ("t", "y"), "counts": ("t", "counts")})
     if label == "counts":
         x = cols["counts"] / counts_per_mm * 1e-3

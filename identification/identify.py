@@ -94,6 +94,8 @@ class RigOptions:
         ``reynolds`` or ``froude`` scaling of K_L.
     axis : str or None
         Axis for every file (else read from the file names).
+    provenance : dict
+        Where each resolved rig value came from (filled by :func:`resolve_rig`).
     """
 
     mass: float | None = None
@@ -217,12 +219,16 @@ def identify_files(kind: str, paths, opts: RigOptions | None = None, fit: str = 
     Parameters
     ----------
     kind : {'spring', 'pendulum', 'cfd'}
+        The test: spring free decay (Cely 2019 eqs. 6-9), pendulum free decay (eqs. 10-16) or CFD force-speed
+        tables (Table 5).
     paths : sequence of path-like
         Launch CSVs (``t,y``/``t,counts``; ``t,theta``) or CFD tables (``speed,force``).
     opts : RigOptions
         Rig, area and scaling options.
     fit : {'output-error', 'graphical'}
         Launch fit method (ignored for CFD).
+    keep_fits : bool
+        Keep each launch's fitted curve in the report (for the plots).
 
     Returns
     -------
@@ -365,6 +371,25 @@ def coefficient_set_values(report: dict, name: str, base: CoefficientSet | None 
     Axes or quantities the report lacks are taken from the coefficient set ``base`` (tagged ``assumed``;
     ``udrobot-ctrl identify --base`` loads it with :func:`udrobot_ctrl.vehicle.coefficient_set`); without
     ``base`` a missing added mass is an error (every set needs one).
+
+    Parameters
+    ----------
+    report : dict
+        The report of :func:`identify_files`.
+    name : str
+        The coefficient set's name.
+    base : CoefficientSet, optional
+        The set that supplies what the report lacks.
+
+    Returns
+    -------
+    per_axis : dict
+        Quantity (``added_mass``, ``KL``, ``KQ``, ``CD``) -> (3,) full-scale values for surge, sway, heave
+        (kg, N s/m, N s^2/m^2, dimensionless), or None for a quantity not identified on any axis.
+    provenance : dict
+        ``AXIS.QUANTITY`` -> how the value was obtained (``measured``/``cfd``/``assumed`` with the method).
+    description : str
+        The set's description line.
     """
     by_axis = report["by_axis"]
     values = {"added_mass": [None] * 3, "KL": [None] * 3, "KQ": [None] * 3, "CD": [None] * 3}
@@ -418,7 +443,18 @@ def _base_value(cs, key, i):
 
 
 def format_table(report: dict) -> str:
-    """Per-launch table and aggregate as text."""
+    """Per-launch table and aggregate as text.
+
+    Parameters
+    ----------
+    report : dict
+        The report of :func:`identify_files`.
+
+    Returns
+    -------
+    str
+        The printed table.
+    """
     kind = "cfd" if report["method"].startswith("CFD") else ("pendulum" if "pendulum" in report["method"]
                                                               else "spring")
     cols = {"spring": ("amplitude", "Re", "Cm", "CD", "KL"), "pendulum": ("amplitude_deg", "Re", "Cm", "KL", "KQ"),

@@ -118,7 +118,18 @@ _KEYS = ("added_mass_kg", "Cm", "KL", "KQ", "CD", "omega_n")
 
 
 def read_pendulum_launch(path) -> Launch:
-    """Read a ``t,theta`` (rad) launch CSV."""
+    """Read a ``t,theta`` (rad) launch CSV.
+
+    Parameters
+    ----------
+    path : str or Path
+        The CSV (t in s, theta in rad).
+
+    Returns
+    -------
+    Launch
+        Times (s), angle (rad) and its estimated quantisation step (rad).
+    """
     cols, _ = decay.read_columns(path, {"theta": ("t", "theta")})
     th = cols["theta"]
     if np.max(np.abs(th)) > math.pi:

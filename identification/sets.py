@@ -97,7 +97,18 @@ def coefficient_set_from_dict(doc: dict, source: str = "<dict>") -> CoefficientS
 
 
 def load_coefficient_set(path) -> CoefficientSet:
-    """Load a coefficient-set TOML file."""
+    """Load a coefficient-set TOML file.
+
+    Parameters
+    ----------
+    path : str or Path
+        The TOML (docs/formats/model.md, coefficient sets).
+
+    Returns
+    -------
+    CoefficientSet
+        The checked set (errors name the file and field).
+    """
     path = Path(path)
     try:
         with open(path, "rb") as fh:
@@ -133,7 +144,24 @@ def dump_coefficient_set(name: str, per_axis: dict, provenance: dict | None = No
 
 
 def write_coefficient_set(path, name, per_axis, provenance=None, description="", protect=()) -> None:
-    """Write a set file atomically (never leaves a half-written file, never over a ``protect`` file)."""
+    """Write a set file atomically (never leaves a half-written file, never over a ``protect`` file).
+
+    Parameters
+    ----------
+    path : str or Path
+        Destination TOML.
+    name : str
+        The set's name.
+    per_axis : dict
+        Quantity (``added_mass`` kg, ``KL`` N s/m, ``KQ`` N s^2/m^2, ``CD`` dimensionless) -> (3,) values for
+        surge, sway, heave; None entries skipped.
+    provenance : dict, optional
+        ``"axis.key"`` (or ``"key"`` for every axis) -> the provenance text.
+    description : str
+        What the set is.
+    protect : sequence of path, optional
+        Files that must not be overwritten (the command's inputs).
+    """
     path = Path(path)
     text = dump_coefficient_set(name, per_axis, provenance, description)
     coefficient_set_from_dict(tomllib.loads(text), str(path))  # validate before writing

@@ -131,6 +131,14 @@ def full_scale(aggregate: dict, scale, reference_mass, KL_law="reynolds") -> dic
         Model/full-size length ratio lambda.
     reference_mass : float
         Full-size reference displaced mass, kg (see :func:`reference_displaced_mass`).
+    KL_law : {'reynolds', 'froude'}
+        Similitude law of K_L.
+
+    Returns
+    -------
+    dict
+        Quantity -> ``{"value", "ci95", "law"}`` at full size (``added_mass_kg`` = C_m x the reference mass, kg;
+        K_L N s/m, K_Q N s^2/m^2, C_m and C_D dimensionless); quantities without a value are left out.
     """
     out = {}
     for q, entry in aggregate.items():

@@ -36,6 +36,9 @@ from udrobot_files.inputs import inside, read_regular
 from udrobot_files.nesting import unique_keys
 
 MODEL_FORMAT = "udrobot-model/1"
+# the public API (docs/api)
+__all__ = ["MODEL_NAMES", "ALL_MODEL_NAMES", "Thruster", "Vehicle", "load_model", "build_vehicle", "vehicle_model",
+           "model_from_dict", "to_model_dict", "read_model_file", "write_model_file"]
 #: UDrobot models: shipped coefficient set : damping form.
 MODEL_NAMES = ("cfd:chin", "cfd:morison", "free_decay:morison", "pendulum:chin", "pendulum:morison")
 #: Other vehicles shipped as descriptions with their own published coefficients (models/NAME.toml).
@@ -50,7 +53,19 @@ STATE_INDEX = {n: i for i, n in enumerate(STATE_NAMES)}
 
 @dataclass(frozen=True)
 class Thruster:
-    """One thruster: position (m, body frame), unit direction of positive thrust, limits (N)."""
+    """One thruster: position (m, body frame), unit direction of positive thrust, limits (N).
+
+    Attributes
+    ----------
+    name : str
+        Thruster name (``T1`` ...); thruster i is driven by the run's ``pwm_i``.
+    position : tuple of 3 float
+        Position of the thrust's point of application relative to CO in body axes, m.
+    direction : tuple of 3 float
+        Unit vector (dimensionless) of positive thrust in body axes.
+    max_forward_N, max_reverse_N : float
+        Largest thrust magnitude along ``direction`` and against it, N (both >= 0).
+    """
 
     name: str
     position: tuple
@@ -76,8 +91,20 @@ class Vehicle:
     added_mass, linear_damping, quadratic_damping : (6, 6) ndarray
         M_A (kg, kg m^2), D_L (N s/m, N m s) and Q with D_n(nu)_ij = Q_ij |nu_j|.
     thrusters : tuple of Thruster
+        The thrusters in the autopilot's motor order (thruster i is driven by ``pwm_i``).
+    name : str
+        Model name (``pendulum:chin``, ``bluerov2-heavy`` ...).
+    rho : float
+        Water density, kg/m^3 (default 1000).
+    g : float
+        Gravitational acceleration, m/s^2 (default 9.81).
     provenance : dict
         ``{"field[i][j]": "measured: ..."}`` for every non-default number.
+    extras : dict
+        Optional description data carried along: ``voltage`` (thruster supply, V), ``thruster_model`` (curve
+        name), ``ardusub_frame`` (the AP_Motors6DOF frame name).
+    effects : tuple of PlantEffect
+        Effects beyond the nominal model (:mod:`udrobot_ctrl.dynamics.effects`), empty for a nominal plant.
     """
 
     name: str
@@ -230,6 +257,11 @@ def build_vehicle(set_name: str, form: str, description: dict | None = None) -> 
         Damping form.
     description : dict, optional
         Parsed vehicle description; the shipped UDrobot by default.
+
+    Returns
+    -------
+    Vehicle
+        The nominal plant named ``SET:FORM``, with the provenance of every number.
     """
     d = description or vehicle_description()
     prov: dict = {}
@@ -362,7 +394,18 @@ def vehicle_from_description(d: dict, source: str = "<description>", model_file=
 
 
 def vehicle_model(name: str) -> Vehicle:
-    """A shipped vehicle with its own coefficients (:data:`VEHICLE_MODEL_NAMES`) or a path to such a TOML."""
+    """A shipped vehicle with its own coefficients (:data:`VEHICLE_MODEL_NAMES`) or a path to such a TOML.
+
+    Parameters
+    ----------
+    name : str
+        ``bluerov2``, ``bluerov2-heavy`` or the path of a ``udrobot-vehicle/1`` TOML with ``[hydrodynamics]``.
+
+    Returns
+    -------
+    Vehicle
+        The vehicle with its published coefficients (docs/vehicle_models.md).
+    """
     path = Path(name)
     if path.suffix.lower() == ".toml" and os.path.lexists(path):  # model_text refuses a pipe or a device
         try:
@@ -379,8 +422,22 @@ def vehicle_model(name: str) -> Vehicle:
 def load_model(model) -> Vehicle:
     """A :class:`Vehicle` from a model name (:data:`ALL_MODEL_NAMES`), a model file, or a Vehicle.
 
-    Accepted: ``SET:FORM`` (UDrobot, :data:`MODEL_NAMES`), a vehicle name (:data:`VEHICLE_MODEL_NAMES`), a
-    ``udrobot-model/1`` JSON path, or a ``udrobot-vehicle/1`` TOML path with its own ``[hydrodynamics]``.
+    Parameters
+    ----------
+    model : str, Path or Vehicle
+        ``SET:FORM`` (UDrobot, :data:`MODEL_NAMES`), a vehicle name (:data:`VEHICLE_MODEL_NAMES`), a
+        ``udrobot-model/1`` JSON path, a ``udrobot-vehicle/1`` TOML path with its own ``[hydrodynamics]``, or a
+        Vehicle (returned as it is).
+
+    Returns
+    -------
+    Vehicle
+        The model (SI units, body frame at CO).
+
+    Raises
+    ------
+    ValueError
+        For an unknown name or an invalid file (the message names the file and field).
     """
     if isinstance(model, Vehicle):
         return model
@@ -427,7 +484,18 @@ def apply_motor_directions(vehicle: Vehicle, directions) -> Vehicle:
 
 # ----------------------------------------------------------------------------- udrobot-model/1
 def to_model_dict(v: Vehicle) -> dict:
-    """The ``udrobot-model/1`` document of a vehicle."""
+    """The ``udrobot-model/1`` document of a vehicle (docs/formats/model.md).
+
+    Parameters
+    ----------
+    v : Vehicle
+        The vehicle.
+
+    Returns
+    -------
+    dict
+        JSON-ready document (lists, SI units); :func:`model_from_dict` reads it back.
+    """
     return {
         "format": MODEL_FORMAT,
         "name": v.name,
@@ -562,6 +630,18 @@ def model_from_dict(doc: dict, source: str = "<dict>", model_file=None) -> Vehic
     Rejected: booleans or strings as numbers, non-positive rho, g, mass, weight, negative buoyancy, inertia not
     symmetric positive definite, negative or energy-generating damping, thrusters with non-finite position,
     non-unit direction or negative limits. Unknown fields are ignored with a warning (and a "did you mean").
+
+    Parameters
+    ----------
+    doc : dict
+        The parsed document.
+    source : str
+        Where it came from (a file name), for the error messages.
+
+    Returns
+    -------
+    Vehicle
+        The checked model.
     """
     if not isinstance(doc, dict):
         raise ValueError(f"{source}: expected a JSON object (udrobot-model/1), got {type(doc).__name__}")
@@ -650,7 +730,18 @@ def model_text(path) -> str:
 
 
 def read_model_file(path) -> Vehicle:
-    """Read a ``udrobot-model/1`` JSON file."""
+    """Read a ``udrobot-model/1`` JSON file.
+
+    Parameters
+    ----------
+    path : str or Path
+        The JSON file.
+
+    Returns
+    -------
+    Vehicle
+        The checked model (:func:`model_from_dict`).
+    """
     path = Path(path)
     try:
         doc = json.loads(model_text(path), object_pairs_hook=unique_keys(path))  # a second 'effects' is refused
@@ -682,5 +773,15 @@ def _what_file_is(path: Path) -> str:
 
 
 def write_model_file(v: Vehicle, path, protect=()) -> None:
-    """Write ``udrobot-model/1`` JSON atomically (never over a file in ``protect``: :mod:`udrobot_ctrl.io.files`)."""
+    """Write ``udrobot-model/1`` JSON atomically (never over a file in ``protect``: :mod:`udrobot_files.output`).
+
+    Parameters
+    ----------
+    v : Vehicle
+        The model to write (:func:`to_model_dict`).
+    path : str or Path
+        Destination file.
+    protect : sequence of path, optional
+        Files that must not be overwritten (the command's inputs).
+    """
     atomic_write(path, json.dumps(to_model_dict(v), indent=2), protect=protect)

@@ -17,4 +17,6 @@ locks : exclusive locks between runs (output claims, sensitivity study folders)
 inputs : reading a file an input names (a regular file of bounded size, never a pipe or a device)
 caches : private on-disk folders for compiled code (numba, casadi-generated C)
 nesting : JSON/TOML documents nested too deeply to parse: one error naming the file, never a RecursionError
+exports : lazy re-exports of a package's public names (its ``__all__``), imported when first used
+
 """

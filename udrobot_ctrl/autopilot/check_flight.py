@@ -80,8 +80,22 @@ def _hold(design, loop: str) -> float:
 
 
 def check_flight(design, step_size: dict) -> list:
-    """The doublets (:class:`Manoeuvre`) of the designed loops of ``design`` (an :class:`.design.ArduSubDesign`),
-    with the stick mapping of its parameters (see the module notes); ``step_size`` is :data:`.design.STEP_SIZE`."""
+    """The doublets (:class:`Manoeuvre`) of the designed loops of ``design``, with the stick mapping of its
+    parameters (see the module notes).
+
+    Parameters
+    ----------
+    design : ArduSubDesign
+        The design (:func:`~udrobot_ctrl.autopilot.design.design_ardusub`); only its designed loops are flown.
+    step_size : dict
+        Loop -> step size: rad for ``roll``, ``pitch`` and ``yaw``, m for ``depth``
+        (:data:`udrobot_ctrl.autopilot.design.STEP_SIZE`).
+
+    Returns
+    -------
+    list of Manoeuvre
+        One doublet per designed loop: mode, amplitude (deg or m), stick deflection (%) and hold times (s).
+    """
     params: ArduSubParameters = design.parameters()
     pilot, depth = params.pilot, params.depth
     out = []

@@ -326,7 +326,9 @@ class ArduSubDesign:
     frame_name : str
         The ArduSub frame flown (``VECTORED_6DOF`` ..., or ``CUSTOM`` from the thruster layout).
     spec : Specification
+        The specification the gains were designed to.
     loops : dict of str to LoopDesign
+        Loop name (``roll``, ``pitch``, ``yaw``, ``depth``) -> its design (old and new gains, responses, margins).
     base_params : dict
         The parameters the design started from (ArduSub names and units: the log's, else empty = defaults).
     spread : tuple of str
@@ -856,6 +858,7 @@ def design_ardusub(model, log_params: dict | None = None, spec: Specification | 
     Returns
     -------
     ArduSubDesign
+        The tuned loops, their step responses and margins on the spread, and the specification failures.
     """
     spec = spec or Specification()
     firmware = firmware or ASSUMED_FIRMWARE
@@ -1008,8 +1011,28 @@ def loop_failures(loop: str, responses, margins, spec: Specification) -> list:
 def check_gains(model, params: ArduSubParameters, spec: Specification | None = None, spread_extra=(),
                 loops=("depth", "yaw"), log_params: dict | None = None) -> list:
     """The specification failures (:class:`SpecFailure`) of given gains (e.g. a hand-written ``.params``) flown
-    on the model's spread, with their margins: empty when they meet the specification. ``params.loop_rate_hz``
-    is the flights' tick; ``log_params`` the filters and rate of the margins."""
+    on the model's spread, with their margins: empty when they meet the specification.
+
+    Parameters
+    ----------
+    model : str, Path or Vehicle
+        The nominal model.
+    params : ArduSubParameters
+        The gains to check; ``params.loop_rate_hz`` is the step flights' tick (Hz).
+    spec : Specification, optional
+        The specification (the defaults of :class:`Specification`).
+    spread_extra : iterable
+        Further models of the spread (:func:`model_spread`).
+    loops : iterable of str
+        The loops to fly.
+    log_params : dict, optional
+        The vehicle's parameters (canonical names, ArduSub units): the filters and loop rate of the margins.
+
+    Returns
+    -------
+    list of SpecFailure
+        Each way the gains fail the specification, by loop and model; empty when they meet it.
+    """
     spec = spec or Specification()
     vehicles, _ = model_spread(model, spread_extra)
     fr, _ = vehicle_frame(vehicles[0])

@@ -259,6 +259,11 @@ def fly(model, run: Run, loop_rate_hz: float | None = None, t_final: float | Non
     t_final : float, optional
         Flight length, s (the run's duration by default).
 
+    Returns
+    -------
+    ClosedLoopFlight
+        Times (s), simulated states, emulated motor PWM (us), modes flown and the notes of what was assumed.
+
     Raises
     ------
     ValueError

@@ -153,6 +153,11 @@ def frame(name_or_config) -> Frame:
         ``2``, ``"VECTORED_6DOF"`` (any case, ``SUB_FRAME_`` prefix allowed), or ``"bluerov2"`` /
         ``"bluerov2-heavy"``.
 
+    Returns
+    -------
+    Frame
+        The frame's name, ``FRAME_CONFIG`` number and motor factors.
+
     Raises
     ------
     ValueError

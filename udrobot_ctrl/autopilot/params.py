@@ -512,6 +512,8 @@ class ArduSubParameters:
     Parameters
     ----------
     attitude, depth, pilot : AttitudeParameters, DepthParameters, PilotParameters
+        The attitude controller's (AC_AttitudeControl), the depth controller's (AC_PosControl z) and the
+        pilot-input shaping parameters, SI units.
     loop_rate_hz : float
         Main loop rate (Hz): the PID filters and integrators step at ``1 / loop_rate_hz``.
     assumed : tuple of str

@@ -45,6 +45,11 @@ def format_params(params: Mapping, vehicle_id: int = 1, component_id: int = 1, c
     comments : iterable of str
         Extra ``#`` lines after the header (provenance: which model, which command).
 
+    Returns
+    -------
+    str
+        The file's text: one tab-separated ``vehicle component name value type`` line per parameter.
+
     Raises
     ------
     ValueError
@@ -70,6 +75,18 @@ def parse_params(text: str, source: str = "<params>") -> dict:
     """Parameters (name -> float) of a QGroundControl ``.params`` text (also accepts Mission Planner's
     ``NAME,VALUE`` lines), checked as every logged parameter set is
     (:func:`~udrobot_ctrl.autopilot.params.check_log_params`).
+
+    Parameters
+    ----------
+    text : str
+        The file's content.
+    source : str
+        The file's name, for the messages.
+
+    Returns
+    -------
+    dict
+        Parameter name -> value (float, ArduSub units), in the file's order.
 
     Raises
     ------
@@ -111,7 +128,18 @@ def parse_params(text: str, source: str = "<params>") -> dict:
 
 
 def read_params(path) -> dict:
-    """Parameters (name -> float, ArduSub units) of a QGroundControl ``.params`` file (:func:`parse_params`)."""
+    """Parameters (name -> float, ArduSub units) of a QGroundControl ``.params`` file (:func:`parse_params`).
+
+    Parameters
+    ----------
+    path : str or Path
+        The ``.params`` file.
+
+    Returns
+    -------
+    dict
+        Parameter name -> value (float, ArduSub units).
+    """
     path = Path(path)
     return parse_params(path.read_text(), str(path))
 

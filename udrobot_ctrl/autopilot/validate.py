@@ -515,12 +515,18 @@ def check_log(log: DataflashLog | str | Path, gains: str = "default", frame_name
     Parameters
     ----------
     log : DataflashLog or path
+        An ArduSub dataflash log (``.BIN``) with PID, RATE and RCOU records, or its path.
     gains : {"default", "fitted"}
         ArduSub's defaults (parameters the log lacks) or gains fitted from the logged terms.
     frame_name : str
         ArduSub frame of the vehicle (the Seattle dive: 8 motors, VECTORED_6DOF).
     window : float
         Window (s) of the I/D fits and of the D-integral comparison.
+
+    Returns
+    -------
+    EmulationCheck
+        NRMSE (dimensionless) of each emulated PID term and of the motor outputs against the log.
     """
     log = log if isinstance(log, DataflashLog) else read_log(log)
     params = ArduSubParameters.from_log_params(log.params, loop_rate_hz=1.0 / log.loop_dt)
@@ -628,12 +634,20 @@ def replay_autopilot(log: DataflashLog | str | Path, params: ArduSubParameters |
     Parameters
     ----------
     log : DataflashLog or path
+        An ArduSub dataflash log (``.BIN``) with attitude, RATE and RCOU records, or its path.
     params : ArduSubParameters, optional
         Defaults to the log's parameters with ArduSub's defaults for the missing ones.
     start, end : float, optional
         Log time span (s); from the first MODE record to the end by default.
     directions : tuple of int, optional
         ``MOT_i_DIRECTION``; fitted from RCOU (:func:`~udrobot_ctrl.autopilot.motors.fit_directions`) if None.
+    frame_name : str
+        ArduSub frame of the vehicle (``VECTORED_6DOF``: the BlueROV2 Heavy).
+
+    Returns
+    -------
+    ReplayCheck
+        NRMSE (dimensionless) of the emulated mixer inputs and motor outputs against the log, and the RMSE in us.
     """
     log = log if isinstance(log, DataflashLog) else read_log(log)
     params = params if params is not None else ArduSubParameters.from_log_params(

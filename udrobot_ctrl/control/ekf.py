@@ -188,10 +188,32 @@ class ChannelFault:
 
 @dataclass
 class EKFResult:
-    """Filter output over a stream: estimates ``x`` (n, 12), standard deviations ``sigma`` (n, 12),
-    ``nis`` (n,) of the accepted measurements (NaN without any), their dimension ``dof`` (n,), ``status`` per
-    step, ``rejected`` (n, 13) samples refused by the innovation gate, ``channels`` the per-channel gating
-    statistics and ``channel_faults`` the channels re-initialised after continuous rejection."""
+    """Filter output over a stream (:meth:`UDrobotEKF.run`).
+
+    Attributes
+    ----------
+    t : (n,) ndarray
+        Sample times, s.
+    x : (n, 12) ndarray
+        State estimates, SI units (m, rad, m/s, rad/s).
+    sigma : (n, 12) ndarray
+        Their standard deviations, same units.
+    nis : (n,) ndarray
+        Normalised innovation squared of the accepted measurements (dimensionless; NaN without any).
+    dof : (n,) ndarray
+        Dimension of the accepted measurement per step (a count).
+    status : list of str
+        Per step: ``ok``, or why the filter was flagged (an inconsistent NIS block) or re-initialised (printed
+        text).
+    resets : int
+        Times the filter was re-initialised after a divergence.
+    rejected : (n, 13) ndarray of bool, optional
+        Samples refused by the innovation gate, per measurement channel.
+    channels : tuple of ChannelStats
+        The per-channel gating statistics.
+    channel_faults : tuple of ChannelFault
+        The channels re-initialised after continuous rejection.
+    """
 
     t: np.ndarray
     x: np.ndarray
@@ -241,6 +263,7 @@ class UDrobotEKF:
     x0 : (12,) array_like, optional
         Initial estimate (default at rest at the origin).
     P0 : (12,) sigmas or (12, 12) covariance, optional
+        Initial uncertainty (SI units of the states).
     noise : ProcessNoise or (12, 12) array, optional
         Process noise magnitudes or a ready Q.
     nis_window : int
@@ -248,7 +271,7 @@ class UDrobotEKF:
     alpha : float
         Two-sided significance of the consistency bounds (0.05 -> 95 %).
     divergence_alpha : float
-        Upper-tail significance of the divergence test (1e-3).
+        Upper-tail significance of the divergence test (a probability, 1e-3).
     divergence_blocks : int
         Consecutive blocks above the divergence bound before the filter re-initialises.
     compile : bool
@@ -650,12 +673,15 @@ def ekf_on_trajectory(filter_model, t, x, u, dt=0.05, sensors: SensorConfig | No
     Parameters
     ----------
     filter_model : Vehicle, PlantParameters or model name
+        The model the filter is designed on.
     t : (n,) array_like
         Times of the true states, s (uniform; resampled to the filter step ``dt``, which must be a multiple).
     x : (n, 12) array_like
         True states.
     u : (n - 1, k) array_like
         Thrusts applied over each interval (N), e.g. ``SimResult.u``.
+    dt : float
+        Filter step, s (a multiple of the trajectory's step).
     sensors, seed
         Sensor configuration and noise seed (:func:`udrobot_ctrl.control.sensors.measure`).
     **ekf_options

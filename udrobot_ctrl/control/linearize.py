@@ -82,7 +82,24 @@ def _level_state(surge: float, depth: float) -> np.ndarray:
 
 
 def trim_at(p: PlantParameters, surge: float = 0.0, depth: float = 1.0, name: str | None = None) -> OperatingPoint:
-    """Trim for level flight at ``surge`` m/s and ``depth`` m: thrusts u0 = T^+ (C nu + D nu + g) (N)."""
+    """Trim for level flight at ``surge`` m/s and ``depth`` m: thrusts u0 = T^+ (C nu + D nu + g) (N).
+
+    Parameters
+    ----------
+    p : PlantParameters
+        The plant.
+    surge : float
+        Surge speed u of the trim, m/s.
+    depth : float
+        Depth of the trim, m (positive down).
+    name : str, optional
+        Label of the point (default ``hover`` or ``surge 0.50 m/s``).
+
+    Returns
+    -------
+    OperatingPoint
+        The trim state, the least-squares thrusts (N) and the accelerations they leave (m/s^2, rad/s^2).
+    """
     x0 = _level_state(float(surge), float(depth))
     need = generalized_forces(x0, p)
     u0 = np.linalg.lstsq(p.T, need, rcond=None)[0]
@@ -92,7 +109,20 @@ def trim_at(p: PlantParameters, surge: float = 0.0, depth: float = 1.0, name: st
 
 
 def hover_trim(p: PlantParameters, depth: float = 1.0) -> OperatingPoint:
-    """Hover at ``depth`` m: the vertical thrusters hold the net buoyancy B - W (N)."""
+    """Hover at ``depth`` m: the vertical thrusters hold the net buoyancy B - W (N).
+
+    Parameters
+    ----------
+    p : PlantParameters
+        The plant.
+    depth : float
+        Depth, m (positive down).
+
+    Returns
+    -------
+    OperatingPoint
+        :func:`trim_at` with zero surge, named ``hover``.
+    """
     return trim_at(p, 0.0, depth, "hover")
 
 
@@ -197,7 +227,21 @@ def jacobians(p: PlantParameters, x0, u0):
 
 @dataclass
 class LinearModel:
-    """A linearisation: python-control ``sys`` (continuous), the trim and the raw matrices."""
+    """A linearisation: python-control ``sys`` (continuous), the trim and the raw matrices.
+
+    Attributes
+    ----------
+    point : OperatingPoint
+        The trim linearised about.
+    sys : control.StateSpace
+        Continuous-time model from the thrust deviations (N) to the chosen outputs (SI units).
+    A : (12, 12) ndarray
+        State Jacobian d f / d x, SI units / s.
+    B : (12, n) ndarray
+        Input Jacobian d f / d u per newton of thrust.
+    f0 : (12,) ndarray
+        State derivative at the trim (zero for an equilibrium), SI units / s.
+    """
 
     point: OperatingPoint
     sys: object
@@ -216,9 +260,18 @@ def linearize(p: PlantParameters, point: OperatingPoint, outputs=STATE_NAMES) ->
 
     Parameters
     ----------
+    p : PlantParameters
+        The plant.
+    point : OperatingPoint
+        The trim (:func:`trim_at`, :func:`hover_trim`).
     outputs : sequence of str
         State names measured (default all 12 states, C = I); e.g. ``("z", "phi", "theta", "psi", "u", "v",
         "w", "p", "q", "r")`` for pressure depth + IMU + DVL.
+
+    Returns
+    -------
+    LinearModel
+        A, B (from casadi's exact Jacobians), the python-control system and the trim.
     """
     import control
 

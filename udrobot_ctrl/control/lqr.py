@@ -83,7 +83,22 @@ class BrysonWeights:
 
 @dataclass
 class LQRDesign:
-    """One LQR design at an operating point: gain K (n x 10) on the reduced state, closed-loop poles."""
+    """One LQR design at an operating point: gain K (n x 10) on the reduced state, closed-loop poles.
+
+    Attributes
+    ----------
+    lin : LinearModel
+        The linearisation designed on.
+    K : (n, 10) ndarray
+        State-feedback gain from the reduced state deviation (SI units) to the thrust deviations, N.
+    closed_loop_poles : ndarray
+        Eigenvalues of the closed loop: in 1/s for a continuous design, in the z-plane (dimensionless) for a
+        discrete one (``dt`` set).
+    report : StructureReport
+        Controllability of the reduced (A, B).
+    dt : float, optional
+        Sampling period of a discrete design, s; None for a continuous one.
+    """
 
     lin: LinearModel
     K: np.ndarray
@@ -98,10 +113,23 @@ def design_lqr(p: PlantParameters, point, weights: BrysonWeights | None = None, 
 
     Parameters
     ----------
+    p : PlantParameters
+        The design model.
+    point : OperatingPoint
+        The trim to linearise about.
     weights : BrysonWeights, optional
         Bryson's-rule weights (default values when None); ``Q`` (10x10) / ``R`` (n x n) override them.
+    Q : (10, 10) array_like, optional
+        State weight on the reduced state (overrides ``weights``).
+    R : (n, n) array_like, optional
+        Thrust weight, 1/N^2 (overrides ``weights``).
     dt : float, optional
         Sampling period, s: discrete design with ``control.dlqr(method='scipy')`` on the ZOH model.
+
+    Returns
+    -------
+    LQRDesign
+        The gain, the closed-loop poles and the linearisation.
 
     Raises
     ------

@@ -152,6 +152,16 @@ def standard_mission(quick: bool = False) -> Mission:
     """The standard mission: depth step 0.5 -> 1.5 m, heading 0 -> 90 deg, surge 0.5 m/s transit and stop.
 
     ``quick=True`` is the same sequence compressed to 23 s (tests and the demo); the full one lasts 46 s.
+
+    Parameters
+    ----------
+    quick : bool
+        The 23 s version instead of the 46 s one.
+
+    Returns
+    -------
+    Mission
+        Initial references z 0.5 m, psi 0, u 0 and the four reference steps.
     """
     if quick:
         times, t_final, name = (0.5, 6.0, 11.0, 17.0), 23.0, "standard-quick"
@@ -291,6 +301,11 @@ def make_controller(kind: str, design_model, mission: Mission, control_dt: float
         Controller sampling period, s (PID integrator step, MPC interval).
     **opts
         Passed to the controller's constructor.
+
+    Returns
+    -------
+    ScheduledLQR, PIDController, LinearMPC or NonlinearMPC
+        The controller, ``controller(t, x) -> thrusts`` (N).
     """
     p = as_parameters(design_model)
     if kind == "lqr":
@@ -316,10 +331,19 @@ def run_mission(controller, plant_model, mission: Mission, dt: float = 0.01, con
         ``controller(t, x) -> thrusts`` (N), sampled every ``control_dt`` s and held.
     plant_model : str, Path, Vehicle or PlantParameters
         The simulated plant.
+    mission : Mission
+        The references, the initial state and the duration.
     dt : float
         RK4 integration step, s.
+    control_dt : float
+        Controller period, s (zero-order hold between calls).
     safe : bool
         Wrap the controller in :class:`SafeController` (the wrapper is available as ``result.controller``).
+
+    Returns
+    -------
+    SimResult
+        The flight (times s, states, thrusts N, wrenches, saturation), with the controller as ``.controller``.
 
     Raises
     ------

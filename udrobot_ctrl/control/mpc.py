@@ -759,8 +759,26 @@ class LinearMPC(_MPCBase):
 class NonlinearMPC(_MPCBase):
     """Nonlinear MPC by multiple shooting on the RK4-discretised casadi plant.
 
-    Parameters as :class:`LinearMPC`, plus
-
+    Parameters
+    ----------
+    vehicle : Vehicle or PlantParameters
+        Design model.
+    reference : callable or dict or (12,) array
+        ``reference(t)`` -> dict with ``z`` (m), ``psi`` (rad), ``u`` (m/s) (other states 0) or (12,) state.
+    dt : float
+        Prediction / control step, s (the controller should be called every ``dt``).
+    horizon : int
+        Number of prediction steps N.
+    Q, R : optional
+        State and thrust weights, as for :class:`LinearMPC`.
+    terminal_weight : float
+        Q_N = terminal_weight * Q.
+    state_bounds : dict, optional
+        Hard bounds on predicted states, e.g. ``{"z": (0.0, 10.0)}`` (m).
+    settings : OSQPSettings, optional
+        Of the OSQP solver.
+    compile : bool
+        Call the casadi functions through their gcc-compiled C code (cached; else casadi's VM).
     method : {'rti', 'ipopt'}
         ``rti``: real-time-iteration SQP (Gauss-Newton QP, its data by one compiled casadi function mapped over
         the horizon); ``ipopt``: full NLP with ipopt (reference).

@@ -82,7 +82,18 @@ SETPOINT_FILTER = 1.0
 
 @dataclass(frozen=True)
 class PIDTuning:
-    """Tuning targets: closed-loop time constants (s) per loop and the effective delay (s)."""
+    """Tuning targets: closed-loop time constants (s) per loop and the effective delay (s).
+
+    Attributes
+    ----------
+    tau_c : dict
+        Loop name (``surge``, ``depth``, ``roll``, ``heading``, ``pitch``) -> closed-loop time constant, s;
+        the names given override the defaults (surge 0.5, depth 0.15, roll 0.3, heading 0.1, pitch 0.3 s: depth
+        and heading settle the quick mission's steps in 3-4 s off the thrust limits of the shipped models; surge,
+        roll and pitch assumed).
+    delay : float, optional
+        Effective delay theta of the SIMC rules, s; None: half the control period.
+    """
 
     tau_c: dict = field(default_factory=_default_tau_c)
     delay: float | None = None  # None: control_dt / 2
@@ -161,7 +172,29 @@ def _pole_placement(a, b, k, tau_c):
 def design_loops(p: PlantParameters, tuning: PIDTuning | None = None, control_dt: float = 0.05,
                  surge_speed: float = 0.5, depth: float = 1.0) -> dict:
     """Tune the loops of the layout (:func:`loops_for`: four, or five with pitch) from the design model's
-    linearisation; returns name -> :class:`LoopDesign`."""
+    linearisation.
+
+    Surge, depth and heading by Skogestad's SIMC rules (first order or integrating plant), roll and pitch by
+    pole placement on their second-order model.
+
+    Parameters
+    ----------
+    p : PlantParameters
+        The design model.
+    tuning : PIDTuning, optional
+        Closed-loop time constants and delay (defaults when None).
+    control_dt : float
+        Controller period, s (the default delay is half of it).
+    surge_speed : float
+        Surge speed of the surge loop's trim, m/s.
+    depth : float
+        Depth of the trims, m.
+
+    Returns
+    -------
+    dict
+        Loop name -> :class:`LoopDesign` (plant model, method, parallel gains).
+    """
     tuning = tuning or PIDTuning()
     tau_c = _default_tau_c()
     tau_c.update(tuning.tau_c)
@@ -243,6 +276,11 @@ class PIDController:
     dt : float
         Sampling period, s (integrator step; the controller assumes it is called every ``dt``).
     anti_windup : {'back-calculation', 'conditional', 'none'}
+        How an integrator is kept from winding up while the thrusters saturate.
+    depth : float
+        Depth of the trims used as feed-forward, m.
+    setpoint_filter : float
+        Setpoint prefilter time constant in units of each loop's ``Kp / Ki`` (a ratio; 0 disables it).
     """
 
     def __init__(self, params: PlantParameters, loops: dict, reference, dt: float = 0.05,

@@ -245,7 +245,15 @@ CG_CB_OFFSET_OF_WEIGHT = 0.1  # |dBG_i| <= 0.1 W (a 10 cm shift of the centre of
 
 @dataclass(frozen=True)
 class PlantEffect:
-    """One effect of a model: a catalogue name and its parameters (SI units, names as in :data:`CATALOGUE`)."""
+    """One effect of a model: a catalogue name and its parameters (SI units, names as in :data:`CATALOGUE`).
+
+    Attributes
+    ----------
+    name : str
+        Catalogue name of the effect (docs/formats/model.md, "effects").
+    params : mapping of str to float
+        Its parameters by name, SI units (each parameter's unit is in the catalogue).
+    """
 
     name: str
     params: Mapping[str, float] = field(default_factory=dict)
@@ -277,6 +285,7 @@ def plant_effect(doc, where: str = "effects[0]") -> PlantEffect:
     Returns
     -------
     PlantEffect
+        The checked effect.
 
     Raises
     ------
@@ -387,7 +396,20 @@ def wall_parameters(walls, first: int = 1) -> dict:
 
 
 def parse_effects(docs, source: str = "<model>") -> tuple:
-    """The ``effects`` list of a model document as :class:`PlantEffect` objects (each name at most once)."""
+    """The ``effects`` list of a model document as :class:`PlantEffect` objects (each name at most once).
+
+    Parameters
+    ----------
+    docs : list of mapping or None
+        The document's ``effects`` entries (``{"name": ..., "params": {...}}``); None or empty for none.
+    source : str
+        The file, for the error messages.
+
+    Returns
+    -------
+    tuple of PlantEffect
+        The checked effects (:func:`plant_effect`), in the document's order.
+    """
     if docs is None:
         return ()
     if not isinstance(docs, (list, tuple)):

@@ -129,7 +129,18 @@ def kinematics(eta, nu):
 
 
 def thruster_matrix(thrusters):
-    """Thruster configuration matrix T (6 x n): tau = T f, columns [d_i ; r_i x d_i]."""
+    """Thruster configuration matrix T (6 x n): tau = T f, columns [d_i ; r_i x d_i].
+
+    Parameters
+    ----------
+    thrusters : sequence of Thruster
+        Positions (m, body frame, relative to CO) and directions (normalised here).
+
+    Returns
+    -------
+    (6, n) ndarray
+        Column i: the wrench X Y Z (N) K M N (N m) of 1 N from thruster i.
+    """
     cols = []
     for t in thrusters:
         d = np.asarray(t.direction, float)
@@ -147,7 +158,38 @@ def thrust_limits(thrusters):
 
 @dataclass(frozen=True)
 class PlantParameters:
-    """Precomputed numeric arrays of a vehicle for fast evaluation."""
+    """Precomputed numeric arrays of a vehicle for fast evaluation (:func:`plant_parameters` builds them).
+
+    Attributes
+    ----------
+    M, M_inv : (6, 6) ndarray
+        Mass matrix M = M_RB + M_A (kg, kg m, kg m^2) about CO and its inverse.
+    D_L : (6, 6) ndarray
+        Linear damping, N s/m and N m s/rad.
+    Q : (6, 6) ndarray
+        Quadratic damping coefficients: D_n(nu)_ij = Q_ij |nu_j|.
+    weight, buoyancy : float
+        W = m g and B = rho g V, N.
+    r_g, r_b : (3,) ndarray
+        Centres of gravity and buoyancy relative to CO, m.
+    T : (6, n) ndarray
+        Thruster configuration matrix (:func:`thruster_matrix`).
+    f_min, f_max : (n,) ndarray
+        Each thruster's thrust limits, N (f_min <= 0 <= f_max).
+    name : str
+        The model's name.
+    M_A : (6, 6) ndarray, optional
+        Added mass alone, kg and kg m^2.
+    effects : tuple of PlantEffect
+        The model's effects that act at run time (thrust, lag, force); see :mod:`udrobot_ctrl.dynamics.effects`.
+    supply_voltage : float
+        Thruster supply voltage for PWM -> thrust, V (the vehicle's own, or the T200 curve's default).
+    ardusub_frame : str, optional
+        The vehicle's ArduSub frame (its autopilot's mixer), None if it has none.
+    size_m : float, optional
+        The largest distance of a thruster from CO, m (bounds a centre of pressure or a tether attachment);
+        None if unknown.
+    """
 
     M: np.ndarray
     M_inv: np.ndarray
@@ -182,6 +224,17 @@ class PlantParameters:
 
 def plant_parameters(vehicle: Vehicle) -> PlantParameters:
     """Assemble M = M_RB + M_A and the other arrays; checks M is symmetric positive definite.
+
+    Parameters
+    ----------
+    vehicle : udrobot_ctrl.vehicle.Vehicle
+        The vehicle's data (SI units). Read by its fields only: the vehicle layer sits above this one
+        (docs/architecture.md), so it is not imported here.
+
+    Returns
+    -------
+    PlantParameters
+        The arrays the equations take, with the vehicle's effects folded in.
 
     Raises
     ------
@@ -289,6 +342,22 @@ def state_derivative(x, tau, p: PlantParameters):
     """x_dot = f(x, tau) for state (..., 12) and body wrench tau (..., 6) in N, N m.
 
     ``tau`` is the body wrench, not per-thruster thrusts: convert those with :func:`thrust_to_wrench`.
+    The equations of the module docstring: eta_dot = J(eta) nu (Fossen 2021, eq. 2.40) and
+    M nu_dot + C(nu) nu + D(nu) nu + g(eta) = tau plus the model's run-time effects.
+
+    Parameters
+    ----------
+    x : (..., 12) array_like
+        State x y z (m, NED) phi theta psi (rad) u v w (m/s, body) p q r (rad/s, body).
+    tau : (..., 6) array_like
+        Body wrench X Y Z (N) K M N (N m).
+    p : PlantParameters
+        The plant.
+
+    Returns
+    -------
+    (..., 12) ndarray
+        State derivative: m/s, rad/s, m/s^2 and rad/s^2.
 
     Raises
     ------
@@ -365,7 +434,22 @@ def delivered_wrench(x, f, p: PlantParameters):
 
 
 def thrust_to_wrench(f, p: PlantParameters, clip=True):
-    """Body wrench tau = T sat(f) (N, N m) from thrusts f (..., n) in N; clipped to each thruster's limits."""
+    """Body wrench tau = T sat(f) (N, N m) from thrusts f (..., n) in N; clipped to each thruster's limits.
+
+    Parameters
+    ----------
+    f : (..., n) array_like
+        Thrust of each thruster, N, in the model's thruster order.
+    p : PlantParameters
+        The plant (its ``T``, ``f_min``, ``f_max``).
+    clip : bool
+        Clip each thrust to [f_min, f_max] first (default True).
+
+    Returns
+    -------
+    (..., 6) ndarray
+        Body wrench X Y Z (N) K M N (N m).
+    """
     f = np.asarray(f, dtype=float)
     if clip:
         f = np.clip(f, p.f_min, p.f_max)

@@ -52,8 +52,21 @@ from udrobot_ctrl.vehicle import load_model
 
 @dataclass
 class SimResult:
-    """Simulated trajectory. ``t`` (n+1,), ``x`` (n+1, [N,] 12), ``u`` (n, [N,] k) commanded input,
-    ``tau`` (n, [N,] 6) applied wrench (after thruster saturation), ``saturated`` (n, [N,]) bool."""
+    """Simulated trajectory of :func:`simulate` (one vehicle, or N at once: the ``[N,]`` axis).
+
+    Attributes
+    ----------
+    t : (n+1,) ndarray
+        Times, s (every ``record_every``-th step).
+    x : (n+1, [N,] 12) ndarray
+        States x y z (m, NED) phi theta psi (rad) u v w (m/s, body) p q r (rad/s, body).
+    u : (n, [N,] k) ndarray
+        Commanded input: thrusts (N) for ``input_kind="thrust"``, the body wrench (N, N m) for ``"tau"``.
+    tau : (n, [N,] 6) ndarray
+        Applied body wrench X Y Z (N) K M N (N m), after thruster saturation.
+    saturated : (n, [N,]) ndarray of bool
+        True where a thrust was clipped to its thruster's limit.
+    """
 
     t: np.ndarray
     x: np.ndarray
@@ -305,7 +318,45 @@ def _input_width(p, input_kind):
 def simulate(model, x0, t_final, controller=None, inputs=None, dt=0.01, input_kind="thrust",
              method="rk4", control_dt=None, disturbance=None, record_every=1, on_divergence="raise",
              parallel=None) -> SimResult:
-    """Simulate the plant; see the module docstring. Times in s, states in SI units.
+    """Simulate the plant from ``x0`` for ``t_final`` seconds, open loop or under a controller.
+
+    Parameters
+    ----------
+    model : str, Path, Vehicle, PlantParameters or list
+        The plant (a name or file as for :func:`~udrobot_ctrl.vehicle.load_model`); a list of N models
+        simulates N vehicles with their own mass, damping and restoring parameters sharing one thruster layout.
+    x0 : (12,) or (N, 12) array_like
+        Initial state (x y z in m NED, phi theta psi in rad, u v w in m/s, p q r in rad/s); (N, 12) for N
+        vehicles at once.
+    t_final : float
+        Duration, s.
+    controller : callable, optional
+        ``controller(t, x) -> u`` (an LQR, PID or MPC object), sampled every ``control_dt`` and held.
+    inputs : array_like or callable, optional
+        Open-loop input instead of a controller: (n_steps, k) rows held per step, or ``inputs(t) -> u``;
+        zero if both are None.
+    dt : float
+        Integration step, s.
+    input_kind : {'thrust', 'tau'}
+        ``thrust``: u is the n thruster forces, N, clipped to each thruster's limits; ``tau``: u is the body
+        wrench, N and N m, unclipped.
+    method : {'rk4', 'rk4_numpy', 'solve_ivp'}
+        Compiled RK4 kernel, plain-numpy RK4 (same numbers) or scipy's RK45 (rtol 1e-9, the reference).
+    control_dt : float, optional
+        Controller period, s (default ``dt``).
+    disturbance : callable, optional
+        ``disturbance(t, x) -> (6,)`` external generalised force added to the wrench, N and N m.
+    record_every : int
+        Keep every k-th step only (bounds memory for long batches).
+    on_divergence : {'raise', 'freeze'}
+        On a non-finite state: raise, or (batches) set that vehicle to NaN from then on and carry on.
+    parallel : bool, optional
+        Threaded RK4 kernel over vehicles (default: for 16 or more).
+
+    Returns
+    -------
+    SimResult
+        Times, states, commanded inputs, applied wrenches and saturation flags.
 
     Raises
     ------

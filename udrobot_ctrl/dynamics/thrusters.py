@@ -69,9 +69,11 @@ class ThrusterCurve:
     fwd_coeffs, rev_coeffs : (m, deg) ndarray
         Coefficients c_1..c_deg of |T| (N) in x = (|pwm-1500| - d0)/100.
     fwd_exponent, rev_exponent : float
-        Power-law voltage exponents used outside ``voltages``.
+        Power-law voltage exponents (dimensionless) used outside ``voltages``.
     pwm_min, pwm_max : float
         ESC command range, us.
+    name : str
+        Curve name (``t200``).
     provenance : dict
         Source, fit and residual notes from the TOML.
     """
@@ -132,6 +134,16 @@ def load_curve(name_or_path: str = "t200") -> ThrusterCurve:
     a path is read only if it is a regular file of at most :data:`MAX_CURVE_BYTES` (never a pipe or a device).
     A model file's reference is resolved first (:func:`udrobot_ctrl.vehicle.resolve_curve`: inside the package
     or next to the model only).
+
+    Parameters
+    ----------
+    name_or_path : str or Path
+        ``t200`` or the path of a ``udrobot-thruster/1`` TOML.
+
+    Returns
+    -------
+    ThrusterCurve
+        The fitted PWM -> thrust curve.
     """
     if shipped_curve_name(name_or_path):
         res = resources.files("udrobot_ctrl.models").joinpath(f"{name_or_path}.toml")
@@ -185,6 +197,20 @@ def pwm_to_thrust(pwm, voltage=DEFAULT_VOLTAGE, curve: ThrusterCurve | None = No
 
     Commands outside [1100, 1900] us are clipped to the range; NaN commands give NaN.
     ``pwm`` and ``voltage`` broadcast.
+
+    Parameters
+    ----------
+    pwm : float or array_like
+        ESC command, us.
+    voltage : float or array_like
+        Supply voltage, V (default 12 V, Cely 2019 sec. 3.1).
+    curve : ThrusterCurve, optional
+        The thruster's curve (default the shipped T-200, :func:`load_curve`).
+
+    Returns
+    -------
+    float or ndarray
+        Thrust, N (positive forward), the broadcast shape of ``pwm`` and ``voltage``.
     """
     c = curve or load_curve()
     v = _check_voltage(voltage)
@@ -225,6 +251,22 @@ def thrust_to_pwm(thrust, voltage=DEFAULT_VOLTAGE, curve: ThrusterCurve | None =
     Monotone: zero thrust returns exactly 1500 us (inside the zero band); any non-zero thrust maps outside
     the band; thrust beyond the limits saturates at 1900 / 1100 us. NaN gives NaN. Solved by bisection on
     the monotone curve (``iterations`` halvings of a 400 us bracket, i.e. ~1e-12 us).
+
+    Parameters
+    ----------
+    thrust : float or array_like
+        Wanted thrust, N (positive forward).
+    voltage : float or array_like
+        Supply voltage, V (default 12 V).
+    curve : ThrusterCurve, optional
+        The thruster's curve (default the shipped T-200).
+    iterations : int
+        Bisection halvings.
+
+    Returns
+    -------
+    float or ndarray
+        ESC command, us, in [1100, 1900].
     """
     c = curve or load_curve()
     v = _check_voltage(voltage)
@@ -445,7 +487,7 @@ class ThrustAllocator:
     weights : (6,) array_like, optional
         Diagonal of W (per-DOF importance; forces in 1/N^2, moments in 1/(N m)^2).
     eps : float
-        Thrust regulariser (1/N^2), picks the minimum-effort solution among equals.
+        Thrust regulariser, 1/N^2 (a weight), picks the minimum-effort solution among equals.
     """
 
     def __init__(self, T, f_min, f_max, weights=None, eps: float = 1e-6):

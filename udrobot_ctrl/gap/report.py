@@ -1153,5 +1153,15 @@ def summary(report) -> str:
 
 
 def write_report(report, path, protect=()) -> None:
-    """Write the JSON report atomically (never over a file in ``protect``, see :mod:`udrobot_ctrl.io.files`)."""
+    """Write the JSON report atomically (never over a file in ``protect``, see :mod:`udrobot_files.output`).
+
+    Parameters
+    ----------
+    report : dict
+        The ``udrobot-diagnosis/1`` report of :func:`diagnose` (docs/formats/diagnosis.md).
+    path : str or Path
+        Destination JSON file.
+    protect : sequence of path, optional
+        Files that must not be overwritten (the command's inputs).
+    """
     atomic_write(path, json.dumps(report, indent=2) + "\n", protect=protect)

@@ -11,7 +11,7 @@ import numpy as np
 
 from udrobot_ctrl.autopilot.motors import MotorParameters, fit_directions, frame, throttle_bidirectional
 from udrobot_ctrl.autopilot.params import ESTIMATED_PARAMS, gain_log_params
-from udrobot_ctrl.io.runlog import Run, read_run
+from udrobot_ctrl.io.runlog import Run, RunLogError, read_run, resample, write_run
 
 from . import mavlink, qgc_csv, rosbag, rostopic_csv
 from .joystick import pilot_input
@@ -41,6 +41,7 @@ from .streams import LogImportError
 from .stretches import cut_run
 
 PILOT_STREAM = "PILOT_RC"  # the pilot-input stream built from MANUAL_CONTROL (udrobot_ctrl.io.joystick)
+#: the mapping a log of each source is converted with when none is given (:func:`convert_log`, ``convert --mapping``)
 DEFAULT_MAPPINGS = {"ros": "bluerov2-mavros", "mavlink": "ardusub", "qgc_csv": "qgc-csv"}
 
 
@@ -49,6 +50,16 @@ def log_kind(path) -> str:
 
     A ``.csv`` is a QGroundControl telemetry export when its header starts with ``Timestamp,`` (QGC's CSV
     telemetry logging), a ``rostopic echo -p`` export when it starts with ``%time``, else a ``udrobot-run/1`` run.
+
+    Parameters
+    ----------
+    path : str or Path
+        The file (or a ROS 2 bag folder).
+
+    Returns
+    -------
+    str
+        The kind of log: ``run``, ``rostopic_csv``, ``qgc_csv``, ``ros``, ``tlog`` or ``bin``.
     """
     path = Path(path)
     suffix = path.suffix.lower()
@@ -71,8 +82,18 @@ def log_kind(path) -> str:
 def read_streams(path, mapping: Mapping):
     """Decode the streams ``mapping`` needs from any supported log.
 
-    Returns a dict of streams, or for ``.tlog`` / ``.bin`` a :class:`~udrobot_ctrl.io.mavlink.DecodedLog`
-    (streams plus parameters, texts and damage counts).
+    Parameters
+    ----------
+    path : str or Path
+        The log (not a ``udrobot-run/1`` CSV: that is refused).
+    mapping : Mapping
+        The mapping (its ``source`` must match the log's kind).
+
+    Returns
+    -------
+    dict or DecodedLog
+        Stream name -> :class:`~udrobot_ctrl.io.streams.Stream`, or for ``.tlog`` / ``.bin`` a
+        :class:`~udrobot_ctrl.io.mavlink.DecodedLog` (streams plus parameters, texts and damage counts).
     """
     kind = log_kind(path)
     expected = {"ros": "ros", "tlog": "mavlink", "bin": "mavlink", "rostopic_csv": "rostopic_csv",
@@ -130,7 +151,20 @@ def log_input_files(path, mapping=None) -> list:
 
 def motor_evidence(mapping: Mapping, streams: dict) -> OutputEvidence | None:
     """:func:`~udrobot_ctrl.io.mavlink.classify_outputs` of the first ``[motors]`` source in the log with any
-    logged output (None without one)."""
+    logged output (None without one).
+
+    Parameters
+    ----------
+    mapping : Mapping
+        The mapping (its ``[motors]`` sources).
+    streams : dict
+        Stream name -> decoded stream of the log.
+
+    Returns
+    -------
+    OutputEvidence or None
+        Which servo outputs are active motors (from their PWM, us), or None when no source is logged.
+    """
     if not mapping.motors:
         return None
     servos = range(1, mapping.motors.max_servo + 1)
@@ -160,10 +194,22 @@ def convert_log(path, mapping=None, require_inputs: bool = True, vehicle: str | 
 
     Parameters
     ----------
+    path : str or Path
+        The log: ROS 1/2 bag, ``.tlog``, dataflash ``.bin``, ``rostopic echo -p`` CSV or QGC CSV export.
+    mapping : str, Path or Mapping, optional
+        A mapping file, a shipped mapping name or a Mapping; the default of the log's kind when None.
+    require_inputs : bool
+        Refuse a log whose mapped input columns (``pwm_i``, ``thrust_i`` or ``tau_*``) are missing; False writes
+        them as nan (``convert --allow-missing-inputs``).
     vehicle : str, optional
         Vehicle name (``bluerov2``, ``bluerov2-heavy``, or the mapping's default vehicle): overrides the log.
     cut : bool
         Apply the mapping's ``[cut]`` (False keeps every row).
+
+    Returns
+    -------
+    Run
+        The ``udrobot-run/1`` run (t in s from 0, SI channels; the notes and the sidecar's metadata).
     """
     kind = log_kind(path)
     if mapping is None:
@@ -350,12 +396,21 @@ def load_any(path, mapping=None, require_inputs: bool = True, vehicle: str | Non
         ``.tlog`` or ``.bin``.
     mapping : str, Path or Mapping, optional
         For logs; defaults per type as in :func:`convert_log`.
+    require_inputs : bool
+        Refuse a log without the mapped input columns, as in :func:`convert_log`.
     vehicle : str, optional
         Vehicle of a MAVLink / dataflash log, as in :func:`convert_log`.
+
+    Returns
+    -------
+    Run
+        The run read or converted.
     """
     if log_kind(path) == "run":
         return read_run(path)
     return convert_log(path, mapping, require_inputs=require_inputs, vehicle=vehicle)
 
 
-__all__ = ["load_any", "convert_log", "read_streams", "log_kind", "load_mapping", "LogImportError", "MappingError"]
+# the public API (docs/api); convert_log and load_any are exported by udrobot_ctrl
+__all__ = ["DEFAULT_MAPPINGS", "LogImportError", "Mapping", "MappingError", "Run", "RunLogError", "load_mapping",
+           "log_input_files", "log_kind", "motor_evidence", "read_run", "read_streams", "resample", "write_run"]

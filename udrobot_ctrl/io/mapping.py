@@ -228,7 +228,43 @@ class MotorSpec:
 
 @dataclass(frozen=True)
 class Mapping:
-    """A parsed mapping file (see module docstring)."""
+    """A parsed mapping file (see the module docstring and docs/mappings.md); :func:`load_mapping` builds it.
+
+    Attributes
+    ----------
+    name : str
+        The mapping's name (``ardusub`` ...).
+    source : {'mavlink', 'ros', 'rostopic_csv', 'qgc_csv'}
+        The kind of log it reads.
+    path : str
+        The file it was read from, for the messages.
+    rules : tuple of ChannelRule
+        The ``[[channels]]`` entries: which stream and fields give each run column.
+    rate_hz : float, optional
+        Rate of the output time base, Hz; None: the samples of ``time_base``.
+    time_base : str, optional
+        Stream whose span (and, without ``rate_hz``, samples) define t.
+    time : {'header', 'receive'}
+        ROS: stamp from the message header when present, else the bag's record time.
+    max_gap_s : float
+        Interpolation never bridges a gap longer than this, s (or ``gap_factor`` x the stream's median interval).
+    input_kind : str, optional
+        The run's input kind (``pwm`` ...).
+    metadata : dict
+        ``[metadata]``: written to the run's sidecar as it is.
+    description : str
+        What the mapping is for.
+    files : dict
+        ``[files]``: stream name -> file-name pattern with ``{suffix}`` (``rostopic echo -p`` CSV sets).
+    gap_factor : float
+        A gap longer than this multiple of a stream's median interval is not bridged (dimensionless).
+    select : dict
+        Column -> :class:`SelectSpec`: choose among a column's alternatives by evidence.
+    motors : MotorSpec, optional
+        ``[motors]``: every motor output in motor order.
+    cut : CutSpec, optional
+        ``[cut]``: the rows the plant cannot represent, cut out of the run.
+    """
 
     name: str
     source: str
@@ -278,7 +314,24 @@ def shipped_mappings() -> list:
 
 
 def load_mapping(name_or_path) -> Mapping:
-    """Load a mapping from a TOML path or a shipped name (``ardusub``, ``bluerov2-mavros``, ``tartan-auv``)."""
+    """Load a mapping from a TOML path or a shipped name (``ardusub``, ``bluerov2-mavros``, ``tartan-auv``).
+
+    Parameters
+    ----------
+    name_or_path : str, Path or Mapping
+        A shipped name (:func:`shipped_mappings`), a ``udrobot-mapping/1`` TOML path, or a Mapping (returned as
+        it is).
+
+    Returns
+    -------
+    Mapping
+        The parsed and checked mapping.
+
+    Raises
+    ------
+    MappingError
+        An unknown name or an invalid file (naming the file and the field).
+    """
     if isinstance(name_or_path, Mapping):
         return name_or_path
     text_path = Path(str(name_or_path))

@@ -677,6 +677,7 @@ def read_run(path, progress: bool | None = None) -> Run:
     Returns
     -------
     Run
+        Times (s), channels (SI), inputs, extra columns and the sidecar's metadata.
 
     Raises
     ------
@@ -954,6 +955,7 @@ def write_run(path, t, channels, input_kind, inputs, metadata=None, extra=None, 
     channels : dict of str -> (n,) array_like
         Measured channels among :data:`CHANNELS` (m, rad, m/s, rad/s, V); nan for not measured.
     input_kind : {'thrust', 'pwm', 'tau'}
+        What the inputs are: thrusts, ESC commands or a body wrench.
     inputs : (n, k) array_like
         Commanded inputs (N, µs or N/N m); k = 6 for 'tau'.
     metadata : dict, optional
@@ -1113,8 +1115,14 @@ def resample(run: Run, t_new) -> Run:
     Parameters
     ----------
     run : Run
+        The run to resample.
     t_new : (m,) array_like
         Strictly increasing finite times, s.
+
+    Returns
+    -------
+    Run
+        The run on ``t_new``, with the same columns and metadata.
     """
     t_new = np.asarray(t_new, dtype=float).reshape(-1)
     if t_new.size == 0 or not np.all(np.isfinite(t_new)) or np.any(np.diff(t_new) <= 0):

@@ -57,6 +57,7 @@ class GlobalResult:
     Attributes
     ----------
     method : {'sobol', 'morris'}
+        The study's method.
     names : list of str
         Parameter names.
     indices : dict
@@ -66,10 +67,15 @@ class GlobalResult:
     table : dict
         Tidy sweep table (one row per model run).
     n_runs : int
+        Model runs evaluated.
     wall_s : float
         Wall time of the sweep (s).
     failed : dict
         ``{metric: number of runs with a NaN}``; indices of such metrics are NaN.
+    conf_level : float
+        Confidence level of the bootstrap intervals (a probability, 0.95).
+    warnings : list of str
+        Why the indices may be uninformative (small base sample, wide intervals; :func:`sobol_warnings`).
     """
 
     method: str
@@ -254,15 +260,37 @@ def run_sobol(evaluator, space, N: int, executor=None, out=None, resume=False, s
     evaluator : callable
         See :mod:`udrobot_ctrl.sensitivity.executor`.
     space : ParameterSpace or SALib problem dict
+        The parameters and their ranges.
     N : int
         Base sample size (power of 2); the number of runs is ``N (d + 2)`` (``N (2 d + 2)`` with
         ``second_order``).
+    executor : SweepExecutor, concurrent.futures.Executor or distributed.Client, optional
+        Where the runs are evaluated (default: local processes on every CPU).
     out : path, optional
         Study directory for the incremental, resumable table (plus ``indices.csv``).
+    resume : bool
+        Keep the runs already in ``out`` (same study) and evaluate only the others.
+    seed : int
+        Seed of the Sobol sequence's scrambling and of the bootstrap.
+    second_order : bool
+        Also the second-order indices ``S2``.
+    conf_level : float
+        Confidence level of the bootstrap intervals (a probability).
+    num_resamples : int
+        Bootstrap resamples.
+    progress : bool
+        Show a progress bar.
+    chunk_size : int, optional
+        Samples per task (default :func:`~udrobot_ctrl.sensitivity.executor.default_chunk_size`).
     transform : {None, 'rank'}, optional
         ``rank``: indices of the ranks of each metric instead of its values. Variance-based indices of
         a heavy-tailed metric (a few runs that lose control dominate the variance) have huge CIs; the
         ranks keep the ordering information and give stable indices (of the rank-transformed output).
+
+    Returns
+    -------
+    GlobalResult
+        ``S1``, ``ST`` (and ``S2``) with their interval half-widths per metric (dimensionless), and the sweep.
     """
     from SALib.analyze import sobol as sobol_analyze
     from scipy.stats import rankdata
@@ -305,7 +333,40 @@ def run_sobol(evaluator, space, N: int, executor=None, out=None, resume=False, s
 def run_morris(evaluator, space, trajectories: int = 20, executor=None, out=None, resume=False, seed: int = 0,
                num_levels: int = 4, conf_level: float = 0.95, num_resamples: int = 200, progress: bool = True,
                chunk_size: int | None = None) -> GlobalResult:
-    """Morris elementary effects (mu, mu*, sigma) with a bootstrap interval on mu*; ``r (d + 1)`` runs."""
+    """Morris elementary effects (mu, mu*, sigma) with a bootstrap interval on mu*; ``r (d + 1)`` runs.
+
+    Parameters
+    ----------
+    evaluator : callable
+        See :mod:`udrobot_ctrl.sensitivity.executor`.
+    space : ParameterSpace or SALib problem dict
+        The parameters and their ranges.
+    trajectories : int
+        Number of Morris trajectories r.
+    executor : SweepExecutor, concurrent.futures.Executor or distributed.Client, optional
+        Where the runs are evaluated (default: local processes on every CPU).
+    out : path, optional
+        Study directory for the incremental, resumable table (plus ``indices.csv``).
+    resume : bool
+        Keep the runs already in ``out`` (same study) and evaluate only the others.
+    seed : int
+        Seed of the trajectories and of the bootstrap.
+    num_levels : int
+        Grid levels p of each parameter's range.
+    conf_level : float
+        Confidence level of the bootstrap interval on mu* (a probability).
+    num_resamples : int
+        Bootstrap resamples.
+    progress : bool
+        Show a progress bar.
+    chunk_size : int, optional
+        Samples per task.
+
+    Returns
+    -------
+    GlobalResult
+        ``mu``, ``mu_star``, ``mu_star_conf`` and ``sigma`` per metric (metric units), and the sweep.
+    """
     from SALib.analyze import morris as morris_analyze
     from SALib.sample import morris as morris_sample
 
@@ -368,7 +429,21 @@ class Ishigami:
 # ----------------------------------------------------------------------------- Monte Carlo
 @dataclass
 class MonteCarloResult:
-    """Uniform Monte Carlo over the ranges: the tidy table and per-metric percentiles."""
+    """Uniform Monte Carlo over the ranges: the tidy table and per-metric percentiles.
+
+    Attributes
+    ----------
+    names : list of str
+        Parameter names.
+    table : dict
+        Tidy sweep table (one row per model run).
+    summary : dict
+        ``{metric: {"mean", "std", "p5", "p50", "p95": value (metric unit), "failed": runs with a NaN}}``.
+    n_runs : int
+        Model runs evaluated.
+    wall_s : float
+        Wall time of the sweep, s.
+    """
 
     names: list
     table: dict
@@ -383,6 +458,32 @@ def run_monte_carlo(evaluator, space, n: int, executor=None, out=None, resume=Fa
     """``n`` independent uniform samples over the ranges of ``space`` through the executor.
 
     ``summary[metric]`` holds mean, std, p5, p50, p95 (NaN runs excluded; ``failed`` counts them).
+
+    Parameters
+    ----------
+    evaluator : callable
+        See :mod:`udrobot_ctrl.sensitivity.executor`.
+    space : ParameterSpace or SALib problem dict
+        The parameters and their ranges.
+    n : int
+        Number of samples (model runs).
+    executor : SweepExecutor, concurrent.futures.Executor or distributed.Client, optional
+        Where the runs are evaluated (default: local processes on every CPU).
+    out : path, optional
+        Study directory for the incremental, resumable table (plus ``summary.csv``).
+    resume : bool
+        Keep the runs already in ``out`` (same study) and evaluate only the others.
+    seed : int
+        Seed of the uniform samples.
+    progress : bool
+        Show a progress bar.
+    chunk_size : int, optional
+        Samples per task.
+
+    Returns
+    -------
+    MonteCarloResult
+        The sweep and each metric's mean, standard deviation and 5/50/95 % percentiles.
     """
     problem = _problem(space)
     if n < 1:

@@ -32,7 +32,9 @@ class LocalResult:
     Attributes
     ----------
     names : list of str
+        The parameters (``AXIS.QUANTITY``), in column order.
     nominal : (d,) ndarray
+        Their nominal values, each in its parameter's unit.
     step : (d,) ndarray
         The larger FD step h_j (unit of the parameter).
     base : dict
@@ -45,6 +47,11 @@ class LocalResult:
     low, high : dict
         ``{metric: (d,)}`` metric with parameter j at its range end, others nominal (OAT).
     bounds : (d, 2) ndarray
+        Each parameter's range [low, high], its unit.
+    n_runs : int
+        Samples evaluated (1 + 6 d).
+    wall_s : float
+        Wall time of the sweep, s.
     runs : dict
         The sweep's table of runs (``sample_id``, metrics, ``error``), one row per evaluated sample.
     """
@@ -131,8 +138,22 @@ def local_sensitivity(evaluator, space, rel_step: float = 1e-2, executor=None, o
         Parameters with ``nominal`` and ``bounds`` (or any object with ``names``, ``nominal``, ``bounds``).
     rel_step : float
         Relative FD step (default 1 %; the h/2 step is 0.5 %).
+    executor : SweepExecutor, concurrent.futures.Executor or distributed.Client, optional
+        Where the runs are evaluated (default: local processes on every CPU).
     out : path, optional
         Study directory (resumable); ``local.csv`` holds :meth:`LocalResult.table`.
+    resume : bool
+        Keep the runs already in ``out`` (same study) and evaluate only the others.
+    progress : bool
+        Show a progress bar.
+    chunk_size : int, optional
+        Samples per task (default :func:`~udrobot_ctrl.sensitivity.executor.default_chunk_size`).
+
+    Returns
+    -------
+    LocalResult
+        Richardson-extrapolated central derivatives (metric unit per parameter unit), their error estimates,
+        elasticities and the one-at-a-time values at the range ends.
     """
     names = list(space.names)
     p = np.asarray(space.nominal, float)

@@ -56,9 +56,10 @@ class Parameter:
     name : str
         ``AXIS.QUANTITY``, e.g. ``surge.CD``.
     nominal : float
-        Value in the nominal model (unit :attr:`unit`).
+        Value in the nominal model, in the quantity's SI unit (:attr:`unit`: kg for an added mass, N s/m for K_L,
+        N s^2/m^2 for K_Q; dimensionless for C_D and the scale factors).
     low, high : float
-        Range for global studies and tornado plots.
+        Range for global studies and tornado plots, in the unit of ``nominal`` (kg, N s/m, N s^2/m^2 or -).
     source : str
         How the range was obtained (provenance of the range, ``derived``/``assumed``/``user``).
     """
@@ -88,7 +89,17 @@ class Parameter:
 
 @dataclass(frozen=True)
 class ParameterSpace:
-    """An ordered set of :class:`Parameter` for one damping form, with the nominal vehicle it perturbs."""
+    """An ordered set of :class:`Parameter` for one damping form, with the nominal vehicle it perturbs.
+
+    Attributes
+    ----------
+    parameters : tuple of Parameter
+        The coefficients varied, in the order of a sample's columns.
+    form : {'chin', 'morison'}
+        The damping form of the coefficients.
+    vehicle : Vehicle
+        The nominal vehicle a sample perturbs (:func:`apply_sample`).
+    """
 
     parameters: tuple
     form: str
@@ -229,6 +240,11 @@ def default_space(model="cfd:morison", margin: float = DEFAULT_MARGIN, sets=SETS
         Range of the rotational scale factors (*assumed*).
     rotational : bool
         Include the rotational scale factors.
+
+    Returns
+    -------
+    ParameterSpace
+        The parameters with their nominal values, ranges and the provenance of each range.
     """
     if not 0 <= margin < 1:
         raise ValueError(f"margin must be in [0, 1), got {margin}")

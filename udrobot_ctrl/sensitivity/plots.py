@@ -16,6 +16,26 @@ def tornado(local_result, metric: str, top: int | None = 12, path=None, unit: st
 
     Bars are sorted by the size of the swing; the vertical line is the nominal metric. Parameters whose
     finite-difference derivative is flagged unreliable (non-smooth metric) are marked with ``*``.
+
+    Parameters
+    ----------
+    local_result : LocalResult
+        A local study (:func:`~udrobot_ctrl.sensitivity.local.local_sensitivity`).
+    metric : str
+        The metric plotted.
+    top : int, optional
+        Plot only the ``top`` largest swings (all when None).
+    path : str or Path, optional
+        Save the figure there (atomically).
+    unit : str
+        The metric's unit, for the axis label.
+    title : str, optional
+        Figure title (default: the metric and its nominal value).
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+        The figure.
     """
     r = local_result
     base = r.base[metric]
@@ -43,7 +63,28 @@ def tornado(local_result, metric: str, top: int | None = 12, path=None, unit: st
 
 
 def sobol_bars(global_result, metric: str, top: int | None = 12, path=None, title: str | None = None):
-    """Bar plot of first-order (S1) and total (ST) Sobol indices with their confidence intervals."""
+    """Bar plot of first-order (S1) and total (ST) Sobol indices with their confidence intervals.
+
+    A Morris result is drawn as mu* (with its interval) and sigma.
+
+    Parameters
+    ----------
+    global_result : GlobalResult
+        A Sobol or Morris study (:func:`~udrobot_ctrl.sensitivity.global_.run_sobol`, ``run_morris``).
+    metric : str
+        The metric plotted.
+    top : int, optional
+        Plot only the ``top`` most important parameters (all when None).
+    path : str or Path, optional
+        Save the figure there (atomically).
+    title : str, optional
+        Figure title.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+        The figure.
+    """
     r = global_result
     idx = r.indices[metric]
     if r.method == "morris":
