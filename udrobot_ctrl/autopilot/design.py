@@ -1043,8 +1043,8 @@ class StepMetrics:
 
     ``evaluator(X) -> {metric: (n,)}`` as :func:`udrobot_ctrl.sensitivity.local.local_sensitivity` takes it; the
     metrics are ``<loop>_settling_s``, ``<loop>_overshoot_pct``, ``<loop>_iae_s`` and ``<loop>_max_command`` of
-    each loop's step (:func:`step_flight`) with the gains ``params`` on the frame ``fr``. A chunk's flights (every
-    sample and loop) are spread over the cores (:func:`udrobot_ctrl.parallel.fork_map`; the same numbers).
+    each loop's step (:func:`step_flight`) with the gains ``params`` on the frame ``fr``. A chunk's samples (each
+    with its loops' flights) are spread over the cores (:func:`udrobot_ctrl.parallel.fork_map`; the same numbers).
     """
 
     def __init__(self, space: ParameterSpace, params: ArduSubParameters, fr: Frame, loops=("depth", "yaw"),
@@ -1068,15 +1068,17 @@ class StepMetrics:
             except ValueError as exc:
                 vehicles.append(None)
                 errors.append(str(exc))
-        # every (sample, loop) flight of the chunk over the cores (fork_map: the same numbers in any order)
-        items = [(i, lp) for i, vehicle in enumerate(vehicles) if vehicle is not None for lp in self.loops]
-        flights = fork_map(lambda item: step_flight(vehicles[item[0]], self.params, self.frame, item[1],
-                                                    spec=self.spec), items)
-        for (i, lp), r in zip(items, flights):
-            out[f"{lp}_settling_s"][i] = np.nan if r.settling_s is None else r.settling_s
-            out[f"{lp}_overshoot_pct"][i] = r.overshoot_pct
-            out[f"{lp}_iae_s"][i] = r.iae
-            out[f"{lp}_max_command"][i] = r.max_command
+        # the chunk's samples over the cores, each sample's loops in one worker (what its flights build for its
+        # model is built once); fork_map: the same numbers in any order
+        items = [i for i, vehicle in enumerate(vehicles) if vehicle is not None]
+        flights = fork_map(lambda i: [step_flight(vehicles[i], self.params, self.frame, lp, spec=self.spec)
+                                      for lp in self.loops], items)
+        for i, sample in zip(items, flights):
+            for lp, r in zip(self.loops, sample):
+                out[f"{lp}_settling_s"][i] = np.nan if r.settling_s is None else r.settling_s
+                out[f"{lp}_overshoot_pct"][i] = r.overshoot_pct
+                out[f"{lp}_iae_s"][i] = r.iae
+                out[f"{lp}_max_command"][i] = r.max_command
         out["error"] = errors
         return out
 
