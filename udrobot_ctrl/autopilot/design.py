@@ -903,12 +903,22 @@ def design_ardusub(model, log_params: dict | None = None, spec: Specification | 
         got = fork_map(lambda item: step_flight(vehicles[item[1]], params, fr, item[0], spec=spec), items)
         return {lp: tuple(r for (lq, _), r in zip(items, got) if lq == lp) for lp in which}
 
-    spread_old = flights_of(start, LOOPS)
-    # each loop's search from the old gains of the others, the loops over the cores; the joint flights below
-    # check them together
-    tuned = dict(zip(designed, fork_map(
-        lambda lp: tune_loop(lp, nominal, fr, base, old, spec, loop_rate_hz, max_evaluations=max_evaluations,
-                             robustness=robust, firmware=firmware), designed)))
+    # the old gains' flights on the spread and each loop's search (from the old gains of the others; the joint
+    # flights below check them together) as one batch over the cores, the searches and the longest steps first:
+    # the flights fill the cores a search leaves idle (each task is independent: the same numbers in any order)
+    tasks = [("tune", lp, 0) for lp in designed] + [("fly", lp, k) for lp in LOOPS for k in range(len(vehicles))]
+    tasks.sort(key=lambda task: (task[0] != "tune", -STEP_LENGTH[task[1]]))
+
+    def run(task):
+        kind, lp, k = task
+        if kind == "tune":
+            return tune_loop(lp, nominal, fr, base, old, spec, loop_rate_hz, max_evaluations=max_evaluations,
+                             robustness=robust, firmware=firmware)
+        return step_flight(vehicles[k], start, fr, lp, spec=spec)
+
+    done = dict(zip(tasks, fork_map(run, tasks)))
+    spread_old = {lp: tuple(done[("fly", lp, k)] for k in range(len(vehicles))) for lp in LOOPS}
+    tuned = {lp: done[("tune", lp, 0)] for lp in designed}
     designs = {}
     for loop in LOOPS:
         old_loop = {n: old[n] for n in LOOP_PARAMETERS[loop]}
@@ -1056,7 +1066,8 @@ class StepMetrics:
 
     ``evaluator(X) -> {metric: (n,)}`` as :func:`udrobot_ctrl.sensitivity.local.local_sensitivity` takes it; the
     metrics are ``<loop>_settling_s``, ``<loop>_overshoot_pct``, ``<loop>_iae_s`` and ``<loop>_max_command`` of
-    each loop's step (:func:`step_flight`) with the gains ``params`` on the frame ``fr``.
+    each loop's step (:func:`step_flight`) with the gains ``params`` on the frame ``fr``. A chunk's samples (each
+    with its loops' flights) are spread over the cores (:func:`udrobot_ctrl.parallel.fork_map`; the same numbers).
     """
 
     def __init__(self, space: ParameterSpace, params: ArduSubParameters, fr: Frame, loops=("depth", "yaw"),
@@ -1072,16 +1083,21 @@ class StepMetrics:
         X = np.asarray(X, float)
         out = {f"{lp}_{m}": np.full(len(X), np.nan) for lp in self.loops
                for m in ("settling_s", "overshoot_pct", "iae_s", "max_command")}
-        errors = []
-        for i, row in enumerate(X):
+        vehicles, errors = [], []
+        for row in X:
             try:
-                vehicle = apply_sample(self.space, row)
+                vehicles.append(apply_sample(self.space, row))
+                errors.append("")
             except ValueError as exc:
+                vehicles.append(None)
                 errors.append(str(exc))
-                continue
-            errors.append("")
-            for lp in self.loops:
-                r = step_flight(vehicle, self.params, self.frame, lp, spec=self.spec)
+        # the chunk's samples over the cores, each sample's loops in one worker (what its flights build for its
+        # model is built once); fork_map: the same numbers in any order
+        items = [i for i, vehicle in enumerate(vehicles) if vehicle is not None]
+        flights = fork_map(lambda i: [step_flight(vehicles[i], self.params, self.frame, lp, spec=self.spec)
+                                      for lp in self.loops], items)
+        for i, sample in zip(items, flights):
+            for lp, r in zip(self.loops, sample):
                 out[f"{lp}_settling_s"][i] = np.nan if r.settling_s is None else r.settling_s
                 out[f"{lp}_overshoot_pct"][i] = r.overshoot_pct
                 out[f"{lp}_iae_s"][i] = r.iae
@@ -1122,7 +1138,7 @@ def prediction_sensitivity(design: ArduSubDesign, model=None, loops=("depth", "y
     space = space.subset(names)
     fr, _ = vehicle_frame(vehicle)
     evaluator = StepMetrics(space, design.parameters(), fr, loops, design.spec)
-    executor = as_executor(workers=1)
+    executor = as_executor(workers=1)  # chunks in this process; each chunk's flights over the cores (StepMetrics)
     try:
         return local_sensitivity(evaluator, space, rel_step=rel_step, executor=executor, progress=False)
     finally:

@@ -557,11 +557,11 @@ def smooth_run(t, meas: dict, tau, p: PlantParameters, settings: SmootherSetting
     xs_f = np.empty((m, N_STATE))
     xs_p = np.empty((m, N_STATE))
     Ps_f = np.empty((m, ns, ns))
-    Ps_p = np.empty((m, ns, ns))
     Fs = np.empty((m, ns, ns))
     x = x0.copy()
-    Ps_p[0] = P
-    P_end = np.empty((ns, ns))  # the prediction past the last sample (not kept)
+    # the predicted covariance of the sample at hand only: the backward pass computes each again from Fs and Ps_f
+    # (kernels.predicted_covariance, the same numbers), so a run keeps two (m, ns, ns) arrays, not three
+    P_pred = P.copy()
     finite = np.isfinite(Z)
     measured = finite.any(axis=1)
     angle_rows = np.array(ANGLE_ROWS)
@@ -573,18 +573,18 @@ def smooth_run(t, meas: dict, tau, p: PlantParameters, settings: SmootherSetting
     for k, (tau_k, meas_k) in enumerate(zip(tau_c, measured.tolist())):
         if meas_k:
             hk, Hk = f_meas(x, tau_k)
-        if not kernels.update_sample(k, x, lo, hk, Hk, Z, finite, measured, rows, angle_rows, Rdiag, xs_p, xs_f, Ps_p,
-                                     Ps_f):
+        if not kernels.update_sample(k, x, lo, hk, Hk, Z, finite, measured, rows, angle_rows, Rdiag, xs_p, xs_f,
+                                     P_pred, Ps_f):
             # rounding left S indefinite: the general solver
             H, y, r_k = kernels.innovation(lo, hk, Hk, Z[k], finite[k], rows, angle_rows, Rdiag)
-            PHt = Ps_p[k] @ H.T
+            PHt = P_pred @ H.T
             K = spd_solve(H @ PHt + np.diag(r_k), PHt.T).T
             x[sl] += K @ y
-            Pn = Ps_p[k] - K @ PHt.T
+            Pn = P_pred - K @ PHt.T
             Ps_f[k] = 0.5 * (Pn + Pn.T)
             xs_f[k] = x
         xn, Fk = f_step(x, tau_k)
-        if not kernels.predict_sample(k, x, xn, Fk, lo, Fs, Ps_f, Q, Ps_p, P_end):
+        if not kernels.predict_sample(k, x, xn, Fk, lo, Fs, Ps_f, Q, P_pred):
             raise SmootherError(f"{label}: the smoother's forward pass diverged at t = {t[idx[k]]:.2f} s "
                                 f"(non-finite covariance or state)")
     xs_p = np.vstack([xs_p[1:], x])  # prediction of step k+1 from step k
@@ -592,9 +592,10 @@ def smooth_run(t, meas: dict, tau, p: PlantParameters, settings: SmootherSetting
     # backward RTS pass (compiled; a step whose predicted covariance the compiled Cholesky refuses is solved here by
     # spd_solve, as the forward pass's update)
     xs, Ps = xs_f, Ps_f  # smoothed in place: step k reads its filtered values before it writes them
-    k = kernels.rts_pass(xs, xs_f, xs_p, Ps, Ps_f, Ps_p, Fs, sl.start, m - 2)
+    k = kernels.rts_pass(xs, xs_f, xs_p, Ps, Ps_f, Q, Fs, sl.start, m - 2)
+    Pp = np.empty((ns, ns))
     while k >= 0:
-        Pp = Ps_p[k + 1]
+        kernels.predicted_covariance(k, Fs, Ps_f, Q, Pp)
         try:
             C = spd_solve(Pp, Fs[k] @ Ps_f[k]).T
         except np.linalg.LinAlgError as exc:
@@ -602,7 +603,7 @@ def smooth_run(t, meas: dict, tau, p: PlantParameters, settings: SmootherSetting
                                 f"pass") from exc
         xs[k, sl] = xs_f[k, sl] + C @ (xs[k + 1, sl] - xs_p[k, sl])
         Ps[k] = Ps_f[k] + C @ (Ps[k + 1] - Pp) @ C.T
-        k = kernels.rts_pass(xs, xs_f, xs_p, Ps, Ps_f, Ps_p, Fs, sl.start, k - 1)
+        k = kernels.rts_pass(xs, xs_f, xs_p, Ps, Ps_f, Q, Fs, sl.start, k - 1)
     var = np.einsum("kii->ki", Ps)
     if not (np.isfinite(xs).all() and np.isfinite(var).all()) or (var < -1e-9 * (1 + np.abs(var).max())).any():
         raise SmootherError(f"{label}: the smoother's backward pass produced a non-finite or negative covariance")

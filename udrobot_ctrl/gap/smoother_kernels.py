@@ -154,35 +154,47 @@ def forward_predict(x, x_next, Ffull, lo, F_out, P, Q, P_out) -> bool:
 
 
 @numba.njit(cache=True)
-def update_sample(k, x, lo, h, Hfull, Z, finite, measured, rows, angle_rows, rdiag, xs_p, xs_f, Ps_p, Ps_f) -> bool:
-    """The forward pass at sample ``k``, the prediction ``x`` in hand: ``xs_p[k] = x``, then, when the sample has a
-    logged channel (``measured[k]``), :func:`forward_update` with its row of ``Z`` and ``finite`` into ``Ps_f[k]``
-    (else ``Ps_f[k] = Ps_p[k]``), and ``xs_f[k] = x``; the per-sample views taken here, not in Python. False
-    (``xs_f[k]`` and ``Ps_f[k]`` not written) when the innovation covariance is not numerically positive definite."""
+def update_sample(k, x, lo, h, Hfull, Z, finite, measured, rows, angle_rows, rdiag, xs_p, xs_f, P_pred, Ps_f) -> bool:
+    """The forward pass at sample ``k``, the prediction ``x`` and its covariance ``P_pred`` in hand: ``xs_p[k] = x``,
+    then, when the sample has a logged channel (``measured[k]``), :func:`forward_update` with its row of ``Z`` and
+    ``finite`` into ``Ps_f[k]`` (else ``Ps_f[k] = P_pred``), and ``xs_f[k] = x``; the per-sample views taken here,
+    not in Python. False (``xs_f[k]`` and ``Ps_f[k]`` not written) when the innovation covariance is not
+    numerically positive definite."""
     xs_p[k] = x
     if measured[k]:
-        if not forward_update(x, lo, Ps_p[k], h, Hfull, Z[k], finite[k], rows, angle_rows, rdiag, Ps_f[k]):
+        if not forward_update(x, lo, P_pred, h, Hfull, Z[k], finite[k], rows, angle_rows, rdiag, Ps_f[k]):
             return False
     else:
-        Ps_f[k] = Ps_p[k]
+        Ps_f[k] = P_pred
     xs_f[k] = x
     return True
 
 
 @numba.njit(cache=True)
-def predict_sample(k, x, x_next, Ffull, lo, Fs, Ps_f, Q, Ps_p, P_end) -> bool:
-    """:func:`forward_predict` of sample ``k`` into ``Fs[k]`` and ``Ps_p[k + 1]`` (``P_end`` past the last
-    sample); the per-sample views taken here, not in Python."""
-    P_out = Ps_p[k + 1] if k + 1 < Ps_p.shape[0] else P_end
-    return forward_predict(x, x_next, Ffull, lo, Fs[k], Ps_f[k], Q, P_out)
+def predict_sample(k, x, x_next, Ffull, lo, Fs, Ps_f, Q, P_pred) -> bool:
+    """:func:`forward_predict` of sample ``k`` into ``Fs[k]`` and ``P_pred`` (the prediction of sample k + 1: one
+    buffer, not kept per sample; the backward pass computes it again, :func:`predicted_covariance`); the
+    per-sample views taken here, not in Python."""
+    return forward_predict(x, x_next, Ffull, lo, Fs[k], Ps_f[k], Q, P_pred)
 
 
 @numba.njit(cache=True)
-def rts_pass(xs, xs_f, xs_p, Ps, Ps_f, Ps_p, Fs, lo, k_start) -> int:
+def predicted_covariance(k, Fs, Ps_f, Q, P_out) -> bool:
+    """The forward pass's predicted covariance of sample k + 1, ``Fs[k] Ps_f[k] Fs[k]^T + Q``, into ``P_out``: the
+    same call on the same arrays as :func:`predict_sample`'s (:func:`predict_covariance`), so the same numbers, bit
+    for bit, while ``Ps_f[k]`` still holds the filtered covariance. False when it is not finite."""
+    return predict_covariance(Fs[k], Ps_f[k], Q, P_out)
+
+
+@numba.njit(cache=True)
+def rts_pass(xs, xs_f, xs_p, Ps, Ps_f, Q, Fs, lo, k_start) -> int:
     """Backward Rauch-Tung-Striebel pass from step ``k_start`` down to 0, in place on ``xs`` and ``Ps``.
 
     Step k: C = P_f[k] F[k]^T P_p[k+1]^-1, x[k] = x_f[k] + C (x[k+1] - x_p[k]), P[k] = P_f[k] + C (P[k+1] -
-    P_p[k+1]) C^T, on the filter's state components ``lo:`` (``xs_p[k]`` is the prediction of step k+1).
+    P_p[k+1]) C^T, on the filter's state components ``lo:`` (``xs_p[k]`` is the prediction of step k+1), with the
+    predicted covariance P_p[k+1] = F[k] P_f[k] F[k]^T + Q computed again (:func:`predicted_covariance`: the forward
+    pass's numbers; not kept per sample, a third of the pass's memory). ``Ps`` may be ``Ps_f`` (smoothed in place:
+    step k reads its filtered covariance before it writes the smoothed one).
 
     Returns
     -------
@@ -192,8 +204,9 @@ def rts_pass(xs, xs_f, xs_p, Ps, Ps_f, Ps_p, Fs, lo, k_start) -> int:
     """
     ns = Ps.shape[1]
     CT = np.empty((ns, ns))
+    Pp = np.empty((ns, ns))
     for k in range(k_start, -1, -1):
-        Pp = Ps_p[k + 1]
+        predicted_covariance(k, Fs, Ps_f, Q, Pp)
         if not cholesky_solve(Pp, Fs[k] @ Ps_f[k], CT):
             return k
         C = np.ascontiguousarray(CT.T)

@@ -14,6 +14,7 @@ from udrobot_ctrl.autopilot.design import (
     LoopDesign,
     SpecFailure,
     Specification,
+    StepMetrics,
     StepResponse,
     _Robustness,
     design_ardusub,
@@ -42,6 +43,8 @@ from udrobot_ctrl.autopilot.qgc_params import format_params, parse_params, read_
 from udrobot_ctrl.cli.design import _start_params
 from udrobot_ctrl.cli.main import main
 from udrobot_ctrl.dynamics.effects import parse_effects
+from udrobot_ctrl.parallel import JOBS_ENV
+from udrobot_ctrl.sensitivity.parameters import default_space
 from udrobot_ctrl.vehicle import load_model, write_model_file
 
 #: ArduCopter's ranges, which the design used before (the issue's runaway was measured against them)
@@ -386,3 +389,27 @@ def test_start_from_a_runs_sidecar(tmp_path):
     (tmp_path / "bare.json").write_text('{"format": "udrobot-run/1"}')
     with pytest.raises(ValueError, match="no autopilot_params"):
         _start_params(tmp_path / "bare.csv")
+
+
+def test_step_metrics_are_the_same_over_the_cores(monkeypatch):
+    """The sensitivity's flights spread over two workers (fork_map) give each sample and loop exactly the numbers
+    of the serial evaluation, in the samples' order; a sample outside its range is an error row, not a flight."""
+    v = load_model("bluerov2")
+    space = default_space(v).subset(["roll.added_mass_scale", "yaw.linear_damping_scale"])
+    lo, hi = np.asarray(space.bounds, float).T
+    nominal = np.asarray(space.nominal, float)
+    X = np.array([nominal, [hi[0], nominal[1]], [nominal[0], lo[1]], [-1.0, nominal[1]]])
+    ev = StepMetrics(space, ArduSubParameters.defaults(100.0), vehicle_frame(v)[0], loops=("roll", "yaw"))
+    got = {}
+    for jobs in ("1", "2"):
+        monkeypatch.setenv(JOBS_ENV, jobs)
+        got[jobs] = ev(X)
+    serial, spread = got["1"], got["2"]
+    assert serial["error"] == spread["error"] and serial["error"][:3] == ["", "", ""] and serial["error"][3]
+    for k, col in serial.items():
+        if k != "error":
+            np.testing.assert_array_equal(col, spread[k])
+            assert np.all(np.isfinite(col[:3])) or k.endswith("settling_s")
+            assert np.isnan(col[3])
+    # the samples differ physically: more roll added mass slows the roll step (a larger IAE)
+    assert spread["roll_iae_s"][1] > spread["roll_iae_s"][0]

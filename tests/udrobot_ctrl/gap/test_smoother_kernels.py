@@ -62,21 +62,46 @@ def test_rts_pass_matches_the_numpy_recursion_and_stops_at_an_indefinite_predict
     m, ns = 6, 4
     Fs = np.stack([np.eye(ns) + 0.1 * RNG.normal(size=(ns, ns)) for _ in range(m)])
     Ps_f = np.stack([_spd(ns) for _ in range(m)])
-    Ps_p = np.stack([_spd(ns) for _ in range(m)])
+    Q = 0.1 * _spd(ns)
     xs_f, xs_p = RNG.normal(size=(m, ns + 2)), RNG.normal(size=(m, ns + 2))
     xs, Ps = xs_f.copy(), Ps_f.copy()
-    assert rts_pass(xs, xs_f, xs_p, Ps, Ps_f, Ps_p, Fs, 2, m - 2) == -1
+    assert rts_pass(xs, xs_f, xs_p, Ps, Ps_f, Q, Fs, 2, m - 2) == -1
     ref_x, ref_P = xs_f.copy(), Ps_f.copy()
     for k in range(m - 2, -1, -1):
-        C = Ps_f[k] @ Fs[k].T @ np.linalg.inv(Ps_p[k + 1])
+        Pp = Fs[k] @ Ps_f[k] @ Fs[k].T + Q  # the forward pass's prediction of step k + 1
+        C = Ps_f[k] @ Fs[k].T @ np.linalg.inv(Pp)
         ref_x[k, 2:] = xs_f[k, 2:] + C @ (ref_x[k + 1, 2:] - xs_p[k, 2:])
-        ref_P[k] = Ps_f[k] + C @ (ref_P[k + 1] - Ps_p[k + 1]) @ C.T
+        ref_P[k] = Ps_f[k] + C @ (ref_P[k + 1] - Pp) @ C.T
     np.testing.assert_allclose(xs, ref_x, rtol=1e-9, atol=1e-12)
     np.testing.assert_allclose(Ps, ref_P, rtol=1e-9, atol=1e-10)
     assert np.array_equal(xs[:, :2], xs_f[:, :2])  # the components outside the filter are left alone
-    Ps_p[3] = -Ps_p[3]  # step 2 needs it: the pass hands that step back
+    # smoothed in place (Ps is Ps_f, as the smoother calls it): the same numbers
+    xs_in, Ps_in = xs_f.copy(), Ps_f.copy()
+    assert rts_pass(xs_in, xs_f, xs_p, Ps_in, Ps_in, Q, Fs, 2, m - 2) == -1
+    assert np.array_equal(xs_in, xs) and np.array_equal(Ps_in, Ps)
+    Ps_f[2] = -Ps_f[2]  # step 2's prediction is then indefinite: the pass hands that step back
     xs, Ps = xs_f.copy(), Ps_f.copy()
-    assert rts_pass(xs, xs_f, xs_p, Ps, Ps_f, Ps_p, Fs, 2, m - 2) == 2
+    assert rts_pass(xs, xs_f, xs_p, Ps, Ps_f, Q, Fs, 2, m - 2) == 2
+
+
+def test_the_backward_pass_prediction_is_the_forward_pass_one_bit_for_bit():
+    """The covariance the forward pass predicts (predict_sample, not kept) and the one the backward pass computes
+    again (predicted_covariance) are the same numbers: the smoothed run does not change by not keeping it."""
+    from udrobot_ctrl.gap.smoother_kernels import predict_sample, predicted_covariance
+
+    m, n_full, lo = 5, 21, 2
+    ns = n_full - lo
+    Fs, Ps_f = np.empty((m, ns, ns)), np.stack([_spd(ns) for _ in range(m)])
+    Q = np.diag(RNG.uniform(1e-6, 1e-3, ns))
+    for k in range(m):
+        x, x_next, Ffull = RNG.normal(size=n_full), RNG.normal(size=n_full), np.eye(n_full) + 0.05 * RNG.normal(
+            size=(n_full, n_full))
+        forward, again = np.empty((ns, ns)), np.empty((ns, ns))
+        assert predict_sample(k, x, x_next, Ffull, lo, Fs, Ps_f, Q, forward)
+        assert np.array_equal(x, x_next) and np.array_equal(Fs[k], Ffull[lo:, lo:])
+        assert predicted_covariance(k, Fs, Ps_f, Q, again)
+        assert np.array_equal(forward, again)
+        np.testing.assert_allclose(again, Fs[k] @ Ps_f[k] @ Fs[k].T + Q, rtol=1e-12)
 
 
 def test_forward_steps_are_the_numpy_innovation_update_and_prediction():
