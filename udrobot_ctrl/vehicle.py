@@ -29,6 +29,7 @@ from identification import fossen
 from identification.fossen import AXES
 from identification.sets import coefficient_set_from_dict, load_coefficient_set
 from identification.similitude import FullSizeVehicle
+from udrobot_ctrl.constants import DOF_NAMES
 from udrobot_ctrl.dynamics.effects import check_against_model, parse_effects
 from udrobot_ctrl.io.files import atomic_write
 
@@ -40,9 +41,6 @@ VEHICLE_MODEL_NAMES = ("bluerov2", "bluerov2-heavy")
 #: Every model name accepted by :func:`load_model` besides a file path.
 ALL_MODEL_NAMES = MODEL_NAMES + VEHICLE_MODEL_NAMES
 VEHICLE_FORMAT = "udrobot-vehicle/1"
-DOF_NAMES = ("X", "Y", "Z", "K", "M", "N")
-STATE_NAMES = ("x", "y", "z", "phi", "theta", "psi", "u", "v", "w", "p", "q", "r")
-STATE_INDEX = {n: i for i, n in enumerate(STATE_NAMES)}
 
 
 @dataclass(frozen=True)

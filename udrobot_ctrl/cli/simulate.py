@@ -32,6 +32,7 @@ import numpy as np
 from tqdm import tqdm
 
 from udrobot_ctrl.autopilot.fly import fly
+from udrobot_ctrl.constants import STATE_NAMES
 from udrobot_ctrl.dynamics import effects as fx
 from udrobot_ctrl.dynamics.domain import (
     DEFAULT_WINDOW_S,
@@ -51,7 +52,7 @@ from udrobot_ctrl.gap.shrink import check_window
 from udrobot_ctrl.io import load_any, runlog
 from udrobot_ctrl.io.files import atomic_write, check_distinct_outputs, check_outputs, run_files, spec_files
 from udrobot_ctrl.io.runlog import check_time_gaps
-from udrobot_ctrl.vehicle import ALL_MODEL_NAMES, STATE_NAMES, load_model
+from udrobot_ctrl.vehicle import ALL_MODEL_NAMES, load_model
 
 
 def register(subparsers):
