@@ -31,7 +31,7 @@ from identification.sets import coefficient_set_from_dict, load_coefficient_set
 from identification.similitude import FullSizeVehicle
 from udrobot_ctrl.constants import DOF_NAMES
 from udrobot_ctrl.dynamics.effects import check_against_model, parse_effects
-from udrobot_ctrl.io.files import atomic_write
+from udrobot_files.output import atomic_write
 
 MODEL_FORMAT = "udrobot-model/1"
 #: UDrobot models: shipped coefficient set : damping form.
@@ -590,5 +590,5 @@ def _what_file_is(path: Path) -> str:
 
 
 def write_model_file(v: Vehicle, path, protect=()) -> None:
-    """Write ``udrobot-model/1`` JSON atomically (never over a file in ``protect``: :mod:`udrobot_ctrl.io.files`)."""
+    """Write ``udrobot-model/1`` JSON atomically (never over a file in ``protect``: :mod:`udrobot_files.output`)."""
     atomic_write(path, json.dumps(to_model_dict(v), indent=2), protect=protect)

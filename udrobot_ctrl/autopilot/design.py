@@ -82,12 +82,12 @@ from udrobot_ctrl.dynamics.effects import parse_effects
 from udrobot_ctrl.dynamics.plant import plant_parameters, thrust_to_wrench
 from udrobot_ctrl.dynamics.sim import simulate
 from udrobot_ctrl.dynamics.thrusters import pwm_to_thrust
-from udrobot_ctrl.io.files import save_figure
 from udrobot_ctrl.parallel import fork_map
 from udrobot_ctrl.sensitivity.executor import as_executor
 from udrobot_ctrl.sensitivity.local import LocalResult, local_sensitivity
 from udrobot_ctrl.sensitivity.parameters import ParameterSpace, apply_sample, default_space
 from udrobot_ctrl.vehicle import Vehicle, load_model
+from udrobot_files.output import save_figure
 
 LOOPS = ("roll", "pitch", "yaw", "depth")
 #: the gains designed per loop (ArduSub names)

@@ -14,8 +14,8 @@ from udrobot_ctrl.control.compare import (
     write_outputs,
 )
 from udrobot_ctrl.control.missions import CONTROLLER_KINDS
-from udrobot_ctrl.io.files import atomic_write, check_distinct_outputs, check_output_dir, check_outputs, spec_files
 from udrobot_ctrl.vehicle import MODEL_NAMES
+from udrobot_files.output import atomic_write, check_distinct_outputs, check_output_dir, check_outputs, spec_files
 
 
 def register(subparsers):

@@ -36,9 +36,9 @@ from udrobot_ctrl.control.compare import (
     write_outputs,
 )
 from udrobot_ctrl.dynamics.sim import simulate
-from udrobot_ctrl.io.files import OutputError, atomic_write, check_output_dir, open_atomic, save_figure
 from udrobot_ctrl.parallel import Background
 from udrobot_ctrl.vehicle import MODEL_NAMES, coefficient_set, full_size_vehicle, load_model, write_model_file
+from udrobot_files.output import OutputError, atomic_write, check_output_dir, open_atomic, save_figure
 
 SYNTHETIC_NOTE = ("the identification data are SYNTHETIC: launch logs and CFD tables generated from the "
                   "coefficients of Cely et al. 2019 (its raw data are not public) with simulated sensor noise; "

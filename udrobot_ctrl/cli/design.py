@@ -28,9 +28,9 @@ from udrobot_ctrl.autopilot.firmware import (
 )
 from udrobot_ctrl.autopilot.params import run_log_params
 from udrobot_ctrl.autopilot.qgc_params import format_params, read_params
-from udrobot_ctrl.io.files import atomic_write, check_outputs, sidecar
 from udrobot_ctrl.io.runlog import read_metadata
 from udrobot_ctrl.vehicle import ALL_MODEL_NAMES
+from udrobot_files.output import atomic_write, check_outputs, sidecar
 
 
 def register(subparsers):

@@ -32,8 +32,8 @@ from udrobot_ctrl.gap.report import (
 )
 from udrobot_ctrl.gap.shrink import check_window
 from udrobot_ctrl.io import load_any
-from udrobot_ctrl.io.files import check_distinct_outputs, check_output_dir, check_outputs, spec_files
 from udrobot_ctrl.vehicle import write_model_file
+from udrobot_files.output import check_distinct_outputs, check_output_dir, check_outputs, spec_files
 
 
 def register(subparsers):

@@ -50,9 +50,9 @@ from udrobot_ctrl.gap.replay import WindowedGap, windowed_gap
 from udrobot_ctrl.gap.screen import unrepresented_runs
 from udrobot_ctrl.gap.shrink import check_window
 from udrobot_ctrl.io import load_any, runlog
-from udrobot_ctrl.io.files import atomic_write, check_distinct_outputs, check_outputs, run_files, spec_files
 from udrobot_ctrl.io.runlog import check_time_gaps
 from udrobot_ctrl.vehicle import ALL_MODEL_NAMES, load_model
+from udrobot_files.output import atomic_write, check_distinct_outputs, check_outputs, run_files, spec_files
 
 
 def register(subparsers):

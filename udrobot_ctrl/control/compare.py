@@ -41,8 +41,8 @@ from udrobot_ctrl.control.metrics import mission_metrics
 from udrobot_ctrl.control.missions import CONTROLLER_KINDS, make_controller, run_mission, standard_mission
 from udrobot_ctrl.control.mpc import LinearMPC
 from udrobot_ctrl.dynamics.sim import as_parameters
-from udrobot_ctrl.io.files import atomic_write, save_figure
 from udrobot_ctrl.vehicle import MODEL_NAMES
+from udrobot_files.output import atomic_write, save_figure
 
 #: How a design fails for a reason of the model, not of the code: reported in the row, the matrix goes on.
 DESIGN_ERRORS = (ValueError, np.linalg.LinAlgError)

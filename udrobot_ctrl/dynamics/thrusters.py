@@ -45,7 +45,7 @@ import numpy as np
 import tomllib
 
 from udrobot_ctrl.constants import DOF_NAMES
-from udrobot_ctrl.io.files import atomic_write
+from udrobot_files.output import atomic_write
 
 PWM_NEUTRAL = 1500.0
 PWM_MIN = 1100.0

@@ -81,10 +81,10 @@ from udrobot_ctrl.gap.shrink import (
     simulate_windows_each,
 )
 from udrobot_ctrl.gap.top_end import TETHER, top_end
-from udrobot_ctrl.io.files import atomic_write
 from udrobot_ctrl.io.runlog import Run
 from udrobot_ctrl.parallel import Background, fork_map, one_blas_thread
 from udrobot_ctrl.vehicle import load_model
+from udrobot_files.output import atomic_write
 
 FORMAT = "udrobot-diagnosis/1"
 
@@ -2003,5 +2003,5 @@ def summary(report) -> str:
 
 
 def write_report(report, path, protect=()) -> None:
-    """Write the JSON report atomically (never over a file in ``protect``, see :mod:`udrobot_ctrl.io.files`)."""
+    """Write the JSON report atomically (never over a file in ``protect``, see :mod:`udrobot_files.output`)."""
     atomic_write(path, json.dumps(report, indent=2) + "\n", protect=protect)

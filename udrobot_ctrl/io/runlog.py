@@ -39,7 +39,7 @@ from pathlib import Path
 
 import numpy as np
 
-from udrobot_ctrl.io import files
+from udrobot_files import output as files
 from udrobot_files.nesting import NestingError, loads_json
 
 FORMAT = "udrobot-run/1"
@@ -883,7 +883,7 @@ def write_run(path, t, channels, input_kind, inputs, metadata=None, extra=None, 
         If False, refuse to replace an existing CSV or sidecar. With True, a stale sidecar of the replaced
         run is replaced too (by ``metadata``, or by ``{"format": "udrobot-run/1"}``).
     protect : iterable of paths
-        Input files (and their sidecars) the output must not be (:mod:`udrobot_ctrl.io.files`).
+        Input files (and their sidecars) the output must not be (:mod:`udrobot_files.output`).
 
     Returns
     -------
