@@ -31,6 +31,8 @@ from identification.sets import coefficient_set_from_dict, load_coefficient_set
 from identification.similitude import FullSizeVehicle
 from udrobot_ctrl.constants import DOF_NAMES
 from udrobot_ctrl.dynamics.effects import check_against_model, parse_effects
+from udrobot_ctrl.dynamics.sim import set_model_loader
+from udrobot_ctrl.dynamics.thrusters import load_curve, thrust_limits
 from udrobot_files.output import atomic_write
 
 MODEL_FORMAT = "udrobot-model/1"
@@ -215,9 +217,6 @@ def _diag_entries(table: dict, src: str, what: str, prov: dict, key: str) -> np.
 
 def _thrust_limits_at(voltage: float, curve_name: str):
     """(max_forward_N, max_reverse_N) of the shipped thruster curve ``models/CURVE.toml`` at ``voltage`` (V)."""
-    # local import: udrobot_ctrl.dynamics.thrusters imports this module (DOF_NAMES) at its top
-    from udrobot_ctrl.dynamics.thrusters import load_curve, thrust_limits
-
     return thrust_limits(voltage, load_curve(curve_name))
 
 
@@ -592,3 +591,6 @@ def _what_file_is(path: Path) -> str:
 def write_model_file(v: Vehicle, path, protect=()) -> None:
     """Write ``udrobot-model/1`` JSON atomically (never over a file in ``protect``: :mod:`udrobot_files.output`)."""
     atomic_write(path, json.dumps(to_model_dict(v), indent=2), protect=protect)
+
+
+set_model_loader(load_model)  # the dynamics layer resolves model names with it (dynamics.sim.as_parameters)
