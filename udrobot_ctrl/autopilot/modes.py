@@ -32,7 +32,7 @@ ArduPilot master after 4.5 passes ``(norm_input + 1) / 2`` with a ``RC3_TRIM`` d
 with their own default trim.
 
 RC overrides from a joystick (``ArduSub/joystick.cpp`` ``transform_manual_control_to_rc_override``,
-:mod:`udrobot_ctrl.io.joystick`) are PWM: channel 3 is ``z * 0.8 gain JS_THR_GAIN + 1500 - 500 * 0.8 gain
+:mod:`udrobot_ctrl.autopilot.joystick`) are PWM: channel 3 is ``z * 0.8 gain JS_THR_GAIN + 1500 - 500 * 0.8 gain
 JS_THR_GAIN``, 1500 us at z = 500 whatever the trims; the trims act afterwards, here.
 """
 from __future__ import annotations

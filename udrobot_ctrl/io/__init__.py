@@ -9,12 +9,12 @@ from pathlib import Path
 
 import numpy as np
 
+from udrobot_ctrl.autopilot.joystick import pilot_input
 from udrobot_ctrl.autopilot.motors import MotorParameters, fit_directions, frame, throttle_bidirectional
 from udrobot_ctrl.autopilot.params import ESTIMATED_PARAMS, gain_log_params
 from udrobot_ctrl.io.runlog import Run, read_run
 
 from . import mavlink, qgc_csv, rosbag, rostopic_csv
-from .joystick import pilot_input
 from .mapping import (
     UNAIDED_NOTE,
     Mapping,
@@ -40,7 +40,7 @@ from .qgc_csv import is_qgc_csv
 from .streams import LogImportError
 from .stretches import cut_run
 
-PILOT_STREAM = "PILOT_RC"  # the pilot-input stream built from MANUAL_CONTROL (udrobot_ctrl.io.joystick)
+PILOT_STREAM = "PILOT_RC"  # the pilot-input stream built from MANUAL_CONTROL (udrobot_ctrl.autopilot.joystick)
 DEFAULT_MAPPINGS = {"ros": "bluerov2-mavros", "mavlink": "ardusub", "qgc_csv": "qgc-csv"}
 
 
