@@ -20,6 +20,7 @@ import os
 import sys
 from pathlib import Path
 
+from udrobot_ctrl.convert import load_any
 from udrobot_ctrl.gap.plots import plot_paths, write_plots
 from udrobot_ctrl.gap.report import (
     corrected_model,
@@ -31,7 +32,6 @@ from udrobot_ctrl.gap.report import (
     write_report,
 )
 from udrobot_ctrl.gap.shrink import check_window
-from udrobot_ctrl.io import load_any
 from udrobot_ctrl.vehicle import write_model_file
 from udrobot_files.output import check_distinct_outputs, check_output_dir, check_outputs, spec_files
 

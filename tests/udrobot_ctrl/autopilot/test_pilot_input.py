@@ -169,8 +169,8 @@ def test_trim_at_min_log_replays_its_vertical_thrusters(tmp_path):
     grid and the emulation's one-tick lag place the step), and a centred stick is 1500 us; the (norm + 1) / 2 form
     misses them by hundreds of us."""
     from udrobot_ctrl.autopilot.feedback import motor_output_check
+    from udrobot_ctrl.convert import convert_log
     from udrobot_ctrl.dynamics.plant import plant_parameters
-    from udrobot_ctrl.io import convert_log
     from udrobot_ctrl.vehicle import load_model
 
     run = convert_log(trim_at_min_tlog(tmp_path / "trim.tlog"), cut=False)
