@@ -28,11 +28,8 @@ from identification.plots import plot_report
 from identification.sets import write_coefficient_set
 from udrobot_ctrl.control.compare import (
     MPC_PREVIEW,
-    TABLE_LEGEND,
     compare,
     compile_kernels,
-    contract_json,
-    text_table,
     write_outputs,
 )
 from udrobot_ctrl.dynamics.sim import simulate
@@ -272,13 +269,9 @@ def step_controllers(out: Path, full: bool = False, workers: int | None = None) 
           f"({'full 46 s' if full else 'quick 23 s'} mission) ...", flush=True)
     result = compare(quick=not full, keep_trajectories=True, workers=workers)
     write_outputs(result, out / "compare")
-    atomic_write(out / "compare" / "compare.json", json.dumps(contract_json(result), indent=2))
-    print(text_table(result["results"], result.get("ekf", ())))
-    print(TABLE_LEGEND)
-    for name, why in (result.get("skipped") or {}).items():
-        print(f"skipped {name}: {why}")
-    return {"rows": len(result["results"]), "ekf_rows": len(result.get("ekf", [])),
-            "wall_s": result.get("wall_s")}
+    atomic_write(out / "compare" / "compare.json", json.dumps(result.to_json(), indent=2))
+    print(result.summary())
+    return {"rows": len(result.results), "ekf_rows": len(result.ekf), "wall_s": result.wall_s}
 
 
 # (file or glob relative to --out, what it is); the first entries are what to open first
