@@ -69,8 +69,17 @@ _MODEL_LOADER = None
 
 
 def set_model_loader(load) -> None:
-    """Set the function :func:`as_parameters` resolves model names and files with (``udrobot_ctrl.vehicle``'s
-    ``load_model``: model -> Vehicle)."""
+    """Set the function :func:`as_parameters` resolves model names and files with.
+
+    Parameters
+    ----------
+    load : callable
+        Model name, file or Vehicle -> :class:`udrobot_ctrl.vehicle.Vehicle` (:func:`udrobot_ctrl.vehicle.load_model`).
+
+    Returns
+    -------
+    None
+    """
     global _MODEL_LOADER
     _MODEL_LOADER = load
 
