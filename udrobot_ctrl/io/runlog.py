@@ -39,11 +39,12 @@ from pathlib import Path
 
 import numpy as np
 
+from udrobot_ctrl.constants import STATE_NAMES
 from udrobot_files import output as files
 from udrobot_files.nesting import NestingError, loads_json
 
 FORMAT = "udrobot-run/1"
-STATE_CHANNELS = ("x", "y", "z", "phi", "theta", "psi", "u", "v", "w", "p", "q", "r")
+STATE_CHANNELS = STATE_NAMES  # the run's state columns are the plant's states, in its order
 OTHER_CHANNELS = ("altitude", "voltage", "ax", "ay", "az")
 CHANNELS = STATE_CHANNELS + OTHER_CHANNELS
 ANGLE_CHANNELS = ("phi", "theta", "psi")
