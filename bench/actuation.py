@@ -89,7 +89,7 @@ def mixer_check(path: Path):
     known = np.column_stack([rate[:, 1], rate[:, 2], rate[:, 3], throttle_bidirectional(rate[:, 4])])
     print(f"mixer check: {path.name}, {len(pwm)} RCOU samples paired with RATE (10 Hz); frame VECTORED_6DOF; "
           f"MOT_PWM_MIN/MAX 1100/1900 us assumed (no parameters in the log)")
-    fit = fit_directions(fr, known, pwm)  # the converter's inference (udrobot_ctrl.io.infer_motor_directions)
+    fit = fit_directions(fr, known, pwm)  # the converter's inference (udrobot_ctrl.convert.infer_motor_directions)
     dirs = list(fit.directions)
     print(f"  MOT_1..8_DIRECTION fitted over the 256 sign patterns: {fit.directions} (residual RMS {fit.rms:.4f} of "
           f"full scale; next pattern {fit.runner_up:.4f})")

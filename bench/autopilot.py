@@ -22,12 +22,12 @@ import sys
 import time
 from pathlib import Path
 
+from udrobot_ctrl.ardusub.modes import Mode, PilotInput
 from udrobot_ctrl.autopilot.ardusub import ArduSubAutopilot, VehicleState
 from udrobot_ctrl.autopilot.feedback import motor_output_check
-from udrobot_ctrl.autopilot.modes import Mode, PilotInput
 from udrobot_ctrl.autopilot.validate import check_log, read_log
+from udrobot_ctrl.convert import convert_log
 from udrobot_ctrl.dynamics.plant import plant_parameters
-from udrobot_ctrl.io import convert_log
 from udrobot_ctrl.vehicle import load_model
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared" / "data"

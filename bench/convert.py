@@ -35,7 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
-from udrobot_ctrl.io import convert_log
+from udrobot_ctrl.convert import convert_log
 
 T0 = 1_681_840_000.0
 
@@ -150,7 +150,7 @@ def child(log: str, out: str) -> int:
 
     from udrobot_ctrl.cli import convert as _convert  # noqa: F401 - imports outside the measurement
     from udrobot_ctrl.cli.main import main as cli_main
-    from udrobot_ctrl.io import convert_log  # noqa: F401
+    from udrobot_ctrl.convert import convert_log  # noqa: F401
     from udrobot_ctrl.io.mapping import load_mapping  # noqa: F401
 
     before = _rss_now_mib()

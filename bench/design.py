@@ -15,8 +15,8 @@ import json
 import resource
 import time
 
+from udrobot_ctrl.ardusub.params import ArduSubParameters
 from udrobot_ctrl.autopilot.design import design_ardusub, step_flight, vehicle_frame
-from udrobot_ctrl.autopilot.params import ArduSubParameters
 from udrobot_ctrl.vehicle import load_model
 
 

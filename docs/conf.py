@@ -45,7 +45,8 @@ numpydoc_xref_param_type = False
 
 #: The packages whose ``__all__`` is the public API, in the order of the reference (as the docstring test).
 PACKAGES = ("udrobot_ctrl", "udrobot_ctrl.vehicle", "udrobot_ctrl.dynamics", "udrobot_ctrl.control",
-            "udrobot_ctrl.autopilot", "udrobot_ctrl.io", "udrobot_ctrl.gap", "udrobot_ctrl.sensitivity",
+            "udrobot_ctrl.ardusub", "udrobot_ctrl.autopilot", "udrobot_ctrl.io", "udrobot_ctrl.gap",
+            "udrobot_ctrl.sensitivity",
             "identification")
 
 

@@ -218,8 +218,8 @@ def main(argv=None) -> int:
     if not data.exists():
         print(f"Tartan AUV data not found at {data}; nothing to diagnose (see the module docstring for the source)")
         return 0
+    from udrobot_ctrl.convert import load_any
     from udrobot_ctrl.gap.report import diagnose, summary, write_report
-    from udrobot_ctrl.io import load_any
 
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)

@@ -461,7 +461,7 @@ def run_case(out_dir, controllers=("lqr", "pid", "lmpc"), standard=True, effects
     if standard:
         result = compare([str(nominal), str(corrected)], list(controllers), quick=True, workers=1, ekf=False,
                          progress=False)
-        rows = [r for r in result["results"] if r["plant"] == str(corrected)]
+        rows = [r for r in result.results if r["plant"] == str(corrected)]
         say(f"compare on the standard mission ({time.perf_counter() - t0:.1f} s)")
     transit = {(kind, label): fly(kind, design, corrected, fast_transit())
                for kind in controllers for label, design in (("nominal", nominal), ("corrected", corrected))}

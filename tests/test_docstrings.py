@@ -30,11 +30,12 @@ from sphinx.pycode import ModuleAnalyzer
 
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = ("udrobot_ctrl", "udrobot_ctrl.vehicle", "udrobot_ctrl.dynamics", "udrobot_ctrl.control",
-            "udrobot_ctrl.autopilot", "udrobot_ctrl.io", "udrobot_ctrl.gap", "udrobot_ctrl.sensitivity",
+            "udrobot_ctrl.ardusub", "udrobot_ctrl.autopilot", "udrobot_ctrl.io", "udrobot_ctrl.gap",
+            "udrobot_ctrl.sensitivity",
             "identification")
 #: Public names whose definition another branch of issue 60 is adding (the coordinator empties this on merging):
 #: gap's Diagnosis (the coordinator's diagnose() result) and control's Comparison (v6-layers' compare() result).
-PENDING = {"udrobot_ctrl.gap.Diagnosis", "udrobot_ctrl.control.Comparison"}
+PENDING = set()
 #: Unit symbols (SI and the derived ones the code uses) that a float quantity's description may name.
 UNITS = ("m", "s", "kg", "N", "rad", "deg", "Hz", "W", "V", "A", "Pa", "us", "µs", "°", "%", "1/s", "m/s",
          "rad/s", "N m", "N·m", "kg m^2", "m^2", "m^3", "kg/m^3", "m/s^2", "rad/s^2", "N/m", "ms", "PWM", "mm",

@@ -11,8 +11,8 @@ from udrobot_ctrl.vehicle import MODEL_NAMES, Vehicle, load_model
 from udrobot_files.exports import lazy_exports
 
 # name -> the module defining it, imported when first used
-_EXPORTS = {"convert_log": "io", "load_any": "io", "compare": "control.compare", "linearize": "control.linearize",
-            "fly": "autopilot.fly", "check_flight": "autopilot.check_flight"}
+_EXPORTS = {"convert_log": "convert", "load_any": "convert", "compare": "control.compare",
+            "linearize": "control.linearize", "fly": "autopilot.fly", "check_flight": "autopilot.check_flight"}
 __all__ = ["MODEL_NAMES", "Vehicle", "load_model", *_EXPORTS]
 __getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)
 __version__ = "0.1.0"

@@ -30,10 +30,13 @@ from identification import fossen
 from identification.fossen import AXES
 from identification.sets import coefficient_set_from_dict, load_coefficient_set
 from identification.similitude import FullSizeVehicle
+from udrobot_ctrl.constants import DOF_NAMES
 from udrobot_ctrl.dynamics.effects import check_against_model, parse_effects
-from udrobot_ctrl.io.files import atomic_write
+from udrobot_ctrl.dynamics.sim import set_model_loader
+from udrobot_ctrl.dynamics.thrusters import MAX_CURVE_BYTES, load_curve, shipped_curve_name, thrust_limits
 from udrobot_files.inputs import inside, read_regular
 from udrobot_files.nesting import unique_keys
+from udrobot_files.output import atomic_write
 
 MODEL_FORMAT = "udrobot-model/1"
 # the public API (docs/api)
@@ -46,9 +49,6 @@ VEHICLE_MODEL_NAMES = ("bluerov2", "bluerov2-heavy")
 #: Every model name accepted by :func:`load_model` besides a file path.
 ALL_MODEL_NAMES = MODEL_NAMES + VEHICLE_MODEL_NAMES
 VEHICLE_FORMAT = "udrobot-vehicle/1"
-DOF_NAMES = ("X", "Y", "Z", "K", "M", "N")
-STATE_NAMES = ("x", "y", "z", "phi", "theta", "psi", "u", "v", "w", "p", "q", "r")
-STATE_INDEX = {n: i for i, n in enumerate(STATE_NAMES)}
 
 
 @dataclass(frozen=True)
@@ -177,7 +177,6 @@ def resolve_curve(name, model_file=None, source: str = "<description>", field: s
     ValueError
         Naming the model, the field and what was expected.
     """
-    from udrobot_ctrl.dynamics.thrusters import MAX_CURVE_BYTES, shipped_curve_name  # thrusters imports vehicle
 
     if not isinstance(name, str) or not name.strip():
         raise ValueError(f"{source}: {field} must be the name of a thruster curve (t200) or a curve "
@@ -314,9 +313,6 @@ def _diag_entries(table: dict, src: str, what: str, prov: dict, key: str) -> np.
 
 def _thrust_limits_at(voltage: float, curve_name: str):
     """(max_forward_N, max_reverse_N) of the shipped thruster curve ``models/CURVE.toml`` at ``voltage`` (V)."""
-    # local import: udrobot_ctrl.dynamics.thrusters imports this module (DOF_NAMES) at its top
-    from udrobot_ctrl.dynamics.thrusters import load_curve, thrust_limits
-
     return thrust_limits(voltage, load_curve(curve_name))
 
 
@@ -637,6 +633,9 @@ def model_from_dict(doc: dict, source: str = "<dict>", model_file=None) -> Vehic
         The parsed document.
     source : str
         Where it came from (a file name), for the error messages.
+    model_file : str or Path, optional
+        The model file the document was read from: a thruster curve it names is looked up next to it (or in the
+        package's models folder) only (:func:`resolve_curve`).
 
     Returns
     -------
@@ -785,3 +784,6 @@ def write_model_file(v: Vehicle, path, protect=()) -> None:
         Files that must not be overwritten (the command's inputs).
     """
     atomic_write(path, json.dumps(to_model_dict(v), indent=2), protect=protect)
+
+
+set_model_loader(load_model)  # the dynamics layer resolves model names with it (dynamics.sim.as_parameters)

@@ -11,7 +11,6 @@ from udrobot_files.exports import lazy_exports
 # fly() and check_flight() share their module's name, so they are exported by udrobot_ctrl itself.
 _EXPORTS = {
     "ArduSubAutopilot": "ardusub",
-    "ArduSubParameters": "params",
     "ClosedLoopFlight": "fly",
     "Specification": "design", "ArduSubDesign": "design", "design_ardusub": "design", "check_gains": "design",
     "read_params": "qgc_params", "parse_params": "qgc_params", "format_params": "qgc_params",

@@ -32,10 +32,11 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.signal import butter, sosfiltfilt
 
+from udrobot_ctrl.constants import DOF_NAMES
 from udrobot_ctrl.dynamics.plant import PlantParameters, plant_parameters, thrust_to_wrench
 from udrobot_ctrl.dynamics.thrusters import load_curve, pwm_to_thrust
 from udrobot_ctrl.io.runlog import Run
-from udrobot_ctrl.vehicle import DOF_NAMES, Vehicle
+from udrobot_ctrl.vehicle import Vehicle
 
 VERDICTS = ("agrees", "reversed", "not excited", "inconclusive", "not measured")
 T_SIGNIFICANT = 3.0  # |t| of the gain for a verdict of agrees / reversed

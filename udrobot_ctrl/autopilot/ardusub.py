@@ -17,7 +17,7 @@ one the mode sets (``PILOT_THR_FILT`` for pilot throttle, ``POSCONTROL_THROTTLE_
 depth-holding modes).
 
 Modes: MANUAL, STABILIZE, ALT_HOLD (pilot), GUIDED and SURFTRAK (attitude and depth targets given, as logged
-or commanded, see :class:`~udrobot_ctrl.autopilot.modes.Targets`; ``Targets(shaped=True)`` takes a log's
+or commanded, see :class:`~udrobot_ctrl.ardusub.modes.Targets`; ``Targets(shaped=True)`` takes a log's
 already-shaped ATT Des* targets with their rates as feed-forward); ACRO, AUTO, POSHOLD, CIRCLE, SURFACE are not
 emulated and raise. ALT_HOLD has ArduSub 4.1.1-4.5's surface and bottom handling: the detector's ``at_surface``
 (shallower than ``SURFACE_DEPTH``) and ``at_bottom`` (throttle at its lower limit and no vertical speed for 400
@@ -49,11 +49,11 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from udrobot_ctrl.ardusub.modes import YAW_HOLD_DELAY, Mode, PilotInput, Targets, shape_pilot
+from udrobot_ctrl.ardusub.params import ArduSubParameters
 from udrobot_ctrl.autopilot.attitude import AttitudeController, euler_rate_to_ang_vel, quat_from_euler
 from udrobot_ctrl.autopilot.depth import DepthController
-from udrobot_ctrl.autopilot.modes import YAW_HOLD_DELAY, Mode, PilotInput, Targets, shape_pilot
 from udrobot_ctrl.autopilot.motors import throttle_bidirectional
-from udrobot_ctrl.autopilot.params import ArduSubParameters
 from udrobot_ctrl.autopilot.pid import PIDTerms, lowpass_alpha
 from udrobot_ctrl.autopilot.surface_bottom import SurfaceBottomDetector, althold_depth_target
 

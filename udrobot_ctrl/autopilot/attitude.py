@@ -28,7 +28,7 @@ import math
 
 import numpy as np
 
-from udrobot_ctrl.autopilot.params import AttitudeParameters
+from udrobot_ctrl.ardusub.params import AttitudeParameters
 from udrobot_ctrl.autopilot.pid import ACPID, PIDTerms, inv_sqrt_controller, sqrt_controller
 
 ACCEL_RP_CONTROLLER_MIN = math.radians(40.0)    # AC_ATTITUDE_ACCEL_RP_CONTROLLER_MIN_RADSS

@@ -26,7 +26,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from udrobot_ctrl.autopilot.params import ArduSubParameters
+from udrobot_ctrl.ardusub.params import ArduSubParameters
 
 #: the mode (ArduSub custom mode name) each loop is flown in
 LOOP_MODE = {"roll": "STABILIZE", "pitch": "STABILIZE", "yaw": "STABILIZE", "depth": "ALT_HOLD"}

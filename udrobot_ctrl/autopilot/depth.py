@@ -56,7 +56,7 @@ from __future__ import annotations
 
 from dataclasses import replace
 
-from udrobot_ctrl.autopilot.params import DepthParameters
+from udrobot_ctrl.ardusub.params import DepthParameters
 from udrobot_ctrl.autopilot.pid import ACPID, ACPIDBasic, PIDTerms, inv_sqrt_controller, sqrt_controller
 
 

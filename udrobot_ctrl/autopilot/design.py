@@ -1,7 +1,7 @@
 """ArduSub's own cascaded gains designed on a model, with the emulated ArduSub in the loop (``design ardusub``).
 
 What is designed (ArduSub's names; the search runs on them in ArduSub's units, the flights in SI through
-:meth:`~udrobot_ctrl.autopilot.params.ArduSubParameters.from_log_params`):
+:meth:`~udrobot_ctrl.ardusub.params.ArduSubParameters.from_log_params`):
 
 * roll, pitch: ``ATC_ANG_RLL/PIT_P`` (angle P, 1/s) and the rate PID's ``ATC_RAT_RLL/PIT_P``, ``_I``. The D
   terms stay: on the model a large rate D (0.03-0.04) shortens the attitude steps but chatters the shared vertical
@@ -63,6 +63,8 @@ import numpy as np
 from matplotlib.figure import Figure
 from scipy.optimize import brentq
 
+from udrobot_ctrl.ardusub.modes import Mode, Targets
+from udrobot_ctrl.ardusub.params import ArduSubParameters, gain_log_params
 from udrobot_ctrl.autopilot.ardusub import ArduSubAutopilot
 from udrobot_ctrl.autopilot.firmware import ASSUMED_FIRMWARE, Firmware, gain_range, range_violations
 from udrobot_ctrl.autopilot.fly import LoggedCommands, LoggedPilot
@@ -74,20 +76,18 @@ from udrobot_ctrl.autopilot.loop_margins import (
     axis_plant,
     loop_margins,
 )
-from udrobot_ctrl.autopilot.modes import Mode, Targets
 from udrobot_ctrl.autopilot.motors import MIXER_INPUTS, Frame, MotorParameters, custom_frame, frame, mix, to_pwm
-from udrobot_ctrl.autopilot.params import ArduSubParameters, gain_log_params
 from udrobot_ctrl.control.metrics import at_thrust_limit, integral_abs_error, step_response
 from udrobot_ctrl.dynamics.effects import parse_effects
 from udrobot_ctrl.dynamics.plant import plant_parameters, thrust_to_wrench
 from udrobot_ctrl.dynamics.sim import simulate
 from udrobot_ctrl.dynamics.thrusters import pwm_to_thrust
-from udrobot_ctrl.io.files import save_figure
 from udrobot_ctrl.parallel import fork_map
 from udrobot_ctrl.sensitivity.executor import as_executor
 from udrobot_ctrl.sensitivity.local import LocalResult, local_sensitivity
 from udrobot_ctrl.sensitivity.parameters import ParameterSpace, apply_sample, default_space
 from udrobot_ctrl.vehicle import Vehicle, load_model
+from udrobot_files.output import save_figure
 
 LOOPS = ("roll", "pitch", "yaw", "depth")
 #: the gains designed per loop (ArduSub names)
@@ -833,7 +833,7 @@ def design_ardusub(model, log_params: dict | None = None, spec: Specification | 
         The nominal model (a name, a ``udrobot-model/1`` file such as ``diagnose --out-model``'s, or a Vehicle).
     log_params : dict, optional
         The vehicle's parameters (canonical names and ArduSub's units, :func:`.firmware.from_firmware` of a log's),
-        e.g. :func:`~udrobot_ctrl.autopilot.params.run_log_params` of a converted run; ArduSub's defaults for the
+        e.g. :func:`~udrobot_ctrl.ardusub.params.run_log_params` of a converted run; ArduSub's defaults for the
         missing ones (and for all when None).
     spec : Specification, optional
         The specifications (the defaults of :class:`Specification`).

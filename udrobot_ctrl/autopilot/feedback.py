@@ -62,12 +62,13 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from udrobot_ctrl.ardusub.modes import Mode
+from udrobot_ctrl.ardusub.params import ArduSubParameters, AttitudeParameters, run_log_params
 from udrobot_ctrl.autopilot.ardusub import ArduSubAutopilot
 from udrobot_ctrl.autopilot.fly import LoggedCommands, LoggedPilot
-from udrobot_ctrl.autopilot.modes import Mode
 from udrobot_ctrl.autopilot.motors import Frame, MotorParameters, frame, from_pwm, mix, to_pwm, unmix
-from udrobot_ctrl.autopilot.params import ArduSubParameters, AttitudeParameters, run_log_params
 from udrobot_ctrl.autopilot.pid import ACPID
+from udrobot_ctrl.autopilot.validate import nrmse
 from udrobot_ctrl.dynamics.plant import PlantParameters, rotation_zyx
 from udrobot_ctrl.dynamics.thrusters import pwm_to_thrust
 from udrobot_ctrl.io.runlog import Run
@@ -373,8 +374,6 @@ def motor_output_check(run: Run, p: PlantParameters, params: ArduSubParameters |
     """
     if not p.ardusub_frame:
         raise ValueError("the plant names no ArduSub frame ('ardusub_frame'): no mixer to emulate")
-    # local import: validate reads dataflash through io, which imports this package's modules first
-    from udrobot_ctrl.autopilot.validate import nrmse
     fr = frame(p.ardusub_frame)
     log_params, _ = run_log_params(run.metadata)
     if params is None:

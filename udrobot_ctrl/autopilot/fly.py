@@ -30,10 +30,10 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from udrobot_ctrl.ardusub.modes import Mode, PilotInput, Targets, logged_pulses, logged_targets
+from udrobot_ctrl.ardusub.params import ArduSubParameters, run_log_params
 from udrobot_ctrl.autopilot.ardusub import ArduSubAutopilot, MotorLimits, VehicleState
-from udrobot_ctrl.autopilot.modes import Mode, PilotInput, Targets, logged_pulses, logged_targets
 from udrobot_ctrl.autopilot.motors import Frame, MotorParameters, frame, from_pwm, mix, to_pwm, unmix
-from udrobot_ctrl.autopilot.params import ArduSubParameters, run_log_params
 from udrobot_ctrl.dynamics.plant import PlantParameters, plant_parameters
 from udrobot_ctrl.dynamics.sim import simulate
 from udrobot_ctrl.dynamics.thrusters import pwm_to_thrust
@@ -89,7 +89,7 @@ class LoggedCommands:
         (:func:`~udrobot_ctrl.io.runlog.check_context_columns`: ArduSub's own mode numbers only).
 
         A missing ``rcin_k`` column is a centred stick on that channel alone (noted), as is a sample that is no
-        pulse (:func:`~udrobot_ctrl.autopilot.modes.pilot_pulses`). The rows flown on logged targets (every mode
+        pulse (:func:`~udrobot_ctrl.ardusub.modes.pilot_pulses`). The rows flown on logged targets (every mode
         but MANUAL, STABILIZE, ALT_HOLD) need them: without an attitude target there (or, outside SURFTRAK, a depth
         target) the run is refused rather than flown on a target of zero; a row whose target is empty between
         logged ones holds the last logged target, and :attr:`notes` counts them.

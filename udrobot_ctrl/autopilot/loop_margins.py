@@ -48,8 +48,8 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from udrobot_ctrl.ardusub.params import ArduSubParameters, PIDGains
 from udrobot_ctrl.autopilot.motors import MIXER_INPUTS, Frame, MotorParameters, mix, to_pwm
-from udrobot_ctrl.autopilot.params import ArduSubParameters, PIDGains
 from udrobot_ctrl.dynamics.plant import generalized_forces, plant_parameters, state_derivative
 from udrobot_ctrl.dynamics.thrusters import pwm_to_thrust
 from udrobot_ctrl.vehicle import Vehicle

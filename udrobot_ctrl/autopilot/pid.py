@@ -30,7 +30,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from udrobot_ctrl.autopilot.params import PIDGains
+from udrobot_ctrl.ardusub.params import PIDGains
 
 
 def _clip(value, bound: float):

@@ -12,7 +12,7 @@ parameter name, its value, and its MAVLink type (``MAV_PARAM_TYPE``: 9 = REAL32,
 lines starting with ``#`` are comments. QGroundControl's *Parameters > Tools > Load from file* reads it, and
 Mission Planner's *Load* reads the same lines. The values are in ArduSub's units (e.g. ``PSC_ACCZ_P`` in its
 throttle-per-cm/s^2 x 1000 scaling, ``ATC_ANG_*_P`` in 1/s); the conversion to SI lives in
-:mod:`udrobot_ctrl.autopilot.params`.
+:mod:`udrobot_ctrl.ardusub.params`.
 """
 from __future__ import annotations
 
@@ -20,7 +20,7 @@ import math
 from collections.abc import Mapping
 from pathlib import Path
 
-from udrobot_ctrl.autopilot.params import ParameterError, parameter_problems
+from udrobot_ctrl.ardusub.params import ParameterError, parameter_problems
 
 #: MAV_PARAM_TYPE values (MAVLink common.xml)
 MAV_PARAM_TYPE_REAL32 = 9
@@ -74,7 +74,7 @@ def format_params(params: Mapping, vehicle_id: int = 1, component_id: int = 1, c
 def parse_params(text: str, source: str = "<params>") -> dict:
     """Parameters (name -> float) of a QGroundControl ``.params`` text (also accepts Mission Planner's
     ``NAME,VALUE`` lines), checked as every logged parameter set is
-    (:func:`~udrobot_ctrl.autopilot.params.check_log_params`).
+    (:func:`~udrobot_ctrl.ardusub.params.check_log_params`).
 
     Parameters
     ----------

@@ -56,9 +56,10 @@ from pathlib import Path
 import numpy as np
 from scipy.interpolate import CubicSpline
 
+from udrobot_ctrl.ardusub.modes import Mode, PilotInput, Targets, norm_input
+from udrobot_ctrl.ardusub.params import RC_MAP, ArduSubParameters, PIDGains, usable_log_params
 from udrobot_ctrl.autopilot.ardusub import SUPPORTED_MODES, ArduSubAutopilot, VehicleState
 from udrobot_ctrl.autopilot.attitude import AttitudeController, euler_rate_to_ang_vel, quat_from_euler
-from udrobot_ctrl.autopilot.modes import Mode, PilotInput, Targets, norm_input
 from udrobot_ctrl.autopilot.motors import (
     MotorParameters,
     fit_directions,
@@ -68,7 +69,6 @@ from udrobot_ctrl.autopilot.motors import (
     motor_pwm,
     throttle_bidirectional,
 )
-from udrobot_ctrl.autopilot.params import RC_MAP, ArduSubParameters, PIDGains, usable_log_params
 from udrobot_ctrl.autopilot.pid import ACPID, integrator_after, lowpass_alpha
 from udrobot_ctrl.io.mavlink import iter_dataflash
 
@@ -96,7 +96,7 @@ class DataflashLog:
     loop_dt : float
         The main loop's tick (s): median ``ANG.Dt``, else ``1 / SCHED_LOOP_RATE``, else 1/400.
     param_problems : tuple of ParameterProblem
-        ``PARM`` records ArduSub cannot hold (:func:`~udrobot_ctrl.autopilot.params.parameter_problems`: a damaged
+        ``PARM`` records ArduSub cannot hold (:func:`~udrobot_ctrl.ardusub.params.parameter_problems`: a damaged
         ``SCHED_LOOP_RATE`` of 1e5, a NaN gain): left out of ``params``, so ArduSub's defaults stand in for them.
     """
 

@@ -8,14 +8,16 @@ from pathlib import Path
 from udrobot_ctrl.control.compare import (
     TABLE_LEGEND,
     compare,
-    contract_json,
     output_names,
-    text_table,
     write_outputs,
 )
 from udrobot_ctrl.control.missions import CONTROLLER_KINDS
-from udrobot_ctrl.io.files import atomic_write, check_command, spec_files
 from udrobot_ctrl.vehicle import MODEL_NAMES
+from udrobot_files.output import (
+    atomic_write,
+    check_command,
+    spec_files,
+)
 
 
 def register(subparsers):
@@ -60,16 +62,13 @@ def run(args) -> int:
                   create_folders=("--json",) if in_out else ())
     result = compare(models, controllers, quick=args.quick, workers=args.workers, keep_trajectories=bool(args.out),
                      ekf=not args.no_ekf)
-    print(text_table(result["results"], result["ekf"]))
-    print(TABLE_LEGEND)
-    for name, why in result["skipped"].items():
-        print(f"skipped {name}: {why}")
-    print(f"{len(result['results'])} controller runs, {len(result['ekf'])} EKF runs in {result['wall_s']:.1f} s")
+    print(result.summary())
+    print(f"{len(result.results)} controller runs, {len(result.ekf)} EKF runs in {result.wall_s:.1f} s")
     if args.out:
         files = write_outputs(result, Path(args.out), protect=inputs)
         print(f"wrote {len(files)} files to {args.out}")
     if args.json:
         path = Path(args.json)
-        atomic_write(path, json.dumps(contract_json(result), indent=1), protect=inputs)
+        atomic_write(path, json.dumps(result.to_json(), indent=1), protect=inputs)
         print(f"wrote {path}")
     return 0

@@ -6,11 +6,12 @@ from dataclasses import replace
 from pathlib import Path
 
 from udrobot_ctrl.cli.main import CLIError
-from udrobot_ctrl.io import convert_log, log_input_files
-from udrobot_ctrl.io.files import check_command, run_files
+from udrobot_ctrl.convert import convert_log
+from udrobot_ctrl.io import log_input_files
 from udrobot_ctrl.io.mapping import UNAIDED_NOTE
 from udrobot_ctrl.io.runlog import write
 from udrobot_ctrl.io.segment import find_launches, idle_mask, write_launches
+from udrobot_files.output import check_command, run_files
 
 
 def register(subparsers) -> None:

@@ -28,17 +28,14 @@ from identification.plots import plot_report
 from identification.sets import write_coefficient_set
 from udrobot_ctrl.control.compare import (
     MPC_PREVIEW,
-    TABLE_LEGEND,
     compare,
     compile_kernels,
-    contract_json,
-    text_table,
     write_outputs,
 )
 from udrobot_ctrl.dynamics.sim import simulate
-from udrobot_ctrl.io.files import OutputError, atomic_write, check_command, open_atomic, save_figure
 from udrobot_ctrl.parallel import Background
 from udrobot_ctrl.vehicle import MODEL_NAMES, coefficient_set, full_size_vehicle, load_model, write_model_file
+from udrobot_files.output import OutputError, atomic_write, check_command, open_atomic, save_figure
 
 SYNTHETIC_NOTE = ("the identification data are SYNTHETIC: launch logs and CFD tables generated from the "
                   "coefficients of Cely et al. 2019 (its raw data are not public) with simulated sensor noise; "
@@ -272,13 +269,9 @@ def step_controllers(out: Path, full: bool = False, workers: int | None = None) 
           f"({'full 46 s' if full else 'quick 23 s'} mission) ...", flush=True)
     result = compare(quick=not full, keep_trajectories=True, workers=workers)
     write_outputs(result, out / "compare")
-    atomic_write(out / "compare" / "compare.json", json.dumps(contract_json(result), indent=2))
-    print(text_table(result["results"], result.get("ekf", ())))
-    print(TABLE_LEGEND)
-    for name, why in (result.get("skipped") or {}).items():
-        print(f"skipped {name}: {why}")
-    return {"rows": len(result["results"]), "ekf_rows": len(result.get("ekf", [])),
-            "wall_s": result.get("wall_s")}
+    atomic_write(out / "compare" / "compare.json", json.dumps(result.to_json(), indent=2))
+    print(result.summary())
+    return {"rows": len(result.results), "ekf_rows": len(result.ekf), "wall_s": result.wall_s}
 
 
 # (file or glob relative to --out, what it is); the first entries are what to open first

@@ -6,6 +6,7 @@ import json
 import math
 from pathlib import Path
 
+from udrobot_ctrl.ardusub.params import run_log_params
 from udrobot_ctrl.autopilot.check_flight import check_flight, checklist_markdown
 from udrobot_ctrl.autopilot.design import (
     LOOP_PARAMETERS,
@@ -26,12 +27,11 @@ from udrobot_ctrl.autopilot.firmware import (
     range_violations,
     to_firmware,
 )
-from udrobot_ctrl.autopilot.params import run_log_params
 from udrobot_ctrl.autopilot.qgc_params import format_params, read_params
-from udrobot_ctrl.io.files import atomic_write, check_command, sidecar, spec_files
 from udrobot_ctrl.io.mavlink import ARDUSUB_FRAMES
 from udrobot_ctrl.io.runlog import read_metadata
 from udrobot_ctrl.vehicle import ALL_MODEL_NAMES, load_model
+from udrobot_files.output import atomic_write, check_command, sidecar, spec_files
 
 #: the files ``--report DIR`` holds
 REPORT_FILES = ("design.json", "check_flight.md", *(f"step_{lp}.png" for lp in LOOPS))

@@ -22,6 +22,7 @@ import os
 import sys
 from pathlib import Path
 
+from udrobot_ctrl.convert import load_any
 from udrobot_ctrl.gap.plots import plot_paths, write_plots
 from udrobot_ctrl.gap.report import (
     corrected_model,
@@ -33,10 +34,9 @@ from udrobot_ctrl.gap.report import (
     write_report,
 )
 from udrobot_ctrl.gap.shrink import check_window
-from udrobot_ctrl.io import load_any
-from udrobot_ctrl.io.files import check_command, spec_files
 from udrobot_ctrl.io.overlap import check_unseen
 from udrobot_ctrl.vehicle import MODEL_NAMES, VEHICLE_MODEL_NAMES, load_model, write_model_file
+from udrobot_files.output import check_command, spec_files
 
 
 def register(subparsers):

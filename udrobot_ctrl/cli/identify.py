@@ -26,8 +26,8 @@ import numpy as np
 from identification.identify import KINDS, RigOptions, coefficient_set_values, format_table, identify_files
 from identification.plots import plot_report
 from identification.sets import write_coefficient_set
-from udrobot_ctrl.io.files import atomic_write, check_command, spec_files
 from udrobot_ctrl.vehicle import coefficient_set, full_size_vehicle
+from udrobot_files.output import atomic_write, check_command, spec_files
 
 
 def _area(text):

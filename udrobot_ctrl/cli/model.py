@@ -5,10 +5,11 @@ from pathlib import Path
 
 import numpy as np
 
+from udrobot_ctrl.constants import DOF_NAMES
 from udrobot_ctrl.dynamics.plant import plant_parameters
 from udrobot_ctrl.dynamics.thrusters import actuated_dofs
-from udrobot_ctrl.io.files import check_command, spec_files
-from udrobot_ctrl.vehicle import ALL_MODEL_NAMES, DOF_NAMES, load_model, write_model_file
+from udrobot_ctrl.vehicle import ALL_MODEL_NAMES, load_model, write_model_file
+from udrobot_files.output import check_command, spec_files
 
 
 def register(subparsers):

@@ -29,7 +29,6 @@ import numpy as np
 from udrobot_ctrl.cli.main import CLIError
 from udrobot_ctrl.control.compare import CONTROL_DT, SIM_DT
 from udrobot_ctrl.control.missions import standard_mission
-from udrobot_ctrl.io.files import atomic_write, check_command, spec_files
 from udrobot_ctrl.sensitivity.evaluators import MissionEvaluator
 from udrobot_ctrl.sensitivity.executor import SweepExecutor, scheduler_warning
 from udrobot_ctrl.sensitivity.global_ import run_monte_carlo, run_morris, run_sobol
@@ -37,6 +36,7 @@ from udrobot_ctrl.sensitivity.local import local_sensitivity
 from udrobot_ctrl.sensitivity.parameters import default_space, parse_range, read_study_file
 from udrobot_ctrl.sensitivity.plots import sobol_bars, tornado
 from udrobot_ctrl.sensitivity.results import DESIGN_FILE, STUDY_FILE, StudyLock, StudyLockedError
+from udrobot_files.output import atomic_write, check_command, spec_files
 
 METHODS = ("local", "sobol", "morris", "montecarlo")
 

@@ -32,6 +32,8 @@ import numpy as np
 from tqdm import tqdm
 
 from udrobot_ctrl.autopilot.fly import fly
+from udrobot_ctrl.constants import STATE_NAMES
+from udrobot_ctrl.convert import load_any
 from udrobot_ctrl.dynamics import effects as fx
 from udrobot_ctrl.dynamics.domain import (
     DEFAULT_WINDOW_S,
@@ -48,10 +50,15 @@ from udrobot_ctrl.gap.data import START_VELOCITY_WITHIN_S, start_state
 from udrobot_ctrl.gap.replay import WindowedGap, windowed_gap
 from udrobot_ctrl.gap.screen import unrepresented_runs
 from udrobot_ctrl.gap.shrink import check_window
-from udrobot_ctrl.io import load_any, runlog
-from udrobot_ctrl.io.files import atomic_write, check_command, run_files, spec_files
+from udrobot_ctrl.io import runlog
 from udrobot_ctrl.io.runlog import check_time_gaps
-from udrobot_ctrl.vehicle import ALL_MODEL_NAMES, STATE_NAMES, load_model
+from udrobot_ctrl.vehicle import ALL_MODEL_NAMES, load_model
+from udrobot_files.output import (
+    atomic_write,
+    check_command,
+    run_files,
+    spec_files,
+)
 
 
 def register(subparsers):
@@ -92,9 +99,9 @@ def register(subparsers):
 
 
 def read_input_run(path, mapping=None):
-    """A Run from a udrobot-run/1 CSV (runlog.read_run) or any log udrobot_ctrl.io.load_any understands; a warning on
-    stderr when the converter kept no stretch of it (the plant does not represent it: a replay's gap there is not a
-    model error)."""
+    """A Run from a udrobot-run/1 CSV (runlog.read_run) or any log udrobot_ctrl.convert.load_any understands; a
+    warning on stderr when the converter kept no stretch of it (the plant does not represent it: a replay's gap there
+    is not a model error)."""
     path = Path(path)
     run = None
     if path.suffix.lower() == ".csv":

@@ -14,7 +14,9 @@ Estimation: for each plant B one data set is made by flying B with the LQR desig
 (:func:`udrobot_ctrl.control.ekf.ekf_on_trajectory`) built on model A filters B's simulated sensors (pressure
 depth, IMU, DVL); reported: RMSE of z (m), psi (rad), u (m/s) and the mean NIS.
 
-Each controller is designed once per design model and flown on every plant; the designs (and the EKF per
+:func:`compare` returns a :class:`Comparison` (the rows, the EKF rows, the mission, the wall time):
+``.to_json()`` is the ``--json`` document, ``.full_json()`` ``compare_full.json`` and ``.summary()`` the printed
+tables. Each controller is designed once per design model and flown on every plant; the designs (and the EKF per
 filter model) run in a ``concurrent.futures`` process pool (``--workers``), with a progress bar on a terminal.
 Outputs: the ``--json`` file
 holds exactly ``{"models", "results": [{design, plant, controller, iae, overshoot, settling_s, energy_J,
@@ -30,6 +32,7 @@ import os
 import textwrap
 import time
 from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -41,8 +44,8 @@ from udrobot_ctrl.control.metrics import mission_metrics
 from udrobot_ctrl.control.missions import CONTROLLER_KINDS, make_controller, run_mission, standard_mission
 from udrobot_ctrl.control.mpc import LinearMPC
 from udrobot_ctrl.dynamics.sim import as_parameters
-from udrobot_ctrl.io.files import atomic_write, save_figure
 from udrobot_ctrl.vehicle import MODEL_NAMES
+from udrobot_files.output import atomic_write, save_figure
 
 #: How a design fails for a reason of the model, not of the code: reported in the row, the matrix goes on.
 DESIGN_ERRORS = (ValueError, np.linalg.LinAlgError)
@@ -175,6 +178,85 @@ def compile_kernels(model=MODEL_NAMES[0], controllers=CONTROLLER_KINDS, ekf: boo
 _JOB_COST = {"nmpc": 2.5, "lmpc": 1.7, "lqr": 0.35, "pid": 0.27, "ekf": 0.4}
 
 
+@dataclass(frozen=True)
+class Comparison:
+    """What :func:`compare` found: every (design A, plant B, controller) flight and every (filter A, plant B) EKF run.
+
+    Parameters
+    ----------
+    models : tuple of str
+        The model names (or files), each a design model and a plant, in the order given.
+    results : list of dict
+        One row per flight, ordered by design, plant, controller: ``design``, ``plant``, ``controller``, the
+        metrics of :data:`RESULT_KEYS` and :data:`DETAIL_KEYS` (:func:`~udrobot_ctrl.control.metrics.mission_metrics`:
+        IAE s, overshoot %, settling s, energy J, saturation s, angles deg, speeds m/s; None when the run failed),
+        ``status`` (``ok`` or why the design or flight failed) and ``wall_s`` (s) of a flight that ran.
+    ekf : list of dict
+        One row per (``filter_model``, ``plant``): ``rmse`` of z (m), psi (rad), u (m/s), ``nis_mean`` (-),
+        ``nis_per_dof`` (-) and ``status``; None values when the filter failed.
+    skipped : dict
+        Name -> reason of what was not run (empty: every controller and the EKF are part of the package).
+    mission_name : str
+        The mission flown (:func:`~udrobot_ctrl.control.missions.standard_mission`).
+    mission_t_final : float
+        Its duration, s.
+    wall_s : float
+        Wall time of the whole comparison, s.
+    trajectories : dict or None
+        (controller, design, plant) -> decimated ``t``, ``z``, ``psi``, ``u`` of the matched pairs (design ==
+        plant), when :func:`compare` was asked to keep them.
+    """
+
+    models: tuple[str, ...]
+    results: list[dict]
+    ekf: list[dict]
+    skipped: dict[str, str]
+    mission_name: str
+    mission_t_final: float
+    wall_s: float
+    trajectories: dict | None = None
+
+    def to_json(self) -> dict:
+        """The ``--json`` document: exactly ``models``, ``results`` and ``ekf`` with the contract keys (NaN -> null).
+
+        Returns
+        -------
+        dict
+            ``{"models", "results": [{design, plant, controller, iae, overshoot, settling_s, energy_J,
+            saturation_s}], "ekf": [{filter_model, plant, rmse: {z, psi, u}, nis_mean}]}`` (units as in
+            :class:`Comparison`).
+        """
+        return _finite({"models": list(self.models),
+                        "results": [{k: r.get(k) for k in RESULT_KEYS} for r in self.results],
+                        "ekf": [{"filter_model": e["filter_model"], "plant": e["plant"], "rmse": dict(e["rmse"]),
+                                 "nis_mean": e["nis_mean"]} for e in self.ekf]})
+
+    def full_json(self) -> dict:
+        """``compare_full.json``: every row with every metric, the skipped runs, the mission and the wall time.
+
+        Returns
+        -------
+        dict
+            ``{"models", "results", "ekf", "skipped", "mission": {name, t_final (s)}, "wall_s" (s)}`` (NaN -> null;
+            the trajectories are left out).
+        """
+        mission = {"name": self.mission_name, "t_final": self.mission_t_final}
+        return _finite({"models": list(self.models), "results": self.results, "ekf": self.ekf,
+                        "skipped": self.skipped, "mission": mission, "wall_s": self.wall_s})
+
+    def summary(self) -> str:
+        """The printed report: the controller and EKF tables (:func:`text_table`), :data:`TABLE_LEGEND` and a
+        ``skipped NAME: reason`` line per skipped run.
+
+        Returns
+        -------
+        str
+            The text, lines joined by newlines, no final newline.
+        """
+        return "\n".join([text_table(self.results, self.ekf), TABLE_LEGEND,
+                          *(f"skipped {name}: {why}" for name, why in self.skipped.items())])
+
+
 def _progress(total, desc):
     """A tqdm bar on stderr, silent when stderr is not a terminal."""
 
@@ -183,7 +265,7 @@ def _progress(total, desc):
 
 def compare(models=MODEL_NAMES, controllers=CONTROLLER_KINDS, quick: bool = False, workers: int | None = None,
             keep_trajectories: bool = False, ekf: bool = True, t_final: float | None = None,
-            progress: bool = True) -> dict:
+            progress: bool = True) -> Comparison:
     """Run the (design A, plant B, controller) matrix and the EKF matrix.
 
     Each controller is designed once per design model and flown on every plant (a design does not depend on
@@ -211,10 +293,9 @@ def compare(models=MODEL_NAMES, controllers=CONTROLLER_KINDS, quick: bool = Fals
 
     Returns
     -------
-    dict
-        ``models``, ``results`` (rows with the contract keys plus details and ``status``, ordered by design,
-        plant, controller), ``ekf`` (rows), ``skipped`` (name -> reason), ``mission`` (name and duration),
-        ``wall_s``, and ``trajectories`` when asked.
+    Comparison
+        The rows (ordered by design, plant, controller), the EKF rows, the mission, the wall time and the
+        trajectories when asked.
     """
     models = list(models)
     controllers = list(controllers)
@@ -268,11 +349,9 @@ def compare(models=MODEL_NAMES, controllers=CONTROLLER_KINDS, quick: bool = Fals
     rows.sort(key=lambda r: (models.index(r["design"]), models.index(r["plant"]), controllers.index(r["controller"])))
     ekf_rows.sort(key=lambda e: (models.index(e["filter_model"]), models.index(e["plant"])))
     mission = standard_mission(quick)
-    out = {"models": models, "results": rows, "ekf": ekf_rows, "skipped": skipped,
-           "mission": {"name": mission.name, "t_final": mission.t_final}, "wall_s": time.perf_counter() - t0}
-    if keep_trajectories:
-        out["trajectories"] = trajs
-    return out
+    return Comparison(models=tuple(models), results=rows, ekf=ekf_rows, skipped=skipped, mission_name=mission.name,
+                      mission_t_final=mission.t_final, wall_s=time.perf_counter() - t0,
+                      trajectories=trajs if keep_trajectories else None)
 
 
 def _finite(v):
@@ -284,14 +363,6 @@ def _finite(v):
     if isinstance(v, (float, np.floating)):
         return float(v) if np.isfinite(v) else None
     return v
-
-
-def contract_json(result) -> dict:
-    """The ``--json`` document: exactly models, results and ekf with the contract keys (NaN -> null)."""
-    return _finite({"models": list(result["models"]),
-            "results": [{k: r.get(k) for k in RESULT_KEYS} for r in result["results"]],
-            "ekf": [{"filter_model": e["filter_model"], "plant": e["plant"], "rmse": dict(e["rmse"]),
-                     "nis_mean": e["nis_mean"]} for e in result["ekf"]]})
 
 
 def _preview_s() -> float:
@@ -384,12 +455,27 @@ def output_names(controllers) -> list:
     return [*OUTPUT_FILES, *(f"compare_iae_{k}.png" for k in controllers)]
 
 
-def write_outputs(result, out: Path, protect=()) -> list:
-    """CSV, text table, full JSON and plots in ``out``; returns the written paths (never over a ``protect`` file)."""
+def write_outputs(result: Comparison, out: Path, protect=()) -> list:
+    """CSV, text table, full JSON and plots in ``out``; returns the written paths (never over a ``protect`` file).
+
+    Parameters
+    ----------
+    result : Comparison
+        What :func:`compare` returned.
+    out : Path
+        The folder (created if missing).
+    protect : sequence of Path
+        Files never written over (the inputs).
+
+    Returns
+    -------
+    list of Path
+        The files written.
+    """
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    rows, models = result["results"], result["models"]
+    rows, models = result.results, list(result.models)
     keys = ["controller", "design", "plant", *RESULT_KEYS[3:], *DETAIL_KEYS, "status"]
     files = [out / "compare.csv", out / "compare_ekf.csv", out / "compare.txt", out / "compare_full.json"]
     _write_atomic(files[0], "\n".join([",".join(keys)] + [",".join(_csv_value(r.get(k)) for k in keys)
@@ -397,11 +483,10 @@ def write_outputs(result, out: Path, protect=()) -> list:
     ek = ["filter_model", "plant", "rmse_z", "rmse_psi", "rmse_u", "nis_mean", "status"]
     _write_atomic(files[1], "\n".join([",".join(ek)] + [",".join(_csv_value(v) for v in (
         e["filter_model"], e["plant"], e["rmse"]["z"], e["rmse"]["psi"], e["rmse"]["u"], e["nis_mean"],
-        e.get("status"))) for e in result["ekf"]]) + "\n", protect)
-    skipped = "".join(f"\nskipped {k}: {v}" for k, v in result.get("skipped", {}).items())
-    _write_atomic(files[2], text_table(rows, result["ekf"]) + "\n\n" + TABLE_LEGEND + skipped + "\n", protect)
-    _write_atomic(files[3], json.dumps(_finite({k: v for k, v in result.items() if k != "trajectories"}),
-                                       indent=1, default=float), protect)
+        e.get("status"))) for e in result.ekf]) + "\n", protect)
+    skipped = "".join(f"\nskipped {k}: {v}" for k, v in result.skipped.items())
+    _write_atomic(files[2], text_table(rows, result.ekf) + "\n\n" + TABLE_LEGEND + skipped + "\n", protect)
+    _write_atomic(files[3], json.dumps(result.full_json(), indent=1, default=float), protect)
     n = len(models)
     short = [m.replace(":", ":\n") for m in models]
     for kind in sorted({r["controller"] for r in rows}):
@@ -426,12 +511,12 @@ def write_outputs(result, out: Path, protect=()) -> list:
         path = out / f"compare_iae_{kind}.png"
         save_figure(fig, path, protect=protect, dpi=110)
         files.append(path)
-    if result["ekf"]:
+    if result.ekf:
         fig = Figure(figsize=(15, 4.6))
         axes = fig.subplots(1, 3)
         for ax, s in zip(axes, EKF_STATES):
             mat = np.full((n, n), np.nan)
-            for e in result["ekf"]:
+            for e in result.ekf:
                 if e["rmse"][s] is not None:
                     mat[models.index(e["filter_model"]), models.index(e["plant"])] = e["rmse"][s]
             im = ax.imshow(mat, cmap="magma")
@@ -445,12 +530,12 @@ def write_outputs(result, out: Path, protect=()) -> list:
         path = out / "compare_ekf_rmse.png"
         save_figure(fig, path, protect=protect, dpi=110)
         files.append(path)
-    trajs = result.get("trajectories") or {}
+    trajs = result.trajectories or {}
     if trajs:
         kinds = sorted({k for k, _, _ in trajs})
         fig = Figure(figsize=(4.5 * len(kinds), 8))
         axes = fig.subplots(3, len(kinds), squeeze=False, sharex=True)
-        mission = standard_mission(result["mission"]["name"].endswith("quick"))
+        mission = standard_mission(result.mission_name.endswith("quick"))
         for j, kind in enumerate(kinds):
             for (k, a, _b), tr in sorted(trajs.items()):
                 if k != kind:

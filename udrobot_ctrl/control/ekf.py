@@ -50,6 +50,7 @@ import numpy as np
 from filterpy.kalman import ExtendedKalmanFilter
 from scipy.stats import chi2
 
+from udrobot_ctrl.constants import STATE_NAMES
 from udrobot_ctrl.control.fastpath import CompiledFunction, ekf_update_all
 from udrobot_ctrl.control.mpc import maybe_compiled
 from udrobot_ctrl.control.sensors import (
@@ -66,7 +67,6 @@ from udrobot_ctrl.dynamics.plant import PlantParameters, plant_parameters, wrap_
 from udrobot_ctrl.dynamics.plant_casadi import rk4_step_function
 from udrobot_ctrl.vehicle import load_model
 
-STATE_NAMES = ("x", "y", "z", "phi", "theta", "psi", "u", "v", "w", "p", "q", "r")
 #: default initial standard deviations (m, rad, m/s, rad/s; assumed: start at a known spot, roughly level)
 DEFAULT_P0_SIGMA = np.array([0.5, 0.5, 0.1, 0.05, 0.05, 0.2, 0.1, 0.1, 0.1, 0.05, 0.05, 0.05])
 

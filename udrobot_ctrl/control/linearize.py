@@ -34,9 +34,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from udrobot_ctrl.constants import STATE_INDEX, STATE_NAMES
 from udrobot_ctrl.dynamics.plant import PlantParameters, generalized_forces
 from udrobot_ctrl.dynamics.plant_casadi import dynamics_function
-from udrobot_ctrl.vehicle import STATE_INDEX, STATE_NAMES
 
 #: Design state (position x, y dropped: not tracked, pure integrators).
 REDUCED_STATES = ("z", "phi", "theta", "psi", "u", "v", "w", "p", "q", "r")

@@ -75,11 +75,11 @@ import casadi as ca
 import numpy as np
 import scipy.sparse as sp
 
+from udrobot_ctrl.constants import STATE_INDEX, STATE_NAMES
 from udrobot_ctrl.control.fastpath import CompiledFunction, CondensedMPCQP, preview_table
 from udrobot_ctrl.dynamics.fastsim import compile_function, parameter_hash
 from udrobot_ctrl.dynamics.plant import PlantParameters, generalized_forces, plant_parameters, wrap_angle
 from udrobot_ctrl.dynamics.plant_casadi import rk4_step_function
-from udrobot_ctrl.vehicle import STATE_INDEX, STATE_NAMES
 
 _ALIASES = {"depth": "z", "heading": "psi", "surge": "u", "yaw": "psi", "roll": "phi", "pitch": "theta"}
 PSI = 5

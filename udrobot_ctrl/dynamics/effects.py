@@ -78,8 +78,9 @@ import casadi as ca
 import numpy as np
 from scipy.signal import lfilter
 
-DOF = ("X", "Y", "Z", "K", "M", "N")
-VEL = ("u", "v", "w", "p", "q", "r")
+from udrobot_ctrl.constants import DOF_NAMES as DOF
+from udrobot_ctrl.constants import VELOCITY_NAMES as VEL
+
 CROSS_PAIRS = tuple((i, j) for i in range(6) for j in range(6) if i != j)
 
 

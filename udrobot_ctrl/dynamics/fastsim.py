@@ -30,7 +30,7 @@ from udrobot_ctrl.caches import private_dir, unsafe_reason, user_cache_root
 from udrobot_ctrl.dynamics import integrators, plant_casadi
 from udrobot_ctrl.dynamics.plant import PlantParameters, require_nominal
 from udrobot_ctrl.dynamics.sim import as_parameters
-from udrobot_ctrl.io.files import atomic_write
+from udrobot_files.output import atomic_write
 
 COMPILE_TIMEOUT_S = 2.0
 

@@ -17,7 +17,6 @@ import numpy as np
 
 from udrobot_ctrl.dynamics import effects as fx
 from udrobot_ctrl.dynamics.equations import equations
-from udrobot_ctrl.vehicle import Vehicle
 
 #: V, thruster supply assumed when a vehicle states none (UDrobot: Cely 2019 sec. 3.1 nominal 12 V).
 DEFAULT_SUPPLY_VOLTAGE = 12.0
@@ -222,7 +221,7 @@ class PlantParameters:
     size_m: float | None = None
 
 
-def plant_parameters(vehicle: Vehicle) -> PlantParameters:
+def plant_parameters(vehicle) -> PlantParameters:
     """Assemble M = M_RB + M_A and the other arrays; checks M is symmetric positive definite.
 
     Parameters

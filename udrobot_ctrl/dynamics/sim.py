@@ -47,7 +47,6 @@ from udrobot_ctrl.dynamics.plant import (
     state_derivative,
     thrust_to_wrench,
 )
-from udrobot_ctrl.vehicle import load_model
 
 
 @dataclass
@@ -75,13 +74,49 @@ class SimResult:
     saturated: np.ndarray
 
 
+#: How a model name or file becomes a Vehicle: :func:`udrobot_ctrl.vehicle.load_model`, handed down by
+#: :mod:`udrobot_ctrl.vehicle` when it is imported (:func:`set_model_loader`). The vehicle layer sits above this one
+#: (it reads model files with this package's effects and thruster curves, docs/architecture.md), so it is not
+#: imported here; ``udrobot_ctrl/__init__`` imports it, so the loader is set before any module of the package runs.
+_MODEL_LOADER = None
+
+
+def set_model_loader(load) -> None:
+    """Set the function :func:`as_parameters` resolves model names and files with.
+
+    Parameters
+    ----------
+    load : callable
+        Model name, file or Vehicle -> :class:`udrobot_ctrl.vehicle.Vehicle` (:func:`udrobot_ctrl.vehicle.load_model`).
+
+    Returns
+    -------
+    None
+    """
+    global _MODEL_LOADER
+    _MODEL_LOADER = load
+
+
 def as_parameters(model) -> PlantParameters:
-    """PlantParameters from a model name, file, Vehicle or PlantParameters; a list/tuple gives stacked ones."""
+    """PlantParameters from a model name, file, Vehicle or PlantParameters; a list/tuple gives stacked ones.
+
+    Parameters
+    ----------
+    model : str, Path, udrobot_ctrl.vehicle.Vehicle, PlantParameters, list or tuple
+        A model name or file (read by :func:`udrobot_ctrl.vehicle.load_model`), a vehicle, plant parameters, or
+        a sequence of those (stacked, :func:`stack_parameters`).
+
+    Returns
+    -------
+    PlantParameters
+    """
     if isinstance(model, PlantParameters):
         return model
     if isinstance(model, (list, tuple)):
         return stack_parameters(model)
-    return plant_parameters(load_model(model))
+    if _MODEL_LOADER is None:  # not reachable through the package: udrobot_ctrl/__init__ imports the vehicle layer
+        raise RuntimeError("no model loader: import udrobot_ctrl.vehicle before resolving a model name")
+    return plant_parameters(_MODEL_LOADER(model))
 
 
 _STACKED = ("M", "M_inv", "D_L", "Q", "weight", "buoyancy", "r_g", "r_b")

@@ -44,9 +44,9 @@ from pathlib import Path
 import numpy as np
 import tomllib
 
-from udrobot_ctrl.io.files import atomic_write
-from udrobot_ctrl.vehicle import DOF_NAMES
+from udrobot_ctrl.constants import DOF_NAMES
 from udrobot_files.inputs import read_regular
+from udrobot_files.output import atomic_write
 
 PWM_NEUTRAL = 1500.0
 PWM_MIN = 1100.0

@@ -33,14 +33,15 @@ import numpy as np
 from scipy.signal import savgol_filter
 
 from udrobot_ctrl.autopilot.feedback import ReplayFeedback, replay_feedback
+from udrobot_ctrl.constants import DOF_NAMES
+from udrobot_ctrl.constants import POSE_NAMES as POSE
+from udrobot_ctrl.constants import VELOCITY_NAMES as VEL
 from udrobot_ctrl.dynamics.domain import true_runs
 from udrobot_ctrl.dynamics.plant import PlantParameters, restoring_forces
 from udrobot_ctrl.dynamics.thrusters import pwm_to_thrust
 from udrobot_ctrl.gap.smoother import SmoothedRun, SmootherError, smooth_run
 from udrobot_ctrl.io.runlog import Run, check_time_gaps, resample, unaided_channels
 
-VEL = ("u", "v", "w", "p", "q", "r")
-POSE = ("x", "y", "z", "phi", "theta", "psi")
 #: a DOF's velocity is observed when any of these channels is logged (the velocity or its integral)
 OBSERVING = {0: ("u", "x"), 1: ("v", "y"), 2: ("w", "z"), 3: ("p", "phi"), 4: ("q", "theta"), 5: ("r", "psi")}
 MAX_GRID_RATIO = 100.0  # a uniform grid over 100 x the rows means a time column error, not a resampling need
@@ -452,7 +453,7 @@ def without_stabilised(dof_ok, feedback: ReplayFeedback | None, label: str = "ru
     held[3:6] = np.asarray(feedback.axes, bool) & dof_ok[3:6] & slow
     if not held.any() or not (dof_ok & ~held).any():
         return dof_ok, ""
-    names = ", ".join(n for n, h in zip(("X", "Y", "Z", "K", "M", "N"), held) if h)
+    names = ", ".join(n for n, h in zip(DOF_NAMES, held) if h)
     return dof_ok & ~held, (f"{label}: equation error without {names}: ArduSub stabilised them, and its outputs "
                             f"logged every {feedback.interval * 1e3:.0f} ms miss the moment its attitude loop (time "
                             f"constant 1 / angle P) applied between samples (the closed-loop replay still scores "

@@ -56,6 +56,8 @@ from typing import ClassVar, NamedTuple
 
 import numpy as np
 
+from udrobot_ctrl.constants import DOF_NAMES as DOF
+from udrobot_ctrl.constants import VELOCITY_NAMES as VEL
 from udrobot_ctrl.dynamics import effects as pfx
 from udrobot_ctrl.dynamics.effects import PlantEffect
 from udrobot_ctrl.dynamics.plant import (
@@ -68,8 +70,6 @@ from udrobot_ctrl.dynamics.plant import (
 from udrobot_ctrl.gap.data import restoring_gradient
 
 EFFECT_NAMES = pfx.EFFECT_NAMES
-DOF = ("X", "Y", "Z", "K", "M", "N")
-VEL = ("u", "v", "w", "p", "q", "r")
 
 
 @dataclass

@@ -36,6 +36,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy.signal import savgol_coeffs
 
+from udrobot_ctrl.constants import DOF_NAMES as DOF
 from udrobot_ctrl.dynamics.plant import PlantParameters
 from udrobot_ctrl.gap.attribute import residual, tau_int
 from udrobot_ctrl.gap.data import OBSERVING, POSE, VEL, Prepared, smooth_derivative
@@ -47,7 +48,6 @@ FLOOR_DRAWS = 2
 #: identified effect whose non-identified parameters act there cannot be excluded while the gap stays unexplained
 GAP_SHARE = 0.2
 FLOOR_SEED = 0
-DOF = ("X", "Y", "Z", "K", "M", "N")
 SPEED_BINS = (0.0, 0.1, 0.25, 0.5, 1.0, np.inf)
 THRUST_BINS = (0.0, 0.1, 0.3, 0.6, np.inf)
 DIST_BINS = (0.0, 0.3, 0.6, 1.0, 2.0, np.inf)
@@ -426,8 +426,7 @@ def _frequency_detail(preps, residuals):
     for prep, res in zip(preps, residuals):
         for band, arr in frequency_shares(res, prep.dt).items():
             acc.setdefault(band, []).append(arr)
-    dofs = ("X", "Y", "Z", "K", "M", "N")
-    return {band: {d: round(float(np.mean([a[i] for a in arrs])), 3) for i, d in enumerate(dofs)}
+    return {band: {d: round(float(np.mean([a[i] for a in arrs])), 3) for i, d in enumerate(DOF)}
             for band, arrs in acc.items()}
 
 

@@ -15,10 +15,10 @@ from pathlib import Path
 import numpy as np
 from matplotlib.figure import Figure
 
+from udrobot_ctrl.constants import STATE_INDEX
 from udrobot_ctrl.dynamics.plant import wrap_angle
 from udrobot_ctrl.gap.shrink import ACCEL, ANGLES, UNITS, accel_bias, diverged_samples, errors
-from udrobot_ctrl.io.files import save_figure
-from udrobot_ctrl.vehicle import STATE_INDEX
+from udrobot_files.output import save_figure
 
 #: channel -> its column in a replay (:func:`udrobot_ctrl.gap.shrink.simulate_windows`)
 COLUMN = {**STATE_INDEX, **{c: 12 + j for j, c in enumerate(ACCEL)}}

@@ -66,10 +66,10 @@ from udrobot_ctrl.gap.shrink import (
     simulate_windows_each,
 )
 from udrobot_ctrl.gap.top_end import TETHER, top_end
-from udrobot_ctrl.io.files import atomic_write
 from udrobot_ctrl.io.runlog import Run
 from udrobot_ctrl.parallel import Background, fork_map, one_blas_thread
 from udrobot_ctrl.vehicle import load_model
+from udrobot_files.output import atomic_write
 
 FORMAT = "udrobot-diagnosis/1"
 

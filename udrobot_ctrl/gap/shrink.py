@@ -37,6 +37,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from udrobot_ctrl.constants import STATE_INDEX
 from udrobot_ctrl.dynamics.effects import NUMPY
 from udrobot_ctrl.dynamics.integrators import rk4_step
 from udrobot_ctrl.dynamics.plant import PlantParameters, generalized_forces, kinematics, wrap_angle
@@ -45,7 +46,6 @@ from udrobot_ctrl.gap.effects import PLANT_FORCES, PlantForces
 from udrobot_ctrl.gap.smoother import GRAVITY, accelerometer, logged_noise_model
 from udrobot_ctrl.io.runlog import Run, split_segments
 from udrobot_ctrl.parallel import fork_map, shares, workers
-from udrobot_ctrl.vehicle import STATE_INDEX
 
 CHANNELS = ("u", "v", "w", "p", "q", "r", "z", "phi", "theta", "psi")
 ACCEL = ("ax", "ay", "az")

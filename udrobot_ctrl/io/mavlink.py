@@ -32,7 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
-from udrobot_ctrl.autopilot.params import usable_log_params
+from udrobot_ctrl.ardusub.params import usable_log_params
 
 from .streams import LogImportError, finish_stream
 
@@ -333,7 +333,7 @@ def drop_impossible(name: str, cols: dict) -> list:
 
 
 def checked_params(facts: LogFacts) -> None:
-    """The one check of a log's parameter records (:func:`~udrobot_ctrl.autopilot.params.usable_log_params`), in
+    """The one check of a log's parameter records (:func:`~udrobot_ctrl.ardusub.params.usable_log_params`), in
     place: a record ArduSub cannot hold (a SCHED_LOOP_RATE of 1e5, a NaN gain) is left out of ``facts.params``
     with a ``parameters:`` note, so ArduSub's default stands in for it and no converter passes it on."""
     facts.params, problems = usable_log_params(facts.params)

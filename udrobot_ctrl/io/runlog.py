@@ -40,13 +40,14 @@ from pathlib import Path
 
 import numpy as np
 
-from udrobot_ctrl.autopilot.modes import Mode
-from udrobot_ctrl.autopilot.params import ESTIMATED_PARAMS, LOGGED_PARAMS, ParameterError, check_log_params
-from udrobot_ctrl.io import files
+from udrobot_ctrl.ardusub.modes import Mode
+from udrobot_ctrl.ardusub.params import ESTIMATED_PARAMS, LOGGED_PARAMS, ParameterError, check_log_params
+from udrobot_ctrl.constants import STATE_NAMES
+from udrobot_files import output as files
 from udrobot_files.nesting import NestingError, loads_json, unique_keys
 
 FORMAT = "udrobot-run/1"
-STATE_CHANNELS = ("x", "y", "z", "phi", "theta", "psi", "u", "v", "w", "p", "q", "r")
+STATE_CHANNELS = STATE_NAMES  # the run's state columns are the plant's states, in its order
 OTHER_CHANNELS = ("altitude", "voltage", "ax", "ay", "az")
 CHANNELS = STATE_CHANNELS + OTHER_CHANNELS
 ANGLE_CHANNELS = ("phi", "theta", "psi")
@@ -276,9 +277,9 @@ MODE_NAMES = ", ".join(f"{int(m)} {m.name}" for m in Mode)
 def check_context_columns(extra: dict, path="run", lines=None) -> None:
     """The autopilot context columns checked where they enter: numbers (or empty cells) in each of
     :data:`CONTEXT_NUMERIC`; every ``mode`` an ArduSub mode number (``ArduSub/mode.h`` ``Mode::Number``, the
-    ``control_mode_t`` of ``defines.h`` before 4.1: :class:`~udrobot_ctrl.autopilot.modes.Mode`), never rounded or
+    ``control_mode_t`` of ``defines.h`` before 4.1: :class:`~udrobot_ctrl.ardusub.modes.Mode`), never rounded or
     read as another mode; ``armed`` 0 or 1. The RC inputs' "no pulse" (0) and "unused" (65535) sentinels are
-    values, read as a centred stick by :func:`~udrobot_ctrl.autopilot.modes.pilot_pulses`.
+    values, read as a centred stick by :func:`~udrobot_ctrl.ardusub.modes.pilot_pulses`.
 
     Raises
     ------
@@ -967,7 +968,7 @@ def write_run(path, t, channels, input_kind, inputs, metadata=None, extra=None, 
         If False, refuse to replace an existing CSV or sidecar. With True, a stale sidecar of the replaced
         run is replaced too (by ``metadata``, or by ``{"format": "udrobot-run/1"}``).
     protect : iterable of paths
-        Input files (and their sidecars) the output must not be (:mod:`udrobot_ctrl.io.files`).
+        Input files (and their sidecars) the output must not be (:mod:`udrobot_files.output`).
 
     Returns
     -------

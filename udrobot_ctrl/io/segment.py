@@ -33,7 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from udrobot_ctrl.dynamics.thrusters import PWM_NEUTRAL, load_curve
-from udrobot_ctrl.io import files
+from udrobot_files import output as files
 
 #: Thrust (N) and wrench (N, N m) magnitudes below which a thruster / the vehicle counts as idle (assumed:
 #: ~1 % of a T200's 12 V maximum, below what moves a 10 kg ROV measurably within one decay period).

@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 from matplotlib.figure import Figure
 
-from udrobot_ctrl.io.files import save_figure
+from udrobot_files.output import save_figure
 
 
 def tornado(local_result, metric: str, top: int | None = 12, path=None, unit: str = "", title: str | None = None):

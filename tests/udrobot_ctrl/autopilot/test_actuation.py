@@ -11,10 +11,11 @@ import pytest
 
 from udrobot_ctrl.autopilot.actuation import VERDICTS, actuation_check
 from udrobot_ctrl.autopilot.motors import MotorParameters, frame_of_vehicle, motor_pwm
+from udrobot_ctrl.constants import STATE_NAMES
 from udrobot_ctrl.dynamics.sim import simulate
 from udrobot_ctrl.dynamics.thrusters import pwm_to_thrust
 from udrobot_ctrl.io.runlog import Run, read_run
-from udrobot_ctrl.vehicle import STATE_NAMES, load_model
+from udrobot_ctrl.vehicle import load_model
 
 SHARED = Path(__file__).resolve().parents[3] / ".." / "shared" / "data"
 VOLTAGE = 14.8

@@ -9,11 +9,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from udrobot_ctrl.ardusub.modes import Mode, PilotInput, Targets, norm_input, pilot_lean_angles
+from udrobot_ctrl.ardusub.params import ArduSubParameters, PIDGains, RCChannel
 from udrobot_ctrl.autopilot.ardusub import ArduSubAutopilot, MixerInputs, VehicleState
 from udrobot_ctrl.autopilot.attitude import ang_vel_to_euler_rate, quat_from_euler, quat_to_euler
-from udrobot_ctrl.autopilot.modes import Mode, PilotInput, Targets, norm_input, pilot_lean_angles
 from udrobot_ctrl.autopilot.motors import frame, motor_pwm
-from udrobot_ctrl.autopilot.params import ArduSubParameters, PIDGains, RCChannel
 from udrobot_ctrl.autopilot.pid import ACPID, inv_sqrt_controller, lowpass_alpha, sqrt_controller
 from udrobot_ctrl.autopilot.validate import (
     DataflashLog,

@@ -6,6 +6,7 @@ import math
 import numpy as np
 import pytest
 
+from udrobot_ctrl.ardusub.params import ArduSubParameters
 from udrobot_ctrl.autopilot.check_flight import check_flight, checklist_markdown
 from udrobot_ctrl.autopilot.design import (
     LOOP_PARAMETERS,
@@ -38,7 +39,6 @@ from udrobot_ctrl.autopilot.firmware import (
 )
 from udrobot_ctrl.autopilot.loop_margins import Margins, margins_from_response
 from udrobot_ctrl.autopilot.motors import frame
-from udrobot_ctrl.autopilot.params import ArduSubParameters
 from udrobot_ctrl.autopilot.qgc_params import format_params, parse_params, read_params
 from udrobot_ctrl.cli.design import _start_params
 from udrobot_ctrl.cli.main import main

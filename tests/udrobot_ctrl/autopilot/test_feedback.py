@@ -8,6 +8,8 @@ import dataclasses
 import numpy as np
 import pytest
 
+from udrobot_ctrl.ardusub.modes import Mode
+from udrobot_ctrl.ardusub.params import ArduSubParameters
 from udrobot_ctrl.autopilot.feedback import (
     OPEN_LOOP_MAX_INTERVAL,
     attitude_error,
@@ -17,9 +19,7 @@ from udrobot_ctrl.autopilot.feedback import (
     replay_feedback,
 )
 from udrobot_ctrl.autopilot.fly import LoggedCommands, fly
-from udrobot_ctrl.autopilot.modes import Mode
 from udrobot_ctrl.autopilot.motors import MotorParameters, frame, from_pwm, mix, to_pwm, unmix
-from udrobot_ctrl.autopilot.params import ArduSubParameters
 from udrobot_ctrl.dynamics.plant import plant_parameters
 from udrobot_ctrl.dynamics.thrusters import pwm_to_thrust
 from udrobot_ctrl.gap.data import prepare

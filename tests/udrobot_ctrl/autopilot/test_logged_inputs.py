@@ -10,13 +10,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from udrobot_ctrl.ardusub.modes import Mode
+from udrobot_ctrl.ardusub.params import ParameterError, check_log_params, parameter_problems, usable_log_params
 from udrobot_ctrl.autopilot.fly import LoggedCommands, fly
-from udrobot_ctrl.autopilot.modes import Mode
 from udrobot_ctrl.autopilot.motors import MotorParameters, frame
-from udrobot_ctrl.autopilot.params import ParameterError, check_log_params, parameter_problems, usable_log_params
+from udrobot_ctrl.constants import STATE_NAMES
 from udrobot_ctrl.dynamics.plant import plant_parameters
 from udrobot_ctrl.io.runlog import Run
-from udrobot_ctrl.vehicle import STATE_NAMES, load_model
+from udrobot_ctrl.vehicle import load_model
 
 HEAVY = "bluerov2-heavy"
 
@@ -94,7 +95,7 @@ def test_convert_drops_impossible_ekf_velocities_and_damaged_parameter_records(t
     """A LOCAL_POSITION_NED vx of 1e30 m/s (beyond EKF3's 500 m/s state limit) and a SCHED_LOOP_RATE record of 1e5
     were written on; now both are left out with a note, and the sidecar's parameters pass the reader's check."""
     from tests.udrobot_ctrl.io.test_field_logs import _mav, dive_tlog
-    from udrobot_ctrl.io import convert_log
+    from udrobot_ctrl.convert import convert_log
     from udrobot_ctrl.io.runlog import read_run, write
 
     mav = _mav()
@@ -127,7 +128,7 @@ def test_real_logs_parameters_and_context_pass_the_checks(log):
     are read without a refusal (GUIDED and SURFTRAK rows of the sea dive carry their targets)."""
     if not log.exists():
         pytest.skip("shared data absent")
-    from udrobot_ctrl.io import convert_log
+    from udrobot_ctrl.convert import convert_log
 
     run = convert_log(log, "ardusub")
     notes = run.metadata["notes"]

@@ -1,4 +1,4 @@
-"""ArduSub's input side as the firmware computes it (udrobot_ctrl.autopilot.modes, params, depth, ardusub): the RC
+"""ArduSub's input side as the firmware computes it (udrobot_ctrl.ardusub.modes, params, depth, ardusub): the RC
 channels' ``norm_input`` / ``norm_input_dz`` with the log's trims (the throttle trim at its minimum, as ArduSub
 vehicles have it), the manual throttle, ALT_HOLD's climb rate and its saturation handling."""
 from __future__ import annotations
@@ -8,8 +8,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from udrobot_ctrl.autopilot.ardusub import ArduSubAutopilot, MixerInputs, VehicleState
-from udrobot_ctrl.autopilot.modes import (
+from udrobot_ctrl.ardusub.modes import (
     Mode,
     PilotInput,
     norm_input,
@@ -18,8 +17,9 @@ from udrobot_ctrl.autopilot.modes import (
     pilot_throttle,
     shape_pilot,
 )
+from udrobot_ctrl.ardusub.params import ArduSubParameters, RCChannel, boot_gain
+from udrobot_ctrl.autopilot.ardusub import ArduSubAutopilot, MixerInputs, VehicleState
 from udrobot_ctrl.autopilot.motors import frame, motor_pwm
-from udrobot_ctrl.autopilot.params import ArduSubParameters, RCChannel, boot_gain
 from udrobot_ctrl.autopilot.pid import inv_sqrt_controller
 
 #: a BlueROV2 throttle channel as QGroundControl calibrates it for ArduSub: trim at the minimum
@@ -169,8 +169,8 @@ def test_trim_at_min_log_replays_its_vertical_thrusters(tmp_path):
     grid and the emulation's one-tick lag place the step), and a centred stick is 1500 us; the (norm + 1) / 2 form
     misses them by hundreds of us."""
     from udrobot_ctrl.autopilot.feedback import motor_output_check
+    from udrobot_ctrl.convert import convert_log
     from udrobot_ctrl.dynamics.plant import plant_parameters
-    from udrobot_ctrl.io import convert_log
     from udrobot_ctrl.vehicle import load_model
 
     run = convert_log(trim_at_min_tlog(tmp_path / "trim.tlog"), cut=False)

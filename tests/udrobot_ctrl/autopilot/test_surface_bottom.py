@@ -7,10 +7,10 @@ from dataclasses import dataclass
 import numpy as np
 import pytest
 
+from udrobot_ctrl.ardusub.modes import Mode, PilotInput
+from udrobot_ctrl.ardusub.params import ArduSubParameters
 from udrobot_ctrl.autopilot.ardusub import ArduSubAutopilot, MixerInputs, VehicleState
 from udrobot_ctrl.autopilot.fly import fly
-from udrobot_ctrl.autopilot.modes import Mode, PilotInput
-from udrobot_ctrl.autopilot.params import ArduSubParameters
 from udrobot_ctrl.autopilot.surface_bottom import (
     BOTTOM_CLEARANCE,
     BOTTOM_DETECTOR_TRIGGER_SEC,

@@ -8,10 +8,10 @@ import json
 import numpy as np
 import pytest
 
-from udrobot_ctrl.autopilot.modes import Mode
+from udrobot_ctrl.ardusub.modes import Mode
 from udrobot_ctrl.cli.main import main
+from udrobot_ctrl.constants import STATE_NAMES
 from udrobot_ctrl.io.runlog import write_run
-from udrobot_ctrl.vehicle import STATE_NAMES
 
 HEAVY = "bluerov2-heavy"
 

@@ -13,8 +13,9 @@ from hypothesis import strategies as st
 from tests.udrobot_ctrl.cli.test_output_policy import _snapshot, _tlog
 from udrobot_ctrl.cli import main
 from udrobot_ctrl.cli.demo import write_index
-from udrobot_ctrl.io import files, log_input_files
+from udrobot_ctrl.io import log_input_files
 from udrobot_ctrl.sensitivity.results import TEMP_NAME, remove_stale_temp_files
+from udrobot_files import output as files
 
 
 def _refused(argv, tmp_path, capsys, what="refusing to overwrite input data"):

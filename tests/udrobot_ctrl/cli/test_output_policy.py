@@ -1,5 +1,5 @@
 """One output policy for every command: an input (or its sidecar) is never overwritten, an existing file only
-with --force, and what is written is atomic and follows the user's umask (udrobot_ctrl.io.files)."""
+with --force, and what is written is atomic and follows the user's umask (udrobot_files.output)."""
 from __future__ import annotations
 
 import os
@@ -12,8 +12,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from udrobot_ctrl.cli import main
-from udrobot_ctrl.io import files
 from udrobot_ctrl.io.runlog import read_run, write_run
+from udrobot_files import output as files
 
 SETTINGS = settings(max_examples=12, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 NAMES = st.text(alphabet="abcdefghijklmnopqrstuvwxyz0123456789_-", min_size=1, max_size=12)

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from udrobot_ctrl.cli.main import main
+from udrobot_ctrl.constants import STATE_NAMES
 from udrobot_ctrl.io.runlog import write_run
-from udrobot_ctrl.vehicle import STATE_NAMES
 
 
 @pytest.fixture

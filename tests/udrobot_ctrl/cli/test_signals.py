@@ -18,9 +18,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from udrobot_ctrl.constants import STATE_NAMES
 from udrobot_ctrl.dynamics.sim import simulate
 from udrobot_ctrl.io.runlog import write_run
-from udrobot_ctrl.vehicle import STATE_NAMES, load_model
+from udrobot_ctrl.vehicle import load_model
 
 # subprocesses that import the package and are signalled mid-run: seconds each, so out of the fast lane
 pytestmark = [pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc to find the workers"),

@@ -13,12 +13,13 @@ import pytest
 
 from tests.udrobot_ctrl.gap.field_dive import pilot_plan
 from udrobot_ctrl.cli.main import main
+from udrobot_ctrl.constants import STATE_NAMES
 from udrobot_ctrl.dynamics.domain import ABOVE_SURFACE, THRUST_SATURATED
 from udrobot_ctrl.dynamics.plant import plant_parameters
 from udrobot_ctrl.dynamics.sim import simulate
 from udrobot_ctrl.gap.data import START_VELOCITY_WITHIN_S
 from udrobot_ctrl.io.runlog import read_run, write_run
-from udrobot_ctrl.vehicle import STATE_NAMES, load_model
+from udrobot_ctrl.vehicle import load_model
 
 RATE = 20.0
 MODEL = "pendulum:chin"  # thrusters 0, 1 surge (and yaw), 2, 3 heave (and roll)

@@ -9,8 +9,9 @@ import json
 import numpy as np
 import pytest
 
-from udrobot_ctrl.autopilot.modes import Mode
+from udrobot_ctrl.ardusub.modes import Mode
 from udrobot_ctrl.cli.main import main
+from udrobot_ctrl.constants import STATE_NAMES
 from udrobot_ctrl.dynamics.plant import plant_parameters
 from udrobot_ctrl.dynamics.sim import simulate
 from udrobot_ctrl.gap.data import prepare
@@ -19,7 +20,7 @@ from udrobot_ctrl.gap.report import split_runs
 from udrobot_ctrl.gap.screen import run_label
 from udrobot_ctrl.gap.shrink import WINDOW
 from udrobot_ctrl.io.runlog import SEGMENT, read_run, split_segments, write_run
-from udrobot_ctrl.vehicle import STATE_NAMES, load_model
+from udrobot_ctrl.vehicle import load_model
 
 RATE = 20.0  # Hz
 MODEL = "pendulum:chin"

@@ -5,10 +5,11 @@ import numpy as np
 import pytest
 
 from udrobot_ctrl.cli.main import main
+from udrobot_ctrl.constants import STATE_NAMES
 from udrobot_ctrl.dynamics.effects import PlantEffect
 from udrobot_ctrl.dynamics.sim import simulate
 from udrobot_ctrl.io.runlog import write_run
-from udrobot_ctrl.vehicle import STATE_NAMES, load_model, write_model_file
+from udrobot_ctrl.vehicle import load_model, write_model_file
 
 RATE = 20.0  # Hz, logging and command rate
 CABLE = PlantEffect("tether_drag", {"k_quadratic_N_s2_per_m2": 30.0, "k_linear_N_s_per_m": 0.0,

@@ -118,3 +118,42 @@ def test_text_table_wraps_a_long_failure_reason_instead_of_cutting_it():
     assert " ".join(wrapped) == status
     assert all(len(part) <= STATUS_WIDTH for part in wrapped) and len(wrapped) > 1
     assert body[-1].startswith("pid ") and body[-1].endswith("  ok")
+
+
+def _contract_before(result: dict) -> dict:
+    """The ``--json`` document as ``contract_json`` built it from compare()'s dict before compare() returned a
+    :class:`~udrobot_ctrl.control.compare.Comparison` (issue 60 item 3), kept verbatim as the reference."""
+    from udrobot_ctrl.control.compare import _finite
+
+    return _finite({"models": list(result["models"]),
+            "results": [{k: r.get(k) for k in RESULT_KEYS} for r in result["results"]],
+            "ekf": [{"filter_model": e["filter_model"], "plant": e["plant"], "rmse": dict(e["rmse"]),
+                     "nis_mean": e["nis_mean"]} for e in result["ekf"]]})
+
+
+@pytest.mark.slow
+def test_comparison_gives_the_json_and_text_compare_gave_as_a_dict(tmp_path, capsys):
+    """compare() returns a Comparison whose ``to_json()`` is the document the dict gave and whose ``summary()`` is
+    what the command printed; the CLI's --json file, compare_full.json and stdout are built from it unchanged."""
+    from udrobot_ctrl.control.compare import TABLE_LEGEND, Comparison, _finite, compare, text_table
+
+    models, controllers = ("cfd:chin", "free_decay:morison"), ("lqr",)
+    res = compare(models, controllers, quick=True, workers=1, progress=False)
+    assert isinstance(res, Comparison) and res.models == models and res.mission_name.endswith("quick")
+    assert [(r["design"], r["plant"]) for r in res.results] == [(a, b) for a in models for b in models]
+    before = {"models": list(res.models), "results": res.results, "ekf": res.ekf, "skipped": res.skipped,
+              "mission": {"name": res.mission_name, "t_final": res.mission_t_final}, "wall_s": res.wall_s}
+    assert res.to_json() == _contract_before(before)
+    # compare_full.json as write_outputs wrote the dict (less its trajectories): same keys, order and values
+    assert json.dumps(res.full_json(), indent=1, default=float) == json.dumps(_finite(before), indent=1, default=float)
+    assert res.summary() == "\n".join([text_table(res.results, res.ekf), TABLE_LEGEND])
+
+    js = tmp_path / "r.json"
+    assert main(["compare", "--quick", "--models", ",".join(models), "--controllers", "lqr", "--workers", "1",
+                 "--json", str(js)]) == 0
+    printed = capsys.readouterr().out.splitlines()
+    doc = json.loads(js.read_text())
+    assert doc == res.to_json()  # the flights are deterministic: the same numbers from the command
+    assert "\n".join(printed[:-2]) == res.summary()
+    assert printed[-2].startswith(f"{len(res.results)} controller runs, {len(res.ekf)} EKF runs in ")
+    assert printed[-1] == f"wrote {js}"

@@ -12,7 +12,7 @@ ardusub_log_tools/2023-04-18 11-03-34.tlog``, MIT): HEARTBEAT 1 Hz (custom_mode,
 10 Hz, GLOBAL_POSITION_INT 3 Hz, SCALED_PRESSURE2 2 Hz, SERVO_OUTPUT_RAW 2 Hz (instantaneous samples of the 200 Hz
 loop's outputs), RC_CHANNELS 2 Hz (ArduSub's RC overrides), SYS_STATUS 1 Hz, and the MANUAL_CONTROL that QGC sent
 (system 255, component 190) at 23.6 Hz: the pilot's joystick, converted to RC overrides by ArduSub's
-``transform_manual_control_to_rc_override`` (:func:`udrobot_ctrl.io.joystick.rc_override`) at pilot gain
+``transform_manual_control_to_rc_override`` (:func:`udrobot_ctrl.autopilot.joystick.rc_override`) at pilot gain
 ``PILOT_GAIN``. No DVL, no position, no accelerometer. Sensor noise (assumed, typical of the class): depth 1 cm
 (pressure and the EKF's depths), attitude 0.2 deg, gyro 0.3 deg/s.
 
@@ -29,11 +29,11 @@ import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mav2
 
 from tests.udrobot_ctrl.io.test_field_logs import RHO_G, write_events
+from udrobot_ctrl.ardusub.modes import Mode
 from udrobot_ctrl.autopilot.fly import ClosedLoopFlight, fly
-from udrobot_ctrl.autopilot.modes import Mode
+from udrobot_ctrl.autopilot.joystick import rc_override
 from udrobot_ctrl.dynamics.effects import PlantEffect
 from udrobot_ctrl.dynamics.plant import kinematics, plant_parameters
-from udrobot_ctrl.io.joystick import rc_override
 from udrobot_ctrl.io.runlog import Run
 from udrobot_ctrl.vehicle import Vehicle, load_model
 

@@ -12,12 +12,13 @@ import numpy as np
 import pytest
 
 from udrobot_ctrl.cli.main import main
+from udrobot_ctrl.constants import STATE_NAMES
 from udrobot_ctrl.dynamics.effects import PlantEffect, plant_effect
 from udrobot_ctrl.dynamics.sim import simulate
 from udrobot_ctrl.gap.replay import windowed_gap
 from udrobot_ctrl.gap.shrink import ERROR_CAP, VELOCITY_ENVELOPE, WINDOW, errors, window_counts
 from udrobot_ctrl.io.runlog import Run, write_run
-from udrobot_ctrl.vehicle import STATE_NAMES, load_model, write_model_file
+from udrobot_ctrl.vehicle import load_model, write_model_file
 
 RATE = 20.0  # Hz
 OFFSETS = (0.0, 1.0, 10.0, 100.0, 1e3, 1e5)  # N, buoyancy errors of increasingly wrong models

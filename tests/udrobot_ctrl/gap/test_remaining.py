@@ -7,9 +7,9 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
+from udrobot_ctrl.constants import STATE_INDEX
 from udrobot_ctrl.gap.report import closed_loop_shares, remaining_gap, remaining_line
 from udrobot_ctrl.gap.shrink import SIM_COLUMNS, gap
-from udrobot_ctrl.vehicle import STATE_INDEX
 
 
 def _run(n=2000, seed=0):

@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 from udrobot_ctrl.cli.main import main
+from udrobot_ctrl.constants import STATE_NAMES
 from udrobot_ctrl.dynamics.domain import ABOVE_SURFACE, THRUST_SATURATED
 from udrobot_ctrl.dynamics.effects import PlantEffect
 from udrobot_ctrl.dynamics.plant import plant_parameters
@@ -25,7 +26,7 @@ from udrobot_ctrl.gap.replay import window_domains
 from udrobot_ctrl.gap.report import diagnose, summary
 from udrobot_ctrl.gap.shrink import WINDOW, simulate_windows, window_starts
 from udrobot_ctrl.io.runlog import Run, write_run
-from udrobot_ctrl.vehicle import STATE_NAMES, load_model
+from udrobot_ctrl.vehicle import load_model
 
 RATE = 20.0
 WINDOW_S = 8.0

@@ -76,7 +76,7 @@ def test_an_unexcited_run_is_left_out_of_a_diagnosis_of_excited_ones():
 
 @pytest.mark.skipif(not BENCH_LOG.exists(), reason="shared data (../shared/data) not present")
 def test_the_shared_bench_log_with_every_pwm_at_neutral_is_reported_unexcited():
-    from udrobot_ctrl.io import load_any
+    from udrobot_ctrl.convert import load_any
 
     run = load_any(BENCH_LOG, "ardusub")
     report, _ = diagnose("bluerov2-heavy", [run])

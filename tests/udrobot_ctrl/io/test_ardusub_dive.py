@@ -12,7 +12,8 @@ from pymavlink.dialects.v20 import ardupilotmega as mav2
 
 from tests.udrobot_ctrl.io.test_field_logs import SHARED, T0, _mav, write_df, write_events
 from udrobot_ctrl.cli.main import main
-from udrobot_ctrl.io import LogImportError, convert_log
+from udrobot_ctrl.convert import convert_log
+from udrobot_ctrl.io import LogImportError
 from udrobot_ctrl.io.mavlink import VehicleInfo, choose_vehicle, classify_outputs
 from udrobot_ctrl.io.runlog import read_run, write
 from udrobot_ctrl.io.streams import Stream

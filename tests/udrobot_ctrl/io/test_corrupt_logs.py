@@ -21,7 +21,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from udrobot_ctrl.cli import main
-from udrobot_ctrl.io import convert_log, mavlink
+from udrobot_ctrl.convert import convert_log
+from udrobot_ctrl.io import mavlink
 from udrobot_ctrl.io.streams import finish_stream
 
 # ../shared next to the repository (as tests/udrobot_ctrl/io/test_field_logs.py); UDROBOT_SHARED overrides it

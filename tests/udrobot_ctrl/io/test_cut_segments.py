@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from tests.udrobot_ctrl.io.test_ardusub_dive import DEG, motor_pwm, write_dataflash
-from udrobot_ctrl.io import convert_log
+from udrobot_ctrl.convert import convert_log
 from udrobot_ctrl.io.mapping import CutSpec
 from udrobot_ctrl.io.runlog import Run, RunLogError, read_run, resample, split_segments, write, write_run
 from udrobot_ctrl.io.stretches import MIN_SEGMENT_S, TOO_SHORT, cut_run

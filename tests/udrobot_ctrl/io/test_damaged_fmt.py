@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from udrobot_ctrl.io import convert_log
+from udrobot_ctrl.convert import convert_log
 
 SMALL_BIN = Path(__file__).resolve().parents[4] / "shared" / "data" / "ardusub_log_tools" / "small.BIN"
 

@@ -10,7 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from udrobot_ctrl.io import LogImportError, convert_log, log_kind
+from udrobot_ctrl.convert import convert_log
+from udrobot_ctrl.io import LogImportError, log_kind
 from udrobot_ctrl.io.mapping import parse_mapping
 from udrobot_ctrl.io.runlog import read_run, write
 

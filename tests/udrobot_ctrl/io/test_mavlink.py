@@ -6,7 +6,8 @@ import struct
 import numpy as np
 import pytest
 
-from udrobot_ctrl.io import LogImportError, convert_log, load_any
+from udrobot_ctrl.convert import convert_log, load_any
+from udrobot_ctrl.io import LogImportError
 from udrobot_ctrl.io.mavlink import Damage, LogFacts, firmware_text, iter_dataflash, iter_tlog
 
 T0 = 1_700_000_000.0

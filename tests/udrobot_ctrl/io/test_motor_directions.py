@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from udrobot_ctrl.autopilot.motors import MotorParameters, frame, motor_pwm, throttle_bidirectional
-from udrobot_ctrl.io import apply_motor_directions
+from udrobot_ctrl.convert import apply_motor_directions
 from udrobot_ctrl.io.runlog import Run
 
 TRUE_DIRECTIONS = (-1, -1, 1, 1, -1, 1, 1, -1)

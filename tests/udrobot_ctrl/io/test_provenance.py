@@ -22,7 +22,8 @@ from tests.udrobot_ctrl.io.test_ardusub_dive import (
 )
 from tests.udrobot_ctrl.io.test_field_logs import ARDUSUB_LOGS, SHARED, T0, _mav, write_df
 from udrobot_ctrl.cli.main import main
-from udrobot_ctrl.io import LogImportError, convert_log
+from udrobot_ctrl.convert import convert_log
+from udrobot_ctrl.io import LogImportError
 from udrobot_ctrl.io.mapping import load_mapping, sidecar_channels
 from udrobot_ctrl.io.mavlink import LogFacts, ekf_aiding, ping_viewer_signature, read_bin_streams
 from udrobot_ctrl.io.runlog import UNAIDED, read_run, unaided_channels, write

@@ -9,7 +9,8 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from udrobot_ctrl.io import LogImportError, convert_log
+from udrobot_ctrl.convert import convert_log
+from udrobot_ctrl.io import LogImportError
 from udrobot_ctrl.io.qgc_csv import read_qgc_csv
 from udrobot_ctrl.io.rostopic_csv import read_topic_csv
 from udrobot_ctrl.io.runlog import RunLogError, read_run

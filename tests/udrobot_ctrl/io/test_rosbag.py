@@ -5,7 +5,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from udrobot_ctrl.io import LogImportError, convert_log, load_any
+from udrobot_ctrl.convert import convert_log, load_any
+from udrobot_ctrl.io import LogImportError
 from udrobot_ctrl.io.rosbag import MAVROS_MSGS
 from udrobot_ctrl.io.runlog import read_run, write
 

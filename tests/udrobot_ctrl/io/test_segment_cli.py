@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from udrobot_ctrl.cli import main
-from udrobot_ctrl.io import convert_log
+from udrobot_ctrl.convert import convert_log
 from udrobot_ctrl.io.runlog import read_run
 from udrobot_ctrl.io.segment import find_launches
 

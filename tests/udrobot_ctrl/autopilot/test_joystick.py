@@ -11,8 +11,9 @@ import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mav2
 
 from tests.udrobot_ctrl.io.test_field_logs import ARDUSUB_LOGS, T0, _mav, dive_tlog, params_events
-from udrobot_ctrl.io import convert_log, load_mapping
-from udrobot_ctrl.io.joystick import GAIN_STEP, pilot_input, rc_override
+from udrobot_ctrl.autopilot.joystick import GAIN_STEP, pilot_input, rc_override
+from udrobot_ctrl.convert import convert_log
+from udrobot_ctrl.io import load_mapping
 from udrobot_ctrl.io.mapping import parse_mapping
 from udrobot_ctrl.io.mavlink import read_tlog_streams
 

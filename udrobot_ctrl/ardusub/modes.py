@@ -4,7 +4,7 @@ Sources (ArduPilot, ArduSub 4.1-4.5):
 
 * ``ArduSub/radio.cpp`` ``init_rc_in``: channel order pitch 1, roll 2, throttle 3, yaw 4, forward 5, lateral 6
   (RCMAP disabled), roll/pitch/yaw/forward/lateral are *angle* channels of +-4500, throttle a *range* channel of
-  0..1000 (:data:`~udrobot_ctrl.autopilot.params.RC_MAP`).
+  0..1000 (:data:`~udrobot_ctrl.ardusub.params.RC_MAP`).
 * ``libraries/RC_Channel/RC_Channel.cpp``: ``norm_input`` (-1..1 about the trim, each side scaled to its own end:
   with ``RCn_TRIM = RCn_MIN`` it runs 0..1), ``norm_input_dz`` (the same outside ``trim +- RCn_DZ``),
   ``pwm_to_angle_dz_trim`` (+-high_in outside the dead zone), ``pwm_to_range_dz`` (0..high_in from ``min + dz``),
@@ -28,11 +28,11 @@ in those versions and what QGroundControl's calibration sets), so ``norm_input``
 1100)``: 0..1 with 0.5 at 1500 us. A log with another trim is read as the firmware reads it (e.g. a trim of 1500
 puts a centred stick at throttle 0, full down-thrust, and below the trim the motors clamp the negative throttle).
 ArduPilot master after 4.5 passes ``(norm_input + 1) / 2`` with a ``RC3_TRIM`` default of 1500 instead
-(:attr:`~udrobot_ctrl.autopilot.params.PilotParameters.throttle_norm_centred`); both give 0.5 at a centred stick
+(:attr:`~udrobot_ctrl.ardusub.params.PilotParameters.throttle_norm_centred`); both give 0.5 at a centred stick
 with their own default trim.
 
 RC overrides from a joystick (``ArduSub/joystick.cpp`` ``transform_manual_control_to_rc_override``,
-:mod:`udrobot_ctrl.io.joystick`) are PWM: channel 3 is ``z * 0.8 gain JS_THR_GAIN + 1500 - 500 * 0.8 gain
+:mod:`udrobot_ctrl.autopilot.joystick`) are PWM: channel 3 is ``z * 0.8 gain JS_THR_GAIN + 1500 - 500 * 0.8 gain
 JS_THR_GAIN``, 1500 us at z = 500 whatever the trims; the trims act afterwards, here.
 """
 from __future__ import annotations
@@ -43,7 +43,7 @@ from enum import IntEnum
 
 import numpy as np
 
-from udrobot_ctrl.autopilot.params import CDEG, RC_MAP, DepthParameters, PilotParameters, RCChannel
+from udrobot_ctrl.ardusub.params import CDEG, RC_MAP, DepthParameters, PilotParameters, RCChannel
 
 ROLL_PITCH_INPUT_MAX = 4500.0   # ArduSub/config.h, centidegrees of stick
 ACRO_YAW_P_DEFAULT = 3.375      # ArduSub/config.h ACRO_YAW_P (the MANUAL mode's yaw scaling reference)
@@ -140,7 +140,7 @@ def pilot_throttle(norm: float, centred: bool = False) -> float:
     norm : float
         ``norm_input`` of the throttle channel (-1..1).
     centred : bool
-        :attr:`~udrobot_ctrl.autopilot.params.PilotParameters.throttle_norm_centred`.
+        :attr:`~udrobot_ctrl.ardusub.params.PilotParameters.throttle_norm_centred`.
 
     Returns
     -------
@@ -314,7 +314,7 @@ def pilot_climb_rate(throttle_control: float, mid: float, params: PilotParameter
     """``Sub::get_pilot_desired_climb_rate``: throttle control (0..1000) -> climb rate (m/s, positive *up*).
 
     The dead band is ``mid +- THR_DZ * gain`` (``THR_DZ`` constrained to 0..400, ``gain`` the pilot gain,
-    :attr:`~udrobot_ctrl.autopilot.params.PilotParameters.gain`); below it the rate runs to ``-PILOT_SPEED_DN`` at
+    :attr:`~udrobot_ctrl.ardusub.params.PilotParameters.gain`); below it the rate runs to ``-PILOT_SPEED_DN`` at
     throttle 0, above it to ``PILOT_SPEED_UP`` at 1000; ``control_depth`` constrains it to those speeds.
     """
     dz = max(0.0, min(400.0, params.throttle_deadzone)) * params.gain

@@ -27,10 +27,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from udrobot_ctrl.autopilot.params import RC_MAP
-
-from .runlog import hold_previous
-from .streams import Stream
+from udrobot_ctrl.ardusub.params import RC_MAP
+from udrobot_ctrl.io.runlog import hold_previous
+from udrobot_ctrl.io.streams import Stream
 
 RC_FIELDS = tuple(f"chan{n}_raw" for n in range(1, 9))
 # the RC overrides MANUAL_CONTROL z, r, x, y drive (ArduSub's channel map)
