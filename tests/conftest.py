@@ -11,8 +11,8 @@ default (one worker per core).
 Shared fixtures and xdist (``--dist loadgroup`` in ``pyproject.toml``): a module-, package- or session-scoped
 fixture is computed once per xdist worker that runs a test requesting it. So that a diagnosis (simulation, design)
 several tests read is computed once per test run, not once per worker, every test that requests such a fixture
-defined in the test tree is put in one xdist group (:func:`shared_fixture_group`): the module's path for a
-module-scoped fixture, ``<where it is defined>::<name>`` for a package- or session-scoped one. A test that carries
+defined in the test tree is put in one xdist group with every other test reading the same instance
+(:func:`shared_fixture_groups`). A test that carries
 its own ``@pytest.mark.xdist_group(...)`` keeps it (a factory fixture whose cases are independent, e.g.
 ``test_diagnose.diagnosed``, groups each case by what it shares). Tests without a shared fixture are dealt one by one
 to whichever worker is free.
@@ -37,8 +37,8 @@ _START = pytest.StashKey[tuple]()  # (CPU s, wall s) when a test's setup began
 _LOGGED: dict = {}  # node id -> (CPU s, wall s) of setup + call + teardown, as reported (from every worker)
 
 
-def shared_fixture_group(item) -> str | None:
-    """The xdist group of a test that requests a shared fixture defined in the test tree, or None.
+def shared_fixtures(item) -> list:
+    """The shared fixtures a test reads, each as the key of its one instance in a run.
 
     Parameters
     ----------
@@ -47,41 +47,66 @@ def shared_fixture_group(item) -> str | None:
 
     Returns
     -------
-    str or None
-        ``<where>::<name>`` of its first (sorted by name) package- or session-scoped fixture, else the module's
-        node id if it requests a module-scoped one, else None. Fixtures of pytest and its plugins
+    list of str
+        ``<module node id>::<name>`` of each module-scoped fixture in its closure (one instance per module) and
+        ``<where it is defined>::<name>`` of each package- or session-scoped one. Fixtures of pytest and its plugins
         (``tmp_path_factory`` ...: no ``baseid``) are not shared work and do not count.
     """
     info = getattr(item, "_fixtureinfo", None)
     if info is None:
-        return None
-    wide, module = [], False
+        return []
+    module = item.nodeid.split("::", 1)[0]
+    keys = []
     for name in sorted(info.name2fixturedefs):
         defs = info.name2fixturedefs[name]
-        if not defs:
+        if not defs or not defs[-1].baseid or defs[-1].scope not in SHARED_SCOPES:
             continue
-        fixturedef = defs[-1]
-        if not fixturedef.baseid or fixturedef.scope not in SHARED_SCOPES:
-            continue
-        if fixturedef.scope == "module":
-            module = True
-        else:
-            wide.append(f"{fixturedef.baseid}::{name}")
-    if wide:
-        return wide[0]
-    if module:
-        return item.nodeid.split("::", 1)[0]
-    return None
+        keys.append(f"{module}::{name}" if defs[-1].scope == "module" else f"{defs[-1].baseid}::{name}")
+    return keys
+
+
+def shared_fixture_groups(items) -> dict:
+    """The xdist group of every test that shares a fixture instance with another test (or reads one at all).
+
+    Tests are linked when they read the same instance of a shared fixture (:func:`shared_fixtures`); each connected
+    set of tests is one group, named after its first fixture key (sorted), so that independent fixtures of one module
+    (three diagnoses, say) may run on different workers while the tests reading one of them run on one.
+
+    Parameters
+    ----------
+    items : list of pytest.Item
+
+    Returns
+    -------
+    dict
+        node id -> group name, for the tests that read a shared fixture.
+    """
+    parent: dict = {}
+
+    def root(key):
+        while parent[key] != key:
+            parent[key] = parent[parent[key]]
+            key = parent[key]
+        return key
+
+    reads = {item.nodeid: shared_fixtures(item) for item in items}
+    for keys in reads.values():
+        for key in keys:
+            parent.setdefault(key, key)
+        for key in keys[1:]:
+            a, b = root(keys[0]), root(key)
+            if a != b:
+                parent[max(a, b)] = min(a, b)
+    return {nodeid: root(keys[0]) for nodeid, keys in reads.items() if keys}
 
 
 @pytest.hookimpl(tryfirst=True)  # before xdist's worker hook, which appends the group names to the node ids
 def pytest_collection_modifyitems(config, items):
-    for item in items:
-        if item.get_closest_marker("xdist_group") is not None:
-            continue
-        group = shared_fixture_group(item)
-        if group is not None:
-            item.add_marker(pytest.mark.xdist_group(group))
+    free = [item for item in items if item.get_closest_marker("xdist_group") is None]  # an explicit group is kept
+    groups = shared_fixture_groups(free)
+    for item in free:
+        if item.nodeid in groups:
+            item.add_marker(pytest.mark.xdist_group(groups[item.nodeid]))
 
 
 def pytest_addoption(parser):
