@@ -80,17 +80,24 @@ def test_jobs_from_the_environment(monkeypatch):
 
 
 BACKGROUND_CHECK = """
-import os, time
+import os, select
 from udrobot_ctrl.parallel import Background, fork_map, workers
 data = list(range(100_000))
 assert workers() == 2
-t0 = time.perf_counter()
-job = Background(lambda: (os.getpid(), sum(data), workers(), time.sleep(1.0)))
+started_r, started_w = os.pipe()  # the job says it runs; the caller lets it finish (no timer: events on pipes)
+go_r, go_w = os.pipe()
+
+def body():
+    os.write(started_w, b"s")
+    os.read(go_r, 1)  # held until the caller has done its own work
+    return os.getpid(), sum(data), workers()
+job = Background(body)
 assert workers() == 1  # the job holds one of the two cores: fork_map runs here meanwhile
 assert fork_map(lambda k: os.getpid(), range(3)) == [os.getpid()] * 3
-time.sleep(1.0)  # the caller's own work, while the job runs
-pid, total, inner, _ = job.result()
-assert time.perf_counter() - t0 < 1.9, time.perf_counter() - t0  # the two seconds overlapped
+# the job runs beside the caller: it started before its result is asked for (computed in the caller, it never would)
+assert select.select([started_r], [], [], 60.0)[0], "the job did not start beside the caller"
+os.write(go_w, b"g")
+pid, total, inner = job.result()
 assert pid != os.getpid() and total == sum(data) and inner == 1  # computed in a worker, which forks nothing
 assert workers() == 2 and job.result()[1] == total  # its core back; the result kept
 
@@ -105,8 +112,10 @@ for _ in range(2):
     else:
         raise AssertionError("no error")
 assert workers() == 2
-Background(lambda: time.sleep(5.0))  # never asked: its core comes back when it is dropped
+hold_r, hold_w = os.pipe()
+Background(lambda: os.read(hold_r, 1))  # never asked, still running: its core comes back when it is dropped
 assert workers() == 2
+os.write(hold_w, b"x")  # let it end, so that the interpreter's exit does not wait on it
 print("ok")
 """
 
@@ -114,9 +123,10 @@ print("ok")
 @pytest.mark.slow
 @pytest.mark.skipif(not hasattr(os, "fork"), reason="no fork on this platform: everything runs in the caller")
 def test_a_background_job_runs_beside_the_caller_and_holds_one_core():
-    """In a fresh interpreter with two jobs: the job's result (computed in a forked worker, over data it inherits)
-    arrives while the caller did its own second of work, fork_map stays in the caller meanwhile, a worker's error is
-    raised at every result(), and a job never asked for gives its core back."""
+    """In a fresh interpreter with two jobs: the job (computed in a forked worker, over data it inherits) starts
+    before the caller asks for its result and waits for the caller's go (events on pipes, no timer), fork_map stays
+    in the caller meanwhile, a worker's error is raised at every result(), and a job never asked for gives its core
+    back."""
     env = {**os.environ, JOBS_ENV: "2"}
     done = subprocess.run([sys.executable, "-c", BACKGROUND_CHECK], capture_output=True, text=True, env=env,
                           timeout=120)
@@ -132,7 +142,7 @@ def test_a_background_job_without_workers_is_computed_when_asked(monkeypatch):
 
 
 HELPER_CHECK = """
-import os, time
+import os, select, signal
 from udrobot_ctrl.parallel import Helper, fork_map, workers
 
 class Counter:
@@ -140,8 +150,11 @@ class Counter:
         self.seen = []  # what this copy has computed: the worker keeps its own
         self.data = list(range(100_000))
 
-    def work(self, k, seconds=0.0):
-        time.sleep(seconds)
+    def work(self, k, started=None, hold=None):
+        if started is not None:
+            os.write(started, b"s")  # running (no timer: events on pipes)
+        if hold is not None:
+            os.read(hold, 1)  # held until the caller writes to the pipe (never, for a call stopped at close)
         self.seen.append(k)
         return os.getpid(), k, sum(self.data), list(self.seen), workers()
 
@@ -149,16 +162,20 @@ class Counter:
         raise KeyError("lost")
 
 obj = Counter()
+started_r, started_w = os.pipe()  # before the helper forks: its worker inherits them
+go_r, go_w = os.pipe()
+held_r, held_w = os.pipe()
 helper = Helper(obj)
 assert helper.forked and workers() == 2  # idle: it holds no core
-t0 = time.perf_counter()
-a = helper.submit("work", 1, 1.0)
+a = helper.submit("work", 1, started_w, go_r)
 assert workers() == 1  # a call not collected: the worker holds one of the two cores
 b = helper.submit("work", 2)
-time.sleep(1.0)  # the caller's own work, while the worker computes
+# the call runs beside the caller: it started before its result is asked for
+assert select.select([started_r], [], [], 60.0)[0], "the helper's call did not start beside the caller"
+os.read(started_r, 1)
+os.write(go_w, b"g")
 pid_b, k_b, total, seen_b, inner = helper.result(b)  # out of order: a's reply is kept
 pid_a, k_a, _, seen_a, _ = helper.result(a)
-assert time.perf_counter() - t0 < 1.9, time.perf_counter() - t0  # the two seconds overlapped
 assert pid_a == pid_b != os.getpid() and (k_a, k_b) == (1, 2) and total == sum(obj.data) and inner == 1
 assert seen_a == [1] and seen_b == [1, 2] and obj.seen == []  # one worker keeps its state; the caller's untouched
 assert workers() == 2  # every call collected: its core back
@@ -169,10 +186,15 @@ except KeyError as exc:
 else:
     raise AssertionError("no error")
 assert helper.result(helper.submit("work", 3))[3] == [1, 2, 3]  # the worker goes on after an error
-d = helper.submit("work", 4, 2.0)
-t1 = time.perf_counter()
+d = helper.submit("work", 4, started_w, held_r)  # a call the worker holds until the pipe is written (never, there)
+assert select.select([started_r], [], [], 60.0)[0], "the helper's last call did not start"
+os.read(started_r, 1)
+proc = helper._proc
 helper.close()  # a call still running: the worker is stopped, not waited for; the call computed here when asked
-assert time.perf_counter() - t1 < 1.5 and workers() == 2 and not helper.forked
+# stopped at once by SIGTERM: waited for, it would have been killed (SIGKILL) at the end of close's join timeout
+assert proc.exitcode == -signal.SIGTERM, proc.exitcode
+assert workers() == 2 and not helper.forked
+os.write(held_w, b"x")  # computed here, it finds the pipe written
 pid_d, _, _, seen_d, _ = helper.result(d)
 assert pid_d == os.getpid() and seen_d == [4]
 print("ok")
@@ -183,7 +205,8 @@ print("ok")
 @pytest.mark.skipif(not hasattr(os, "fork"), reason="no fork on this platform: everything runs in the caller")
 def test_a_helper_serves_calls_beside_the_caller_and_keeps_its_state():
     """In a fresh interpreter with two jobs: calls sent to the helper run in one forked worker that keeps what it
-    computed, while the caller works; replies come back by token in any order; the worker holds a core only while
+    computed, while the caller works (a call starts before its result is asked for: events on pipes, no timer);
+    replies come back by token in any order; the worker holds a core only while
     calls are not collected; an error is raised in the caller and the worker goes on; a call still running at close
     is computed in the caller."""
     env = {**os.environ, JOBS_ENV: "2"}

@@ -265,7 +265,7 @@ def integrate_rk4(p: PlantParameters, x0, taus, dt, nsteps, tau_every=1, record_
     require_nominal(p, "the compiled RK4 kernel")
     x0 = np.ascontiguousarray(np.asarray(x0, float).reshape(-1, 12))
     n = x0.shape[0]
-    taus = np.ascontiguousarray(np.asarray(taus, float))
+    taus = np.require(np.asarray(taus, float), requirements=("C", "W"))  # a read-only view: a 2nd numba signature
     if taus.ndim != 3 or taus.shape[2] != 6 or taus.shape[1] not in (1, n):
         raise ValueError(f"taus must be (m, 1 or {n}, 6), got {taus.shape}")
     if (nsteps - 1) // tau_every >= taus.shape[0]:

@@ -26,9 +26,17 @@ def _run(effects, seed=2, **kw):
     return report, truth
 
 
+def case(*effects, seed=2):
+    """The xdist group of the tests that read case ``(effects, seed)`` through :func:`diagnosed`: they run on one
+    worker, which diagnoses the case once (tests/conftest.py; the cases are independent, so each has its own group
+    rather than the module's)."""
+    return pytest.mark.xdist_group(f"test_diagnose:{'+'.join(effects) or 'no_effect'}:{seed}")
+
+
 @pytest.fixture(scope="module")
 def diagnosed():
-    """(effects, seed) -> (report, truth), each case diagnosed once per module (several tests read one case)."""
+    """(effects, seed) -> (report, truth), each case diagnosed once per module (several tests read one case: mark
+    them with its :func:`case` group)."""
     cache = {}
 
     def get(effects, seed=2):
@@ -52,6 +60,7 @@ def _verdict_ok(report, name):
 
 
 @pytest.mark.slow
+@case()
 def test_no_effect_no_false_alarm(diagnosed):
     report, _ = diagnosed([])
     assert report["format"] == "udrobot-diagnosis/1"
@@ -60,13 +69,23 @@ def test_no_effect_no_false_alarm(diagnosed):
     assert report["unexplained"] == pytest.approx(1.0)
 
 
+#: every catalogue effect alone, at this module's settings (3 x 90 s at 20 Hz, seed 2): the sweep is
+#: bench/diagnose_sweep.py's (it prints each case's verdict and shrink); the suite keeps one case per mechanism
 SINGLE = ["thrust_inflow_loss", "thruster_deadband", "thruster_asymmetry", "thruster_lag", "tether_drag",
           "water_current", "quadratic_damping_error", "linear_damping", "added_mass_error", "cross_coupled_damping",
           "buoyancy_offset", "cg_cb_offset"]
+#: the suite's cases of the sweep: a thruster's dynamics (lag), its command-domain map (dead band; asymmetry, whose
+#: only diagnosis in the suite this is) and a static force (buoyancy); lag, dead band and buoyancy are read by other
+#: tests below as well (each case diagnosed once). The
+#: others are diagnosed elsewhere in the suite in a pair or another draw: inflow loss (test_two_effects_together,
+#: test_cli_end_to_end), the dampings (test_quadratic_damping_on_the_speed_..., test_linear_and_quadratic_...), added
+#: mass and CG-CB offset (test_an_interacting_pair_...), current (test_a_current_added_after_...), tether
+#: (test_anchored_tether.py, test_tether_attachment.py), cross-coupled damping (test_stock_sensors.py)
+SUITE_SINGLE = ["thruster_deadband", "thruster_asymmetry", "thruster_lag", "buoyancy_offset"]
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("name", SINGLE)
+@pytest.mark.parametrize("name", [pytest.param(n, marks=case(n)) for n in SUITE_SINGLE])
 def test_single_effect_named_and_shrinks(name, diagnosed):
     report, truth = diagnosed([name])
     assert _verdict_ok(report, name), (name, truth, [(e["name"], e["significant"]) for e in report["effects"]])
@@ -75,6 +94,7 @@ def test_single_effect_named_and_shrinks(name, diagnosed):
 
 
 @pytest.mark.slow
+@case("buoyancy_offset")
 def test_the_steady_balance_shows_the_buoyancy_error_and_the_corrected_model_taking_it_off(diagnosed):
     """The report's ``steady_balance``: with a withheld buoyancy change the thrusters held a steady heave force the
     nominal model does not need (imbalanced beyond 3 standard errors); the corrected model, with the named
@@ -163,6 +183,7 @@ def test_a_current_added_after_a_quadratic_damping_error_is_confirmed_with_the_d
 
 
 @pytest.mark.slow
+@case("periodic_disturbance", seed=3)
 def test_effect_outside_catalogue_is_unexplained(diagnosed):
     report, _ = diagnosed(["periodic_disturbance"], seed=3)
     sig = [e for e in report["effects"] if e["significant"]]
@@ -171,6 +192,7 @@ def test_effect_outside_catalogue_is_unexplained(diagnosed):
 
 
 @pytest.mark.slow
+@case()
 def test_no_effect_nothing_located(diagnosed):
     """The model matches within noise: no DOF's force balance is above its floor, so no channel is located."""
     report, _ = diagnosed([])
@@ -184,6 +206,7 @@ def _significant(report):
 
 
 @pytest.mark.slow
+@case("periodic_disturbance", seed=3)
 def test_disturbance_in_surge_and_heave_is_located_there_not_in_roll(diagnosed):
     """A periodic surge/heave force: the force balance fails in X and Z; the roll rate, whose replay error is
     large for any model (small spread against its noise), is not where the gap lies."""
@@ -197,6 +220,7 @@ def test_disturbance_in_surge_and_heave_is_located_there_not_in_roll(diagnosed):
 
 
 @pytest.mark.slow
+@case("thruster_lag")
 def test_lag_alone_names_only_the_lag(diagnosed):
     """Seen before: thruster lag came with deadband, added mass and linear damping. The table's best set is the lag
     alone, named with an inclusion probability of at least 0.95; every other effect carries a reason code."""
@@ -213,6 +237,7 @@ def test_lag_alone_names_only_the_lag(diagnosed):
 
 
 @pytest.mark.slow
+@case("thruster_deadband")
 def test_deadband_alone_comes_without_extra_damping(diagnosed):
     report, _ = diagnosed(["thruster_deadband"])
     assert _significant(report) == ["thruster_deadband"]
