@@ -73,7 +73,7 @@ def outcome(name: str, variant: Variant, report: dict, cpu_s: float) -> Outcome:
     scale = fitted.get("scale_Zw|w|")
     significant = [e["name"] for e in report["effects"] if e["significant"]]
     passed = (significant == [TARGET] and scale is not None and abs(scale - variant.scale) < SCALE_TOL)
-    return Outcome(name=name, steps=list((report.get("selection") or {}).get("best", [])), scale=scale,
+    return Outcome(name=name, steps=[s["effect"] for s in report["selection_steps"]], scale=scale,
                    significant=significant, gap_before=report["gap_before"]["value"],
                    gap_after=report["gap_after"]["value"],
                    at_bound=[e["name"] for e in report["effects"] if "at_bound" in e],

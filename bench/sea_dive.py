@@ -45,7 +45,8 @@ def describe(case: str, report: dict) -> list:
     if "tether_drag" in truth:
         e, t = by["tether_drag"], truth["tether_drag"]
         p = e["params"] or e.get("fitted_params_if_added") or {}
-        prob = e.get("inclusion_probability")
+        test = next((r["tests"]["tether_drag"] for r in report.get("backward_elimination", [])[::-1]
+                     if "tether_drag" in r["tests"]), None)
         if p:
             off = sea_dive.anchor_error(p)
             attach = [p.get(k, 0.0) for k in ("attach_x_m", "attach_y_m", "attach_z_m")]
@@ -53,8 +54,9 @@ def describe(case: str, report: dict) -> list:
             lines.append(f"  tether: anchor {off:.2f} m from the truth's (down {p['anchor_down_m']:.2f} m), drag at "
                          f"{sea_dive.TRANSECT_SPEED} m/s {drag:.2f} N against {true_drag:.2f} N; attached at "
                          f"({', '.join(f'{100 * a:+.1f}' for a in attach)}) cm; top end: "
-                         f"{(e.get('top_end') or {}).get('reading', '-')}; inclusion probability "
-                         f"{prob if prob is not None else '-'}, holdout shrink alone {e['shrink']}")
+                         f"{(e.get('top_end') or {}).get('reading', '-')}; holdout: "
+                         + (f"replay gap {100 * test['holdout_gap_contribution']:+.1f}% when dropped, "
+                            f"{'passed' if test['passed'] else 'dropped'}" if test else "not a candidate"))
     return lines + balance_lines(report.get("steady_balance"))
 
 

@@ -23,11 +23,9 @@ table as MATLAB's ``nlgreyest`` or a statistics package reports it):
   visited is a row of the table, scored the same way.
 * Weights ``w_i = exp(-(BIC_i - BIC_min)/2) / sum_j ...`` (Kass & Raftery 1995: the BIC approximates the log
   marginal likelihood); an effect's inclusion probability is the summed weight of the sets that contain it.
-* A set whose fit ends on a bound of some parameter's physical range is not a model of the vehicle (the catalogue's
-  form does not fit there): it is a row of the table with its ``at_bound`` and no weight, and the search does not
-  move to it. An effect is named when it belongs to the best valid set and its inclusion probability is at least
-  :data:`P_NAMED`; an effect at a bound in a set the criterion prefers is reported with that code, never named.
-  Look-alikes: the effects outside the best set whose swap for a member keeps at least
+* An effect is named when it belongs to the best set, its inclusion probability is at least :data:`P_NAMED` and no
+  parameter of it ends on a bound of its physical range (a parameter pinned at a bound means the catalogue form is
+  wrong: reported, not named). Look-alikes: the effects outside the best set whose swap for a member keeps at least
   ``(1 - P_NAMED) / P_NAMED`` of the best set's weight (a BIC within ``2 ln(P_NAMED / (1 - P_NAMED))``): the data
   cannot split their weight, so they are reported together ("X or Y") with the manoeuvre that would separate them.
 
@@ -193,15 +191,12 @@ class Row:
     diverged_windows: int
     rms: dict = field(default_factory=dict)  # channel -> RMS output error on the fit runs (channel units)
     params: dict = field(default_factory=dict)  # effect -> its fitted parameters in this set
-    at_bound: dict = field(default_factory=dict)  # member -> {parameter: (value, bound)}: the set is not valid
 
     def to_json(self) -> dict:
         """The report's ``selection.candidates`` entry."""
         return {"effects": list(self.effects), "k": self.k, "loglik": self.loglik, "score": self.bic,
                 "delta_bic": self.delta_bic, "weight": self.weight, "diverged_windows": self.diverged_windows,
-                "rms_error": self.rms, "params": self.params,
-                "at_bound": {m: {k: {"value": v, "bound": b} for k, (v, b) in pb.items()}
-                             for m, pb in self.at_bound.items()}}
+                "rms_error": self.rms, "params": self.params}
 
 
 @dataclass(frozen=True)
@@ -303,7 +298,6 @@ class Search:
     def __init__(self, att: Attributor, replay, preps, channels, nominal_sims, names, singles=None, log=None):
         self.att, self.replay, self.preps = att, replay, preps
         self.single_fits = dict(singles or {})
-        self._bounds = {}
         self.channels, self.names, self.log = tuple(channels), tuple(names), log or (lambda s: None)
         nominal = Candidate((), att.fit([]), channel_sums(preps, nominal_sims, self.channels), nominal_sims)
         self.visited = {(): nominal}
@@ -313,20 +307,6 @@ class Search:
     def bic(self, key) -> float:
         """The criterion of the visited set ``key``."""
         return self.visited[key].bic(self.taus)
-
-    def at_bound(self, key) -> dict:
-        """Member of the visited set ``key`` -> its parameters that ended on a bound of their physical range
-        (:meth:`~udrobot_ctrl.gap.attribute.Attributor.at_bounds`); empty for a valid set."""
-        if key not in self._bounds:
-            c = self.visited[key]
-            self._bounds[key] = {m: b for m in c.members if (b := self.att.at_bounds(c.fit, m))}
-        return self._bounds[key]
-
-    def valid(self, key) -> bool:
-        """Whether every parameter of the visited set ``key`` lies inside its physical range: a set whose fit ends
-        on a bound is not a model of the vehicle (its best parameters lie outside what the catalogue's form allows),
-        so the search does not move to it and the table gives it no weight."""
-        return not self.at_bound(key)
 
     def score(self, fits) -> list:
         """Replay the sets ``fits`` ((members, Fit) pairs) not yet visited, together; their keys, in order."""
@@ -357,10 +337,6 @@ class Search:
                                 else self._added(current, n)) for n in rest])
             if not cur:
                 self.singles.update({n: self.visited[k] for n, k in zip(rest, keys)})
-            keys = [k for k in keys if self.valid(k)]
-            if not keys:
-                self.log(f"  search: every effect added to {{{', '.join(cur) or 'nominal'}}} ends at a bound")
-                break
             best = min(keys, key=self.bic)
             if not self.bic(best) < self.bic(cur):
                 self.log(f"  search: no effect added to {{{', '.join(cur) or 'nominal'}}} lowers the BIC "
@@ -370,11 +346,8 @@ class Search:
             if any(self.att.free_shapes(m) for m in members) and len(members) > 1:  # every shape fitted again
                 joint = refit(self.att, members, self.visited[best].fit.shapes)
                 if self.att.bic(joint) < self.att.bic(self.visited[best].fit):
-                    kept = self.visited.pop(best)
-                    self._bounds.pop(best, None)
+                    del self.visited[best]
                     self.score([(members, joint)])
-                    if not self.valid(best):  # the joint refit ran to a bound: the held-shape fit stays
-                        self.visited[best], self._bounds[best] = kept, {}
             self.log(f"  search: + {best[-1] if len(best) == 1 else next(n for n in best if n not in cur)} -> "
                      f"{{{', '.join(best)}}} dBIC {self.bic(best) - self.bic(()):+.1f}")
             cur = best
@@ -386,10 +359,7 @@ class Search:
         while len(cur) > 1:
             current = self.visited[cur]
             subsets = [tuple(m for m in current.members if m != d) for d in current.members]
-            keys = [k for k in self.score([(s, self.att.fit([(m, current.fit.shapes[m]) for m in s]))
-                                           for s in subsets]) if self.valid(k)]
-            if not keys:
-                break
+            keys = self.score([(s, self.att.fit([(m, current.fit.shapes[m]) for m in s])) for s in subsets])
             best = min(keys, key=self.bic)
             if not self.bic(best) < self.bic(cur):
                 break
@@ -413,8 +383,7 @@ class Search:
         self.score(fits)
 
     def best_key(self) -> tuple:
-        """The valid visited set of lowest BIC (the nominal model is always valid)."""
-        return min((k for k in self.visited if self.valid(k)), key=self.bic)
+        return min(self.visited, key=self.bic)
 
     def retau(self) -> bool:
         """Set the channels' autocorrelation times from the best set's output error; True when that changed the
@@ -444,47 +413,39 @@ def search(att: Attributor, replay, preps, channels, nominal_sims, names, single
 
 
 def decision(s: Search) -> Decision:
-    """The :class:`Decision` of a finished :class:`Search`: weights over the valid sets (no parameter at a bound;
-    the others are rows of weight 0 with their ``at_bound``), the best valid set, what it names."""
+    """The :class:`Decision` of a finished :class:`Search`."""
     keys = sorted(s.visited, key=s.bic)
-    valid = [k for k in keys if s.valid(k)]
-    bics = np.array([s.bic(k) for k in valid])
+    bics = np.array([s.bic(k) for k in keys])
     w = np.exp(-0.5 * (bics - bics.min()))
-    weight = dict(zip(valid, w / w.sum()))
+    w = w / w.sum()
     b0 = s.bic(())
     rows = []
-    for k in keys:
+    for k, b, wi in zip(keys, bics, w):
         c = s.visited[k]
-        ll = log_likelihood(c.sums, s.taus)[0]
+        ll, _ = log_likelihood(c.sums, s.taus)
         rms = {ch: math.sqrt(c.sums.sse[ch] / c.sums.n[ch]) for ch in s.channels if c.sums.n.get(ch)}
         params = {m: dict(c.fit.params[m]) for m in c.members}
-        rows.append(Row(k, c.k, float(ll), float(s.bic(k)), float(s.bic(k) - b0), float(weight.get(k, 0.0)),
-                        int(c.sums.diverged), rms, params, s.at_bound(k)))
-    inclusion = {n: float(sum(wi for k, wi in weight.items() if n in k)) for n in s.names}
-    best = s.visited[valid[0]]
-    best_bic = bics[0]
+        rows.append(Row(k, c.k, float(ll), float(b), float(b - b0), float(wi), int(c.sums.diverged), rms, params))
+    inclusion = {n: float(sum(wi for k, wi in zip(keys, w) if n in k)) for n in s.names}
+    best = s.visited[keys[0]]
     lookalikes = {}
     for m in best.members:
         others = [x for x in best.members if x != m]
-        swaps = [(n, tuple(sorted([*others, n]))) for n in s.names if n not in best.members]
-        rivals = [(n, k) for n, k in swaps if k in s.visited and s.valid(k) and s.bic(k) - best_bic < LOOKALIKE_BIC]
+        rivals = [n for n in s.names if n not in best.members
+                  and tuple(sorted([*others, n])) in s.visited
+                  and s.bic(tuple(sorted([*others, n]))) - bics[0] < LOOKALIKE_BIC]
         if rivals:
-            lookalikes[m] = tuple(n for n, k in sorted(rivals, key=lambda nk: s.bic(nk[1])))
+            lookalikes[m] = tuple(sorted(rivals, key=lambda n: s.bic(tuple(sorted([*others, n])))))
     not_named, named = {}, []
-    n_eff = log_likelihood(best.sums, s.taus)[1]
+    _, n_eff = log_likelihood(best.sums, s.taus)
     for m in best.members:
-        if inclusion[m] < P_NAMED:
+        bound = s.att.at_bounds(best.fit, m)
+        if bound:
+            not_named[m] = NotNamed(AT_BOUND, inclusion[m], bound, lookalikes.get(m, ()))
+        elif inclusion[m] < P_NAMED:
             not_named[m] = NotNamed(INCLUSION_LOW, inclusion[m], rivals=lookalikes.get(m, ()))
         else:
             named.append(m)
-    # effects whose fits run to a bound in sets the criterion prefers to the best valid one: the catalogue's form
-    # does not fit them there (reported, never named)
-    for k in keys:
-        if s.bic(k) >= best_bic:
-            break
-        for m, bound in s.at_bound(k).items():
-            if m not in not_named and m not in named:
-                not_named[m] = NotNamed(AT_BOUND, inclusion.get(m, 0.0), bound)
     single = {n: float(c.bic(s.taus) - b0) for n, c in s.singles.items()}
     return Decision(tuple(rows), best, tuple(named), inclusion, not_named, lookalikes, dict(s.taus), s.channels,
                     float(n_eff), dict(s.singles), single)

@@ -46,7 +46,6 @@ from udrobot_ctrl.gap.heading import CURRENT, HeadingCoverage, current_parts, he
 from udrobot_ctrl.gap.identifiability import Identifiability
 from udrobot_ctrl.gap.locate import Located, locate, noise_floor
 from udrobot_ctrl.gap.parts import named_parts
-from udrobot_ctrl.gap.plots import write_plots
 from udrobot_ctrl.gap.replay import domain_windows
 from udrobot_ctrl.gap.screen import KINDS, UNEXCITED_COMMAND, Unexcited, run_label, screen_runs
 from udrobot_ctrl.gap.sets import (
@@ -831,61 +830,6 @@ def _where_line(x) -> str:
     return f"{x.channel} ({100 * x.share:.0f}% of the excess over the noise floor{replay})"
 
 
-@dataclass(frozen=True)
-class Diagnosis:
-    """The result of :func:`diagnose`: the ``udrobot-diagnosis/1`` report and what its figures need.
-
-    Unpacks as ``report, context = diagnose(...)`` (the form before this result had a name).
-
-    Parameters
-    ----------
-    report : dict
-        The report, JSON-ready (docs/formats/diagnosis.md): what the CLI writes with ``--json``.
-    context : DiagnosisContext
-        The prepared runs and replays the figures are drawn from (:func:`udrobot_ctrl.gap.plots.write_plots`).
-    """
-
-    report: dict
-    context: DiagnosisContext
-
-    def __iter__(self):
-        return iter((self.report, self.context))
-
-    @property
-    def significant(self) -> tuple:
-        """Names of the effects named (``significant``), most explanatory first."""
-        return tuple(e["name"] for e in self.report["effects"] if e["significant"])
-
-    @property
-    def unexplained(self) -> float:
-        """``gap_after.value / gap_before.value`` on the holdout runs (nan when the gap is undefined)."""
-        v = self.report.get("unexplained")
-        return float("nan") if v is None else float(v)
-
-    @property
-    def selection(self) -> dict:
-        """The selection table (criterion, candidates, weights, inclusion probabilities); empty when no run was
-        diagnosed."""
-        return self.report.get("selection") or {}
-
-    def to_json(self) -> str:
-        """The report as the JSON text ``--json`` writes."""
-        return json.dumps(self.report, indent=2) + "\n"
-
-    def summary(self) -> str:
-        """The human-readable summary the CLI prints (:func:`summary`)."""
-        return summary(self.report)
-
-    def write(self, path, protect=()) -> None:
-        """Write the report to ``path`` atomically, never over a file in ``protect`` (:func:`write_report`)."""
-        write_report(self.report, path, protect=protect)
-
-    def plot(self, directory, protect=()) -> list:
-        """Write the residual and overlay figures into ``directory``; returns their paths
-        (:func:`udrobot_ctrl.gap.plots.write_plots`)."""
-        return write_plots(self.context, self.report, directory, protect=protect)
-
-
 def diagnose(model, runs, holdout=None, window_s=8.0, effects=None, log=None, model_label=None):
     """Run the whole diagnosis: locate -> attribute -> shrink and confirm -> report.
 
@@ -902,14 +846,16 @@ def diagnose(model, runs, holdout=None, window_s=8.0, effects=None, log=None, mo
     effects : list of str, optional
         Catalogue subset to test (default: all).
     log : callable, optional
-        Receives the progress lines (the console story: where, the selection's search, the verdict).
+        Receives the progress lines (the console story: candidates, holdout check, significant set).
     model_label : str, optional
         The model's name in the report.
 
     Returns
     -------
-    Diagnosis
-        The ``udrobot-diagnosis/1`` report and what its figures need (unpacks as ``report, context``).
+    report : dict
+        The ``udrobot-diagnosis/1`` report (JSON-ready).
+    ctx : DiagnosisContext
+        What the figures need.
 
     Notes
     -----
@@ -917,7 +863,7 @@ def diagnose(model, runs, holdout=None, window_s=8.0, effects=None, log=None, mo
     worker processes instead, and the report does not depend on how many there are.
     """
     with one_blas_thread():
-        return Diagnosis(*_diagnose(model, runs, holdout, window_s, effects, log, model_label))
+        return _diagnose(model, runs, holdout, window_s, effects, log, model_label)
 
 
 def _diagnose(model, runs, holdout, window_s, effects, log, model_label):
