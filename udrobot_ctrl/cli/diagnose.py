@@ -192,10 +192,14 @@ def run(args) -> int:
         for name, why in not_placed.items():
             print(f"udrobot-ctrl diagnose: warning: {name} is not in {args.out_model}: {why}", file=sys.stderr)
         for e in report["effects"]:
-            if e.get("at_bound"):
+            if e.get("at_bound_reason"):
                 print(f"udrobot-ctrl diagnose: note: {e['name']} is not in {args.out_model}: its fit ends at the edge "
                       f"of its range ({', '.join(e['at_bound'])}), evidence of a missing term, not a finding",
                       file=sys.stderr)
+            if e.get("held_at_nominal"):
+                print(f"udrobot-ctrl diagnose: note: {e['name']} is in {args.out_model} with "
+                      f"{', '.join(e['held_at_nominal'])} at nominal (its fit ended at a bound, or the holdout did not "
+                      f"confirm it on its own)", file=sys.stderr)
     if args.plot:
         for f in write_plots(ctx, report, args.plot, protect=inputs):
             print(f"wrote {f}", file=sys.stderr)

@@ -244,8 +244,6 @@ class Decision:
         Effective samples of the likelihood (sum over channels).
     singles : dict
         Effect -> its single-effect :class:`Candidate`.
-    single_delta_bic : dict
-        Effect -> the BIC of it alone minus the nominal model's.
     """
 
     rows: tuple
@@ -258,7 +256,6 @@ class Decision:
     channels: tuple
     n_eff: float
     singles: dict
-    single_delta_bic: dict = field(default_factory=dict)
 
     def to_json(self) -> dict:
         """The report's ``selection`` object."""
@@ -288,16 +285,12 @@ class Search:
         The nominal model's replays of the fit runs.
     names : sequence of str
         Effects searched (the identifiable ones).
-    singles : dict, optional
-        Effect -> its single fit (:class:`~udrobot_ctrl.gap.attribute.Fit`), the search's first step; fitted here
-        when missing.
     log : callable, optional
         Receives one line per step.
     """
 
-    def __init__(self, att: Attributor, replay, preps, channels, nominal_sims, names, singles=None, log=None):
+    def __init__(self, att: Attributor, replay, preps, channels, nominal_sims, names, log=None):
         self.att, self.replay, self.preps = att, replay, preps
-        self.single_fits = dict(singles or {})
         self.channels, self.names, self.log = tuple(channels), tuple(names), log or (lambda s: None)
         nominal = Candidate((), att.fit([]), channel_sums(preps, nominal_sims, self.channels), nominal_sims)
         self.visited = {(): nominal}
@@ -333,8 +326,7 @@ class Search:
             if not rest:
                 break
             current = self.visited[cur]
-            keys = self.score([((*current.members, n), self.single_fits[n] if not cur and n in self.single_fits
-                                else self._added(current, n)) for n in rest])
+            keys = self.score([((*current.members, n), self._added(current, n)) for n in rest])
             if not cur:
                 self.singles.update({n: self.visited[k] for n, k in zip(rest, keys)})
             best = min(keys, key=self.bic)
@@ -394,11 +386,10 @@ class Search:
         return self.best_key() != before
 
 
-def search(att: Attributor, replay, preps, channels, nominal_sims, names, singles=None, log=None) -> Search:
-    """Run the search (:class:`Search`, whose parameters these are): forward-backward from the nominal plant, the
-    channels' variance inflation set from the best set's output error and the search resumed from it until the best
-    set holds, then the swaps of the best set."""
-    s = Search(att, replay, preps, channels, nominal_sims, names, singles=singles, log=log)
+def search(att: Attributor, replay, preps, channels, nominal_sims, names, log=None) -> Search:
+    """Run the search (:class:`Search`): forward-backward from the nominal plant, the autocorrelation times set from
+    the best set and the search resumed from it until the best set holds, then the swaps of the best set."""
+    s = Search(att, replay, preps, channels, nominal_sims, names, log=log)
     cur = s.forward(())
     for _ in range(3):
         if not s.retau():
@@ -446,6 +437,5 @@ def decision(s: Search) -> Decision:
             not_named[m] = NotNamed(INCLUSION_LOW, inclusion[m], rivals=lookalikes.get(m, ()))
         else:
             named.append(m)
-    single = {n: float(c.bic(s.taus) - b0) for n, c in s.singles.items()}
     return Decision(tuple(rows), best, tuple(named), inclusion, not_named, lookalikes, dict(s.taus), s.channels,
-                    float(n_eff), dict(s.singles), single)
+                    float(n_eff), dict(s.singles))

@@ -193,6 +193,84 @@ class ActuatorCheck:
                 f"parameters act on every actuator in the replays")
 
 
+@dataclass(frozen=True)
+class FormAlike:
+    """An effect whose fit another matches as well when one of the two is held in the form the channels cannot test.
+
+    Attributes
+    ----------
+    rival : str
+        The other effect.
+    form : str
+        The form parameter the channels cannot test (of the rival when ``held_by_rival``, else of this effect).
+    other : float
+        Its untested end.
+    delta_bic : float
+        Fit-run BIC change when the confirmed effect is swapped for the one in its untested form.
+    held_by_rival : bool
+        Whether the untested form is the rival's (this effect was confirmed) or this effect's own.
+    """
+
+    rival: str
+    form: str
+    other: float
+    delta_bic: float
+    held_by_rival: bool = True
+
+
+@dataclass(frozen=True)
+class Hinged:
+    """An identified effect whose support hinges on the untested part of a partly identified one.
+
+    Attributes
+    ----------
+    on : str
+        The partly identified effect.
+    delta_bic : float
+        Fit-run BIC change when the effect is added beside the significant set and ``on`` with its non-identified
+        parameters fitted too.
+    holdout_lr : float
+        Holdout equation-error likelihood ratio of that addition, parameters frozen.
+    gap : str
+        The unexplained gap it might account for.
+    """
+
+    on: str
+    delta_bic: float
+    holdout_lr: float
+    gap: str
+
+
+@dataclass(frozen=True)
+class StandIn:
+    """A confirmed effect that may stand in for the untested part of a partly identified one, alone or with a
+    look-alike.
+
+    Attributes
+    ----------
+    on : str
+        The partly identified effect.
+    partner : str
+        The confirmed effect's look-alike fitted beside ``on`` (empty: ``on`` alone takes the effect's place).
+    delta_bic : float
+        Fit-run BIC of the set with the effect replaced by ``on`` (untested part fitted) and ``partner``, minus that
+        of the confirmed set.
+    member_delta_bic : float
+        Fit-run BIC change when the effect is added back beside them.
+    partner_support : Hinged or None
+        The partner's own support beside ``on`` (it is listed with it); None without a partner.
+    partner_form : str
+        The partner's form when it is one the channels cannot test (e.g. ``"norm_weight = 1"``), else empty.
+    """
+
+    on: str
+    partner: str
+    delta_bic: float
+    member_delta_bic: float
+    partner_support: Hinged | None
+    partner_form: str = ""
+
+
 @dataclass
 class EffectCheck:
     """Identifiability of one effect: its parameters' checks, and whether any is identified."""
@@ -242,6 +320,23 @@ class EffectCheck:
         return forms + "; ".join(f"{MISSING[k][0]}; {MISSING[k][1]}" for k in causes)
 
 
+@dataclass(frozen=True)
+class PassDisagreement:
+    """An effect the two reconstruction passes of a stock-sensor diagnosis judge differently.
+
+    Attributes
+    ----------
+    first : str
+        Its holdout evidence in the first pass (velocities reconstructed with the nominal plant), where it was
+        confirmed.
+    second : str
+        What the second pass (velocities reconstructed with the first pass' confirmed effects) did with it.
+    """
+
+    first: str
+    second: str
+
+
 @dataclass
 class Identifiability:
     """Per-effect identifiability on a fit stack (see the module docstring)."""
@@ -252,6 +347,31 @@ class Identifiability:
     #: effects the channels identify alone, but whose fit another effect matches as well on the observed DOFs (name
     #: -> those look-alikes): the data cannot say which of them acts (:meth:`with_ambiguous`)
     ambiguous: dict = field(default_factory=dict)
+    #: partly identified effects that the equation error on the observed DOFs selects but the holdout replay, which
+    #: needs their non-identified parameters, cannot confirm (name -> its evidence; :meth:`with_unconfirmed`)
+    unconfirmed: dict = field(default_factory=dict)
+    #: partly identified effects whose non-identified parameters act where an unexplained gap lies: the part the
+    #: channels identify was not selected, the rest cannot be tested (name -> the gap and those parameters;
+    #: :meth:`with_not_excluded`)
+    not_excluded: dict = field(default_factory=dict)
+    #: effects whose fit another matches as well when one of the two is held in the form these channels cannot test
+    #: (a confirmed effect swapped for it, BIC within ``BIC_STRONG``): name -> :class:`FormAlike`;
+    #: :meth:`with_form_alike`
+    form_alike: dict = field(default_factory=dict)
+    #: effects the channels identify, not significant, whose support hinges on the untested part of a partly
+    #: identified effect (name -> :class:`Hinged`; :meth:`with_hinged`)
+    hinged: dict = field(default_factory=dict)
+    #: confirmed effects that may stand in for the untested part of a partly identified effect with one of their
+    #: look-alikes (name -> :class:`StandIn`; :meth:`with_stand_in`)
+    stand_in: dict = field(default_factory=dict)
+    #: confirmed effects whose identifiable look-alikes were swapped in and replayed on the holdout (name -> tuple of
+    #: :class:`udrobot_ctrl.gap.confirm.Separation`): those it did not separate are named in the reason with both
+    #: scores; those it did are look-alikes no more (:meth:`with_separations`)
+    separations: dict = field(default_factory=dict)
+    #: effects the holdout confirmed on velocities the smoother reconstructed with the nominal plant, and dropped once
+    #: they were reconstructed with the confirmed effects' force (name -> :class:`PassDisagreement`;
+    #: :meth:`with_pass_disagreement`)
+    pass_disagreement: dict = field(default_factory=dict)
     #: columns some fit run logs but its sidecar marks estimated-unaided (column ->
     #: :class:`udrobot_ctrl.io.runlog.ChannelSource`; ``Prepared.unaided``): named in the reasons' ``missing``
     unaided: dict = field(default_factory=dict)
@@ -262,8 +382,10 @@ class Identifiability:
 
     @property
     def names(self) -> list:
-        """Names of the unidentifiable effects (the look-alikes of the selection table included)."""
-        return [n for n, e in self.effects.items() if not e.identified or n in self.ambiguous]
+        """Names of the unidentifiable effects (the ambiguous and the unconfirmed ones included)."""
+        return [n for n, e in self.effects.items()
+                if not e.identified or n in self.ambiguous or n in self.unconfirmed or n in self.not_excluded
+                or n in self.form_alike or n in self.hinged or n in self.stand_in or n in self.pass_disagreement]
 
     def with_ambiguous(self, ambiguous: dict) -> Identifiability:
         """A copy that also lists ``ambiguous`` (name -> look-alikes) as unidentifiable, and with each of them its
@@ -279,19 +401,114 @@ class Identifiability:
                     amb[a] = tuple(dict.fromkeys(amb.get(a, ()) + (k,)))
         return replace(self, ambiguous=amb)
 
+    def unconfirmable(self, name) -> bool:
+        """Whether ``name`` is identified in part only because of what the runs do not measure (a parameter or a
+        form not identified for a missing or reconstructed channel, not because its regressor vanishes)."""
+        e = self.effects.get(name)
+        return e is not None and e.identified and bool(set(e.causes) - {"vanishes"})
+
+    def with_unconfirmed(self, unconfirmed: dict) -> Identifiability:
+        """A copy that also lists ``unconfirmed`` (name -> its equation-error evidence) as unidentifiable."""
+        return replace(self, unconfirmed={**self.unconfirmed, **unconfirmed})
+
+    def with_not_excluded(self, not_excluded: dict) -> Identifiability:
+        """A copy that also lists ``not_excluded`` (name -> the unexplained gap and its non-identified parameters that
+        act there) as unidentifiable."""
+        return replace(self, not_excluded={**self.not_excluded, **not_excluded})
+
+    def with_form_alike(self, form_alike: dict) -> Identifiability:
+        """A copy that also lists ``form_alike`` (name -> :class:`FormAlike`) as unidentifiable."""
+        return replace(self, form_alike={**self.form_alike, **form_alike})
+
+    def with_stand_in(self, stand_in: dict) -> Identifiability:
+        """A copy that also lists ``stand_in`` (name -> :class:`StandIn`) as unidentifiable."""
+        return replace(self, stand_in={**self.stand_in, **stand_in})
+
+    def with_separations(self, separations: dict) -> Identifiability:
+        """A copy that also holds ``separations`` (name -> tuple of holdout look-alike swaps, for the reasons)."""
+        return replace(self, separations={**self.separations, **separations})
+
+    def with_pass_disagreement(self, disagreement: dict) -> Identifiability:
+        """A copy that also lists ``disagreement`` (name -> :class:`PassDisagreement`) as unidentifiable."""
+        return replace(self, pass_disagreement={**self.pass_disagreement, **disagreement})
+
+    def with_hinged(self, hinged: dict) -> Identifiability:
+        """A copy that also lists ``hinged`` (name -> :class:`Hinged`) as unidentifiable."""
+        return replace(self, hinged={**self.hinged, **hinged})
+
     def reason(self, name) -> str:
         """Why ``name`` is unidentifiable, with the measurement (or the manoeuvre) that would fix it."""
+        if name in self.stand_in and name not in self.ambiguous:
+            st = self.stand_in[name]
+            part = self.effects[st.on]
+            return (f"with it replaced by {st.on}, its {', '.join(part.not_identified)} fitted as well (on the "
+                    f"velocities the smoother reconstructs)" + (f", and {st.partner}" if st.partner else "")
+                    + (f" with {st.partner_form} (a form these channels cannot test)" if st.partner_form else "")
+                    + f", the fit runs' BIC changes by "
+                    f"{st.delta_bic:+.0f} against the confirmed set, and it adds nothing beside them (dBIC "
+                    f"{st.member_delta_bic:+.0f}): it may stand in for what these channels cannot test of {st.on}, so "
+                    f"the runs cannot say which acts; " + part.reason()
+                    + (f"; to tell it from {st.partner}: {fx.discriminating_manoeuvre(name, st.partner)}"
+                       if st.partner else ""))
+        if name in self.hinged and name not in self.ambiguous:
+            h = self.hinged[name]
+            part = self.effects[h.on]
+            return (f"not excluded: {h.gap}; beside {h.on} with its {', '.join(part.not_identified)} fitted as well "
+                    f"(on the velocities the smoother reconstructs), it lowers the fit runs' BIC by {-h.delta_bic:.0f} "
+                    f"(holdout likelihood ratio {h.holdout_lr:.0f}), and without them it is not selected: whether it "
+                    f"acts hinges on what these channels cannot test of {h.on}: " + part.reason())
+        if name in self.form_alike and name not in self.ambiguous:
+            a = self.form_alike[name]
+            held = a.rival if a.held_by_rival else name
+            line = (f"on the observed DOFs ({', '.join(self.observed_dofs())}) its fit is matched as well by "
+                    f"{a.rival} with {a.form} = {a.other:g}" if a.held_by_rival else
+                    f"on the observed DOFs ({', '.join(self.observed_dofs())}), with {a.form} = {a.other:g}, its fit "
+                    f"matches that of {a.rival} as well")
+            return (line + f" (BIC {a.delta_bic:+.0f} when swapped), a form of {held} these channels cannot test, so "
+                    f"the runs cannot say which acts; " + self.effects[held].reason())
+        if name in self.unconfirmed and name not in self.ambiguous:
+            e = self.effects[name]
+            return (f"the equation error on the observed DOFs ({', '.join(self.observed_dofs())}) selects it "
+                    f"({self.unconfirmed[name]}), but the holdout replay cannot confirm it with the parameters these "
+                    f"channels identify ({', '.join(e.not_identified)} not identified, so not in the replay): "
+                    + e.reason())
+        if name in self.pass_disagreement and name not in self.ambiguous:
+            d = self.pass_disagreement[name]
+            recon = [c for c, r in zip(VEL, self.reconstructed) if r]
+            return (f"the holdout confirmed it on the unlogged velocities ({', '.join(recon)}) as the smoother "
+                    f"reconstructed them with the nominal plant ({d.first}), but not once they were reconstructed with "
+                    f"the confirmed effects' force ({d.second}): whether it acts hinges on how those velocities are "
+                    f"reconstructed, so the runs cannot say; log {', '.join(recon)} (a DVL) to replay it on measured "
+                    f"velocities")
+        if name in self.not_excluded and name not in self.ambiguous:
+            e = self.effects[name]
+            return (f"not excluded: {self.not_excluded[name]}; the part of it these channels identify does not "
+                    f"explain that gap, and the rest cannot be tested: " + e.reason())
         if name not in self.ambiguous:
             return self.effects[name].reason()
         alts = self.ambiguous[name]
         hidden = [a for a in alts if not self.effects[a].identified]
-        line = (f"on the observed DOFs ({', '.join(self.observed_dofs())}) the fit runs' likelihood does not split "
-                f"its weight from {', '.join(alts)}")
+        line = (f"on the observed DOFs ({', '.join(self.observed_dofs())}) its fit, or alone the holdout replay, is "
+                f"matched as well by {', '.join(alts)}")
         if hidden:
             line += f" ({', '.join(hidden)}: not identifiable from these channels)"
+        scores = self._holdout_scores(name, [a for a in alts if a not in hidden])
+        if scores:
+            line += f" (not separated on the holdout: {scores})"
         fixes = [self.effects[hidden[0]].reason()] if hidden else []
         fixes += [f"to tell it from {a}: {fx.discriminating_manoeuvre(name, a)}" for a in alts if a not in hidden]
         return line + ", so the runs cannot say which acts; " + "; ".join(fixes)
+
+    def _holdout_scores(self, name, alts) -> str:
+        """The holdout scores of ``name``'s look-alike swaps with ``alts`` (either effect the confirmed member)."""
+        out = []
+        for a in alts:
+            sp = next((s for s in self.separations.get(name, ()) if s.rival == a), None) or \
+                next((s for s in self.separations.get(a, ()) if s.rival == name), None)
+            if sp is not None:
+                out.append(sp.describe() + {"equal": ": equal", "rival better": f": better with {sp.rival}",
+                                            "separated": ""}[sp.verdict])
+        return "; ".join(out)
 
     def report(self) -> list:
         """The report's ``unidentifiable`` list: ``[{"name", "reason", "missing"}]`` (``missing``: :meth:`missing`,
@@ -308,6 +525,13 @@ class Identifiability:
     def _referred(self, name) -> list:
         """``name`` and the effects whose reason its reason carries (:meth:`reason`)."""
         out = [name]
+        if name in self.stand_in:
+            out.append(self.stand_in[name].on)
+        if name in self.hinged:
+            out.append(self.hinged[name].on)
+        if name in self.form_alike:
+            a = self.form_alike[name]
+            out.append(a.rival if a.held_by_rival else name)
         out += [a for a in self.ambiguous.get(name, ()) if not self.effects[a].identified][:1]
         return [n for n in dict.fromkeys(out) if n in self.effects]
 
@@ -336,7 +560,9 @@ class Identifiability:
     def entry(self, name) -> dict:
         """Extra fields of an effect's report entry: the parameters not identified (partial effects only)."""
         e = self.effects.get(name)
-        if e is None or not e.identified or not e.not_identified or name in self.ambiguous:
+        if (e is None or not e.identified or not e.not_identified or name in self.ambiguous
+                or name in self.unconfirmed or name in self.not_excluded or name in self.form_alike
+                or name in self.hinged or name in self.stand_in or name in self.pass_disagreement):
             return {}
         return {"not_identified": {"params": e.not_identified, "reason": e.reason()}}
 

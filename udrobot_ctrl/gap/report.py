@@ -5,14 +5,11 @@
 1. :func:`prepare_inputs` -> :class:`Inputs` (nominal plant, effects tested, prepared fit and holdout runs);
 2. locate, :func:`locate_gap` -> :class:`Where`: nominal multiple-shooting replays of every run, each channel's
    noise floor and where the gap lies above it (:mod:`udrobot_ctrl.gap.locate`), the nominal holdout gap;
-3. fit, :func:`build_stacks` -> :class:`Stacks` and :func:`single_fits`: the equation-error stacks, what the observed
-   channels can identify, every effect fitted alone on the fit runs;
-4. decide, :func:`table_decision` -> :class:`~udrobot_ctrl.gap.decide.Decision`: the one criterion on the fit runs
-   (output-error BIC of the replays of every set the search visits), weights, inclusion probabilities, the named
-   effects;
-5. score, on the holdout runs only: :func:`chosen_model` -> :class:`Chosen` (``gap_after``) and :func:`shrink_each`
-   (each effect alone);
-6. report: :func:`effect_verdicts` -> :class:`EffectVerdict` per effect, :func:`verdict_line`, the JSON report.
+3. attribute, :func:`build_stacks` -> :class:`Stacks` and :func:`attribute` -> :class:`~udrobot_ctrl.gap.attribute.
+   Selection`: equation-error fits of every effect on the fit runs and forward selection of candidates;
+4. shrink and confirm on the holdout runs only: :func:`shrink_each` (each effect alone) and :func:`confirm`
+   -> :class:`~udrobot_ctrl.gap.confirm.Elimination` (backward elimination: the significant set);
+5. report: :func:`effect_verdicts` -> :class:`EffectVerdict` per effect, :func:`verdict_line`, the JSON report.
 """
 from __future__ import annotations
 
@@ -30,16 +27,42 @@ from udrobot_ctrl.dynamics.plant import PlantParameters, plant_parameters, requi
 from udrobot_ctrl.gap import decide, identifiability
 from udrobot_ctrl.gap import effects as fx
 from udrobot_ctrl.gap.attribute import (
+    BIC_STRONG,
+    HOLDOUT_CHI2,
     Attributor,
-    Combination,
     DesignStore,
+    Fit,
     Selection,
+    SelectionStep,
     build_stack,
     finalize,
+    forward_select,
+    holdout_loglik,
+    holdout_lr,
+    passes_forward_test,
     refit,
     residual,
 )
 from udrobot_ctrl.gap.balance import SteadyBalance, balance_lines, steady_balance
+from udrobot_ctrl.gap.confirm import (
+    CONSISTENT_WINDOWS,
+    INTERACTING_P,
+    REPLAY_LARGE,
+    REPLAY_MATERIAL,
+    REPLAY_P,
+    Elimination,
+    MemberTest,
+    Replay,
+    ReplayCache,
+    Replayer,
+    alone_tests,
+    backward_eliminate,
+    check_members,
+    fitted_hooks,
+    member_test,
+    replay_sets,
+    separations,
+)
 from udrobot_ctrl.gap.data import observable, prepare
 from udrobot_ctrl.gap.effects import Actuation
 from udrobot_ctrl.gap.heading import CURRENT, HeadingCoverage, current_parts, heading_coverage
@@ -48,13 +71,6 @@ from udrobot_ctrl.gap.locate import Located, locate, noise_floor
 from udrobot_ctrl.gap.parts import named_parts
 from udrobot_ctrl.gap.replay import domain_windows
 from udrobot_ctrl.gap.screen import KINDS, UNEXCITED_COMMAND, Unexcited, run_label, screen_runs
-from udrobot_ctrl.gap.sets import (
-    Replay,
-    ReplayCache,
-    Replayer,
-    fitted_hooks,
-    replay_sets,
-)
 from udrobot_ctrl.gap.shrink import (
     UNITS,
     GapScore,
@@ -115,6 +131,15 @@ def _clean(v):
 
 
 WALL_FRACTION = 0.05
+#: the confirmed effects leave more than this fraction of the holdout gap unexplained (the verdict line's threshold),
+#: or leave a replay still more than REPLAY_ABOVE_FLOOR above its noise floor (:func:`remaining_to_floor`):
+#: candidates that only the replay rejected, and whose replay lacks the parameters the channels cannot identify, are
+#: then listed as unidentifiable instead of dropped silently (:func:`set_aside_unconfirmed`)
+UNEXPLAINED_LARGE = 0.5
+#: ... and the nominal replay is this far above its noise floor (summed NRMSE^2 over summed floor^2,
+#: :meth:`~udrobot_ctrl.gap.locate.Located.replay_to_floor`): with no gap to explain, an equation-error selection is
+#: the reconstruction's, not an effect's
+REPLAY_ABOVE_FLOOR = 2.0
 
 
 def wall_distances(params, surfaces, eta, p, speed):
@@ -298,38 +323,25 @@ class Stacks:
     replays: ReplayCache = field(default_factory=ReplayCache, repr=False, compare=False)
 
 
-#: why an effect is not significant (the report's ``evidence.code``; rendered as sentences by :func:`reason_text`)
-NOT_SELECTED = "not_selected"  # outside the set the criterion prefers
-UNIDENTIFIABLE = "unidentifiable"  # the observed channels cannot identify it: not searched
-LOOKALIKE = "lookalike"  # in the best set, but the data do not split its weight from a rival's
-REASON_CODES = (NOT_SELECTED, UNIDENTIFIABLE, decide.AT_BOUND, decide.INCLUSION_LOW, LOOKALIKE)
-
-
 @dataclass(frozen=True)
 class Evidence:
-    """Why an effect is (not) significant, from the selection table (:mod:`udrobot_ctrl.gap.decide`).
+    """Why an effect is (not) significant: fit-run BIC, forward step, holdout backward check."""
 
-    Attributes
-    ----------
-    delta_bic : float
-        The criterion of the effect alone minus the nominal model's, on the fit runs (nan when not searched).
-    inclusion_probability : float
-        Summed weight of the table's sets that hold it (0 when in none, nan when not searched).
-    code : str or None
-        None when significant, else one of :data:`REASON_CODES`.
-    rivals : tuple of str
-        Effects whose swap for it the data cannot tell apart (``code`` ``lookalike``).
-    """
-
-    delta_bic: float
-    inclusion_probability: float
-    code: str | None = None
-    rivals: tuple = ()
+    delta_bic: float  # single-effect BIC change on the fit runs
+    selection: SelectionStep | None = None  # its forward-selection step, if it reached one
+    backward: MemberTest | None = None  # its last backward check, if it was a candidate
+    note: str | None = None
 
     def to_json(self) -> dict:
-        out = {"delta_bic": self.delta_bic, "inclusion_probability": self.inclusion_probability, "code": self.code}
-        if self.rivals:
-            out["rivals"] = list(self.rivals)
+        out = {"delta_bic": self.delta_bic}
+        if self.backward is not None:  # rise of the holdout gap (fraction of gap_before) when removed from the set
+            out["holdout_gap_contribution"] = self.backward.gap_contribution
+            out["backward_elimination"] = self.backward.to_json()
+        if self.note:
+            out["note"] = self.note
+        if self.selection is not None:
+            out["selection_delta_bic"] = self.selection.delta_bic
+            out["holdout_likelihood_ratio"] = self.selection.holdout_lr
         return out
 
 
@@ -343,20 +355,21 @@ class EffectVerdict:
     shrink: float  # 1 - holdout gap with the effect alone / gap_before
     evidence: Evidence
     meaning: str
-    scope: str = "vehicle"  # "vehicle" (one parameter set for every dive) or "dive" (:data:`DIVE_SCOPED`)
     fitted_params_if_added: dict | None = None
     indistinguishable_from: tuple = ()  # (name, manoeuvre that separates them)
     wall: dict | None = None  # wall_effect only: {"matters_below_m", "matters_below"}
     not_identified: dict | None = None  # partly identified effects: {"params": [...], "reason": ...}
-    at_bound: dict | None = None  # parameter -> (value, bound) of a best-set fit that ended on a bound
+    at_bound: dict | None = None  # parameter -> (value, bound) of a confirmed fit that ended on a bound
+    at_bound_reason: str | None = None  # why an effect at a bound is not significant
     replay_diverged_windows: int = 0  # holdout windows its single-effect replay diverged in
+    #: amplitudes of a named per-DOF effect held at nominal: parameter -> (value, bound) where their fit ended
+    held_at_nominal: dict | None = None
     #: tether_drag only: where its fitted top end lies (:class:`udrobot_ctrl.gap.top_end.TopEnd`)
     top_end: dict | None = None
 
     def to_json(self) -> dict:
         out = {"name": self.name, "significant": self.significant, "params": self.params, "shrink": self.shrink,
-               "evidence": self.evidence.to_json(), "meaning": self.meaning, "scope": self.scope,
-               "inclusion_probability": self.evidence.inclusion_probability}
+               "evidence": self.evidence.to_json(), "meaning": self.meaning}
         if self.fitted_params_if_added is not None:
             out["fitted_params_if_added"] = self.fitted_params_if_added
         if self.indistinguishable_from:
@@ -369,14 +382,13 @@ class EffectVerdict:
             out["at_bound"] = {k: {"value": v, "bound": b} for k, (v, b) in self.at_bound.items()}
         if self.top_end:
             out["top_end"] = self.top_end
+        if self.at_bound_reason:
+            out["at_bound_reason"] = self.at_bound_reason
         if self.replay_diverged_windows:
             out["replay_diverged_windows"] = self.replay_diverged_windows
+        if self.held_at_nominal:
+            out["held_at_nominal"] = {k: {"fitted": v, "bound": b} for k, (v, b) in self.held_at_nominal.items()}
         return out
-
-
-#: effects whose parameters belong to a dive, not to the vehicle (the spec's ``scope``): what changes from dive to
-#: dive (a current, a tether and its paid-out length, the trim with a payload, the walls nearby)
-DIVE_SCOPED = ("water_current", "tether_drag", "buoyancy_offset", "wall_effect")
 
 
 @dataclass(frozen=True)
@@ -463,8 +475,102 @@ def build_stacks(inp: Inputs) -> Stacks:
     return Stacks(att, att_h, Actuation(h0.B, h0.inflow, st.f_ref, M_A), ident)
 
 
+def attribute(stacks: Stacks, names, log=None) -> Selection:
+    """Step 2, attribute: fit every tested effect on the fit runs and select forward among the identifiable ones
+    (fit-run BIC, holdout equation error, :func:`~udrobot_ctrl.gap.attribute.forward_select`); then set the holdout
+    stack's N_eff from the fit runs' noise whiteness for the backward check. Unidentifiable effects are fitted for
+    the record and still count as look-alikes."""
+    sel = forward_select(stacks.fit, stacks.holdout, names, log=log, exclude=stacks.identifiability.names)
+    stacks.holdout.n_eff = max(10.0, stacks.holdout.N / max(sel.tau_int, 1.0))
+    return sel
+
+
+@dataclass(frozen=True)
+class ReplaySupport:
+    """Step 2b: whether the forward-selected set replays the fit runs it was fitted on, and the effects that joined
+    the candidates because alone they replay the fit runs better (:func:`replay_supported`)."""
+
+    fit_gap_before: float  # nominal replay gap of the fit runs
+    set_shrink: float | None  # the forward-selected set's shrink of that gap (None: nothing was selected)
+    set_diverged: int  # fit-run windows in which the set's replay diverged
+    tried: dict = field(default_factory=dict)  # name -> shrink of the fit runs' gap with the effect alone
+    added: tuple = ()  # the effects that joined the candidates
+    skipped: bool = False  # not checked: the fit runs' velocities were reconstructed with the plant itself
+
+    @property
+    def triggered(self) -> bool:
+        """The set does not replay its own fit runs: it diverges, or shrinks their gap by no more than
+        ``REPLAY_MATERIAL``."""
+        if self.skipped:
+            return False
+        return self.set_shrink is None or self.set_diverged > 0 or not self.set_shrink > REPLAY_MATERIAL
+
+    def to_json(self) -> dict:
+        """The report's ``replay_support`` object."""
+        return {"fit_gap_before": self.fit_gap_before, "set_shrink": self.set_shrink,
+                "set_diverged_windows": self.set_diverged, "triggered": self.triggered, "skipped": self.skipped,
+                "tried": self.tried, "added": list(self.added)}
+
+
+def replay_supported(inp: Inputs, stacks: Stacks, sel: Selection, where: Where, log=None):
+    """Step 2b, on the fit runs only: when the forward-selected set does not replay the runs it was fitted on (its
+    replay diverges in some window, or shrinks their replay gap by no more than ``REPLAY_MATERIAL``), the equation
+    error was not a trustworthy guide on these runs, and every identifiable effect whose single fit lowers the fit-run
+    BIC by more than ``BIC_STRONG`` and alone shrinks the fit runs' replay gap by more than ``REPLAY_LARGE`` (without
+    diverging) joins the candidates; the set is fitted again jointly and goes to the holdout check like any other.
+
+    Why: under a closed-loop autopilot the equation error is dominated by the fast attitude loop's residual, while a
+    small steady moment (a drag centre away from the origin) shows as a slow drift that only a replay integrates;
+    on the shared sea dive, the selected set diverged in 16 of its fit-run windows while a drag centre alone shrank
+    their gap by 31 %. The holdout is not read here: it only scores the candidates afterwards.
+
+    Not on runs whose unlogged velocities were reconstructed (:func:`reconstructed`, a stock vehicle without a DVL):
+    the model-based smoother reconstructed them with the nominal plant (or, in the second pass, with the confirmed
+    effects), so their replay favours the plant that reconstructed them (on the templates generator's stock runs the
+    true set worsened the fit runs' replay by 24-37 %, and so did the nominal model's of runs with no
+    effect); ``skipped`` says so.
+
+    Returns
+    -------
+    sel : Selection
+        ``sel`` with the joined effects among its candidates (unchanged when nothing joined).
+    support : ReplaySupport
+    """
+    nf = len(inp.fit)
+    before = gap(inp.fit, where.nominal_sims[:nf])
+    if not before.value > 0 or reconstructed(inp):
+        return sel, ReplaySupport(float(before.value), None, 0, skipped=reconstructed(inp))
+
+    run = _replayer(inp, stacks, before.scored, runs=inp.fit).many
+    rest = [n for n in inp.names if n not in sel.proposed and n not in stacks.identifiability.names
+            and sel.delta_bic[n] < -BIC_STRONG]
+    if sel.proposed:
+        set_replay = run([(sel.candidates.fit, sel.proposed)])[0]
+        support = ReplaySupport(float(before.value), float(1 - set_replay.gap.value / before.value),
+                                set_replay.gap.n_diverged)
+    else:
+        support = ReplaySupport(float(before.value), None, 0)
+    if not support.triggered or not rest:
+        return sel, support
+    reps = run([(sel.singles[n], (n,)) for n in rest])
+    tried = {n: float(1 - r.gap.value / before.value) for n, r in zip(rest, reps)}
+    added = tuple(n for n, r in zip(rest, reps) if r.gap.n_diverged == 0 and tried[n] > REPLAY_LARGE)
+    support = replace(support, tried=tried, added=added)
+    if log:
+        state = ("nothing was selected" if support.set_shrink is None else
+                 f"its replay diverges in {support.set_diverged} fit-run windows" if support.set_diverged else
+                 f"it shrinks their replay gap by {100 * support.set_shrink:.0f}%")
+        log(f"  replay check on the fit runs: the selected set does not replay them ({state}); "
+            + (f"joining the candidates, alone shrinking the fit runs' replay gap by more than "
+               f"{100 * REPLAY_LARGE:.0f}%: " + ", ".join(f"{n} ({100 * tried[n]:.0f}%)" for n in added)
+               if added else f"no other effect alone shrinks it by more than {100 * REPLAY_LARGE:.0f}%"))
+    if not added:
+        return sel, support
+    return replace(sel, candidates=finalize(stacks.fit, (*sel.proposed, *added), inp.names)), support
+
+
 def _replayer(inp: Inputs, stacks: Stacks, scored, runs=None) -> Replayer:
-    """The :class:`~udrobot_ctrl.gap.sets.Replayer` of fitted effect sets on ``runs`` (default: the holdout)."""
+    """The :class:`~udrobot_ctrl.gap.confirm.Replayer` of fitted effect sets on ``runs`` (default: the holdout)."""
     runs = inp.holdout if runs is None else runs
     return Replayer(lambda sets: replay_sets(runs, inp.p, sets, inp.catalogue, stacks.actuation, inp.window_s, scored,
                                              cache=stacks.replays))
@@ -513,14 +619,439 @@ class OnDemand(Mapping):
 
 
 def shrink_each(inp: Inputs, stacks: Stacks, sel: Selection, before: GapScore) -> OnDemand:
-    """Shrink, scored on the holdout only: name -> holdout :class:`~udrobot_ctrl.gap.sets.Replay` with the effect
-    alone (its single fit on the fit runs), replayed together when first read (:class:`OnDemand`); its shrink is
-    1 - replay gap / gap_before. It chooses nothing."""
+    """Step 3, shrink: name -> holdout :class:`~udrobot_ctrl.gap.confirm.Replay` with the effect alone (its single
+    fit), replayed when first read (:class:`OnDemand`); its shrink is 1 - replay gap / gap_before."""
     run = _replayer(inp, stacks, before.scored)
 
     def replays(names):
         return dict(zip(names, run.many([(sel.singles[n], (n,)) for n in names])))
-    return OnDemand(inp.names, replays)
+    # the candidates' replays are read first (the holdout check); the others', for the rivals and the report, are
+    # replayed meanwhile in a worker
+    rest = tuple(n for n in inp.names if n not in sel.proposed)
+    return OnDemand(inp.names, replays, (rest, Background(lambda: replays(rest))) if rest else None)
+
+
+def confirm(inp: Inputs, stacks: Stacks, sel: Selection, where: Where, singles: OnDemand, log=None) -> Elimination:
+    """Step 3, confirm on the holdout: backward elimination from the forward-selected candidates, each of which must
+    also shrink the holdout gap on its own (its replay in ``singles`` against the nominal one)."""
+    before = where.before
+    nominal = Replay((), before, where.nominal_sims[len(inp.fit):])
+    singles.fill(sel.proposed)
+    alone = alone_tests(inp.holdout, nominal, {n: singles[n] for n in sel.proposed}, inp.window_s)
+    return backward_eliminate(stacks.fit, stacks.holdout, sel.candidates, inp.names, before,
+                              _replayer(inp, stacks, before.scored), inp.window_s, inp.holdout, alone=alone, log=log)
+
+
+def set_aside_ambiguous(inp: Inputs, stacks: Stacks, where: Where, elim: Elimination, log=None, prior=None,
+                        shrink=None, prior_forms=None):
+    """Step 3b: a confirmed effect whose fit another effect matches as well (a look-alike within ``BIC_STRONG`` on
+    the observed DOFs) is not significant: the runs cannot say which of the two acts (e.g. without a DVL, a
+    heave-side thrust loss and a tether whose drag needs the unobserved surge speed; a pitch added-mass error and a
+    CG-CB offset in free pitch oscillations). It is listed as unidentifiable with that reason, and so are its
+    look-alikes; the rest is refitted and replayed. An identifiable look-alike counts only on runs whose velocities
+    the smoother reconstructed (the channels leave the fit little to go on); with every velocity measured the
+    holdout replay separates identifiable look-alikes, and only an unidentifiable one sets an effect aside.
+
+    On reconstructed runs the holdout replay also names look-alikes (:func:`replay_rivals`): an effect outside the
+    confirmed set that alone (``shrink``: name -> its single-effect holdout shrink) shrinks the holdout gap by more
+    than ``REPLAY_MATERIAL`` beyond what the whole confirmed set does is a look-alike of every confirmed member
+    (without a DVL, an inflow loss and a linear damping that the equation error on the reconstructed surge speed
+    ranks below a quadratic-damping error, which alone explains less of the holdout than either of them).
+
+    On reconstructed runs an identifiable look-alike must also be shown on the holdout (:func:`_holdout_separated`):
+    swapped in for the member and replayed, it sets the member aside only when the two sets score equally there.
+
+    On reconstructed runs a member may also be the look-alike of an effect in the form the channels cannot test
+    (:func:`form_alikes`). It is listed as unidentifiable with that reason, and so is that effect unless it is
+    confirmed in the form the search kept (then it stays significant).
+
+    ``prior`` (name -> look-alikes) holds the effects set aside in the first reconstruction pass: confirmed in the
+    second, they and their look-alikes stay set aside, since that pass reconstructed the velocities with the force
+    of one of them and so cannot settle which look-alike acts (it would confirm whichever one it assumed, or the
+    look-alike that best matches the assumed force). ``prior_forms`` (name -> ``FormAlike``) does the same for the
+    form look-alikes of the first pass.
+
+    Returns
+    -------
+    elim : Elimination
+        With the ambiguous effects removed from the confirmed set (unchanged when there are none).
+    stacks : Stacks
+        With the ambiguous effects added to its identifiability.
+    """
+    prior, prior_forms = _lookalike_groups(prior or {}), prior_forms or {}
+    # with every velocity measured the holdout replay separates identifiable look-alikes (the tether of a tank run
+    # and its quadratic-damping look-alike): only an unidentifiable one sets a confirmed effect aside there
+    hidden, any_alike = set(stacks.identifiability.names), reconstructed(inp)
+    rivals = replay_rivals(elim, where.before, shrink or {}) if any_alike else []
+    amb = {k: [a for a in dict.fromkeys([*elim.combination.indistinguishable.get(k, ()), *prior.get(k, ()), *rivals])
+               if any_alike or a in hidden] for k in elim.kept}
+    amb = {k: v for k, v in amb.items() if v}
+    amb, seps = _holdout_separated(inp, stacks, where, elim, amb, hidden, prior, log)
+    forms = {**{k: a for k, a in prior_forms.items() if k in elim.kept},
+             **(form_alikes(elim, stacks.identifiability, stacks.fit, inp.catalogue, inp.names) if any_alike
+                else {})}
+    forms = {k: a for k, a in forms.items() if k not in amb}
+    if not amb and not any(k in elim.kept for k in forms):
+        return elim, replace(stacks, identifiability=stacks.identifiability.with_form_alike(forms))
+    rest = [k for k in elim.kept if k not in amb and k not in forms]
+    combo = finalize(stacks.fit, rest, inp.names)
+    after = (_replayer(inp, stacks, where.before.scored)(combo.fit, combo.members) if rest else
+             Replay((), where.before, where.nominal_sims[len(inp.fit):]))
+    if log:
+        for k, v in amb.items():
+            fit_alike, by_replay = [a for a in v if a not in rivals], [a for a in v if a in rivals]
+            why = ([f"its fit is matched as well by {', '.join(fit_alike)}"] if fit_alike else []) + (
+                [f"alone, {', '.join(by_replay)} explain more of the holdout gap than the confirmed set"]
+                if by_replay else [])
+            log(f"  set aside: {k} (" + "; ".join(why) + "; the runs cannot say which acts"
+                + ("; it or a look-alike was set aside in the first pass, whose reconstruction this pass assumed"
+                   if k in prior else "")
+                + ")")
+        for k, a in forms.items():
+            if a.held_by_rival:
+                log(f"  set aside: {k} (its fit is matched as well by {a.rival} with {a.form} = {a.other:g}, a form "
+                    f"these channels cannot test: BIC {a.delta_bic:+.0f} when swapped; the runs cannot say which acts)")
+    ident = stacks.identifiability.with_ambiguous(amb).with_form_alike(forms).with_separations(seps)
+    return replace(elim, kept=tuple(rest), combination=combo, after=after), replace(stacks, identifiability=ident)
+
+
+def _holdout_separated(inp: Inputs, stacks: Stacks, where: Where, elim: Elimination, amb: dict, hidden, prior, log):
+    """Keep, of each confirmed member's look-alikes, those the holdout replay cannot tell from it.
+
+    An identifiable look-alike (the channels identify it: its regressors act in the observed DOFs without hinging on
+    a reconstructed velocity) is swapped in for the member, the set refitted on the fit runs and replayed on the
+    holdout (:func:`~udrobot_ctrl.gap.confirm.separations`). When the swapped set scores materially and consistently
+    worse, the runs do separate the two (a CG-CB offset's restoring moment and an added-mass error in roll and pitch:
+    the held angles of the holdout runs tell them apart, the fit-run BIC of free oscillations does not) and it is no
+    longer a look-alike. Otherwise the two fits score equally on the holdout and the member stays set aside, its
+    reason giving both scores. Unidentifiable look-alikes (their fit hinges on what no sensor measures) and those of
+    the first reconstruction pass (``prior``) are kept without the test.
+
+    Returns
+    -------
+    amb : dict
+        Name -> look-alikes left.
+    seps : dict
+        Name -> tuple of :class:`~udrobot_ctrl.gap.confirm.Separation` (those the holdout did not separate, kept for
+        the reason; and those it did, for the record).
+    """
+    pairs = [(k, a) for k, alts in amb.items() for a in alts
+             if a not in hidden and a not in elim.kept and a not in prior.get(k, ())]
+    if not pairs or not where.before.value > 0:
+        return amb, {}
+    found = separations(stacks.fit, elim.kept, pairs, elim.after, where.before,
+                        _replayer(inp, stacks, where.before.scored), inp.window_s, inp.holdout,
+                        shapes=elim.combination.fit.shapes)
+    seps = {}
+    for sp in found:
+        seps.setdefault(sp.member, []).append(sp)
+        if log:
+            log(f"  look-alike check: {sp.member} vs {sp.rival}: {sp.describe()} -> "
+                + {"separated": "the holdout separates them", "equal": "equal on the holdout",
+                   "rival better": f"the holdout prefers {sp.rival}"}[sp.verdict])
+    gone = {(sp.member, sp.rival) for sp in found if sp.separated}
+    out = {k: [a for a in v if (k, a) not in gone] for k, v in amb.items()}
+    return {k: v for k, v in out.items() if v}, {k: tuple(v) for k, v in seps.items()}
+
+
+def form_alikes(elim: Elimination, ident: Identifiability, att: Attributor, catalogue, names) -> dict:
+    """Confirmed members whose fit an effect matches as well in the form the channels cannot test: swapped for that
+    effect held at the untested end of its form parameter (the rest of the set kept, and that effect's own member
+    replaced when it is in the set), the fit-run BIC rises by less than ``BIC_STRONG`` (the look-alike test of
+    :func:`~udrobot_ctrl.gap.attribute.finalize`, with the form the search does not use). Without a DVL a
+    quadratic-damping error is fitted on each axis' speed only; the truth's drag on the speed norm adds a heave force
+    that grows with the unobserved surge speed, which an inflow loss on the vertical thrusters takes up (beside the
+    per-axis fit, or instead of it).
+
+    Returns
+    -------
+    dict
+        Name -> :class:`~udrobot_ctrl.gap.identifiability.FormAlike`: each such member, and each look-alike that is
+        not in the set (the relation is symmetric: the runs cannot say which acts).
+    """
+    fit, out = elim.combination.fit, {}
+    current = att.bic(fit)
+    for h in names:
+        chk = ident.effects.get(h)
+        if chk is None or not chk.identified or not chk.forms:
+            continue
+        for form, f in chk.forms.items():
+            other = att.with_effect(h, identifiability.Restricted(catalogue[h], (), {form: f.other}))
+            for m in elim.kept:
+                if m == h or m in out:
+                    continue
+                rest = [(n, fit.shapes[n]) for n in elim.kept if n not in (m, h)]
+                dbic = other.bic(other.best_shape(h, rest, refine=False)) - current
+                if dbic < BIC_STRONG:
+                    out[m] = identifiability.FormAlike(h, form, f.other, dbic, held_by_rival=True)
+                    if h not in elim.kept:
+                        out.setdefault(h, identifiability.FormAlike(m, form, f.other, dbic, held_by_rival=False))
+    return out
+
+
+def replay_rivals(elim: Elimination, before: GapScore, shrink: dict) -> list:
+    """Effects outside the confirmed set that alone shrink the holdout gap by more than ``REPLAY_MATERIAL`` beyond
+    what the whole set shrinks it (at least beyond no shrink; ``shrink``: name -> single-effect holdout shrink), best
+    first. An unidentifiable one counts too: its replay with what the channels fit of it explains more of the gap
+    than the set (without a DVL, an inflow loss whose fit hinges on the reconstructed surge speed)."""
+    if not elim.kept or not before.value > 0:
+        return []
+    floor = max(1 - elim.after.gap.value / before.value, 0.0) + REPLAY_MATERIAL
+    out = [n for n, s in shrink.items() if n not in elim.kept and s > floor]
+    return sorted(out, key=lambda n: -shrink[n])
+
+
+def _lookalike_groups(prior: dict) -> dict:
+    """``prior`` (name -> look-alikes) made symmetric: each member of a group (a name and its look-alikes) maps to
+    the group's other members, in order."""
+    out = {}
+    for k, alts in prior.items():
+        group = (k, *alts)
+        for m in group:
+            out[m] = tuple(dict.fromkeys([*out.get(m, ()), *(g for g in group if g != m)]))
+    return out
+
+
+def remaining_to_floor(where: Where, after: GapScore) -> float:
+    """How far the replay with the confirmed effects stays above the noise floor (the nominal's
+    :meth:`~udrobot_ctrl.gap.locate.Located.replay_to_floor` times the share of the holdout replay's summed NRMSE^2
+    that ``after`` leaves, over the channels with a floor; nan without one): above ``REPLAY_ABOVE_FLOOR``, a gap
+    that noise and reconstruction cannot account for is left, however much of the nominal gap was explained."""
+    floor = where.located.floor
+    both = [c for c in where.before.scored if floor.get(c, 0.0) > 0 and np.isfinite(after.per_channel.get(c, np.nan))
+            and np.isfinite(where.before.per_channel.get(c, np.nan))]
+    den = sum(where.before.per_channel[c] ** 2 for c in both)
+    if not den > 0:
+        return float("nan")
+    return where.located.replay_to_floor() * sum(after.per_channel[c] ** 2 for c in both) / den
+
+
+def set_aside_unconfirmed(stacks: Stacks, sel: Selection, where: Where, elim: Elimination, log=None) -> Stacks:
+    """Step 3c: a forward-selection candidate that the holdout replay dropped is listed as unidentifiable when the
+    replay could not have confirmed it: the effect is identified in part only (parameters or a form that hinge on a
+    channel the runs do not measure are frozen: e.g. without a DVL, a surge added mass, a heave drag on the flow
+    speed), its equation error on the observed DOFs still held on the holdout when it was dropped, the nominal replay
+    is more than ``REPLAY_ABOVE_FLOOR`` above its noise floor (there is a gap), and the confirmed effects leave more
+    than ``UNEXPLAINED_LARGE`` of the holdout gap unexplained or a replay still more than ``REPLAY_ABOVE_FLOOR``
+    above that floor (:func:`remaining_to_floor`: a lag that explains 62 % of a gap 250 x its floor leaves 36 x
+    the floor to explain). Its evidence and the measurement
+    that would settle it go into the reason. Under the same two conditions, a partly identified effect that was not
+    selected is listed as *not excluded* when some of its non-identified parameters act in a DOF holding at least
+    ``locate.GAP_SHARE`` of the located gap (``Located.gap_dofs``, ``EffectCheck.acting_in``): the part the channels
+    identify does not explain the gap, and the part that might cannot be tested (without a DVL, a surge added mass
+    acts on the pitch and heave forces through the Munk moment and the reconstructed surge speed). Nothing changes
+    when the confirmed effects explain the gap: a candidate dropped beside them is then redundant, not
+    unconfirmable, and nothing is left for an untested part to explain.
+
+    Returns
+    -------
+    Stacks
+        With the unconfirmed and the not-excluded effects added to its identifiability.
+    """
+    left = gap_left(where, elim)
+    if left is None:
+        return stacks
+    ident = stacks.identifiability
+    steps = {s.effect: s for s in sel.steps}
+    found = {n: (f"selection dBIC {steps[n].delta_bic:.0f} on the fit runs, holdout likelihood ratio "
+                 f"{t.holdout_lr:.0f} when dropped")
+             for n, t in elim.dropped.items()
+             if n in steps and n not in ident.names and t.passed_equation_error and ident.unconfirmable(n)}
+    gap = where.located.gap_dofs()
+    acting = {n: ident.effects[n].acting_in(gap) for n in sel.delta_bic
+              if n not in elim.kept and n not in found and n not in ident.names and ident.unconfirmable(n)}
+    spare = {n: f"{left}, where its {', '.join(a)} act" for n, a in acting.items() if a}
+    if log:
+        for n, ev in found.items():
+            log(f"  listed, not confirmable: {n} ({ev}; its replay lacks "
+                f"{', '.join(ident.effects[n].not_identified)}, which these channels cannot identify)")
+        for n in spare:
+            log(f"  listed, not excluded: {n} (its {', '.join(acting[n])}, which these channels cannot identify, act "
+                f"where the unexplained gap lies)")
+    return replace(stacks, identifiability=ident.with_unconfirmed(found).with_not_excluded(spare))
+
+
+def gap_left(where: Where, elim: Elimination) -> str | None:
+    """What the confirmed effects leave of the holdout gap (share, times the noise floor, and the DOFs holding it), or
+    None when there is no gap or they explain it: the nominal replay is at most ``REPLAY_ABOVE_FLOOR`` above its
+    noise floor, or they leave at most ``UNEXPLAINED_LARGE`` of the gap and a replay at most ``REPLAY_ABOVE_FLOOR``
+    above that floor (:func:`remaining_to_floor`)."""
+    before = where.before.value
+    if not before > 0 or not where.located.replay_to_floor() > REPLAY_ABOVE_FLOOR:
+        return None
+    left_to_floor = remaining_to_floor(where, elim.after.gap)
+    if not (elim.after.gap.value / before > UNEXPLAINED_LARGE or left_to_floor > REPLAY_ABOVE_FLOOR):
+        return None
+    return (f"the confirmed effects leave {elim.after.gap.value / before:.0%} of the holdout gap unexplained "
+            f"({left_to_floor:.0f} x the noise floor), "
+            + ", ".join(f"{share:.0%} of it in {fx.DOF[i]}" for i, share in where.located.gap_dofs().items()))
+
+
+@dataclass(frozen=True)
+class FreedPart:
+    """A listed, partly identified effect with its non-identified amplitude parameters fitted too (on the velocities
+    the smoother reconstructs): the fit-run and holdout attributors with it, and its fit beside the confirmed set."""
+
+    name: str
+    fit: Attributor
+    holdout: Attributor
+    beside: Fit  # the confirmed set and the freed effect, on ``fit``
+
+
+def freed_parts(stacks: Stacks, elim: Elimination, catalogue) -> list:
+    """:class:`FreedPart` of each listed, partly identified effect (amplitude parameters not identified; forms held
+    as the search holds them) whose untested part the runs support: beside the confirmed set, freeing it lowers the
+    fit-run BIC by more than ``BIC_STRONG`` and raises the holdout equation-error likelihood by a ratio above
+    ``HOLDOUT_CHI2`` (the forward-selection test)."""
+    att, att_h, ident = stacks.fit, stacks.holdout, stacks.identifiability
+    terms = [(n, elim.combination.fit.shapes[n]) for n in elim.kept]
+    out = []
+    for h in [h for h in ident.names if h not in elim.kept and ident.unconfirmable(h)]:
+        chk = ident.effects[h]
+        if all(c.identified for c in chk.params):
+            continue  # only a form is held: nothing to free
+        freed = identifiability.Restricted(catalogue[h], (), {k: f.kept for k, f in chk.forms.items()})
+        fa, fa_h = att.with_effect(h, freed), att_h.with_effect(h, freed)
+        held, free = att.best_shape(h, terms, refine=False), fa.best_shape(h, terms, refine=False)
+        lr = att_h.n_eff * (holdout_loglik(att_h, held) - holdout_loglik(fa_h, free))
+        if passes_forward_test(fa.bic(free) - att.bic(held), lr):
+            out.append(FreedPart(h, fa, fa_h, free))
+    return out
+
+
+def _supported(att: Attributor, att_h: Attributor, base: Fit, name) -> tuple:
+    """(fit, BIC change, holdout likelihood ratio) of ``name`` added to ``base`` (a fit on ``att``; ``att_h``: the
+    holdout's attributor with the same catalogue)."""
+    with_ = att.best_shape(name, [(n, base.shapes[n]) for n in base.names], refine=False)
+    return with_, att.bic(with_) - att.bic(base), holdout_lr(att_h, base, with_)
+
+
+def hinging_on_untested(parts, elim: Elimination, ident: Identifiability, left: str) -> dict:
+    """Identified effects, not significant and not listed, whose support hinges on the untested part of a listed,
+    partly identified effect (``parts``, :func:`freed_parts`): beside the significant set and that effect with its
+    untested part fitted too, the effect passes the forward-selection test (BIC lower by more than ``BIC_STRONG``,
+    holdout likelihood ratio above ``HOLDOUT_CHI2``). Without a DVL a buoyancy offset can cancel, in the mean heave
+    force, a cross-coupled heave drag ``u|u|`` of the unmeasured surge speed: alone it is not selected, beside the
+    drag it is.
+
+    Returns
+    -------
+    dict
+        Name -> :class:`~udrobot_ctrl.gap.identifiability.Hinged` (the strongest such part for each).
+    """
+    listed = set(ident.names)
+    testable = [m for m, chk in ident.effects.items() if chk.identified and m not in elim.kept and m not in listed]
+    out = {}
+    for part in parts:
+        for m in testable:
+            _, d_bic, lr = _supported(part.fit, part.holdout, part.beside, m)
+            if passes_forward_test(d_bic, lr) and (m not in out or d_bic < out[m].delta_bic):
+                out[m] = identifiability.Hinged(part.name, float(d_bic), float(lr), left)
+    return out
+
+
+def _replaces(fa: Attributor, fa_h: Attributor, replacement: Fit, member, current: float) -> tuple | None:
+    """(BIC of ``replacement`` minus ``current``, the member's BIC change added back) when ``replacement`` (a fit on
+    ``fa`` without ``member``) has a fit-run BIC below ``current`` (the confirmed set's) and ``member`` added back
+    fails the forward-selection test; None otherwise."""
+    if not fa.bic(replacement) < current:
+        return None
+    _, d_m, lr_m = _supported(fa, fa_h, replacement, member)
+    return None if passes_forward_test(d_m, lr_m) else (float(fa.bic(replacement) - current), float(d_m))
+
+
+def stand_ins(parts, elim: Elimination, att: Attributor, ident: Identifiability, catalogue, left: str) -> dict:
+    """Confirmed members that may stand in for the untested part of a listed, partly identified effect, alone or
+    together with one of their own look-alikes (``Effect.mimics``, in the form the search holds or in the form the
+    channels cannot test): with the member replaced by that effect, untested part fitted too (``parts``,
+    :func:`freed_parts`), and (when alone it does not) the look-alike, the fit-run BIC is lower than the confirmed
+    set's, and the member added back fails the forward-selection test. Without a DVL an added-mass error's Munk
+    moments hinge on the unmeasured surge and sway speeds; a dead band on the thrusters takes up the yaw moment a
+    surge added mass leaves, and the effect with its surge and sway parts fitted takes it back (the dead band then
+    adds nothing). What a heave added-mass error leaves in heave and yaw, with a linear damping or a drag on the
+    vehicle's speed, an inflow loss on the hover thrust takes up better than the damping alone.
+
+    Returns
+    -------
+    dict
+        Member -> :class:`~udrobot_ctrl.gap.identifiability.StandIn`.
+    """
+    shapes = elim.combination.fit.shapes
+    current = att.bic(elim.combination.fit)
+    out = {}
+    for m in elim.kept:
+        rest = [(n, shapes[n]) for n in elim.kept if n != m]
+        for part in parts:
+            alone = part.fit.best_shape(part.name, rest, refine=False)
+            if (by := _replaces(part.fit, part.holdout, alone, m, current)) is not None:
+                out[m] = identifiability.StandIn(part.name, "", *by, None)
+                break
+            for x in catalogue[m].mimics:
+                chk = ident.effects.get(x)
+                if x in elim.kept or x == part.name or chk is None or not chk.identified:
+                    continue
+                untested = {f"{k} = {f.other:g}": identifiability.Restricted(catalogue[x], (), {k: f.other})
+                            for k, f in chk.forms.items()}
+                forms = [("", part.fit, part.holdout)] + [
+                    (label, part.fit.with_effect(x, eff), part.holdout.with_effect(x, eff))
+                    for label, eff in untested.items()]
+                for form, fa, fa_h in forms:
+                    alt, d_x, lr_x = _supported(fa, fa_h, alone, x)
+                    if (by := _replaces(fa, fa_h, alt, m, current)) is not None:
+                        out[m] = identifiability.StandIn(
+                            part.name, x, *by, identifiability.Hinged(part.name, float(d_x), float(lr_x), left), form)
+                        break
+                if m in out:
+                    break
+            if m in out:
+                break
+    return out
+
+
+def set_aside_stand_ins(inp: Inputs, stacks: Stacks, where: Where, elim: Elimination, log=None, prior=None):
+    """Step 3d, while a gap is left (:func:`gap_left`): confirmed members that may stand in for the untested part of a
+    partly identified effect are set aside (:func:`stand_ins`), and effects whose support hinges on such a part are
+    listed (:func:`hinging_on_untested`); both as unidentifiable, with the measurement that would test that part.
+    ``prior`` (member -> ``StandIn``): the stand-ins of the first reconstruction pass, which stay set aside when the
+    second confirms them (it reconstructed the velocities with their force).
+
+    Returns
+    -------
+    elim : Elimination
+        Without the stand-ins (refitted and replayed when there are any).
+    stacks : Stacks
+        With the stand-ins, the effects they may stand in with and the hinged effects listed.
+    """
+    left = gap_left(where, elim)
+    found = {m: s for m, s in (prior or {}).items() if m in elim.kept}
+    if (left is None or not reconstructed(inp)) and not found:
+        return elim, stacks
+    ident = stacks.identifiability
+    parts = freed_parts(stacks, elim, inp.catalogue) if left is not None else []
+    found.update(stand_ins(parts, elim, stacks.fit, ident, inp.catalogue, left) if parts else {})
+    if found:
+        rest = [k for k in elim.kept if k not in found]
+        combo = finalize(stacks.fit, rest, inp.names)
+        after = (_replayer(inp, stacks, where.before.scored)(combo.fit, combo.members) if rest else
+                 Replay((), where.before, where.nominal_sims[len(inp.fit):]))
+        elim = replace(elim, kept=tuple(rest), combination=combo, after=after)
+        left = gap_left(where, elim) or left
+        parts = freed_parts(stacks, elim, inp.catalogue) if left is not None else []
+    ident = ident.with_stand_in(found)
+    partners = {s.partner: s.partner_support for s in found.values() if s.partner and s.partner not in ident.names}
+    ident = ident.with_hinged(partners)
+    hinged = hinging_on_untested(parts, elim, ident, left) if parts else {}
+    if log:
+        for m, s in found.items():
+            log(f"  set aside: {m} (with {s.on}'s parameters these channels cannot identify fitted"
+                + (f" and {s.partner}" if s.partner else "") + (f" with {s.partner_form}" if s.partner_form else "")
+                + ", "
+                f"BIC {s.delta_bic:+.0f} against the confirmed set; {m} added back: dBIC {s.member_delta_bic:.0f}; "
+                f"it may stand in for them)")
+        for n, h in {**partners, **hinged}.items():
+            log(f"  listed, not excluded: {n} (beside {h.on} with its parameters these channels cannot identify "
+                f"fitted as well: dBIC {h.delta_bic:.0f}, holdout LR {h.holdout_lr:.0f}; not selected without them)")
+    return elim, replace(stacks, identifiability=ident.with_hinged(hinged))
 
 
 def _wall_entry(params, stack, p) -> dict:
@@ -537,93 +1068,107 @@ def _wall_entry(params, stack, p) -> dict:
                 "per_surface": per}}
 
 
-@dataclass(frozen=True)
-class Chosen:
-    """The model the table chose, fitted on the fit runs, and its one replay of the holdout runs (``gap_after``).
-
-    Attributes
-    ----------
-    kept : tuple of str
-        The named effects.
-    combination : Combination
-        Their joint fit on the fit runs (equation error) and its residual noise per DOF.
-    after : Replay
-        The holdout replay with them (the nominal replay when none is named).
-    """
-
-    kept: tuple
-    combination: Combination
-    after: Replay
-
-
-def effect_code(n, dec: decide.Decision, ident: Identifiability, named) -> str | None:
-    """The reason code of effect ``n`` (:data:`REASON_CODES`; None when named)."""
-    if n in named:
-        return None
-    if n in dec.not_named:
-        nn = dec.not_named[n]
-        return LOOKALIKE if nn.code == decide.INCLUSION_LOW and nn.rivals else nn.code
-    if n in ident.names:
-        return UNIDENTIFIABLE
-    return NOT_SELECTED
-
-
-def effect_verdicts(inp: Inputs, stacks: Stacks, sel: Selection, dec: decide.Decision, chosen: Chosen,
-                    shrink: Mapping, singles: Mapping) -> list:
-    """Step 4, report: one :class:`EffectVerdict` per tested effect, the named ones first (by shrink), then the
-    other members of the best set, then the rest by inclusion probability and shrink. ``shrink`` (name -> holdout
-    shrink of the effect alone) and ``singles`` (name -> its single-effect holdout Replay) only score: they choose
-    nothing."""
-    kept, combo, best = chosen.kept, chosen.combination, dec.best
+def effect_verdicts(inp: Inputs, stacks: Stacks, sel: Selection, elim: Elimination, shrink: Mapping,
+                    at_bound: Mapping | None = None, singles: Mapping | None = None,
+                    held: Mapping | None = None) -> list:
+    """Step 4, report: one :class:`EffectVerdict` per tested effect, the significant ones first (by shrink), then
+    the confirmed effects set aside at a bound (``at_bound``: name -> :class:`AtBound`), then the candidates the
+    holdout dropped, then the rest. ``singles`` (name -> single-effect holdout Replay) gives the windows each
+    effect's replay alone diverged in; ``held`` (name -> :class:`HeldAtNominal`) the significant effects named with
+    some amplitudes held at nominal."""
+    kept, dropped, combo = elim.kept, elim.dropped, elim.combination
+    at_bound = dict(at_bound or {})
+    held = dict(held or {})
     shrink = dict(shrink.items())  # every effect's (an OnDemand replays the missing ones together)
-    diverged = {n: singles[n].gap.n_diverged for n in inp.names}
+    diverged = {n: singles[n].gap.n_diverged for n in inp.names} if singles else {}
+    steps = {s.effect: s for s in sel.steps}
     order = sorted(kept, key=lambda n: -shrink[n]) + sorted(
-        [n for n in inp.names if n not in kept],
-        key=lambda n: (n not in best.members, -dec.inclusion.get(n, 0.0), -shrink[n]))
+        [n for n in inp.names if n not in kept], key=lambda n: (n not in at_bound, n not in dropped, -shrink[n]))
     out = []
     for n in order:
         significant = n in kept
-        code = effect_code(n, dec, stacks.identifiability, kept)
-        nn = dec.not_named.get(n)
-        ev = Evidence(dec.single_delta_bic.get(n, float("nan")), dec.inclusion.get(n, float("nan")), code,
-                      nn.rivals if nn is not None else ())
-        rivals = nn.rivals if nn is not None else ()
-        shown = (combo.fit.params[n] if significant else best.fit.params[n] if n in best.members
-                 else sel.singles[n].params[n])
-        bound = nn.params_at_bound if nn is not None and nn.params_at_bound else None
-        end = top_end(shown, stacks.fit.s.eta[:, :3], bound is not None and TETHER_ANCHOR[2] in bound) \
+        note = None
+        if n in held and significant:
+            note = held[n].reason()
+        elif n in at_bound:
+            note = at_bound[n].reason()
+        elif n in dropped:
+            origin = ("a forward-selection candidate" if n in steps and steps[n].accepted else
+                      "a candidate of the fit-run replay check")
+            note = (origin + ", dropped by the backward check on the holdout: "
+                    + dropped[n].reason() + ("; listed under unidentifiable: the replay lacks its parameters "
+                                             "these channels cannot identify"
+                                             if n in stacks.identifiability.unconfirmed else "; not significant"))
+        elif n in stacks.identifiability.not_excluded:
+            note = f"not selected; listed under unidentifiable, not excluded: {stacks.identifiability.not_excluded[n]}"
+        elif n in stacks.identifiability.stand_in:
+            note = ("confirmed on the holdout, but "
+                    + stacks.identifiability.reason(n).split(": it may stand in")[0]
+                    + "; listed under unidentifiable, not significant")
+        elif n in stacks.identifiability.hinged:
+            note = ("not selected; listed under unidentifiable, "
+                    + stacks.identifiability.reason(n).split(": whether it acts")[0])
+        elif n in stacks.identifiability.form_alike:
+            test = elim.last_test(n)
+            note = (("confirmed on the holdout, but " if test is not None and test.passed else "")
+                    + stacks.identifiability.reason(n).split(", so the runs")[0]
+                    + "; listed under unidentifiable, not significant")
+        elif n in stacks.identifiability.ambiguous:
+            test = elim.last_test(n)
+            note = (("confirmed on the holdout, but " if test is not None and test.passed else
+                     "the look-alike of an effect confirmed on the holdout: ")
+                    + stacks.identifiability.reason(n).split("; ")[0]
+                    + "; listed under unidentifiable, not significant")
+        ev = Evidence(sel.delta_bic[n], steps.get(n), elim.last_test(n), note)
+        alts = tuple((a, fx.discriminating_manoeuvre(n, a)) for a in combo.indistinguishable.get(n, ())) \
+            if significant else ()
+        shown = combo.fit.params[n] if significant else (at_bound[n].fitted if n in at_bound
+                                                         else sel.singles[n].params[n])
+        end = top_end(shown, stacks.fit.s.eta[:, :3], _top_end_binds(stacks, n, combo, at_bound, sel)) \
             if n == TETHER else None
         out.append(EffectVerdict(
             name=n, significant=significant, params=shown if significant else {}, shrink=shrink[n],
-            evidence=ev, meaning=inp.catalogue[n].meaning, scope="dive" if n in DIVE_SCOPED else "vehicle",
-            fitted_params_if_added=None if significant else shown,
-            indistinguishable_from=tuple((a, fx.discriminating_manoeuvre(n, a)) for a in rivals),
+            evidence=ev, meaning=inp.catalogue[n].meaning, fitted_params_if_added=None if significant else shown,
+            indistinguishable_from=alts,
             wall=_wall_entry(combo.fit.params[n], stacks.fit.s, inp.p) if significant and n == "wall_effect"
             else None, not_identified=stacks.identifiability.entry(n).get("not_identified"),
-            at_bound=bound, replay_diverged_windows=diverged.get(n, 0),
+            at_bound=at_bound[n].params if n in at_bound else None,
+            at_bound_reason=at_bound[n].reason() if n in at_bound else None,
+            replay_diverged_windows=diverged.get(n, 0),
+            held_at_nominal=held[n].params if n in held and significant else None,
             top_end=end.to_json() if end is not None else None))
     return out
 
 
-def reason_text(code, inclusion_probability=None, rivals=()) -> str:
-    """Why an effect is not significant, in a few words, from its reason code (:data:`REASON_CODES`; the console
-    only: the report holds the code and its fields)."""
-    if code == decide.AT_BOUND:
-        return "its fit ends at the edge of its physical range (the catalogue's form does not fit: a missing term)"
-    if code == LOOKALIKE:
-        return (f"the fit runs cannot split its weight from {' or '.join(rivals)} (inclusion probability "
-                f"{_num(inclusion_probability, '.2f')})")
-    if code == decide.INCLUSION_LOW:
-        return (f"in the best set, but with an inclusion probability of {_num(inclusion_probability, '.2f')} (below "
-                f"{decide.P_NAMED:g})")
-    if code == UNIDENTIFIABLE:
+#: the verdict names, with why they are not significant, the effects outside the significant set that alone shrink the
+#: holdout gap by more than this fraction of gap_before (at most ``NOT_NAMED_MAX`` of them), so that it never reads
+#: as if nothing helped while the ranked table shows an effect that explains most of the gap
+NOT_NAMED_SHRINK = 0.1
+NOT_NAMED_MAX = 3
+
+
+def not_named_reason(v: EffectVerdict) -> str:
+    """Why an effect that is not significant was not named, in a few words (for the verdict line)."""
+    if v.at_bound:
+        return "its fit ends at the edge of its range"
+    if "listed under unidentifiable" in (v.evidence.note or ""):  # set aside, not confirmable, not excluded
         return "listed under unidentifiable"
-    return "outside the set the fit runs' likelihood prefers"
+    if v.evidence.backward is not None:
+        return "the holdout check dropped it"
+    step = v.evidence.selection
+    if step is None:
+        return "the fit runs' equation error did not select it"
+    return (f"forward selection did not accept it (dBIC {step.delta_bic:.0f}, holdout LR {step.holdout_lr:.1f}: the "
+            f"equation error on the fit runs or the holdout does not support it)")
 
 
-def verdict_line(kept, n_tested, before: GapScore, unexplained, verdicts=()) -> str:
-    """The report's one-line verdict (also the console's last word on significance): the named effects, how much
-    of the gap remains, and the members of the best set not named, with why."""
+def verdict_line(kept, n_tested, before: GapScore, unexplained, at_bound=None, verdicts=()) -> str:
+    """The report's one-line verdict (also the console's last word on significance).
+
+    ``at_bound``: the confirmed effects set aside at the edge of their range (named with that reason);
+    ``verdicts`` (:class:`EffectVerdict`): the effects not significant that alone shrink the holdout gap by more than
+    ``NOT_NAMED_SHRINK`` are named too, with why they are not significant.
+    """
     if not before.scored:
         const = ", ".join(before.undefined) or "none"
         line = (f"gap undefined: no measured channel varies above its noise (constant channels: {const}), so "
@@ -636,28 +1181,41 @@ def verdict_line(kept, n_tested, before: GapScore, unexplained, verdicts=()) -> 
         line += f"; {100 * unexplained:.0f}% of the gap remains unexplained"
     elif not kept and before.value > 0:
         line += f" (gap {before.value:.3f} stays unexplained)"
-    held = [v for v in verdicts if not v.significant and v.evidence.code in (decide.AT_BOUND, decide.INCLUSION_LOW,
-                                                                               LOOKALIKE)]
-    if held and before.scored:
-        line += "; not named: " + "; ".join(
-            f"{v.name} ({reason_text(v.evidence.code, v.evidence.inclusion_probability, v.evidence.rivals)})"
-            for v in held)
+    if at_bound:
+        line += ("; at the edge of its range, so not named (a parameter at its bound is evidence of a missing term, "
+                 "not a finding): " + ", ".join(at_bound))
+    helpful = [v for v in verdicts if not v.significant and v.name not in (at_bound or {})
+               and v.shrink is not None and np.isfinite(v.shrink) and v.shrink > NOT_NAMED_SHRINK]
+    helpful = sorted(helpful, key=lambda v: -v.shrink)[:NOT_NAMED_MAX]
+    if helpful and before.scored:
+        line += "; alone " + "; ".join(f"{v.name} shrinks the holdout gap by {100 * v.shrink:.0f}% but is not "
+                                       f"significant: {not_named_reason(v)}" for v in helpful)
     return line
 
 
 def _method(window_s) -> dict:
     return {
         "gap": f"NRMSE of multiple-shooting replays ({window_s:g} s windows from the measured state, logged "
-               f"commands held), RMS over the scored channels; channel scale = std of the measurement; beside it "
-               f"the model-free baseline (each window's measured start held) and the skill 1 - gap / baseline",
+               f"commands held), RMS over the scored channels; channel scale = std of the measurement",
         "location": "channels ranked by their share of the excess of NRMSE^2 over the channel's noise floor "
                     "(the nominal replay re-measured with each channel's noise and replayed from noisy starts)",
         "fit": "equation error on residual generalised forces from Savitzky-Golay velocities, "
                "per-DOF noise variances estimated from the data",
-        "significance": f"{decide.CRITERION}; every set the search visits is scored, weights exp(-dBIC/2); an "
-                        f"effect is named when it is in the best set, its inclusion probability is at least "
-                        f"{decide.P_NAMED:g} and no parameter of it ends on a bound; the holdout runs only score "
-                        f"the chosen model",
+        "significance": f"forward selection: BIC (N_eff = N / tau_int) drop > {BIC_STRONG:g} on the fit runs "
+                        f"and a holdout equation-error likelihood ratio > {HOLDOUT_CHI2:g}; then backward "
+                        f"elimination on the holdout: every significant effect, dropped from the final set (the "
+                        f"rest refitted), raises the fit-run BIC, lowers the holdout equation-error likelihood by "
+                        f"a ratio > "
+                        f"{HOLDOUT_CHI2:g} (N_eff = N / tau_int) and raises the holdout replay gap by more than "
+                        f"{100 * REPLAY_MATERIAL:g}% of gap_before (below {100 * REPLAY_LARGE:g}%: consistently "
+                        f"over the windows, one-sided p < {REPLAY_P:g} and more than half of them worse), and alone it "
+                        f"shrinks the holdout replay "
+                        f"gap by more than {100 * REPLAY_MATERIAL:g}% (or, interacting with a partner, dropping it "
+                        f"worsens at least {100 * CONSISTENT_WINDOWS:g}% of the windows, or raises the gap by more "
+                        f"than {100 * REPLAY_LARGE:g}% with a window-by-window p < {INTERACTING_P:g}); the weakest "
+                        f"failing one "
+                        f"is dropped and the rest refitted until all pass, then each dropped effect is re-admitted "
+                        f"once if, added back, every member passes",
     }
 
 
@@ -780,19 +1338,18 @@ def headings_and_currents(inp: Inputs, stacks: Stacks, sel: Selection) -> Headin
     return replace(hc, currents=current_parts(stacks.holdout, sel.singles[CURRENT], hc))
 
 
-def balance_of(inp: Inputs, where: Where, stacks: Stacks, chosen: Chosen) -> SteadyBalance:
+def balance_of(inp: Inputs, where: Where, stacks: Stacks, elim: Elimination) -> SteadyBalance:
     """The report's ``steady_balance`` (:mod:`udrobot_ctrl.gap.balance`): the fit and holdout runs' steady flight
-    with the nominal residuals of step 1 and the named effects' force."""
-    hooks = (fitted_hooks(inp.catalogue, inp.p, stacks.actuation, chosen.combination.fit, chosen.kept)
-             if chosen.kept else ())
+    with the nominal residuals of step 1 and the significant effects' force."""
+    hooks = fitted_hooks(inp.catalogue, inp.p, stacks.actuation, elim.combination.fit, elim.kept) if elim.kept else ()
     n_fit = len(inp.fit)
-    return steady_balance(inp.fit, inp.holdout, where.residuals[:n_fit], where.residuals[n_fit:], hooks, chosen.kept)
+    return steady_balance(inp.fit, inp.holdout, where.residuals[:n_fit], where.residuals[n_fit:], hooks, elim.kept)
 
 
-def report_json(inp: Inputs, where: Where, stacks: Stacks, sel: Selection, dec: decide.Decision, chosen: Chosen,
-                verdicts, verdict, elapsed_s) -> dict:
+def report_json(inp: Inputs, where: Where, stacks: Stacks, sel: Selection, elim: Elimination, verdicts, verdict,
+                elapsed_s, support: ReplaySupport | None = None) -> dict:
     """The ``udrobot-diagnosis/1`` report (docs/formats/diagnosis.md) of the diagnosis' steps (not yet rounded)."""
-    before, after = where.before, chosen.after.gap
+    before, after = where.before, elim.after.gap
     return {
         "format": FORMAT,
         "model": inp.label,
@@ -801,22 +1358,24 @@ def report_json(inp: Inputs, where: Where, stacks: Stacks, sel: Selection, dec: 
         "gap_before": before.to_json(),
         "location": [x.to_json() for x in where.located.locations],
         "effects": [v.to_json() for v in verdicts],
-        "selection": dec.to_json(),
         "unidentifiable": ranked_like(stacks.identifiability.report(), verdicts),
         "sensors": identifiability.sensors(inp.runs),
         "gap_after": after.to_json() | {"scored": before.scored},
         "unexplained": (after.value / before.value) if before.value > 0 else float("nan"),
         "remaining": [r.to_json() for r in remaining_gap(after, where.located.floor,
                                                           closed_loop_shares(inp.holdout))],
-        "steady_balance": balance_of(inp, where, stacks, chosen).to_json(),
+        "steady_balance": balance_of(inp, where, stacks, elim).to_json(),
         "heading_coverage": (hc.to_json() if (hc := headings_and_currents(inp, stacks, sel)) is not None else None),
-        "parts": (pt.to_json() if (pt := named_parts(stacks.holdout, chosen.combination.fit, list(chosen.kept)))
-                  else None),
+        "parts": (pt.to_json() if (pt := named_parts(stacks.holdout, elim.combination.fit,
+                                                     [v.name for v in verdicts if v.significant])) else None),
         "verdict": verdict,
         "location_detail": where.located.detail_json(),
         "noise": {"tau_int_samples": sel.tau_int, "n_eff": sel.n_eff, "n_samples": stacks.fit.N,
-                  "sigma_residual_per_dof": dict(zip(fx.DOF, chosen.combination.noise_sigma))},
+                  "sigma_residual_per_dof": dict(zip(fx.DOF, elim.combination.noise_sigma))},
         "method": _method(inp.window_s) | {"split": inp.notes[0]},
+        "selection_steps": [asdict(s) for s in sel.steps],
+        "replay_support": support.to_json() if support is not None else None,
+        "backward_elimination": [r.to_json() for r in elim.rounds],
         "notes": inp.notes,
         "elapsed_s": elapsed_s,
     }
@@ -828,6 +1387,323 @@ def _where_line(x) -> str:
     replay = (f"; replay NRMSE {_num(x.nrmse, '.3g')}, floor {_num(x.floor, '.3g')}"
               if x.nrmse is not None and math.isfinite(x.nrmse) else "; channel not logged: ranked by its force")
     return f"{x.channel} ({100 * x.share:.0f}% of the excess over the noise floor{replay})"
+
+
+@dataclass(frozen=True)
+class Pass:
+    """One pass of locate -> attribute -> shrink and confirm over prepared runs."""
+
+    where: Where
+    stacks: Stacks
+    sel: Selection
+    shrink: Mapping  # name -> shrink of the effect alone (OnDemand)
+    elim: Elimination  # the significant set (ambiguous effects and effects at a bound set aside)
+    confirmed: Elimination  # what the holdout confirmed, before the ambiguous effects were set aside
+    at_bound: Mapping = field(default_factory=dict)  # name -> AtBound: confirmed, set aside at the edge of its range
+    singles: Mapping = field(default_factory=dict)  # name -> its single-effect holdout Replay (OnDemand)
+    support: ReplaySupport | None = None  # step 2b: the fit-run replay check of the selected set
+    held: Mapping = field(default_factory=dict)  # name -> HeldAtNominal: named with amplitudes held at nominal
+
+
+def pass_disagreements(first: Elimination, second: Pass, skip=()) -> dict:
+    """Effects the two reconstruction passes judge differently: the first (``first``: velocities smoothed with the
+    nominal plant) confirmed it on the holdout; the ``second`` (smoothed with the confirmed effects' force) selected
+    it again and its replay still does better with it (dropping it raises the holdout gap), but not enough to
+    confirm it, and it neither lists it nor sets it aside at a bound. Where the second pass contradicts the first
+    (not selected, or the replay as good or better without it) the second, better reconstruction stands and nothing
+    is listed. Returns name -> :class:`~udrobot_ctrl.gap.identifiability.PassDisagreement`; ``skip``: names left
+    out (those the first pass set aside at a bound)."""
+    listed = second.stacks.identifiability
+    dropped = second.elim.dropped
+    out = {}
+    for n in first.kept:
+        t1, t2 = first.last_test(n), dropped.get(n)
+        if (t1 is None or t2 is None or not t2.gap_contribution > 0 or n in listed.names or n in second.at_bound
+                or n in skip):
+            continue
+        out[n] = identifiability.PassDisagreement(
+            f"dropping it raised the holdout replay gap by {100 * t1.gap_contribution:.1f}% of gap_before, "
+            f"p {t1.replay_p:.2g}", f"the holdout check dropped it: {t2.reason()}")
+    return out
+
+
+def diagnosis_pass(inp: Inputs, say, t0, prior_ambiguous=None, prior_forms=None, prior_stand_ins=None) -> Pass:
+    """Steps 1-3 of :func:`diagnose` on ``inp``'s prepared runs (``prior_ambiguous``, ``prior_forms``,
+    ``prior_stand_ins``: the effects the first reconstruction pass set aside, see :func:`set_aside_ambiguous` and
+    :func:`set_aside_stand_ins`)."""
+    # the nominal replays and their noise floor in a worker while the fits run (the console story keeps its order)
+    locating = Background(lambda: locate_gap(inp))
+    stacks = build_stacks(inp)
+    # the effects the runs cannot identify are searched in a helper process, beside the others' fits (stopped below)
+    stacks.fit.delegate(stacks.identifiability.names)
+    try:
+        return _diagnosis_steps(inp, say, t0, locating, stacks, prior_ambiguous, prior_forms, prior_stand_ins)
+    finally:
+        stacks.fit.delegate(())
+
+
+def _diagnosis_steps(inp: Inputs, say, t0, locating: Background, stacks: Stacks, prior_ambiguous, prior_forms,
+                     prior_stand_ins) -> Pass:
+    """:func:`diagnosis_pass` once the stacks are built (``locating``: the pending :func:`locate_gap`)."""
+    lines = []  # said once the gap is located (the console story keeps its order)
+    unidentifiable = stacks.identifiability.names
+    if unidentifiable:
+        lines.append(f"not identifiable from the observed channels ({', '.join(stacks.identifiability.observed_dofs())}"
+                     f"): {', '.join(unidentifiable)} (never significant; see the report's unidentifiable list)")
+    for n, chk in stacks.identifiability.effects.items():
+        if chk.actuators is not None:
+            lines.append(f"{n}: {chk.actuators.describe()}")
+        for k, form in chk.forms.items():
+            lines.append(f"{n}: searched with {k} = {form.kept:g} only (at {form.other:g} it hinges on a velocity the "
+                         f"channels do not measure; see its not_identified entry)")
+    sel = attribute(stacks, inp.names, log=lines.append)
+    where = locating.result()
+    sel, support = replay_supported(inp, stacks, sel, where, log=lines.append)
+    say("where: " + (", ".join(_where_line(x) for x in where.located.locations) or "no channel above its noise floor"))
+    for line in lines:
+        say(line)
+    say(f"candidates (forward selection on the fit runs, {len(inp.names) - len(unidentifiable)} identifiable "
+        f"effects tested): {', '.join(sel.proposed) or 'none'} ({time.perf_counter() - t0:.1f} s)")
+
+    singles = shrink_each(inp, stacks, sel, where.before)
+    b = where.before.value
+
+    def shrinks(names):
+        singles.fill(names)
+        return {n: (1 - singles[n].gap.value / b) if b > 0 else 0.0 for n in names}
+    shrink = OnDemand(inp.names, shrinks)
+    confirmed = confirm(inp, stacks, sel, where, singles, log=say)
+    elim, stacks = set_aside_ambiguous(inp, stacks, where, confirmed, log=say, prior=prior_ambiguous, shrink=shrink,
+                                       prior_forms=prior_forms)
+    stacks = set_aside_unconfirmed(stacks, sel, where, elim, log=say)
+    elim, stacks = set_aside_stand_ins(inp, stacks, where, elim, log=say, prior=prior_stand_ins)
+    elim, at_bound, held, stacks = set_aside_at_bound(inp, stacks, where, elim, log=say)
+    elim, held, stacks = confirm_components(inp, stacks, where, elim, held, log=say)
+    return Pass(where, stacks, sel, shrink, elim, confirmed, at_bound, singles, support, held)
+
+
+@dataclass(frozen=True)
+class AtBound:
+    """A confirmed effect whose joint fit ended on the edge of the catalogue's range for some parameter."""
+
+    params: dict  # parameter -> (value, bound) (:meth:`~udrobot_ctrl.gap.attribute.Attributor.at_bounds`)
+    fitted: dict  # the effect's parameters in that fit
+
+    def reason(self) -> str:
+        """Why the effect is not significant (the report's ``at_bound_reason``)."""
+        where = ", ".join(f"{k} = {v:.4g} at its bound {b:.4g}" for k, (v, b) in self.params.items())
+        return (f"confirmed on the holdout, but its fit ends at the edge of the catalogue's range ({where}): a "
+                f"parameter at its bound is evidence of a missing term, not a finding (the effect stands in for "
+                f"something the catalogue lacks, or the truth lies beyond the physical range searched); not "
+                f"significant and not written to a corrected model")
+
+
+@dataclass(frozen=True)
+class HeldAtNominal:
+    """Amplitudes of a named per-DOF effect (:attr:`~udrobot_ctrl.gap.effects.Effect.per_dof`) held at nominal while
+    the rest of the effect stands: their joint fit ended on their bound (:func:`hold_at_nominal`), or the holdout
+    does not confirm them on their own (:func:`confirm_components`)."""
+
+    params: dict  # parameter -> (fitted value, its bound where the fit ended on it, else None)
+    test: MemberTest  # the effect's holdout check in the set, refitted with them held
+    components: dict = field(default_factory=dict)  # parameter -> MemberTest of holding it alone (the unconfirmed)
+
+    def held(self, more: dict, test: MemberTest, components=None) -> HeldAtNominal:
+        """These and ``more`` held, ``test`` the effect's check with all of them held."""
+        return HeldAtNominal({**self.params, **more}, test, {**self.components, **(components or {})})
+
+    def reason(self) -> str:
+        """The report's note on the effect."""
+        why = []
+        for k, (v, b) in self.params.items():
+            if b is not None:
+                why.append(f"{k} (its fit ended at its bound {b:.4g}: evidence of a missing term in its DOF, not a "
+                           f"finding)")
+            else:
+                why.append(f"{k} (fitted {v:.4g}, not confirmed on the holdout on its own: "
+                           f"{self.components[k].reason()})")
+        return (f"held at nominal: {'; '.join(why)}; the rest of the effect, refitted without them, is confirmed on "
+                f"the holdout (dropping it raises the holdout replay gap by {100 * self.test.gap_contribution:.1f}% "
+                f"of gap_before, holdout equation-error likelihood ratio {self.test.holdout_lr:.1f}); the held "
+                f"parameters stay nominal in the corrected model")
+
+
+def _frozen(eff: fx.Effect, params) -> identifiability.Restricted:
+    """``eff`` with its amplitudes ``params`` frozen at zero (held at nominal) beside any restriction it has
+    (:class:`~udrobot_ctrl.gap.identifiability.Restricted`)."""
+    return (eff.freezing(params) if isinstance(eff, identifiability.Restricted)
+            else identifiability.Restricted(eff, tuple(params)))
+
+
+def _holding(stacks: Stacks, name, params) -> Stacks:
+    """``stacks`` with effect ``name``'s amplitudes ``params`` held at nominal (:func:`_frozen`) in both attributors."""
+    held = _frozen(stacks.fit.cat[name], params)
+    return replace(stacks, fit=stacks.fit.with_effect(name, held), holdout=stacks.holdout.with_effect(name, held))
+
+
+def _free_amplitudes(stacks: Stacks, elim: Elimination, name) -> list:
+    """The amplitudes of member ``name`` fitted non-zero and not frozen."""
+    eff = stacks.fit.cat[name]
+    params = elim.combination.fit.params[name]
+    frozen = eff.frozen if isinstance(eff, identifiability.Restricted) else ()
+    names = stacks.fit.design(name, elim.combination.fit.shapes[name]).names
+    return [a for a in names if a not in frozen and params.get(a, 0.0) != 0.0]
+
+
+def _effect_test(inp: Inputs, stacks: Stacks, where: Where, elim: Elimination, name) -> MemberTest:
+    """The member ``name``'s holdout check in ``elim``'s set (:func:`~udrobot_ctrl.gap.confirm.check_members`)."""
+    return check_members(stacks.fit, stacks.holdout, elim.combination, elim.after, where.before,
+                         _replayer(inp, stacks, where.before.scored), inp.window_s, inp.holdout, names=(name,))[0]
+
+
+def _refinalized(inp: Inputs, stacks: Stacks, where: Where, elim: Elimination) -> Elimination:
+    """``elim`` with its set fitted again on ``stacks`` and replayed on the holdout."""
+    combo = finalize(stacks.fit, elim.kept, inp.names)
+    return replace(elim, combination=combo,
+                   after=_replayer(inp, stacks, where.before.scored)(combo.fit, combo.members))
+
+
+def confirm_components(inp: Inputs, stacks: Stacks, where: Where, elim: Elimination, held: dict, log=None):
+    """Step 3f: each amplitude of a significant per-DOF effect (:attr:`~udrobot_ctrl.gap.effects.Effect.per_dof`)
+    with more than one fitted, checked on the holdout on its own: the set refitted with it held at nominal (the
+    other amplitudes free), replayed, and compared with the set as it is by the test that drops a member
+    (:func:`~udrobot_ctrl.gap.confirm.member_test`: fit-run BIC, holdout equation-error likelihood ratio, holdout
+    replay). The holdout confirms a member as a whole; without this a wrong component rides along with a right one
+    (a pitch drag scale of -0.83 beside the heave drag error of a 6-thruster dive whose truth has none). The
+    amplitudes that fail are held at nominal together (each acts in its own DOF), the set refitted, and the check
+    repeated on the rest until every one left passes.
+
+    Returns
+    -------
+    elim : Elimination
+        The set refitted and replayed with the held amplitudes (unchanged when none).
+    held : dict
+        Name -> :class:`HeldAtNominal`, ``held`` with these added.
+    stacks : Stacks
+        With the held forms.
+    """
+    held = dict(held)
+    for n in elim.kept:
+        if not stacks.fit.cat[n].per_dof:
+            continue
+        while len(free := _free_amplitudes(stacks, elim, n)) > 1:
+            # each amplitude held alone, on the fit runs only (the holdout scores the fit's parameters as they are)
+            fits = {a: refit(stacks.fit.with_effect(n, _frozen(stacks.fit.cat[n], [a])), elim.kept,
+                             elim.combination.fit.shapes) for a in free}
+            replays = _replayer(inp, stacks, where.before.scored).many([(f, elim.kept) for f in fits.values()])
+            tests = {a: member_test(stacks.fit, stacks.holdout, elim.combination.fit, elim.after, a, fits[a], r,
+                                    where.before, inp.window_s, inp.holdout) for a, r in zip(free, replays)}
+            failing = [a for a in free if not tests[a].passed]
+            if log:
+                log(f"  component check: {n}: " + ", ".join(
+                    f"{a} {100 * tests[a].gap_contribution:+.1f}% ({'confirmed' if tests[a].passed else 'fails'})"
+                    for a in free))
+            if not failing or len(failing) == len(free):  # none to hold, or none would be left to name
+                break
+            more = {a: (elim.combination.fit.params[n][a], None) for a in failing}
+            stacks = _holding(stacks, n, failing)
+            elim = _refinalized(inp, stacks, where, elim)
+            test = _effect_test(inp, stacks, where, elim, n)
+            failed = {a: tests[a] for a in failing}
+            held[n] = held[n].held(more, test, failed) if n in held else HeldAtNominal(more, test, failed)
+            if log:
+                log(f"  held at nominal: {', '.join(failing)} of {n} (not confirmed on the holdout on their own); "
+                    f"the rest refitted: " + ", ".join(f"{a} = {elim.combination.fit.params[n][a]:.4g}"
+                                                       for a in free if a not in failing))
+    return elim, held, stacks
+
+
+def hold_at_nominal(inp: Inputs, stacks: Stacks, where: Where, elim: Elimination, name, bound: dict, log=None):
+    """Step 3e, first: the confirmed per-DOF effect ``name`` (:attr:`~udrobot_ctrl.gap.effects.Effect.per_dof`: a
+    damping or added-mass scale per DOF) whose amplitudes ``bound`` (parameter -> (value, bound)) ended on their
+    bound, refitted with them held at nominal (frozen at zero: :class:`~udrobot_ctrl.gap.identifiability.Restricted`)
+    beside the set's other members, and checked on the holdout as any member is
+    (:func:`~udrobot_ctrl.gap.confirm.check_members`): a heave drag error need not be thrown away because the pitch
+    scale beside it ran to its bound. Only when at most half of its fitted amplitudes are at a bound: when most of an
+    effect's DOFs run to their bounds, the effect as a whole stands in for something the catalogue lacks (on a
+    BlueROV2 surface log, 4 of 6 added-mass scales at their bounds beside surge and sway scales of +190 % and +160 %).
+
+    Returns
+    -------
+    (Stacks, Elimination, MemberTest) or None
+        The stacks with the held form of the effect, the set refitted and replayed with it, and its test; None when
+        ``bound`` holds a shape parameter, when fewer of the effect's other amplitudes were fitted, or the refitted
+        effect fails the holdout check.
+    """
+    amplitudes = stacks.fit.design(name, elim.combination.fit.shapes[name]).names
+    rest = [a for a in _free_amplitudes(stacks, elim, name) if a not in bound]
+    if not (stacks.fit.cat[name].per_dof and set(bound) <= set(amplitudes) and len(bound) <= len(rest)):
+        return None
+    st = _holding(stacks, name, bound)
+    trial = _refinalized(inp, st, where, elim)
+    test = _effect_test(inp, st, where, trial, name)
+    if log:
+        log(f"  held at nominal: {', '.join(bound)} of {name} (its fit ended at its bound); refitted without it: "
+            + (f"confirmed ({', '.join(f'{a} = {trial.combination.fit.params[name][a]:.4g}' for a in rest)})"
+               if test.passed else f"fails ({test.reason()})"))
+    if not test.passed:
+        return None
+    return st, trial, test
+
+
+def _top_end_binds(stacks: Stacks, n, combo, at_bound, sel) -> bool:
+    """Whether the tether fit shown for ``n`` wants its top end deeper than the search's limit (read by
+    :func:`~udrobot_ctrl.gap.top_end.top_end`): the anchor depth among its parameters at a bound
+    (:meth:`~udrobot_ctrl.gap.attribute.Attributor.at_bounds`, which counts that bound only where it binds) for the
+    confirmed set's fit or the single fit; for an effect set aside at a bound, as recorded there."""
+    depth = TETHER_ANCHOR[2]
+    if n in at_bound:
+        return depth in at_bound[n].params
+    fit = combo.fit if n in combo.members else sel.singles.get(n)
+    return fit is not None and depth in stacks.fit.at_bounds(fit, n)
+
+
+def set_aside_at_bound(inp: Inputs, stacks: Stacks, where: Where, elim: Elimination, log=None):
+    """Step 3e: a confirmed effect whose joint fit ends on a bound of its search
+    (:meth:`~udrobot_ctrl.gap.attribute.Attributor.at_bounds`: a dead band at 35 % of the command range, an added
+    mass at -90 %) is not significant: a parameter at its bound is evidence of a missing term, not a finding. A
+    per-DOF effect whose parameters at a bound are some of its amplitudes is first refitted with those held at
+    nominal (:func:`hold_at_nominal`), and kept when the rest is confirmed on the holdout; else it is removed from
+    the set, the rest refitted and replayed, until no member ends on a bound.
+
+    Returns
+    -------
+    elim : Elimination
+        Without the effects at a bound (unchanged when there are none).
+    at_bound : dict
+        Name -> :class:`AtBound`, in the order they were set aside.
+    held : dict
+        Name -> :class:`HeldAtNominal`: the members kept with some amplitudes held at nominal.
+    stacks : Stacks
+        With the held form of those members (the same stacks when none).
+    """
+    found, held = {}, {}
+    while elim.kept:
+        hits = {n: b for n in elim.kept if (b := stacks.fit.at_bounds(elim.combination.fit, n))}
+        if not hits:
+            break
+        kept_held = None
+        for n, b in hits.items():
+            kept_held = hold_at_nominal(inp, stacks, where, elim, n, b, log=log)
+            if kept_held is not None:
+                stacks, elim, test = kept_held
+                held[n] = held[n].held(b, test) if n in held else HeldAtNominal(dict(b), test)
+                break
+        if kept_held is not None:  # the set was refitted: check its bounds again
+            continue
+        for n, b in hits.items():
+            found[n] = AtBound(b, dict(elim.combination.fit.params[n]))
+            held.pop(n, None)
+            if log:
+                log(f"  set aside: {n} (its fit ends at the edge of its range: "
+                    + ", ".join(f"{k} = {v:.4g}" for k, (v, _) in b.items())
+                    + "; a parameter at its bound is evidence of a missing term, not a finding)")
+        rest = [k for k in elim.kept if k not in hits]
+        combo = finalize(stacks.fit, rest, inp.names)
+        after = (_replayer(inp, stacks, where.before.scored)(combo.fit, combo.members) if rest else
+                 Replay((), where.before, where.nominal_sims[len(inp.fit):]))
+        elim = replace(elim, kept=tuple(rest), combination=combo, after=after)
+    return elim, found, held, stacks
 
 
 def diagnose(model, runs, holdout=None, window_s=8.0, effects=None, log=None, model_label=None):
@@ -886,92 +1762,78 @@ def _diagnose(model, runs, holdout, window_s, effects, log, model_label):
         say(f"{note}: the vehicle's autopilot emulated in the replay windows (the report's notes say why)"
             if "closed loop" in note else note)
 
-    # the nominal replays and their noise floor in a worker while the fits run (the console story keeps its order)
-    locating = Background(lambda: locate_gap(inp))
-    stacks = build_stacks(inp)
-    ident = stacks.identifiability
-    # the effects the runs cannot identify are fitted in a helper process, beside the others' fits
-    stacks.fit.delegate(ident.names)
-    try:
-        sel = single_fits(stacks, inp.names)
-        where = locating.result()
-        say("where: " + (", ".join(_where_line(x) for x in where.located.locations)
-                         or "no channel above its noise floor"))
-        if ident.names:
-            say(f"not identifiable from the observed channels ({', '.join(ident.observed_dofs())}): "
-                f"{', '.join(ident.names)} (not searched; see the report's unidentifiable list)")
-        dec = table_decision(inp, stacks, where, sel.singles, log=say)
-    finally:
-        stacks.fit.delegate(())
-    say(f"selection: best {{{', '.join(dec.best.members) or 'nominal'}}}, named "
-        f"{', '.join(dec.named) or 'none'} ({time.perf_counter() - t0:.1f} s)")
-    stacks = replace(stacks, identifiability=ident.with_ambiguous(
-        {n: nn.rivals for n, nn in dec.not_named.items() if nn.rivals}))
-
-    chosen = chosen_model(inp, stacks, where, dec)
-    singles = shrink_each(inp, stacks, sel, where.before)
-    b = where.before.value
-    shrink = OnDemand(inp.names, lambda names: {n: (1 - singles[n].gap.value / b) if b > 0 else 0.0 for n in names})
-    after = chosen.after.gap
+    res = diagnosis_pass(inp, say, t0)
+    shadow = table_decision(inp, res.stacks, res.where, log=say)
+    say(f"shadow decision: best {shadow.best.members}, named {shadow.named}, "
+        f"inclusion {dict((k, round(v, 3)) for k, v in shadow.inclusion.items() if v > 0.01)} "
+        f"({time.perf_counter() - t0:.1f} s)")
+    # the force the holdout confirmed improves the reconstruction whichever effect it is named as (an ambiguous
+    # effect is set aside from the verdict, not from the plant that smooths the velocities)
+    if reconstructed(inp) and res.confirmed.kept:
+        first, nominal, first_at_bound = res.confirmed, inp, res.at_bound
+        say(f"reconstruction, pass 2: the unlogged velocities smoothed again with the force of "
+            f"{', '.join(first.kept)} added to the nominal plant; the diagnosis repeated on them")
+        inp = reconstruct_with(inp, res.stacks.actuation, first.combination.fit, first.kept)
+        pass1 = res.stacks.identifiability
+        set_aside = {k: pass1.ambiguous[k] for k in first.kept if k not in res.elim.kept and k in pass1.ambiguous}
+        set_forms, set_stand = dict(pass1.form_alike), dict(pass1.stand_in)
+        res = diagnosis_pass(inp, say, t0, prior_ambiguous=set_aside, prior_forms=set_forms,
+                             prior_stand_ins=set_stand)
+        # what pass 1 set aside stays listed: pass 2 smoothed with its force, so its residual is gone from there
+        listed = res.stacks.identifiability
+        left = {k: v for k, v in set_aside.items() if k not in listed.ambiguous}
+        left_forms = {k: a for k, a in set_forms.items() if k not in listed.names and k not in res.elim.kept}
+        left_stand = {k: a for k, a in set_stand.items() if k not in listed.names and k not in res.elim.kept}
+        if left or left_forms or left_stand:
+            say(f"  still set aside from pass 1: {', '.join([*left, *left_forms, *left_stand])} (the runs cannot say "
+                f"which of them and their look-alikes acts)")
+            res = replace(res, stacks=replace(res.stacks, identifiability=listed.with_ambiguous(left)
+                                              .with_form_alike(left_forms).with_stand_in(left_stand)))
+        disagree = pass_disagreements(first, res, skip=first_at_bound)
+        if disagree:
+            say(f"  listed, the two reconstruction passes disagree: {', '.join(disagree)} (confirmed on the holdout "
+                f"in pass 1, not in pass 2)")
+            res = replace(res, stacks=replace(res.stacks, identifiability=res.stacks.identifiability
+                                              .with_pass_disagreement(disagree)))
+        inp = replace(inp, notes=inp.notes + [
+            f"reconstruction: the unlogged velocities were smoothed twice, first with the nominal plant (confirmed "
+            f"on the holdout then: {', '.join(first.kept)}), then with those effects' force added (significant: "
+            f"{', '.join(res.elim.kept) or 'none'}); the report is that of the second pass"])
+        if res.elim.kept:  # gap_after as `simulate --windows` replays the corrected model: reconstructed with it
+            final = reconstruct_with(nominal, res.stacks.actuation, res.elim.combination.fit, res.elim.kept, "holdout")
+            res = replace(res, elim=replace(res.elim, after=_replayer(final, res.stacks, res.where.before.scored)(
+                res.elim.combination.fit, res.elim.kept)))
+    where, stacks, sel, elim, shrink = res.where, res.stacks, res.sel, res.elim, res.shrink
+    after = elim.after.gap
     unexplained = (after.value / where.before.value) if where.before.value > 0 else float("nan")
-    verdicts = effect_verdicts(inp, stacks, sel, dec, chosen, shrink, singles)
-    verdict = verdict_line(chosen.kept, len(inp.names), where.before, unexplained, verdicts=verdicts)
-    after_sims = chosen.after.sims if chosen.kept else where.nominal_sims[len(inp.fit):]
-    domain = replay_domain(inp, where.nominal_sims, after_sims if chosen.kept else None)
+    verdicts = effect_verdicts(inp, stacks, sel, elim, shrink, res.at_bound, res.singles, held=res.held)
+    verdict = verdict_line(elim.kept, len(inp.names), where.before, unexplained, at_bound=res.at_bound,
+                           verdicts=verdicts)
+    after_sims = elim.after.sims if elim.kept else where.nominal_sims[len(inp.fit):]
+    domain = replay_domain(inp, where.nominal_sims, after_sims if elim.kept else None)
     verdict += domain_caveat(domain)
     say(f"{verdict} ({time.perf_counter() - t0:.1f} s)")
 
     location = [x.to_json() for x in where.located.locations]
     inp = replace(inp, notes=inp.notes + _not_diagnosed_notes(skipped))
-    report = report_json(inp, where, stacks, sel, dec, chosen, verdicts, verdict, time.perf_counter() - t0)
+    report = report_json(inp, where, stacks, sel, elim, verdicts, verdict, time.perf_counter() - t0,
+                         support=res.support)
     report.update(_not_diagnosed_fields(skipped))
     report["replay_domain"] = domain
+    report["selection"] = shadow.to_json()
     ctx = DiagnosisContext(inp.runs, len(inp.fit), where.nominal_sims, after_sims, where.residuals, location)
     return _clean(report), ctx
 
 
-def single_fits(stacks: Stacks, names) -> Selection:
-    """Every tested effect fitted alone on the fit runs (equation error; the identifiable ones refined, the others on
-    their grid only: their parameters are not identified), the nominal fit and the residual's noise (N_eff): the
-    table's first step and the record of the effects it does not search. ``steps`` is empty: the table chooses."""
-    att, exclude = stacks.fit, stacks.identifiability.names
-    nominal = att.fit([])
-    singles = dict(zip(names, att.best_shapes((n, (), n not in exclude, ()) for n in names)))
-    tau, _ = att.estimate_noise(singles)
-    bic0 = att.bic(nominal)
-    combo = finalize(att, (), names, final=nominal, lookalikes=False)
-    return Selection(nominal=nominal, singles=singles, delta_bic={n: att.bic(f) - bic0 for n, f in singles.items()},
-                     tau_int=tau, n_eff=att.n_eff, candidates=combo)
-
-
-def chosen_model(inp: Inputs, stacks: Stacks, where: Where, dec: decide.Decision) -> Chosen:
-    """The named effects fitted jointly on the fit runs (the best set's fit when all of it is named, refitted without
-    the members not named otherwise) and replayed once on the holdout runs: ``gap_after``. On runs whose unlogged
-    velocities the smoother reconstructed, the holdout is reconstructed with the corrected model first, as
-    ``simulate --windows --model CORRECTED.json`` replays it."""
-    named = dec.named
-    nf = len(inp.fit)
-    if not named:
-        combo = finalize(stacks.fit, (), inp.names, final=stacks.fit.fit([]), lookalikes=False)
-        return Chosen((), combo, Replay((), where.before, where.nominal_sims[nf:]))
-    final = (dec.best.fit if set(named) == set(dec.best.members)
-             else refit(stacks.fit, named, dec.best.fit.shapes))
-    combo = finalize(stacks.fit, named, inp.names, final=final, lookalikes=False)
-    held = reconstruct_with(inp, stacks.actuation, combo.fit, named, "holdout") if reconstructed(inp) else inp
-    return Chosen(tuple(named), combo, _replayer(held, stacks, where.before.scored)(combo.fit, named))
-
-
-def table_decision(inp: Inputs, stacks: Stacks, where: Where, singles: Mapping, log=None) -> decide.Decision:
+def table_decision(inp: Inputs, stacks: Stacks, where: Where, log=None) -> decide.Decision:
     """The one decision (:mod:`udrobot_ctrl.gap.decide`) on the fit runs only: every identifiable effect searched,
-    each set scored by the fit runs' output-error BIC of its replays (``singles``: the effects' single fits, the
-    search's first step)."""
+    each set scored by the fit runs' output-error BIC of its replays."""
     nf = len(inp.fit)
     nominal = where.nominal_sims[:nf]
     channels = gap(inp.fit, nominal).scored
     replay = _replayer(inp, stacks, channels, runs=inp.fit).many
     names = [n for n in inp.names if n not in stacks.identifiability.names]
-    return decide.decision(decide.search(stacks.fit, replay, inp.fit, channels, nominal, names,
-                                         singles={n: singles[n] for n in names}, log=log))
+    return decide.decision(decide.search(stacks.fit, replay, inp.fit, channels, nominal, names, log=log))
 
 
 def replay_domain(inp: Inputs, nominal_sims, after_sims) -> dict:
@@ -1094,9 +1956,9 @@ def summary(report) -> str:
         lines.append(f"  where: {loc['channel']} holds {100 * loc['share']:.0f}% -- {loc['condition']}{where}")
     lines.append("effects (ranked):")
     for e in report["effects"]:
-        ev = e["evidence"]
-        tag = "SIGNIFICANT" if e["significant"] else {decide.AT_BOUND: "AT BOUND", LOOKALIKE: "LOOK-ALIKE",
-                                                      decide.INCLUSION_LOW: "UNSETTLED"}.get(ev.get("code"), "-")
+        back = e["evidence"].get("backward_elimination")
+        tag = "SIGNIFICANT" if e["significant"] else ("AT BOUND" if e.get("at_bound_reason") else
+                                                      "dropped" if back else "-")
         extra = ""
         if e.get("indistinguishable_from"):
             extra = "; indistinguishable from " + ", ".join(a["name"] for a in e["indistinguishable_from"])
@@ -1110,19 +1972,23 @@ def summary(report) -> str:
                                                                 for k, v in e["at_bound"].items())
         if e.get("replay_diverged_windows"):
             extra += f"; alone its replay diverges in {e['replay_diverged_windows']} holdout windows"
+        if e.get("held_at_nominal"):
+            extra += "; held at nominal: " + ", ".join(e["held_at_nominal"])
         lines.append(f"  {e['name']:<26s} {tag:<11s} shrink {_num(e['shrink'], '+.2f')}  "
-                     f"P {_num(ev.get('inclusion_probability'), '.2f')}  dBIC {_num(ev.get('delta_bic'), '.0f')}"
-                     f"{extra}")
+                     f"dBIC {_num(e['evidence']['delta_bic'], '.0f')}{extra}")
         if e["significant"]:
             lines.append("      params " + ", ".join(f"{k}={_num(v, '.4g')}" for k, v in e["params"].items()))
             if (report.get("parts") or {}).get("holdout_params", {}).get(e["name"]):
                 lines.append("      fitted on the holdout runs apart: " + ", ".join(
                     f"{k}={_num(v, '.4g')}" for k, v in report["parts"]["holdout_params"][e["name"]].items()))
-        elif ev.get("code") in (decide.AT_BOUND, LOOKALIKE, decide.INCLUSION_LOW):
-            lines.append("      not named: " + reason_text(ev["code"], ev.get("inclusion_probability"),
-                                                           ev.get("rivals", ())))
+            if e.get("held_at_nominal"):
+                lines.append("      " + e["evidence"].get("note", ""))
+        elif e.get("at_bound_reason"):
+            lines.append("      " + e["at_bound_reason"])
             lines.append("      fitted " + ", ".join(f"{k}={_num(v, '.4g')}"
                                                      for k, v in (e.get("fitted_params_if_added") or {}).items()))
+        elif back:
+            lines.append("      " + e["evidence"].get("note", "dropped on the holdout"))
         if e.get("top_end"):
             lines.append("      top end: " + e["top_end"]["text"])
         if e["name"] == CURRENT and report.get("heading_coverage"):  # the current is world-fixed: turns with psi

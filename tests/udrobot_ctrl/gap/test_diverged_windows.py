@@ -15,6 +15,7 @@ from udrobot_ctrl.cli.main import main
 from udrobot_ctrl.constants import STATE_NAMES
 from udrobot_ctrl.dynamics.effects import PlantEffect, plant_effect
 from udrobot_ctrl.dynamics.sim import simulate
+from udrobot_ctrl.gap.confirm import Alone, MemberTest
 from udrobot_ctrl.gap.replay import windowed_gap
 from udrobot_ctrl.gap.shrink import ERROR_CAP, VELOCITY_ENVELOPE, WINDOW, errors, window_counts
 from udrobot_ctrl.io.runlog import Run, write_run
@@ -86,6 +87,17 @@ def test_a_diverged_window_scores_the_error_cap_and_finite_errors_are_clipped_to
     for c, e in err.items():
         assert np.all(np.abs(e[np.isfinite(e)]) <= ERROR_CAP[c])
         assert np.all(e[dead & np.isfinite(prep.meas[c])] == ERROR_CAP[c])
+
+
+def test_an_effect_whose_replay_alone_diverges_fails_alone_whatever_it_shrinks():
+    """An effect cannot be scored on the windows its replay survives: even a positive shrink (the surviving windows
+    fitting well) fails, and interacting with a partner does not rescue it."""
+    blown = Alone(shrink=0.4, w=10.0, p=0.01, diverged=1)
+    assert not blown.passed and "diverges in 1 window" in blown.reason()
+    assert Alone(shrink=0.4, w=10.0, p=0.01).passed
+    test = MemberTest("x", holdout_lr=100.0, gap_contribution=0.5, replay_w=10.0, replay_p=1e-4, alone=blown,
+                      windows_worse=1.0, fit_delta_bic=-50.0)
+    assert test.interacting and not test.passed_alone and not test.passed
 
 
 def test_simulate_windows_reports_the_diverged_windows(flown, tmp_path, capsys):

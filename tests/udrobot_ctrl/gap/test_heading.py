@@ -22,7 +22,7 @@ from udrobot_ctrl.gap.heading import (
     read_currents,
 )
 from udrobot_ctrl.gap.parts import SAME_SHARE, Agreement
-from udrobot_ctrl.gap.report import build_stacks, headings_and_currents, prepare_inputs, single_fits
+from udrobot_ctrl.gap.report import attribute, build_stacks, headings_and_currents, prepare_inputs
 
 from .truth import generate
 
@@ -132,7 +132,7 @@ def _split_headings(effects, seed=3):
     runs = generate(effects, n_runs=3, duration=60.0, seed=seed, headings=[0.0, 0.0, math.pi])
     inp = prepare_inputs("pendulum:chin", runs, None, None, 8.0)  # the last run held out
     stacks = build_stacks(inp)
-    return headings_and_currents(inp, stacks, single_fits(stacks, [CURRENT]))
+    return headings_and_currents(inp, stacks, attribute(stacks, [CURRENT]))
 
 
 @pytest.mark.slow

@@ -15,9 +15,11 @@ from udrobot_ctrl.gap.identifiability import (
     ActuatorCheck,
     EffectCheck,
     FormCheck,
+    Hinged,
     Identifiability,
     ParameterCheck,
     Restricted,
+    StandIn,
     _checks,
     _energies,
     _groups,
@@ -165,13 +167,35 @@ def test_ambiguity_is_symmetric_and_names_what_would_settle_it():
     amb = ident.with_ambiguous({"added_mass_error": ["cg_cb_offset", "tether_drag"]})
     assert set(amb.names) == {"added_mass_error", "cg_cb_offset", "tether_drag"}
     why = amb.reason("added_mass_error")
-    assert why.startswith("on the observed DOFs (Z, K, M, N) the fit runs' likelihood does not split its weight "
-                          "from cg_cb_offset, tether_drag")
+    assert why.startswith("on the observed DOFs (Z, K, M, N) its fit, or alone the holdout replay, is matched as "
+                          "well by cg_cb_offset, tether_drag")
     assert "tether_drag: not identifiable" in why and "DVL" in why
     assert "to tell it from cg_cb_offset: forced pitch and roll steps" in why
-    assert "split its weight from added_mass_error" in amb.reason("cg_cb_offset")
+    assert "matched as well by added_mass_error" in amb.reason("cg_cb_offset")
     assert amb.reason("tether_drag") == ident.reason("tether_drag")
     assert amb.entry("added_mass_error") == {}  # listed, so no partial-identification entry
+
+
+def test_an_unconfirmed_partial_effect_is_listed_with_its_evidence_and_the_fix():
+    """A candidate the replay could not confirm because its parameters in the unmeasured DOFs were frozen is listed
+    with the equation-error evidence and the measurement that would let the replay confirm it; an effect identified in
+    part only because a regressor vanishes on the runs is not unconfirmable (nothing would be missing from its
+    replay)."""
+    ok = ParameterCheck("scale_Zdw", 0.9, 0.1, True)
+    surge = ParameterCheck("scale_Xdu", 0.1, 0.0, False, ("horizontal",))
+    gone = ParameterCheck("suction", 0.0, 0.0, False, ("vanishes",))
+    ident = Identifiability({"added_mass_error": EffectCheck("added_mass_error", [ok, surge]),
+                             "wall_effect": EffectCheck("wall_effect", [ok, gone]),
+                             "cg_cb_offset": EffectCheck("cg_cb_offset", [ok])},
+                            np.array([0, 0, 1, 1, 1, 1], bool), np.array([1, 1, 0, 0, 0, 0], bool))
+    assert ident.unconfirmable("added_mass_error")
+    assert not ident.unconfirmable("wall_effect") and not ident.unconfirmable("cg_cb_offset")
+    listed = ident.with_unconfirmed({"added_mass_error": "selection dBIC -131"})
+    assert listed.names == ["added_mass_error"] and ident.names == []
+    why = listed.reason("added_mass_error")
+    assert why.startswith("the equation error on the observed DOFs (Z, K, M, N) selects it (selection dBIC -131)")
+    assert "scale_Xdu not identified" in why and "DVL" in why
+    assert listed.entry("added_mass_error") == {}  # listed, so no partial-identification entry
 
 
 def test_frozen_parameters_act_where_their_regressor_energy_lies(stock):
@@ -187,6 +211,76 @@ def test_frozen_parameters_act_where_their_regressor_energy_lies(stock):
     assert lin.acting_in([0]) == ["d_Xu"] and lin.acting_in([5]) == []
     am = ident.effects["added_mass_error"]
     assert "scale_Ydv" in am.acting_in([3, 5]), [(c.name, np.round(c.dof_share, 2)) for c in am.params]
+
+
+def test_a_not_excluded_partial_effect_is_listed_with_the_gap_it_could_explain():
+    """An effect not selected whose frozen parameters act where an unexplained gap lies is listed with that gap, the
+    parameters and the measurement that would test them; it carries no partial-identification entry then."""
+    ok = ParameterCheck("scale_Ndr", 0.9, 0.1, True, (), (0, 0, 0, 0, 0, 1.0))
+    heave = ParameterCheck("scale_Zdw", 0.9, 2.0, False, ("horizontal",), (0, 0, 0.03, 0.34, 0.63, 0))
+    surge = ParameterCheck("scale_Xdu", 0.1, 0.0, False, ("horizontal",), (0.9, 0, 0, 0, 0.1, 0))
+    am = EffectCheck("added_mass_error", [ok, heave, surge])
+    assert am.acting_in([2]) == ["scale_Zdw"] and am.acting_in([5]) == []
+    assert am.acting_in([4]) == ["scale_Zdw", "scale_Xdu"] and am.acting_in([2], min_share=0.05) == []
+    ident = Identifiability({"added_mass_error": am}, np.array([0, 0, 1, 1, 1, 1], bool),
+                            np.array([1, 1, 0, 0, 0, 0], bool))
+    listed = ident.with_not_excluded({"added_mass_error": "54% of the gap unexplained, 76% of it in Z, where its "
+                                                          "scale_Zdw act"})
+    assert ident.names == [] and listed.names == ["added_mass_error"]
+    why = listed.reason("added_mass_error")
+    assert why.startswith("not excluded: 54% of the gap unexplained, 76% of it in Z, where its scale_Zdw act")
+    assert "cannot be tested" in why and "DVL" in why
+    assert listed.entry("added_mass_error") == {} and ident.entry("added_mass_error") != {}
+
+
+def _partial_added_mass():
+    ok = ParameterCheck("scale_Ndr", 0.9, 0.1, True, (), (0, 0, 0, 0, 0, 1.0))
+    heave = ParameterCheck("scale_Zdw", 0.9, 2.0, False, ("horizontal",), (0, 0, 0.03, 0.34, 0.63, 0))
+    full = [ParameterCheck("d", 1.0, 0.0, True, (), (0, 0, 1.0, 0, 0, 0))]
+    checks = {"added_mass_error": EffectCheck("added_mass_error", [ok, heave]),
+              "buoyancy_offset": EffectCheck("buoyancy_offset", full),
+              "thrust_inflow_loss": EffectCheck("thrust_inflow_loss", full),
+              "linear_damping": EffectCheck("linear_damping", full)}
+    return Identifiability(checks, np.array([0, 0, 1, 1, 1, 1], bool), np.array([1, 1, 0, 0, 0, 0], bool))
+
+
+def test_an_effect_whose_support_hinges_on_an_untested_part_is_listed_with_that_part_and_its_measurement():
+    """Listed as not excluded: the gap, the partly identified effect beside which it is supported, the evidence, and
+    the measurement that would test that part; no partial-identification entry."""
+    ident = _partial_added_mass()
+    listed = ident.with_hinged({"buoyancy_offset": Hinged("added_mass_error", -205.3, 219.3, "80% of the gap left")})
+    assert ident.names == [] and listed.names == ["buoyancy_offset"]
+    why = listed.reason("buoyancy_offset")
+    assert why.startswith("not excluded: 80% of the gap left; beside added_mass_error with its scale_Zdw fitted")
+    assert "by 205" in why and "ratio 219" in why and "log u, v (DVL)" in why
+    assert listed.entry("buoyancy_offset") == {}
+
+
+def test_a_confirmed_stand_in_for_an_untested_part_is_listed_with_its_partner_and_what_tells_them_apart():
+    ident = _partial_added_mass()
+    partner = Hinged("added_mass_error", -433.0, 275.8, "83% of the gap left")
+    stand = StandIn("added_mass_error", "linear_damping", -662.9, 104.7, partner)
+    listed = ident.with_stand_in({"thrust_inflow_loss": stand}).with_hinged({"linear_damping": partner})
+    assert listed.names == ["thrust_inflow_loss", "linear_damping"]
+    why = listed.reason("thrust_inflow_loss")
+    assert "replaced by added_mass_error, its scale_Zdw fitted" in why and "-663" in why and "+105" in why
+    assert "log u, v (DVL)" in why and "to tell it from linear_damping: coast-downs" in why
+    form = replace(stand, partner_form="norm_weight = 1")
+    assert "with norm_weight = 1 (a form these channels cannot test)" in ident.with_stand_in(
+        {"thrust_inflow_loss": form}).reason("thrust_inflow_loss")
+
+
+def test_a_stand_in_without_a_partner_is_listed_with_what_would_test_the_part_it_may_stand_in_for():
+    """A thruster effect that the added-mass error takes back alone once its untested part is fitted: the reason gives
+    both BICs and the measurement, and names no look-alike (there is none to tell it from)."""
+    ident = _partial_added_mass()
+    stand = StandIn("added_mass_error", "", -203.5, 11.0, None)
+    listed = ident.with_stand_in({"thrust_inflow_loss": stand})
+    assert listed.names == ["thrust_inflow_loss"]
+    why = listed.reason("thrust_inflow_loss")
+    assert why.startswith("with it replaced by added_mass_error, its scale_Zdw fitted as well (on the velocities the "
+                          "smoother reconstructs), the fit runs' BIC changes by -204"), why
+    assert "(dBIC +11)" in why and "log u, v (DVL)" in why and "to tell it from" not in why
 
 
 def _vertical_scaled(monkeypatch, scale):

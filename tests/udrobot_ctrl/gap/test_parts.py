@@ -6,7 +6,7 @@ import math
 import pytest
 
 from udrobot_ctrl.gap.parts import SAME_SHARE, Agreement, named_parts
-from udrobot_ctrl.gap.report import build_stacks, prepare_inputs, single_fits
+from udrobot_ctrl.gap.report import attribute, build_stacks, prepare_inputs
 
 from .truth import generate
 
@@ -20,7 +20,7 @@ def _parts(fit_dB, holdout_dB):
     hold = generate({NAME: {"dB0": holdout_dB, "beta": 0.1}}, n_runs=1, duration=60.0, seed=6)
     inp = prepare_inputs("pendulum:chin", fit, hold, [NAME], 8.0)
     stacks = build_stacks(inp)
-    sel = single_fits(stacks, [NAME])
+    sel = attribute(stacks, [NAME])
     return sel.singles[NAME], named_parts(stacks.holdout, sel.singles[NAME], [NAME])
 
 
