@@ -55,6 +55,9 @@ def register(subparsers):
     p.add_argument("--out-model", metavar="CORRECTED.json",
                    help="write the model with the significant effects added (udrobot-model/1 with an effects list)")
     p.add_argument("--window", type=float, default=8.0, help="multiple-shooting window, s (default 8)")
+    p.add_argument("--selection", action="store_true",
+                   help="also report the one-criterion selection table of the fit runs (experimental; it does not "
+                        "decide; several times the run time)")
     p.add_argument("--mapping", help="log mapping for non-udrobot-run inputs (see udrobot-ctrl convert)")
     p.add_argument("--effects", help="comma-separated subset of the catalogue to test (default: all)")
     p.add_argument("--force", action="store_true", help="replace existing output files (never an input)")
@@ -179,7 +182,7 @@ def run(args) -> int:
     check_window(args.window, ())
     log = None if args.quiet else (lambda s: print(s, file=sys.stderr))
     report, ctx = diagnose(args.model, fit, hold or None, window_s=args.window, effects=effects, log=log,
-                           model_label=args.model)
+                           model_label=args.model, selection=args.selection)
     write_report(report, Path(args.json), protect=inputs)
     if args.out_model and nothing_diagnosed(report):
         print(f"udrobot-ctrl diagnose: {args.out_model} not written: no run was diagnosed (the report's verdict says "

@@ -69,6 +69,7 @@ from udrobot_ctrl.gap.heading import CURRENT, HeadingCoverage, current_parts, he
 from udrobot_ctrl.gap.identifiability import Identifiability
 from udrobot_ctrl.gap.locate import Located, locate, noise_floor
 from udrobot_ctrl.gap.parts import named_parts
+from udrobot_ctrl.gap.plots import write_plots
 from udrobot_ctrl.gap.replay import domain_windows
 from udrobot_ctrl.gap.screen import KINDS, UNEXCITED_COMMAND, Unexcited, run_label, screen_runs
 from udrobot_ctrl.gap.shrink import (
@@ -1706,7 +1707,56 @@ def set_aside_at_bound(inp: Inputs, stacks: Stacks, where: Where, elim: Eliminat
     return elim, found, held, stacks
 
 
-def diagnose(model, runs, holdout=None, window_s=8.0, effects=None, log=None, model_label=None):
+@dataclass(frozen=True)
+class Diagnosis:
+    """The result of :func:`diagnose`: the ``udrobot-diagnosis/1`` report and what its figures need.
+
+    Unpacks as ``report, context = diagnose(...)`` (the form before this result had a name).
+
+    Parameters
+    ----------
+    report : dict
+        The report, JSON-ready (docs/formats/diagnosis.md): what the CLI writes with ``--json``.
+    context : DiagnosisContext
+        The prepared runs and replays the figures are drawn from (:func:`udrobot_ctrl.gap.plots.write_plots`).
+    """
+
+    report: dict
+    context: DiagnosisContext
+
+    def __iter__(self):
+        return iter((self.report, self.context))
+
+    @property
+    def significant(self) -> tuple:
+        """Names of the significant effects, most explanatory first."""
+        return tuple(e["name"] for e in self.report["effects"] if e["significant"])
+
+    @property
+    def unexplained(self) -> float:
+        """``gap_after.value / gap_before.value`` on the holdout runs (nan when the gap is undefined)."""
+        v = self.report.get("unexplained")
+        return float("nan") if v is None else float(v)
+
+    def to_json(self) -> str:
+        """The report as the JSON text ``--json`` writes."""
+        return json.dumps(self.report, indent=2) + "\n"
+
+    def summary(self) -> str:
+        """The human-readable summary the CLI prints (:func:`summary`)."""
+        return summary(self.report)
+
+    def write(self, path, protect=()) -> None:
+        """Write the report to ``path`` atomically, never over a file in ``protect`` (:func:`write_report`)."""
+        write_report(self.report, path, protect=protect)
+
+    def plot(self, directory, protect=()) -> list:
+        """Write the residual and overlay figures into ``directory``; returns their paths
+        (:func:`udrobot_ctrl.gap.plots.write_plots`)."""
+        return write_plots(self.context, self.report, directory, protect=protect)
+
+
+def diagnose(model, runs, holdout=None, window_s=8.0, effects=None, log=None, model_label=None, selection=False):
     """Run the whole diagnosis: locate -> attribute -> shrink and confirm -> report.
 
     Parameters
@@ -1725,13 +1775,14 @@ def diagnose(model, runs, holdout=None, window_s=8.0, effects=None, log=None, mo
         Receives the progress lines (the console story: candidates, holdout check, significant set).
     model_label : str, optional
         The model's name in the report.
+    selection : bool
+        Also compute the one-criterion selection table on the fit runs (:mod:`udrobot_ctrl.gap.decide`) and report
+        it as ``selection`` beside the verdict (experimental: it does not decide; several times the run time).
 
     Returns
     -------
-    report : dict
-        The ``udrobot-diagnosis/1`` report (JSON-ready).
-    ctx : DiagnosisContext
-        What the figures need.
+    Diagnosis
+        The ``udrobot-diagnosis/1`` report and what its figures need (unpacks as ``report, context``).
 
     Notes
     -----
@@ -1739,10 +1790,10 @@ def diagnose(model, runs, holdout=None, window_s=8.0, effects=None, log=None, mo
     worker processes instead, and the report does not depend on how many there are.
     """
     with one_blas_thread():
-        return _diagnose(model, runs, holdout, window_s, effects, log, model_label)
+        return Diagnosis(*_diagnose(model, runs, holdout, window_s, effects, log, model_label, selection))
 
 
-def _diagnose(model, runs, holdout, window_s, effects, log, model_label):
+def _diagnose(model, runs, holdout, window_s, effects, log, model_label, selection=False):
     """:func:`diagnose` computed."""
     t0 = time.perf_counter()
     say = log or (lambda s: None)
@@ -1763,10 +1814,11 @@ def _diagnose(model, runs, holdout, window_s, effects, log, model_label):
             if "closed loop" in note else note)
 
     res = diagnosis_pass(inp, say, t0)
-    shadow = table_decision(inp, res.stacks, res.where, log=say)
-    say(f"shadow decision: best {shadow.best.members}, named {shadow.named}, "
-        f"inclusion {dict((k, round(v, 3)) for k, v in shadow.inclusion.items() if v > 0.01)} "
-        f"({time.perf_counter() - t0:.1f} s)")
+    shadow = table_decision(inp, res.stacks, res.where, log=say) if selection else None
+    if shadow is not None:
+        say(f"selection table (not the verdict): best {shadow.best.members}, named {shadow.named}, "
+            f"inclusion {dict((k, round(v, 3)) for k, v in shadow.inclusion.items() if v > 0.01)} "
+            f"({time.perf_counter() - t0:.1f} s)")
     # the force the holdout confirmed improves the reconstruction whichever effect it is named as (an ambiguous
     # effect is set aside from the verdict, not from the plant that smooths the velocities)
     if reconstructed(inp) and res.confirmed.kept:
@@ -1820,7 +1872,8 @@ def _diagnose(model, runs, holdout, window_s, effects, log, model_label):
                          support=res.support)
     report.update(_not_diagnosed_fields(skipped))
     report["replay_domain"] = domain
-    report["selection"] = shadow.to_json()
+    if shadow is not None:
+        report["selection"] = shadow.to_json()
     ctx = DiagnosisContext(inp.runs, len(inp.fit), where.nominal_sims, after_sims, where.residuals, location)
     return _clean(report), ctx
 
