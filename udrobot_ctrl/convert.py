@@ -25,7 +25,7 @@ from udrobot_ctrl.io.mavlink import (
     motor_command_pwm,
     water_density_from_params,
 )
-from udrobot_ctrl.io.runlog import Run, read_run
+from udrobot_ctrl.io.runlog import PWM_NEUTRAL_US, PWM_RANGE_US, Run, read_run
 from udrobot_ctrl.io.streams import LogImportError
 from udrobot_ctrl.io.stretches import cut_run
 
@@ -99,9 +99,9 @@ def convert_log(path, mapping=None, require_inputs: bool = True, vehicle: str | 
                            extra_rules=motor_rules(mapping, servos), aiding=aiding.of)
         if vehicle.name is not None:
             run.metadata["vehicle"] = vehicle.name
-        note = apply_motor_directions(run, facts.params)
-        if note:
-            run.metadata["notes"] += "\n" + note
+        for note in (silent_outputs(run), apply_motor_directions(run, facts.params)):
+            if note:
+                run.metadata["notes"] += "\n" + note
         if autopilot_params(facts.params):
             run.metadata["autopilot_params"] = autopilot_params(facts.params)
         if firmware_text(facts):
@@ -131,6 +131,30 @@ def convert_log(path, mapping=None, require_inputs: bool = True, vehicle: str | 
             run.metadata["notes"] = "\n".join(lines + [f"{n} [on the rows the cut kept]" for n in kept])
     run.path = str(path)
     return run
+
+
+def silent_outputs(run: Run) -> str:
+    """The logged motor pulses no ESC reads as a command, in place; returns the note (empty when there are none).
+
+    0 us (MAVLink's and RCOU's "no pulse" of an output not driven) is written as the neutral 1500 us: an ESC
+    without a signal stops its motor, so it gives no thrust. Any other pulse outside ArduPilot's servo range
+    (:data:`~udrobot_ctrl.io.runlog.PWM_RANGE_US`, e.g. 65535, "unused") is a damaged record, written as not logged.
+    """
+    if run.input_kind != "pwm" or not run.n:
+        return ""
+    pwm = np.array(run.inputs, float)
+    lo, hi = PWM_RANGE_US
+    silent = pwm == 0
+    with np.errstate(invalid="ignore"):
+        bad = ((pwm < lo) | (pwm > hi)) & ~silent
+    pwm[silent] = PWM_NEUTRAL_US
+    pwm[bad] = np.nan
+    run.inputs = pwm
+    parts = [f"pwm_{k + 1}: {int(silent[:, k].sum())} at 0 us (no pulse: the ESC stops its motor) written as "
+             f"{PWM_NEUTRAL_US:g} us" for k in range(pwm.shape[1]) if silent[:, k].any()]
+    parts += [f"pwm_{k + 1}: {int(bad[:, k].sum())} outside {lo:g}..{hi:g} us (no ESC command) written as not "
+              f"logged" for k in range(pwm.shape[1]) if bad[:, k].any()]
+    return "motors: " + "; ".join(parts) if parts else ""
 
 
 def apply_motor_directions(run: Run, params: dict) -> str:

@@ -524,6 +524,9 @@ def _curve_entry(v: Vehicle) -> dict:
     if "voltage" not in ex:
         return {}
     return {"thruster_curve": {"name": str(ex.get("thruster_model", "t200")), "supply_voltage_V": float(ex["voltage"])}}
+#: relative disagreement allowed between a model file's ``weight`` and its ``mass * g``: a weight written to four
+#: significant figures (the file format's example writes 91.8 N for 9.36 kg at 9.81 m/s^2, 0.02 % off)
+WEIGHT_TOLERANCE = 1e-3
 MODEL_KEYS = ("format", "name", "rho", "g", "mass", "inertia_cg", "r_g", "r_b", "weight", "buoyancy", "added_mass",
               "linear_damping", "quadratic_damping", "thrusters", "provenance", "effects", "thruster_curve",
               "ardusub_frame")
@@ -623,9 +626,10 @@ def _thruster(t, i: int, src: str) -> Thruster:
 def model_from_dict(doc: dict, source: str = "<dict>", model_file=None) -> Vehicle:
     """Parse and check a ``udrobot-model/1`` document; errors name the source and field.
 
-    Rejected: booleans or strings as numbers, non-positive rho, g, mass, weight, negative buoyancy, inertia not
-    symmetric positive definite, negative or energy-generating damping, thrusters with non-finite position,
-    non-unit direction or negative limits. Unknown fields are ignored with a warning (and a "did you mean").
+    Rejected: booleans or strings as numbers, non-positive rho, g, mass, weight, a weight not mass * g
+    (:data:`WEIGHT_TOLERANCE`), negative buoyancy, inertia not symmetric positive definite, negative or
+    energy-generating damping, thrusters with non-finite position, non-unit direction or negative limits.
+    Unknown fields are ignored with a warning (and a "did you mean").
 
     Parameters
     ----------
@@ -657,6 +661,13 @@ def model_from_dict(doc: dict, source: str = "<dict>", model_file=None) -> Vehic
         if not np.isfinite(scal[key]) or (scal[key] < 0 if key == "buoyancy" else scal[key] <= 0):
             raise ValueError(f"{source}: field {key!r} = {doc[key]!r} must be finite and "
                              f"{'>= 0' if key == 'buoyancy' else '> 0'}")
+    mg = scal["mass"] * scal["g"]
+    if abs(scal["weight"] - mg) > WEIGHT_TOLERANCE * mg:
+        raise ValueError(f"{source}: field 'weight' = {doc['weight']!r} N disagrees with mass * g = "
+                         f"{scal['mass']:g} kg * {scal['g']:g} m/s^2 = {mg:.4g} N by "
+                         f"{100 * (scal['weight'] / mg - 1):+.3g} %; expected the same weight to "
+                         f"{100 * WEIGHT_TOLERANCE:g} % (W = m g, Fossen 2021 eq. 4.6: a trim error belongs in "
+                         f"'buoyancy')")
     if not isinstance(doc.get("thrusters", []), list):
         raise ValueError(f"{source}: field 'thrusters' must be a list of thruster objects")
     thrusters = [_thruster(t, i, source) for i, t in enumerate(doc.get("thrusters", []))]

@@ -49,6 +49,14 @@ from udrobot_files.nesting import NestingError, loads_json, unique_keys
 FORMAT = "udrobot-run/1"
 STATE_CHANNELS = STATE_NAMES  # the run's state columns are the plant's states, in its order
 OTHER_CHANNELS = ("altitude", "voltage", "ax", "ay", "az")
+#: ESC pulse widths a ``pwm_i`` cell may hold, us: ArduPilot's servo output range (``SRV_Channel.cpp``,
+#: ``SERVOn_MIN`` / ``SERVOn_MAX`` ``@Range: 500 2200``). 0 is MAVLink's "no pulse" on a disabled output, not a command.
+PWM_RANGE_US = (500.0, 2200.0)
+#: the neutral ESC pulse (no thrust), us
+PWM_NEUTRAL_US = 1500.0
+#: Battery voltages a ``voltage`` cell may hold, V: above 0 and at most 60 V, the DC limit of safety extra-low
+#: voltage (IEC 61140), which small-ROV batteries stay under (assumed: a BlueROV2's 4S pack is 12.8-16.8 V).
+VOLTAGE_RANGE_V = (0.0, 60.0)
 CHANNELS = STATE_CHANNELS + OTHER_CHANNELS
 ANGLE_CHANNELS = ("phi", "theta", "psi")
 TAU_COLUMNS = ("tau_X", "tau_Y", "tau_Z", "tau_K", "tau_M", "tau_N")
@@ -309,6 +317,42 @@ def check_context_columns(extra: dict, path="run", lines=None) -> None:
         if bad.any():
             i = int(np.flatnonzero(bad)[0])
             raise RunLogError(f"{where(i, 'armed')}: {armed[i]:g}; expected 1 (armed), 0 (disarmed) or an empty cell")
+
+
+def check_measured_values(channels: dict, input_kind: str, inputs: np.ndarray, extra: dict, path="run",
+                          lines=None) -> None:
+    """The cells whose physical range is known checked where they enter: every finite ``pwm_i`` (the run's input or
+    an extra column) within :data:`PWM_RANGE_US`, every finite ``voltage`` within :data:`VOLTAGE_RANGE_V`
+    (above the lower bound). Empty cells stay "not measured".
+
+    Raises
+    ------
+    RunLogError
+        Naming the file, the data row (and file line), the column, the value and the range expected.
+    """
+    columns = {}
+    if input_kind == "pwm":
+        columns.update({f"pwm_{k + 1}": inputs[:, k] for k in range(inputs.shape[1])})
+    columns.update({c: np.asarray(v, float) for c, v in extra.items()
+                    if _INDEXED_INPUT.match(c) and c.startswith("pwm_") and np.asarray(v).dtype.kind == "f"})
+    lo, hi = PWM_RANGE_US
+    for column, values in columns.items():
+        bad = np.isfinite(values) & ((values < lo) | (values > hi)) | np.isinf(values)
+        if bad.any():
+            i = int(np.flatnonzero(bad)[0])
+            zero = " (0 is MAVLink's 'no pulse' of a disabled output, not an ESC command)" if values[i] == 0 else ""
+            raise RunLogError(f"{_where(path, i + 1, None if lines is None else int(lines[i]), column)}: "
+                              f"{values[i]:g} us{zero}; expected an ESC pulse width in {lo:g}..{hi:g} us "
+                              f"(ArduPilot SERVOn_MIN/MAX range) or an empty cell")
+    if "voltage" in channels:
+        v = np.asarray(channels["voltage"], float)
+        lo, hi = VOLTAGE_RANGE_V
+        bad = ~np.isnan(v) & ~((v > lo) & (v <= hi))
+        if bad.any():
+            i = int(np.flatnonzero(bad)[0])
+            raise RunLogError(f"{_where(path, i + 1, None if lines is None else int(lines[i]), 'voltage')}: "
+                              f"{v[i]:g} V; expected a battery voltage above {lo:g} V and at most {hi:g} V "
+                              f"(the safety extra-low voltage limit) or an empty cell")
 
 
 def _where(path, row=None, line=None, column=None) -> str:
@@ -742,9 +786,12 @@ def read_run(path, progress: bool | None = None) -> Run:
         extra[SEGMENT] = segment.astype(float)
     check_time_gaps(t, path, cols.lines, segment)
     check_context_columns(extra, path, cols.lines)
+    channels = {c: trim(v) for c, v in cols.channels.items()}
+    inputs = trim(cols.inputs)
+    check_measured_values(channels, state["input_kind"], inputs, extra, path, cols.lines)
     metadata = read_metadata(path.with_suffix(".json")) if path.with_suffix(".json").exists() else {}
-    return Run(path=str(path), t=t, channels={c: trim(v) for c, v in cols.channels.items()},
-               input_kind=state["input_kind"], inputs=trim(cols.inputs), extra=extra, metadata=metadata)
+    return Run(path=str(path), t=t, channels=channels,
+               input_kind=state["input_kind"], inputs=inputs, extra=extra, metadata=metadata)
 
 
 def _progress(total_bytes: int, path, progress):

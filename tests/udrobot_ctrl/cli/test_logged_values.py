@@ -209,3 +209,54 @@ def test_a_model_file_with_a_second_effects_key_is_refused(tmp_path, capsys):
     run = flyable_run(tmp_path / "run.csv")
     refused(["simulate", "--model", bad, "--input", run, "--out", tmp_path / "o.csv"], capsys,
             str(bad), "key 'effects' given twice")
+
+
+@pytest.mark.parametrize("value,words", [(0.0, ("0 us", "'no pulse'", "500..2200 us")),
+                                         (65535.0, ("65535 us", "500..2200 us"))])
+@pytest.mark.parametrize("command", ["simulate", "diagnose"])  # design --from reads the sidecar, not the samples
+def test_an_esc_pulse_outside_the_servo_range_is_refused_naming_row_and_column(tmp_path, capsys, value, words,
+                                                                               command):
+    """``pwm 0`` (a disabled output's "no pulse") was clipped to the curve's 1100 us: full reverse thrust."""
+    run = flyable_run(tmp_path / "run.csv", params={"ATC_RAT_RLL_P": 0.135})
+    text = run.read_text().splitlines()
+    header = text[0].split(",")
+    cells = text[7].split(",")
+    cells[header.index("pwm_3")] = f"{value:g}"
+    text[7] = ",".join(cells)
+    run.write_text("\n".join(text) + "\n")
+    before = run.read_bytes()
+    argv, out = commands(run, tmp_path)[command]
+    refused(argv, capsys, str(run), "data row 7 (file line 8)", "column 'pwm_3'", *words)
+    assert not out.exists() and run.read_bytes() == before
+
+
+@pytest.mark.parametrize("value", [1e6, 0.0, -12.0, 61.0])
+def test_a_battery_voltage_no_small_rov_has_is_refused(tmp_path, capsys, value):
+    """A voltage of 1e6 V scaled every thrust of the replay by the curve's power law, without a word."""
+    t = np.arange(0.0, 1.0, 0.02)
+    volts = np.full(t.size, 15.5)
+    volts[20] = value
+    run = tmp_path / "run.csv"
+    states = {c: np.zeros_like(t) for c in STATE_NAMES}
+    states["z"] = np.full(t.size, 5.0)
+    write_run(run, t, {**states, "voltage": volts}, "pwm", np.full((t.size, 8), 1500.0), metadata={"vehicle": HEAVY})
+    refused(["simulate", "--model", HEAVY, "--input", run, "--out", tmp_path / "o.csv"], capsys,
+            str(run), "data row 21 (file line 22)", "column 'voltage'", f"{value:g} V", "at most 60 V")
+    assert not (tmp_path / "o.csv").exists()
+
+
+def test_a_model_whose_weight_is_not_mass_times_g_is_refused(tmp_path, capsys):
+    """A weight of 50 N on a 9.36 kg model flew as a 4 kg vehicle's restoring forces with a 9.36 kg inertia."""
+    assert main(["model", "export", "--model", "pendulum:chin", "--out", str(tmp_path / "m.json")]) == 0
+    doc = json.loads((tmp_path / "m.json").read_text())
+    doc["weight"] = 50.0
+    bad = tmp_path / "bad.json"
+    bad.write_text(json.dumps(doc))
+    run = tmp_path / "run.csv"
+    t = np.arange(0.0, 0.5, 0.02)
+    write_run(run, t, {c: np.zeros_like(t) for c in STATE_NAMES}, "thrust", np.zeros((t.size, 4)))
+    refused(["simulate", "--model", bad, "--input", run, "--out", tmp_path / "o.csv"], capsys,
+            str(bad), "field 'weight' = 50.0 N", "mass * g", "'buoyancy'")
+    doc["weight"] = round(doc["mass"] * doc["g"], 1)  # rounded as the format's example writes it: accepted
+    bad.write_text(json.dumps(doc))
+    assert main(["simulate", "--model", str(bad), "--input", str(run), "--out", str(tmp_path / "o.csv")]) == 0

@@ -232,6 +232,10 @@ def test_six_outputs_give_bluerov2_and_ambiguous_outputs_are_refused(tmp_path):
     run = convert_log(seven, "ardusub", vehicle="bluerov2-heavy")
     assert run.inputs.shape[1] == 8 and "vehicle: bluerov2-heavy with 8 thrusters given by --vehicle" in \
         run.metadata["notes"]
+    # its eighth output carries no pulse (0 us): an ESC without a signal stops its motor -> written as 1500 us, noted
+    np.testing.assert_array_equal(run.inputs[:, 7], 1500.0)
+    assert "pwm_8: " in run.metadata["notes"] and "at 0 us (no pulse: the ESC stops its motor)" in \
+        run.metadata["notes"]
     with pytest.raises(LogImportError, match="unknown thruster count"):
         convert_log(seven, "ardusub", vehicle="nautilus")
 

@@ -65,6 +65,7 @@ def test_round_trip_bit_exact_with_metadata(tmp_path):
     n = 50
     t = np.cumsum(rng.uniform(1e-4, 0.2, n))
     channels = {c: rng.normal(size=n) for c in STATE_CHANNELS + ("altitude", "voltage")}
+    channels["voltage"] = 15.0 + channels["voltage"]  # a battery's voltage (0..60 V, read_run's range)
     channels["x"][::3] = np.nan
     tau = rng.normal(size=(n, 6)) * 10
     meta = {"vehicle": "udrobot", "water_density": 998.0, "seabed_depth": 3.0,
@@ -232,8 +233,13 @@ def test_fuzz_valid_files_return_exactly_their_rows(tmp_path, data, n, k, kind, 
     t = np.cumsum(np.array(data.draw(st.lists(st.floats(1e-6, 50.0), min_size=n, max_size=n))))
     k = 6 if kind == "tau" else k
     vals = st.one_of(_finite, st.just(float("nan")))
-    inputs = np.array(data.draw(st.lists(st.lists(vals, min_size=k, max_size=k), min_size=n, max_size=n)))
-    channels = {c: np.array(data.draw(st.lists(vals, min_size=n, max_size=n))) for c in cols if c != "foo"}
+    # values with a physical range (read_run's check_measured_values) drawn inside it
+    pulses = st.one_of(st.floats(500.0, 2200.0), st.just(float("nan")))
+    volts = st.one_of(st.floats(0.0, 60.0, exclude_min=True), st.just(float("nan")))
+    cell = pulses if kind == "pwm" else vals
+    inputs = np.array(data.draw(st.lists(st.lists(cell, min_size=k, max_size=k), min_size=n, max_size=n)))
+    channels = {c: np.array(data.draw(st.lists(volts if c == "voltage" else vals, min_size=n, max_size=n)))
+                for c in cols if c != "foo"}
     extra = {"foo": np.arange(n) * 1.0} if "foo" in cols else None
     path = write_run(tmp_path / "f.csv", t, channels, kind, inputs, extra=extra)
     run = read_run(path)
