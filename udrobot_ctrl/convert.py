@@ -25,7 +25,7 @@ from udrobot_ctrl.io.mavlink import (
     motor_command_pwm,
     water_density_from_params,
 )
-from udrobot_ctrl.io.runlog import PWM_NEUTRAL_US, PWM_RANGE_US, Run, read_run
+from udrobot_ctrl.io.runlog import PWM_NEUTRAL_US, PWM_RANGE_US, VOLTAGE_RANGE_V, Run, read_run
 from udrobot_ctrl.io.streams import LogImportError
 from udrobot_ctrl.io.stretches import cut_run
 
@@ -99,7 +99,7 @@ def convert_log(path, mapping=None, require_inputs: bool = True, vehicle: str | 
                            extra_rules=motor_rules(mapping, servos), aiding=aiding.of)
         if vehicle.name is not None:
             run.metadata["vehicle"] = vehicle.name
-        for note in (silent_outputs(run), apply_motor_directions(run, facts.params)):
+        for note in (silent_outputs(run), unmeasured_voltage(run), apply_motor_directions(run, facts.params)):
             if note:
                 run.metadata["notes"] += "\n" + note
         if autopilot_params(facts.params):
@@ -155,6 +155,29 @@ def silent_outputs(run: Run) -> str:
     parts += [f"pwm_{k + 1}: {int(bad[:, k].sum())} outside {lo:g}..{hi:g} us (no ESC command) written as not "
               f"logged" for k in range(pwm.shape[1]) if bad[:, k].any()]
     return "motors: " + "; ".join(parts) if parts else ""
+
+
+def unmeasured_voltage(run: Run) -> str:
+    """Battery voltages no battery has, in place, written as not measured; returns the note (empty when none).
+
+    A vehicle without a battery monitor logs 0 V (``BAT.Volt``), and MAVLink's ``SYS_STATUS.voltage_battery`` is
+    ``UINT16_MAX`` (65.535 V) when the autopilot sends no voltage: both are outside
+    :data:`~udrobot_ctrl.io.runlog.VOLTAGE_RANGE_V`, so the replay uses the model's supply voltage there.
+    """
+    v = run.channels.get("voltage")
+    if v is None:
+        return ""
+    v = np.array(v, float)
+    lo, hi = VOLTAGE_RANGE_V
+    with np.errstate(invalid="ignore"):
+        bad = ~np.isnan(v) & ~((v > lo) & (v <= hi))
+    if not bad.any():
+        return ""
+    values = ", ".join(f"{x:g}" for x in np.unique(v[bad])[:3])
+    v[bad] = np.nan
+    run.channels["voltage"] = v
+    return (f"voltage: {int(bad.sum())} of {v.size} samples outside {lo:g}..{hi:g} V ({values} V: no battery "
+            f"monitor, or not sent) written as not measured")
 
 
 def apply_motor_directions(run: Run, params: dict) -> str:
