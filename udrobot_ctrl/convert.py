@@ -14,6 +14,7 @@ from udrobot_ctrl.ardusub.params import ESTIMATED_PARAMS, gain_log_params
 from udrobot_ctrl.autopilot.joystick import pilot_input
 from udrobot_ctrl.autopilot.motors import MotorParameters, fit_directions, frame, throttle_bidirectional
 from udrobot_ctrl.autopilot.validate import fitted_parameters, read_log
+from udrobot_ctrl.dynamics.thrusters import PWM_NEUTRAL
 from udrobot_ctrl.io.logs import DEFAULT_MAPPINGS, log_kind, motor_evidence, read_streams
 from udrobot_ctrl.io.mapping import UNAIDED_NOTE, MappingError, assemble_run, judge_channels, load_mapping, motor_rules
 from udrobot_ctrl.io.mavlink import (
@@ -25,7 +26,14 @@ from udrobot_ctrl.io.mavlink import (
     motor_command_pwm,
     water_density_from_params,
 )
-from udrobot_ctrl.io.runlog import PWM_NEUTRAL_US, PWM_RANGE_US, VOLTAGE_RANGE_V, Run, read_run
+from udrobot_ctrl.io.runlog import (
+    PWM_RANGE_US,
+    VOLTAGE_RANGE_V,
+    Run,
+    pulses_outside_range,
+    read_run,
+    voltages_outside_range,
+)
 from udrobot_ctrl.io.streams import LogImportError
 from udrobot_ctrl.io.stretches import cut_run
 
@@ -138,20 +146,20 @@ def silent_outputs(run: Run) -> str:
 
     0 us (MAVLink's and RCOU's "no pulse" of an output not driven) is written as the neutral 1500 us: an ESC
     without a signal stops its motor, so it gives no thrust. Any other pulse outside ArduPilot's servo range
-    (:data:`~udrobot_ctrl.io.runlog.PWM_RANGE_US`, e.g. 65535, "unused") is a damaged record, written as not logged.
+    (:func:`~udrobot_ctrl.io.runlog.pulses_outside_range`, e.g. 65535, "unused") is a damaged record, written as
+    not logged.
     """
     if run.input_kind != "pwm" or not run.n:
         return ""
     pwm = np.array(run.inputs, float)
-    lo, hi = PWM_RANGE_US
     silent = pwm == 0
-    with np.errstate(invalid="ignore"):
-        bad = ((pwm < lo) | (pwm > hi)) & ~silent
-    pwm[silent] = PWM_NEUTRAL_US
+    bad = pulses_outside_range(pwm) & ~silent
+    pwm[silent] = PWM_NEUTRAL
     pwm[bad] = np.nan
     run.inputs = pwm
+    lo, hi = PWM_RANGE_US
     parts = [f"pwm_{k + 1}: {int(silent[:, k].sum())} at 0 us (no pulse: the ESC stops its motor) written as "
-             f"{PWM_NEUTRAL_US:g} us" for k in range(pwm.shape[1]) if silent[:, k].any()]
+             f"{PWM_NEUTRAL:g} us" for k in range(pwm.shape[1]) if silent[:, k].any()]
     parts += [f"pwm_{k + 1}: {int(bad[:, k].sum())} outside {lo:g}..{hi:g} us (no ESC command) written as not "
               f"logged" for k in range(pwm.shape[1]) if bad[:, k].any()]
     return "motors: " + "; ".join(parts) if parts else ""
@@ -162,20 +170,19 @@ def unmeasured_voltage(run: Run) -> str:
 
     A vehicle without a battery monitor logs 0 V (``BAT.Volt``), and MAVLink's ``SYS_STATUS.voltage_battery`` is
     ``UINT16_MAX`` (65.535 V) when the autopilot sends no voltage: both are outside
-    :data:`~udrobot_ctrl.io.runlog.VOLTAGE_RANGE_V`, so the replay uses the model's supply voltage there.
+    :data:`~udrobot_ctrl.io.runlog.VOLTAGE_RANGE_V` (:func:`~udrobot_ctrl.io.runlog.voltages_outside_range`), so
+    the replay uses the model's supply voltage there.
     """
-    v = run.channels.get("voltage")
-    if v is None:
+    if "voltage" not in run.channels:
         return ""
-    v = np.array(v, float)
-    lo, hi = VOLTAGE_RANGE_V
-    with np.errstate(invalid="ignore"):
-        bad = ~np.isnan(v) & ~((v > lo) & (v <= hi))
+    v = np.array(run.channels["voltage"], float)
+    bad = voltages_outside_range(v)
     if not bad.any():
         return ""
     values = ", ".join(f"{x:g}" for x in np.unique(v[bad])[:3])
     v[bad] = np.nan
     run.channels["voltage"] = v
+    lo, hi = VOLTAGE_RANGE_V
     return (f"voltage: {int(bad.sum())} of {v.size} samples outside {lo:g}..{hi:g} V ({values} V: no battery "
             f"monitor, or not sent) written as not measured")
 

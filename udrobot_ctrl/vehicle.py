@@ -524,6 +524,8 @@ def _curve_entry(v: Vehicle) -> dict:
     if "voltage" not in ex:
         return {}
     return {"thruster_curve": {"name": str(ex.get("thruster_model", "t200")), "supply_voltage_V": float(ex["voltage"])}}
+
+
 #: relative disagreement allowed between a model file's ``weight`` and its ``mass * g``: a weight written to four
 #: significant figures (the file format's example writes 91.8 N for 9.36 kg at 9.81 m/s^2, 0.02 % off)
 WEIGHT_TOLERANCE = 1e-3

@@ -52,8 +52,6 @@ OTHER_CHANNELS = ("altitude", "voltage", "ax", "ay", "az")
 #: ESC pulse widths a ``pwm_i`` cell may hold, us: ArduPilot's servo output range (``SRV_Channel.cpp``,
 #: ``SERVOn_MIN`` / ``SERVOn_MAX`` ``@Range: 500 2200``). 0 is MAVLink's "no pulse" on a disabled output, not a command.
 PWM_RANGE_US = (500.0, 2200.0)
-#: the neutral ESC pulse (no thrust), us
-PWM_NEUTRAL_US = 1500.0
 #: Battery voltages a ``voltage`` cell may hold, V: above 0 and at most 60 V, the DC limit of safety extra-low
 #: voltage (IEC 61140), which small-ROV batteries stay under (assumed: a BlueROV2's 4S pack is 12.8-16.8 V).
 VOLTAGE_RANGE_V = (0.0, 60.0)
@@ -319,17 +317,36 @@ def check_context_columns(extra: dict, path="run", lines=None) -> None:
             raise RunLogError(f"{where(i, 'armed')}: {armed[i]:g}; expected 1 (armed), 0 (disarmed) or an empty cell")
 
 
+def pulses_outside_range(pwm) -> np.ndarray:
+    """Mask of the ESC pulses (us) outside :data:`PWM_RANGE_US`, infinite ones included; nan (not logged) is not."""
+    pwm = np.asarray(pwm, float)
+    lo, hi = PWM_RANGE_US
+    with np.errstate(invalid="ignore"):
+        return (pwm < lo) | (pwm > hi)
+
+
+def voltages_outside_range(volts) -> np.ndarray:
+    """Mask of the battery voltages (V) outside :data:`VOLTAGE_RANGE_V` (above 0, at most 60); nan is not."""
+    volts = np.asarray(volts, float)
+    lo, hi = VOLTAGE_RANGE_V
+    with np.errstate(invalid="ignore"):
+        return (volts <= lo) | (volts > hi)
+
+
 def check_measured_values(channels: dict, input_kind: str, inputs: np.ndarray, extra: dict, path="run",
                           lines=None) -> None:
-    """The cells whose physical range is known checked where they enter: every finite ``pwm_i`` (the run's input or
-    an extra column) within :data:`PWM_RANGE_US`, every finite ``voltage`` within :data:`VOLTAGE_RANGE_V`
-    (above the lower bound). Empty cells stay "not measured".
+    """The cells whose physical range is known checked where they enter: every ``pwm_i`` (the run's input or
+    an extra column) within :data:`PWM_RANGE_US` (:func:`pulses_outside_range`), every ``voltage`` within
+    :data:`VOLTAGE_RANGE_V` (:func:`voltages_outside_range`). Empty cells stay "not measured".
 
     Raises
     ------
     RunLogError
         Naming the file, the data row (and file line), the column, the value and the range expected.
     """
+    def where(i, column):
+        return _where(path, row=i + 1, line=None if lines is None else int(lines[i]), column=column)
+
     columns = {}
     if input_kind == "pwm":
         columns.update({f"pwm_{k + 1}": inputs[:, k] for k in range(inputs.shape[1])})
@@ -337,22 +354,20 @@ def check_measured_values(channels: dict, input_kind: str, inputs: np.ndarray, e
                     if _INDEXED_INPUT.match(c) and c.startswith("pwm_") and np.asarray(v).dtype.kind == "f"})
     lo, hi = PWM_RANGE_US
     for column, values in columns.items():
-        bad = np.isfinite(values) & ((values < lo) | (values > hi)) | np.isinf(values)
+        bad = pulses_outside_range(values)
         if bad.any():
             i = int(np.flatnonzero(bad)[0])
             zero = " (0 is MAVLink's 'no pulse' of a disabled output, not an ESC command)" if values[i] == 0 else ""
-            raise RunLogError(f"{_where(path, i + 1, None if lines is None else int(lines[i]), column)}: "
-                              f"{values[i]:g} us{zero}; expected an ESC pulse width in {lo:g}..{hi:g} us "
-                              f"(ArduPilot SERVOn_MIN/MAX range) or an empty cell")
+            raise RunLogError(f"{where(i, column)}: {values[i]:g} us{zero}; expected an ESC pulse width in "
+                              f"{lo:g}..{hi:g} us (ArduPilot SERVOn_MIN/MAX range) or an empty cell")
     if "voltage" in channels:
         v = np.asarray(channels["voltage"], float)
-        lo, hi = VOLTAGE_RANGE_V
-        bad = ~np.isnan(v) & ~((v > lo) & (v <= hi))
+        bad = voltages_outside_range(v)
         if bad.any():
             i = int(np.flatnonzero(bad)[0])
-            raise RunLogError(f"{_where(path, i + 1, None if lines is None else int(lines[i]), 'voltage')}: "
-                              f"{v[i]:g} V; expected a battery voltage above {lo:g} V and at most {hi:g} V "
-                              f"(the safety extra-low voltage limit) or an empty cell")
+            lo, hi = VOLTAGE_RANGE_V
+            raise RunLogError(f"{where(i, 'voltage')}: {v[i]:g} V; expected a battery voltage above {lo:g} V and "
+                              f"at most {hi:g} V (the safety extra-low voltage limit) or an empty cell")
 
 
 def _where(path, row=None, line=None, column=None) -> str:
