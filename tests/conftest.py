@@ -17,6 +17,11 @@ its own ``@pytest.mark.xdist_group(...)`` keeps it (a factory fixture whose case
 ``test_diagnose.diagnosed``, groups each case by what it shares). Tests without a shared fixture are dealt one by one
 to whichever worker is free.
 
+The extended tier (``python -m pytest --extended``): tests marked ``extended`` are further cases of a mechanism the
+default run already checks with one representative case (more effects, look-alike pairs, log variants of one field
+dive); they are deselected from the default run so that it stays within its time budget on 2 cores, and run with
+``--extended`` (alone: ``python -m pytest --extended -m extended``).
+
 ``--cpu-durations=N`` prints the N tests with the most CPU time (setup + call + teardown: this process's user and
 system time plus that of the subprocesses it waited for). On a shared machine the wall times of ``--durations`` grow
 with the load; CPU times do not, so they are the ones to compare between runs.
@@ -26,6 +31,7 @@ from __future__ import annotations
 import os
 import resource
 import time
+import types
 
 import pytest
 
@@ -100,8 +106,28 @@ def shared_fixture_groups(items) -> dict:
     return {nodeid: root(keys[0]) for nodeid, keys in reads.items() if keys}
 
 
+def extended_cases(items, run_extended: bool) -> tuple:
+    """Split the collected tests into those to run and those deselected: a test marked ``extended`` (a further
+    case of a mechanism the default run already checks with one representative case) runs only with
+    ``--extended``.
+
+    Returns
+    -------
+    tuple of list
+        (kept, deselected), each in collection order.
+    """
+    if run_extended:
+        return list(items), []
+    kept = [item for item in items if item.get_closest_marker("extended") is None]
+    return kept, [item for item in items if item.get_closest_marker("extended") is not None]
+
+
 @pytest.hookimpl(tryfirst=True)  # before xdist's worker hook, which appends the group names to the node ids
 def pytest_collection_modifyitems(config, items):
+    kept, deselected = extended_cases(items, config.getoption("--extended"))
+    if deselected:
+        config.hook.pytest_deselected(items=deselected)
+        items[:] = kept
     free = [item for item in items if item.get_closest_marker("xdist_group") is None]  # an explicit group is kept
     groups = shared_fixture_groups(free)
     for item in free:
@@ -109,7 +135,31 @@ def pytest_collection_modifyitems(config, items):
             item.add_marker(pytest.mark.xdist_group(groups[item.nodeid]))
 
 
+def xdist_can_group() -> bool:
+    """Whether pytest-xdist's way of putting a test in its group works under this pytest: xdist (3.8) appends
+    ``@group`` to a test's node id by assigning ``item._nodeid`` and schedules by that suffix; pytest 9 derives
+    ``nodeid`` from another attribute, so the suffix is lost and ``--dist loadgroup`` splits the groups over the
+    workers (each then computing the shared fixtures again)."""
+    probe = types.SimpleNamespace(_nodeid="test_x@group", _id="test_x")
+    try:
+        return pytest.Item.nodeid.fget(probe) == "test_x@group"
+    except AttributeError:
+        return False
+
+
+def pytest_configure(config):
+    if config.getoption("dist", "no") == "loadgroup" and not os.environ.get("PYTEST_XDIST_WORKER") \
+            and not xdist_can_group():
+        raise pytest.UsageError(
+            f"pytest {pytest.__version__} with --dist loadgroup: pytest-xdist cannot put the tests in their groups "
+            f"(it renames item._nodeid, which this pytest no longer reads), so every worker would compute the shared "
+            f"fixtures again; install pytest<9 (python -m pip install -e '.[dev]')")
+
+
 def pytest_addoption(parser):
+    parser.addoption("--extended", action="store_true", default=False,
+                     help="also run the tests marked extended (further cases of mechanisms the default run checks "
+                          "with one case each: the long diagnosis sweeps; docs/performance.md lists them)")
     parser.addoption("--cpu-durations", type=int, default=None, metavar="N",
                      help="show the N tests with the most CPU time (process + waited-for children), N=0 for all")
 

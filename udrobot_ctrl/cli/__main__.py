@@ -1,6 +1,4 @@
 """``python -m udrobot_ctrl.cli``."""
-import sys
+from udrobot_ctrl.cli.main import console
 
-from udrobot_ctrl.cli.main import main
-
-sys.exit(main())
+console()

@@ -99,6 +99,7 @@ class Interrupted(KeyboardInterrupt):
 
 
 _STOPPING = {"pid": None, "signum": None}  # the CLI process and the first signal it received
+_LAST_STOP: dict = {"signum": None}  # the signal that stopped the last main() of this process, if one did
 
 
 def _on_signal(signum, frame):
@@ -133,6 +134,7 @@ def _install_signal_handlers() -> dict:
 
 def _stopped(command: str, signum: int) -> int:
     """Stop the workers, remove the temporaries, say so in one line; the exit status 128 + ``signum``."""
+    _LAST_STOP["signum"] = signum
     stop_workers()
     removed = remove_temporaries()
     sys.stdout.flush()
@@ -248,6 +250,22 @@ def _quiet_broken_pipe() -> int:
     return 1
 
 
+def console() -> None:
+    """The ``udrobot-ctrl`` console script and ``python -m udrobot_ctrl.cli``: :func:`main`, then exit with its status.
+
+    After a signal stopped the command (its workers stopped, temporaries removed, the line printed) the process
+    ends at once (``os._exit``), without the interpreter's exit handlers: those join the process pools' queue
+    threads, which can wait forever on a queue lock a stopped worker held.
+    """
+    _LAST_STOP["signum"] = None
+    status = main()
+    if _LAST_STOP["signum"] is not None:
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(status)
+    sys.exit(status)
+
+
 def main(argv=None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     first = next((a for a in argv if not a.startswith("-")), None)
@@ -314,4 +332,4 @@ def _main(argv: list, first: str | None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    console()

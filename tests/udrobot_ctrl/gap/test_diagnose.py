@@ -170,6 +170,7 @@ def test_linear_and_quadratic_damping_errors_together_are_both_named():
     assert report["unexplained"] < 0.3
 
 
+@pytest.mark.extended
 @pytest.mark.slow
 def test_a_current_added_after_a_quadratic_damping_error_is_confirmed_with_the_dampings_form_fitted_again():
     """bench/blind_score.py's water current + quadratic damping error case (five 60 s runs at 50 Hz, 3 fit, 2

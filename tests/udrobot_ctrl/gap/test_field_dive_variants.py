@@ -43,6 +43,7 @@ VARIANTS = {"no_joystick": Variant(manual_control=False), "scale_m03": Variant(s
             "six_gentle_no_joystick": Variant(model="bluerov2", forward=60.0, manual_control=False)}
 
 
+@pytest.mark.extended
 @pytest.mark.parametrize("name", sorted(VARIANTS))
 def test_the_verdict_names_the_withheld_heave_drag(name, tmp_path):
     variant = VARIANTS[name]

@@ -63,7 +63,7 @@ def _diagnosed(d, case):
     return json.loads((d / "gap.json").read_text())
 
 
-@pytest.mark.parametrize("case", ["current", "current_and_tether"])
+@pytest.mark.parametrize("case", ["current", pytest.param("current_and_tether", marks=pytest.mark.extended)])
 def test_the_current_is_named_with_its_size_and_direction_on_both_parts(case, tmp_path):
     report = _diagnosed(tmp_path, case)
     named = {e["name"]: e for e in report["effects"] if e["significant"]}
@@ -76,6 +76,7 @@ def test_the_current_is_named_with_its_size_and_direction_on_both_parts(case, tm
     _horizontal_balance_corrected(report)
 
 
+@pytest.mark.extended
 @pytest.mark.xfail(reason="known failure since the emulated ArduSub follows the firmware's ALT_HOLD limit handling "
                           "(issue 58): the truth dive's saturated climbs now end 0.7 m deeper and the turns 3-5 deg "
                           "wider, and on that flight the diagnoser fits the tether (fit dBIC -585) with its top end "

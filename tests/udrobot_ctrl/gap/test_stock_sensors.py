@@ -90,7 +90,8 @@ def _bench_case(names, draw=0):
 # cannot confirm it (since 913af22; before, a deadband's fit took its place and it was listed as the deadband's
 # look-alike). Either way every truth effect not named is listed with the measurement or manoeuvre that settles it
 @pytest.mark.slow
-@pytest.mark.parametrize("names", [("quadratic_damping_error", "cg_cb_offset"), ("cross_coupled_damping",)])
+@pytest.mark.parametrize("names", [("quadratic_damping_error", "cg_cb_offset"),
+                                   pytest.param(("cross_coupled_damping",), marks=pytest.mark.extended)])
 def test_stock_look_alikes_are_listed_not_guessed(names):
     report = _bench_case(names)
     sig = {e["name"] for e in report["effects"] if e["significant"]}
@@ -122,6 +123,7 @@ def test_stock_effect_the_replay_cannot_confirm_is_listed_with_its_evidence():
         assert unconfirmed or look_alike, why
 
 
+@pytest.mark.extended
 # the truth's quadratic drag acts on the speed norm, a form whose heave drag grows with the unmeasured surge speed:
 # the search keeps the per-axis form, and an inflow loss on the vertical thrusters took up the rest (+2.5 % of the gap
 # when dropped, p 0.002: it passed every holdout test). Swapped for the drag in the untested form, the fit is as good,
@@ -139,6 +141,7 @@ def test_stock_look_alike_of_a_form_the_channels_cannot_test_is_listed_not_named
     assert all("log u, v (DVL)" in why for why in form_alikes), form_alikes
 
 
+@pytest.mark.extended
 # a lag explains 62 % of the holdout gap, and what it leaves is still ~36 x the noise floor: the added-mass error,
 # whose heave part needs the heave acceleration the depth channel gives only through a reconstruction, may explain
 # it and cannot be tested; it is listed, not dropped silently because most of the gap was explained
@@ -214,6 +217,7 @@ def test_stock_effect_hinging_on_an_untested_part_is_listed_not_missed():
         assert "beside cross_coupled_damping" in why and "log u, v (DVL)" in why, (why, sorted(listed))
 
 
+@pytest.mark.extended
 # a quadratic drag on the speed norm and a heave/yaw added-mass error: neither can be fitted whole without a DVL, and
 # an inflow loss on the hover thrust took up what they leave (confirmed on the holdout, 58 % of the gap left). With
 # the added mass's untested part fitted and the drag in its untested form, the inflow loss adds nothing: it is
