@@ -159,7 +159,7 @@ def pytest_configure(config):
 def pytest_addoption(parser):
     parser.addoption("--extended", action="store_true", default=False,
                      help="also run the tests marked extended (further cases of mechanisms the default run checks "
-                          "with one case each: the long diagnosis sweeps; docs/performance.md lists them)")
+                          "with one case each; list them with --extended -m extended --collect-only)")
     parser.addoption("--cpu-durations", type=int, default=None, metavar="N",
                      help="show the N tests with the most CPU time (process + waited-for children), N=0 for all")
 
