@@ -8,6 +8,11 @@ A run of several segments (the ``segment`` column a converter writes when it cut
 is replayed segment by segment: each starts afresh from its own first row's measured state (open loop, and under
 ``--closed-loop`` with the emulated autopilot's integrators restarted), and no replay or window crosses a cut.
 
+A run the converter kept no row of (its sidecar's ``cut`` with ``kept`` null: the whole log at the surface, disarmed
+or upside down) is replayed open loop with a warning, and refused by ``--closed-loop``: there the logged vehicle
+floats or idles where the plant (fully submerged, no free surface) drifts at its own net buoyancy, so the flight
+has nothing to be compared with; the refusal says how the model would drift (convert --no-cut to fly it anyway).
+
 Every replay (open and closed loop) is checked against the plant's domain: a warning line names each span above
 the surface (z < 0), rolled or pitched over (cos phi cos theta < 0) or with a thruster held at its limit for 4 s
 or more, and the simulated run's sidecar (NAME.json) holds them as ``replay_domain`` (codes and spans).
@@ -40,6 +45,7 @@ from udrobot_ctrl.dynamics.domain import (
     SATURATION_WINDOW_FRACTION,
     DomainCheck,
     domain_check,
+    idle_drift,
     limit_rows,
     thrust_limits,
 )
@@ -98,10 +104,10 @@ def register(subparsers):
     parser.set_defaults(func=run)
 
 
-def read_input_run(path, mapping=None):
+def read_input_run(path, mapping=None, warn_unrepresented: bool = True):
     """A Run from a udrobot-run/1 CSV (runlog.read_run) or any log udrobot_ctrl.convert.load_any understands; a
     warning on stderr when the converter kept no stretch of it (the plant does not represent it: a replay's gap there
-    is not a model error)."""
+    is not a model error), unless ``warn_unrepresented`` is False (the caller refuses such a run itself)."""
     path = Path(path)
     run = None
     if path.suffix.lower() == ".csv":
@@ -112,9 +118,41 @@ def read_input_run(path, mapping=None):
                 raise
     run = run if run is not None else load_any(path, mapping=mapping)
     for u in unrepresented_runs([run]):
-        if u is not None:
+        if u is not None and warn_unrepresented:
             print(f"udrobot-ctrl simulate: warning: {u.reason()}", file=sys.stderr)
     return run
+
+
+def unrepresented_flight(reason: str, model_name: str, drift, duration_s: float) -> str:
+    """Why ``--closed-loop`` does not fly a run the converter kept no row of (the refusal's line).
+
+    Parameters
+    ----------
+    reason : str
+        The run's :meth:`~udrobot_ctrl.gap.screen.Unrepresented.reason` (which checks failed, on what share).
+    model_name : str
+        The model flown.
+    drift : IdleDrift
+        :func:`~udrobot_ctrl.dynamics.domain.idle_drift` of the model: what it does with its motors at neutral.
+    duration_s : float
+        The run's duration, s.
+
+    Returns
+    -------
+    str
+    """
+    if drift.speed > 0:
+        would = (f"{model_name} is {-drift.net_up:.3g} N heavy and would sink at {drift.speed:.2g} m/s, "
+                 f"{drift.over(duration_s):.2g} m over the run's {duration_s:.0f} s")
+    elif drift.speed < 0:
+        would = (f"{model_name} is {drift.net_up:.3g} N buoyant and would rise at {-drift.speed:.2g} m/s through the "
+                 f"waterline, with nothing to float on")
+    else:
+        would = f"{model_name} is neutrally buoyant and would hold any depth"
+    return (f"{reason}. --closed-loop does not fly it: with the motors at neutral (disarmed: ArduSub's "
+            f"AP_Motors6DOF outputs 1500 us) the plant, a fully submerged body with no free surface, drifts at its "
+            f"own net buoyancy ({would}) where the logged vehicle floats at the surface or idles, so the flight would "
+            f"compare the model's drift with a vehicle it does not represent (convert --no-cut flies the run as it is)")
 
 
 def initial_state(run) -> tuple:
@@ -385,7 +423,11 @@ def run_closed_loop(args) -> int:
     src, out, inputs = _one_run_in_one_out(args, "--closed-loop flies one --input run")
     if args.loop_rate is not None and not 10.0 <= args.loop_rate <= 2000.0:
         raise ValueError(f"--loop-rate must be between 10 and 2000 Hz (ArduSub runs 100-400 Hz), got {args.loop_rate}")
-    rn = read_input_run(src, getattr(args, "mapping", None))
+    rn = read_input_run(src, getattr(args, "mapping", None), warn_unrepresented=False)
+    p = plant_parameters(load_model(args.model))
+    (unrepresented,) = unrepresented_runs([rn])
+    if unrepresented is not None:
+        raise ValueError(unrepresented_flight(unrepresented.reason(), args.model, idle_drift(p), rn.duration))
     parts = runlog.split_segments(rn)
     flights = [fly(args.model, part, args.loop_rate) for part in parts]  # each from its first row, a new autopilot
     for note in dict.fromkeys(n for f in flights for n in f.notes):
@@ -400,7 +442,6 @@ def run_closed_loop(args) -> int:
     extra = {"mode": np.concatenate([f.mode for f in flights]).astype(float)}
     if segmented:
         extra[runlog.SEGMENT] = np.concatenate([np.full(f.t.size, part.segment[0]) for part, f in zip(parts, flights)])
-    p = plant_parameters(load_model(args.model))
     errors, checks = {}, []
     for part, f, t_part in zip(parts, flights, t_parts):
         logged = runlog.resample(part, part.t[0] + f.t)

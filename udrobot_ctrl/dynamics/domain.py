@@ -31,6 +31,11 @@ names those stretches with structured codes (:data:`CODES`):
 
 Only finite samples are checked (nan rows, outside a replay's windows, are skipped), and a span never bridges a
 nan row.
+
+A run whose *logged* vehicle was never in that domain (a converter kept no row of it: at the surface, disarmed;
+docs/formats/runlog.md, ``cut``) has nothing a replay can be compared with: :func:`idle_drift` says what the plant
+does there instead (with its motors at neutral it drifts at its own net buoyancy, where a floating vehicle stays
+at the waterline), for the closed-loop replay's refusal.
 """
 from __future__ import annotations
 
@@ -183,6 +188,55 @@ def domain_check(t, x, thrust=None, f_lo=None, f_hi=None, saturation_s=None) -> 
             spans += [DomainSpan(THRUST_SATURATED, t[a], t[b - 1], j) for a, b in true_runs(at[:, j])
                       if t[b - 1] - t[a] >= sat_s - 1e-9]
     return DomainCheck(tuple(spans), sat_s)
+
+
+@dataclass(frozen=True)
+class IdleDrift:
+    """How the plant moves with no thrust (motors at neutral: a disarmed ArduSub), upright (:func:`idle_drift`).
+
+    Attributes
+    ----------
+    net_up : float
+        Buoyancy minus weight, N (> 0: buoyant, the vehicle rises; < 0: heavy, it sinks).
+    speed : float
+        Terminal vertical speed, m/s, positive down (NED: sinking > 0, rising < 0; 0 when neutral; inf when the
+        model has no heave damping).
+    """
+
+    net_up: float
+    speed: float
+
+    def over(self, duration_s: float) -> float:
+        """Depth change at the terminal speed over ``duration_s`` seconds, m (positive down)."""
+        return self.speed * float(duration_s)
+
+
+def idle_drift(p) -> IdleDrift:
+    """The plant's terminal heave with no thrust, upright: ``D_L w + Q |w| w = W - B`` along body z (= down).
+
+    Parameters
+    ----------
+    p : PlantParameters
+        The model (weight, buoyancy, heave damping ``D_L[2, 2]``, ``Q[2, 2]``).
+
+    Returns
+    -------
+    IdleDrift
+        Net buoyancy (N) and the speed (m/s, down) the fully submerged plant settles at: no free surface stops a
+        buoyant model at the waterline, and a heavy one sinks at this speed however shallow it starts.
+    """
+    net_down = float(p.weight) - float(p.buoyancy)
+    lin, quad = float(p.D_L[2, 2]), float(p.Q[2, 2])
+    f = abs(net_down)
+    if f == 0.0:
+        return IdleDrift(-net_down, 0.0)
+    if quad > 0.0:
+        w = 2.0 * f / (lin + np.sqrt(lin * lin + 4.0 * quad * f))  # the positive root, without cancellation
+    elif lin > 0.0:
+        w = f / lin
+    else:
+        w = np.inf
+    return IdleDrift(-net_down, float(np.copysign(w, net_down)))
 
 
 def limit_rows(limit, rows):

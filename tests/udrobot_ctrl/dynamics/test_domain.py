@@ -89,3 +89,25 @@ def test_pwm_limits_are_the_curve_at_the_logged_voltage_so_1900_us_on_a_low_batt
     assert [s.thruster for s in domain_check(t, _state(t.size), f, lo_n, hi_n).spans] == [0, 1]
     assert thrust_limits(f_min, f_max, "tau") == (None, None)
     assert np.array_equal(thrust_limits(f_min, f_max, "thrust")[1], f_max)
+
+
+@pytest.mark.parametrize("model", ["bluerov2-heavy", "bluerov2"])
+def test_idle_drift_is_the_speed_the_plant_itself_settles_at_with_no_thrust(model):
+    """With its motors at neutral (a disarmed ArduSub) the fully submerged plant drifts at its own net buoyancy: the
+    heavy model sinks, the buoyant one rises, each at the speed idle_drift gives, however shallow it starts."""
+    from udrobot_ctrl.dynamics.domain import idle_drift
+    from udrobot_ctrl.dynamics.plant import plant_parameters
+    from udrobot_ctrl.dynamics.sim import simulate
+    from udrobot_ctrl.vehicle import load_model
+
+    vehicle = load_model(model)
+    p = plant_parameters(vehicle)
+    drift = idle_drift(p)
+    assert np.sign(drift.speed) == np.sign(p.weight - p.buoyancy) != 0
+    x0 = np.zeros(12)
+    x0[2] = 0.02  # at the waterline, where a floating vehicle would stay
+    res = simulate(vehicle, x0, 20.0, inputs=np.zeros((2000, p.T.shape[1])), dt=0.01)
+    w_end = res.x[-1, 8]
+    assert w_end == pytest.approx(drift.speed, rel=0.01)
+    assert (res.x[-1, 2] - x0[2]) * drift.speed > 0  # it leaves the waterline: the plant has nothing to float on
+    assert drift.over(10.0) == pytest.approx(10.0 * drift.speed)
