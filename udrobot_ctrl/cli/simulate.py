@@ -117,8 +117,8 @@ def read_input_run(path, mapping=None, warn_unrepresented: bool = True):
             if mapping is None:
                 raise
     run = run if run is not None else load_any(path, mapping=mapping)
-    for u in unrepresented_runs([run]):
-        if u is not None and warn_unrepresented:
+    for u in unrepresented_runs([run]) if warn_unrepresented else ():
+        if u is not None:
             print(f"udrobot-ctrl simulate: warning: {u.reason()}", file=sys.stderr)
     return run
 
